@@ -1,0 +1,344 @@
+//! Pinhole camera and the G-buffer of first hits.
+//!
+//! Image convention: `(height, width)` arrays, row 0 at the top, pixel `(x, y)` covering
+//! `[x, x+1) x [y, y+1)` on the film; the pixel index is `y * width + x`. The field of view
+//! spans the **vertical** axis (the image height); the horizontal one follows from the
+//! aspect ratio. Pixels are square.
+
+use glam::Vec3;
+
+use crate::error::{Error, Result};
+use crate::geometry::Scene;
+use crate::sampling::rng::SampleRng;
+
+/// Largest accepted image side, in pixels.
+pub const MAX_RESOLUTION: u32 = 1 << 14;
+
+/// Random dimensions used by primary rays (dimension 0 and 1: the jitter inside the pixel).
+pub const DIM_PIXEL_JITTER: u64 = 0;
+
+/// Smallest |cos| between view ray and surface used for footprints, so grazing hits get a
+/// footprint at most 10x the face-on one instead of an infinite one.
+pub const FOOTPRINT_MIN_COS: f32 = 0.01;
+
+/// A pinhole camera with an orthonormal frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    /// Centre of projection (world units).
+    pub eye: Vec3,
+    /// Unit viewing direction.
+    pub forward: Vec3,
+    /// Unit vector toward the image's right edge.
+    pub right: Vec3,
+    /// Unit vector toward the image's top edge.
+    pub up: Vec3,
+    /// Vertical field of view in degrees, in (0, 180).
+    pub fov_y_deg: f32,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+}
+
+fn check_vec(name: &str, v: Vec3) -> Result<()> {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        Err(Error::invalid(name, format!("must be finite, got {v:?}")))
+    }
+}
+
+fn check_resolution(width: u32, height: u32) -> Result<()> {
+    for (name, v) in [("width", width), ("height", height)] {
+        if v == 0 || v > MAX_RESOLUTION {
+            return Err(Error::invalid(
+                name,
+                format!("must be between 1 and {MAX_RESOLUTION}, got {v}"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl Camera {
+    /// A camera at `eye` looking at `target`, `up` fixing the roll. `fov_deg` is the
+    /// vertical field of view in degrees.
+    pub fn look_at(
+        eye: Vec3,
+        target: Vec3,
+        up: Vec3,
+        fov_deg: f32,
+        width: u32,
+        height: u32,
+    ) -> Result<Self> {
+        check_vec("eye", eye)?;
+        check_vec("target", target)?;
+        check_vec("up", up)?;
+        check_resolution(width, height)?;
+        if !(fov_deg > 0.0 && fov_deg < 180.0) {
+            return Err(Error::invalid(
+                "fov_deg",
+                format!("must lie in (0, 180), got {fov_deg}"),
+            ));
+        }
+        let forward = (target - eye).normalize_or_zero();
+        if forward == Vec3::ZERO {
+            return Err(Error::invalid("target", "must differ from eye"));
+        }
+        let right = forward.cross(up).normalize_or_zero();
+        if right == Vec3::ZERO || forward.cross(up.normalize_or_zero()).length() < 1e-6 {
+            return Err(Error::invalid(
+                "up",
+                "must be non-zero and not parallel to target - eye",
+            ));
+        }
+        let up = right.cross(forward);
+        Ok(Self {
+            eye,
+            forward,
+            right,
+            up,
+            fov_y_deg: fov_deg,
+            width,
+            height,
+        })
+    }
+
+    /// The same view at another resolution (the vertical field of view is kept).
+    pub fn with_resolution(&self, width: u32, height: u32) -> Result<Self> {
+        check_resolution(width, height)?;
+        Ok(Self {
+            width,
+            height,
+            ..*self
+        })
+    }
+
+    /// Number of pixels.
+    pub fn num_pixels(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    fn tan_half_fov(&self) -> f32 {
+        (self.fov_y_deg.to_radians() * 0.5).tan()
+    }
+
+    /// Unit direction through film position `(x, y)` in pixel units (y down).
+    pub fn direction(&self, x: f32, y: f32) -> Vec3 {
+        let t = self.tan_half_fov();
+        let (w, h) = (self.width as f32, self.height as f32);
+        let sx = (2.0 * x / w - 1.0) * t * (w / h);
+        let sy = (1.0 - 2.0 * y / h) * t;
+        (self.forward + self.right * sx + self.up * sy).normalize()
+    }
+
+    /// Primary ray of pixel `(px, py)` through the jittered position `jitter` in [0,1)^2.
+    pub fn pixel_ray(&self, px: u32, py: u32, jitter: [f32; 2]) -> (Vec3, Vec3) {
+        (
+            self.eye,
+            self.direction(px as f32 + jitter[0], py as f32 + jitter[1]),
+        )
+    }
+
+    /// Solid angle of one pixel seen along unit direction `dir` (steradians).
+    pub fn pixel_solid_angle(&self, dir: Vec3) -> f32 {
+        let side = 2.0 * self.tan_half_fov() / self.height as f32;
+        let c = dir.dot(self.forward).max(0.0);
+        side * side * c * c * c
+    }
+
+    /// Square root of the pixel's area projected onto the tangent plane (normal `normal`)
+    /// of a hit at `distance` along unit `dir`. |cos| is clamped at [`FOOTPRINT_MIN_COS`].
+    pub fn footprint(&self, dir: Vec3, distance: f32, normal: Vec3) -> f32 {
+        let cos = dir.dot(normal).abs().max(FOOTPRINT_MIN_COS);
+        (self.pixel_solid_angle(dir) / cos).sqrt() * distance
+    }
+}
+
+/// First hits of one primary ray per pixel. Misses have `object = prim = -1`, NaN position
+/// and normal, and infinite depth and footprint.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GBuffer {
+    pub width: u32,
+    pub height: u32,
+    /// Hit points, row-major.
+    pub position: Vec<[f32; 3]>,
+    /// Unit geometric normals flipped to face the camera.
+    pub normal: Vec<[f32; 3]>,
+    /// Object id of the hit.
+    pub object: Vec<i32>,
+    /// Triangle index of the hit.
+    pub prim: Vec<i32>,
+    /// Distance from the eye to the hit (world units, along the ray).
+    pub depth: Vec<f32>,
+    /// See [`Camera::footprint`] (world units).
+    pub footprint: Vec<f32>,
+    /// Unit primary-ray directions.
+    pub direction: Vec<[f32; 3]>,
+}
+
+#[derive(Clone, Copy)]
+struct GSample {
+    position: Vec3,
+    normal: Vec3,
+    object: i32,
+    prim: i32,
+    depth: f32,
+    footprint: f32,
+    direction: Vec3,
+}
+
+impl Default for GSample {
+    fn default() -> Self {
+        Self {
+            position: Vec3::NAN,
+            normal: Vec3::NAN,
+            object: -1,
+            prim: -1,
+            depth: f32::INFINITY,
+            footprint: f32::INFINITY,
+            direction: Vec3::ZERO,
+        }
+    }
+}
+
+impl GBuffer {
+    /// Traces one primary ray per pixel. With `jitter`, the ray passes through a position
+    /// drawn from `(seed, pixel, sample 0, dimensions 0-1)`; without, through the centre.
+    pub fn render(
+        scene: &Scene,
+        camera: &Camera,
+        seed: u64,
+        jitter: bool,
+        threads: Option<usize>,
+    ) -> Result<Self> {
+        let w = camera.width;
+        let samples = scene.map_rays(camera.num_pixels(), threads, |i, c| {
+            let (px, py) = (i as u32 % w, i as u32 / w);
+            let j = if jitter {
+                SampleRng::new(seed, i as u64, 0).get2(DIM_PIXEL_JITTER)
+            } else {
+                [0.5, 0.5]
+            };
+            let (o, d) = camera.pixel_ray(px, py, j);
+            match scene.intersect1(o, d, f32::INFINITY, c) {
+                None => GSample {
+                    direction: d,
+                    ..GSample::default()
+                },
+                Some(h) => {
+                    let n = if h.normal.dot(d) > 0.0 {
+                        -h.normal
+                    } else {
+                        h.normal
+                    };
+                    GSample {
+                        position: h.position,
+                        normal: n,
+                        object: h.obj as i32,
+                        prim: h.prim as i32,
+                        depth: h.t,
+                        footprint: camera.footprint(d, h.t, n),
+                        direction: d,
+                    }
+                }
+            }
+        })?;
+        Ok(Self {
+            width: w,
+            height: camera.height,
+            position: samples.iter().map(|s| s.position.into()).collect(),
+            normal: samples.iter().map(|s| s.normal.into()).collect(),
+            object: samples.iter().map(|s| s.object).collect(),
+            prim: samples.iter().map(|s| s.prim).collect(),
+            depth: samples.iter().map(|s| s.depth).collect(),
+            footprint: samples.iter().map(|s| s.footprint).collect(),
+            direction: samples.iter().map(|s| s.direction.into()).collect(),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bsdf::Material;
+
+    fn cam(w: u32, h: u32) -> Camera {
+        Camera::look_at(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 45.0, w, h).unwrap()
+    }
+
+    #[test]
+    fn frame_and_fov_span_the_vertical_axis() {
+        let c = cam(200, 100);
+        assert!((c.forward - Vec3::NEG_Z).length() < 1e-6);
+        assert!((c.right - Vec3::X).length() < 1e-6 && (c.up - Vec3::Y).length() < 1e-6);
+        let top = c.direction(100.0, 0.0);
+        let angle = top.dot(c.forward).acos().to_degrees();
+        assert!((angle - 22.5).abs() < 1e-3, "{angle}");
+        let left = c.direction(0.0, 50.0);
+        let expect = (2.0 * (22.5f32).to_radians().tan()).atan().to_degrees();
+        assert!((left.dot(c.forward).acos().to_degrees() - expect).abs() < 1e-3);
+        let small = c.with_resolution(20, 10).unwrap();
+        assert!((small.direction(10.0, 0.0) - top).length() < 1e-6);
+    }
+
+    #[test]
+    fn pixel_solid_angles_sum_to_the_frustum() {
+        // Sum over pixel centres approximates the frustum's solid angle, computed exactly
+        // for a rectangle: 4 asin(sin a sin b).
+        let c = cam(400, 300);
+        let mut sum = 0.0f64;
+        for y in 0..300 {
+            for x in 0..400 {
+                sum += c.pixel_solid_angle(c.direction(x as f32 + 0.5, y as f32 + 0.5)) as f64;
+            }
+        }
+        let ty = (22.5f64).to_radians().tan();
+        let (a, b) = ((ty * 4.0 / 3.0).atan(), ty.atan());
+        let exact = 4.0 * (a.sin() * b.sin()).asin();
+        assert!((sum / exact - 1.0).abs() < 1e-3, "{sum} vs {exact}");
+    }
+
+    #[test]
+    fn bad_arguments_are_named() {
+        let e = |r: Result<Camera>| r.unwrap_err().to_string();
+        assert!(
+            e(Camera::look_at(Vec3::ZERO, Vec3::ZERO, Vec3::Y, 45.0, 4, 4)).starts_with("target")
+        );
+        assert!(e(Camera::look_at(Vec3::ZERO, Vec3::Y, Vec3::Y, 45.0, 4, 4)).starts_with("up"));
+        assert!(
+            e(Camera::look_at(Vec3::ZERO, Vec3::X, Vec3::Y, 180.0, 4, 4)).starts_with("fov_deg")
+        );
+        assert!(e(Camera::look_at(Vec3::ZERO, Vec3::X, Vec3::Y, 45.0, 0, 4)).starts_with("width"));
+        assert!(e(Camera::look_at(Vec3::NAN, Vec3::X, Vec3::Y, 45.0, 4, 4)).starts_with("eye"));
+    }
+
+    #[test]
+    fn gbuffer_of_a_facing_quad() {
+        let mut s = Scene::new();
+        let v = [
+            [-10.0, -10.0, 0.0],
+            [10.0, -10.0, 0.0],
+            [10.0, 10.0, 0.0],
+            [-10.0, 10.0, 0.0],
+        ];
+        // Wound away from the camera: the G-buffer must still report a camera-facing normal.
+        s.add_indexed(&v, &[[0, 2, 1], [0, 3, 2]], Material::DEFAULT, None)
+            .unwrap();
+        let c = cam(8, 6);
+        let g = GBuffer::render(&s, &c, 1, true, Some(2)).unwrap();
+        let g1 = GBuffer::render(&s, &c, 1, true, Some(1)).unwrap();
+        assert_eq!(g, g1);
+        for i in 0..48 {
+            assert_eq!(g.object[i], 0);
+            assert_eq!(g.normal[i], [0.0, 0.0, 1.0]);
+            assert!(g.position[i][2].abs() < 1e-6);
+            // Face-on at distance ~5: footprint ~ 5 * 2 tan(22.5) / 6, larger off-centre.
+            let d = Vec3::from(g.direction[i]);
+            let expect = 5.0 / d.z.abs() * (c.pixel_solid_angle(d) / d.z.abs()).sqrt();
+            assert!((g.footprint[i] / expect - 1.0).abs() < 1e-4);
+        }
+        let centre = GBuffer::render(&s, &c, 0, false, None).unwrap();
+        assert_ne!(centre.position, g.position);
+    }
+}

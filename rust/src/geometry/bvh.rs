@@ -1,0 +1,429 @@
+//! Compressed wide BVH (obvhs CWBVH over a PLOC BVH2) with watertight triangle tests,
+//! closest-hit and early-exit shadow queries, and exact traversal counters.
+//!
+//! The tree is built in a *local frame*: world coordinates times a power of two chosen so
+//! that the scene's largest side lies in [256, 512). obvhs clamps every node test to
+//! `t >= 1e-4`; in the local frame that is a fixed fraction of the scene size, so the same
+//! scene at 1e-4 or 1e4 scale traces the same way. Power-of-two scaling is exact in floating
+//! point, so it changes no vertex.
+
+use std::time::{Duration, Instant};
+
+use glam::{UVec2, Vec3, Vec3A};
+use obvhs::cwbvh::builder::build_cwbvh_from_tris;
+use obvhs::cwbvh::CwBvh;
+use obvhs::ray::Ray;
+use obvhs::triangle::Triangle;
+use obvhs::BvhBuildParams;
+
+use super::mesh::{triangle_cross, Mesh};
+use super::watertight::{TriangleHit, WatertightRay};
+use crate::error::{Error, Result};
+
+/// Build presets, mapped one to one onto obvhs's [`BvhBuildParams`] presets.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum BuildQuality {
+    /// PLOC with search radius 1, no reinsertion; fastest build, slowest traversal.
+    Fastest,
+    VeryFast,
+    /// The default: the best traversal per build second on our scenes (see benches/README.md).
+    #[default]
+    Fast,
+    Medium,
+    /// Spatial pre-splits and more reinsertion; best traversal, several times slower build.
+    Slow,
+    VerySlow,
+}
+
+impl BuildQuality {
+    /// All presets, fastest build first.
+    pub const ALL: [BuildQuality; 6] = [
+        BuildQuality::Fastest,
+        BuildQuality::VeryFast,
+        BuildQuality::Fast,
+        BuildQuality::Medium,
+        BuildQuality::Slow,
+        BuildQuality::VerySlow,
+    ];
+
+    /// The obvhs parameters of this preset.
+    pub const fn params(self) -> BvhBuildParams {
+        match self {
+            BuildQuality::Fastest => BvhBuildParams::fastest_build(),
+            BuildQuality::VeryFast => BvhBuildParams::very_fast_build(),
+            BuildQuality::Fast => BvhBuildParams::fast_build(),
+            BuildQuality::Medium => BvhBuildParams::medium_build(),
+            BuildQuality::Slow => BvhBuildParams::slow_build(),
+            BuildQuality::VerySlow => BvhBuildParams::very_slow_build(),
+        }
+    }
+
+    /// Snake-case name as used by the Python API (`"fast"`, `"very_slow"`, ...).
+    pub const fn name(self) -> &'static str {
+        match self {
+            BuildQuality::Fastest => "fastest",
+            BuildQuality::VeryFast => "very_fast",
+            BuildQuality::Fast => "fast",
+            BuildQuality::Medium => "medium",
+            BuildQuality::Slow => "slow",
+            BuildQuality::VerySlow => "very_slow",
+        }
+    }
+
+    /// Parses a snake-case name; the error lists the valid ones.
+    pub fn parse(name: &str) -> Result<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|q| q.name() == name)
+            .ok_or_else(|| {
+                let names: Vec<_> = Self::ALL.iter().map(|q| q.name()).collect();
+                Error::invalid(
+                    "quality",
+                    format!("unknown preset {name:?}; use one of {names:?}"),
+                )
+            })
+    }
+}
+
+/// Work done by traversals: rays traced, BVH nodes whose children were tested, and
+/// ray/triangle tests. Exact counts, summed over threads.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TraversalCounters {
+    pub rays: u64,
+    pub nodes: u64,
+    pub triangles: u64,
+}
+
+impl std::ops::AddAssign for TraversalCounters {
+    fn add_assign(&mut self, o: Self) {
+        self.rays += o.rays;
+        self.nodes += o.nodes;
+        self.triangles += o.triangles;
+    }
+}
+
+/// Closest hit of one ray: ray parameter `t` (world units of the given direction), the
+/// triangle index into [`Mesh::triangles`], and barycentrics of the second and third vertex.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    pub t: f32,
+    pub triangle: u32,
+    pub u: f32,
+    pub v: f32,
+}
+
+/// A ray mapped into the BVH's local frame.
+#[derive(Clone, Copy)]
+struct LocalRay {
+    ray: Ray,
+    watertight: WatertightRay,
+    /// Local t times this gives the caller's ray parameter.
+    t_to_param: f32,
+}
+
+/// A built BVH over the non-degenerate triangles of a mesh.
+#[derive(Clone, Debug)]
+pub struct Bvh {
+    cwbvh: CwBvh,
+    /// Local-frame triangles in leaf order (`primitive_indices` applied), so a leaf reads a
+    /// contiguous run.
+    triangles: Vec<[Vec3A; 3]>,
+    /// Mesh triangle index of each entry of `triangles`.
+    triangle_ids: Vec<u32>,
+    to_local: f32,
+    to_world: f32,
+    quality: BuildQuality,
+    build_time: Duration,
+}
+
+/// The power of two that brings `extent` into [256, 512).
+fn local_scale(extent: f32) -> f32 {
+    if !(extent > 0.0 && extent.is_finite()) {
+        return 1.0;
+    }
+    let e = extent.log2().floor() as i32;
+    2f32.powi((8 - e).clamp(-120, 120))
+}
+
+impl Bvh {
+    /// Builds over every triangle of `mesh` with non-zero area, in parallel on the current
+    /// rayon pool. Degenerate triangles are left out: they can never be hit.
+    pub fn build(mesh: &Mesh, quality: BuildQuality) -> Self {
+        let start = Instant::now();
+        let kept: Vec<u32> = (0..mesh.triangles.len() as u32)
+            .filter(|&i| triangle_cross(&mesh.triangles[i as usize]) != Vec3::ZERO)
+            .collect();
+        let mut bounds = super::mesh::Bounds::EMPTY;
+        for &i in &kept {
+            for v in &mesh.triangles[i as usize] {
+                bounds.grow(*v);
+            }
+        }
+        let to_local = local_scale(bounds.extent());
+        let local: Vec<Triangle> = kept
+            .iter()
+            .map(|&i| {
+                let [a, b, c] = mesh.triangles[i as usize];
+                Triangle {
+                    v0: Vec3A::from(a * to_local),
+                    v1: Vec3A::from(b * to_local),
+                    v2: Vec3A::from(c * to_local),
+                }
+            })
+            .collect();
+        let cwbvh = if local.is_empty() {
+            CwBvh::default()
+        } else {
+            build_cwbvh_from_tris(&local, quality.params(), &mut Duration::default())
+        };
+        let (triangles, triangle_ids) = cwbvh
+            .primitive_indices
+            .iter()
+            .map(|&p| {
+                let t = &local[p as usize];
+                ([t.v0, t.v1, t.v2], kept[p as usize])
+            })
+            .unzip();
+        Bvh {
+            cwbvh,
+            triangles,
+            triangle_ids,
+            to_local,
+            to_world: 1.0 / to_local,
+            quality,
+            build_time: start.elapsed(),
+        }
+    }
+
+    /// The preset it was built with.
+    pub fn quality(&self) -> BuildQuality {
+        self.quality
+    }
+
+    /// Wall time of [`Bvh::build`].
+    pub fn build_time(&self) -> Duration {
+        self.build_time
+    }
+
+    /// Number of CWBVH nodes (80 bytes each).
+    pub fn num_nodes(&self) -> usize {
+        self.cwbvh.nodes.len()
+    }
+
+    /// Bytes held by nodes, leaf triangles and index maps.
+    pub fn memory_bytes(&self) -> usize {
+        self.cwbvh.nodes.len() * std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>()
+            + self.triangles.len() * (std::mem::size_of::<[Vec3A; 3]>() + 8)
+    }
+
+    #[inline(always)]
+    fn local_ray(&self, origin: Vec3A, direction: Vec3A, tmax: f32) -> LocalRay {
+        // Unit direction: obvhs's node epsilon is then a distance, whatever the caller's
+        // direction length. The inverse is computed here (not by `Ray::new`, which clamps
+        // components below f32::EPSILON and would mis-bound near-axis rays).
+        let len = direction.length();
+        let d = direction / len;
+        let o = origin * self.to_local;
+        let inv = d.recip().clamp(Vec3A::splat(-1e30), Vec3A::splat(1e30));
+        let local_tmax = tmax * (self.to_local * len);
+        LocalRay {
+            ray: Ray {
+                origin: o,
+                direction: d,
+                inv_direction: inv,
+                tmin: 0.0,
+                tmax: local_tmax,
+            },
+            watertight: WatertightRay::new(o, d),
+            t_to_param: self.to_world / len,
+        }
+    }
+
+    /// True when a triangle lies on the segment `origin + t direction`, `t` in `[0, tmax)`.
+    /// Stops at the first hit found. `direction` must be finite and non-zero. `COUNT`
+    /// selects whether `counters` is updated (it costs a few adds per node).
+    #[inline]
+    pub fn occluded<const COUNT: bool>(
+        &self,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
+        counters: &mut TraversalCounters,
+    ) -> bool {
+        if COUNT {
+            counters.rays += 1;
+        }
+        if self.triangles.is_empty() {
+            return false;
+        }
+        let r = self.local_ray(origin, direction, tmax);
+        let mut state = self.cwbvh.new_traversal(r.ray.direction);
+        let mut node;
+        let (mut nodes, mut tests) = (0u64, 0u64);
+        let mut hit = false;
+        'trace: {
+            obvhs::traverse!(
+                self.cwbvh,
+                node,
+                state,
+                {
+                    if COUNT {
+                        nodes += 1;
+                    }
+                    node.intersect_ray(&r.ray, state.oct_inv4)
+                },
+                {
+                    if COUNT {
+                        tests += 1;
+                    }
+                    let tri = &self.triangles[state.primitive_id as usize];
+                    if r.watertight.intersect(tri, r.ray.tmax).is_some() {
+                        hit = true;
+                        break 'trace;
+                    }
+                }
+            );
+        }
+        if COUNT {
+            counters.nodes += nodes;
+            counters.triangles += tests;
+        }
+        hit
+    }
+
+    /// Closest hit on `origin + t direction` with `t` in `[0, tmax)`, if any.
+    #[inline]
+    pub fn intersect<const COUNT: bool>(
+        &self,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
+        counters: &mut TraversalCounters,
+    ) -> Option<Hit> {
+        if COUNT {
+            counters.rays += 1;
+        }
+        if self.triangles.is_empty() {
+            return None;
+        }
+        let mut r = self.local_ray(origin, direction, tmax);
+        let mut state = self.cwbvh.new_traversal(r.ray.direction);
+        let mut node;
+        let (mut nodes, mut tests) = (0u64, 0u64);
+        let mut best: Option<(u32, TriangleHit)> = None;
+        obvhs::traverse!(
+            self.cwbvh,
+            node,
+            state,
+            {
+                if COUNT {
+                    nodes += 1;
+                }
+                node.intersect_ray(&r.ray, state.oct_inv4)
+            },
+            {
+                if COUNT {
+                    tests += 1;
+                }
+                let slot = state.primitive_id;
+                if let Some(h) = r
+                    .watertight
+                    .intersect(&self.triangles[slot as usize], r.ray.tmax)
+                {
+                    r.ray.tmax = h.t;
+                    best = Some((slot, h));
+                }
+            }
+        );
+        if COUNT {
+            counters.nodes += nodes;
+            counters.triangles += tests;
+        }
+        best.map(|(slot, h)| Hit {
+            t: h.t * r.t_to_param,
+            triangle: self.triangle_ids[slot as usize],
+            u: h.u,
+            v: h.v,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bsdf::Material;
+    use glam::vec3a;
+
+    fn quad_mesh(scale: f32) -> Mesh {
+        let mut m = Mesh::new();
+        let v = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ]
+        .map(|p: [f32; 3]| p.map(|c| c * scale));
+        m.add_indexed(&v, &[[0, 1, 2], [0, 2, 3]], Material::DEFAULT, None)
+            .unwrap();
+        m
+    }
+
+    #[test]
+    fn local_scale_is_a_power_of_two_in_range() {
+        for e in [1e-4f32, 0.3, 1.0, 255.9, 256.0, 511.0, 1e4, 3e7] {
+            let s = local_scale(e);
+            assert_eq!(s.to_bits() & 0x007f_ffff, 0, "not a power of two: {s}");
+            assert!((256.0..512.0).contains(&(e * s)), "{e} -> {}", e * s);
+        }
+    }
+
+    #[test]
+    fn empty_single_and_degenerate() {
+        let mut c = TraversalCounters::default();
+        let empty = Bvh::build(&Mesh::new(), BuildQuality::Fast);
+        let o = vec3a(0.5, 0.5, 1.0);
+        let d = vec3a(0.0, 0.0, -1.0);
+        assert!(!empty.occluded::<true>(o, d, f32::INFINITY, &mut c));
+        assert!(empty
+            .intersect::<true>(o, d, f32::INFINITY, &mut c)
+            .is_none());
+        assert_eq!(c.rays, 2);
+
+        let mut m = Mesh::new();
+        let v = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [2.0, 0.0, 0.0],
+        ];
+        m.add_indexed(&v, &[[0, 1, 3], [0, 1, 2]], Material::DEFAULT, None)
+            .unwrap();
+        let single = Bvh::build(&m, BuildQuality::Fast);
+        assert_eq!(
+            single.triangles.len(),
+            1,
+            "the collinear triangle is left out"
+        );
+        let h = single
+            .intersect::<false>(vec3a(0.25, 0.25, 1.0), d, f32::INFINITY, &mut c)
+            .unwrap();
+        assert_eq!(h.triangle, 1);
+        assert!((h.t - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn scale_invariant_answers() {
+        for scale in [1e-4f32, 1.0, 1e4] {
+            let bvh = Bvh::build(&quad_mesh(scale), BuildQuality::Fast);
+            let mut c = TraversalCounters::default();
+            // Direction of arbitrary length: t stays in its units.
+            let o = vec3a(0.5, 0.25, 2.0) * scale;
+            let h = bvh.intersect::<true>(o, vec3a(0.0, 0.0, -4.0), f32::INFINITY, &mut c);
+            let h = h.unwrap();
+            assert!((h.t - 0.5 * scale).abs() <= 1e-6 * scale, "{scale}: {h:?}");
+            assert!(bvh.occluded::<true>(o, vec3a(0.0, 0.0, -1.0), 2.001 * scale, &mut c));
+            assert!(!bvh.occluded::<true>(o, vec3a(0.0, 0.0, -1.0), 1.999 * scale, &mut c));
+            assert!(c.nodes >= 3 && c.triangles >= 3, "{c:?}");
+        }
+    }
+}

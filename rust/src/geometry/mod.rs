@@ -1,0 +1,11 @@
+//! Geometry: triangle meshes, OBJ loading, the BVH and the scene that ties them together.
+
+pub mod bvh;
+pub mod mesh;
+pub mod obj;
+pub mod scene;
+pub mod watertight;
+
+pub use bvh::{BuildQuality, Bvh, Hit, TraversalCounters};
+pub use mesh::{Bounds, Mesh, Object};
+pub use scene::{Hits, RayBatch, Scene, SurfaceHit, TMax};

@@ -1,0 +1,504 @@
+//! A scene: a [`Mesh`], the BVH over it (built on first query), and traversal counters.
+//! All batched queries validate every ray first and fail without side effects.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::OnceLock;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::bvh::{BuildQuality, Bvh, TraversalCounters};
+use super::mesh::{triangle_cross, Bounds, Mesh};
+use crate::bsdf::Material;
+use crate::error::{Error, Result};
+use crate::parallel::with_threads;
+
+/// Rays traced per parallel work item; fixed so results never depend on the thread count.
+const CHUNK: usize = 1024;
+
+/// Upper ends of the ray segments of a batch.
+#[derive(Clone, Copy, Debug)]
+pub enum TMax<'a> {
+    /// One value for every ray (may be `inf`).
+    Scalar(f32),
+    /// One value per ray.
+    PerRay(&'a [f32]),
+}
+
+/// A batch of rays `origin + t direction`, `t` in `[0, tmax)`.
+#[derive(Clone, Copy, Debug)]
+pub struct RayBatch<'a> {
+    pub origins: &'a [[f32; 3]],
+    pub directions: &'a [[f32; 3]],
+    pub tmax: TMax<'a>,
+}
+
+impl<'a> RayBatch<'a> {
+    /// Rays with an unbounded segment.
+    pub fn new(origins: &'a [[f32; 3]], directions: &'a [[f32; 3]]) -> Self {
+        Self {
+            origins,
+            directions,
+            tmax: TMax::Scalar(f32::INFINITY),
+        }
+    }
+
+    /// Number of rays.
+    pub fn len(&self) -> usize {
+        self.origins.len()
+    }
+
+    /// True for a batch of no rays.
+    pub fn is_empty(&self) -> bool {
+        self.origins.is_empty()
+    }
+
+    #[inline(always)]
+    fn tmax_of(&self, i: usize) -> f32 {
+        match self.tmax {
+            TMax::Scalar(t) => t,
+            TMax::PerRay(t) => t[i],
+        }
+    }
+
+    /// Checks lengths, finiteness, non-zero directions and `tmax >= 0` (NaN rejected).
+    pub fn validate(&self) -> Result<()> {
+        let n = self.origins.len();
+        if self.directions.len() != n {
+            return Err(Error::invalid(
+                "directions",
+                format!("has {} rows but origins has {n}", self.directions.len()),
+            ));
+        }
+        let bad_row = |rows: &[[f32; 3]], zero_bad: bool| {
+            rows.par_iter().position_first(|r| {
+                r.iter().any(|v| !v.is_finite()) || (zero_bad && r.iter().all(|&v| v == 0.0))
+            })
+        };
+        if let Some(i) = bad_row(self.origins, false) {
+            return Err(Error::invalid(
+                "origins",
+                format!("row {i} is not finite: {:?}", self.origins[i]),
+            ));
+        }
+        if let Some(i) = bad_row(self.directions, true) {
+            return Err(Error::invalid(
+                "directions",
+                format!(
+                    "row {i} must be finite and non-zero, got {:?}",
+                    self.directions[i]
+                ),
+            ));
+        }
+        match self.tmax {
+            TMax::Scalar(t) if t.is_nan() || t < 0.0 => {
+                Err(Error::invalid("tmax", format!("must be >= 0, got {t}")))
+            }
+            TMax::PerRay(t) if t.len() != n => Err(Error::invalid(
+                "tmax",
+                format!("has {} values but there are {n} rays", t.len()),
+            )),
+            TMax::PerRay(t) => match t.par_iter().position_first(|v| v.is_nan() || *v < 0.0) {
+                Some(i) => Err(Error::invalid(
+                    "tmax",
+                    format!("value {i} must be >= 0, got {}", t[i]),
+                )),
+                None => Ok(()),
+            },
+            TMax::Scalar(_) => Ok(()),
+        }
+    }
+}
+
+/// Closest hits of a batch, one entry per ray. Misses have `t = inf`, `prim = obj = -1`,
+/// `u = v = 0` and NaN position and normal.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Hits {
+    pub t: Vec<f32>,
+    pub prim: Vec<i32>,
+    pub obj: Vec<i32>,
+    pub u: Vec<f32>,
+    pub v: Vec<f32>,
+    /// Hit point from the barycentrics (lies on the triangle).
+    pub position: Vec<[f32; 3]>,
+    /// Unit geometric normal, `(v1 - v0) x (v2 - v0)` normalised: not flipped toward the ray.
+    pub normal: Vec<[f32; 3]>,
+}
+
+/// One ray's closest hit in world terms.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfaceHit {
+    pub t: f32,
+    pub prim: u32,
+    pub obj: u32,
+    pub u: f32,
+    pub v: f32,
+    pub position: Vec3,
+    pub normal: Vec3,
+}
+
+#[derive(Default, Debug)]
+struct AtomicCounters {
+    rays: AtomicU64,
+    nodes: AtomicU64,
+    triangles: AtomicU64,
+}
+
+/// Triangles, objects and the acceleration structure over them.
+#[derive(Debug)]
+pub struct Scene {
+    mesh: Mesh,
+    quality: BuildQuality,
+    bvh: OnceLock<Bvh>,
+    counting: AtomicBool,
+    counters: AtomicCounters,
+}
+
+impl Default for Scene {
+    fn default() -> Self {
+        Self::from_mesh(Mesh::new())
+    }
+}
+
+impl Clone for Scene {
+    /// Clones geometry and settings; the BVH is shared work and is cloned too, counters
+    /// start at zero.
+    fn clone(&self) -> Self {
+        let s = Self {
+            mesh: self.mesh.clone(),
+            quality: self.quality,
+            bvh: OnceLock::new(),
+            counting: AtomicBool::new(self.counting_enabled()),
+            counters: AtomicCounters::default(),
+        };
+        if let Some(b) = self.bvh.get() {
+            let _ = s.bvh.set(b.clone());
+        }
+        s
+    }
+}
+
+impl Scene {
+    /// An empty scene.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A scene over an existing mesh; counters are on.
+    pub fn from_mesh(mesh: Mesh) -> Self {
+        Self {
+            mesh,
+            quality: BuildQuality::default(),
+            bvh: OnceLock::new(),
+            counting: AtomicBool::new(true),
+            counters: AtomicCounters::default(),
+        }
+    }
+
+    /// The geometry.
+    pub fn mesh(&self) -> &Mesh {
+        &self.mesh
+    }
+
+    /// Number of triangles, degenerate ones included.
+    pub fn num_triangles(&self) -> usize {
+        self.mesh.triangles.len()
+    }
+
+    /// Number of objects.
+    pub fn num_objects(&self) -> usize {
+        self.mesh.objects.len()
+    }
+
+    /// Bounds of all vertices.
+    pub fn bounds(&self) -> Bounds {
+        self.mesh.bounds()
+    }
+
+    /// Adds an indexed mesh as a new object (see [`Mesh::add_indexed`]); drops the BVH.
+    pub fn add_indexed(
+        &mut self,
+        vertices: &[[f32; 3]],
+        faces: &[[i64; 3]],
+        material: Material,
+        name: Option<String>,
+    ) -> Result<u32> {
+        let id = self.mesh.add_indexed(vertices, faces, material, name)?;
+        self.bvh = OnceLock::new();
+        Ok(id)
+    }
+
+    /// Appends every object of `mesh`; drops the BVH.
+    pub fn append(&mut self, mesh: &Mesh) {
+        self.mesh.append(mesh);
+        self.bvh = OnceLock::new();
+    }
+
+    /// Builds the BVH now with the given preset (on the current rayon pool).
+    pub fn build(&mut self, quality: BuildQuality) -> &Bvh {
+        self.quality = quality;
+        self.bvh = OnceLock::new();
+        self.bvh()
+    }
+
+    /// The BVH, built with the scene's preset on first use.
+    pub fn bvh(&self) -> &Bvh {
+        self.bvh
+            .get_or_init(|| Bvh::build(&self.mesh, self.quality))
+    }
+
+    /// True once the BVH exists.
+    pub fn is_built(&self) -> bool {
+        self.bvh.get().is_some()
+    }
+
+    /// Whether queries update the counters (on by default; see benches for the cost).
+    pub fn counting_enabled(&self) -> bool {
+        self.counting.load(Ordering::Relaxed)
+    }
+
+    /// Switches counting on or off.
+    pub fn set_counting(&self, on: bool) {
+        self.counting.store(on, Ordering::Relaxed);
+    }
+
+    /// Totals since the last reset.
+    pub fn counters(&self) -> TraversalCounters {
+        TraversalCounters {
+            rays: self.counters.rays.load(Ordering::Relaxed),
+            nodes: self.counters.nodes.load(Ordering::Relaxed),
+            triangles: self.counters.triangles.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Sets all counters to zero.
+    pub fn reset_counters(&self) {
+        self.counters.rays.store(0, Ordering::Relaxed);
+        self.counters.nodes.store(0, Ordering::Relaxed);
+        self.counters.triangles.store(0, Ordering::Relaxed);
+    }
+
+    /// Adds a chunk's local counts to the totals.
+    pub fn add_counters(&self, c: TraversalCounters) {
+        self.counters.rays.fetch_add(c.rays, Ordering::Relaxed);
+        self.counters.nodes.fetch_add(c.nodes, Ordering::Relaxed);
+        self.counters
+            .triangles
+            .fetch_add(c.triangles, Ordering::Relaxed);
+    }
+
+    /// Offset for spawning rays off a surface at `p`: grows with the scene's size and with
+    /// `|p|`, so that it clears the intersection's rounding error at any scene scale.
+    pub fn ray_epsilon(&self, p: Vec3) -> f32 {
+        let b = self.bounds();
+        (b.extent() + b.max_abs().max(p.abs().max_element())) * 2f32.powi(-17)
+    }
+
+    /// Moves `p` off the surface along `n` (which should face the side rays leave toward).
+    pub fn offset_point(&self, p: Vec3, n: Vec3) -> Vec3 {
+        p + n * self.ray_epsilon(p)
+    }
+
+    /// Shadow query for one ray; counts it if counting is on. `direction` must be non-zero.
+    #[inline]
+    pub fn occluded1(
+        &self,
+        origin: Vec3,
+        direction: Vec3,
+        tmax: f32,
+        c: &mut TraversalCounters,
+    ) -> bool {
+        let bvh = self.bvh();
+        if self.counting_enabled() {
+            bvh.occluded::<true>(origin.into(), direction.into(), tmax, c)
+        } else {
+            bvh.occluded::<false>(origin.into(), direction.into(), tmax, c)
+        }
+    }
+
+    /// Closest-hit query for one ray; counts it if counting is on.
+    #[inline]
+    pub fn intersect1(
+        &self,
+        origin: Vec3,
+        direction: Vec3,
+        tmax: f32,
+        c: &mut TraversalCounters,
+    ) -> Option<SurfaceHit> {
+        let bvh = self.bvh();
+        let hit = if self.counting_enabled() {
+            bvh.intersect::<true>(origin.into(), direction.into(), tmax, c)
+        } else {
+            bvh.intersect::<false>(origin.into(), direction.into(), tmax, c)
+        }?;
+        let tri = &self.mesh.triangles[hit.triangle as usize];
+        let w = 1.0 - hit.u - hit.v;
+        Some(SurfaceHit {
+            t: hit.t,
+            prim: hit.triangle,
+            obj: self.mesh.object_ids[hit.triangle as usize],
+            u: hit.u,
+            v: hit.v,
+            position: tri[0] * w + tri[1] * hit.u + tri[2] * hit.v,
+            normal: triangle_cross(tri).normalize(),
+        })
+    }
+
+    /// Runs `per_ray` over `n` rays in fixed chunks on `threads` workers, collecting the
+    /// results in order and adding the chunks' counters to the scene's.
+    pub fn map_rays<T: Send + Copy + Default>(
+        &self,
+        n: usize,
+        threads: Option<usize>,
+        per_ray: impl Fn(usize, &mut TraversalCounters) -> T + Sync,
+    ) -> Result<Vec<T>> {
+        with_threads(threads, || {
+            self.bvh();
+            let mut out = vec![T::default(); n];
+            out.par_chunks_mut(CHUNK)
+                .enumerate()
+                .for_each(|(c, chunk)| {
+                    let mut counters = TraversalCounters::default();
+                    for (k, slot) in chunk.iter_mut().enumerate() {
+                        *slot = per_ray(c * CHUNK + k, &mut counters);
+                    }
+                    self.add_counters(counters);
+                });
+            out
+        })
+    }
+
+    /// Shadow queries: `true` where something lies on the segment.
+    pub fn occluded(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
+        rays.validate()?;
+        self.map_rays(rays.len(), threads, |i, c| {
+            let o = Vec3::from(rays.origins[i]);
+            self.occluded1(o, Vec3::from(rays.directions[i]), rays.tmax_of(i), c)
+        })
+    }
+
+    /// Closest hits.
+    pub fn intersect(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Hits> {
+        rays.validate()?;
+        let found = self.map_rays(rays.len(), threads, |i, c| {
+            let o = Vec3::from(rays.origins[i]);
+            let d = Vec3::from(rays.directions[i]);
+            self.intersect1(o, d, rays.tmax_of(i), c)
+                .map(|h| (h.t, h.prim, h.obj, h.u, h.v, h.position, h.normal))
+                .map_or(MaybeHit::MISS, MaybeHit)
+        })?;
+        let mut hits = Hits::default();
+        let n = found.len();
+        hits.t.reserve(n);
+        for MaybeHit((t, prim, obj, u, v, p, nrm)) in found {
+            hits.t.push(t);
+            hits.prim.push(prim as i32);
+            hits.obj.push(obj as i32);
+            hits.u.push(u);
+            hits.v.push(v);
+            hits.position.push(p.into());
+            hits.normal.push(nrm.into());
+        }
+        Ok(hits)
+    }
+}
+
+/// Per-ray closest-hit record used while tracing; the miss sentinel has `prim = obj = -1`
+/// after the cast to `i32`.
+#[derive(Clone, Copy)]
+struct MaybeHit((f32, u32, u32, f32, f32, Vec3, Vec3));
+
+impl MaybeHit {
+    const MISS: MaybeHit = MaybeHit((
+        f32::INFINITY,
+        u32::MAX,
+        u32::MAX,
+        0.0,
+        0.0,
+        Vec3::NAN,
+        Vec3::NAN,
+    ));
+}
+
+impl Default for MaybeHit {
+    fn default() -> Self {
+        Self::MISS
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unit_quad() -> Scene {
+        let mut s = Scene::new();
+        let v = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ];
+        s.add_indexed(&v, &[[0, 1, 2], [0, 2, 3]], Material::DEFAULT, None)
+            .unwrap();
+        s
+    }
+
+    #[test]
+    fn batch_validation_names_the_argument() {
+        let s = unit_quad();
+        let o = [[0.5, 0.5, 1.0]];
+        let cases: [(RayBatch, &str); 5] = [
+            (RayBatch::new(&o, &[[0.0, 0.0, 0.0]]), "directions"),
+            (
+                RayBatch::new(&[[f32::NAN, 0.0, 0.0]], &[[0.0, 0.0, -1.0]]),
+                "origins",
+            ),
+            (RayBatch::new(&o, &[]), "directions"),
+            (
+                RayBatch {
+                    tmax: TMax::Scalar(-1.0),
+                    ..RayBatch::new(&o, &[[0.0, 0.0, -1.0]])
+                },
+                "tmax",
+            ),
+            (
+                RayBatch {
+                    tmax: TMax::PerRay(&[]),
+                    ..RayBatch::new(&o, &[[0.0, 0.0, -1.0]])
+                },
+                "tmax",
+            ),
+        ];
+        for (batch, name) in cases {
+            let e = s.occluded(&batch, None).unwrap_err().to_string();
+            assert!(e.starts_with(name), "{e}");
+        }
+        assert_eq!(
+            s.counters(),
+            TraversalCounters::default(),
+            "failed calls count nothing"
+        );
+    }
+
+    #[test]
+    fn batch_answers_and_counters() {
+        let s = unit_quad();
+        let o = [[0.5, 0.25, 1.0], [2.0, 2.0, 1.0], [0.25, 0.5, -1.0]];
+        let d = [[0.0, 0.0, -1.0], [0.0, 0.0, -1.0], [0.0, 0.0, 1.0]];
+        let occ = s.occluded(&RayBatch::new(&o, &d), Some(2)).unwrap();
+        assert_eq!(occ, vec![true, false, true]);
+        let hits = s.intersect(&RayBatch::new(&o, &d), Some(1)).unwrap();
+        assert_eq!(hits.prim[1], -1);
+        assert!(hits.t[1].is_infinite() && hits.position[1][0].is_nan());
+        assert_eq!(hits.t[0], 1.0);
+        assert_eq!(hits.prim[0], 0);
+        assert_eq!(hits.prim[2], 1);
+        assert_eq!(hits.normal[0], [0.0, 0.0, 1.0]);
+        assert_eq!(hits.position[2], [0.25, 0.5, 0.0]);
+        assert_eq!(s.counters().rays, 6);
+        s.reset_counters();
+        s.set_counting(false);
+        s.occluded(&RayBatch::new(&o, &d), None).unwrap();
+        assert_eq!(s.counters(), TraversalCounters::default());
+    }
+}

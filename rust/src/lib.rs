@@ -1,0 +1,22 @@
+//! # viscache_rs
+//!
+//! Monte Carlo direct illumination that exploits how strongly visibility is correlated
+//! between nearby points (Clarberg & Akenine-Möller 2008, "CAM08"), with the ray tracing,
+//! sampling and scenes it needs. The crate is both a Rust library and, with the `python`
+//! feature, the native module `viscache_rs._core`.
+//!
+//! Data flows one way: [`scenes`] and [`geometry`] build a [`geometry::Scene`] and its BVH,
+//! [`camera`] turns a camera into a G-buffer of first hits, and the estimators consume them.
+
+pub mod bsdf;
+pub mod camera;
+pub mod error;
+pub mod geometry;
+pub mod parallel;
+pub mod sampling;
+pub mod scenes;
+
+#[cfg(feature = "python")]
+mod py;
+
+pub use error::{Error, Result};

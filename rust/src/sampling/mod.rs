@@ -1,0 +1,3 @@
+//! Sampling: the counter-based random number generator shared by every estimator.
+
+pub mod rng;

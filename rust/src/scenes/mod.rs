@@ -1,0 +1,1 @@
+//! Procedural built-in scenes.
