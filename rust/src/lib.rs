@@ -15,6 +15,7 @@ pub mod geometry;
 pub mod parallel;
 pub mod sampling;
 pub mod scenes;
+pub mod testing;
 
 #[cfg(feature = "python")]
 mod py;

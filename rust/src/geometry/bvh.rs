@@ -1,11 +1,11 @@
 //! Compressed wide BVH (obvhs CWBVH over a PLOC BVH2) with watertight triangle tests,
 //! closest-hit and early-exit shadow queries, and exact traversal counters.
 //!
-//! The tree is built in a *local frame*: world coordinates times a power of two chosen so
-//! that the scene's largest side lies in [256, 512). obvhs clamps every node test to
-//! `t >= 1e-4`; in the local frame that is a fixed fraction of the scene size, so the same
-//! scene at 1e-4 or 1e4 scale traces the same way. Power-of-two scaling is exact in floating
-//! point, so it changes no vertex.
+//! Nodes are tested with [`super::node_test::intersect_node`] (conservative, entry at
+//! `t = 0`) instead of obvhs's own test. The tree is built in a *local frame*: world
+//! coordinates times a power of two chosen so that the scene's largest side lies in
+//! [256, 512), which keeps every traversal quantity in the same range at any scene scale.
+//! Power-of-two scaling is exact in floating point, so it changes no vertex.
 
 use std::time::{Duration, Instant};
 
@@ -17,6 +17,7 @@ use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
 use super::mesh::{triangle_cross, Mesh};
+use super::node_test::intersect_node;
 use super::watertight::{TriangleHit, WatertightRay};
 use crate::error::{Error, Result};
 
@@ -110,6 +111,23 @@ pub struct Hit {
     pub triangle: u32,
     pub u: f32,
     pub v: f32,
+}
+
+/// The occluder of the previous ray in a coherent sequence (see [`Bvh::occluded_hinted`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OccluderHint {
+    slot: u32,
+}
+
+impl OccluderHint {
+    /// No previous occluder.
+    pub const NONE: OccluderHint = OccluderHint { slot: u32::MAX };
+}
+
+impl Default for OccluderHint {
+    fn default() -> Self {
+        Self::NONE
+    }
 }
 
 /// A ray mapped into the BVH's local frame.
@@ -250,6 +268,23 @@ impl Bvh {
         tmax: f32,
         counters: &mut TraversalCounters,
     ) -> bool {
+        let mut no_hint = OccluderHint::NONE;
+        self.occluded_hinted::<COUNT>(origin, direction, tmax, &mut no_hint, counters)
+    }
+
+    /// [`Bvh::occluded`] that first tests the triangle that occluded the previous ray of a
+    /// coherent sequence (`hint`), and records this ray's occluder in it. Rays from one point
+    /// in nearby directions are often blocked by the same triangle, which then costs one
+    /// triangle test instead of a traversal. The answer is the same as without the hint.
+    #[inline]
+    pub fn occluded_hinted<const COUNT: bool>(
+        &self,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
+        hint: &mut OccluderHint,
+        counters: &mut TraversalCounters,
+    ) -> bool {
         if COUNT {
             counters.rays += 1;
         }
@@ -257,10 +292,18 @@ impl Bvh {
             return false;
         }
         let r = self.local_ray(origin, direction, tmax);
+        if let Some(tri) = self.triangles.get(hint.slot as usize) {
+            if COUNT {
+                counters.triangles += 1;
+            }
+            if r.watertight.intersect(tri, r.ray.tmax).is_some() {
+                return true;
+            }
+        }
         let mut state = self.cwbvh.new_traversal(r.ray.direction);
         let mut node;
         let (mut nodes, mut tests) = (0u64, 0u64);
-        let mut hit = false;
+        let mut occluder = None;
         'trace: {
             obvhs::traverse!(
                 self.cwbvh,
@@ -270,7 +313,7 @@ impl Bvh {
                     if COUNT {
                         nodes += 1;
                     }
-                    node.intersect_ray(&r.ray, state.oct_inv4)
+                    intersect_node(node, &r.ray, state.oct_inv4)
                 },
                 {
                     if COUNT {
@@ -278,7 +321,7 @@ impl Bvh {
                     }
                     let tri = &self.triangles[state.primitive_id as usize];
                     if r.watertight.intersect(tri, r.ray.tmax).is_some() {
-                        hit = true;
+                        occluder = Some(state.primitive_id);
                         break 'trace;
                     }
                 }
@@ -288,7 +331,10 @@ impl Bvh {
             counters.nodes += nodes;
             counters.triangles += tests;
         }
-        hit
+        if let Some(slot) = occluder {
+            hint.slot = slot;
+        }
+        occluder.is_some()
     }
 
     /// Closest hit on `origin + t direction` with `t` in `[0, tmax)`, if any.
@@ -319,7 +365,7 @@ impl Bvh {
                 if COUNT {
                     nodes += 1;
                 }
-                node.intersect_ray(&r.ray, state.oct_inv4)
+                intersect_node(node, &r.ray, state.oct_inv4)
             },
             {
                 if COUNT {

@@ -2,10 +2,11 @@
 
 pub mod bvh;
 pub mod mesh;
+pub mod node_test;
 pub mod obj;
 pub mod scene;
 pub mod watertight;
 
-pub use bvh::{BuildQuality, Bvh, Hit, TraversalCounters};
+pub use bvh::{BuildQuality, Bvh, Hit, OccluderHint, TraversalCounters};
 pub use mesh::{Bounds, Mesh, Object};
 pub use scene::{Hits, RayBatch, Scene, SurfaceHit, TMax};

@@ -4,10 +4,10 @@
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::OnceLock;
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 
-use super::bvh::{BuildQuality, Bvh, TraversalCounters};
+use super::bvh::{BuildQuality, Bvh, OccluderHint, TraversalCounters};
 use super::mesh::{triangle_cross, Bounds, Mesh};
 use crate::bsdf::Material;
 use crate::error::{Error, Result};
@@ -352,6 +352,17 @@ impl Scene {
         threads: Option<usize>,
         per_ray: impl Fn(usize, &mut TraversalCounters) -> T + Sync,
     ) -> Result<Vec<T>> {
+        self.map_rays_with_state(n, threads, |i, _: &mut (), c| per_ray(i, c))
+    }
+
+    /// [`Scene::map_rays`] with a state that each chunk starts from `S::default()` and
+    /// carries from ray to ray. Chunks are fixed, so results stay thread-count independent.
+    pub fn map_rays_with_state<T: Send + Copy + Default, S: Default>(
+        &self,
+        n: usize,
+        threads: Option<usize>,
+        per_ray: impl Fn(usize, &mut S, &mut TraversalCounters) -> T + Sync,
+    ) -> Result<Vec<T>> {
         with_threads(threads, || {
             self.bvh();
             let mut out = vec![T::default(); n];
@@ -359,8 +370,9 @@ impl Scene {
                 .enumerate()
                 .for_each(|(c, chunk)| {
                     let mut counters = TraversalCounters::default();
+                    let mut state = S::default();
                     for (k, slot) in chunk.iter_mut().enumerate() {
-                        *slot = per_ray(c * CHUNK + k, &mut counters);
+                        *slot = per_ray(c * CHUNK + k, &mut state, &mut counters);
                     }
                     self.add_counters(counters);
                 });
@@ -368,13 +380,32 @@ impl Scene {
         })
     }
 
-    /// Shadow queries: `true` where something lies on the segment.
+    /// Shadow queries: `true` where something lies on the segment. Consecutive rays from
+    /// the same origin (record bundles) first try the previous ray's occluder.
     pub fn occluded(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
         rays.validate()?;
-        self.map_rays(rays.len(), threads, |i, c| {
-            let o = Vec3::from(rays.origins[i]);
-            self.occluded1(o, Vec3::from(rays.directions[i]), rays.tmax_of(i), c)
-        })
+        let bvh = self.bvh();
+        let counting = self.counting_enabled();
+        self.map_rays_with_state(
+            rays.len(),
+            threads,
+            |i, last: &mut ([f32; 3], OccluderHint), c| {
+                let o = rays.origins[i];
+                if o != last.0 {
+                    *last = (o, OccluderHint::NONE);
+                }
+                let (o, d, t) = (
+                    Vec3A::from(o),
+                    Vec3A::from(rays.directions[i]),
+                    rays.tmax_of(i),
+                );
+                if counting {
+                    bvh.occluded_hinted::<true>(o, d, t, &mut last.1, c)
+                } else {
+                    bvh.occluded_hinted::<false>(o, d, t, &mut last.1, c)
+                }
+            },
+        )
     }
 
     /// Closest hits.

@@ -1,0 +1,199 @@
+//! Ray sets and helpers shared by the criterion benches, the Embree peer scripts and the
+//! tests, so every comparison traces exactly the same rays. All of them are pure functions
+//! of their seed.
+
+use std::f32::consts::TAU;
+
+use glam::Vec3;
+
+use crate::geometry::mesh::triangle_cross;
+use crate::geometry::Scene;
+use crate::sampling::rng::SampleRng;
+
+/// A unit vector uniform on the hemisphere around +z for `u` in [0,1)^2 (z = u0).
+pub fn uniform_hemisphere(u: [f32; 2]) -> Vec3 {
+    let z = u[0];
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = TAU * u[1];
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// An orthonormal basis `(t, b)` completing unit `n` (Duff et al. 2017, "Building an
+/// Orthonormal Basis, Revisited").
+pub fn orthonormal_basis(n: Vec3) -> (Vec3, Vec3) {
+    let sign = 1f32.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    (
+        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
+        Vec3::new(b, sign + n.y * n.y * a, -n.y),
+    )
+}
+
+/// Maps a local direction (z along `n`) into world space.
+pub fn to_world(local: Vec3, n: Vec3) -> Vec3 {
+    let (t, b) = orthonormal_basis(n);
+    t * local.x + b * local.y + n * local.z
+}
+
+/// `n` points uniformly distributed by area over the triangles of the objects whose name
+/// contains `object_name` (all triangles when none match or `None`), with unit normals
+/// flipped into the +y hemisphere. Empty when the scene has no area.
+pub fn surface_points(
+    scene: &Scene,
+    object_name: Option<&str>,
+    n: usize,
+    seed: u64,
+) -> Vec<(Vec3, Vec3)> {
+    let mesh = scene.mesh();
+    let wanted: Vec<bool> = mesh
+        .objects
+        .iter()
+        .map(|o| object_name.is_none_or(|s| o.name.contains(s)))
+        .collect();
+    let use_all = !wanted.iter().any(|&w| w);
+    let mut cdf = Vec::with_capacity(mesh.triangles.len());
+    let mut ids = Vec::with_capacity(mesh.triangles.len());
+    let mut total = 0.0f64;
+    for (i, t) in mesh.triangles.iter().enumerate() {
+        if use_all || wanted[mesh.object_ids[i] as usize] {
+            let area = 0.5 * triangle_cross(t).length() as f64;
+            if area > 0.0 {
+                total += area;
+                cdf.push(total);
+                ids.push(i);
+            }
+        }
+    }
+    if ids.is_empty() {
+        return Vec::new();
+    }
+    (0..n)
+        .map(|k| {
+            let rng = SampleRng::new(seed, k as u64, 0);
+            let target = rng.get(0) as f64 * total;
+            let j = cdf.partition_point(|&c| c <= target).min(ids.len() - 1);
+            let t = &mesh.triangles[ids[j]];
+            // Uniform on the triangle (square-root parameterisation).
+            let [a, b] = rng.get2(1);
+            let sa = a.sqrt();
+            let p = t[0] * (1.0 - sa) + t[1] * (sa * (1.0 - b)) + t[2] * (sa * b);
+            let mut nrm = triangle_cross(t).normalize();
+            if nrm.y < 0.0 {
+                nrm = -nrm;
+            }
+            (p, nrm)
+        })
+        .collect()
+}
+
+/// Incoherent shadow rays: origins on the objects named like `"ground"` (offset along the
+/// normal by [`Scene::offset_point`]), unit directions uniform on the hemisphere around the
+/// normal. Returns `(origins, directions)`.
+pub fn ground_hemisphere_rays(
+    scene: &Scene,
+    n: usize,
+    seed: u64,
+) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    surface_points(scene, Some("ground"), n, seed)
+        .into_iter()
+        .enumerate()
+        .map(|(k, (p, nrm))| {
+            let u = SampleRng::new(seed, k as u64, 1).get2(0);
+            let d = to_world(uniform_hemisphere(u), nrm);
+            let o: [f32; 3] = scene.offset_point(p, nrm).into();
+            (o, d.to_array())
+        })
+        .unzip()
+}
+
+/// Record-building bundles: `points` origins on the ground, each with `side * side`
+/// directions from a jittered `side x side` grid over its upper hemisphere, traced point
+/// after point in grid order (the coherent workload of visibility records).
+pub fn record_bundle_rays(
+    scene: &Scene,
+    points: usize,
+    side: usize,
+    seed: u64,
+) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    let mut origins = Vec::with_capacity(points * side * side);
+    let mut dirs = Vec::with_capacity(points * side * side);
+    for (k, (p, nrm)) in surface_points(scene, Some("ground"), points, seed)
+        .into_iter()
+        .enumerate()
+    {
+        let o = scene.offset_point(p, nrm);
+        for j in 0..side * side {
+            let jit = SampleRng::new(seed, k as u64, 1 + j as u64).get2(0);
+            let u = [
+                ((j / side) as f32 + jit[0]) / side as f32,
+                ((j % side) as f32 + jit[1]) / side as f32,
+            ];
+            origins.push(o.into());
+            dirs.push(to_world(uniform_hemisphere(u), nrm).into());
+        }
+    }
+    (origins, dirs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn basis_is_orthonormal_everywhere() {
+        for n in [
+            Vec3::Z,
+            -Vec3::Z,
+            Vec3::X,
+            Vec3::new(0.3, -0.5, 0.8).normalize(),
+            Vec3::new(0.0, 0.0, -1e-9).normalize(),
+        ] {
+            let (t, b) = orthonormal_basis(n);
+            for (x, y) in [(t, b), (t, n), (b, n)] {
+                assert!(x.dot(y).abs() < 1e-5);
+            }
+            assert!((t.length() - 1.0).abs() < 1e-5 && (b.length() - 1.0).abs() < 1e-5);
+            assert!((t.cross(b) - n).length() < 1e-5, "right-handed");
+        }
+    }
+
+    #[test]
+    fn hemisphere_directions_have_the_right_mean() {
+        // E[z] = 1/2 for the uniform hemisphere; standard error ~ 0.29 / sqrt(n).
+        let n = 100_000;
+        let mean: f64 = (0..n)
+            .map(|i| uniform_hemisphere(SampleRng::new(0, i, 0).get2(0)).z as f64)
+            .sum::<f64>()
+            / n as f64;
+        assert!(
+            (mean - 0.5).abs() < 4.0 * 0.2887 / (n as f64).sqrt(),
+            "{mean}"
+        );
+    }
+
+    #[test]
+    fn surface_points_lie_on_the_named_object() {
+        let mut s = Scene::new();
+        let q = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 0.0, 1.0],
+            [0.0, 0.0, 1.0],
+        ];
+        let m = crate::bsdf::Material::DEFAULT;
+        s.add_indexed(&q, &[[0, 2, 1], [0, 3, 2]], m, Some("ground".into()))
+            .unwrap();
+        let wall = [[0.0, 0.0, 5.0], [1.0, 0.0, 5.0], [1.0, 1.0, 5.0]];
+        s.add_indexed(&wall, &[[0, 1, 2]], m, Some("wall".into()))
+            .unwrap();
+        let pts = surface_points(&s, Some("ground"), 1000, 3);
+        assert!(pts
+            .iter()
+            .all(|(p, n)| p.y == 0.0 && *n == Vec3::Y && p.z <= 1.0));
+        let (o, d) = record_bundle_rays(&s, 2, 4, 1);
+        assert_eq!((o.len(), d.len()), (32, 32));
+        assert!(d.iter().all(|d| d[1] >= 0.0));
+        assert!(o.iter().all(|o| o[1] > 0.0), "offset above the ground");
+    }
+}
