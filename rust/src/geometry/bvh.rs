@@ -1,27 +1,27 @@
-//! Compressed wide BVH (obvhs CWBVH over a PLOC BVH2) with watertight triangle tests,
-//! closest-hit and early-exit shadow queries, and exact traversal counters.
+//! The BVH: obvhs builds a binary PLOC tree (with reinsertion and leaf collapsing), which
+//! we collapse into a four-wide tree with `f32` child boxes ([`super::bvh4`]) and traverse
+//! with conservative SIMD box tests and watertight triangle tests. Closest-hit and
+//! early-exit shadow queries keep exact traversal counters.
 //!
-//! Nodes are tested with [`super::node_test::intersect_node`] (conservative, entry at
-//! `t = 0`) instead of obvhs's own test. The tree is built in a *local frame*: world
-//! coordinates times a power of two chosen so that the scene's largest side lies in
-//! [256, 512), which keeps every traversal quantity in the same range at any scene scale.
-//! Power-of-two scaling is exact in floating point, so it changes no vertex.
+//! The tree is built in a *local frame*: world coordinates times a power of two chosen so
+//! that the scene's largest side lies in [256, 512), which keeps every traversal quantity
+//! in the same range at any scene scale. Power-of-two scaling is exact in floating point,
+//! so it changes no vertex.
 
 use std::time::{Duration, Instant};
 
-use glam::{UVec2, Vec3, Vec3A};
-use obvhs::cwbvh::builder::build_cwbvh_from_tris;
-use obvhs::cwbvh::CwBvh;
-use obvhs::ray::Ray;
+use glam::{Vec3, Vec3A};
+use obvhs::bvh2::builder::build_bvh2_from_tris;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
+use super::bvh4::{decode, BoxRay, Bvh4, Child, Stack};
 use super::mesh::{triangle_cross, Mesh};
-use super::node_test::intersect_node;
-use super::watertight::{TriangleHit, WatertightRay};
+use super::watertight::{Triangle4, TriangleHit, WatertightRay};
 use crate::error::{Error, Result};
 
-/// Build presets, mapped one to one onto obvhs's [`BvhBuildParams`] presets.
+/// Build presets, mapped onto obvhs's [`BvhBuildParams`] presets (leaves capped at
+/// [`MAX_LEAF`] triangles).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum BuildQuality {
     /// PLOC with search radius 1, no reinsertion; fastest build, slowest traversal.
@@ -49,6 +49,14 @@ impl BuildQuality {
 
     /// The obvhs parameters of this preset.
     pub const fn params(self) -> BvhBuildParams {
+        let mut p = self.obvhs_preset();
+        if p.max_prims_per_leaf > MAX_LEAF {
+            p.max_prims_per_leaf = MAX_LEAF;
+        }
+        p
+    }
+
+    const fn obvhs_preset(self) -> BvhBuildParams {
         match self {
             BuildQuality::Fastest => BvhBuildParams::fastest_build(),
             BuildQuality::VeryFast => BvhBuildParams::very_fast_build(),
@@ -86,8 +94,15 @@ impl BuildQuality {
     }
 }
 
-/// Work done by traversals: rays traced, BVH nodes whose children were tested, and
-/// ray/triangle tests. Exact counts, summed over threads.
+/// Largest leaf the builder makes: one four-lane block of [`Triangle4`].
+pub const MAX_LEAF: u32 = super::bvh4::MAX_LEAF_TRIANGLES;
+
+/// Traversal stack size before spilling to the heap (three entries per level suffice for
+/// trees of depth 40).
+const STACK: usize = 128;
+
+/// Work done by traversals: rays traced, BVH nodes whose (up to four) children were
+/// tested, and ray/triangle tests. Exact counts, summed over threads.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct TraversalCounters {
     pub rays: u64,
@@ -133,8 +148,9 @@ impl Default for OccluderHint {
 /// A ray mapped into the BVH's local frame.
 #[derive(Clone, Copy)]
 struct LocalRay {
-    ray: Ray,
+    boxes: BoxRay,
     watertight: WatertightRay,
+    tmax: f32,
     /// Local t times this gives the caller's ray parameter.
     t_to_param: f32,
 }
@@ -142,11 +158,10 @@ struct LocalRay {
 /// A built BVH over the non-degenerate triangles of a mesh.
 #[derive(Clone, Debug)]
 pub struct Bvh {
-    cwbvh: CwBvh,
-    /// Local-frame triangles in leaf order (`primitive_indices` applied), so a leaf reads a
-    /// contiguous run.
-    triangles: Vec<[Vec3A; 3]>,
-    /// Mesh triangle index of each entry of `triangles`.
+    tree: Bvh4,
+    /// Local-frame triangles, one four-lane block per leaf.
+    blocks: Vec<Triangle4>,
+    /// Mesh triangle index of each slot (`4 * block + lane`).
     triangle_ids: Vec<u32>,
     to_local: f32,
     to_world: f32,
@@ -189,22 +204,33 @@ impl Bvh {
                 }
             })
             .collect();
-        let cwbvh = if local.is_empty() {
-            CwBvh::default()
+        let tree = if local.is_empty() {
+            Bvh4::default()
         } else {
-            build_cwbvh_from_tris(&local, quality.params(), &mut Duration::default())
+            let bvh2 = build_bvh2_from_tris(&local, quality.params(), &mut Duration::default());
+            Bvh4::from_bvh2(&bvh2)
         };
-        let (triangles, triangle_ids) = cwbvh
-            .primitive_indices
+        let blocks = tree
+            .primitive_order
+            .as_chunks::<4>()
+            .0
             .iter()
-            .map(|&p| {
-                let t = &local[p as usize];
-                ([t.v0, t.v1, t.v2], kept[p as usize])
+            .map(|slots| {
+                let tris = slots.map(|p| {
+                    let t = &local[p as usize];
+                    [t.v0, t.v1, t.v2]
+                });
+                Triangle4::pack(&tris)
             })
-            .unzip();
+            .collect();
+        let triangle_ids = tree
+            .primitive_order
+            .iter()
+            .map(|&p| kept[p as usize])
+            .collect();
         Bvh {
-            cwbvh,
-            triangles,
+            tree,
+            blocks,
             triangle_ids,
             to_local,
             to_world: 1.0 / to_local,
@@ -223,36 +249,33 @@ impl Bvh {
         self.build_time
     }
 
-    /// Number of CWBVH nodes (80 bytes each).
+    /// Number of four-wide nodes.
     pub fn num_nodes(&self) -> usize {
-        self.cwbvh.nodes.len()
+        self.tree.nodes.len()
+    }
+
+    /// Nodes on the longest root-to-leaf path.
+    pub fn depth(&self) -> u32 {
+        self.tree.depth
     }
 
     /// Bytes held by nodes, leaf triangles and index maps.
     pub fn memory_bytes(&self) -> usize {
-        self.cwbvh.nodes.len() * std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>()
-            + self.triangles.len() * (std::mem::size_of::<[Vec3A; 3]>() + 8)
+        self.tree.nodes.len() * std::mem::size_of::<super::bvh4::Node4>()
+            + self.blocks.len() * (std::mem::size_of::<Triangle4>() + 16)
     }
 
     #[inline(always)]
     fn local_ray(&self, origin: Vec3A, direction: Vec3A, tmax: f32) -> LocalRay {
-        // Unit direction: obvhs's node epsilon is then a distance, whatever the caller's
-        // direction length. The inverse is computed here (not by `Ray::new`, which clamps
-        // components below f32::EPSILON and would mis-bound near-axis rays).
+        // Unit direction, so that the box test's rounding bounds are relative to distances
+        // whatever the caller's direction length.
         let len = direction.length();
         let d = direction / len;
         let o = origin * self.to_local;
-        let inv = d.recip().clamp(Vec3A::splat(-1e30), Vec3A::splat(1e30));
-        let local_tmax = tmax * (self.to_local * len);
         LocalRay {
-            ray: Ray {
-                origin: o,
-                direction: d,
-                inv_direction: inv,
-                tmin: 0.0,
-                tmax: local_tmax,
-            },
+            boxes: BoxRay::new(o, d),
             watertight: WatertightRay::new(o, d),
+            tmax: tmax * (self.to_local * len),
             t_to_param: self.to_world / len,
         }
     }
@@ -288,44 +311,52 @@ impl Bvh {
         if COUNT {
             counters.rays += 1;
         }
-        if self.triangles.is_empty() {
+        if self.blocks.is_empty() {
             return false;
         }
         let r = self.local_ray(origin, direction, tmax);
-        if let Some(tri) = self.triangles.get(hint.slot as usize) {
+        if let Some(block) = self.blocks.get(hint.slot as usize / 4) {
             if COUNT {
                 counters.triangles += 1;
             }
-            if r.watertight.intersect(tri, r.ray.tmax).is_some() {
+            let tri = block.lane(hint.slot as usize % 4);
+            if r.watertight.intersect(&tri, r.tmax).is_some() {
                 return true;
             }
         }
-        let mut state = self.cwbvh.new_traversal(r.ray.direction);
-        let mut node;
         let (mut nodes, mut tests) = (0u64, 0u64);
+        let mut stack: Stack<u32, STACK> = Stack::new();
+        let mut node = 0u32;
         let mut occluder = None;
-        'trace: {
-            obvhs::traverse!(
-                self.cwbvh,
-                node,
-                state,
-                {
-                    if COUNT {
-                        nodes += 1;
-                    }
-                    intersect_node(node, &r.ray, state.oct_inv4)
-                },
-                {
-                    if COUNT {
-                        tests += 1;
-                    }
-                    let tri = &self.triangles[state.primitive_id as usize];
-                    if r.watertight.intersect(tri, r.ray.tmax).is_some() {
-                        occluder = Some(state.primitive_id);
-                        break 'trace;
+        'trace: loop {
+            let n = &self.tree.nodes[node as usize];
+            if COUNT {
+                nodes += 1;
+            }
+            let (_, mut mask) = n.intersect(&r.boxes, r.tmax);
+            while mask != 0 {
+                let i = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                match decode(n.child(i)) {
+                    Child::Node(c) => stack.push(c),
+                    Child::Leaf { first, count } => {
+                        if COUNT {
+                            tests += count as u64;
+                        }
+                        let (hit, ..) = r
+                            .watertight
+                            .intersect4(&self.blocks[first as usize], r.tmax);
+                        if hit != 0 {
+                            occluder = Some(first * 4 + hit.trailing_zeros());
+                            break 'trace;
+                        }
                     }
                 }
-            );
+            }
+            match stack.pop() {
+                Some(c) => node = c,
+                None => break,
+            }
         }
         if COUNT {
             counters.nodes += nodes;
@@ -349,38 +380,74 @@ impl Bvh {
         if COUNT {
             counters.rays += 1;
         }
-        if self.triangles.is_empty() {
+        if self.blocks.is_empty() {
             return None;
         }
-        let mut r = self.local_ray(origin, direction, tmax);
-        let mut state = self.cwbvh.new_traversal(r.ray.direction);
-        let mut node;
+        let r = self.local_ray(origin, direction, tmax);
         let (mut nodes, mut tests) = (0u64, 0u64);
+        let mut best_t = r.tmax;
         let mut best: Option<(u32, TriangleHit)> = None;
-        obvhs::traverse!(
-            self.cwbvh,
-            node,
-            state,
-            {
-                if COUNT {
-                    nodes += 1;
+        // Entries carry their entry distance so that boxes behind the closest hit found so
+        // far are skipped when popped.
+        let mut stack: Stack<(u32, f32), STACK> = Stack::new();
+        stack.push((0, 0.0));
+        while let Some((reference, t_enter)) = stack.pop() {
+            if t_enter > best_t {
+                continue;
+            }
+            match decode(reference) {
+                Child::Leaf { first, count } => {
+                    if COUNT {
+                        tests += count as u64;
+                    }
+                    let (mut hit, t, u, v) = r
+                        .watertight
+                        .intersect4(&self.blocks[first as usize], best_t);
+                    let (t, u, v) = (t.to_array(), u.to_array(), v.to_array());
+                    // Nearest lane; the lowest lane wins ties, so the answer is deterministic.
+                    while hit != 0 {
+                        let l = hit.trailing_zeros() as usize;
+                        hit &= hit - 1;
+                        if t[l] < best_t {
+                            best_t = t[l];
+                            best = Some((
+                                first * 4 + l as u32,
+                                TriangleHit {
+                                    t: t[l],
+                                    u: u[l],
+                                    v: v[l],
+                                },
+                            ));
+                        }
+                    }
                 }
-                intersect_node(node, &r.ray, state.oct_inv4)
-            },
-            {
-                if COUNT {
-                    tests += 1;
-                }
-                let slot = state.primitive_id;
-                if let Some(h) = r
-                    .watertight
-                    .intersect(&self.triangles[slot as usize], r.ray.tmax)
-                {
-                    r.ray.tmax = h.t;
-                    best = Some((slot, h));
+                Child::Node(c) => {
+                    let n = &self.tree.nodes[c as usize];
+                    if COUNT {
+                        nodes += 1;
+                    }
+                    let (t_near, mut mask) = n.intersect(&r.boxes, best_t);
+                    let t_near = t_near.to_array();
+                    // Push the hit children farthest first, so the nearest is popped next.
+                    let mut hits = [(0u32, 0f32); 4];
+                    let mut k = 0;
+                    while mask != 0 {
+                        let i = mask.trailing_zeros() as usize;
+                        mask &= mask - 1;
+                        let mut j = k;
+                        while j > 0 && hits[j - 1].1 < t_near[i] {
+                            hits[j] = hits[j - 1];
+                            j -= 1;
+                        }
+                        hits[j] = (n.child(i), t_near[i]);
+                        k += 1;
+                    }
+                    for &h in &hits[..k] {
+                        stack.push(h);
+                    }
                 }
             }
-        );
+        }
         if COUNT {
             counters.nodes += nodes;
             counters.triangles += tests;
@@ -445,9 +512,9 @@ mod tests {
         m.add_indexed(&v, &[[0, 1, 3], [0, 1, 2]], Material::DEFAULT, None)
             .unwrap();
         let single = Bvh::build(&m, BuildQuality::Fast);
-        assert_eq!(
-            single.triangles.len(),
-            1,
+        assert_eq!(single.blocks.len(), 1);
+        assert!(
+            single.triangle_ids.iter().all(|&t| t == 1),
             "the collinear triangle is left out"
         );
         let h = single

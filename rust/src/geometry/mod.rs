@@ -1,8 +1,8 @@
 //! Geometry: triangle meshes, OBJ loading, the BVH and the scene that ties them together.
 
 pub mod bvh;
+pub mod bvh4;
 pub mod mesh;
-pub mod node_test;
 pub mod obj;
 pub mod scene;
 pub mod watertight;

@@ -9,7 +9,7 @@
 //! one is not watertight (it can leak through shared edges), which visibility records and
 //! closed-mesh tests cannot accept.
 
-use glam::Vec3A;
+use glam::{Vec3A, Vec4};
 
 /// A ray prepared for repeated watertight triangle tests.
 #[derive(Clone, Copy, Debug)]
@@ -71,10 +71,13 @@ impl WatertightRay {
     /// Degenerate triangles (zero projected area) never hit.
     #[inline(always)]
     pub fn intersect(&self, tri: &[Vec3A; 3], tmax: f32) -> Option<TriangleHit> {
-        let a = tri[0] - self.origin;
-        let b = tri[1] - self.origin;
-        let c = tri[2] - self.origin;
-        let (kx, ky, kz) = (self.kx, self.ky, self.kz);
+        // Components are picked from 4-lane arrays with masked indices: indexing a Vec3A
+        // by a run-time axis compiles to a branchy match and dominated the cost.
+        let lanes = |v: Vec3A| v.extend(0.0).to_array();
+        let a = lanes(tri[0] - self.origin);
+        let b = lanes(tri[1] - self.origin);
+        let c = lanes(tri[2] - self.origin);
+        let (kx, ky, kz) = (self.kx & 3, self.ky & 3, self.kz & 3);
         let ax = a[kx] - self.sx * a[kz];
         let ay = a[ky] - self.sy * a[kz];
         let bx = b[kx] - self.sx * b[kz];
@@ -112,6 +115,104 @@ impl WatertightRay {
             u: v * inv_det,
             v: w * inv_det,
         })
+    }
+}
+
+/// Four triangles in structure-of-arrays layout: `v[vertex][axis]` holds that coordinate
+/// of the four lanes. Unused lanes repeat lane 0.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(16))]
+pub struct Triangle4 {
+    v: [[Vec4; 3]; 3],
+}
+
+impl Triangle4 {
+    /// Packs one to four triangles; lanes past `tris.len()` repeat the first.
+    pub fn pack(tris: &[[Vec3A; 3]]) -> Self {
+        assert!((1..=4).contains(&tris.len()));
+        let lane = |l: usize| tris[l.min(tris.len() - 1)];
+        let mut v = [[Vec4::ZERO; 3]; 3];
+        for (k, vk) in v.iter_mut().enumerate() {
+            for (axis, va) in vk.iter_mut().enumerate() {
+                *va = Vec4::new(
+                    lane(0)[k][axis],
+                    lane(1)[k][axis],
+                    lane(2)[k][axis],
+                    lane(3)[k][axis],
+                );
+            }
+        }
+        Self { v }
+    }
+
+    /// The triangle in lane `l`.
+    pub fn lane(&self, l: usize) -> [Vec3A; 3] {
+        let l = l & 3;
+        self.v.map(|vk| Vec3A::new(vk[0][l], vk[1][l], vk[2][l]))
+    }
+}
+
+impl WatertightRay {
+    /// The watertight test on four triangles at once: the same arithmetic as
+    /// [`WatertightRay::intersect`] lane by lane (so the same answers), without branches.
+    /// Returns the mask of lanes hit within `[0, tmax)` and their `(t, u, v)`.
+    #[inline(always)]
+    pub fn intersect4(&self, tri: &Triangle4, tmax: f32) -> (u32, Vec4, Vec4, Vec4) {
+        let o = [
+            Vec4::splat(self.origin.x),
+            Vec4::splat(self.origin.y),
+            Vec4::splat(self.origin.z),
+            Vec4::ZERO,
+        ];
+        let rel = |k: usize| {
+            [
+                tri.v[k][0] - o[0],
+                tri.v[k][1] - o[1],
+                tri.v[k][2] - o[2],
+                Vec4::ZERO,
+            ]
+        };
+        let (a, b, c) = (rel(0), rel(1), rel(2));
+        let (kx, ky, kz) = (self.kx & 3, self.ky & 3, self.kz & 3);
+        let (sx, sy) = (Vec4::splat(self.sx), Vec4::splat(self.sy));
+        let ax = a[kx] - sx * a[kz];
+        let ay = a[ky] - sy * a[kz];
+        let bx = b[kx] - sx * b[kz];
+        let by = b[ky] - sy * b[kz];
+        let cx = c[kx] - sx * c[kz];
+        let cy = c[ky] - sy * c[kz];
+        let mut u = cx * by - cy * bx;
+        let mut v = ax * cy - ay * cx;
+        let mut w = bx * ay - by * ax;
+        let zero = u.cmpeq(Vec4::ZERO) | v.cmpeq(Vec4::ZERO) | w.cmpeq(Vec4::ZERO);
+        if zero.any() {
+            // Lanes exactly on an edge in f32: decide them in f64, as the scalar test does.
+            let lanes = zero.bitmask();
+            let (mut ua, mut va, mut wa) = (u.to_array(), v.to_array(), w.to_array());
+            let f = |x: Vec4, l: usize| x.to_array()[l] as f64;
+            for l in (0..4).filter(|l| lanes & (1 << l) != 0) {
+                let (ax, ay, bx, by, cx, cy) =
+                    (f(ax, l), f(ay, l), f(bx, l), f(by, l), f(cx, l), f(cy, l));
+                ua[l] = (cx * by - cy * bx) as f32;
+                va[l] = (ax * cy - ay * cx) as f32;
+                wa[l] = (bx * ay - by * ax) as f32;
+            }
+            (u, v, w) = (
+                Vec4::from_array(ua),
+                Vec4::from_array(va),
+                Vec4::from_array(wa),
+            );
+        }
+        let neg = u.cmplt(Vec4::ZERO) | v.cmplt(Vec4::ZERO) | w.cmplt(Vec4::ZERO);
+        let pos = u.cmpgt(Vec4::ZERO) | v.cmpgt(Vec4::ZERO) | w.cmpgt(Vec4::ZERO);
+        let det = u + v + w;
+        let t_scaled = Vec4::splat(self.sz) * (u * a[kz] + v * b[kz] + w * c[kz]);
+        let inv_det = Vec4::ONE / det;
+        let t = t_scaled * inv_det;
+        // NaN t (det = 0) fails both comparisons.
+        let hit =
+            !(neg & pos) & det.cmpne(Vec4::ZERO) & t.cmpge(Vec4::ZERO) & t.cmplt(Vec4::splat(tmax));
+        (hit.bitmask(), t, v * inv_det, w * inv_det)
     }
 }
 
@@ -165,6 +266,44 @@ mod tests {
         }
         let grazing = WatertightRay::new(vec3a(-1.0, 0.25, 0.0), vec3a(1.0, 0.0, 0.0));
         assert!(grazing.intersect(&TRI, f32::INFINITY).is_none());
+    }
+
+    #[test]
+    fn four_wide_matches_scalar_lane_by_lane() {
+        use crate::sampling::rng::SampleRng;
+        let r = |i: u64, d: u64| SampleRng::new(9, i, 0).get(d) * 2.0 - 1.0;
+        for i in 0..2000u64 {
+            let tris: Vec<[Vec3A; 3]> = (0..4)
+                .map(|k| {
+                    [0, 1, 2].map(|v| {
+                        vec3a(
+                            r(i, k * 9 + v * 3),
+                            r(i, k * 9 + v * 3 + 1),
+                            r(i, k * 9 + v * 3 + 2),
+                        )
+                    })
+                })
+                .collect();
+            let n = 1 + (i % 4) as usize;
+            let packed = Triangle4::pack(&tris[..n]);
+            let ray = WatertightRay::new(
+                vec3a(r(i, 40), r(i, 41), r(i, 42)),
+                vec3a(r(i, 43), r(i, 44), r(i, 45)),
+            );
+            let tmax = if i % 3 == 0 { 0.7 } else { f32::INFINITY };
+            let (mask, t, u, v) = ray.intersect4(&packed, tmax);
+            for l in 0..4 {
+                let scalar = ray.intersect(&packed.lane(l), tmax);
+                assert_eq!(mask & (1 << l) != 0, scalar.is_some(), "ray {i} lane {l}");
+                if let Some(h) = scalar {
+                    assert_eq!(
+                        (h.t, h.u, h.v),
+                        (t.to_array()[l], u.to_array()[l], v.to_array()[l])
+                    );
+                }
+            }
+            assert_eq!(packed.lane(0), tris[0]);
+        }
     }
 
     #[test]

@@ -1,0 +1,342 @@
+//! Four-wide BVH with uncompressed `f32` child boxes, collapsed from obvhs's binary PLOC
+//! BVH, and its conservative SIMD ray/box test.
+//!
+//! Why not obvhs's CWBVH: its 8-bit quantised nodes are designed for GPUs; on the CPU every
+//! visit converts 48 bytes to floats, and we measured its traversal at 0.2-0.3x Embree's
+//! speed on our scenes (benches/README.md). A BVH4 in structure-of-arrays layout tests all
+//! four children with one SSE register per plane (as Embree's SSE path does) and brought
+//! `occluded` to the figures in benches/README.md.
+//!
+//! The box test is robust in the sense of Ize ("Robust BVH Ray Traversal", JCGT 2013): each
+//! child's exit distance is scaled by `1 + 2 gamma(3)`, entry distances are clamped at 0 (not
+//! at an epsilon), and zero direction components are taken as `+0.0`, so rays lying in a
+//! box's face and rays through box corners or shared vertices are never culled.
+
+use std::mem::MaybeUninit;
+
+use glam::{Vec3A, Vec4};
+use obvhs::bvh2::Bvh2;
+
+/// Child reference bit marking a leaf: bits 0..27 its triangle block, bits 27..31 the
+/// number of triangles in the block.
+const LEAF: u32 = 1 << 31;
+const LEAF_COUNT_SHIFT: u32 = 27;
+/// Largest number of triangles in a leaf: one four-lane block.
+pub const MAX_LEAF_TRIANGLES: u32 = 4;
+/// Largest number of leaves a tree can index.
+pub const MAX_LEAVES: usize = 1 << LEAF_COUNT_SHIFT;
+/// Reference of an empty child slot: a leaf of no triangles (its box is empty and never
+/// hit, so it is not even read).
+const EMPTY: u32 = LEAF;
+
+/// `1 + 2 gamma(3)` with `gamma(n) = n eps / (1 - n eps)`, `eps = 2^-24` (Ize 2013).
+const EXIT_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+
+/// One node: the boxes of up to four children as planes (`[min_x, max_x, min_y, max_y,
+/// min_z, max_z]`, each over the four children) and their references.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(16))]
+pub struct Node4 {
+    planes: [[f32; 4]; 6],
+    children: [u32; 4],
+}
+
+/// What a child reference points to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Child {
+    Node(u32),
+    Leaf { first: u32, count: u32 },
+}
+
+#[inline(always)]
+pub fn decode(r: u32) -> Child {
+    if r & LEAF != 0 {
+        Child::Leaf {
+            first: r & ((1 << LEAF_COUNT_SHIFT) - 1),
+            count: (r & !LEAF) >> LEAF_COUNT_SHIFT,
+        }
+    } else {
+        Child::Node(r)
+    }
+}
+
+/// A prepared ray for the node test: origin, inverse direction and the plane indices of
+/// the near and far planes per axis.
+#[derive(Clone, Copy, Debug)]
+pub struct BoxRay {
+    origin: [Vec4; 3],
+    inv: [Vec4; 3],
+    near: [usize; 3],
+    far: [usize; 3],
+}
+
+impl BoxRay {
+    /// `direction` must be finite and non-zero.
+    #[inline(always)]
+    pub fn new(origin: Vec3A, direction: Vec3A) -> Self {
+        // -0.0 + 0.0 = +0.0: a ray lying in a slab's plane then counts as inside the slab
+        // (a -0.0 component would place it outside and cull boxes it touches).
+        let d = direction + Vec3A::ZERO;
+        let inv = d.recip().clamp(Vec3A::splat(-1e30), Vec3A::splat(1e30));
+        let neg = [inv.x < 0.0, inv.y < 0.0, inv.z < 0.0];
+        Self {
+            origin: [
+                Vec4::splat(origin.x),
+                Vec4::splat(origin.y),
+                Vec4::splat(origin.z),
+            ],
+            inv: [Vec4::splat(inv.x), Vec4::splat(inv.y), Vec4::splat(inv.z)],
+            near: [neg[0] as usize, 2 + neg[1] as usize, 4 + neg[2] as usize],
+            far: [
+                1 - neg[0] as usize,
+                3 - neg[1] as usize,
+                5 - neg[2] as usize,
+            ],
+        }
+    }
+}
+
+impl Node4 {
+    /// Entry distances of the four children and the mask of those the segment `[0, tmax)`
+    /// may touch (bit `i` for child `i`).
+    #[inline(always)]
+    pub fn intersect(&self, r: &BoxRay, tmax: f32) -> (Vec4, u32) {
+        let p = &self.planes;
+        let slab = |axis: usize| {
+            let n = (Vec4::from_array(p[r.near[axis]]) - r.origin[axis]) * r.inv[axis];
+            let f = (Vec4::from_array(p[r.far[axis]]) - r.origin[axis]) * r.inv[axis];
+            (n, f)
+        };
+        let (nx, fx) = slab(0);
+        let (ny, fy) = slab(1);
+        let (nz, fz) = slab(2);
+        let t_near = nx.max(ny).max(nz).max(Vec4::ZERO);
+        let t_far = (fx.min(fy).min(fz) * EXIT_SCALE).min(Vec4::splat(tmax * EXIT_SCALE));
+        (t_near, t_near.cmple(t_far).bitmask())
+    }
+
+    /// Reference of child `i`.
+    #[inline(always)]
+    pub fn child(&self, i: usize) -> u32 {
+        self.children[i]
+    }
+}
+
+/// A BVH4: `nodes[0]` is the root; each leaf references one block of four triangle slots,
+/// slots `4 * block .. 4 * block + 4` of `primitive_order` (unused slots repeat the
+/// leaf's first primitive).
+#[derive(Clone, Debug, Default)]
+pub struct Bvh4 {
+    pub nodes: Vec<Node4>,
+    /// Index into the builder's primitive list of each triangle slot, four per leaf.
+    pub primitive_order: Vec<u32>,
+    /// Largest number of nodes from the root to a leaf.
+    pub depth: u32,
+}
+
+impl Bvh4 {
+    /// Collapses a binary BVH (leaves of at most [`MAX_LEAF_TRIANGLES`] primitives) into a
+    /// four-wide one, greedily opening the child of largest surface area.
+    pub fn from_bvh2(bvh2: &Bvh2) -> Self {
+        let mut out = Bvh4 {
+            nodes: Vec::with_capacity(bvh2.nodes.len() / 2 + 1),
+            primitive_order: Vec::with_capacity(bvh2.primitive_indices.len()),
+            depth: 0,
+        };
+        if bvh2.nodes.is_empty() {
+            return out;
+        }
+        if bvh2.nodes[0].is_leaf() {
+            // A root that is a leaf becomes a node with one child.
+            let leaf = out.leaf(bvh2, 0);
+            out.nodes.push(Node4::single(bvh2, 0, leaf));
+            out.depth = 1;
+            return out;
+        }
+        out.convert(bvh2, 0, 1);
+        out
+    }
+
+    fn leaf(&mut self, bvh2: &Bvh2, n2: usize) -> u32 {
+        let node = &bvh2.nodes[n2];
+        assert!(
+            (1..=MAX_LEAF_TRIANGLES).contains(&node.prim_count),
+            "leaf of {} triangles",
+            node.prim_count
+        );
+        let block = (self.primitive_order.len() / 4) as u32;
+        let first = node.first_index as usize;
+        let prims = &bvh2.primitive_indices[first..first + node.prim_count as usize];
+        self.primitive_order
+            .extend((0..4).map(|l| prims[l.min(prims.len() - 1)]));
+        LEAF | (node.prim_count << LEAF_COUNT_SHIFT) | block
+    }
+
+    fn convert(&mut self, bvh2: &Bvh2, n2: usize, depth: u32) -> u32 {
+        self.depth = self.depth.max(depth);
+        // Open the inner child of largest area until there are four.
+        let first = bvh2.nodes[n2].first_index as usize;
+        let mut kids = vec![first, first + 1];
+        while kids.len() < 4 {
+            let best = kids
+                .iter()
+                .enumerate()
+                .filter(|(_, &k)| !bvh2.nodes[k].is_leaf())
+                .max_by(|a, b| {
+                    let area = |k: usize| bvh2.nodes[k].aabb().half_area();
+                    area(*a.1).total_cmp(&area(*b.1))
+                })
+                .map(|(i, _)| i);
+            let Some(i) = best else { break };
+            let k = kids.swap_remove(i);
+            let f = bvh2.nodes[k].first_index as usize;
+            kids.extend([f, f + 1]);
+        }
+        let index = self.nodes.len();
+        self.nodes.push(Node4::empty());
+        for (slot, &k) in kids.iter().enumerate() {
+            let r = if bvh2.nodes[k].is_leaf() {
+                self.leaf(bvh2, k)
+            } else {
+                self.convert(bvh2, k, depth + 1)
+            };
+            self.nodes[index].set(slot, bvh2, k, r);
+        }
+        index as u32
+    }
+}
+
+impl Node4 {
+    fn empty() -> Self {
+        let mut planes = [[f32::INFINITY; 4]; 6];
+        for axis in 0..3 {
+            planes[2 * axis + 1] = [f32::NEG_INFINITY; 4];
+        }
+        Node4 {
+            planes,
+            children: [EMPTY; 4],
+        }
+    }
+
+    fn single(bvh2: &Bvh2, n2: usize, r: u32) -> Self {
+        let mut n = Self::empty();
+        n.set(0, bvh2, n2, r);
+        n
+    }
+
+    fn set(&mut self, slot: usize, bvh2: &Bvh2, n2: usize, r: u32) {
+        let b = bvh2.nodes[n2].aabb();
+        for axis in 0..3 {
+            self.planes[2 * axis][slot] = b.min[axis];
+            self.planes[2 * axis + 1][slot] = b.max[axis];
+        }
+        self.children[slot] = r;
+    }
+}
+
+/// A traversal stack of fixed size that spills to the heap in degenerate trees. The
+/// array is left uninitialised: zeroing it cost a memset per ray.
+pub struct Stack<T: Copy, const N: usize> {
+    buf: [MaybeUninit<T>; N],
+    len: usize,
+    spill: Vec<T>,
+}
+
+impl<T: Copy, const N: usize> Stack<T, N> {
+    #[inline(always)]
+    pub fn new() -> Self {
+        Self {
+            buf: [const { MaybeUninit::uninit() }; N],
+            len: 0,
+            spill: Vec::new(),
+        }
+    }
+
+    #[inline(always)]
+    pub fn push(&mut self, v: T) {
+        if self.len < N {
+            self.buf[self.len] = MaybeUninit::new(v);
+            self.len += 1;
+        } else {
+            self.spill.push(v);
+        }
+    }
+
+    #[inline(always)]
+    pub fn pop(&mut self) -> Option<T> {
+        if let Some(v) = self.spill.pop() {
+            return Some(v);
+        }
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        // SAFETY: slots below `len` were written by `push` and never moved out (T: Copy).
+        Some(unsafe { self.buf[self.len].assume_init() })
+    }
+}
+
+impl<T: Copy, const N: usize> Default for Stack<T, N> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::vec3a;
+
+    fn node_with_unit_box() -> Node4 {
+        let mut n = Node4::empty();
+        for axis in 0..3 {
+            n.planes[2 * axis][0] = 0.0;
+            n.planes[2 * axis + 1][0] = 1.0;
+        }
+        n.children[0] = LEAF | (1 << LEAF_COUNT_SHIFT);
+        n
+    }
+
+    #[test]
+    fn empty_slots_are_never_hit() {
+        let n = node_with_unit_box();
+        for d in [
+            vec3a(1.0, 0.0, 0.0),
+            vec3a(-1.0, -0.0, 0.3),
+            vec3a(0.0, 0.0, -1.0),
+        ] {
+            let r = BoxRay::new(vec3a(0.5, 0.5, 0.5), d);
+            let (_, mask) = n.intersect(&r, f32::INFINITY);
+            assert_eq!(mask, 1, "{d:?}");
+        }
+    }
+
+    #[test]
+    fn corners_faces_and_negative_zero_are_hit() {
+        let n = node_with_unit_box();
+        // Through the corner (1, 1, 1) exactly, from outside.
+        let r = BoxRay::new(vec3a(2.0, 2.0, 2.0), vec3a(-1.0, -1.0, -1.0));
+        assert_eq!(n.intersect(&r, f32::INFINITY).1, 1);
+        // Along a face, with -0.0 components.
+        let r = BoxRay::new(vec3a(0.0, 0.5, -1.0), vec3a(-0.0, -0.0, 1.0));
+        assert_eq!(n.intersect(&r, f32::INFINITY).1, 1);
+        // Starting on the box: entry at t = 0.
+        let r = BoxRay::new(vec3a(1.0, 0.5, 0.5), vec3a(1.0, 0.0, 0.0));
+        let (t, mask) = n.intersect(&r, 1.0);
+        assert_eq!((mask, t.x), (1, 0.0));
+        // Segment ending before the box.
+        let r = BoxRay::new(vec3a(-2.0, 0.5, 0.5), vec3a(1.0, 0.0, 0.0));
+        assert_eq!(n.intersect(&r, 1.5).1, 0);
+        assert_eq!(n.intersect(&r, 2.5).1, 1);
+    }
+
+    #[test]
+    fn stack_spills_and_keeps_order() {
+        let mut s: Stack<u32, 2> = Stack::new();
+        for i in 0..5 {
+            s.push(i);
+        }
+        let popped: Vec<u32> = std::iter::from_fn(|| s.pop()).collect();
+        assert_eq!(popped, vec![4, 3, 2, 1, 0]);
+    }
+}
