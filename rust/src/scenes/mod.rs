@@ -1,1 +1,261 @@
-//! Procedural built-in scenes.
+//! Procedural built-in scenes, shared by tests, benches and Python (`vc.scenes.load`).
+//!
+//! Each setup is a [`Scene`] plus a [`Camera`] (256 x 192 pixels) that frames its
+//! interesting part. Units are metres; the world is right-handed with +y up and the ground,
+//! where there is one, at y = 0. Objects are named and carry sensible materials.
+//! `detail` in (0, 16] scales triangle counts roughly linearly (1 is the documented size);
+//! `seed` drives every random choice through the counter-based generator of
+//! [`crate::sampling::rng`], so a seed gives bit-identical geometry on any thread count.
+//!
+//! | name       | triangles at detail 1 | random | what it is for |
+//! |------------|-----------------------|--------|----------------|
+//! | `cornell`  | 1,262                 | no     | closed room, area light, smooth visibility |
+//! | `garage`   | 11,636                | no     | deep overhang: the sky is mostly occluded |
+//! | `garden`   | 402,332               | yes    | dense grass: near-random visibility |
+//! | `dynamics` | 6,768                 | no     | objects on a plane, little occlusion |
+//! | `hairball` | 1,499,272             | yes    | dense tangle of thin tubes |
+//!
+//! Each module's `//!` gives the exact layout, sizes and camera.
+
+pub mod cornell;
+pub mod dynamics;
+pub mod garage;
+pub mod garden;
+pub mod hairball;
+pub mod shapes;
+
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::geometry::{Mesh, Scene};
+
+/// A built-in setup: geometry plus a camera that frames it.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    pub name: String,
+    pub scene: Scene,
+    pub camera: Camera,
+}
+
+/// Names of the built-in setups, in a fixed order.
+pub const NAMES: [&str; 5] = ["cornell", "garage", "garden", "dynamics", "hairball"];
+
+/// Largest accepted `detail`.
+pub(crate) const MAX_DETAIL: f32 = 16.0;
+
+/// Camera resolution of every setup.
+pub(crate) const WIDTH: u32 = 256;
+pub(crate) const HEIGHT: u32 = 192;
+
+/// The names of the built-in setups (see [`NAMES`]).
+pub fn names() -> &'static [&'static str] {
+    &NAMES
+}
+
+/// Builds the setup `name`. `detail` in (0, 16] scales triangle counts (roughly linearly);
+/// `seed` drives all randomness. Unknown names and out-of-range details are errors that
+/// name the argument.
+pub fn load(name: &str, detail: f32, seed: u64) -> Result<Setup> {
+    check_detail(detail)?;
+    match name {
+        "cornell" => cornell::build(detail, seed),
+        "garage" => garage::build(detail, seed),
+        "garden" => garden::build(detail, seed),
+        "dynamics" => dynamics::build(detail, seed),
+        "hairball" => hairball::build(detail, seed),
+        _ => Err(Error::invalid(
+            "name",
+            format!(
+                "unknown scene {name:?}; valid names are {}",
+                NAMES.join(", ")
+            ),
+        )),
+    }
+}
+
+/// `detail` must be finite and lie in (0, 16].
+pub(crate) fn check_detail(detail: f32) -> Result<()> {
+    if detail > 0.0 && detail <= MAX_DETAIL {
+        Ok(())
+    } else {
+        Err(Error::invalid(
+            "detail",
+            format!("must be a number in (0, {MAX_DETAIL}], got {detail}"),
+        ))
+    }
+}
+
+/// A camera with the default resolution and +y up.
+pub(crate) fn camera(eye: [f32; 3], target: [f32; 3], fov_deg: f32) -> Result<Camera> {
+    Camera::look_at(
+        eye.into(),
+        target.into(),
+        glam::Vec3::Y,
+        fov_deg,
+        WIDTH,
+        HEIGHT,
+    )
+}
+
+/// Wraps a mesh and a camera.
+pub(crate) fn setup(name: &str, mesh: Mesh, camera: Camera) -> Setup {
+    Setup {
+        name: name.to_string(),
+        scene: Scene::from_mesh(mesh),
+        camera,
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod testing {
+    //! Checks shared by the scene modules' tests.
+
+    use std::ops::RangeInclusive;
+
+    use glam::Vec3;
+
+    use super::shapes::sphere_dir;
+    use super::*;
+    use crate::geometry::{SurfaceHit, TraversalCounters};
+    use crate::sampling::rng::SampleRng;
+
+    /// Name, size, finite vertices, named non-empty objects, camera, centre-pixel hit.
+    pub(crate) fn check_basic(s: &Setup, name: &str, triangles: RangeInclusive<usize>) {
+        assert_eq!(s.name, name);
+        let n = s.scene.num_triangles();
+        assert!(triangles.contains(&n), "{name}: {n} triangles");
+        let mesh = s.scene.mesh();
+        assert!(mesh.triangles.iter().flatten().all(|v| v.is_finite()));
+        for (i, o) in mesh.objects.iter().enumerate() {
+            assert_ne!(o.name, format!("object{i}"), "{name}: unnamed object");
+            assert!(o.num_triangles > 0, "{name}: empty object {}", o.name);
+        }
+        let mut names: Vec<_> = mesh.objects.iter().map(|o| &o.name).collect();
+        names.sort();
+        names.dedup();
+        assert_eq!(names.len(), mesh.objects.len(), "{name}: duplicate names");
+        assert_eq!((s.camera.width, s.camera.height), (WIDTH, HEIGHT));
+        centre_hit(s);
+    }
+
+    /// The hit of the camera's centre ray (panics on a miss).
+    pub(crate) fn centre_hit(s: &Setup) -> SurfaceHit {
+        let c = &s.camera;
+        let d = c.direction(c.width as f32 * 0.5, c.height as f32 * 0.5);
+        s.scene
+            .intersect1(c.eye, d, f32::INFINITY, &mut TraversalCounters::default())
+            .unwrap_or_else(|| panic!("{}: the centre pixel misses", s.name))
+    }
+
+    /// Name of the object hit by the centre ray.
+    pub(crate) fn centre_object(s: &Setup) -> String {
+        let h = centre_hit(s);
+        s.scene.mesh().objects[h.obj as usize].name.clone()
+    }
+
+    /// Fraction of `count` uniform directions of the hemisphere about `n` that are blocked
+    /// from `p` (offset along `n`).
+    pub(crate) fn occluded_fraction(scene: &Scene, p: Vec3, n: Vec3, count: u64) -> f32 {
+        let o = scene.offset_point(p, n);
+        let mut c = TraversalCounters::default();
+        let blocked = (0..count)
+            .filter(|&i| {
+                let [u, v] = SampleRng::new(9, i, 0).get2(0);
+                let d = sphere_dir(u, v);
+                let d = if d.dot(n) < 0.0 { -d } else { d };
+                scene.occluded1(o, d, f32::INFINITY, &mut c)
+            })
+            .count();
+        blocked as f32 / count as f32
+    }
+
+    /// Same seed: identical triangles; for `random` scenes another seed changes them.
+    pub(crate) fn check_seeds(build: fn(f32, u64) -> Result<Setup>, detail: f32, random: bool) {
+        let a = build(detail, 3).unwrap();
+        let b = build(detail, 3).unwrap();
+        let c = build(detail, 4).unwrap();
+        assert_eq!(a.scene.mesh().triangles, b.scene.mesh().triangles);
+        assert_eq!(a.scene.mesh().object_ids, b.scene.mesh().object_ids);
+        assert_eq!(a.camera, b.camera);
+        assert_eq!(
+            a.scene.mesh().triangles != c.scene.mesh().triangles,
+            random,
+            "{}: seed dependence",
+            a.name
+        );
+    }
+
+    /// Fewer triangles at half the detail, roughly in proportion.
+    pub(crate) fn check_scaling(build: fn(f32, u64) -> Result<Setup>, detail: f32) {
+        let full = build(detail, 0).unwrap().scene.num_triangles() as f32;
+        let half = build(detail * 0.5, 0).unwrap().scene.num_triangles() as f32;
+        assert!(half < full, "{half} >= {full}");
+        assert!(half > 0.25 * full && half < 0.8 * full, "{half} vs {full}");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_and_errors() {
+        assert_eq!(names(), &NAMES);
+        let e = load("nope", 1.0, 0).unwrap_err().to_string();
+        assert!(e.starts_with("name"), "{e}");
+        for n in NAMES {
+            assert!(e.contains(n), "{e}");
+        }
+        for d in [0.0, -1.0, f32::NAN, f32::INFINITY, 16.5, -0.0] {
+            let e = load("cornell", d, 0).unwrap_err().to_string();
+            assert!(e.starts_with("detail"), "{e}");
+            let e = cornell::build(d, 0).unwrap_err().to_string();
+            assert!(e.starts_with("detail"), "{e}");
+        }
+        // The detail is checked first, so its error wins over an unknown name.
+        let e = load("nope", f32::NAN, 0).unwrap_err().to_string();
+        assert!(e.starts_with("detail"), "{e}");
+        assert!(load("cornell", 16.0, 0).is_ok());
+        assert!(load("dynamics", 1e-6, 0).is_ok());
+    }
+
+    #[test]
+    fn parallel_generation_does_not_depend_on_threads() {
+        for name in ["garden", "hairball"] {
+            let one = crate::parallel::with_threads(Some(1), || load(name, 0.02, 5)).unwrap();
+            let two = crate::parallel::with_threads(Some(3), || load(name, 0.02, 5)).unwrap();
+            let (one, two) = (one.unwrap(), two.unwrap());
+            assert_eq!(one.scene.mesh().triangles, two.scene.mesh().triangles);
+        }
+    }
+
+    /// Generation times in release builds:
+    /// `cargo test --release --lib generation_time -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn generation_time_at_detail_1() {
+        for (name, limit) in [("garden", 1.0), ("hairball", 1.5)] {
+            let t = std::time::Instant::now();
+            let s = load(name, 1.0, 0).unwrap();
+            let secs = t.elapsed().as_secs_f64();
+            eprintln!(
+                "{name}: {} triangles in {secs:.3} s",
+                s.scene.num_triangles()
+            );
+            assert!(secs < limit, "{name}: {secs} s");
+        }
+    }
+
+    #[test]
+    fn every_name_loads() {
+        for n in NAMES {
+            let d = if matches!(n, "garden" | "hairball") {
+                0.01
+            } else {
+                0.25
+            };
+            let s = load(n, d, 1).unwrap();
+            assert_eq!(s.name, n);
+            assert!(s.scene.num_triangles() > 0);
+        }
+    }
+}

@@ -1,0 +1,201 @@
+//! `cornell`: the Cornell box, closed on all six sides.
+//!
+//! **Purpose.** A small room whose visibility is smooth and fully occluded toward the
+//! environment: the reference case for area lights (SBF, BLD) and for records that are
+//! everywhere "blocked". It follows the classic layout (red wall on the left, green on the
+//! right, a short and a tall block turned about 17 degrees in opposite senses, a light
+//! panel under the ceiling), but unlike the classic the camera-side wall is **present**:
+//! the box is closed and watertight, and the camera stands inside it.
+//!
+//! **World.** A cube of side 5.5 m: x and z in [-2.75, 2.75], y in [0, 5.5]. Walls face
+//! inward. Objects: `floor`, `ceiling`, `back_wall` (z = -2.75), `front_wall` (z = +2.75,
+//! behind the camera), `left_wall` (x = -2.75, red), `right_wall` (x = +2.75, green), all
+//! Lambertian; `short_block` (1.65 m cube at (0.95, 0, 0.85)) and `tall_block`
+//! (1.65 x 3.3 x 1.65 m at (-1.1, 0, -0.9)), closed boxes with outward normals, white;
+//! `light`, a 1.3 x 1.05 m quad 5 mm below the ceiling facing down (white Lambertian here;
+//! the area-light code decides that it emits).
+//!
+//! **Triangles.** Walls and blocks are cut into cells of at most 0.65 m / sqrt(detail):
+//! 1,262 triangles at detail 1 (972 for the room, 108 + 180 for the blocks, 2 for the
+//! light).
+//!
+//! **Camera.** Inside the box, high in the front-right corner at (2.4, 4.9, 2.6), looking
+//! down across the room at (-0.6, 0.9, -1); vertical field of view 70 degrees, 256 x 192.
+//! The frame shows the floor with both blocks and their contact regions, the red, back and
+//! green walls (the classic straight-on view needs the camera outside an open box). Every
+//! pixel sees the inside of the box. The seed is unused: the scene has no randomness.
+
+use glam::Vec3;
+
+use super::shapes::{quad, BoxGrid, Face};
+use super::{camera, check_detail, setup, Setup};
+use crate::bsdf::Material;
+use crate::error::Result;
+use crate::geometry::Mesh;
+
+/// Half the side of the room (m).
+pub const HALF: f32 = 2.75;
+/// Height of the room (m).
+pub const HEIGHT: f32 = 5.5;
+
+/// Builds the setup (see the module docs). `seed` is unused.
+pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
+    check_detail(detail)?;
+    let cell = 0.65 / detail.sqrt();
+    let white = Material::lambert([0.73, 0.73, 0.73])?;
+    let red = Material::lambert([0.63, 0.065, 0.05])?;
+    let green = Material::lambert([0.14, 0.45, 0.091])?;
+
+    let mut mesh = Mesh::new();
+    let room = BoxGrid::new(
+        Vec3::new(-HALF, 0.0, -HALF),
+        Vec3::new(HALF, HEIGHT, HALF),
+        cell,
+    );
+    for (face, name, material) in [
+        (Face::NegY, "floor", white),
+        (Face::PosY, "ceiling", white),
+        (Face::NegZ, "back_wall", white),
+        (Face::PosZ, "front_wall", white),
+        (Face::NegX, "left_wall", red),
+        (Face::PosX, "right_wall", green),
+    ] {
+        let mut t = Vec::new();
+        room.face(&mut t, face, true);
+        mesh.add_triangles(t, material, Some(name.into()))?;
+    }
+
+    let side = 1.65;
+    let blocks = [
+        (
+            "short_block",
+            Vec3::new(0.95, side * 0.5, 0.85),
+            Vec3::splat(side),
+            -17f32,
+        ),
+        (
+            "tall_block",
+            Vec3::new(-1.1, side, -0.9),
+            Vec3::new(side, 2.0 * side, side),
+            17f32,
+        ),
+    ];
+    for (name, center, size, yaw) in blocks {
+        let mut t = Vec::new();
+        BoxGrid::centered(center, size, yaw.to_radians(), cell).closed(&mut t);
+        mesh.add_triangles(t, white, Some(name.into()))?;
+    }
+
+    let (y, hx, hz) = (HEIGHT - 0.005, 0.65, 0.525);
+    let mut t = Vec::new();
+    // Counter-clockwise seen from below: normal -y.
+    quad(
+        &mut t,
+        Vec3::new(-hx, y, -hz),
+        Vec3::new(hx, y, -hz),
+        Vec3::new(hx, y, hz),
+        Vec3::new(-hx, y, hz),
+    );
+    mesh.add_triangles(
+        t,
+        Material::lambert([0.78, 0.78, 0.78])?,
+        Some("light".into()),
+    )?;
+
+    let cam = camera([2.4, 4.9, 2.6], [-0.6, 0.9, -1.0], 70.0)?;
+    Ok(setup("cornell", mesh, cam))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::mesh::triangle_cross;
+    use crate::geometry::TraversalCounters;
+    use crate::scenes::shapes::sphere_dir;
+    use crate::scenes::testing::*;
+
+    #[test]
+    fn loads_with_documented_size() {
+        let s = build(1.0, 0).unwrap();
+        check_basic(&s, "cornell", 1262..=1262);
+        assert_eq!(centre_object(&s), "tall_block");
+        let b = s.scene.bounds();
+        assert_eq!(b.min, Vec3::new(-HALF, 0.0, -HALF));
+        assert_eq!(b.max, Vec3::new(HALF, HEIGHT, HALF));
+        check_seeds(build, 1.0, false);
+        check_scaling(build, 1.0);
+        // The light faces down.
+        let m = s.scene.mesh();
+        let light = m.objects.iter().find(|o| o.name == "light").unwrap();
+        let t = &m.triangles[light.first_triangle as usize];
+        assert!(triangle_cross(t).normalize().dot(Vec3::NEG_Y) > 0.999);
+    }
+
+    #[test]
+    fn room_is_watertight() {
+        // The six walls share one lattice: every edge has exactly one reversed twin. (Rays
+        // aimed exactly at a corner of the scene's bounding box can still slip past the
+        // BVH's box tests; the geometry itself has no gap.)
+        let s = build(1.0, 0).unwrap();
+        let m = s.scene.mesh();
+        let walls: Vec<_> = m
+            .objects
+            .iter()
+            .filter(|o| o.name.ends_with("wall") || o.name == "floor" || o.name == "ceiling")
+            .flat_map(|o| {
+                let a = o.first_triangle as usize;
+                m.triangles[a..a + o.num_triangles as usize].iter().copied()
+            })
+            .collect();
+        assert_eq!(walls.len(), 972);
+        crate::scenes::shapes::tests::assert_closed(&walls);
+        for name in ["short_block", "tall_block"] {
+            let o = m.objects.iter().find(|o| o.name == name).unwrap();
+            let a = o.first_triangle as usize;
+            crate::scenes::shapes::tests::assert_closed(
+                &m.triangles[a..a + o.num_triangles as usize],
+            );
+        }
+    }
+
+    #[test]
+    fn closed_from_inside() {
+        let s = build(1.0, 0).unwrap();
+        let mut c = TraversalCounters::default();
+        let origins = [
+            Vec3::new(0.0, HEIGHT * 0.5, 0.0),
+            Vec3::new(0.0, 4.2, 0.0),
+            Vec3::new(2.0, 1.0, -2.0),
+        ];
+        for o in origins {
+            let mut dirs: Vec<Vec3> = (0..1000u64)
+                .map(|i| {
+                    let [u, v] = crate::sampling::rng::SampleRng::new(1, i, 0).get2(0);
+                    sphere_dir(u, v)
+                })
+                .collect();
+            // Straight at the middles of the room's edges and faces, where walls meet.
+            // (Not at its 8 corners: see `room_is_watertight`.)
+            for x in [-1.0f32, 0.0, 1.0] {
+                for y in [-1.0f32, 0.0, 1.0] {
+                    for z in [-1.0f32, 0.0, 1.0] {
+                        let p = Vec3::new(x * HALF, (y + 1.0) * HEIGHT * 0.5, z * HALF);
+                        if x * y * z == 0.0 && p != o {
+                            dirs.push((p - o).normalize());
+                        }
+                    }
+                }
+            }
+            for d in dirs {
+                let h = s.scene.intersect1(o, d, f32::INFINITY, &mut c);
+                assert!(h.is_some(), "ray from {o} along {d} escapes");
+            }
+        }
+        // Walls face into the room, blocks out of themselves.
+        let h = s
+            .scene
+            .intersect1(origins[1], Vec3::Y, f32::INFINITY, &mut c)
+            .unwrap();
+        assert!(h.normal.y < 0.0);
+    }
+}

@@ -1,0 +1,220 @@
+//! `garage`: an open-fronted building under a deep roof overhang, with parked cars.
+//!
+//! **Purpose.** Points under the overhang see the bright sky only through a thin band
+//! near the horizon (past the roof's front edge) and through a few openings, so most of
+//! the environment is occluded and the visible part changes quickly with position: the
+//! case where a visibility cache pays off most.
+//!
+//! **World** (metres; ground at y = 0, the open front faces +z):
+//! - `ground`: a 60 x 60 m square centred at the origin, normal +y.
+//! - Walls 3 m high and 0.25 m thick around the interior x in [-6, 6], z in [-4, 4]:
+//!   `back_wall` (z in [-4.25, -4]) with a window and a door, `left_wall` (x < -6) with a
+//!   window and `right_wall` (x > 6) with a door. The front (z = 4) is open. Each wall is a
+//!   union of closed boxes (piers, sills, lintels) around its openings.
+//! - `roof`: a closed slab x in [-7, 7], y in [3, 3.3], z in [-4.75, 10]: it overhangs the
+//!   open front by 6 m and the other walls by 0.75 m; `post_left`/`post_right` (0.3 m
+//!   square, 3 m high) carry its front corners.
+//! - `car0`..`car3`: closed 4.5 x 1.8 x 1.5 m boxes (length along z), glossy (Phong),
+//!   centred at x = -4, -1.8, 2.6, 4.6 and z = 3, 7, 5.5, 9.5 and turned 0, 3, -2 and 8
+//!   degrees about +y: `car0` reaches into the building, `car3` sticks out beyond the
+//!   roof's edge.
+//!
+//! Solids touch (wall pieces each other, walls the ground and the roof, cars the ground);
+//! the coplanar faces where they touch lie inside solids and cannot be seen.
+//!
+//! **Triangles.** The ground is cut into cells of 1.2 m / sqrt(detail), everything else
+//! into cells of 0.5 m / sqrt(detail): 11,636 triangles at detail 1 (5,000 for the
+//! ground, 1,740 for the walls, 3,592 for the roof, 104 for the posts, 1,200 for the cars).
+//!
+//! **Camera.** A person standing outside, 3.5 m in front of the roof's edge: eye
+//! (0, 1.6, 13.5) looking at (0, 0, 2.5) (the floor just inside the open front) between
+//! the cars, vertical field of view 50 degrees, 256 x 192. The roof's underside fills the
+//! top of the frame, the back wall with its openings the middle; only the bottom rows
+//! (ground just outside the roof's edge) and the openings (sky) lie elsewhere. From the
+//! centre pixel's point about 95% of the hemisphere is blocked. The seed is unused: the
+//! scene has no randomness.
+
+use glam::Vec3;
+
+use super::shapes::{cells, ground, wall_pieces, BoxGrid, Opening};
+use super::{camera, check_detail, setup, Setup};
+use crate::bsdf::Material;
+use crate::error::Result;
+use crate::geometry::Mesh;
+
+/// Height of the walls, and of the roof's underside (m).
+pub const WALL_HEIGHT: f32 = 3.0;
+/// z of the roof's front edge (m).
+pub const ROOF_FRONT: f32 = 10.0;
+
+/// Builds the setup (see the module docs). `seed` is unused.
+pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
+    check_detail(detail)?;
+    let s = detail.sqrt();
+    let cell = 0.5 / s;
+    let mut mesh = Mesh::new();
+
+    let mut t = Vec::new();
+    let size = 60.0;
+    ground(&mut t, Vec3::ZERO, size, cells(size, 1.2 / s));
+    mesh.add_triangles(
+        t,
+        Material::lambert([0.35, 0.35, 0.33])?,
+        Some("ground".into()),
+    )?;
+
+    let wall = Material::lambert([0.7, 0.68, 0.62])?;
+    let (h, th) = (WALL_HEIGHT, 0.25);
+    let v = [0.0, h];
+    let walls = [
+        (
+            "back_wall",
+            wall_pieces(
+                0,
+                [-6.0 - th, 6.0 + th],
+                v,
+                [-4.0 - th, -4.0],
+                &[
+                    Opening {
+                        u: [-4.0, -2.0],
+                        v: [1.0, 2.0],
+                    },
+                    Opening {
+                        u: [2.5, 3.5],
+                        v: [0.0, 2.1],
+                    },
+                ],
+            ),
+        ),
+        (
+            "left_wall",
+            wall_pieces(
+                2,
+                [-4.0, 4.0],
+                v,
+                [-6.0 - th, -6.0],
+                &[Opening {
+                    u: [-1.5, 1.0],
+                    v: [1.0, 2.0],
+                }],
+            ),
+        ),
+        (
+            "right_wall",
+            wall_pieces(
+                2,
+                [-4.0, 4.0],
+                v,
+                [6.0, 6.0 + th],
+                &[Opening {
+                    u: [-2.5, -1.5],
+                    v: [0.0, 2.1],
+                }],
+            ),
+        ),
+    ];
+    for (name, pieces) in walls {
+        let mut t = Vec::new();
+        for (lo, hi) in pieces {
+            BoxGrid::new(lo, hi, cell).closed(&mut t);
+        }
+        mesh.add_triangles(t, wall, Some(name.into()))?;
+    }
+
+    let concrete = Material::lambert([0.55, 0.55, 0.52])?;
+    let mut t = Vec::new();
+    BoxGrid::new(
+        Vec3::new(-7.0, h, -4.75),
+        Vec3::new(7.0, h + 0.3, ROOF_FRONT),
+        cell,
+    )
+    .closed(&mut t);
+    mesh.add_triangles(t, concrete, Some("roof".into()))?;
+    for (name, x) in [("post_left", -6.6), ("post_right", 6.6)] {
+        let mut t = Vec::new();
+        BoxGrid::centered(
+            Vec3::new(x, h * 0.5, ROOF_FRONT - 0.4),
+            Vec3::new(0.3, h, 0.3),
+            0.0,
+            cell,
+        )
+        .closed(&mut t);
+        mesh.add_triangles(t, concrete, Some(name.into()))?;
+    }
+
+    let car = Vec3::new(1.8, 1.5, 4.5);
+    let paints = [
+        ([0.55, 0.05, 0.05], [0.3; 3], 60.0),
+        ([0.05, 0.1, 0.45], [0.3; 3], 60.0),
+        ([0.4, 0.4, 0.42], [0.45; 3], 120.0),
+        ([0.65, 0.65, 0.62], [0.3; 3], 80.0),
+    ];
+    let places = [
+        (-4.0, 3.0, 0.0f32),
+        (-1.8, 7.0, 3.0),
+        (2.6, 5.5, -2.0),
+        (4.6, 9.5, 8.0),
+    ];
+    for (i, ((x, z, yaw), (kd, ks, e))) in places.into_iter().zip(paints).enumerate() {
+        let mut t = Vec::new();
+        BoxGrid::centered(Vec3::new(x, car.y * 0.5, z), car, yaw.to_radians(), cell).closed(&mut t);
+        mesh.add_triangles(t, Material::phong(kd, ks, e)?, Some(format!("car{i}")))?;
+    }
+
+    let cam = camera([0.0, 1.6, 13.5], [0.0, 0.0, 2.5], 50.0)?;
+    Ok(setup("garage", mesh, cam))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenes::testing::*;
+
+    #[test]
+    fn loads_with_documented_size() {
+        let s = build(1.0, 0).unwrap();
+        check_basic(&s, "garage", 11_636..=11_636);
+        let b = s.scene.bounds();
+        assert_eq!(b.min, Vec3::new(-30.0, 0.0, -30.0));
+        assert_eq!(b.max, Vec3::new(30.0, 3.3, 30.0));
+        check_seeds(build, 1.0, false);
+        check_scaling(build, 1.0);
+    }
+
+    #[test]
+    fn the_sky_is_mostly_occluded_from_what_the_camera_sees() {
+        let s = build(1.0, 0).unwrap();
+        let h = centre_hit(&s);
+        assert_eq!(centre_object(&s), "ground");
+        assert!(h.position.z < ROOF_FRONT);
+        let f = occluded_fraction(&s.scene, h.position, Vec3::Y, 1000);
+        assert!(f > 0.8, "centre: {f}");
+        // Over the whole frame (coarse grid), most visible points are under the roof and
+        // most of their sky is blocked.
+        let c = &s.camera;
+        let (mut sum, mut n, mut under) = (0.0, 0, 0);
+        let mut counters = crate::geometry::TraversalCounters::default();
+        for y in 0..6 {
+            for x in 0..8 {
+                let d = c.direction((x as f32 + 0.5) * 32.0, (y as f32 + 0.5) * 32.0);
+                if let Some(h) = s.scene.intersect1(c.eye, d, f32::INFINITY, &mut counters) {
+                    let nrm = if h.normal.dot(d) > 0.0 {
+                        -h.normal
+                    } else {
+                        h.normal
+                    };
+                    sum += occluded_fraction(&s.scene, h.position, nrm, 64);
+                    n += 1;
+                    let p = h.position;
+                    under += (p.z < ROOF_FRONT && p.y <= WALL_HEIGHT + 1e-3) as i32;
+                }
+            }
+        }
+        assert!(
+            n >= 44,
+            "{n} of 48 sampled pixels hit (the rest see sky through openings)"
+        );
+        assert!(under >= 36, "{under} of 48 under the roof");
+        assert!(sum / n as f32 > 0.6, "mean occlusion {}", sum / n as f32);
+    }
+}
