@@ -1,1 +1,28 @@
-//! PyO3 bindings.
+//! PyO3 bindings: argument checks, numpy conversion, GIL release around the core. No logic
+//! lives here; everything calls into the crate's modules.
+
+mod camera;
+mod convert;
+mod material;
+mod scene;
+mod setup;
+mod testing;
+
+use pyo3::prelude::*;
+
+/// The native module `viscache_rs._core`.
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_class::<scene::PyScene>()?;
+    m.add_class::<camera::PyCamera>()?;
+    m.add_class::<material::PyMaterial>()?;
+    m.add_class::<setup::PySetup>()?;
+    m.add_function(wrap_pyfunction!(setup::scene_names, m)?)?;
+    m.add_function(wrap_pyfunction!(setup::load_scene, m)?)?;
+    let testing = PyModule::new(m.py(), "testing")?;
+    testing.add_function(wrap_pyfunction!(testing::ground_hemisphere_rays, &testing)?)?;
+    testing.add_function(wrap_pyfunction!(testing::record_bundle_rays, &testing)?)?;
+    m.add_submodule(&testing)?;
+    Ok(())
+}

@@ -1,0 +1,39 @@
+"""Image output without extra dependencies."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["to_srgb8", "write_png"]
+
+
+def to_srgb8(linear: np.ndarray, exposure: float = 1.0) -> np.ndarray:
+    """Linear radiance (H, W, 3) -> sRGB uint8, clipping at 1 after ``exposure``."""
+    x = np.clip(np.nan_to_num(np.asarray(linear, dtype=np.float64) * exposure), 0.0, 1.0)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.round(srgb * 255.0).astype(np.uint8)
+
+
+def write_png(path: str | Path, rgb8: np.ndarray) -> Path:
+    """Writes an (H, W, 3) uint8 array as an 8-bit RGB PNG and returns the path."""
+    img = np.ascontiguousarray(rgb8)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"rgb8: expected an (H, W, 3) uint8 array, got {img.dtype} {img.shape}")
+    h, w, _ = img.shape
+    raw = b"".join(b"\x00" + img[y].tobytes() for y in range(h))
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        body = tag + data
+        return struct.pack(">I", len(data)) + body + struct.pack(">I", zlib.crc32(body))
+
+    header = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 6))
+    png += chunk(b"IEND", b"")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(png)
+    return path

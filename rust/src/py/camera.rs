@@ -1,0 +1,148 @@
+//! `vc.Camera`.
+
+use glam::Vec3;
+use pyo3::prelude::*;
+
+use super::convert::{f64_arg, int_arg, rows3_array, seed_arg, vec3_arg, IntoPyResult};
+use crate::camera::{Camera, DIM_PIXEL_JITTER, MAX_RESOLUTION};
+use crate::sampling::rng::SampleRng;
+
+/// A pinhole camera. The field of view spans the vertical axis (image height); images are
+/// (height, width) arrays with row 0 at the top.
+#[pyclass(name = "Camera", module = "viscache_rs._core", frozen, from_py_object)]
+#[derive(Clone)]
+pub struct PyCamera {
+    pub inner: Camera,
+}
+
+fn resolution(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<u32> {
+    Ok(int_arg(obj, name, 1, MAX_RESOLUTION as i128)? as u32)
+}
+
+#[pymethods]
+impl PyCamera {
+    /// Camera at `eye` looking at `target`; `up` fixes the roll; `fov_deg` is the vertical
+    /// field of view in degrees, in (0, 180).
+    #[staticmethod]
+    #[pyo3(signature = (eye, target, up=None, fov_deg=None, width=None, height=None))]
+    fn look_at(
+        eye: &Bound<'_, PyAny>,
+        target: &Bound<'_, PyAny>,
+        up: Option<&Bound<'_, PyAny>>,
+        fov_deg: Option<&Bound<'_, PyAny>>,
+        width: Option<&Bound<'_, PyAny>>,
+        height: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let up = match up {
+            Some(u) => vec3_arg(u, "up")?,
+            None => [0.0, 1.0, 0.0],
+        };
+        let fov = fov_deg.map_or(Ok(45.0), |f| f64_arg(f, "fov_deg"))? as f32;
+        let w = width.map_or(Ok(256), |w| resolution(w, "width"))?;
+        let h = height.map_or(Ok(192), |h| resolution(h, "height"))?;
+        let cam = Camera::look_at(
+            vec3_arg(eye, "eye")?.into(),
+            vec3_arg(target, "target")?.into(),
+            Vec3::from(up),
+            fov,
+            w,
+            h,
+        )
+        .py()?;
+        Ok(Self { inner: cam })
+    }
+
+    /// The same view at another resolution.
+    fn with_resolution(
+        &self,
+        width: &Bound<'_, PyAny>,
+        height: &Bound<'_, PyAny>,
+    ) -> PyResult<Self> {
+        let c = self
+            .inner
+            .with_resolution(resolution(width, "width")?, resolution(height, "height")?)
+            .py()?;
+        Ok(Self { inner: c })
+    }
+
+    #[getter]
+    fn width(&self) -> u32 {
+        self.inner.width
+    }
+
+    #[getter]
+    fn height(&self) -> u32 {
+        self.inner.height
+    }
+
+    /// Vertical field of view in degrees.
+    #[getter]
+    fn fov_deg(&self) -> f32 {
+        self.inner.fov_y_deg
+    }
+
+    #[getter]
+    fn eye(&self) -> [f32; 3] {
+        self.inner.eye.into()
+    }
+
+    /// Unit viewing direction.
+    #[getter]
+    fn forward(&self) -> [f32; 3] {
+        self.inner.forward.into()
+    }
+
+    /// Unit vector toward the right edge of the image.
+    #[getter]
+    fn right(&self) -> [f32; 3] {
+        self.inner.right.into()
+    }
+
+    /// Unit vector toward the top edge of the image.
+    #[getter]
+    fn up(&self) -> [f32; 3] {
+        self.inner.up.into()
+    }
+
+    /// Primary rays, one per pixel in row-major order: (origins, directions) as (H*W, 3)
+    /// arrays, jittered from (seed, pixel) like `Scene.gbuffer`, or through pixel centres.
+    #[pyo3(signature = (seed=None, jitter=true))]
+    fn rays<'py>(
+        &self,
+        py: Python<'py>,
+        seed: Option<&Bound<'py, PyAny>>,
+        jitter: bool,
+    ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+        let seed = seed.map_or(Ok(0), seed_arg)?;
+        let c = self.inner;
+        let n = c.num_pixels();
+        let dirs: Vec<[f32; 3]> = (0..n)
+            .map(|i| {
+                let j = if jitter {
+                    SampleRng::new(seed, i as u64, 0).get2(DIM_PIXEL_JITTER)
+                } else {
+                    [0.5, 0.5]
+                };
+                c.pixel_ray(i as u32 % c.width, i as u32 / c.width, j)
+                    .1
+                    .into()
+            })
+            .collect();
+        Ok((
+            rows3_array(py, vec![c.eye.into(); n])?,
+            rows3_array(py, dirs)?,
+        ))
+    }
+
+    pub fn __repr__(&self) -> String {
+        let c = &self.inner;
+        format!(
+            "Camera(eye={:?}, forward={:?}, fov_deg={}, width={}, height={})",
+            c.eye.to_array(),
+            c.forward.to_array(),
+            c.fov_y_deg,
+            c.width,
+            c.height
+        )
+    }
+}

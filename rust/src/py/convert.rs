@@ -1,0 +1,240 @@
+//! Argument checking and numpy conversion shared by the bindings. Every failure becomes a
+//! `TypeError` (wrong kind of value or dtype) or `ValueError` (wrong shape or value) whose
+//! message starts with the argument's name.
+
+use numpy::{
+    PyArray1, PyArrayDescrMethods, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyUntypedArray, PyUntypedArrayMethods,
+};
+use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::error::Error;
+
+/// Maps a core error to the matching Python exception.
+pub fn to_py(e: Error) -> PyErr {
+    match &e {
+        Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
+            PyFileNotFoundError::new_err(e.to_string())
+        }
+        Error::Io { .. } => PyOSError::new_err(e.to_string()),
+        Error::InvalidArgument { .. } | Error::Parse { .. } => PyValueError::new_err(e.to_string()),
+    }
+}
+
+/// Extension to turn `crate::Result` into `PyResult`.
+pub trait IntoPyResult<T> {
+    fn py(self) -> PyResult<T>;
+}
+
+impl<T> IntoPyResult<T> for crate::Result<T> {
+    fn py(self) -> PyResult<T> {
+        self.map_err(to_py)
+    }
+}
+
+fn numpy(py: Python<'_>) -> PyResult<Bound<'_, PyModule>> {
+    py.import("numpy")
+}
+
+/// `numpy.asarray(obj)`, with failures (ragged lists and the like) reported against `name`.
+fn as_array<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Bound<'py, PyUntypedArray>> {
+    let arr = numpy(obj.py())?
+        .call_method1("asarray", (obj,))
+        .map_err(|e| PyValueError::new_err(format!("{name}: cannot be read as an array ({e})")))?;
+    arr.cast_into::<PyUntypedArray>()
+        .map_err(|_| PyTypeError::new_err(format!("{name}: cannot be read as an array")))
+}
+
+fn check_kind(
+    arr: &Bound<'_, PyUntypedArray>,
+    name: &str,
+    kinds: &[u8],
+    what: &str,
+) -> PyResult<()> {
+    let dtype = arr.dtype();
+    if kinds.contains(&dtype.kind()) {
+        Ok(())
+    } else {
+        Err(PyTypeError::new_err(format!(
+            "{name}: expected {what}, got dtype {dtype}"
+        )))
+    }
+}
+
+fn check_rows(arr: &Bound<'_, PyUntypedArray>, name: &str, cols: usize) -> PyResult<()> {
+    let shape = arr.shape();
+    if shape.len() == 2 && shape[1] == cols {
+        Ok(())
+    } else {
+        Err(PyValueError::new_err(format!(
+            "{name}: expected shape (N, {cols}), got {shape:?}"
+        )))
+    }
+}
+
+fn contiguous<'py>(arr: &Bound<'py, PyUntypedArray>, dtype: &str) -> PyResult<Bound<'py, PyAny>> {
+    numpy(arr.py())?.call_method1("ascontiguousarray", (arr, dtype))
+}
+
+/// Rows of an `(N, 3)` real array as `float32`: borrowed from a C-contiguous `float32`
+/// array, converted otherwise (values beyond the `float32` range become infinite, which
+/// the finiteness checks then report).
+pub enum Rows3<'py> {
+    Borrowed(PyReadonlyArray2<'py, f32>),
+    Owned(Vec<[f32; 3]>),
+}
+
+impl Rows3<'_> {
+    /// The rows.
+    pub fn rows(&self) -> PyResult<&[[f32; 3]]> {
+        match self {
+            Rows3::Borrowed(a) => as_rows(a),
+            Rows3::Owned(v) => Ok(v),
+        }
+    }
+}
+
+/// An `(N, 3)` array of real numbers (any float or integer dtype); bool, complex, object
+/// and string dtypes are a `TypeError`, other shapes a `ValueError`.
+pub fn rows3_f32<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Rows3<'py>> {
+    let arr = as_array(obj, name)?;
+    check_kind(&arr, name, b"fiu", "a real-valued array")?;
+    check_rows(&arr, name, 3)?;
+    if arr.dtype().is_equiv_to(&numpy::dtype::<f32>(obj.py())) {
+        return Ok(Rows3::Borrowed(contiguous(&arr, "float32")?.extract()?));
+    }
+    let wide: PyReadonlyArray2<f64> = contiguous(&arr, "float64")?.extract()?;
+    let rows = as_rows(&wide)?
+        .iter()
+        .map(|r| r.map(|v| v as f32))
+        .collect();
+    Ok(Rows3::Owned(rows))
+}
+
+/// An `(M, 3)` integer array as C-contiguous `int64`.
+pub fn rows3_i64<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonlyArray2<'py, i64>> {
+    let arr = as_array(obj, name)?;
+    check_kind(&arr, name, b"iu", "an integer array")?;
+    check_rows(&arr, name, 3)?;
+    Ok(contiguous(&arr, "int64")?.extract()?)
+}
+
+/// Views a contiguous `(N, 3)` array as rows.
+pub fn as_rows<'a, T: numpy::Element + Copy>(
+    arr: &'a PyReadonlyArray2<'_, T>,
+) -> PyResult<&'a [[T; 3]]> {
+    let flat = arr
+        .as_slice()
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(flat.as_chunks::<3>().0)
+}
+
+/// A 3-vector from any length-3 sequence of finite reals.
+pub fn vec3_arg(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f32; 3]> {
+    let arr = as_array(obj, name)?;
+    check_kind(&arr, name, b"fiu", "three real numbers")?;
+    if arr.shape() != [3] {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected three numbers, got shape {:?}",
+            arr.shape()
+        )));
+    }
+    let a: PyReadonlyArray1<f64> = contiguous(&arr, "float64")?.extract()?;
+    let s = a
+        .as_slice()
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let v = [s[0] as f32, s[1] as f32, s[2] as f32];
+    if v.iter().any(|c| !c.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "{name}: must be finite, got {v:?}"
+        )));
+    }
+    Ok(v)
+}
+
+/// A real scalar (int or float, not bool).
+pub fn f64_arg(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<f64> {
+    if obj.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(PyTypeError::new_err(format!(
+            "{name}: expected a number, got bool"
+        )));
+    }
+    obj.extract::<f64>().map_err(|_| {
+        PyTypeError::new_err(format!("{name}: expected a number, got {}", type_name(obj)))
+    })
+}
+
+/// An integer in `[min, max]` (bool rejected); out-of-range and overflow are `ValueError`.
+pub fn int_arg(obj: &Bound<'_, PyAny>, name: &str, min: i128, max: i128) -> PyResult<i128> {
+    if obj.is_instance_of::<pyo3::types::PyBool>() || !obj.is_instance_of::<pyo3::types::PyInt>() {
+        // numpy integers are not PyInt subclasses but index like one.
+        if let Ok(i) = obj.call_method0("__index__") {
+            if !obj.is_instance_of::<pyo3::types::PyBool>() {
+                return int_arg(&i, name, min, max);
+            }
+        }
+        return Err(PyTypeError::new_err(format!(
+            "{name}: expected an integer, got {}",
+            type_name(obj)
+        )));
+    }
+    match obj.extract::<i128>() {
+        Ok(v) if (min..=max).contains(&v) => Ok(v),
+        _ => Err(PyValueError::new_err(format!(
+            "{name}: must be an integer in [{min}, {max}], got {obj}"
+        ))),
+    }
+}
+
+/// Optional thread count: `None` uses every core.
+pub fn threads_arg(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<usize>> {
+    match obj {
+        None => Ok(None),
+        Some(o) if o.is_none() => Ok(None),
+        Some(o) => Ok(Some(
+            int_arg(o, "threads", 1, crate::parallel::MAX_THREADS as i128)? as usize,
+        )),
+    }
+}
+
+/// A seed in `[0, 2^64)`.
+pub fn seed_arg(obj: &Bound<'_, PyAny>) -> PyResult<u64> {
+    Ok(int_arg(obj, "seed", 0, u64::MAX as i128)? as u64)
+}
+
+fn type_name(obj: &Bound<'_, PyAny>) -> String {
+    obj.get_type()
+        .name()
+        .map(|n| n.to_string())
+        .unwrap_or_else(|_| "?".into())
+}
+
+/// `(N, 3)` float32 array from rows, without copying the data.
+pub fn rows3_array<'py>(py: Python<'py>, rows: Vec<[f32; 3]>) -> PyResult<Bound<'py, PyAny>> {
+    let n = rows.len();
+    Ok(PyArray1::from_vec(py, rows.into_flattened())
+        .reshape([n, 3])?
+        .into_any())
+}
+
+/// Reshapes a flat per-pixel array to `(height, width, *tail)`.
+pub fn image_array<'py, T: numpy::Element>(
+    py: Python<'py>,
+    data: Vec<T>,
+    height: usize,
+    width: usize,
+    channels: Option<usize>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let a = PyArray1::from_vec(py, data);
+    Ok(match channels {
+        Some(c) => a.reshape([height, width, c])?.into_any(),
+        None => a.reshape([height, width])?.into_any(),
+    })
+}
+
+/// Sets `dict[key] = value`.
+pub fn put<'py>(d: &Bound<'py, PyDict>, key: &str, value: impl IntoPyObject<'py>) -> PyResult<()> {
+    d.set_item(key, value)
+}

@@ -1,0 +1,440 @@
+//! `vc.Scene`: geometry input, ray queries, counters and the G-buffer.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use super::camera::PyCamera;
+use super::convert::{
+    as_rows, f64_arg, image_array, put, rows3_array, rows3_f32, rows3_i64, seed_arg, threads_arg,
+    IntoPyResult,
+};
+use super::material::PyMaterial;
+use crate::bsdf::Material;
+use crate::camera::GBuffer;
+use crate::geometry::{BuildQuality, Mesh, RayBatch, Scene, TMax};
+
+/// Triangles grouped into objects, with a BVH built on first query.
+///
+/// Mutating methods copy the geometry first when it is shared (for example with a cache
+/// built over it), so objects that hold the scene keep seeing the geometry they were given.
+#[pyclass(name = "Scene", module = "viscache_rs._core")]
+pub struct PyScene {
+    pub inner: Arc<Scene>,
+}
+
+/// The upper ends of the ray segments: None (unbounded), a number, or one per ray.
+enum TMaxArg<'py> {
+    Scalar(f32),
+    PerRay(PyReadonlyArray1<'py, f32>),
+}
+
+fn tmax_arg<'py>(obj: Option<&Bound<'py, PyAny>>, n: usize) -> PyResult<TMaxArg<'py>> {
+    let Some(obj) = obj.filter(|o| !o.is_none()) else {
+        return Ok(TMaxArg::Scalar(f32::INFINITY));
+    };
+    let np = obj.py().import("numpy")?;
+    let ndim: usize = np.call_method1("ndim", (obj,))?.extract()?;
+    if ndim == 0 {
+        return Ok(TMaxArg::Scalar(f64_arg(obj, "tmax")? as f32));
+    }
+    let arr = np
+        .call_method1("asarray", (obj,))
+        .map_err(|e| PyValueError::new_err(format!("tmax: cannot be read as an array ({e})")))?;
+    let kind: String = arr.getattr("dtype")?.getattr("kind")?.extract()?;
+    if !matches!(kind.as_str(), "f" | "i" | "u") {
+        return Err(PyTypeError::new_err(format!(
+            "tmax: expected real numbers, got dtype kind {kind:?}"
+        )));
+    }
+    let shape: Vec<usize> = arr.getattr("shape")?.extract()?;
+    if shape != [n] {
+        return Err(PyValueError::new_err(format!(
+            "tmax: expected a number or shape ({n},), got shape {shape:?}"
+        )));
+    }
+    Ok(TMaxArg::PerRay(
+        np.call_method1("ascontiguousarray", (arr, "float32"))?
+            .extract()?,
+    ))
+}
+
+impl PyScene {
+    pub fn new_from(scene: Scene) -> Self {
+        Self {
+            inner: Arc::new(scene),
+        }
+    }
+
+    fn with_rays<R: Send>(
+        &self,
+        py: Python<'_>,
+        origins: &Bound<'_, PyAny>,
+        directions: &Bound<'_, PyAny>,
+        tmax: Option<&Bound<'_, PyAny>>,
+        f: impl FnOnce(&Scene, &RayBatch) -> crate::Result<R> + Send,
+    ) -> PyResult<R> {
+        let o = rows3_f32(origins, "origins")?;
+        let d = rows3_f32(directions, "directions")?;
+        let (o, d) = (o.rows()?, d.rows()?);
+        if o.len() != d.len() {
+            return Err(PyValueError::new_err(format!(
+                "directions: has {} rows but origins has {}",
+                d.len(),
+                o.len()
+            )));
+        }
+        let t = tmax_arg(tmax, o.len())?;
+        let t = match &t {
+            TMaxArg::Scalar(v) => TMax::Scalar(*v),
+            TMaxArg::PerRay(a) => TMax::PerRay(
+                a.as_slice()
+                    .map_err(|e| PyValueError::new_err(e.to_string()))?,
+            ),
+        };
+        let batch = RayBatch {
+            origins: o,
+            directions: d,
+            tmax: t,
+        };
+        let scene = &*self.inner;
+        py.detach(|| f(scene, &batch)).py()
+    }
+}
+
+#[pymethods]
+impl PyScene {
+    /// An empty scene.
+    #[new]
+    fn py_new() -> Self {
+        Self::new_from(Scene::new())
+    }
+
+    /// Adds an indexed triangle mesh as one object and returns its id.
+    ///
+    /// vertices: (N, 3) real array; faces: (M, 3) integer array of indices into vertices;
+    /// material: a Material (default: light grey Lambert); name: str.
+    #[pyo3(signature = (vertices, faces, material=None, name=None))]
+    fn add_mesh(
+        &mut self,
+        py: Python<'_>,
+        vertices: &Bound<'_, PyAny>,
+        faces: &Bound<'_, PyAny>,
+        material: Option<PyMaterial>,
+        name: Option<String>,
+    ) -> PyResult<u32> {
+        let v = rows3_f32(vertices, "vertices")?;
+        let f = rows3_i64(faces, "faces")?;
+        let (v, f) = (v.rows()?, as_rows(&f)?);
+        let material = material.map_or(Material::DEFAULT, |m| m.inner);
+        let name = name.unwrap_or_else(|| format!("object{}", self.inner.num_objects()));
+        // Validate against a scratch mesh first, so a failure leaves the scene untouched and
+        // a shared scene is only copied when the mesh is good.
+        let mut part = Mesh::new();
+        py.detach(|| part.add_indexed(v, f, material, Some(name)))
+            .py()?;
+        let scene = Arc::make_mut(&mut self.inner);
+        let first = scene.num_objects() as u32;
+        scene.append(&part);
+        Ok(first)
+    }
+
+    /// Loads a Wavefront OBJ file (triangulated; one object per OBJ object/group).
+    #[staticmethod]
+    fn from_obj(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let mesh = py.detach(|| crate::geometry::obj::load_obj(&path)).py()?;
+        Ok(Self::new_from(Scene::from_mesh(mesh)))
+    }
+
+    /// Builds a scene from a `trimesh.Trimesh` or a `trimesh.Scene` (node transforms
+    /// applied; one object per node, named after it).
+    #[staticmethod]
+    fn from_trimesh(py: Python<'_>, mesh: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let parts: Vec<Bound<'_, PyAny>> = if mesh.hasattr("graph")? && mesh.hasattr("dump")? {
+            mesh.call_method0("dump")?.extract()?
+        } else if mesh.hasattr("vertices")? && mesh.hasattr("faces")? {
+            vec![mesh.clone()]
+        } else {
+            return Err(PyTypeError::new_err(
+                "mesh: expected a trimesh.Trimesh or trimesh.Scene",
+            ));
+        };
+        let mut scene = Self::py_new();
+        for part in parts {
+            if !part.hasattr("faces")? {
+                continue; // paths and point clouds carry no triangles
+            }
+            let meta = part.getattr("metadata").ok();
+            let name = meta
+                .and_then(|m| m.call_method1("get", ("node",)).ok())
+                .and_then(|n| n.extract::<String>().ok());
+            scene.add_mesh(
+                py,
+                &part.getattr("vertices")?,
+                &part.getattr("faces")?,
+                None,
+                name,
+            )?;
+        }
+        Ok(scene)
+    }
+
+    /// Number of triangles (degenerate ones included).
+    #[getter]
+    fn num_triangles(&self) -> usize {
+        self.inner.num_triangles()
+    }
+
+    /// Number of objects.
+    #[getter]
+    fn num_objects(&self) -> usize {
+        self.inner.num_objects()
+    }
+
+    /// (2, 3) float32 array [min, max]; an empty scene gives [+inf, -inf].
+    #[getter]
+    fn bounds<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let b = self.inner.bounds();
+        rows3_array(py, vec![b.min.into(), b.max.into()])
+    }
+
+    /// (M, 3, 3) float32 array of triangle vertices.
+    fn triangles<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let flat: Vec<f32> = self
+            .inner
+            .mesh()
+            .triangles
+            .iter()
+            .flat_map(|t| t.iter().flat_map(|v| v.to_array()))
+            .collect();
+        let m = self.inner.num_triangles();
+        Ok(PyArray1::from_vec(py, flat).reshape([m, 3, 3])?.into_any())
+    }
+
+    /// (M,) int32 array: the object id of each triangle.
+    fn object_ids<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
+        let ids: Vec<i32> = self
+            .inner
+            .mesh()
+            .object_ids
+            .iter()
+            .map(|&i| i as i32)
+            .collect();
+        PyArray1::from_vec(py, ids).into_any()
+    }
+
+    /// Names of the objects, indexed by object id.
+    fn object_names(&self) -> Vec<String> {
+        self.inner
+            .mesh()
+            .objects
+            .iter()
+            .map(|o| o.name.clone())
+            .collect()
+    }
+
+    /// Material of object `obj`.
+    fn material(&self, obj: usize) -> PyResult<PyMaterial> {
+        self.inner
+            .mesh()
+            .objects
+            .get(obj)
+            .map(|o| PyMaterial { inner: o.material })
+            .ok_or_else(|| {
+                PyValueError::new_err(format!(
+                    "obj: no object {obj} (the scene has {})",
+                    self.inner.num_objects()
+                ))
+            })
+    }
+
+    /// Builds the BVH now (otherwise it is built on the first query). quality: one of
+    /// "fastest", "very_fast", "fast" (default), "medium", "slow", "very_slow". Returns the
+    /// build time in seconds.
+    #[pyo3(signature = (quality="fast", threads=None))]
+    fn build(
+        &mut self,
+        py: Python<'_>,
+        quality: &str,
+        threads: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<f64> {
+        let q = BuildQuality::parse(quality).py()?;
+        let threads = threads_arg(threads)?;
+        let scene = Arc::make_mut(&mut self.inner);
+        py.detach(|| {
+            crate::parallel::with_threads(threads, || scene.build(q).build_time().as_secs_f64())
+        })
+        .py()
+    }
+
+    /// Statistics of the BVH (built if needed): quality, nodes, bytes, build seconds.
+    fn bvh_stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let scene = &*self.inner;
+        let bvh = py.detach(|| scene.bvh());
+        let d = PyDict::new(py);
+        put(&d, "quality", bvh.quality().name())?;
+        put(&d, "nodes", bvh.num_nodes())?;
+        put(&d, "memory_bytes", bvh.memory_bytes())?;
+        put(&d, "build_seconds", bvh.build_time().as_secs_f64())?;
+        Ok(d)
+    }
+
+    /// (N,) bool: whether anything lies on `origins + t * directions`, t in [0, tmax).
+    /// origins, directions: (N, 3) real arrays (directions non-zero, any length);
+    /// tmax: None (unbounded), a number, or (N,) array >= 0; threads: None = all cores.
+    #[pyo3(signature = (origins, directions, tmax=None, threads=None))]
+    fn occluded<'py>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmax: Option<&Bound<'py, PyAny>>,
+        threads: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let threads = threads_arg(threads)?;
+        let occ = self.with_rays(py, origins, directions, tmax, |s, b| s.occluded(b, threads))?;
+        Ok(PyArray1::from_vec(py, occ).into_any())
+    }
+
+    /// Closest hits, as a dict of arrays: t (inf on miss, in units of the given direction's
+    /// length), prim and obj (int32, -1 on miss), u and v (barycentrics of the second and
+    /// third vertex), position and normal ((N, 3), unit geometric normal, NaN on miss).
+    #[pyo3(signature = (origins, directions, tmax=None, threads=None))]
+    fn intersect<'py>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmax: Option<&Bound<'py, PyAny>>,
+        threads: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let threads = threads_arg(threads)?;
+        let h = self.with_rays(py, origins, directions, tmax, |s, b| {
+            s.intersect(b, threads)
+        })?;
+        let d = PyDict::new(py);
+        put(&d, "t", PyArray1::from_vec(py, h.t))?;
+        put(&d, "prim", PyArray1::from_vec(py, h.prim))?;
+        put(&d, "obj", PyArray1::from_vec(py, h.obj))?;
+        put(&d, "u", PyArray1::from_vec(py, h.u))?;
+        put(&d, "v", PyArray1::from_vec(py, h.v))?;
+        put(&d, "position", rows3_array(py, h.position)?)?;
+        put(&d, "normal", rows3_array(py, h.normal)?)?;
+        Ok(d)
+    }
+
+    /// Moves points off their surface along `normals` by an epsilon that scales with the
+    /// scene's size and the points' magnitude: where shadow rays should start.
+    fn offset_points<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+        normals: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let p = rows3_f32(points, "points")?;
+        let n = rows3_f32(normals, "normals")?;
+        let (p, n) = (p.rows()?, n.rows()?);
+        if p.len() != n.len() {
+            return Err(PyValueError::new_err(format!(
+                "normals: has {} rows but points has {}",
+                n.len(),
+                p.len()
+            )));
+        }
+        let out = p
+            .iter()
+            .zip(n)
+            .map(|(p, n)| self.inner.offset_point((*p).into(), (*n).into()).into())
+            .collect();
+        rows3_array(py, out)
+    }
+
+    /// Traversal counters since the last reset: rays, nodes (BVH nodes whose children were
+    /// tested) and triangles (ray/triangle tests). Exact, summed over threads.
+    fn counters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let c = self.inner.counters();
+        let d = PyDict::new(py);
+        put(&d, "rays", c.rays)?;
+        put(&d, "nodes", c.nodes)?;
+        put(&d, "triangles", c.triangles)?;
+        Ok(d)
+    }
+
+    /// Sets all counters to zero.
+    fn reset_counters(&self) {
+        self.inner.reset_counters();
+    }
+
+    /// Whether queries update the counters (default True).
+    #[getter]
+    fn get_counting(&self) -> bool {
+        self.inner.counting_enabled()
+    }
+
+    #[setter]
+    fn set_counting(&self, on: bool) {
+        self.inner.set_counting(on);
+    }
+
+    /// First hits of one primary ray per pixel, as a dict of (H, W, ...) arrays: position,
+    /// normal (facing the camera), direction, object and prim (int32, -1 on miss), depth
+    /// (distance from the eye, inf on miss) and footprint (square root of the pixel's area
+    /// projected onto the hit's tangent plane, world units). With jitter the ray passes
+    /// through a point drawn from (seed, pixel); without, through the pixel centre.
+    #[pyo3(signature = (camera, seed=None, jitter=true, threads=None))]
+    fn gbuffer<'py>(
+        &self,
+        py: Python<'py>,
+        camera: PyRef<'py, PyCamera>,
+        seed: Option<&Bound<'py, PyAny>>,
+        jitter: bool,
+        threads: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let seed = seed.map_or(Ok(0), seed_arg)?;
+        let threads = threads_arg(threads)?;
+        let cam = camera.inner;
+        let scene = &*self.inner;
+        let g = py
+            .detach(|| GBuffer::render(scene, &cam, seed, jitter, threads))
+            .py()?;
+        let (h, w) = (g.height as usize, g.width as usize);
+        let d = PyDict::new(py);
+        let flat = |v: Vec<[f32; 3]>| v.into_flattened();
+        put(
+            &d,
+            "position",
+            image_array(py, flat(g.position), h, w, Some(3))?,
+        )?;
+        put(
+            &d,
+            "normal",
+            image_array(py, flat(g.normal), h, w, Some(3))?,
+        )?;
+        put(
+            &d,
+            "direction",
+            image_array(py, flat(g.direction), h, w, Some(3))?,
+        )?;
+        put(&d, "object", image_array(py, g.object, h, w, None)?)?;
+        put(&d, "prim", image_array(py, g.prim, h, w, None)?)?;
+        put(&d, "depth", image_array(py, g.depth, h, w, None)?)?;
+        put(&d, "footprint", image_array(py, g.footprint, h, w, None)?)?;
+        Ok(d)
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.num_triangles()
+    }
+
+    pub fn __repr__(&self) -> String {
+        format!(
+            "Scene(num_triangles={}, num_objects={})",
+            self.inner.num_triangles(),
+            self.inner.num_objects()
+        )
+    }
+}
