@@ -1,0 +1,109 @@
+"""Times the same shadow rays through viscache_rs and Embree (embreex) and checks that the
+answers agree.
+
+Workloads (identical rays for both, from ``viscache_rs.testing``):
+  incoherent  2^20 rays from points on the ground, directions uniform on the hemisphere;
+  bundles     1000 ground points x 1024 stratified hemisphere directions, point after point
+              (how visibility records are built).
+
+viscache_rs runs with threads=2; embreex runs two Python threads on the two halves of the
+rays (``EmbreeScene.run(..., query='OCCLUDED')``), once with robust=False and once with its
+default robust=True. Prints rays/s and our/embree ratios (> 1: we are faster).
+
+    python benches/peer_embree.py [--scenes garden cornell] [--repeats 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import viscache_rs as vc
+
+
+def best_time(fn, repeats: int) -> float:
+    fn()  # warm up
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def embree_occluded(es, origins, dirs, pool) -> np.ndarray:
+    half = len(origins) // 2
+    parts = [(origins[:half], dirs[:half]), (origins[half:], dirs[half:])]
+    futures = [pool.submit(es.run, o, d, None, "OCCLUDED") for o, d in parts]
+    return np.concatenate([f.result() for f in futures]) >= 0
+
+
+def run(scene_name: str, repeats: int) -> dict:
+    from embreex import rtcore_scene as rtcs
+    from embreex.mesh_construction import TriangleMesh
+
+    setup = vc.scenes.load(scene_name)
+    scene = setup.scene
+    build_s = scene.build(threads=2)
+    tris = scene.triangles()
+    workloads = {
+        "incoherent": vc.testing.ground_hemisphere_rays(scene, 1 << 20, seed=1),
+        "bundles": vc.testing.record_bundle_rays(scene, 1000, 32, seed=1),
+    }
+    result = {"scene": scene_name, "triangles": int(scene.num_triangles),
+              "our_build_s": build_s, "workloads": {}}
+    pool = ThreadPoolExecutor(2)
+    embree = {}
+    for robust in (False, True):
+        t = time.perf_counter()
+        es = rtcs.EmbreeScene(robust=robust)
+        TriangleMesh(es, tris)
+        es.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), query="OCCLUDED")
+        embree[robust] = (es, time.perf_counter() - t)
+    for name, (o, d) in workloads.items():
+        ours = scene.occluded(o, d, threads=2)
+        t_ours = best_time(lambda o=o, d=d: scene.occluded(o, d, threads=2), repeats)
+        row = {"rays": len(o), "occluded_fraction": float(ours.mean()),
+               "ours_rays_per_s": len(o) / t_ours, "ours_s": t_ours}
+        for robust, (es, build) in embree.items():
+            theirs = embree_occluded(es, o, d, pool)
+            t_e = best_time(lambda es=es, o=o, d=d: embree_occluded(es, o, d, pool), repeats)
+            key = "robust" if robust else "fast"
+            row[f"embree_{key}_s"] = t_e
+            row[f"embree_{key}_build_s"] = build
+            row[f"ratio_vs_embree_{key}"] = t_e / t_ours
+            row[f"agreement_{key}"] = float((theirs == ours).mean())
+        result["workloads"][name] = row
+    pool.shutdown()
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--scenes", nargs="+", default=["garden", "cornell"])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--json", default="results/peer_embree.json")
+    args = ap.parse_args()
+    results = [run(s, args.repeats) for s in args.scenes]
+    print(f"{'scene':<9}{'workload':<12}{'rays':>9}{'occl.':>7}{'ours Mr/s':>11}"
+          f"{'x fast':>8}{'x robust':>10}{'agree fast':>12}{'agree rob.':>12}")
+    for r in results:
+        for name, w in r["workloads"].items():
+            print(f"{r['scene']:<9}{name:<12}{w['rays']:>9}{w['occluded_fraction']:>7.3f}"
+                  f"{w['ours_rays_per_s'] / 1e6:>11.2f}{w['ratio_vs_embree_fast']:>8.2f}"
+                  f"{w['ratio_vs_embree_robust']:>10.2f}{w['agreement_fast']:>12.5f}"
+                  f"{w['agreement_robust']:>12.5f}")
+    path = Path(args.json)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(results, indent=2))
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
