@@ -38,7 +38,9 @@ pub fn to_world(local: Vec3, n: Vec3) -> Vec3 {
 
 /// `n` points uniformly distributed by area over the triangles of the objects whose name
 /// contains `object_name` (all triangles when none match or `None`), with unit normals
-/// flipped into the +y hemisphere. Empty when the scene has no area.
+/// flipped into the +y hemisphere. When other objects exist, points are kept only inside
+/// their footprint on the xz plane (rejection sampling), so "ground" points lie under the
+/// scene's content rather than on bare ground around it. Empty when the scene has no area.
 pub fn surface_points(
     scene: &Scene,
     object_name: Option<&str>,
@@ -55,6 +57,7 @@ pub fn surface_points(
     let mut cdf = Vec::with_capacity(mesh.triangles.len());
     let mut ids = Vec::with_capacity(mesh.triangles.len());
     let mut total = 0.0f64;
+    let mut footprint = crate::geometry::Bounds::EMPTY;
     for (i, t) in mesh.triangles.iter().enumerate() {
         if use_all || wanted[mesh.object_ids[i] as usize] {
             let area = 0.5 * triangle_cross(t).length() as f64;
@@ -63,26 +66,42 @@ pub fn surface_points(
                 cdf.push(total);
                 ids.push(i);
             }
+        } else {
+            t.iter().for_each(|v| footprint.grow(*v));
         }
     }
     if ids.is_empty() {
         return Vec::new();
     }
+    let inside = |p: Vec3| {
+        footprint.is_empty()
+            || (p.x >= footprint.min.x
+                && p.x <= footprint.max.x
+                && p.z >= footprint.min.z
+                && p.z <= footprint.max.z)
+    };
+    let sample = |k: usize, attempt: u64| {
+        let rng = SampleRng::new(seed, k as u64, 2 + attempt);
+        let target = rng.get(0) as f64 * total;
+        let j = cdf.partition_point(|&c| c <= target).min(ids.len() - 1);
+        let t = &mesh.triangles[ids[j]];
+        // Uniform on the triangle (square-root parameterisation).
+        let [a, b] = rng.get2(1);
+        let sa = a.sqrt();
+        let p = t[0] * (1.0 - sa) + t[1] * (sa * (1.0 - b)) + t[2] * (sa * b);
+        let mut nrm = triangle_cross(t).normalize();
+        if nrm.y < 0.0 {
+            nrm = -nrm;
+        }
+        (p, nrm)
+    };
     (0..n)
         .map(|k| {
-            let rng = SampleRng::new(seed, k as u64, 0);
-            let target = rng.get(0) as f64 * total;
-            let j = cdf.partition_point(|&c| c <= target).min(ids.len() - 1);
-            let t = &mesh.triangles[ids[j]];
-            // Uniform on the triangle (square-root parameterisation).
-            let [a, b] = rng.get2(1);
-            let sa = a.sqrt();
-            let p = t[0] * (1.0 - sa) + t[1] * (sa * (1.0 - b)) + t[2] * (sa * b);
-            let mut nrm = triangle_cross(t).normalize();
-            if nrm.y < 0.0 {
-                nrm = -nrm;
-            }
-            (p, nrm)
+            // Bounded retries; the last attempt is kept even outside the footprint.
+            (0..64)
+                .map(|attempt| sample(k, attempt))
+                .find(|(p, _)| inside(*p))
+                .unwrap_or_else(|| sample(k, 64))
         })
         .collect()
 }
