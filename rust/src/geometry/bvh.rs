@@ -27,9 +27,10 @@ pub enum BuildQuality {
     /// PLOC with search radius 1, no reinsertion; fastest build, slowest traversal.
     Fastest,
     VeryFast,
-    /// The default: the best traversal per build second on our scenes (see benches/README.md).
-    #[default]
     Fast,
+    /// The default: 1M triangles in 0.6 s on 2 cores, and 20% faster shadow rays than
+    /// `Fast` on the garden's grass (see benches/README.md).
+    #[default]
     Medium,
     /// Spatial pre-splits and more reinsertion; best traversal, several times slower build.
     Slow,

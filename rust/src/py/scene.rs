@@ -253,9 +253,9 @@ impl PyScene {
     }
 
     /// Builds the BVH now (otherwise it is built on the first query). quality: one of
-    /// "fastest", "very_fast", "fast" (default), "medium", "slow", "very_slow". Returns the
+    /// "fastest", "very_fast", "fast", "medium" (default), "slow", "very_slow". Returns the
     /// build time in seconds.
-    #[pyo3(signature = (quality="fast", threads=None))]
+    #[pyo3(signature = (quality="medium", threads=None))]
     fn build(
         &mut self,
         py: Python<'_>,
