@@ -140,6 +140,18 @@ impl Camera {
         )
     }
 
+    /// Primary ray of the pixel with row-major index `pixel`: through a position drawn from
+    /// `(seed, pixel, sample 0, dimensions 0-1)` with `jitter`, else through its centre.
+    pub fn primary_ray(&self, pixel: usize, seed: u64, jitter: bool) -> (Vec3, Vec3) {
+        let j = if jitter {
+            SampleRng::new(seed, pixel as u64, 0).get2(DIM_PIXEL_JITTER)
+        } else {
+            [0.5, 0.5]
+        };
+        let (px, py) = (pixel as u32 % self.width, pixel as u32 / self.width);
+        self.pixel_ray(px, py, j)
+    }
+
     /// Solid angle of one pixel seen along unit direction `dir` (steradians).
     pub fn pixel_solid_angle(&self, dir: Vec3) -> f32 {
         let side = 2.0 * self.tan_half_fov() / self.height as f32;
@@ -212,15 +224,8 @@ impl GBuffer {
         jitter: bool,
         threads: Option<usize>,
     ) -> Result<Self> {
-        let w = camera.width;
         let samples = scene.map_rays(camera.num_pixels(), threads, |i, c| {
-            let (px, py) = (i as u32 % w, i as u32 / w);
-            let j = if jitter {
-                SampleRng::new(seed, i as u64, 0).get2(DIM_PIXEL_JITTER)
-            } else {
-                [0.5, 0.5]
-            };
-            let (o, d) = camera.pixel_ray(px, py, j);
+            let (o, d) = camera.primary_ray(i, seed, jitter);
             match scene.intersect1(o, d, f32::INFINITY, c) {
                 None => GSample {
                     direction: d,
@@ -245,7 +250,7 @@ impl GBuffer {
             }
         })?;
         Ok(Self {
-            width: w,
+            width: camera.width,
             height: camera.height,
             position: samples.iter().map(|s| s.position.into()).collect(),
             normal: samples.iter().map(|s| s.normal.into()).collect(),

@@ -164,7 +164,9 @@ impl Bvh4 {
             "leaf of {} triangles",
             node.prim_count
         );
-        let block = (self.primitive_order.len() / 4) as u32;
+        let block = self.primitive_order.len() / 4;
+        assert!(block < MAX_LEAVES, "more than {MAX_LEAVES} leaves");
+        let block = block as u32;
         let first = node.first_index as usize;
         let prims = &bvh2.primitive_indices[first..first + node.prim_count as usize];
         self.primitive_order

@@ -436,45 +436,39 @@ impl Scene {
             let o = Vec3::from(rays.origins[i]);
             let d = Vec3::from(rays.directions[i]);
             self.intersect1(o, d, rays.tmax_of(i), c)
-                .map(|h| (h.t, h.prim, h.obj, h.u, h.v, h.position, h.normal))
-                .map_or(MaybeHit::MISS, MaybeHit)
         })?;
-        let mut hits = Hits::default();
         let n = found.len();
-        hits.t.reserve(n);
-        for MaybeHit((t, prim, obj, u, v, p, nrm)) in found {
+        let mut hits = Hits {
+            t: Vec::with_capacity(n),
+            prim: Vec::with_capacity(n),
+            obj: Vec::with_capacity(n),
+            u: Vec::with_capacity(n),
+            v: Vec::with_capacity(n),
+            position: Vec::with_capacity(n),
+            normal: Vec::with_capacity(n),
+        };
+        for h in found {
+            let (t, prim, obj, u, v, p, nrm) = match h {
+                Some(h) => (
+                    h.t,
+                    h.prim as i32,
+                    h.obj as i32,
+                    h.u,
+                    h.v,
+                    h.position,
+                    h.normal,
+                ),
+                None => (f32::INFINITY, -1, -1, 0.0, 0.0, Vec3::NAN, Vec3::NAN),
+            };
             hits.t.push(t);
-            hits.prim.push(prim as i32);
-            hits.obj.push(obj as i32);
+            hits.prim.push(prim);
+            hits.obj.push(obj);
             hits.u.push(u);
             hits.v.push(v);
             hits.position.push(p.into());
             hits.normal.push(nrm.into());
         }
         Ok(hits)
-    }
-}
-
-/// Per-ray closest-hit record used while tracing; the miss sentinel has `prim = obj = -1`
-/// after the cast to `i32`.
-#[derive(Clone, Copy)]
-struct MaybeHit((f32, u32, u32, f32, f32, Vec3, Vec3));
-
-impl MaybeHit {
-    const MISS: MaybeHit = MaybeHit((
-        f32::INFINITY,
-        u32::MAX,
-        u32::MAX,
-        0.0,
-        0.0,
-        Vec3::NAN,
-        Vec3::NAN,
-    ));
-}
-
-impl Default for MaybeHit {
-    fn default() -> Self {
-        Self::MISS
     }
 }
 

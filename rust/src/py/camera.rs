@@ -4,8 +4,7 @@ use glam::Vec3;
 use pyo3::prelude::*;
 
 use super::convert::{f64_arg, int_arg, rows3_array, seed_arg, vec3_arg, IntoPyResult};
-use crate::camera::{Camera, DIM_PIXEL_JITTER, MAX_RESOLUTION};
-use crate::sampling::rng::SampleRng;
+use crate::camera::{Camera, MAX_RESOLUTION};
 
 /// A pinhole camera. The field of view spans the vertical axis (image height); images are
 /// (height, width) arrays with row 0 at the top.
@@ -117,16 +116,7 @@ impl PyCamera {
         let c = self.inner;
         let n = c.num_pixels();
         let dirs: Vec<[f32; 3]> = (0..n)
-            .map(|i| {
-                let j = if jitter {
-                    SampleRng::new(seed, i as u64, 0).get2(DIM_PIXEL_JITTER)
-                } else {
-                    [0.5, 0.5]
-                };
-                c.pixel_ray(i as u32 % c.width, i as u32 / c.width, j)
-                    .1
-                    .into()
-            })
+            .map(|i| c.primary_ray(i, seed, jitter).1.into())
             .collect();
         Ok((
             rows3_array(py, vec![c.eye.into(); n])?,

@@ -8,7 +8,6 @@ use numpy::{
 };
 use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
 
 use crate::error::Error;
 
@@ -232,9 +231,4 @@ pub fn image_array<'py, T: numpy::Element>(
         Some(c) => a.reshape([height, width, c])?.into_any(),
         None => a.reshape([height, width])?.into_any(),
     })
-}
-
-/// Sets `dict[key] = value`.
-pub fn put<'py>(d: &Bound<'py, PyDict>, key: &str, value: impl IntoPyObject<'py>) -> PyResult<()> {
-    d.set_item(key, value)
 }

@@ -10,7 +10,7 @@ use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    as_rows, f64_arg, image_array, put, rows3_array, rows3_f32, rows3_i64, seed_arg, threads_arg,
+    as_rows, f64_arg, image_array, rows3_array, rows3_f32, rows3_i64, seed_arg, threads_arg,
     IntoPyResult,
 };
 use super::material::PyMaterial;
@@ -276,10 +276,10 @@ impl PyScene {
         let scene = &*self.inner;
         let bvh = py.detach(|| scene.bvh());
         let d = PyDict::new(py);
-        put(&d, "quality", bvh.quality().name())?;
-        put(&d, "nodes", bvh.num_nodes())?;
-        put(&d, "memory_bytes", bvh.memory_bytes())?;
-        put(&d, "build_seconds", bvh.build_time().as_secs_f64())?;
+        d.set_item("quality", bvh.quality().name())?;
+        d.set_item("nodes", bvh.num_nodes())?;
+        d.set_item("memory_bytes", bvh.memory_bytes())?;
+        d.set_item("build_seconds", bvh.build_time().as_secs_f64())?;
         Ok(d)
     }
 
@@ -317,13 +317,13 @@ impl PyScene {
             s.intersect(b, threads)
         })?;
         let d = PyDict::new(py);
-        put(&d, "t", PyArray1::from_vec(py, h.t))?;
-        put(&d, "prim", PyArray1::from_vec(py, h.prim))?;
-        put(&d, "obj", PyArray1::from_vec(py, h.obj))?;
-        put(&d, "u", PyArray1::from_vec(py, h.u))?;
-        put(&d, "v", PyArray1::from_vec(py, h.v))?;
-        put(&d, "position", rows3_array(py, h.position)?)?;
-        put(&d, "normal", rows3_array(py, h.normal)?)?;
+        d.set_item("t", PyArray1::from_vec(py, h.t))?;
+        d.set_item("prim", PyArray1::from_vec(py, h.prim))?;
+        d.set_item("obj", PyArray1::from_vec(py, h.obj))?;
+        d.set_item("u", PyArray1::from_vec(py, h.u))?;
+        d.set_item("v", PyArray1::from_vec(py, h.v))?;
+        d.set_item("position", rows3_array(py, h.position)?)?;
+        d.set_item("normal", rows3_array(py, h.normal)?)?;
         Ok(d)
     }
 
@@ -358,9 +358,9 @@ impl PyScene {
     fn counters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let c = self.inner.counters();
         let d = PyDict::new(py);
-        put(&d, "rays", c.rays)?;
-        put(&d, "nodes", c.nodes)?;
-        put(&d, "triangles", c.triangles)?;
+        d.set_item("rays", c.rays)?;
+        d.set_item("nodes", c.nodes)?;
+        d.set_item("triangles", c.triangles)?;
         Ok(d)
     }
 
@@ -404,25 +404,19 @@ impl PyScene {
         let (h, w) = (g.height as usize, g.width as usize);
         let d = PyDict::new(py);
         let flat = |v: Vec<[f32; 3]>| v.into_flattened();
-        put(
-            &d,
+        d.set_item(
             "position",
             image_array(py, flat(g.position), h, w, Some(3))?,
         )?;
-        put(
-            &d,
-            "normal",
-            image_array(py, flat(g.normal), h, w, Some(3))?,
-        )?;
-        put(
-            &d,
+        d.set_item("normal", image_array(py, flat(g.normal), h, w, Some(3))?)?;
+        d.set_item(
             "direction",
             image_array(py, flat(g.direction), h, w, Some(3))?,
         )?;
-        put(&d, "object", image_array(py, g.object, h, w, None)?)?;
-        put(&d, "prim", image_array(py, g.prim, h, w, None)?)?;
-        put(&d, "depth", image_array(py, g.depth, h, w, None)?)?;
-        put(&d, "footprint", image_array(py, g.footprint, h, w, None)?)?;
+        d.set_item("object", image_array(py, g.object, h, w, None)?)?;
+        d.set_item("prim", image_array(py, g.prim, h, w, None)?)?;
+        d.set_item("depth", image_array(py, g.depth, h, w, None)?)?;
+        d.set_item("footprint", image_array(py, g.footprint, h, w, None)?)?;
         Ok(d)
     }
 
