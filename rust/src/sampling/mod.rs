@@ -1,3 +1,8 @@
-//! Sampling: the counter-based random number generator shared by every estimator.
+//! Sampling: the counter-based random number generator, the equal-area octahedral
+//! parameterization of the sphere, hierarchical 2D distributions over it, and the
+//! chi-square test every sampler is checked with.
 
+pub mod chi2;
+pub mod distribution;
+pub mod octahedral;
 pub mod rng;
