@@ -5,7 +5,7 @@ caches visibility; this package re-exports it and adds built-in scenes, I/O and 
 ``viscache`` command line.
 """
 
-from . import scenes, testing
+from . import octahedral, scenes, testing
 from ._core import Camera, Material, Scene, Setup, __version__
 
-__all__ = ["Camera", "Material", "Scene", "Setup", "__version__", "scenes", "testing"]
+__all__ = ["Camera", "Material", "Scene", "Setup", "__version__", "octahedral", "scenes", "testing"]

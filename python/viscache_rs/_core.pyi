@@ -108,3 +108,25 @@ class Setup:
 
 def scene_names() -> list[str]: ...
 def load_scene(name: str, detail: float | None = 1.0, seed: int | None = 0) -> Setup: ...
+
+# Submodules of the native module, typed as namespaces.
+class _OctahedralModule:
+    @staticmethod
+    def sphere_to_square(dirs: ArrayLike) -> npt.NDArray[np.float32]: ...
+    @staticmethod
+    def square_to_sphere(uv: ArrayLike) -> npt.NDArray[np.float32]: ...
+    @staticmethod
+    def texel_of(dirs: ArrayLike, res: int) -> npt.NDArray[np.int64]: ...
+
+class _TestingModule:
+    @staticmethod
+    def ground_hemisphere_rays(
+        scene: Scene, n: int, seed: int | None = None
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]: ...
+    @staticmethod
+    def record_bundle_rays(
+        scene: Scene, points: int, side: int | None = None, seed: int | None = None
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]: ...
+
+octahedral: _OctahedralModule
+testing: _TestingModule

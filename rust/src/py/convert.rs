@@ -112,6 +112,60 @@ pub fn rows3_f32<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Rows3<'py
     Ok(Rows3::Owned(rows))
 }
 
+/// Rows of an `(N, C)` array of finite reals, converted to `float32` (NaN and infinities, and
+/// values beyond the `float32` range, are a `ValueError` naming the first bad row).
+pub fn finite_rows<const C: usize>(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<[f32; C]>> {
+    let arr = as_array(obj, name)?;
+    check_kind(&arr, name, b"fiu", "a real-valued array")?;
+    check_rows(&arr, name, C)?;
+    let wide: PyReadonlyArray2<f64> = contiguous(&arr, "float64")?.extract()?;
+    let flat = wide
+        .as_slice()
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let rows: Vec<[f32; C]> = flat
+        .as_chunks::<C>()
+        .0
+        .iter()
+        .map(|r| r.map(|v| v as f32))
+        .collect();
+    if let Some(i) = rows.iter().position(|r| r.iter().any(|v| !v.is_finite())) {
+        return Err(PyValueError::new_err(format!(
+            "{name}: row {i} is not finite: {:?}",
+            rows[i]
+        )));
+    }
+    Ok(rows)
+}
+
+/// Rows of an `(N, 3)` array of directions, normalised; zero-length or non-finite rows are a
+/// `ValueError` naming the first bad row.
+pub fn unit_directions(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<glam::Vec3>> {
+    let rows = finite_rows::<3>(obj, name)?;
+    let mut dirs = Vec::with_capacity(rows.len());
+    for (i, r) in rows.iter().enumerate() {
+        let d = glam::Vec3::from_array(*r);
+        let unit = d.normalize_or_zero();
+        if unit == glam::Vec3::ZERO || !unit.is_finite() {
+            return Err(PyValueError::new_err(format!(
+                "{name}: row {i} has zero length: {r:?}"
+            )));
+        }
+        dirs.push(unit);
+    }
+    Ok(dirs)
+}
+
+/// `(N, C)` float32 array from rows.
+pub fn rows_array<'py, T: numpy::Element, const C: usize>(
+    py: Python<'py>,
+    rows: Vec<[T; C]>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let n = rows.len();
+    Ok(PyArray1::from_vec(py, rows.into_flattened())
+        .reshape([n, C])?
+        .into_any())
+}
+
 /// An `(M, 3)` integer array as C-contiguous `int64`.
 pub fn rows3_i64<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonlyArray2<'py, i64>> {
     let arr = as_array(obj, name)?;
@@ -212,10 +266,7 @@ fn type_name(obj: &Bound<'_, PyAny>) -> String {
 
 /// `(N, 3)` float32 array from rows, without copying the data.
 pub fn rows3_array<'py>(py: Python<'py>, rows: Vec<[f32; 3]>) -> PyResult<Bound<'py, PyAny>> {
-    let n = rows.len();
-    Ok(PyArray1::from_vec(py, rows.into_flattened())
-        .reshape([n, 3])?
-        .into_any())
+    rows_array(py, rows)
 }
 
 /// Reshapes a flat per-pixel array to `(height, width, *tail)`.

@@ -4,6 +4,7 @@
 mod camera;
 mod convert;
 mod material;
+mod octahedral;
 mod scene;
 mod setup;
 mod testing;
@@ -24,5 +25,10 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     testing.add_function(wrap_pyfunction!(testing::ground_hemisphere_rays, &testing)?)?;
     testing.add_function(wrap_pyfunction!(testing::record_bundle_rays, &testing)?)?;
     m.add_submodule(&testing)?;
+    let octa = PyModule::new(m.py(), "octahedral")?;
+    octa.add_function(wrap_pyfunction!(octahedral::sphere_to_square, &octa)?)?;
+    octa.add_function(wrap_pyfunction!(octahedral::square_to_sphere, &octa)?)?;
+    octa.add_function(wrap_pyfunction!(octahedral::texel_of, &octa)?)?;
+    m.add_submodule(&octa)?;
     Ok(())
 }

@@ -58,12 +58,19 @@ fn atan_2_over_pi(b: f32) -> f32 {
     acc
 }
 
-/// Maps a unit direction to `[0,1]^2`; the inverse of [`square_to_sphere`]. Directions need
-/// not be exactly unit: the map uses `|y|` of the normalised input.
+/// Maps a unit direction to `[0,1]^2`; the inverse of [`square_to_sphere`]. The input must
+/// be normalised (to f32 precision).
 #[inline]
 pub fn sphere_to_square(d: Vec3) -> Vec2 {
     let (ax, ay, az) = (d.x.abs(), d.y.abs(), d.z.abs());
-    let r = (1.0 - ay).max(0.0).sqrt();
+    // r = sqrt(1 - |y|); near the poles 1 - |y| cancels catastrophically in f32, so it is
+    // taken from the other two components there: 1 - |y| = (x² + z²) / (1 + |y|).
+    let one_minus_y = if ay > 0.5 {
+        (ax * ax + az * az) / (1.0 + ay)
+    } else {
+        1.0 - ay
+    };
+    let r = one_minus_y.max(0.0).sqrt();
     let a = ax.max(az);
     let b = if a == 0.0 { 0.0 } else { ax.min(az) / a };
     let mut phi = atan_2_over_pi(b);
