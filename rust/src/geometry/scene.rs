@@ -8,9 +8,10 @@ use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 
 use super::bvh::{BuildQuality, Bvh, OccluderHint, TraversalCounters};
-use super::mesh::{triangle_cross, Bounds, Mesh};
+use super::mesh::{check_finite, triangle_cross, Bounds, Mesh};
 use crate::bsdf::Material;
 use crate::error::{Error, Result};
+use crate::lights::area::AreaLight;
 use crate::parallel::with_threads;
 
 /// Rays traced per parallel work item; fixed so results never depend on the thread count.
@@ -161,6 +162,7 @@ struct AtomicCounters {
 #[derive(Debug)]
 pub struct Scene {
     mesh: Mesh,
+    lights: Vec<AreaLight>,
     bounds: Bounds,
     quality: BuildQuality,
     bvh: OnceLock<Bvh>,
@@ -180,6 +182,7 @@ impl Clone for Scene {
     fn clone(&self) -> Self {
         let s = Self {
             mesh: self.mesh.clone(),
+            lights: self.lights.clone(),
             bounds: self.bounds,
             quality: self.quality,
             bvh: OnceLock::new(),
@@ -204,6 +207,7 @@ impl Scene {
         Self {
             bounds: mesh.bounds(),
             mesh,
+            lights: Vec::new(),
             quality: BuildQuality::default(),
             bvh: OnceLock::new(),
             counting: AtomicBool::new(true),
@@ -469,6 +473,87 @@ impl Scene {
             hits.normal.push(nrm.into());
         }
         Ok(hits)
+    }
+}
+
+/// Area lights. Emitters are objects of the mesh (they occlude and can be hit like any
+/// other geometry); the scene keeps the [`AreaLight`] of each.
+impl Scene {
+    /// Adds a one-sided emitter over a triangle (3 vertices) or a quad (4 vertices, in order
+    /// around its border) as a new, black object; it emits on the side of the winding normal
+    /// `(v1 - v0) x (v2 - v0)`. Returns the object id. On error the scene is unchanged.
+    pub fn add_area_light(
+        &mut self,
+        vertices: &[[f32; 3]],
+        radiance: [f32; 3],
+        name: Option<String>,
+    ) -> Result<u32> {
+        let faces: &[[i64; 3]] = match vertices.len() {
+            3 => &[[0, 1, 2]],
+            4 => &[[0, 1, 2], [0, 2, 3]],
+            n => {
+                return Err(Error::invalid(
+                    "vertices",
+                    format!("an area light is a triangle (3 vertices) or a quad (4), got {n}"),
+                ))
+            }
+        };
+        check_finite("vertices", vertices)?;
+        let triangles = faces
+            .iter()
+            .map(|f| f.map(|i| Vec3::from_array(vertices[i as usize])))
+            .collect();
+        let object = self.num_objects() as u32;
+        let light = AreaLight::new(object, triangles, radiance)?;
+        let black = Material::Lambert { albedo: [0.0; 3] };
+        let name = name.or_else(|| Some(format!("area_light{}", self.lights.len())));
+        let id = self.add_indexed(vertices, faces, black, name)?;
+        debug_assert_eq!(id, object);
+        self.lights.push(light);
+        Ok(id)
+    }
+
+    /// Makes the existing object `object` emit `radiance` from the winding side of its
+    /// triangles (e.g. a lamp modelled as geometry). Fails if it already emits.
+    pub fn set_emitter(&mut self, object: u32, radiance: [f32; 3]) -> Result<()> {
+        let obj = self.mesh.objects.get(object as usize).ok_or_else(|| {
+            Error::invalid(
+                "object",
+                format!("no object {object} in a scene of {}", self.num_objects()),
+            )
+        })?;
+        if self.emitter(object).is_some() {
+            return Err(Error::invalid(
+                "object",
+                format!("object {object} already emits"),
+            ));
+        }
+        let first = obj.first_triangle as usize;
+        let triangles = self.mesh.triangles[first..first + obj.num_triangles as usize].to_vec();
+        self.lights
+            .push(AreaLight::new(object, triangles, radiance)?);
+        Ok(())
+    }
+
+    /// The scene's area lights, in the order they were added.
+    pub fn area_lights(&self) -> &[AreaLight] {
+        &self.lights
+    }
+
+    /// The light of object `object`, if it emits.
+    pub fn emitter(&self, object: u32) -> Option<&AreaLight> {
+        self.lights.iter().find(|l| l.object == object)
+    }
+
+    /// Radiance leaving the surface at `hit` towards `towards_viewer` if it is an emitter.
+    pub fn emitted(&self, hit: &SurfaceHit, towards_viewer: Vec3) -> Vec3 {
+        match self.emitter(hit.obj) {
+            Some(light) => {
+                let first = self.mesh.objects[hit.obj as usize].first_triangle;
+                light.emitted((hit.prim - first) as usize, towards_viewer)
+            }
+            None => Vec3::ZERO,
+        }
     }
 }
 

@@ -10,8 +10,8 @@ use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    as_rows, f64_arg, image_array, rows3_array, rows3_f32, rows3_i64, seed_arg, threads_arg,
-    IntoPyResult,
+    as_rows, f64_arg, finite_rows, image_array, rows3_array, rows3_f32, rows3_i64, seed_arg,
+    threads_arg, vec3_arg, IntoPyResult,
 };
 use super::material::PyMaterial;
 use crate::bsdf::Material;
@@ -141,6 +141,34 @@ impl PyScene {
         let first = scene.num_objects() as u32;
         scene.append(&part);
         Ok(first)
+    }
+
+    /// Adds a one-sided area light: a triangle (3 vertices) or a quad (4, in order around
+    /// its border) that emits `radiance` (W/(m² sr), RGB) on the side of the winding normal
+    /// `(v1 - v0) x (v2 - v0)`. It is also geometry (black, so it reflects nothing) and
+    /// occludes like any other object. Returns its object id.
+    #[pyo3(signature = (vertices, radiance, name=None))]
+    fn add_area_light(
+        &mut self,
+        vertices: &Bound<'_, PyAny>,
+        radiance: &Bound<'_, PyAny>,
+        name: Option<String>,
+    ) -> PyResult<u32> {
+        let v = finite_rows::<3>(vertices, "vertices")?;
+        let radiance = vec3_arg(radiance, "radiance")?;
+        // Validate on a scratch scene first: a failure leaves this one untouched and a
+        // shared scene is only copied for a good light.
+        Scene::new()
+            .add_area_light(&v, radiance, name.clone())
+            .py()?;
+        Arc::make_mut(&mut self.inner)
+            .add_area_light(&v, radiance, name)
+            .py()
+    }
+
+    /// Object ids of the area lights, in the order they were added.
+    fn area_lights(&self) -> Vec<u32> {
+        self.inner.area_lights().iter().map(|l| l.object).collect()
     }
 
     /// Loads a Wavefront OBJ file (triangulated; one object per OBJ object/group).

@@ -4,10 +4,10 @@
 //! The sphere is cut into the `res x res` texels of the equal-area octahedral map, so every
 //! bin has the same solid angle and the expected count of a bin is the pdf integrated over
 //! it by a midpoint rule on a `subdivisions²` sub-grid (area-uniform, because the map is).
-//! Samples a sampler rejects (`None`) form one more bin whose expected count is the pdf's
-//! missing mass, so a pdf that does not integrate to the sampler's acceptance rate fails.
-//! Bins with small expected counts are pooled; a sample in a bin of zero expected count
-//! fails the test outright.
+//! When a sampler rejects samples (`None`), they form one more bin whose expected count is
+//! the pdf's missing mass, so a pdf that does not integrate to the acceptance rate fails.
+//! Bins with small expected counts are pooled; a sample where the pdf is zero fails the
+//! test outright.
 
 use glam::{UVec2, Vec2, Vec3};
 use rayon::prelude::*;
@@ -70,7 +70,7 @@ pub struct Chi2Outcome {
     pub p_value: f64,
     /// Integral of the pdf over the sphere (midpoint rule); 1 for a normalised pdf.
     pub integral: f64,
-    /// Samples that landed in a bin where the pdf integrates to zero.
+    /// Samples in directions where the pdf itself is zero (or NaN).
     pub samples_where_pdf_is_zero: u64,
     /// Samples the sampler rejected.
     pub rejected: u64,
@@ -120,10 +120,14 @@ pub fn chi2_sphere(
     let res = params.resolution;
     let mut observed = vec![0u64; (res * res) as usize + 1];
     let mut n = 0u64;
+    let mut impossible = 0u64;
     for s in samples {
         n += 1;
         let bin = match s {
             Some(d) => {
+                if pdf(d).partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                    impossible += 1;
+                }
                 let t = texel_of(d, res);
                 (t.y * res + t.x) as usize
             }
@@ -133,10 +137,19 @@ pub fn chi2_sphere(
     }
     let mut integrals = integrate_bins(&pdf, params);
     let integral: f64 = integrals.iter().sum();
-    integrals.push((1.0 - integral).max(0.0));
-    let expected: Vec<f64> = integrals.iter().map(|p| p * n as f64).collect();
     let rejected = observed[(res * res) as usize];
-    pearson(&observed, &expected, params, integral, rejected)
+    if rejected > 0 {
+        integrals.push((1.0 - integral).max(0.0));
+    } else {
+        // Without rejections the missing mass would only measure the quadrature's error at
+        // the pdf's discontinuities; a pdf of the wrong total still fails in every bin.
+        observed.pop();
+    }
+    let expected: Vec<f64> = integrals.iter().map(|p| p * n as f64).collect();
+    let mut outcome = pearson(&observed, &expected, params, integral, rejected);
+    outcome.samples_where_pdf_is_zero = impossible;
+    outcome.passed &= impossible == 0;
+    outcome
 }
 
 /// Pearson's test of `observed` against `expected` counts with pooling of small bins.
@@ -151,12 +164,11 @@ fn pearson(
     order.sort_by(|&a, &b| expected[a].total_cmp(&expected[b]));
     let (mut pool_obs, mut pool_exp) = (0.0, 0.0);
     let mut bins: Vec<(f64, f64)> = Vec::new();
-    let mut zero_hits = 0;
     for &i in &order {
         let (o, e) = (observed[i] as f64, expected[i]);
-        if e <= 0.0 {
-            zero_hits += observed[i];
-        } else if e < params.min_expected {
+        // A bin the quadrature found empty may still hold a sliver of support; it is pooled
+        // (samples whose own pdf is zero are caught by the caller).
+        if e < params.min_expected {
             pool_obs += o;
             pool_exp += e;
         } else {
@@ -165,10 +177,10 @@ fn pearson(
     }
     if pool_exp >= params.min_expected || (bins.is_empty() && pool_exp > 0.0) {
         bins.push((pool_obs, pool_exp));
-    } else if pool_exp > 0.0 {
+    } else if let Some(smallest) = bins.first_mut() {
         // Too little to stand alone: fold the pool into the smallest regular bin.
-        bins[0].0 += pool_obs;
-        bins[0].1 += pool_exp;
+        smallest.0 += pool_obs;
+        smallest.1 += pool_exp;
     }
     let statistic: f64 = bins.iter().map(|(o, e)| (o - e) * (o - e) / e).sum();
     let dof = bins.len().saturating_sub(1);
@@ -178,9 +190,9 @@ fn pearson(
         dof,
         p_value,
         integral,
-        samples_where_pdf_is_zero: zero_hits,
+        samples_where_pdf_is_zero: 0,
         rejected,
-        passed: p_value >= params.significance && zero_hits == 0,
+        passed: p_value >= params.significance,
     }
 }
 

@@ -12,8 +12,8 @@
 //! behind the camera), `left_wall` (x = -2.75, red), `right_wall` (x = +2.75, green), all
 //! Lambertian; `short_block` (1.65 m cube at (0.95, 0, 0.85)) and `tall_block`
 //! (1.65 x 3.3 x 1.65 m at (-1.1, 0, -0.9)), closed boxes with outward normals, white;
-//! `light`, a 1.3 x 1.05 m quad 5 mm below the ceiling facing down (white Lambertian here;
-//! the area-light code decides that it emits).
+//! `light`, a 1.3 x 1.05 m quad 5 mm below the ceiling facing down: the scene's one area
+//! light, of radiance [`LIGHT_RADIANCE`] (it also reflects like a white Lambertian).
 //!
 //! **Triangles.** Walls and blocks are cut into cells of at most 0.65 m / sqrt(detail):
 //! 1,262 triangles at detail 1 (972 for the room, 108 + 180 for the blocks, 2 for the
@@ -37,6 +37,8 @@ use crate::geometry::Mesh;
 pub const HALF: f32 = 2.75;
 /// Height of the room (m).
 pub const HEIGHT: f32 = 5.5;
+/// Radiance of the ceiling light, W/(m² sr): the classic scene's warm white.
+pub const LIGHT_RADIANCE: [f32; 3] = [17.0, 12.0, 4.0];
 
 /// Builds the setup (see the module docs). `seed` is unused.
 pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
@@ -103,7 +105,10 @@ pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
     )?;
 
     let cam = camera([2.4, 4.9, 2.6], [-0.6, 0.9, -1.0], 70.0)?;
-    Ok(setup("cornell", mesh, cam))
+    let mut s = setup("cornell", mesh, cam);
+    let light = s.scene.num_objects() as u32 - 1;
+    s.scene.set_emitter(light, LIGHT_RADIANCE)?;
+    Ok(s)
 }
 
 #[cfg(test)]

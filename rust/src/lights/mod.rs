@@ -1,0 +1,3 @@
+//! Light sources: area lights made of triangles.
+
+pub mod area;
