@@ -431,9 +431,15 @@ fn angle_between(a: DVec3, b: DVec3) -> f64 {
 #[inline(always)]
 fn fast_exp2(x: f32) -> f32 {
     let x = x.clamp(-126.0, 126.0);
-    let i = x.round();
+    // Round to nearest with the 1.5 · 2^23 trick (`f32::round` is a library call on
+    // baseline x86-64 and would stop the loops from vectorising).
+    const MAGIC: f32 = 12_582_912.0;
+    let shifted = x + MAGIC;
+    let i = shifted - MAGIC;
     let f = x - i; // [-0.5, 0.5]
-                   // Taylor series of 2^f = e^(f ln 2) to degree 6.
+                   // The integer sits in the low mantissa bits of `shifted`: no float-to-int conversion.
+    let i_int = shifted.to_bits().wrapping_sub(MAGIC.to_bits());
+    // Taylor series of 2^f = e^(f ln 2) to degree 6.
     const C: [f32; 7] = [
         1.0,
         std::f32::consts::LN_2,
@@ -444,7 +450,7 @@ fn fast_exp2(x: f32) -> f32 {
         0.000_154_035_3,
     ];
     let p = C[0] + f * (C[1] + f * (C[2] + f * (C[3] + f * (C[4] + f * (C[5] + f * C[6])))));
-    p * f32::from_bits(((i as i32 + 127) as u32) << 23)
+    p * f32::from_bits(i_int.wrapping_add(127) << 23)
 }
 
 /// `log2(x)` for normal positive `x`, absolute error ≈ 1e-7; branch-free.
@@ -453,8 +459,9 @@ fn fast_log2(x: f32) -> f32 {
     let bits = x.to_bits();
     // Split into 2^e · m with m in [√½, √2).
     let offset = 0x3f35_04f3u32; // bits of √½
-    let e = ((bits.wrapping_sub(offset)) as i32 >> 23) as f32;
-    let m = f32::from_bits(bits.wrapping_sub(((e as i32) << 23) as u32));
+    let ei = (bits.wrapping_sub(offset) as i32) >> 23;
+    let m = f32::from_bits(bits.wrapping_sub((ei << 23) as u32));
+    let e = ei as f32;
     let t = (m - 1.0) / (m + 1.0);
     let t2 = t * t;
     let ln_m = 2.0 * t * (1.0 + t2 * (1.0 / 3.0 + t2 * (0.2 + t2 * (1.0 / 7.0 + t2 / 9.0))));
@@ -466,13 +473,17 @@ fn fast_log2(x: f32) -> f32 {
 /// cell mean and preserves the lobe's integral.
 const BLUR_PER_SOLID_ANGLE: f32 = 1.0 / std::f32::consts::TAU;
 
+/// Share of the cone half-angle the cosine ramp of [`cos_parts`] spans.
+const RAMP_CONE: f32 = 1.0;
+
 /// Per cell of the cos θ part: `(upper bound over the cone, estimate of the cell mean)`.
 #[inline(always)]
 fn cos_parts(x: f32, ca: f32, sa: f32, half_side: f32) -> (f32, f32) {
     let s = (1.0 - x * x).max(0.0).sqrt();
     let ub = if x >= ca { 1.0 } else { x * ca + s * sa };
-    // Mean of max(cos, 0) over a linear ramp x ± h across the cell.
-    let h = s * half_side;
+    // Mean of max(cos, 0) over a linear ramp x ± h across the cell, h between the cell's
+    // half side and its cone (so a cell with a sliver above the surface gets some mass).
+    let h = s * (RAMP_CONE * sa).max(half_side);
     let est = if x >= h {
         x
     } else if x <= -h {
@@ -485,9 +496,12 @@ fn cos_parts(x: f32, ca: f32, sa: f32, half_side: f32) -> (f32, f32) {
 
 fn cells_lambert(t: &CellCones, n: Vec3, diffuse: f32, out: &mut [f32]) {
     let half_side = 0.5 * t.cell_solid_angle.sqrt();
+    let len = out.len();
+    let (cx, cy, cz) = (&t.cx[..len], &t.cy[..len], &t.cz[..len]);
+    let (cos_a, sin_a) = (&t.cos_a[..len], &t.sin_a[..len]);
     for (k, o) in out.iter_mut().enumerate() {
-        let x = n.x * t.cx[k] + n.y * t.cy[k] + n.z * t.cz[k];
-        let (ub, est) = cos_parts(x, t.cos_a[k], t.sin_a[k], half_side);
+        let x = n.x * cx[k] + n.y * cy[k] + n.z * cz[k];
+        let (ub, est) = cos_parts(x, cos_a[k], sin_a[k], half_side);
         let bound = diffuse * ub;
         let v = (diffuse * est)
             .min(bound)
@@ -497,37 +511,137 @@ fn cells_lambert(t: &CellCones, n: Vec3, diffuse: f32, out: &mut [f32]) {
     }
 }
 
+/// Blocks of 16 cells (a node two levels up) whose lobe bound times `2(e+2)` is below this
+/// skip the exponentials: their lobe estimate is the block's bound, which wastes at most
+/// this fraction of the lobe's mass on them.
+const LOBE_SKIP: f32 = 1e-3;
+
 fn cells_phong(t: &CellCones, n: Vec3, r: Vec3, diffuse: f32, spec: f32, e: f32, out: &mut [f32]) {
-    let half_side = 0.5 * t.cell_solid_angle.sqrt();
-    let s = 1.0 / (1.0 + e * BLUR_PER_SOLID_ANGLE * t.cell_solid_angle);
-    let es = e * s;
-    let blend = 1.0 - s;
-    let half_side_lobe = half_side * s.sqrt();
-    let cos_r = n.dot(r);
-    let has_diffuse = diffuse > 0.0;
-    for (k, o) in out.iter_mut().enumerate() {
-        let (cx, cy, cz, ca, sa) = (t.cx[k], t.cy[k], t.cz[k], t.cos_a[k], t.sin_a[k]);
-        let x = n.x * cx + n.y * cy + n.z * cz;
-        let (cub, cest) = cos_parts(x, ca, sa, half_side);
-        let y = r.x * cx + r.y * cy + r.z * cz;
-        let sy = (1.0 - y * y).max(0.0).sqrt();
-        let aub = if y >= ca { 1.0 } else { y * ca + sy * sa };
-        let lub = fast_exp2(e * fast_log2(aub.max(1e-30)));
-        let lest = s * fast_exp2(es * fast_log2(y.max(1e-30)));
-        let lest = if y > 0.0 { lest } else { 0.0 };
-        // The lobe's mass within the cell sits between the centre and the mirror direction
-        // (the product of the two Gaussians): take the cosine there, over a ramp shrunk to
-        // the product's width.
-        let xl = x + blend * (cos_r - x);
-        let (_, clest) = cos_parts(xl, 1.0, 0.0, half_side_lobe);
-        let bound = (diffuse + spec * lub) * cub;
-        let est = diffuse * cest + spec * lest * clest;
-        let v = est
-            .min(bound)
-            .max(BOUND_FLOOR * bound)
-            .max(f32::MIN_POSITIVE);
-        let support = cub > 0.0 && (has_diffuse || aub > 0.0);
-        *o = if support { v } else { 0.0 };
+    let p = PhongCells::new(t, n, r, diffuse, spec, e);
+    if t.level < 3 {
+        p.full(0, out);
+        return;
+    }
+    // Cull per block of 16 cells with the cones of the level two up, which contain them.
+    let coarse = CellCones::get(t.level - 2);
+    for (b, block) in out.chunks_exact_mut(16).enumerate() {
+        let c = Vec3::new(coarse.cx[b], coarse.cy[b], coarse.cz[b]);
+        let (ca, sa) = (coarse.cos_a[b], coarse.sin_a[b]);
+        let (cub, _) = cos_parts(n.dot(c), ca, sa, 0.0);
+        if cub <= 0.0 {
+            block.fill(0.0); // the whole block lies below the surface
+            continue;
+        }
+        let y = r.dot(c);
+        let aub = if y >= ca {
+            1.0
+        } else {
+            y * ca + (1.0 - y * y).max(0.0).sqrt() * sa
+        };
+        let lub = if aub > 0.0 { (e * aub.ln()).exp() } else { 0.0 };
+        if 2.0 * (e + 2.0) * lub < LOBE_SKIP {
+            p.skipped(16 * b, lub, aub > 0.0, block);
+        } else {
+            p.full(16 * b, block);
+        }
+    }
+}
+
+/// Per-shading-point constants of the Phong B~ loops.
+struct PhongCells<'a> {
+    t: &'a CellCones,
+    n: Vec3,
+    r: Vec3,
+    diffuse: f32,
+    spec: f32,
+    e: f32,
+    half_side: f32,
+    s: f32,
+    es: f32,
+    blend: f32,
+    half_side_lobe: f32,
+    cos_r: f32,
+}
+
+impl<'a> PhongCells<'a> {
+    fn new(t: &'a CellCones, n: Vec3, r: Vec3, diffuse: f32, spec: f32, e: f32) -> Self {
+        let half_side = 0.5 * t.cell_solid_angle.sqrt();
+        let s = 1.0 / (1.0 + e * BLUR_PER_SOLID_ANGLE * t.cell_solid_angle);
+        Self {
+            t,
+            n,
+            r,
+            diffuse,
+            spec,
+            e,
+            half_side,
+            s,
+            es: e * s,
+            blend: 1.0 - s,
+            half_side_lobe: half_side * s.sqrt(),
+            cos_r: n.dot(r),
+        }
+    }
+
+    /// Cells `first..first + out.len()` with the full per-cell bound and estimate.
+    fn full(&self, first: usize, out: &mut [f32]) {
+        let (t, n, r) = (self.t, self.n, self.r);
+        let range = first..first + out.len();
+        let (tx, ty, tz) = (
+            &t.cx[range.clone()],
+            &t.cy[range.clone()],
+            &t.cz[range.clone()],
+        );
+        let (tca, tsa) = (&t.cos_a[range.clone()], &t.sin_a[range]);
+        let has_diffuse = self.diffuse > 0.0;
+        for (k, o) in out.iter_mut().enumerate() {
+            let (cx, cy, cz, ca, sa) = (tx[k], ty[k], tz[k], tca[k], tsa[k]);
+            let x = n.x * cx + n.y * cy + n.z * cz;
+            let (cub, cest) = cos_parts(x, ca, sa, self.half_side);
+            let y = r.x * cx + r.y * cy + r.z * cz;
+            let sy = (1.0 - y * y).max(0.0).sqrt();
+            let aub = if y >= ca { 1.0 } else { y * ca + sy * sa };
+            let lub = fast_exp2(self.e * fast_log2(aub.max(1e-30)));
+            let lest = self.s * fast_exp2(self.es * fast_log2(y.max(1e-30)));
+            let lest = if y > 0.0 { lest } else { 0.0 };
+            // The lobe's mass within the cell sits between the centre and the mirror
+            // direction (the product of the two Gaussians): take the cosine there, over a
+            // ramp shrunk to the product's width.
+            let xl = x + self.blend * (self.cos_r - x);
+            let (_, clest) = cos_parts(xl, 1.0, 0.0, self.half_side_lobe);
+            let bound = (self.diffuse + self.spec * lub) * cub;
+            let est = self.diffuse * cest + self.spec * lest * clest;
+            let v = est
+                .min(bound)
+                .max(BOUND_FLOOR * bound)
+                .max(f32::MIN_POSITIVE);
+            let support = cub > 0.0 && (has_diffuse || aub > 0.0);
+            *o = if support { v } else { 0.0 };
+        }
+    }
+
+    /// Cells of a block whose lobe is bounded by `lub` (`lobe_support`: whether the block's
+    /// cone reaches the lobe's support): the lobe term takes its bound.
+    fn skipped(&self, first: usize, lub: f32, lobe_support: bool, out: &mut [f32]) {
+        let (t, n) = (self.t, self.n);
+        let range = first..first + out.len();
+        let (tx, ty, tz) = (
+            &t.cx[range.clone()],
+            &t.cy[range.clone()],
+            &t.cz[range.clone()],
+        );
+        let (tca, tsa) = (&t.cos_a[range.clone()], &t.sin_a[range]);
+        let f = self.diffuse + self.spec * lub;
+        let support = self.diffuse > 0.0 || lobe_support;
+        for (k, o) in out.iter_mut().enumerate() {
+            let x = n.x * tx[k] + n.y * ty[k] + n.z * tz[k];
+            let (cub, cest) = cos_parts(x, tca[k], tsa[k], self.half_side);
+            let v = (f * cest)
+                .min(f * cub)
+                .max(BOUND_FLOOR * f * cub)
+                .max(f32::MIN_POSITIVE);
+            *o = if support && cub > 0.0 { v } else { 0.0 };
+        }
     }
 }
 
