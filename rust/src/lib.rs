@@ -12,6 +12,7 @@ pub mod bsdf;
 pub mod camera;
 pub mod error;
 pub mod geometry;
+pub mod lights;
 pub mod parallel;
 pub mod sampling;
 pub mod scenes;

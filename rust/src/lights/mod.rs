@@ -1,0 +1,7 @@
+//! Light sources: the octahedral HDR environment map ([`envmap`]) and the procedural maps
+//! the built-in scenes use ([`procedural`]).
+
+pub mod envmap;
+pub mod procedural;
+
+pub use envmap::{EnvMap, ExrLayout};
