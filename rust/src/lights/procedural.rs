@@ -7,11 +7,12 @@
 //! -x; elevation is the angle above the horizon (+90 is +y). Texels are averaged over
 //! 4x4 sub-samples; the sun's power is made exact (see [`sky`]).
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, UVec2, Vec2, Vec3};
+use rayon::prelude::*;
 
 use super::envmap::{check_resolution, supersample, EnvMap};
 use crate::error::{Error, Result};
-use crate::sampling::octahedral::texel_of;
+use crate::sampling::octahedral::{square_to_sphere, texel_center, texel_of};
 
 /// Radiance below the horizon of [`sky`], as a fraction of the horizon's, reached at the
 /// nadir.
@@ -54,7 +55,7 @@ pub fn sky_gradient(d: DVec3, zenith: [f32; 3], horizon: [f32; 3]) -> DVec3 {
 /// A smooth gradient sky (see [`sky_gradient`]) with a sun: a disc of angular diameter
 /// `sun_angle_deg` in `(0, 90]` degrees around `sun_dir` (any non-zero length) of uniform
 /// radiance `sun_radiance`, replacing the sky it covers. Texels on the disc's edge get its
-/// covered fraction (16x16 sub-samples), rescaled so that the sun's power
+/// covered fraction (16x16 sub-samples; 4x4 for a disc over more than 16384 texels), rescaled so that the sun's power
 /// `sun_radiance · 2π(1 - cos(sun_angle_deg / 2))` is exact even when the disc is smaller
 /// than a texel (then the texel containing `sun_dir` takes it all). The real sun is
 /// 0.53° across. Radiances are finite and `>= 0`; `resolution` is a power of two in
@@ -95,21 +96,30 @@ pub fn sky(
         // Fraction of each texel the disc covers; only texels near the disc can be touched
         // (texels span at most ~3 nominal widths along a side).
         let margin = radius + 4.0 * omega_texel.sqrt();
-        let coverage = supersample(res, 16, |d| {
-            DVec3::splat((d.dot(sun) >= cos_radius) as u8 as f64)
-        });
-        let near = |i: usize| {
-            let c = crate::sampling::octahedral::texel_center(
-                glam::UVec2::new(i as u32 % res, i as u32 / res),
-                res,
-            );
-            c.as_dvec3().dot(sun).clamp(-1.0, 1.0).acos() <= margin
-        };
-        let mut covered: Vec<(usize, f64)> = coverage
-            .iter()
-            .enumerate()
-            .filter(|(i, c)| c[0] > 0.0 && near(*i))
-            .map(|(i, c)| (i, c[0] as f64))
+        let near: Vec<usize> = (0..res * res)
+            .filter(|&i| {
+                let c = texel_center(UVec2::new(i % res, i / res), res);
+                c.as_dvec3().dot(sun).clamp(-1.0, 1.0).acos() <= margin
+            })
+            .map(|i| i as usize)
+            .collect();
+        // 16x16 sub-samples, fewer if the disc covers very many texels.
+        let sub = if near.len() <= 1 << 14 { 16 } else { 4 };
+        let mut covered: Vec<(usize, f64)> = near
+            .par_iter()
+            .map(|&i| {
+                let t = UVec2::new(i as u32 % res, i as u32 / res);
+                let mut hits = 0u32;
+                for sy in 0..sub {
+                    for sx in 0..sub {
+                        let within = (Vec2::new(sx as f32, sy as f32) + 0.5) / sub as f32;
+                        let d = square_to_sphere((t.as_vec2() + within) / res as f32);
+                        hits += (d.as_dvec3().dot(sun) >= cos_radius) as u32;
+                    }
+                }
+                (i, hits as f64 / (sub * sub) as f64)
+            })
+            .filter(|(_, c)| *c > 0.0)
             .collect();
         let total: f64 = covered.iter().map(|(_, c)| c * omega_texel).sum();
         if total > 0.0 {
