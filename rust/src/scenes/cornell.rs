@@ -24,6 +24,11 @@
 //! The frame shows the floor with both blocks and their contact regions, the red, back and
 //! green walls (the classic straight-on view needs the camera outside an open box). Every
 //! pixel sees the inside of the box. The seed is unused: the scene has no randomness.
+//!
+//! **Environment.** A constant white map (radiance 1, 256² texels). The box is closed, so
+//! no shading point inside sees it: it matters only if an experiment opens the box
+//! (removes a wall), and then it is a furnace-style uniform light with a known answer.
+//! The room's own light is the `light` object, which the area-light code makes emit.
 
 use glam::Vec3;
 
@@ -32,6 +37,7 @@ use super::{camera, check_detail, setup, Setup};
 use crate::bsdf::Material;
 use crate::error::Result;
 use crate::geometry::Mesh;
+use crate::lights::EnvMap;
 
 /// Half the side of the room (m).
 pub const HALF: f32 = 2.75;
@@ -105,10 +111,15 @@ pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
     )?;
 
     let cam = camera([2.4, 4.9, 2.6], [-0.6, 0.9, -1.0], 70.0)?;
-    let mut s = setup("cornell", mesh, cam);
+    let mut s = setup("cornell", mesh, cam, envmap()?);
     let light = s.scene.num_objects() as u32 - 1;
     s.scene.set_emitter(light, LIGHT_RADIANCE)?;
     Ok(s)
+}
+
+/// The default environment: constant white (see the module docs).
+pub fn envmap() -> Result<EnvMap> {
+    EnvMap::constant([1.0; 3], super::ENV_RESOLUTION)
 }
 
 #[cfg(test)]

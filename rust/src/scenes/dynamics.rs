@@ -22,6 +22,10 @@
 //! **Camera.** Eye (5, 4.5, 7) looking down at (0, 0.4, 0), vertical field of view 38
 //! degrees, 256 x 192: all four objects and the plane around them; every pixel sees the
 //! plane or an object. The seed is unused: the scene has no randomness.
+//!
+//! **Environment.** [`super::daylight`] with the sun at azimuth 300°, elevation 45° (up
+//! and behind the objects as the camera sees them, toward -x -z), so every object casts
+//! a shadow toward the camera onto the plane.
 
 use glam::Vec3;
 
@@ -30,6 +34,7 @@ use super::{camera, check_detail, setup, Setup};
 use crate::bsdf::Material;
 use crate::error::Result;
 use crate::geometry::Mesh;
+use crate::lights::EnvMap;
 
 /// Builds the setup (see the module docs). `seed` is unused.
 pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
@@ -86,7 +91,12 @@ pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
     )?;
 
     let cam = camera([5.0, 4.5, 7.0], [0.0, 0.4, 0.0], 38.0)?;
-    Ok(setup("dynamics", mesh, cam))
+    Ok(setup("dynamics", mesh, cam, envmap()?))
+}
+
+/// The default environment: sky and sun (see the module docs).
+pub fn envmap() -> Result<EnvMap> {
+    super::daylight(300.0, 45.0)
 }
 
 #[cfg(test)]

@@ -33,6 +33,15 @@
 //! (ground just outside the roof's edge) and the openings (sky) lie elsewhere. From the
 //! centre pixel's point about 95% of the hemisphere is blocked. The seed is unused: the
 //! scene has no randomness.
+//!
+//! **Environment.** [`envmap`]: three large, very bright windows on a dim blue background
+//! (radiance 0.04-0.06), the kind of lighting of CAM08's garage. `high` (azimuth 150°-230°,
+//! elevation 25°-65°, radiance 30) carries most of the power and is hidden by the roof from
+//! everything under it; `low` (azimuth 155°-205°, elevation 3°-15°, radiance 20) shines
+//! in under the roof's edge, between the cars, onto the floor the camera sees; `back`
+//! (azimuth 300°-360°, elevation 5°-25°, radiance 25) reaches the floor through the back
+//! and left walls' openings. From the centre pixel's point only a few percent of the
+//! unoccluded irradiance arrives.
 
 use glam::Vec3;
 
@@ -41,6 +50,8 @@ use super::{camera, check_detail, setup, Setup};
 use crate::bsdf::Material;
 use crate::error::Result;
 use crate::geometry::Mesh;
+use crate::lights::procedural::{self, Window};
+use crate::lights::EnvMap;
 
 /// Height of the walls, and of the roof's underside (m).
 pub const WALL_HEIGHT: f32 = 3.0;
@@ -162,7 +173,28 @@ pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
     }
 
     let cam = camera([0.0, 1.6, 13.5], [0.0, 0.0, 2.5], 50.0)?;
-    Ok(setup("garage", mesh, cam))
+    Ok(setup("garage", mesh, cam, envmap()?))
+}
+
+/// The default environment: bright windows, mostly occluded from under the roof (see the
+/// module docs).
+pub fn envmap() -> Result<EnvMap> {
+    let window = |azimuth_deg, elevation_deg, width_deg, height_deg, radiance| Window {
+        azimuth_deg,
+        elevation_deg,
+        width_deg,
+        height_deg,
+        radiance,
+    };
+    procedural::windows(
+        &[
+            window(190.0, 45.0, 80.0, 40.0, [30.0, 29.0, 27.0]),
+            window(180.0, 9.0, 50.0, 12.0, [20.0, 19.0, 17.0]),
+            window(330.0, 15.0, 60.0, 20.0, [25.0, 25.0, 26.0]),
+        ],
+        [0.04, 0.05, 0.06],
+        super::ENV_RESOLUTION,
+    )
 }
 
 #[cfg(test)]
@@ -216,5 +248,39 @@ mod tests {
         );
         assert!(under >= 36, "{under} of 48 under the roof");
         assert!(sum / n as f32 > 0.6, "mean occlusion {}", sum / n as f32);
+    }
+
+    #[test]
+    fn the_bright_windows_are_mostly_hidden_from_the_floor_the_camera_sees() {
+        use crate::sampling::rng::SampleRng;
+        let s = build(0.25, 0).unwrap();
+        let env = &s.envmap;
+        // Most of the map's power is in the high window, above the roof's edge.
+        let high = procedural::direction(190.0, 45.0);
+        let t = crate::sampling::octahedral::texel_of(high, env.resolution());
+        assert!(env.texels()[(t.y * env.resolution() + t.x) as usize][0] >= 29.0);
+        // Irradiance at the centre pixel's floor point, with and without occlusion, by
+        // sampling the map (unbiased for both).
+        let h = centre_hit(&s);
+        let o = s.scene.offset_point(h.position, Vec3::Y);
+        let mut counters = crate::geometry::TraversalCounters::default();
+        let (mut open, mut seen) = (0.0, 0.0);
+        for i in 0..4000 {
+            let [u, v] = SampleRng::new(3, i, 0).get2(0);
+            let (d, pdf) = env.sample(glam::DVec2::new(u as f64, v as f64)).unwrap();
+            if d.y <= 0.0 {
+                continue;
+            }
+            let e = crate::lights::envmap::luminance(env.eval(d).to_array()) * d.y as f64 / pdf;
+            open += e;
+            if !s.scene.occluded1(o, d, f32::INFINITY, &mut counters) {
+                seen += e;
+            }
+        }
+        let fraction = seen / open;
+        assert!(
+            fraction > 0.005 && fraction < 0.2,
+            "visible fraction {fraction}"
+        );
     }
 }

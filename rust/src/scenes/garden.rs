@@ -26,6 +26,10 @@
 //! -0.7 to 1.7) with the tulips above its centre. Blade placement, shape and the tulips
 //! depend on the seed; generation runs in parallel in fixed chunks, so the result does
 //! not depend on the thread count.
+//!
+//! **Environment.** [`super::daylight`] with the sun at azimuth 250°, elevation 35°
+//! (low from the camera's left): blades cast long, thin shadows across each other, and
+//! every point of the lawn sees a different, fragmented part of the sky.
 
 use std::f32::consts::TAU;
 
@@ -37,6 +41,7 @@ use super::{camera, check_detail, setup, Setup};
 use crate::bsdf::Material;
 use crate::error::Result;
 use crate::geometry::Mesh;
+use crate::lights::EnvMap;
 use crate::sampling::rng::mix64;
 
 /// Side of the square grass patch (m).
@@ -158,11 +163,16 @@ pub fn build(detail: f32, seed: u64) -> Result<Setup> {
     }
 
     let cam = camera([0.0, 1.2, 2.2], [0.0, 0.0, 1.0], 45.0)?;
-    Ok(setup("garden", mesh, cam))
+    Ok(setup("garden", mesh, cam, envmap()?))
 }
 
 /// Triangles of one tulip (stem and cup).
 pub const TULIP_TRIANGLES: usize = tube_triangles(13, 6, true) + 12 * 9;
+
+/// The default environment: sky and a low sun (see the module docs).
+pub fn envmap() -> Result<EnvMap> {
+    super::daylight(250.0, 35.0)
+}
 
 #[cfg(test)]
 mod tests {

@@ -24,6 +24,10 @@
 //! below and behind it and the sky above the horizon. Curves depend on the seed; they
 //! are generated in parallel (one work item per curve) into fixed slots, so the result
 //! does not depend on the thread count.
+//!
+//! **Environment.** [`super::daylight`] with the sun high, at azimuth 200°, elevation 60°
+//! (behind and above the camera's left shoulder): the tangle shadows itself and the plane
+//! under it.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -33,6 +37,7 @@ use super::{camera, check_detail, setup, Setup};
 use crate::bsdf::Material;
 use crate::error::Result;
 use crate::geometry::Mesh;
+use crate::lights::EnvMap;
 use crate::sampling::rng::mix64;
 
 /// Centre of the ball of hair (m).
@@ -128,7 +133,12 @@ pub fn build(detail: f32, seed: u64) -> Result<Setup> {
     )?;
 
     let cam = camera([1.9, 1.6, 2.9], [0.0, 0.95, 0.0], 40.0)?;
-    Ok(setup("hairball", mesh, cam))
+    Ok(setup("hairball", mesh, cam, envmap()?))
+}
+
+/// The default environment: sky and a high sun (see the module docs).
+pub fn envmap() -> Result<EnvMap> {
+    super::daylight(200.0, 60.0)
 }
 
 #[cfg(test)]

@@ -1,19 +1,20 @@
 //! Procedural built-in scenes, shared by tests, benches and Python (`vc.scenes.load`).
 //!
 //! Each setup is a [`Scene`] plus a [`Camera`] (256 x 192 pixels) that frames its
-//! interesting part. Units are metres; the world is right-handed with +y up and the ground,
+//! interesting part and a default [`EnvMap`] (256² octahedral texels) chosen so that the
+//! scene's purpose holds under environment lighting; each module's docs describe its map. Units are metres; the world is right-handed with +y up and the ground,
 //! where there is one, at y = 0. Objects are named and carry sensible materials.
 //! `detail` in (0, 16] scales triangle counts roughly linearly (1 is the documented size);
 //! `seed` drives every random choice through the counter-based generator of
 //! [`crate::sampling::rng`], so a seed gives bit-identical geometry on any thread count.
 //!
-//! | name       | triangles at detail 1 | random | what it is for |
-//! |------------|-----------------------|--------|----------------|
-//! | `cornell`  | 1,262                 | no     | closed room, area light, smooth visibility |
-//! | `garage`   | 11,636                | no     | deep overhang: the sky is mostly occluded |
-//! | `garden`   | 402,332               | yes    | dense grass: near-random visibility |
-//! | `dynamics` | 6,768                 | no     | objects on a plane, little occlusion |
-//! | `hairball` | 1,499,272             | yes    | dense tangle of thin tubes |
+//! | name       | triangles at detail 1 | random | what it is for | environment map |
+//! |------------|-----------------------|--------|----------------|-----------------|
+//! | `cornell`  | 1,262                 | no     | closed room, area light, smooth visibility | constant white (unseen: the box is closed) |
+//! | `garage`   | 11,636                | no     | deep overhang: the sky is mostly occluded | bright windows, mostly hidden by the roof |
+//! | `garden`   | 402,332               | yes    | dense grass: near-random visibility | sky and sun |
+//! | `dynamics` | 6,768                 | no     | objects on a plane, little occlusion | sky and sun |
+//! | `hairball` | 1,499,272             | yes    | dense tangle of thin tubes | sky and sun |
 //!
 //! Each module's `//!` gives the exact layout, sizes and camera.
 
@@ -27,13 +28,42 @@ pub mod shapes;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::geometry::{Mesh, Scene};
+use crate::lights::{procedural, EnvMap};
 
-/// A built-in setup: geometry plus a camera that frames it.
+/// A built-in setup: geometry, a camera that frames it and the environment that lights it.
 #[derive(Clone, Debug)]
 pub struct Setup {
+    /// Name of the built-in scene (one of [`NAMES`]).
     pub name: String,
+    /// The geometry.
     pub scene: Scene,
+    /// The camera (256 x 192 pixels).
     pub camera: Camera,
+    /// The default environment map (256² octahedral texels; see each scene's docs).
+    pub envmap: EnvMap,
+}
+
+/// Side of the default environment maps, in octahedral texels.
+pub const ENV_RESOLUTION: u32 = 256;
+
+/// Angular diameter of the built-in suns, degrees: twice the real sun's 0.53°, so the disc
+/// spans a couple of texels at [`ENV_RESOLUTION`] (about 0.8° each).
+pub const SUN_ANGLE_DEG: f32 = 1.0;
+
+/// The built-in daylight: a blue sky (zenith `[0.25, 0.45, 1.0]`, horizon
+/// `[0.85, 0.9, 1.0]`) and a warm sun of radiance `4e4 · [1.0, 0.95, 0.85]` and diameter
+/// [`SUN_ANGLE_DEG`] at `azimuth_deg` / `elevation_deg` (see
+/// [`procedural::direction`]). At 45° elevation the sun's irradiance on open ground is
+/// about four times the sky's (luminance ~6.4 against ~1.7).
+pub fn daylight(azimuth_deg: f32, elevation_deg: f32) -> Result<EnvMap> {
+    procedural::sky(
+        procedural::direction(azimuth_deg, elevation_deg),
+        [4e4, 3.8e4, 3.4e4],
+        SUN_ANGLE_DEG,
+        [0.25, 0.45, 1.0],
+        [0.85, 0.9, 1.0],
+        ENV_RESOLUTION,
+    )
 }
 
 /// Names of the built-in setups, in a fixed order.
@@ -96,12 +126,13 @@ pub(crate) fn camera(eye: [f32; 3], target: [f32; 3], fov_deg: f32) -> Result<Ca
     )
 }
 
-/// Wraps a mesh and a camera.
-pub(crate) fn setup(name: &str, mesh: Mesh, camera: Camera) -> Setup {
+/// Wraps a mesh, a camera and an environment map.
+pub(crate) fn setup(name: &str, mesh: Mesh, camera: Camera, envmap: EnvMap) -> Setup {
     Setup {
         name: name.to_string(),
         scene: Scene::from_mesh(mesh),
         camera,
+        envmap,
     }
 }
 
@@ -246,6 +277,22 @@ mod tests {
     }
 
     #[test]
+    fn daylight_suns_are_where_asked_and_outshine_the_sky() {
+        let env = daylight(250.0, 35.0).unwrap();
+        let sun = procedural::direction(250.0, 35.0);
+        let (d, _) = (0..64)
+            .map(|i| {
+                env.sample(glam::DVec2::new((i as f64 + 0.5) / 64.0, 0.37))
+                    .unwrap()
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap();
+        assert!(d.dot(sun) > 0.999, "{d}");
+        let p = env.pdf(sun) * 4.0 * std::f64::consts::PI;
+        assert!(p > 1e3, "sun texel density {p} x uniform");
+    }
+
+    #[test]
     fn every_name_loads() {
         for n in NAMES {
             let d = if matches!(n, "garden" | "hairball") {
@@ -256,6 +303,8 @@ mod tests {
             let s = load(n, d, 1).unwrap();
             assert_eq!(s.name, n);
             assert!(s.scene.num_triangles() > 0);
+            assert_eq!(s.envmap.resolution(), ENV_RESOLUTION);
+            assert!(!s.envmap.is_black(), "{n}");
         }
     }
 }
