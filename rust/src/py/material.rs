@@ -1,9 +1,50 @@
 //! `vc.Material`.
 
+use glam::{Vec2, Vec3};
+use numpy::PyArray1;
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use super::convert::{f64_arg, vec3_arg, IntoPyResult};
-use crate::bsdf::Material;
+use super::convert::{
+    f64_arg, image_array, int_arg, rows3_array, rows3_f32, vec3_arg, IntoPyResult,
+};
+use crate::bsdf::{Material, MAX_CELL_LEVEL};
+use crate::sampling::octahedral::morton_encode;
+
+/// Unit directions from an `(N, 3)` array: every row finite and of non-zero length.
+fn unit_rows(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Vec3>> {
+    let rows = rows3_f32(obj, name)?;
+    rows.rows()?
+        .iter()
+        .enumerate()
+        .map(|(i, r)| unit(Vec3::from(*r), &format!("{name}[{i}]")))
+        .collect()
+}
+
+fn unit(v: Vec3, name: &str) -> PyResult<Vec3> {
+    if !v.is_finite() {
+        return Err(PyValueError::new_err(format!(
+            "{name}: must be finite, got {v}"
+        )));
+    }
+    let l = v.length();
+    if !(l > 0.0 && l.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "{name}: must have non-zero length, got {v}"
+        )));
+    }
+    Ok(v / l)
+}
+
+fn same_len(name: &str, got: usize, want: usize) -> PyResult<()> {
+    if got == want {
+        Ok(())
+    } else {
+        Err(PyValueError::new_err(format!(
+            "{name}: expected {want} rows like normals, got {got}"
+        )))
+    }
+}
 
 /// A surface material: `Material.lambert(albedo)` or `Material.phong(kd, ks, exponent)`.
 #[pyclass(
@@ -39,6 +80,129 @@ impl PyMaterial {
         Ok(Self {
             inner: Material::phong(vec3_arg(kd, "kd")?, vec3_arg(ks, "ks")?, e).py()?,
         })
+    }
+
+    /// BRDF values f_r (1/sr, RGB, no cosine) for rows of unit normals, wo and wi (each
+    /// (N, 3); rows are normalised); zero where wo or wi is at or below the surface.
+    fn eval<'py>(
+        &self,
+        py: Python<'py>,
+        normals: &Bound<'py, PyAny>,
+        wo: &Bound<'py, PyAny>,
+        wi: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let (n, o, i) = (
+            unit_rows(normals, "normals")?,
+            unit_rows(wo, "wo")?,
+            unit_rows(wi, "wi")?,
+        );
+        same_len("wo", o.len(), n.len())?;
+        same_len("wi", i.len(), n.len())?;
+        let m = self.inner;
+        let out: Vec<[f32; 3]> = py.detach(|| {
+            (0..n.len())
+                .map(|k| m.eval(n[k], o[k], i[k]).to_array())
+                .collect()
+        });
+        rows3_array(py, out)
+    }
+
+    /// Samples wi for rows of normals and wo (N, 3) with uniforms u (N, 3) in [0, 1]:
+    /// u[:, 0] picks the lobe, u[:, 1:] the direction. Returns (wi (N, 3) float32,
+    /// valid (N,) bool); invalid rows (sample below the surface) hold zeros.
+    fn sample<'py>(
+        &self,
+        py: Python<'py>,
+        normals: &Bound<'py, PyAny>,
+        wo: &Bound<'py, PyAny>,
+        u: &Bound<'py, PyAny>,
+    ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+        let (n, o) = (unit_rows(normals, "normals")?, unit_rows(wo, "wo")?);
+        same_len("wo", o.len(), n.len())?;
+        let u = rows3_f32(u, "u")?;
+        let u = u.rows()?;
+        same_len("u", u.len(), n.len())?;
+        if let Some(bad) = u
+            .iter()
+            .position(|r| r.iter().any(|x| !(0.0..=1.0).contains(x)))
+        {
+            return Err(PyValueError::new_err(format!(
+                "u[{bad}]: must lie in [0, 1], got {:?}",
+                u[bad]
+            )));
+        }
+        // Keep u < 1 so the samplers see [0, 1).
+        let below_one = |x: f32| x.min(1.0 - f32::EPSILON / 2.0);
+        let m = self.inner;
+        let (wi, valid): (Vec<[f32; 3]>, Vec<bool>) = py.detach(|| {
+            (0..n.len())
+                .map(|k| {
+                    let r = u[k];
+                    let d = Vec2::new(below_one(r[1]), below_one(r[2]));
+                    match m.sample(n[k], o[k], below_one(r[0]), d) {
+                        Some(w) => (w.to_array(), true),
+                        None => ([0.0; 3], false),
+                    }
+                })
+                .unzip()
+        });
+        Ok((
+            rows3_array(py, wi)?,
+            PyArray1::from_vec(py, valid).into_any(),
+        ))
+    }
+
+    /// Solid-angle pdf (1/sr, float64, shape (N,)) of `sample` for rows of normals, wo, wi.
+    fn pdf<'py>(
+        &self,
+        py: Python<'py>,
+        normals: &Bound<'py, PyAny>,
+        wo: &Bound<'py, PyAny>,
+        wi: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let (n, o, i) = (
+            unit_rows(normals, "normals")?,
+            unit_rows(wo, "wo")?,
+            unit_rows(wi, "wi")?,
+        );
+        same_len("wo", o.len(), n.len())?;
+        same_len("wi", i.len(), n.len())?;
+        let m = self.inner;
+        let out: Vec<f64> = py.detach(|| (0..n.len()).map(|k| m.pdf(n[k], o[k], i[k])).collect());
+        Ok(PyArray1::from_vec(py, out).into_any())
+    }
+
+    /// B~ for one shading point: the conservative per-cell approximation of
+    /// luminance(f_r) cos θi (1/sr) over the 2^level x 2^level octahedral grid, as a
+    /// float32 array indexed [y, x] (row-major texels). level in 1..=8 (None: 5).
+    #[pyo3(signature = (normal, wo, level=None))]
+    fn product_cells<'py>(
+        &self,
+        py: Python<'py>,
+        normal: &Bound<'py, PyAny>,
+        wo: &Bound<'py, PyAny>,
+        level: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let n = unit(Vec3::from(vec3_arg(normal, "normal")?), "normal")?;
+        let o = unit(Vec3::from(vec3_arg(wo, "wo")?), "wo")?;
+        let level = match level.filter(|l| !l.is_none()) {
+            Some(l) => int_arg(l, "level", 1, MAX_CELL_LEVEL as i128)? as u32,
+            None => 5,
+        };
+        let m = self.inner;
+        let res = 1usize << level;
+        let grid = py.detach(|| {
+            let mut morton = vec![0.0f32; res * res];
+            m.product_cells(n, o, level, &mut morton);
+            let mut grid = vec![0.0f32; res * res];
+            for y in 0..res {
+                for x in 0..res {
+                    grid[y * res + x] = morton[morton_encode(x as u32, y as u32) as usize];
+                }
+            }
+            grid
+        });
+        image_array(py, grid, res, res, None)
     }
 
     /// `"lambert"` or `"phong"`.
