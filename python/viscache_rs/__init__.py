@@ -5,7 +5,17 @@ caches visibility; this package re-exports it and adds built-in scenes, I/O and 
 ``viscache`` command line.
 """
 
-from . import scenes, testing
-from ._core import Camera, Material, Scene, Setup, __version__
+from . import envmaps, scenes, testing
+from ._core import Camera, EnvMap, Material, Scene, Setup, __version__
 
-__all__ = ["Camera", "Material", "Scene", "Setup", "__version__", "scenes", "testing"]
+__all__ = [
+    "Camera",
+    "EnvMap",
+    "Material",
+    "Scene",
+    "Setup",
+    "__version__",
+    "envmaps",
+    "scenes",
+    "testing",
+]
