@@ -10,8 +10,7 @@ use pyo3::types::{PyDict, PySequence};
 use rayon::prelude::*;
 
 use super::convert::{
-    f64_arg, image3_f32, int_arg, rows2_f64, rows3_array, rows3_f32, vec3_arg,
-    IntoPyResult,
+    f64_arg, image3_f32, int_arg, rows2_f64, rows3_array, rows3_f32, vec3_arg, IntoPyResult,
 };
 use crate::lights::envmap::{ExrLayout, MAX_EQUIRECT_SIDE, MAX_RESOLUTION};
 use crate::lights::procedural::{self, Window};
@@ -103,9 +102,8 @@ fn window_arg(obj: &Bound<'_, PyAny>, i: usize) -> PyResult<Window> {
         }
         keys.iter()
             .map(|k| {
-                d.get_item(k)?.ok_or_else(|| {
-                    PyValueError::new_err(format!("{name}: missing key {k:?}"))
-                })
+                d.get_item(k)?
+                    .ok_or_else(|| PyValueError::new_err(format!("{name}: missing key {k:?}")))
             })
             .collect::<PyResult<_>>()?
     } else if let Ok(s) = obj.cast::<PySequence>() {
@@ -155,9 +153,7 @@ impl PyEnvMap {
                 "rgb: sides must be at most {MAX_EQUIRECT_SIDE}, got {h} x {w}"
             )));
         }
-        let inner = py
-            .detach(|| EnvMap::from_equirect(&pixels, w, h, r))
-            .py()?;
+        let inner = py.detach(|| EnvMap::from_equirect(&pixels, w, h, r)).py()?;
         Ok(Self { inner })
     }
 
@@ -257,9 +253,7 @@ impl PyEnvMap {
             .collect::<PyResult<_>>()?;
         let bg = rgb_arg(background, "background")?;
         let r = resolution_arg(resolution)?;
-        let inner = py
-            .detach(|| procedural::windows(&list, bg, r))
-            .py()?;
+        let inner = py.detach(|| procedural::windows(&list, bg, r)).py()?;
         Ok(Self { inner })
     }
 
@@ -311,7 +305,13 @@ impl PyEnvMap {
     /// The texels as an (R, R, 3) float32 array; `[y, x]` is texel (x, y).
     fn texels<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         let r = self.inner.resolution() as usize;
-        super::convert::image_array(py, self.inner.texels().as_flattened().to_vec(), r, r, Some(3))
+        super::convert::image_array(
+            py,
+            self.inner.texels().as_flattened().to_vec(),
+            r,
+            r,
+            Some(3),
+        )
     }
 
     /// Radiance (N, 3) float32 arriving from directions `dirs` (N, 3).
@@ -376,7 +376,10 @@ impl PyEnvMap {
         });
         let dirs = out.iter().map(|(d, _)| d.to_array()).collect();
         let pdf = out.iter().map(|(_, p)| *p).collect();
-        Ok((rows3_array(py, dirs)?, PyArray1::from_vec(py, pdf).into_any()))
+        Ok((
+            rows3_array(py, dirs)?,
+            PyArray1::from_vec(py, pdf).into_any(),
+        ))
     }
 
     /// The u (N, 2) float64 that `sample` maps to each direction of `dirs` (N, 3); NaN rows

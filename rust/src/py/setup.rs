@@ -4,8 +4,8 @@
 use pyo3::prelude::*;
 
 use super::camera::PyCamera;
-use super::envmap::PyEnvMap;
 use super::convert::{f64_arg, seed_arg, IntoPyResult};
+use super::envmap::PyEnvMap;
 use super::scene::PyScene;
 use crate::scenes;
 
