@@ -23,6 +23,7 @@ const DEFAULT_RESOLUTION: u32 = 256;
 /// every operation returns a new map).
 #[pyclass(name = "EnvMap", module = "viscache_rs._core", frozen)]
 pub struct PyEnvMap {
+    /// The core map (read-only from Python; renderers borrow it without the GIL).
     pub inner: EnvMap,
 }
 
