@@ -1,11 +1,25 @@
 """viscache_rs: Monte Carlo direct illumination that exploits visibility correlation.
 
-The Rust core (``viscache_rs._core``) traces rays, builds G-buffers and, in later modules,
-caches visibility; this package re-exports it and adds built-in scenes, I/O and the
-``viscache`` command line.
+The Rust core (``viscache_rs._core``) traces rays, samples lights and BSDFs, renders and, in
+later modules, caches visibility; this package re-exports it and adds built-in scenes,
+environment maps, I/O and the ``viscache`` command line.
 """
 
-from . import octahedral, scenes, testing
-from ._core import Camera, Material, Scene, Setup, __version__
+from . import envmaps, octahedral, scenes, testing
+from ._core import Camera, EnvMap, Material, Scene, Setup, __version__
+from .render import RenderResult, render
 
-__all__ = ["Camera", "Material", "Scene", "Setup", "__version__", "octahedral", "scenes", "testing"]
+__all__ = [
+    "Camera",
+    "EnvMap",
+    "Material",
+    "RenderResult",
+    "Scene",
+    "Setup",
+    "__version__",
+    "envmaps",
+    "octahedral",
+    "render",
+    "scenes",
+    "testing",
+]

@@ -28,8 +28,10 @@ def names() -> list[str]:
 def load(name: str, detail: float = 1.0, seed: int = 0) -> Setup:
     """Builds the built-in scene ``name``.
 
-    Returns a :class:`Setup` with ``.scene`` and ``.camera`` (256x192 by default; use
-    ``setup.camera.with_resolution(w, h)`` for other sizes). The same ``seed`` always gives
-    the same triangles.
+    Returns a :class:`Setup` with ``.scene``, ``.camera`` (256x192 by default; use
+    ``setup.camera.with_resolution(w, h)`` for other sizes) and ``.envmap``, the scene's
+    default :class:`EnvMap` (sky and sun for garden, dynamics and hairball; bright windows
+    mostly hidden by the roof for garage; constant white for the closed cornell box). The
+    same ``seed`` always gives the same triangles.
     """
     return load_scene(name, detail=detail, seed=seed)

@@ -6,7 +6,8 @@
 //! feature, the native module `viscache_rs._core`.
 //!
 //! Data flows one way: [`scenes`] and [`geometry`] build a [`geometry::Scene`] and its BVH,
-//! [`camera`] turns a camera into a G-buffer of first hits, and the estimators consume them.
+//! [`camera`] turns a camera into a G-buffer of first hits, [`lights`] holds the environment
+//! maps that light them, and the estimators consume them.
 
 pub mod bsdf;
 pub mod camera;

@@ -55,6 +55,74 @@ struct Splat {
     omega: f64,
 }
 
+/// Run-length splats: consecutive sub-samples that land in the same cell are merged.
+#[derive(Default)]
+struct Splats(Vec<Splat>);
+
+impl Splats {
+    #[inline]
+    fn add(&mut self, cell: u32, base: DVec3, excess: DVec3, d_omega: f64) {
+        match self.0.last_mut() {
+            Some(s) if s.texel == cell => {
+                s.base += base * d_omega;
+                s.excess += excess * d_omega;
+                s.omega += d_omega;
+            }
+            _ => self.0.push(Splat {
+                texel: cell,
+                base: base * d_omega,
+                excess: excess * d_omega,
+                omega: d_omega,
+            }),
+        }
+    }
+}
+
+/// Per-cell sums of splats: the base part's power and solid angle, the excess's power.
+struct Accumulator {
+    base: Vec<DVec3>,
+    excess: Vec<DVec3>,
+    omega: Vec<f64>,
+}
+
+impl Accumulator {
+    fn new(n: usize) -> Self {
+        Self {
+            base: vec![DVec3::ZERO; n],
+            excess: vec![DVec3::ZERO; n],
+            omega: vec![0.0; n],
+        }
+    }
+
+    /// Runs `work` over `units` in parallel batches of at most ~2M pending splats (`cost`
+    /// bounds a unit's), adding the results in unit order: deterministic, bounded memory.
+    fn run<U: Sync>(
+        &mut self,
+        units: &[U],
+        cost: impl Fn(&U) -> usize,
+        work: impl Fn(&U) -> Vec<Splat> + Sync,
+    ) {
+        const BUDGET: usize = 1 << 21;
+        let mut start = 0;
+        while start < units.len() {
+            let mut end = start;
+            let mut pending = 0;
+            while end < units.len() && (end == start || pending + cost(&units[end]) <= BUDGET) {
+                pending += cost(&units[end]);
+                end += 1;
+            }
+            let done: Vec<Vec<Splat>> = units[start..end].par_iter().map(&work).collect();
+            for s in done.iter().flatten() {
+                let t = s.texel as usize;
+                self.base[t] += s.base;
+                self.excess[t] += s.excess;
+                self.omega[t] += s.omega;
+            }
+            start = end;
+        }
+    }
+}
+
 /// Largest supported side of the octahedral texture (`4096² ≈ 16.8M` texels).
 pub const MAX_RESOLUTION: u32 = 4096;
 
@@ -313,83 +381,63 @@ impl EnvMap {
             let base = l.min(cap);
             (base, l - base)
         };
-        // Rows are independent: compute each row's splats in parallel, then add them in
-        // row order so the result does not depend on the thread count.
-        let row_splats = |j: usize| -> Vec<Splat> {
+        // One unit of work is a sub-row of a pixel row; units run in parallel in bounded
+        // batches and are added in order, so the result does not depend on the thread count.
+        let mut units: Vec<(usize, usize, usize, usize)> = Vec::new();
+        for j in 0..height {
             let (theta0, theta1) = (pi * j as f64 / h, pi * (j + 1) as f64 / h);
             let max_sin = if theta0 <= 0.5 * pi && theta1 >= 0.5 * pi {
                 1.0
             } else {
                 theta0.sin().max(theta1.sin())
             };
-            // At least four sub-pixels per texel width along each axis.
-            let k_theta = ((4.0 * (theta1 - theta0) / angle).ceil() as usize).max(1);
+            // At least two sub-pixels per texel width along each axis.
+            let k_theta = ((2.0 * (theta1 - theta0) / angle).ceil() as usize).max(1);
             let k_phi =
-                ((4.0 * std::f64::consts::TAU / w * max_sin / angle).ceil() as usize).max(1);
+                ((2.0 * std::f64::consts::TAU / w * max_sin / angle).ceil() as usize).max(1);
+            units.extend((0..k_theta).map(|a| (j, a, k_theta, k_phi)));
+        }
+        let unit_splats = |&(j, a, k_theta, k_phi): &(usize, usize, usize, usize)| {
+            let (theta0, theta1) = (pi * j as f64 / h, pi * (j + 1) as f64 / h);
             let cols = width * k_phi;
-            let phis: Vec<(f64, f64)> = (0..cols)
-                .map(|c| (std::f64::consts::TAU * (c as f64 + 0.5) / cols as f64).sin_cos())
-                .collect();
-            let mut out: Vec<Splat> = Vec::new();
-            for a in 0..k_theta {
-                let ta = theta0 + (theta1 - theta0) * a as f64 / k_theta as f64;
-                let tb = theta0 + (theta1 - theta0) * (a + 1) as f64 / k_theta as f64;
-                let (ca, cb) = (ta.cos(), tb.cos());
-                // Sub-pixel solid angle, and its centre in cos θ (equal-area midpoint).
-                let d_omega = std::f64::consts::TAU / cols as f64 * (ca - cb);
-                let cos_t = 0.5 * (ca + cb);
-                let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-                for (c, &(sin_p, cos_p)) in phis.iter().enumerate() {
-                    let (base, excess) = split(rgb[j * width + c / k_phi]);
-                    let d = Vec3::new(
-                        (sin_p * sin_t) as f32,
-                        cos_t as f32,
-                        (-cos_p * sin_t) as f32,
-                    );
-                    let t = texel_of(d, res);
-                    let t = t.y * res + t.x;
-                    match out.last_mut() {
-                        Some(s) if s.texel == t => {
-                            s.base += base * d_omega;
-                            s.excess += excess * d_omega;
-                            s.omega += d_omega;
-                        }
-                        _ => out.push(Splat {
-                            texel: t,
-                            base: base * d_omega,
-                            excess: excess * d_omega,
-                            omega: d_omega,
-                        }),
-                    }
-                }
+            let ta = theta0 + (theta1 - theta0) * a as f64 / k_theta as f64;
+            let tb = theta0 + (theta1 - theta0) * (a + 1) as f64 / k_theta as f64;
+            let (ca, cb) = (ta.cos(), tb.cos());
+            // Sub-pixel solid angle, and its centre in cos θ (equal-area midpoint).
+            let d_omega = std::f64::consts::TAU / cols as f64 * (ca - cb);
+            let cos_t = 0.5 * (ca + cb);
+            let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+            let mut out = Splats::default();
+            for c in 0..cols {
+                let (sin_p, cos_p) =
+                    (std::f64::consts::TAU * (c as f64 + 0.5) / cols as f64).sin_cos();
+                let (base, excess) = split(rgb[j * width + c / k_phi]);
+                let d = Vec3::new(
+                    (sin_p * sin_t) as f32,
+                    cos_t as f32,
+                    (-cos_p * sin_t) as f32,
+                );
+                let t = texel_of(d, res);
+                out.add(t.y * res + t.x, base, excess, d_omega);
             }
-            out
+            out.0
         };
         let n = res as usize * res as usize;
-        let (mut base, mut excess, mut omega) =
-            (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n], vec![0.0f64; n]);
-        // Bounded batches keep the memory of pending splats small.
-        let batch = 64;
-        for start in (0..height).step_by(batch) {
-            let rows: Vec<Vec<Splat>> = (start..(start + batch).min(height))
-                .into_par_iter()
-                .map(row_splats)
-                .collect();
-            for s in rows.iter().flatten() {
-                let t = s.texel as usize;
-                base[t] += s.base;
-                excess[t] += s.excess;
-                omega[t] += s.omega;
-            }
-        }
+        let mut acc = Accumulator::new(n);
+        acc.run(&units, |u| width * u.3, unit_splats);
+        let Accumulator {
+            base,
+            excess,
+            omega,
+        } = acc;
         let inv = 1.0 / texel_omega(res);
         let texels = (0..n)
             .map(|t| {
                 let b = if omega[t] > 0.0 {
                     base[t] / omega[t]
                 } else {
-                    // No sub-pixel landed here (not expected at 4 per texel width): the
-                    // nearest pixel.
+                    // No sub-pixel landed here (rare at 2 per texel width): the nearest
+                    // pixel.
                     let d = crate::sampling::octahedral::texel_center(
                         UVec2::new(t as u32 % res, t as u32 / res),
                         res,
@@ -406,12 +454,13 @@ impl EnvMap {
     }
 
     /// Resamples the map to a `width x height` lat-long image (row-major, row 0 at the top;
-    /// see the module docs). Each texel is split into equal sub-texels, at least four per
-    /// pixel height, that are added to the pixel their centre falls in. As in
-    /// [`Self::from_equirect`], radiance up to 16x the map's mean is averaged per pixel
-    /// (constant regions stay exact) and the excess above it keeps its exact power, so the
-    /// image's `∫ L dω` matches [`Self::total_power`] up to the averaging of the smooth part.
-    /// Sizes of zero give an empty image.
+    /// see the module docs). When pixels are under a quarter of a texel wide, each pixel
+    /// averages the map at 2x2 points of equal solid angle (the texels are piecewise
+    /// constant, so this is exact away from texel borders). Otherwise each texel is split
+    /// into equal sub-texels, four per pixel width (fewer for maps over 1024²), that land
+    /// in the pixel their centre falls in; as in [`Self::from_equirect`], radiance up to 16x the map's mean is averaged per
+    /// pixel and the excess keeps its exact power. Either way the image's `∫ L dω` matches
+    /// [`Self::total_power`] to within about a percent. Sizes of zero give an empty image.
     pub fn to_equirect(&self, width: usize, height: usize) -> Vec<[f32; 3]> {
         if width == 0 || height == 0 {
             return Vec::new();
@@ -420,7 +469,14 @@ impl EnvMap {
         let (w, h) = (width as f64, height as f64);
         let pi = std::f64::consts::PI;
         let pixel_angle = (pi / h).min(std::f64::consts::TAU / w);
-        let sub = ((4.0 * texel_angle(res) / pixel_angle).ceil() as u32).clamp(1, 64);
+        if pixel_angle < 0.25 * texel_angle(res) {
+            return self.gather_equirect(width, height);
+        }
+        // Four sub-texels per pixel width, within a budget of ~32M sub-texels.
+        let budget = ((32.0 * 1024.0 * 1024.0) / (res as f64 * res as f64))
+            .sqrt()
+            .max(1.0);
+        let sub = ((4.0 * texel_angle(res) / pixel_angle).ceil().min(budget) as u32).clamp(1, 16);
         let cap = DVec3::from(self.total_power()) / (4.0 * pi) * 16.0;
         let split = |t: [f32; 3]| {
             let l = Vec3::from(t).as_dvec3();
@@ -434,52 +490,31 @@ impl EnvMap {
             let y = ((st.y * h) as usize).min(height - 1);
             (y * width + x) as u32
         };
-        let row_splats = |y: u32| -> Vec<Splat> {
-            let mut out: Vec<Splat> = Vec::new();
+        // One unit of work is a sub-row of a texel row (see `from_equirect`).
+        let units: Vec<(u32, u32)> = (0..res)
+            .flat_map(|y| (0..sub).map(move |b| (y, b)))
+            .collect();
+        let unit_splats = |&(y, b): &(u32, u32)| {
+            let mut out = Splats::default();
             for x in 0..res {
                 let (base, excess) = split(self.texels[(y * res + x) as usize]);
-                for b in 0..sub {
-                    for a in 0..sub {
-                        let within = DVec2::new(
-                            (a as f64 + 0.5) / sub as f64,
-                            (b as f64 + 0.5) / sub as f64,
-                        );
-                        let p = ((UVec2::new(x, y).as_dvec2() + within) / res as f64).as_vec2();
-                        let t = pixel_of(square_to_sphere(p));
-                        match out.last_mut() {
-                            Some(s) if s.texel == t => {
-                                s.base += base * d_omega;
-                                s.excess += excess * d_omega;
-                                s.omega += d_omega;
-                            }
-                            _ => out.push(Splat {
-                                texel: t,
-                                base: base * d_omega,
-                                excess: excess * d_omega,
-                                omega: d_omega,
-                            }),
-                        }
-                    }
+                for a in 0..sub {
+                    let within =
+                        DVec2::new((a as f64 + 0.5) / sub as f64, (b as f64 + 0.5) / sub as f64);
+                    let p = ((UVec2::new(x, y).as_dvec2() + within) / res as f64).as_vec2();
+                    out.add(pixel_of(square_to_sphere(p)), base, excess, d_omega);
                 }
             }
-            out
+            out.0
         };
         let n = width * height;
-        let (mut base, mut excess, mut omega) =
-            (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n], vec![0.0f64; n]);
-        let batch = 64;
-        for start in (0..res).step_by(batch) {
-            let rows: Vec<Vec<Splat>> = (start..(start + batch as u32).min(res))
-                .into_par_iter()
-                .map(row_splats)
-                .collect();
-            for s in rows.iter().flatten() {
-                let t = s.texel as usize;
-                base[t] += s.base;
-                excess[t] += s.excess;
-                omega[t] += s.omega;
-            }
-        }
+        let mut acc = Accumulator::new(n);
+        acc.run(&units, |_| (res * sub) as usize, unit_splats);
+        let Accumulator {
+            base,
+            excess,
+            omega,
+        } = acc;
         (0..n)
             .map(|i| {
                 let (x, y) = (i % width, i / width);
@@ -495,6 +530,29 @@ impl EnvMap {
                 (b + excess[i] / pixel_omega).as_vec3().to_array()
             })
             .collect()
+    }
+
+    /// [`Self::to_equirect`] for pixels much smaller than texels: 2x2 equal-area points per
+    /// pixel.
+    fn gather_equirect(&self, width: usize, height: usize) -> Vec<[f32; 3]> {
+        let (w, h) = (width as f64, height as f64);
+        let pi = std::f64::consts::PI;
+        let mut out = vec![[0.0f32; 3]; width * height];
+        out.par_chunks_mut(width).enumerate().for_each(|(j, row)| {
+            let (c0, c1) = ((pi * j as f64 / h).cos(), (pi * (j + 1) as f64 / h).cos());
+            let ts = [0.25, 0.75].map(|f| (c0 + (c1 - c0) * f).clamp(-1.0, 1.0).acos() / pi);
+            for (i, px) in row.iter_mut().enumerate() {
+                let mut sum = DVec3::ZERO;
+                for t in ts {
+                    for f in [0.25, 0.75] {
+                        let d = latlong_to_dir((i as f64 + f) / w, t);
+                        sum += self.eval(d.as_vec3()).as_dvec3();
+                    }
+                }
+                *px = (sum * 0.25).as_vec3().to_array();
+            }
+        });
+        out
     }
 
     /// Side of the octahedral texture, a power of two in `[1, 4096]`.

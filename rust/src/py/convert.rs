@@ -283,3 +283,27 @@ pub fn image_array<'py, T: numpy::Element>(
         None => a.reshape([height, width])?.into_any(),
     })
 }
+
+/// An `(N, 2)` array of real numbers as C-contiguous `float64`.
+pub fn rows2_f64<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonlyArray2<'py, f64>> {
+    let arr = as_array(obj, name)?;
+    check_kind(&arr, name, b"fiu", "a real-valued array")?;
+    check_rows(&arr, name, 2)?;
+    Ok(contiguous(&arr, "float64")?.extract()?)
+}
+
+/// An `(H, W, 3)` image of real numbers as row-major RGB `float32` texels, with `(H, W)`.
+/// Values beyond the `float32` range become infinite (the callers' checks report them).
+pub fn image3_f32(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<(Vec<[f32; 3]>, usize, usize)> {
+    let arr = as_array(obj, name)?;
+    check_kind(&arr, name, b"fiu", "a real-valued array")?;
+    let shape = arr.shape().to_vec();
+    if shape.len() != 3 || shape[2] != 3 || shape[0] == 0 || shape[1] == 0 {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected shape (H, W, 3) with H, W >= 1, got {shape:?}"
+        )));
+    }
+    let flat = contiguous(&arr, "float32")?.call_method1("reshape", ((shape[0] * shape[1], 3),))?;
+    let a: PyReadonlyArray2<f32> = flat.extract()?;
+    Ok((as_rows(&a)?.to_vec(), shape[0], shape[1]))
+}

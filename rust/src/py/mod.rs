@@ -3,6 +3,7 @@
 
 mod camera;
 mod convert;
+mod envmap;
 mod material;
 mod octahedral;
 mod scene;
@@ -19,6 +20,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<camera::PyCamera>()?;
     m.add_class::<material::PyMaterial>()?;
     m.add_class::<setup::PySetup>()?;
+    m.add_class::<envmap::PyEnvMap>()?;
     m.add_function(wrap_pyfunction!(setup::scene_names, m)?)?;
     m.add_function(wrap_pyfunction!(setup::load_scene, m)?)?;
     let testing = PyModule::new(m.py(), "testing")?;

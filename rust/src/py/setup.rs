@@ -1,9 +1,11 @@
-//! Built-in setups: `vc.scenes.load(name)` returns a `Setup` with `scene` and `camera`.
+//! Built-in setups: `vc.scenes.load(name)` returns a `Setup` with `scene`, `camera` and
+//! `envmap`.
 
 use pyo3::prelude::*;
 
 use super::camera::PyCamera;
 use super::convert::{f64_arg, seed_arg, IntoPyResult};
+use super::envmap::PyEnvMap;
 use super::scene::PyScene;
 use crate::scenes;
 
@@ -19,16 +21,20 @@ pub struct PySetup {
     /// The camera.
     #[pyo3(get, set)]
     pub camera: Py<PyCamera>,
+    /// The environment map that lights the scene.
+    #[pyo3(get, set)]
+    pub envmap: Py<PyEnvMap>,
 }
 
 #[pymethods]
 impl PySetup {
     fn __repr__(&self, py: Python<'_>) -> String {
         format!(
-            "Setup(name={:?}, scene={}, camera={})",
+            "Setup(name={:?}, scene={}, camera={}, envmap={})",
             self.name,
             self.scene.borrow(py).__repr__(),
-            self.camera.get().__repr__()
+            self.camera.get().__repr__(),
+            self.envmap.get().__repr__()
         )
     }
 }
@@ -59,6 +65,12 @@ pub fn load_scene(
             py,
             PyCamera {
                 inner: setup.camera,
+            },
+        )?,
+        envmap: Py::new(
+            py,
+            PyEnvMap {
+                inner: setup.envmap,
             },
         )?,
     })
