@@ -16,8 +16,8 @@ def uniform_dirs(rng: np.random.Generator, n: int) -> np.ndarray:
 
 
 def sunny(resolution: int = 64, angle: float = 4.0) -> vc.EnvMap:
-    return vc.envmaps.sky(sun_direction=(0.3, 0.6, -0.7), sun_radiance=2e4,
-                          sun_angle_deg=angle, resolution=resolution)
+    return vc.envmaps.sky(sun_dir=(0.3, 0.6, -0.7), sun_radiance=2e4,
+                          sun_angle=angle, resolution=resolution)
 
 
 def spike(resolution: int, x: int, y: int, value: float, rest: float) -> vc.EnvMap:
@@ -262,8 +262,8 @@ def test_procedural_maps_and_setups():
         (lambda: vc.EnvMap.from_equirect(np.ones((4, 8, 4))), ValueError, "rgb"),
         (lambda: vc.envmaps.constant(-1.0), ValueError, "value"),
         (lambda: vc.envmaps.constant(float("nan")), ValueError, "value"),
-        (lambda: vc.envmaps.sky(sun_direction=(0, 0, 0)), ValueError, "sun_direction"),
-        (lambda: vc.envmaps.sky(sun_angle_deg=0), ValueError, "sun_angle_deg"),
+        (lambda: vc.envmaps.sky(sun_dir=(0, 0, 0)), ValueError, "sun_dir"),
+        (lambda: vc.envmaps.sky(sun_angle=0), ValueError, "sun_angle"),
         (lambda: vc.envmaps.windows([(0, 95, 10, 10, 1)]), ValueError, "windows\\[0\\]"),
         (lambda: vc.envmaps.windows([dict(azimuth_deg=0)]), ValueError, "windows\\[0\\]"),
         (lambda: vc.envmaps.windows([3]), TypeError, "windows\\[0\\]"),

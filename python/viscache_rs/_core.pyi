@@ -127,9 +127,9 @@ class EnvMap:
     def constant(value: float | ArrayLike, resolution: int = 256) -> EnvMap: ...
     @staticmethod
     def sky(
-        sun_direction: ArrayLike,
+        sun_dir: ArrayLike,
         sun_radiance: float | ArrayLike,
-        sun_angle_deg: float,
+        sun_angle: float,
         zenith: float | ArrayLike,
         horizon: float | ArrayLike,
         resolution: int = 256,

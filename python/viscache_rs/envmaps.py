@@ -35,9 +35,9 @@ def constant(value: float | Sequence[float], resolution: int = DEFAULT_RESOLUTIO
 
 
 def sky(
-    sun_direction: Sequence[float] = (0.5, 0.7, -0.5),
+    sun_dir: Sequence[float] = (0.5, 0.7, -0.5),
     sun_radiance: float | Sequence[float] = (4e4, 3.8e4, 3.4e4),
-    sun_angle_deg: float = 1.0,
+    sun_angle: float = 1.0,
     zenith: float | Sequence[float] = (0.25, 0.45, 1.0),
     horizon: float | Sequence[float] = (0.85, 0.9, 1.0),
     resolution: int = DEFAULT_RESOLUTION,
@@ -46,11 +46,11 @@ def sky(
 
     Above the horizon the radiance runs from ``horizon`` to ``zenith`` as ``sqrt(y)``; below
     it, it fades to a quarter of ``horizon`` at the nadir. The sun is a disc of angular
-    diameter ``sun_angle_deg`` (in (0, 90]; the real sun is 0.53) around ``sun_direction``
+    diameter ``sun_angle`` (in (0, 90]; the real sun is 0.53) around ``sun_dir``
     (any non-zero vector) with uniform radiance ``sun_radiance``; its power
-    ``sun_radiance * 2*pi*(1 - cos(sun_angle_deg / 2))`` is exact at any resolution.
+    ``sun_radiance * 2*pi*(1 - cos(sun_angle / 2))`` is exact at any resolution.
     """
-    return EnvMap.sky(sun_direction, sun_radiance, sun_angle_deg, zenith, horizon,
+    return EnvMap.sky(sun_dir, sun_radiance, sun_angle, zenith, horizon,
                       resolution=resolution)
 
 

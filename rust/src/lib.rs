@@ -12,9 +12,11 @@
 pub mod bsdf;
 pub mod camera;
 pub mod error;
+pub mod estimators;
 pub mod geometry;
 pub mod lights;
 pub mod parallel;
+pub mod render;
 pub mod sampling;
 pub mod scenes;
 pub mod testing;

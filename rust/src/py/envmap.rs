@@ -211,22 +211,22 @@ impl PyEnvMap {
 
     /// A gradient sky with a disc sun (see `viscache_rs.envmaps.sky`).
     #[staticmethod]
-    #[pyo3(signature = (sun_direction, sun_radiance, sun_angle_deg, zenith, horizon, resolution=None))]
+    #[pyo3(signature = (sun_dir, sun_radiance, sun_angle, zenith, horizon, resolution=None))]
     fn sky(
         py: Python<'_>,
-        sun_direction: &Bound<'_, PyAny>,
+        sun_dir: &Bound<'_, PyAny>,
         sun_radiance: &Bound<'_, PyAny>,
-        sun_angle_deg: &Bound<'_, PyAny>,
+        sun_angle: &Bound<'_, PyAny>,
         zenith: &Bound<'_, PyAny>,
         horizon: &Bound<'_, PyAny>,
         resolution: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
-        let sun = Vec3::from(vec3_arg(sun_direction, "sun_direction")?);
+        let sun = Vec3::from(vec3_arg(sun_dir, "sun_dir")?);
         if sun.length() == 0.0 {
-            return Err(PyValueError::new_err("sun_direction: must be non-zero"));
+            return Err(PyValueError::new_err("sun_dir: must be non-zero"));
         }
         let sun_rgb = rgb_arg(sun_radiance, "sun_radiance")?;
-        let angle = f64_arg(sun_angle_deg, "sun_angle_deg")? as f32;
+        let angle = f64_arg(sun_angle, "sun_angle")? as f32;
         let z = rgb_arg(zenith, "zenith")?;
         let h = rgb_arg(horizon, "horizon")?;
         let r = resolution_arg(resolution)?;

@@ -6,6 +6,7 @@ mod convert;
 mod envmap;
 mod material;
 mod octahedral;
+mod render;
 mod scene;
 mod setup;
 mod testing;
@@ -21,6 +22,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<material::PyMaterial>()?;
     m.add_class::<setup::PySetup>()?;
     m.add_class::<envmap::PyEnvMap>()?;
+    m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(setup::scene_names, m)?)?;
     m.add_function(wrap_pyfunction!(setup::load_scene, m)?)?;
     let testing = PyModule::new(m.py(), "testing")?;

@@ -9,7 +9,9 @@ use super::envmap::PyEnvMap;
 use super::scene::PyScene;
 use crate::scenes;
 
-/// A built-in scene with the camera that frames it.
+/// A scene with the camera that frames it and the environment map that lights it: what
+/// `vc.render` takes. Built-in ones come from `vc.scenes.load`; `Setup(scene, camera,
+/// envmap, name="custom")` makes one from user objects.
 #[pyclass(name = "Setup", module = "viscache_rs._core")]
 pub struct PySetup {
     /// Name of the built-in scene.
@@ -28,6 +30,22 @@ pub struct PySetup {
 
 #[pymethods]
 impl PySetup {
+    #[new]
+    #[pyo3(signature = (scene, camera, envmap, name=None))]
+    fn new(
+        scene: Py<PyScene>,
+        camera: Py<PyCamera>,
+        envmap: Py<PyEnvMap>,
+        name: Option<String>,
+    ) -> Self {
+        Self {
+            name: name.unwrap_or_else(|| "custom".into()),
+            scene,
+            camera,
+            envmap,
+        }
+    }
+
     fn __repr__(&self, py: Python<'_>) -> String {
         format!(
             "Setup(name={:?}, scene={}, camera={}, envmap={})",

@@ -1,0 +1,341 @@
+//! Direct illumination at one shading point from an environment map and area lights, by
+//! four unbiased estimators that every later estimator is checked against:
+//!
+//! - [`Method::Env`]: light sampling. One sample of the environment map's own distribution
+//!   plus one area-sampled point per area light.
+//! - [`Method::Bsdf`]: one BSDF sample; its closest hit finds an emitter or escapes to the
+//!   environment.
+//! - [`Method::Mis`]: both, combined by the power heuristic (Veach 1997, §9.2), pairwise for
+//!   every light (each light's integral has its own two strategies).
+//! - [`Method::Product`]: the environment by product importance sampling (CAM08 §5.5 and
+//!   Clarberg & Akenine-Möller, "Practical Product Importance Sampling", 2008), the area
+//!   lights by light sampling. A coarse product `L_c · B~_c` over the cells of one
+//!   octahedral level picks a cell; the environment map's own quadtree picks a texel inside
+//!   it, so `p(ω) = L(ω) · B~(ω) / L_ns` with `L_ns = Σ_c L_c · B~_c` (CAM08 eq. 3), where
+//!   `L` is the map's sampling weight (luminance). `B~` is conservative
+//!   ([`Material::product_cells`]), so `p > 0` wherever the integrand is.
+//!
+//! All four return the estimate of `∫ f(ωo, ω) L(ω) V(ω) cos θ dω` for one sample index;
+//! averaging over samples is the renderer's job.
+
+use glam::{DVec2, UVec2, Vec2, Vec3};
+
+use crate::bsdf::Material;
+use crate::geometry::{Scene, TraversalCounters};
+use crate::lights::envmap::EnvMap;
+use crate::sampling::distribution::QuadPyramid;
+use crate::sampling::octahedral::{morton_encode, square_to_sphere, texel_of, texel_solid_angle};
+use crate::sampling::rng::SampleRng;
+
+/// Which estimator of direct illumination to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Method {
+    /// Light sampling: the environment's distribution and area sampling of each light.
+    Env,
+    /// BSDF sampling only.
+    Bsdf,
+    /// Light and BSDF sampling with the power heuristic.
+    Mis,
+    /// Product importance sampling of environment × BSDF (CAM08 §5.5); area lights by
+    /// light sampling.
+    Product,
+}
+
+impl Method {
+    /// Every method, in a fixed order.
+    pub const ALL: [Method; 4] = [Method::Env, Method::Bsdf, Method::Mis, Method::Product];
+
+    /// The name Python uses.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Method::Env => "env",
+            Method::Bsdf => "bsdf",
+            Method::Mis => "mis",
+            Method::Product => "product",
+        }
+    }
+
+    /// The method of a name, if any.
+    pub fn from_name(name: &str) -> Option<Method> {
+        Method::ALL.into_iter().find(|m| m.name() == name)
+    }
+}
+
+/// Random-number dimensions of one pixel sample, after the two of the pixel jitter.
+pub mod dims {
+    /// First dimension of the direct-lighting estimators.
+    pub const FIRST: u64 = 2;
+    /// BSDF lobe choice and direction (3 dimensions).
+    pub const BSDF: u64 = FIRST;
+    /// Environment or product sample (2 dimensions).
+    pub const ENV: u64 = FIRST + 3;
+    /// Area light `k` uses 3 dimensions from `AREA + 3k`.
+    pub const AREA: u64 = FIRST + 5;
+}
+
+/// A surface point being shaded.
+#[derive(Clone, Copy, Debug)]
+pub struct ShadingPoint {
+    /// Shadow-ray origin: the hit point offset along `normal`.
+    pub origin: Vec3,
+    /// Unit shading normal, on the side of `wo`.
+    pub normal: Vec3,
+    /// Unit direction towards the viewer.
+    pub wo: Vec3,
+    /// The surface's material.
+    pub material: Material,
+}
+
+/// Work done by the estimators, for the renderer's statistics.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DirectCounters {
+    /// Shadow rays traced (any-hit queries).
+    pub shadow_rays: u64,
+    /// BSDF rays traced (closest-hit queries).
+    pub bsdf_rays: u64,
+}
+
+/// The product distribution of one shading point (CAM08 §5.5).
+///
+/// Invariants: `cells` holds `L_c · B~_c` over the `4^level` cells in Morton order, with a
+/// positive total `L_ns`; `level` does not exceed the environment's quadtree depth.
+#[derive(Clone, Debug)]
+pub struct ProductDistribution {
+    level: u32,
+    bsdf_cells: Vec<f32>,
+    cells: QuadPyramid,
+}
+
+impl ProductDistribution {
+    /// Builds the product of `env`'s cell sums at `level` (capped at the map's depth) and
+    /// `B~` of `material` at `(normal, wo)`. `None` when the product is zero everywhere
+    /// (black map, or a surface that reflects nothing towards `wo`).
+    pub fn new(
+        env: &EnvMap,
+        material: &Material,
+        normal: Vec3,
+        wo: Vec3,
+        level: u32,
+    ) -> Option<Self> {
+        let dist = env.distribution()?;
+        let level = level.min(dist.depth());
+        let mut bsdf_cells = vec![0.0f32; 1 << (2 * level)];
+        material.product_cells(normal, wo, level, &mut bsdf_cells);
+        let product: Vec<f64> = dist
+            .level(level)
+            .iter()
+            .zip(&bsdf_cells)
+            .map(|(&l, &b)| l * b as f64)
+            .collect();
+        let cells = QuadPyramid::from_morton_unchecked(product);
+        (cells.total() > 0.0).then_some(Self {
+            level,
+            bsdf_cells,
+            cells,
+        })
+    }
+
+    /// `L_ns = Σ_c L_c · B~_c` (CAM08 eq. 3), in the units of the map's sampling weights.
+    pub fn normalization(&self) -> f64 {
+        self.cells.total()
+    }
+
+    /// Samples a direction from `u ∈ [0,1)^2`: a cell of the product, then a texel of the
+    /// map inside it. Returns the direction, its texel and its solid-angle pdf.
+    pub fn sample(&self, env: &EnvMap, u: DVec2) -> (Vec3, UVec2, f64) {
+        let dist = env
+            .distribution()
+            .expect("a product exists only for a lit map");
+        let (cell, rest) = self
+            .cells
+            .sample(u)
+            .expect("the product has a positive total");
+        let (texel, within) = dist.descend(self.level, morton_encode(cell.x, cell.y), rest);
+        let res = env.resolution();
+        let p = (texel.as_dvec2() + within) / res as f64;
+        let dir = square_to_sphere(p.as_vec2());
+        (dir, texel, self.texel_pdf(env, texel))
+    }
+
+    /// Solid-angle pdf of sampling a direction in `texel` of the map.
+    pub fn texel_pdf(&self, env: &EnvMap, texel: UVec2) -> f64 {
+        let dist = env
+            .distribution()
+            .expect("a product exists only for a lit map");
+        let shift = dist.depth() - self.level;
+        let cell = morton_encode(texel.x >> shift, texel.y >> shift) as usize;
+        let b = self.bsdf_cells[cell] as f64;
+        b * dist.weight(texel) / self.normalization() / texel_solid_angle(env.resolution())
+    }
+
+    /// Solid-angle pdf of [`Self::sample`] producing `dir`.
+    pub fn pdf(&self, env: &EnvMap, dir: Vec3) -> f64 {
+        self.texel_pdf(env, texel_of(dir, env.resolution()))
+    }
+}
+
+/// Power heuristic with exponent 2 for a sample of density `a` against `b`.
+#[inline]
+fn power_heuristic(a: f64, b: f64) -> f64 {
+    if a.is_infinite() {
+        return 1.0;
+    }
+    let (a2, b2) = (a * a, b * b);
+    if a2 + b2 > 0.0 {
+        a2 / (a2 + b2)
+    } else {
+        0.0
+    }
+}
+
+/// Everything the estimators read: the scene (geometry and area lights) and the map.
+#[derive(Clone, Copy)]
+pub struct Lighting<'a> {
+    pub scene: &'a Scene,
+    pub env: &'a EnvMap,
+    /// Octahedral level of the product's cells (5 = 32² cells).
+    pub product_level: u32,
+}
+
+impl Lighting<'_> {
+    /// One estimate of direct illumination at `sp` by `method` with the random numbers of
+    /// `rng`; adds the rays it traced to `counters` and the BVH counters to `bvh`.
+    pub fn estimate(
+        &self,
+        sp: &ShadingPoint,
+        method: Method,
+        rng: &SampleRng,
+        counters: &mut DirectCounters,
+        bvh: &mut TraversalCounters,
+    ) -> Vec3 {
+        let mut total = Vec3::ZERO;
+        let use_lights = method != Method::Bsdf;
+        let use_bsdf = matches!(method, Method::Bsdf | Method::Mis);
+        let mis = method == Method::Mis;
+
+        // Environment: by its own distribution or by the product.
+        if use_lights {
+            let u = DVec2::new(rng.get(dims::ENV) as f64, rng.get(dims::ENV + 1) as f64);
+            let sample = if method == Method::Product {
+                ProductDistribution::new(
+                    self.env,
+                    &sp.material,
+                    sp.normal,
+                    sp.wo,
+                    self.product_level,
+                )
+                .map(|product| {
+                    let (dir, texel, pdf) = product.sample(self.env, u);
+                    let res = self.env.resolution();
+                    let l = self.env.texels()[(texel.y * res + texel.x) as usize];
+                    (dir, Vec3::from_array(l), pdf)
+                })
+            } else {
+                self.env
+                    .sample(u)
+                    .map(|(dir, pdf)| (dir, self.env.eval(dir), pdf))
+            };
+            if let Some((dir, radiance, pdf)) = sample {
+                total += self.light_term(sp, dir, radiance, pdf, f32::INFINITY, mis, counters, bvh);
+            }
+        }
+
+        // Area lights: one point on each.
+        if use_lights {
+            for (k, light) in self.scene.area_lights().iter().enumerate() {
+                let d = dims::AREA + 3 * k as u64;
+                let u = Vec2::new(rng.get(d + 1), rng.get(d + 2));
+                if let Some(s) = light.sample(sp.origin, rng.get(d), u) {
+                    let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
+                    total += self.light_term(
+                        sp,
+                        s.direction,
+                        s.radiance,
+                        s.pdf,
+                        tmax,
+                        mis,
+                        counters,
+                        bvh,
+                    );
+                }
+            }
+        }
+
+        // BSDF sampling: what the sampled ray finds is the radiance.
+        if use_bsdf {
+            let u = Vec2::new(rng.get(dims::BSDF + 1), rng.get(dims::BSDF + 2));
+            if let Some(wi) = sp.material.sample(sp.normal, sp.wo, rng.get(dims::BSDF), u) {
+                total += self.bsdf_term(sp, wi, mis, counters, bvh);
+            }
+        }
+        total
+    }
+
+    /// `f cos L V / pdf` (times the MIS weight) for a light sample towards `dir`.
+    #[allow(clippy::too_many_arguments)]
+    fn light_term(
+        &self,
+        sp: &ShadingPoint,
+        dir: Vec3,
+        radiance: Vec3,
+        pdf: f64,
+        tmax: f32,
+        mis: bool,
+        counters: &mut DirectCounters,
+        bvh: &mut TraversalCounters,
+    ) -> Vec3 {
+        let cos = sp.normal.dot(dir);
+        if cos <= 0.0 || pdf <= 0.0 || radiance == Vec3::ZERO || tmax <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let f = sp.material.eval(sp.normal, sp.wo, dir);
+        if f == Vec3::ZERO {
+            return Vec3::ZERO;
+        }
+        counters.shadow_rays += 1;
+        if self.scene.occluded1(sp.origin, dir, tmax, bvh) {
+            return Vec3::ZERO;
+        }
+        let weight = if mis {
+            power_heuristic(pdf, sp.material.pdf(sp.normal, sp.wo, dir))
+        } else {
+            1.0
+        };
+        f * radiance * cos * (weight / pdf) as f32
+    }
+
+    /// `f cos L / pdf` (times the MIS weight) for a BSDF sample towards `wi`.
+    fn bsdf_term(
+        &self,
+        sp: &ShadingPoint,
+        wi: Vec3,
+        mis: bool,
+        counters: &mut DirectCounters,
+        bvh: &mut TraversalCounters,
+    ) -> Vec3 {
+        let cos = sp.normal.dot(wi);
+        let pdf = sp.material.pdf(sp.normal, sp.wo, wi);
+        if cos <= 0.0 || pdf <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let f = sp.material.eval(sp.normal, sp.wo, wi);
+        counters.bsdf_rays += 1;
+        let (radiance, light_pdf) = match self.scene.intersect1(sp.origin, wi, f32::INFINITY, bvh) {
+            None => (self.env.eval(wi), self.env.pdf(wi)),
+            Some(hit) => {
+                let le = self.scene.emitted(&hit, -wi);
+                if le == Vec3::ZERO {
+                    return Vec3::ZERO;
+                }
+                let light = self.scene.emitter(hit.obj).expect("only emitters emit");
+                (le, light.pdf_at(sp.origin, hit.position, hit.normal))
+            }
+        };
+        let weight = if mis {
+            power_heuristic(pdf, light_pdf)
+        } else {
+            1.0
+        };
+        f * radiance * cos * (weight / pdf) as f32
+    }
+}

@@ -1,0 +1,3 @@
+//! Estimators of direct illumination.
+
+pub mod direct;

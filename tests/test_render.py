@@ -1,0 +1,192 @@
+"""The baseline renderer: the four estimators agree, the furnace test, extremes, determinism,
+time budgets, progress and bad input.
+
+Agreement is judged with the standard errors each render measures. Each method renders
+with its own seed, so the estimates are independent and two unbiased ones differ by less
+than z * sqrt(SE_a^2 + SE_b^2). Over many pixel channels some honest differences exceed
+4 SE (p = 6.3e-5 each for Gaussian errors), so per-pixel tests use the Bonferroni
+threshold for the channel count instead: the z with P(|Z| > z) * channels = 1e-3.
+
+The Gaussian model needs a pixel's estimate to be in its central-limit regime. Where light
+arrives along paths a method rarely samples (BSDF sampling of Cornell's small lamp; light
+sampling of the dim sky that the garage roof's underside sees only through grazing gaps),
+a few hundred samples may never find it, and the sample variance then understates the error
+by orders of magnitude. Per-pixel comparisons are therefore made where both estimates have
+a relative standard error of at most 20%, and the tests assert how many pixels that covers;
+the whole-image comparison uses every pixel.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import viscache_rs as vc
+
+METHODS = ["env", "bsdf", "mis", "product"]
+
+
+def _bonferroni_z(n: int, alpha: float = 1e-3) -> float:
+    # Two-sided Gaussian tail: solve erfc(z / sqrt 2) = alpha / n by bisection.
+    lo, hi = 0.0, 40.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if math.erfc(mid / math.sqrt(2)) > alpha / n:
+            lo = mid
+        else:
+            hi = mid
+    return max(4.0, hi)
+
+
+@pytest.fixture(scope="module")
+def small_setups():
+    out = {}
+    for name in ("cornell", "garage"):
+        setup = vc.scenes.load(name, detail=0.3)
+        setup.camera = setup.camera.with_resolution(40, 30)
+        out[name] = setup
+    return out
+
+
+def _render(setup, method, spp, seed=0, **kw):
+    return vc.render(setup, spp=spp, method=method, seed=seed, progress=False, **kw)
+
+
+# Samples per pixel, and the fraction of pixel channels in the CLT regime each method must
+# reach (measured at these sample counts: cornell 0.955 / 0.04 / 0.955, garage 0.55 / 0.37 /
+# 0.58 for env / bsdf / product against MIS).
+AGREEMENT = {
+    "cornell": {"spp": {"env": 256, "bsdf": 1024, "mis": 256, "product": 256},
+                "coverage": {"env": 0.9, "bsdf": 0.02, "product": 0.9}},
+    "garage": {"spp": {"env": 256, "bsdf": 256, "mis": 256, "product": 256},
+               "coverage": {"env": 0.45, "bsdf": 0.3, "product": 0.45}},
+}
+
+
+def _in_clt_regime(r):
+    # A pixel that never found light has mean 0 and variance 0: not comparable.
+    return (r.image > 0) & (np.sqrt(r.variance) <= 0.2 * r.image)
+
+
+@pytest.mark.parametrize("name", ["cornell", "garage"])
+def test_all_methods_agree_per_pixel_and_per_image(small_setups, name):
+    setup = small_setups[name]
+    spp, coverage = AGREEMENT[name]["spp"], AGREEMENT[name]["coverage"]
+    results = {m: _render(setup, m, spp[m], seed=11 + i) for i, m in enumerate(METHODS)}
+    for r in results.values():
+        assert np.isfinite(r.image).all() and (r.image >= 0).all()
+        assert np.isfinite(r.variance).all() and (r.variance >= 0).all()
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    n_pix = setup.camera.width * setup.camera.height
+    z = _bonferroni_z(n_pix * 3)
+    ref = results["mis"]
+    assert (ref.image @ lum).mean() > 0.01, "the scene must be lit"
+    for m in ("env", "bsdf", "product"):
+        r = results[m]
+        diff = r.image - ref.image
+        se = np.sqrt(r.variance + ref.variance)
+        clt = _in_clt_regime(r) & _in_clt_regime(ref)
+        assert clt.mean() >= coverage[m], f"{name}/{m}: only {clt.mean():.3f} of pixels compared"
+        bad = clt & (np.abs(diff) > z * se)
+        assert bad.sum() == 0, f"{name}/{m}: {bad.sum()} pixel channels beyond {z:.2f} SE"
+        # Whole image: mean luminance, whose variance is the sum of pixel variances / N^2.
+        mean_diff = (diff @ lum).mean()
+        mean_se = math.sqrt(((r.variance + ref.variance) @ lum**2).sum()) / n_pix
+        apart = mean_diff / mean_se
+        assert abs(apart) < 4, f"{name}/{m}: image means {apart:.2f} SE apart"
+
+
+def _furnace_setup(albedo):
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    scene = vc.Scene()
+    scene.add_mesh(sphere.vertices, sphere.faces, material=vc.Material.lambert(albedo))
+    camera = vc.Camera.look_at((0, 0, 4), (0, 0, 0), fov_deg=35.0, width=32, height=32)
+    env = vc.envmaps.constant((1.0, 1.0, 1.0), resolution=32)
+    return vc.Setup(scene, camera, env, name="furnace")
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_furnace_white_sphere_in_a_constant_environment(method):
+    albedo = (0.8, 0.5, 0.3)
+    setup = _furnace_setup(albedo)
+    r = _render(setup, method, 64)
+    g = setup.scene.gbuffer(setup.camera, jitter=False)
+    hit = g["object"] == 0
+    # Pixels whose 3x3 neighbourhood all hit the sphere: no jittered ray can miss it.
+    inner = hit.copy()
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            inner &= np.roll(np.roll(hit, dy, 0), dx, 1)
+    assert inner.sum() > 200
+    img, se = r.image[inner], np.sqrt(r.variance[inner])
+    err = np.abs(img - np.asarray(albedo, dtype=np.float32))
+    # Channels are scaled copies of one estimate: one test per pixel. The 1e-5 absorbs f32
+    # rounding where the estimator has zero variance (BSDF sampling of a Lambertian).
+    z = _bonferroni_z(int(inner.sum()))
+    assert (err <= z * se + 1e-5).all(), f"{method}: worst {np.max(err / (se + 1e-12)):.2f} SE"
+
+
+def test_extremes_give_finite_images():
+    scene = vc.Scene()
+    scene.add_mesh(
+        np.array([[-5, 0, -5], [5, 0, -5], [5, 0, 5], [-5, 0, 5]], dtype=np.float32),
+        [[0, 2, 1], [0, 3, 2]],
+        material=vc.Material.phong((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1e4),
+    )
+    scene.add_mesh(
+        np.array([[-1, 0, 0], [1, 0, 0], [0, 2, 0]], dtype=np.float32),
+        [[0, 1, 2]],
+        material=vc.Material.phong((0.5, 0.5, 0.5), (0.5, 0.5, 0.5), 1e4),
+    )
+    camera = vc.Camera.look_at((0, 2, 6), (0, 0, 0), width=24, height=18)
+    sun = vc.envmaps.sky(sun_dir=(0.3, 1.0, -0.5), sun_radiance=1e6, resolution=64)
+    for method in METHODS:
+        r = vc.render(vc.Setup(scene, camera, sun), spp=4, method=method, progress=False)
+        assert np.isfinite(r.image).all() and np.isfinite(r.variance).all(), method
+
+
+def test_bit_identical_for_any_thread_count(small_setups):
+    setup = small_setups["garage"]
+    for method in METHODS:
+        a = _render(setup, method, 3, seed=7, threads=1)
+        b = _render(setup, method, 3, seed=7, threads=2)
+        assert np.array_equal(a.image, b.image) and np.array_equal(a.variance, b.variance), method
+    c = _render(setup, "mis", 3, seed=8)
+    assert not np.array_equal(c.image, a.image)
+
+
+def test_stats_time_budget_and_progress(small_setups):
+    setup = small_setups["cornell"]
+    r = _render(setup, "mis", 4)
+    s = r.stats
+    n = setup.camera.width * setup.camera.height
+    assert s["spp"] == 4 and s["samples"] == 4 * n and s["primary_rays"] == 4 * n
+    assert s["shadow_rays"] > 0 and s["bsdf_rays"] > 0 and s["seconds"] > 0
+    assert s["primary_seconds"] > 0 and s["direct_seconds"] > 0
+    # A budget stops after the pass that spends it and says how far it got.
+    r = vc.render(setup, method="env", time_budget=0.05, progress=False)
+    assert 1 <= r.stats["spp"] < 1 << 20
+    assert np.isfinite(r.image).all()
+    # One sample: the variance of the mean is unknown (infinite).
+    assert np.isinf(_render(setup, "env", 1).variance).all()
+    # The progress bar runs (tqdm writes to stderr).
+    vc.render(setup, spp=2, method="env", progress=True)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "needle"),
+    [
+        ({"method": "path"}, ValueError, "method"),
+        ({"spp": 0}, ValueError, "spp"),
+        ({"spp": 2.5}, TypeError, "spp"),
+        ({"time_budget": -1.0}, ValueError, "time_budget"),
+        ({"time_budget": float("nan")}, ValueError, "time_budget"),
+        ({"threads": 0}, ValueError, "threads"),
+        ({"seed": -1}, ValueError, "seed"),
+        ({"product_level": 0}, ValueError, "product_level"),
+    ],
+)
+def test_bad_arguments_name_themselves(small_setups, kwargs, exc, needle):
+    with pytest.raises(exc, match=needle):
+        vc.render(small_setups["cornell"], progress=False, **{"spp": 1, **kwargs})
