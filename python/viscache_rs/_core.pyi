@@ -155,12 +155,27 @@ class EnvMap:
     def total_power(self) -> tuple[float, float, float]: ...
 
 class Setup:
+    def __init__(
+        self, scene: Scene, camera: Camera, envmap: EnvMap, name: str | None = None
+    ) -> None: ...
     @property
     def name(self) -> str: ...
     scene: Scene
     camera: Camera
     envmap: EnvMap
 
+def render(
+    scene: Scene,
+    envmap: EnvMap,
+    camera: Camera,
+    spp: int,
+    method: str,
+    seed: int | None = None,
+    threads: int | None = None,
+    time_budget: float | None = None,
+    product_level: int | None = None,
+    callback: Any = None,
+) -> dict[str, Any]: ...
 def scene_names() -> list[str]: ...
 def load_scene(name: str, detail: float | None = 1.0, seed: int | None = 0) -> Setup: ...
 
@@ -182,6 +197,16 @@ class _TestingModule:
     def record_bundle_rays(
         scene: Scene, points: int, side: int | None = None, seed: int | None = None
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]: ...
+
+    @staticmethod
+    def chi2_sphere(
+        dirs: ArrayLike,
+        pdf: Any,
+        resolution: int | None = 32,
+        subdivisions: int | None = 8,
+        min_expected: float | None = 5.0,
+        significance: float | None = 0.01,
+    ) -> dict[str, Any]: ...
 
 octahedral: _OctahedralModule
 testing: _TestingModule

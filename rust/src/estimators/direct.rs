@@ -339,3 +339,119 @@ impl Lighting<'_> {
         f * radiance * cos * (weight / pdf) as f32
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lights::procedural::sky;
+    use crate::sampling::chi2::{chi2_sphere, Chi2Params};
+    use crate::sampling::octahedral::texel_solid_angle;
+
+    fn test_sky(resolution: u32) -> EnvMap {
+        let sun = Vec3::new(0.4, 0.6, -0.5).normalize();
+        sky(
+            sun,
+            [2e3; 3],
+            4.0,
+            [0.2, 0.3, 0.6],
+            [0.8, 0.8, 0.9],
+            resolution,
+        )
+        .unwrap()
+    }
+
+    fn frames() -> [(Vec3, Vec3); 3] {
+        [
+            (Vec3::Y, Vec3::new(0.3, 0.8, 0.2).normalize()),
+            (
+                Vec3::new(0.2, 0.9, -0.3).normalize(),
+                Vec3::new(-0.5, 0.4, 0.6).normalize(),
+            ),
+            // Grazing view on a tilted surface.
+            (
+                Vec3::new(0.6, 0.8, 0.0),
+                Vec3::new(-0.79, 0.6, 0.1).normalize(),
+            ),
+        ]
+    }
+
+    fn uniform(i: u64) -> DVec2 {
+        let r = SampleRng::new(17, i, 0);
+        DVec2::new(r.get(0) as f64, r.get(1) as f64)
+    }
+
+    #[test]
+    fn product_samples_follow_the_product_pdf() {
+        let env = test_sky(64);
+        let materials = [
+            Material::lambert([0.8; 3]).unwrap(),
+            Material::phong([0.2; 3], [0.7; 3], 30.0).unwrap(),
+        ];
+        for m in materials {
+            for (n, wo) in frames() {
+                let product = ProductDistribution::new(&env, &m, n, wo, 5).unwrap();
+                let samples = (0..300_000).map(|i| {
+                    let (dir, texel, pdf) = product.sample(&env, uniform(i));
+                    assert_eq!(pdf, product.texel_pdf(&env, texel));
+                    assert!(pdf > 0.0);
+                    Some(dir)
+                });
+                // Bins are the map's texels, so the piecewise-constant pdf integrates exactly.
+                let params = Chi2Params::with_resolution(64).with_subdivisions(1);
+                let outcome = chi2_sphere(samples, |d| product.pdf(&env, d), &params);
+                assert!(outcome.passed, "{m:?} {n} {wo}: {outcome:?}");
+                assert!(
+                    (outcome.integral - 1.0).abs() < 1e-9,
+                    "{}",
+                    outcome.integral
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn product_pdf_is_positive_wherever_the_integrand_is() {
+        // Conservative B~ times a map that is positive everywhere: every direction where
+        // f cos L > 0 has p > 0, including the grazing horizon and a 1e4 lobe.
+        let env = test_sky(128);
+        let m = Material::phong([0.0; 3], [1.0; 3], 1e4).unwrap();
+        for (n, wo) in frames() {
+            let product = ProductDistribution::new(&env, &m, n, wo, 5).unwrap();
+            let res = 512;
+            for y in 0..res {
+                for x in 0..res {
+                    let d = square_to_sphere((Vec2::new(x as f32, y as f32) + 0.5) / res as f32);
+                    let integrand = m.eval(n, wo, d).x * n.dot(d).max(0.0);
+                    if integrand > 0.0 {
+                        assert!(product.pdf(&env, d) > 0.0, "{n} {wo} {d}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn black_maps_and_black_materials_have_no_product() {
+        let black = EnvMap::constant([0.0; 3], 32).unwrap();
+        let m = Material::lambert([0.5; 3]).unwrap();
+        assert!(ProductDistribution::new(&black, &m, Vec3::Y, Vec3::Y, 5).is_none());
+        let env = test_sky(32);
+        let dark = Material::lambert([0.0; 3]).unwrap();
+        assert!(ProductDistribution::new(&env, &dark, Vec3::Y, Vec3::Y, 5).is_none());
+        // Level capped by the map's depth: a 4x4 map has 16 cells at most.
+        let tiny = test_sky(4);
+        let p = ProductDistribution::new(&tiny, &m, Vec3::Y, Vec3::Y, 5).unwrap();
+        let total: f64 = (0..16)
+            .map(|i| p.texel_pdf(&tiny, UVec2::new(i % 4, i / 4)) * texel_solid_angle(4))
+            .sum();
+        assert!((total - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn power_heuristic_handles_zero_and_infinite_densities() {
+        assert_eq!(power_heuristic(0.0, 0.0), 0.0);
+        assert_eq!(power_heuristic(f64::INFINITY, 1.0), 1.0);
+        assert_eq!(power_heuristic(1.0, 1.0), 0.5);
+        assert_eq!(power_heuristic(1.0, 0.0), 1.0);
+    }
+}

@@ -307,3 +307,46 @@ pub fn image3_f32(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<(Vec<[f32; 3]>
     let a: PyReadonlyArray2<f32> = flat.extract()?;
     Ok((as_rows(&a)?.to_vec(), shape[0], shape[1]))
 }
+
+/// A 1-D array of reals as `f64` (any float or integer dtype).
+pub fn f64_vector(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<f64>> {
+    let arr = as_array(obj, name)?;
+    check_kind(&arr, name, b"fiu", "a real-valued array")?;
+    if arr.ndim() != 1 {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected shape (N,), got {:?}",
+            arr.shape()
+        )));
+    }
+    let a: PyReadonlyArray1<f64> = contiguous(&arr, "float64")?.extract()?;
+    Ok(a.as_slice()
+        .map_err(|e| PyValueError::new_err(e.to_string()))?
+        .to_vec())
+}
+
+/// Rows of an `(N, 3)` array of directions where an all-NaN row stands for "no direction"
+/// (`None`); other rows are normalised, and partly NaN, infinite or zero rows are a
+/// `ValueError` naming the first bad row.
+pub fn nan_or_unit_rows(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Option<glam::Vec3>>> {
+    let arr = as_array(obj, name)?;
+    check_kind(&arr, name, b"fiu", "a real-valued array")?;
+    check_rows(&arr, name, 3)?;
+    let wide: PyReadonlyArray2<f64> = contiguous(&arr, "float64")?.extract()?;
+    as_rows(&wide)?
+        .iter()
+        .enumerate()
+        .map(|(i, r)| {
+            if r.iter().all(|v| v.is_nan()) {
+                return Ok(None);
+            }
+            let d = glam::DVec3::from_array(*r);
+            let unit = d.normalize_or_zero().as_vec3();
+            if !d.is_finite() || unit == glam::Vec3::ZERO {
+                return Err(PyValueError::new_err(format!(
+                    "{name}: row {i} is neither a direction nor all NaN: {r:?}"
+                )));
+            }
+            Ok(Some(unit))
+        })
+        .collect()
+}

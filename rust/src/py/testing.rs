@@ -1,9 +1,14 @@
 //! Ray sets of [`crate::testing`], for peer scripts and tests.
 
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
-use super::convert::{int_arg, rows3_array, seed_arg};
+use super::convert::{
+    f64_arg, f64_vector, int_arg, nan_or_unit_rows, rows3_array, rows_array, seed_arg,
+};
 use super::scene::PyScene;
+use crate::sampling::chi2::{chi2_binned, integration_directions, integration_weight, Chi2Params};
 
 type RayArrays<'py> = (Bound<'py, PyAny>, Bound<'py, PyAny>);
 
@@ -39,4 +44,98 @@ pub fn record_bundle_rays<'py>(
     let s = scene.inner.clone();
     let (o, d) = py.detach(|| crate::testing::record_bundle_rays(&s, points, side, seed));
     Ok((rows3_array(py, o)?, rows3_array(py, d)?))
+}
+
+/// Evaluates a Python pdf on `dirs` in one vectorised call: `(M,)` finite, non-negative.
+fn call_pdf(py: Python<'_>, pdf: &Bound<'_, PyAny>, dirs: Vec<[f32; 3]>) -> PyResult<Vec<f64>> {
+    let m = dirs.len();
+    let values = pdf.call1((rows_array(py, dirs)?,))?;
+    let values: Vec<f64> = f64_vector(&values, "pdf")?;
+    if values.len() != m {
+        return Err(PyValueError::new_err(format!(
+            "pdf: returned {} values for {m} directions",
+            values.len()
+        )));
+    }
+    if let Some(i) = values.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
+        return Err(PyValueError::new_err(format!(
+            "pdf: value {} at direction {i} is not finite and >= 0",
+            values[i]
+        )));
+    }
+    Ok(values)
+}
+
+/// Pearson's chi-square test of sampled directions against their solid-angle pdf over the
+/// equal-area octahedral bins ([`crate::sampling::chi2`]). `dirs` is `(N, 3)`, one row per
+/// attempt, NaN rows for attempts the sampler rejected; `pdf(d)` maps an `(M, 3)` float32
+/// array of unit directions to `(M,)` densities and is called twice (bins, samples).
+#[pyfunction]
+#[pyo3(signature = (dirs, pdf, resolution=None, subdivisions=None, min_expected=None, significance=None))]
+pub fn chi2_sphere<'py>(
+    py: Python<'py>,
+    dirs: &Bound<'py, PyAny>,
+    pdf: &Bound<'py, PyAny>,
+    resolution: Option<&Bound<'py, PyAny>>,
+    subdivisions: Option<&Bound<'py, PyAny>>,
+    min_expected: Option<&Bound<'py, PyAny>>,
+    significance: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let defaults = Chi2Params::DEFAULT;
+    let resolution = match resolution {
+        Some(r) => int_arg(r, "resolution", 1, 1024)? as u32,
+        None => defaults.resolution,
+    };
+    let subdivisions = match subdivisions {
+        Some(s) => int_arg(s, "subdivisions", 1, 64)? as u32,
+        None => defaults.subdivisions,
+    };
+    let min_expected =
+        min_expected.map_or(Ok(defaults.min_expected), |m| f64_arg(m, "min_expected"))?;
+    let significance =
+        significance.map_or(Ok(defaults.significance), |a| f64_arg(a, "significance"))?;
+    if !(min_expected > 0.0 && min_expected.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "min_expected: must be positive, got {min_expected}"
+        )));
+    }
+    if !(significance > 0.0 && significance < 1.0) {
+        return Err(PyValueError::new_err(format!(
+            "significance: must lie in (0, 1), got {significance}"
+        )));
+    }
+    if !pdf.is_callable() {
+        return Err(PyTypeError::new_err("pdf: expected a callable"));
+    }
+    let params = Chi2Params {
+        resolution,
+        subdivisions,
+        min_expected,
+        significance,
+    };
+    let rows = nan_or_unit_rows(dirs, "dirs")?;
+    let accepted: Vec<[f32; 3]> = rows.iter().flatten().map(|d| d.to_array()).collect();
+    let at_samples = call_pdf(py, pdf, accepted)?;
+    let impossible = at_samples.iter().filter(|&&p| p <= 0.0).count() as u64;
+    let points: Vec<[f32; 3]> = integration_directions(&params)
+        .iter()
+        .map(|d| d.to_array())
+        .collect();
+    let at_points = call_pdf(py, pdf, points)?;
+    let per_bin = (subdivisions * subdivisions) as usize;
+    let weight = integration_weight(&params);
+    let integrals = at_points
+        .chunks(per_bin)
+        .map(|c| c.iter().sum::<f64>() * weight)
+        .collect();
+    let o = chi2_binned(&rows, impossible, integrals, &params);
+    let d = PyDict::new(py);
+    d.set_item("statistic", o.statistic)?;
+    d.set_item("dof", o.dof)?;
+    d.set_item("p_value", o.p_value)?;
+    d.set_item("integral", o.integral)?;
+    d.set_item("samples_where_pdf_is_zero", o.samples_where_pdf_is_zero)?;
+    d.set_item("rejected", o.rejected)?;
+    d.set_item("passed", o.passed)?;
+    Ok(d)
 }

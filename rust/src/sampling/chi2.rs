@@ -87,26 +87,39 @@ pub fn chi2_survival(statistic: f64, dof: f64) -> f64 {
     statrs::function::gamma::gamma_ur(dof / 2.0, statistic / 2.0)
 }
 
+/// The midpoint-rule points of every bin, bin after bin in row-major order (`y * res + x`),
+/// `subdivisions²` per bin: evaluate a pdf here and sum per bin (times
+/// [`integration_weight`]) to get what [`chi2_binned`] takes.
+pub fn integration_directions(params: &Chi2Params) -> Vec<Vec3> {
+    let res = params.resolution;
+    let sub = params.subdivisions.max(1);
+    let mut dirs = Vec::with_capacity((res * res * sub * sub) as usize);
+    for i in 0..res * res {
+        let texel = UVec2::new(i % res, i / res);
+        for sy in 0..sub {
+            for sx in 0..sub {
+                let within = (Vec2::new(sx as f32, sy as f32) + 0.5) / sub as f32;
+                dirs.push(square_to_sphere((texel.as_vec2() + within) / res as f32));
+            }
+        }
+    }
+    dirs
+}
+
+/// Solid angle each integration point stands for.
+pub fn integration_weight(params: &Chi2Params) -> f64 {
+    let sub = params.subdivisions.max(1) as f64;
+    texel_solid_angle(params.resolution) / (sub * sub)
+}
+
 /// Per-bin integrals of `pdf` over the `res x res` octahedral texels, in row-major order
 /// (`y * res + x`).
 pub fn integrate_bins(pdf: &(impl Fn(Vec3) -> f64 + Sync), params: &Chi2Params) -> Vec<f64> {
-    let res = params.resolution;
-    let sub = params.subdivisions.max(1);
-    let weight = texel_solid_angle(res) / (sub as f64 * sub as f64);
-    (0..res * res)
-        .into_par_iter()
-        .map(|i| {
-            let texel = UVec2::new(i % res, i / res);
-            let mut sum = 0.0;
-            for sy in 0..sub {
-                for sx in 0..sub {
-                    let within = (Vec2::new(sx as f32, sy as f32) + 0.5) / sub as f32;
-                    let p = (texel.as_vec2() + within) / res as f32;
-                    sum += pdf(square_to_sphere(p));
-                }
-            }
-            sum * weight
-        })
+    let per_bin = (params.subdivisions.max(1) as usize).pow(2);
+    let weight = integration_weight(params);
+    integration_directions(params)
+        .par_chunks(per_bin)
+        .map(|points| points.iter().map(|&d| pdf(d)).sum::<f64>() * weight)
         .collect()
 }
 
@@ -117,25 +130,36 @@ pub fn chi2_sphere(
     pdf: impl Fn(Vec3) -> f64 + Sync,
     params: &Chi2Params,
 ) -> Chi2Outcome {
+    let samples: Vec<Option<Vec3>> = samples.into_iter().collect();
+    let impossible = samples
+        .iter()
+        .flatten()
+        .filter(|&&d| pdf(d).partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater))
+        .count() as u64;
+    chi2_binned(&samples, impossible, integrate_bins(&pdf, params), params)
+}
+
+/// The test of [`chi2_sphere`] from its parts: the samples, how many of them lie where the
+/// pdf is zero, and the pdf's integral over every bin (row-major, `res²` entries).
+pub fn chi2_binned(
+    samples: &[Option<Vec3>],
+    samples_where_pdf_is_zero: u64,
+    mut integrals: Vec<f64>,
+    params: &Chi2Params,
+) -> Chi2Outcome {
     let res = params.resolution;
     let mut observed = vec![0u64; (res * res) as usize + 1];
-    let mut n = 0u64;
-    let mut impossible = 0u64;
     for s in samples {
-        n += 1;
         let bin = match s {
             Some(d) => {
-                if pdf(d).partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-                    impossible += 1;
-                }
-                let t = texel_of(d, res);
+                let t = texel_of(*d, res);
                 (t.y * res + t.x) as usize
             }
             None => (res * res) as usize,
         };
         observed[bin] += 1;
     }
-    let mut integrals = integrate_bins(&pdf, params);
+    let n = samples.len() as f64;
     let integral: f64 = integrals.iter().sum();
     let rejected = observed[(res * res) as usize];
     if rejected > 0 {
@@ -145,10 +169,10 @@ pub fn chi2_sphere(
         // the pdf's discontinuities; a pdf of the wrong total still fails in every bin.
         observed.pop();
     }
-    let expected: Vec<f64> = integrals.iter().map(|p| p * n as f64).collect();
+    let expected: Vec<f64> = integrals.iter().map(|p| p * n).collect();
     let mut outcome = pearson(&observed, &expected, params, integral, rejected);
-    outcome.samples_where_pdf_is_zero = impossible;
-    outcome.passed &= impossible == 0;
+    outcome.samples_where_pdf_is_zero = samples_where_pdf_is_zero;
+    outcome.passed &= samples_where_pdf_is_zero == 0;
     outcome
 }
 
