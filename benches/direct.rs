@@ -30,6 +30,13 @@ fn frames(n: usize) -> Vec<(Vec3, Vec3)> {
         .collect()
 }
 
+fn uniform(i: u64) -> DVec2 {
+    DVec2::new(
+        to_unit_f64(hash4(2, i, 0, 0)),
+        to_unit_f64(hash4(2, i, 0, 1)),
+    )
+}
+
 fn product(c: &mut Criterion) {
     let env = sky();
     let points = frames(256);
@@ -59,22 +66,16 @@ fn product(c: &mut Criterion) {
         g.bench_function(format!("sample/{name}"), |b| {
             let mut i = 0u64;
             b.iter(|| {
-                let u = DVec2::new(
-                    to_unit_f64(hash4(2, i, 0, 0)),
-                    to_unit_f64(hash4(2, i, 0, 1)),
-                );
                 i += 1;
+                let u = uniform(i);
                 black_box(dist.sample(&env, u))
             })
         });
         g.bench_function(format!("sample_and_pdf/{name}"), |b| {
             let mut i = 0u64;
             b.iter(|| {
-                let u = DVec2::new(
-                    to_unit_f64(hash4(2, i, 0, 0)),
-                    to_unit_f64(hash4(2, i, 0, 1)),
-                );
                 i += 1;
+                let u = uniform(i);
                 let (dir, _, pdf) = dist.sample(&env, u);
                 black_box((dir, pdf, dist.pdf(&env, dir)))
             })

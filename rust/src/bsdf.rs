@@ -351,6 +351,21 @@ pub struct CellCones {
     pub cell_solid_angle: f32,
 }
 
+impl CellCones {
+    /// Centre components and cone `cos a`, `sin a` of cells `first..first + len`, as
+    /// equal-length slices (what the per-cell loops vectorise over).
+    fn slices(&self, first: usize, len: usize) -> [&[f32]; 5] {
+        let r = first..first + len;
+        [
+            &self.cx[r.clone()],
+            &self.cy[r.clone()],
+            &self.cz[r.clone()],
+            &self.cos_a[r.clone()],
+            &self.sin_a[r],
+        ]
+    }
+}
+
 static CELL_CONES: [OnceLock<CellCones>; MAX_CELL_LEVEL as usize + 1] =
     [const { OnceLock::new() }; MAX_CELL_LEVEL as usize + 1];
 
@@ -596,14 +611,8 @@ impl<'a> PhongCells<'a> {
 
     /// Cells `first..first + out.len()` with the full per-cell bound and estimate.
     fn full(&self, first: usize, out: &mut [f32]) {
-        let (t, n, r) = (self.t, self.n, self.r);
-        let range = first..first + out.len();
-        let (tx, ty, tz) = (
-            &t.cx[range.clone()],
-            &t.cy[range.clone()],
-            &t.cz[range.clone()],
-        );
-        let (tca, tsa) = (&t.cos_a[range.clone()], &t.sin_a[range]);
+        let (n, r) = (self.n, self.r);
+        let [tx, ty, tz, tca, tsa] = self.t.slices(first, out.len());
         let has_diffuse = self.diffuse > 0.0;
         for (k, o) in out.iter_mut().enumerate() {
             let (cx, cy, cz, ca, sa) = (tx[k], ty[k], tz[k], tca[k], tsa[k]);
@@ -634,14 +643,8 @@ impl<'a> PhongCells<'a> {
     /// Cells of a block whose lobe is bounded by `lub` (`lobe_support`: whether the block's
     /// cone reaches the lobe's support): the lobe term takes its bound.
     fn skipped(&self, first: usize, lub: f32, lobe_support: bool, out: &mut [f32]) {
-        let (t, n) = (self.t, self.n);
-        let range = first..first + out.len();
-        let (tx, ty, tz) = (
-            &t.cx[range.clone()],
-            &t.cy[range.clone()],
-            &t.cz[range.clone()],
-        );
-        let (tca, tsa) = (&t.cos_a[range.clone()], &t.sin_a[range]);
+        let n = self.n;
+        let [tx, ty, tz, tca, tsa] = self.t.slices(first, out.len());
         let f = self.diffuse + self.spec * lub;
         let support = self.diffuse > 0.0 || lobe_support;
         for (k, o) in out.iter_mut().enumerate() {

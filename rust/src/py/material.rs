@@ -6,20 +6,10 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use super::convert::{
-    f64_arg, image_array, int_arg, rows3_array, rows3_f32, vec3_arg, IntoPyResult,
+    f64_arg, image_array, int_arg, rows3_array, rows3_f32, unit_directions, vec3_arg, IntoPyResult,
 };
 use crate::bsdf::{Material, MAX_CELL_LEVEL};
 use crate::sampling::octahedral::morton_encode;
-
-/// Unit directions from an `(N, 3)` array: every row finite and of non-zero length.
-fn unit_rows(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Vec3>> {
-    let rows = rows3_f32(obj, name)?;
-    rows.rows()?
-        .iter()
-        .enumerate()
-        .map(|(i, r)| unit(Vec3::from(*r), &format!("{name}[{i}]")))
-        .collect()
-}
 
 fn unit(v: Vec3, name: &str) -> PyResult<Vec3> {
     if !v.is_finite() {
@@ -34,6 +24,22 @@ fn unit(v: Vec3, name: &str) -> PyResult<Vec3> {
         )));
     }
     Ok(v / l)
+}
+
+/// Rows of normals, wo and wi of one batch, normalised, of equal length.
+type ShadingRows = (Vec<Vec3>, Vec<Vec3>, Vec<Vec3>);
+
+fn shading_rows(
+    normals: &Bound<'_, PyAny>,
+    wo: &Bound<'_, PyAny>,
+    wi: &Bound<'_, PyAny>,
+) -> PyResult<ShadingRows> {
+    let n = unit_directions(normals, "normals")?;
+    let o = unit_directions(wo, "wo")?;
+    let i = unit_directions(wi, "wi")?;
+    same_len("wo", o.len(), n.len())?;
+    same_len("wi", i.len(), n.len())?;
+    Ok((n, o, i))
 }
 
 fn same_len(name: &str, got: usize, want: usize) -> PyResult<()> {
@@ -91,13 +97,7 @@ impl PyMaterial {
         wo: &Bound<'py, PyAny>,
         wi: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let (n, o, i) = (
-            unit_rows(normals, "normals")?,
-            unit_rows(wo, "wo")?,
-            unit_rows(wi, "wi")?,
-        );
-        same_len("wo", o.len(), n.len())?;
-        same_len("wi", i.len(), n.len())?;
+        let (n, o, i) = shading_rows(normals, wo, wi)?;
         let m = self.inner;
         let out: Vec<[f32; 3]> = py.detach(|| {
             (0..n.len())
@@ -117,7 +117,10 @@ impl PyMaterial {
         wo: &Bound<'py, PyAny>,
         u: &Bound<'py, PyAny>,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-        let (n, o) = (unit_rows(normals, "normals")?, unit_rows(wo, "wo")?);
+        let (n, o) = (
+            unit_directions(normals, "normals")?,
+            unit_directions(wo, "wo")?,
+        );
         same_len("wo", o.len(), n.len())?;
         let u = rows3_f32(u, "u")?;
         let u = u.rows()?;
@@ -160,13 +163,7 @@ impl PyMaterial {
         wo: &Bound<'py, PyAny>,
         wi: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let (n, o, i) = (
-            unit_rows(normals, "normals")?,
-            unit_rows(wo, "wo")?,
-            unit_rows(wi, "wi")?,
-        );
-        same_len("wo", o.len(), n.len())?;
-        same_len("wi", i.len(), n.len())?;
+        let (n, o, i) = shading_rows(normals, wo, wi)?;
         let m = self.inner;
         let out: Vec<f64> = py.detach(|| (0..n.len()).map(|k| m.pdf(n[k], o[k], i[k])).collect());
         Ok(PyArray1::from_vec(py, out).into_any())
