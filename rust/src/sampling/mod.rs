@@ -1,8 +1,10 @@
 //! Sampling: the counter-based random number generator, the equal-area octahedral
 //! parameterization of the sphere, hierarchical 2D distributions over it, and the
-//! chi-square test every sampler is checked with.
+//! chi-square test every sampler is checked with, and the direction pattern of visibility
+//! records.
 
 pub mod chi2;
 pub mod distribution;
 pub mod octahedral;
+pub mod pattern;
 pub mod rng;
