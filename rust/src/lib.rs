@@ -20,6 +20,7 @@ pub mod render;
 pub mod sampling;
 pub mod scenes;
 pub mod testing;
+pub mod visibility;
 
 #[cfg(feature = "python")]
 mod py;

@@ -39,7 +39,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::sampling::octahedral::{
-    morton_decode, morton_encode, sphere_to_square, square_to_sphere, texel_of, wrap_texel,
+    morton_decode, morton_encode, square_to_sphere, texel_of, wrap_texel,
 };
 use crate::sampling::rng::{hash4, to_unit_f32};
 
@@ -169,8 +169,7 @@ pub fn default_pattern(m: u32) -> Result<&'static [Vec3]> {
     static PATTERNS: [OnceLock<Vec<Vec3>>; MAX_LOG2_RESOLUTION as usize] =
         [const { OnceLock::new() }; MAX_LOG2_RESOLUTION as usize];
     Ok(PATTERNS[(m - 1) as usize].get_or_init(|| {
-        record_pattern(m, DEFAULT_PATTERN_SEED, DEFAULT_LLOYD_ITERATIONS)
-            .expect("m was checked")
+        record_pattern(m, DEFAULT_PATTERN_SEED, DEFAULT_LLOYD_ITERATIONS).expect("m was checked")
     }))
 }
 
@@ -269,6 +268,7 @@ pub fn nearest_neighbour_stats(dirs: &[Vec3]) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sampling::octahedral::sphere_to_square;
 
     #[test]
     fn every_direction_is_unit_and_in_its_own_texel_at_every_resolution() {
@@ -278,11 +278,18 @@ mod tests {
             assert_eq!(dirs.len(), (res * res) as usize);
             for (i, d) in dirs.iter().enumerate() {
                 assert!((d.length() - 1.0).abs() < 1e-5, "m {m}, {i}: {d}");
-                assert_eq!(texel_of(*d, res), morton_decode(i as u32), "m {m}, {i}: {d}");
+                assert_eq!(
+                    texel_of(*d, res),
+                    morton_decode(i as u32),
+                    "m {m}, {i}: {d}"
+                );
                 // Also away from the texel's border in the square (by about the margin).
                 let p = sphere_to_square(*d) * res as f32 - morton_decode(i as u32).as_vec2();
                 let margin = TEXEL_MARGIN * 0.5;
-                assert!(p.min_element() > margin && p.max_element() < 1.0 - margin, "{p}");
+                assert!(
+                    p.min_element() > margin && p.max_element() < 1.0 - margin,
+                    "{p}"
+                );
             }
         }
     }
@@ -298,7 +305,10 @@ mod tests {
             .unwrap()
             .unwrap();
         assert_eq!(a, single, "same pattern on one thread");
-        assert_eq!(default_pattern(3).unwrap(), &record_pattern(3, 0, 20).unwrap()[..]);
+        assert_eq!(
+            default_pattern(3).unwrap(),
+            &record_pattern(3, 0, 20).unwrap()[..]
+        );
     }
 
     #[test]
