@@ -7,7 +7,8 @@
 //!
 //! Data flows one way: [`scenes`] and [`geometry`] build a [`geometry::Scene`] and its BVH,
 //! [`camera`] turns a camera into a G-buffer of first hits, [`lights`] holds the environment
-//! maps that light them, and the estimators consume them.
+//! maps that light them, [`visibility`] holds the visibility cache's records, and the
+//! estimators consume them.
 
 pub mod bsdf;
 pub mod camera;
