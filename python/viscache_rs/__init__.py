@@ -1,12 +1,12 @@
 """viscache_rs: Monte Carlo direct illumination that exploits visibility correlation.
 
-The Rust core (``viscache_rs._core``) traces rays, samples lights and BSDFs, renders and, in
-later modules, caches visibility; this package re-exports it and adds built-in scenes,
+The Rust core (``viscache_rs._core``) traces rays, samples lights and BSDFs, renders and
+caches visibility (``VisibilityCache``); this package re-exports it and adds built-in scenes,
 environment maps, I/O and the ``viscache`` command line.
 """
 
 from . import envmaps, octahedral, scenes, testing
-from ._core import Camera, EnvMap, Material, Scene, Setup, __version__
+from ._core import Camera, EnvMap, Material, Scene, Setup, VisibilityCache, __version__
 from .render import RenderResult, render
 
 __all__ = [
@@ -16,6 +16,7 @@ __all__ = [
     "RenderResult",
     "Scene",
     "Setup",
+    "VisibilityCache",
     "__version__",
     "envmaps",
     "octahedral",

@@ -155,6 +155,33 @@ pub fn record_bundle_rays(
     (origins, dirs)
 }
 
+/// A record with pseudo-random visibility (each bit 1 with probability `open`, from
+/// `seed`) at `position` with unit `normal`, for cache tests and benches that need many
+/// records without tracing them. `A` is the visible fraction, `R_i` is 1.
+pub fn synthetic_record(
+    m: u32,
+    position: Vec3,
+    normal: Vec3,
+    open: f64,
+    seed: u64,
+) -> crate::visibility::Record {
+    use crate::sampling::rng::{hash4, to_unit_f64};
+    let bits = crate::visibility::VisibilityBits::from_fn(m, |z| {
+        to_unit_f64(hash4(seed, z as u64, 0, 0)) < open
+    })
+    .expect("m in 1..=7");
+    crate::visibility::Record {
+        position,
+        normal,
+        ambient_occlusion: bits.view().visible_fraction(),
+        bits,
+        nearest_hit_distance: 1.0,
+        misses: 0,
+        uses: 0,
+        last_frame: 0,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,6 +1,7 @@
 //! PyO3 bindings: argument checks, numpy conversion, GIL release around the core. No logic
 //! lives here; everything calls into the crate's modules.
 
+mod cache;
 mod camera;
 mod convert;
 mod envmap;
@@ -22,6 +23,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<material::PyMaterial>()?;
     m.add_class::<setup::PySetup>()?;
     m.add_class::<envmap::PyEnvMap>()?;
+    m.add_class::<cache::PyVisibilityCache>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(setup::scene_names, m)?)?;
     m.add_function(wrap_pyfunction!(setup::load_scene, m)?)?;

@@ -6,9 +6,17 @@
 //! quadtree node above the bits (Fig. 9), the mean difference of two maps by xor and
 //! popcount (eq. 11), the record's ambient occlusion (eq. 12) and its nearest hit distance
 //! `R_i` (§6.1). The directions come from [`crate::sampling::pattern`].
+//!
+//! [`cache`]: the records in a kd-tree with eq. 9 weighted lookups, §5.2's insertion
+//! criteria, a deterministic build, and eviction over frames (§5.3); [`params`]: Table 1's
+//! parameters with low / medium / high presets (§5.4).
 
+pub mod cache;
+pub mod params;
 pub mod record;
 
+pub use cache::{BuildReport, CacheCounters, EvictionReport, Lookup, Neighbour, VisibilityCache};
+pub use params::CacheParams;
 pub use record::{
     bytes_per_record, Coverage, Node, NodeIter, Record, RecordHeader, RecordRays, RecordStore,
     VisibilityBits, VisibilityView,

@@ -715,6 +715,32 @@ impl RecordHeader {
         }
     }
 
+    /// A header from its stored fields (as [`Self::quantised`] returns them).
+    pub fn from_quantised(
+        position: [f32; 3],
+        normal: [u16; 2],
+        nearest_hit_distance: f32,
+        counters: [u32; 3],
+        ambient_occlusion: u16,
+    ) -> Self {
+        Self {
+            position,
+            normal,
+            nearest_hit_distance,
+            misses: counters[0],
+            uses: counters[1],
+            last_frame: counters[2],
+            ambient_occlusion,
+            _reserved: 0,
+        }
+    }
+
+    /// The quantised normal (equal-area square coordinates in units of 1/65535) and `A`
+    /// (units of 1/65535), exactly as stored.
+    pub fn quantised(&self) -> ([u16; 2], u16) {
+        (self.normal, self.ambient_occlusion)
+    }
+
     /// Position, world units.
     pub fn position(&self) -> Vec3 {
         Vec3::from(self.position)
@@ -787,6 +813,24 @@ impl RecordStore {
         Ok(self.headers.len() - 1)
     }
 
+    /// Appends an already packed record: `words` must be a whole map (`words_per_map(M)`
+    /// words) whose hierarchy codes agree with its bits. Returns its index.
+    pub fn push_packed(&mut self, header: RecordHeader, words: &[u64]) -> Result<usize> {
+        let n = words_per_map(self.m);
+        let consistent = words.len() == n
+            && VisibilityBits::from_bit_words(self.m, &words[..bit_words(self.m)])
+                .is_ok_and(|b| *b.words == *words);
+        if !consistent {
+            return Err(Error::invalid(
+                "words",
+                "must be a whole map whose hierarchy codes agree with its bits",
+            ));
+        }
+        self.headers.push(header);
+        self.words.extend_from_slice(words);
+        Ok(self.headers.len() - 1)
+    }
+
     /// The fixed fields of record `i`.
     pub fn header(&self, i: usize) -> &RecordHeader {
         &self.headers[i]
@@ -834,6 +878,23 @@ impl RecordStore {
             self.words.copy_within(last * n..(last + 1) * n, i * n);
         }
         self.words.truncate(last * n);
+    }
+
+    /// Keeps the records for which `keep(i)` is true, in their order (ids compact).
+    pub fn retain(&mut self, mut keep: impl FnMut(usize) -> bool) {
+        let n = words_per_map(self.m);
+        let mut next = 0;
+        for i in 0..self.headers.len() {
+            if keep(i) {
+                if next != i {
+                    self.headers[next] = self.headers[i];
+                    self.words.copy_within(i * n..(i + 1) * n, next * n);
+                }
+                next += 1;
+            }
+        }
+        self.headers.truncate(next);
+        self.words.truncate(next * n);
     }
 
     /// Bytes the records occupy: `len · bytes_per_record(M)` (spare capacity excluded).

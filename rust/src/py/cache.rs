@@ -1,0 +1,579 @@
+//! `viscache_rs.VisibilityCache`: the visibility cache of [`crate::visibility::cache`].
+//! Directions and record bits cross into Python in texel layout (row `y`, column `x` of the
+//! equal-area square), not the core's Morton order.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use super::camera::PyCamera;
+use super::convert::{
+    f64_arg, f64_vector, finite_rows, int_arg, seed_arg, threads_arg, unit_directions, IntoPyResult,
+};
+use super::scene::PyScene;
+use crate::sampling::octahedral::{morton_decode, morton_encode};
+use crate::visibility::cache::{Lookup, VisibilityCache};
+use crate::visibility::params::CacheParams;
+use crate::visibility::record::bytes_per_record;
+
+/// A world-space cache of visibility records over a scene (CAM08 §5). See the module
+/// docs of `viscache_rs` and `VisibilityCache.build`.
+#[pyclass(name = "VisibilityCache", module = "viscache_rs._core")]
+pub struct PyVisibilityCache {
+    inner: Arc<VisibilityCache>,
+    /// The scene records are traced in (read at each call, so edits are seen).
+    #[pyo3(get)]
+    scene: Py<PyScene>,
+    /// `k` times the median footprint of the last build's G-buffer, world units.
+    default_radius: Option<f32>,
+}
+
+/// Applies keyword overrides to `p`, naming unknown or out-of-range ones.
+fn apply_overrides(p: &mut CacheParams, overrides: &Bound<'_, PyDict>) -> PyResult<()> {
+    for (key, value) in overrides.iter() {
+        let key: String = key.extract()?;
+        let k = key.as_str();
+        let u32_of = |max: i128| -> PyResult<u32> { Ok(int_arg(&value, k, 0, max)? as u32) };
+        let f32_of = || -> PyResult<f32> { Ok(f64_arg(&value, k)? as f32) };
+        match k {
+            "n_startup" => p.n_startup = u32_of(u32::MAX as i128)?,
+            "d_max_scale" => p.d_max_scale = f32_of()?,
+            "theta_max_deg" => p.theta_max_deg = f32_of()?,
+            "lambda_falloff" => p.lambda_falloff = f32_of()?,
+            "m_search" => p.m_search = u32_of(u32::MAX as i128)?,
+            "n_keep" => p.n_keep = u32_of(u32::MAX as i128)?,
+            "w_min" => p.w_min = f32_of()?,
+            "delta_max" => p.delta_max = f32_of()?,
+            "epsilon_max" => p.epsilon_max = f32_of()?,
+            "evict_worst" => p.evict_worst = u32_of(u32::MAX as i128)?,
+            "unused_frames" => p.unused_frames = u32_of(u32::MAX as i128)?,
+            "max_records" => p.max_records = u32_of(u32::MAX as i128)?,
+            "pattern_seed" => {
+                p.pattern_seed = seed_arg(&value).map_err(|_| {
+                    PyValueError::new_err("pattern_seed: must be an integer in [0, 2^64)")
+                })?
+            }
+            _ => {
+                return Err(PyTypeError::new_err(format!(
+                    "unknown parameter {k:?}; expected one of {PARAM_NAMES:?}"
+                )))
+            }
+        }
+    }
+    Ok(())
+}
+
+const PARAM_NAMES: [&str; 13] = [
+    "n_startup",
+    "d_max_scale",
+    "theta_max_deg",
+    "lambda_falloff",
+    "m_search",
+    "n_keep",
+    "w_min",
+    "delta_max",
+    "epsilon_max",
+    "evict_worst",
+    "unused_frames",
+    "max_records",
+    "pattern_seed",
+];
+
+fn params_dict<'py>(py: Python<'py>, p: &CacheParams) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("resolution", 1u32 << p.log2_resolution)?;
+    d.set_item("n_startup", p.n_startup)?;
+    d.set_item("d_max_scale", p.d_max_scale)?;
+    d.set_item("theta_max_deg", p.theta_max_deg)?;
+    d.set_item("lambda_falloff", p.lambda_falloff)?;
+    d.set_item("m_search", p.m_search)?;
+    d.set_item("n_keep", p.n_keep)?;
+    d.set_item("w_min", p.w_min)?;
+    d.set_item("delta_max", p.delta_max)?;
+    d.set_item("epsilon_max", p.epsilon_max)?;
+    d.set_item("evict_worst", p.evict_worst)?;
+    d.set_item("unused_frames", p.unused_frames)?;
+    d.set_item("max_records", p.max_records)?;
+    d.set_item("pattern_seed", p.pattern_seed)?;
+    Ok(d)
+}
+
+/// `log2` of a resolution argument that must be a power of two in 2..=128.
+fn log2_resolution(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    let r = int_arg(obj, "resolution", 2, 128)? as u32;
+    if !r.is_power_of_two() {
+        return Err(PyValueError::new_err(format!(
+            "resolution: must be a power of two in 2..=128, got {r}"
+        )));
+    }
+    Ok(r.trailing_zeros())
+}
+
+impl PyVisibilityCache {
+    fn record_id(&self, id: &Bound<'_, PyAny>) -> PyResult<usize> {
+        let len = self.inner.len();
+        let i = int_arg(id, "id", 0, i64::MAX as i128)? as usize;
+        if i >= len {
+            return Err(PyValueError::new_err(format!(
+                "id: record {i} does not exist (the cache holds {len})"
+            )));
+        }
+        Ok(i)
+    }
+}
+
+#[pymethods]
+impl PyVisibilityCache {
+    /// `VisibilityCache(scene, resolution=32, preset="medium", **overrides)`: an empty cache
+    /// of `resolution x resolution` records. Overrides take the parameter names of
+    /// `params` (CAM08 Table 1 plus m, n, λ, k, ε_max, F, max_records).
+    #[new]
+    #[pyo3(signature = (scene, resolution=None, preset="medium", **overrides))]
+    fn new(
+        scene: Py<PyScene>,
+        resolution: Option<&Bound<'_, PyAny>>,
+        preset: &str,
+        overrides: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        let mut p = CacheParams::preset(preset).py()?;
+        if let Some(r) = resolution {
+            p.log2_resolution = log2_resolution(r)?;
+        }
+        if let Some(o) = overrides {
+            apply_overrides(&mut p, o)?;
+        }
+        Ok(Self {
+            inner: Arc::new(VisibilityCache::new(p).py()?),
+            scene,
+            default_radius: None,
+        })
+    }
+
+    /// Records per side, `2^M`.
+    #[getter]
+    fn resolution(&self) -> u32 {
+        self.inner.resolution()
+    }
+
+    /// The parameters as a dict (the names `VisibilityCache(...)` takes as overrides).
+    #[getter]
+    fn params<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        params_dict(py, self.inner.params())
+    }
+
+    /// The current frame (0 until the first `end_frame`).
+    #[getter]
+    fn frame(&self) -> u32 {
+        self.inner.read().frame()
+    }
+
+    /// The radius `lookup` uses without `radius` or `footprints`: `d_max_scale` times the
+    /// median pixel footprint of the last build (None before a build).
+    #[getter]
+    fn default_radius(&self) -> Option<f32> {
+        self.default_radius
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "VisibilityCache(records={}, resolution={}, frame={})",
+            self.inner.len(),
+            self.inner.resolution(),
+            self.inner.read().frame()
+        )
+    }
+
+    /// Record directions, `(R*R, 3)` float32 unit vectors in texel layout: row `y*R + x`
+    /// is the direction bit `[y, x]` of `record_bits` stands for.
+    fn directions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let r = self.inner.resolution() as usize;
+        let pattern = self.inner.directions();
+        let mut out = vec![0f32; r * r * 3];
+        for (z, d) in pattern.iter().enumerate() {
+            let t = morton_decode(z as u32);
+            let row = t.y as usize * r + t.x as usize;
+            out[3 * row..3 * row + 3].copy_from_slice(&d.to_array());
+        }
+        PyArray1::from_vec(py, out).reshape([r * r, 3])
+    }
+
+    /// Builds the cache for `camera`'s view (bootstrap of `n_startup` records when empty,
+    /// then a pass over the G-buffer applying both insertion criteria). Deterministic for
+    /// any `threads`. Shows a progress bar unless `progress=False`; stops after the wave
+    /// that spends `time_budget` seconds. Returns a dict: records, bootstrap_records,
+    /// refined_records, discarded_records, pixels, covered_pixels, shadow_rays,
+    /// nearest_rays, shadow_rays_per_pixel (CAM08 Table 2's last row), seconds, complete.
+    #[pyo3(signature = (camera, seed=None, threads=None, progress=true, time_budget=None))]
+    fn build<'py>(
+        &mut self,
+        py: Python<'py>,
+        camera: PyRef<'py, PyCamera>,
+        seed: Option<&Bound<'py, PyAny>>,
+        threads: Option<&Bound<'py, PyAny>>,
+        progress: bool,
+        time_budget: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let seed = seed.map_or(Ok(0), seed_arg)?;
+        let threads = threads_arg(threads)?;
+        let budget = match time_budget {
+            Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
+            _ => None,
+        };
+        let cam = camera.inner;
+        let scene = self.scene.borrow(py).inner.clone();
+        let bar: Option<Py<PyAny>> = if progress {
+            let tqdm = py.import("tqdm.auto")?.getattr("tqdm")?;
+            let kw = PyDict::new(py);
+            kw.set_item("desc", "cache build")?;
+            kw.set_item("unit", "px")?;
+            kw.set_item("leave", false)?;
+            Some(tqdm.call((), Some(&kw))?.unbind())
+        } else {
+            None
+        };
+        let mut failure: Option<PyErr> = None;
+        let mut callback = |done: usize, total: usize| -> bool {
+            let Some(bar) = &bar else { return true };
+            Python::attach(|py| {
+                let step = || -> PyResult<()> {
+                    let b = bar.bind(py);
+                    b.setattr("total", total)?;
+                    b.setattr("n", done)?;
+                    b.call_method0("refresh")?;
+                    py.check_signals()
+                };
+                match step() {
+                    Ok(()) => true,
+                    Err(e) => {
+                        failure = Some(e);
+                        false
+                    }
+                }
+            })
+        };
+        let inner = self.inner.clone();
+        let out = py.detach(|| inner.build(&scene, &cam, seed, threads, budget, &mut callback));
+        if let Some(bar) = &bar {
+            bar.bind(py).call_method0("close")?;
+        }
+        if let Some(e) = failure {
+            return Err(e);
+        }
+        let r = out.py()?;
+        // Default lookup radius: k times the median footprint of the view.
+        let g = py
+            .detach(|| crate::camera::GBuffer::render(&scene, &cam, seed, false, threads))
+            .py()?;
+        let mut fp: Vec<f32> = g.footprint.into_iter().filter(|f| f.is_finite()).collect();
+        if !fp.is_empty() {
+            let mid = fp.len() / 2;
+            let (_, median, _) = fp.select_nth_unstable_by(mid, f32::total_cmp);
+            self.default_radius = Some(self.inner.params().d_max_scale * *median);
+        }
+        let d = PyDict::new(py);
+        d.set_item("records", r.records)?;
+        d.set_item("bootstrap_records", r.bootstrap_records)?;
+        d.set_item("refined_records", r.refined_records)?;
+        d.set_item("discarded_records", r.discarded_records)?;
+        d.set_item("pixels", r.pixels)?;
+        d.set_item("covered_pixels", r.covered_pixels)?;
+        d.set_item("shadow_rays", r.shadow_rays)?;
+        d.set_item("nearest_rays", r.nearest_rays)?;
+        d.set_item("shadow_rays_per_pixel", r.shadow_rays_per_pixel)?;
+        d.set_item("seconds", r.seconds)?;
+        d.set_item("complete", r.complete)?;
+        Ok(d)
+    }
+
+    /// Traces a record at `point` with `normal` (need not be unit) and inserts it whatever
+    /// the criteria say; returns its id, or None when the cache holds `max_records`.
+    fn insert(
+        &self,
+        py: Python<'_>,
+        point: &Bound<'_, PyAny>,
+        normal: &Bound<'_, PyAny>,
+    ) -> PyResult<Option<u32>> {
+        let p = one_row(point, "point")?;
+        let n = one_row(normal, "normal")?;
+        let scene = self.scene.borrow(py).inner.clone();
+        let inner = self.inner.clone();
+        py.detach(|| inner.insert(&scene, p.into(), n.into())).py()
+    }
+
+    /// §5.1 lookups for `points` (N, 3) with `normals` (N, 3; need not be unit) within
+    /// `radius` (a number or (N,) world units) or `d_max_scale * footprints` ((N,)); with
+    /// neither, `default_radius`. Returns a dict: `ids` (N, n) int64 (-1 pads), `beta` and
+    /// `weight` (N, n) float32, `max_weight`, `mean_difference` (N,) float32,
+    /// `needs_record` (N,) bool (§5.2's criteria), and with `interpolate=True` `map`
+    /// (N, R, R) float32 = Σ β_i V_i in texel layout.
+    #[pyo3(signature = (points, normals, radius=None, footprints=None, interpolate=false, threads=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn lookup<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+        normals: &Bound<'py, PyAny>,
+        radius: Option<&Bound<'py, PyAny>>,
+        footprints: Option<&Bound<'py, PyAny>>,
+        interpolate: bool,
+        threads: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let pts: Vec<glam::Vec3> = finite_rows::<3>(points, "points")?
+            .into_iter()
+            .map(glam::Vec3::from)
+            .collect();
+        let nrm = unit_directions(normals, "normals")?;
+        if nrm.len() != pts.len() {
+            return Err(PyValueError::new_err(format!(
+                "normals: expected {} rows like points, got {}",
+                pts.len(),
+                nrm.len()
+            )));
+        }
+        let n = pts.len();
+        let radii = self.radii(radius, footprints, n)?;
+        let threads = threads_arg(threads)?;
+        let inner = self.inner.clone();
+        let looks: Vec<Lookup> = py
+            .detach(|| inner.lookup_batch(&pts, &nrm, &radii, threads))
+            .py()?;
+        let keep = self.inner.params().n_keep as usize;
+        let mut ids = vec![-1i64; n * keep];
+        let mut beta = vec![0f32; n * keep];
+        let mut weight = vec![0f32; n * keep];
+        for (i, l) in looks.iter().enumerate() {
+            for (j, k) in l.neighbours().iter().enumerate() {
+                ids[i * keep + j] = k.id as i64;
+                beta[i * keep + j] = k.beta;
+                weight[i * keep + j] = k.weight;
+            }
+        }
+        let p = *self.inner.params();
+        let d = PyDict::new(py);
+        d.set_item("ids", PyArray1::from_vec(py, ids).reshape([n, keep])?)?;
+        d.set_item("beta", PyArray1::from_vec(py, beta).reshape([n, keep])?)?;
+        d.set_item("weight", PyArray1::from_vec(py, weight).reshape([n, keep])?)?;
+        let col =
+            |f: &dyn Fn(&Lookup) -> f32| PyArray1::from_vec(py, looks.iter().map(f).collect());
+        d.set_item("max_weight", col(&|l| l.max_weight))?;
+        d.set_item("mean_difference", col(&|l| l.mean_difference))?;
+        let needs: Vec<bool> = looks.iter().map(|l| l.needs_record(&p)).collect();
+        d.set_item("needs_record", PyArray1::from_vec(py, needs))?;
+        if interpolate {
+            let r = self.inner.resolution() as usize;
+            let maps = py.detach(|| {
+                let state = inner.read();
+                let mut maps = vec![0f32; n * r * r];
+                for (l, out) in looks.iter().zip(maps.chunks_mut(r * r)) {
+                    state.interpolate(l, out);
+                }
+                maps
+            });
+            let maps: Bound<'py, PyArray3<f32>> =
+                PyArray1::from_vec(py, maps).reshape([n, r, r])?;
+            d.set_item("map", maps)?;
+        }
+        Ok(d)
+    }
+
+    /// Visibility of record `id` as an (R, R) bool array in texel layout (True = open).
+    fn record_bits<'py>(
+        &self,
+        py: Python<'py>,
+        id: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<bool>>> {
+        let i = self.record_id(id)?;
+        let r = self.inner.resolution();
+        let state = self.inner.read();
+        let bits = state.store().bits(i);
+        let out: Vec<bool> = (0..r * r)
+            .map(|t| bits.get(morton_encode(t % r, t / r) as usize))
+            .collect();
+        PyArray1::from_vec(py, out).reshape([r as usize, r as usize])
+    }
+
+    /// Bytes the records occupy (`len * bytes_per_record`; 172 per record at 32 x 32).
+    fn memory_bytes(&self) -> usize {
+        self.inner.memory_bytes()
+    }
+
+    /// Per-record arrays for plots and tests: `position`, `normal` (N, 3) float32, `ao`,
+    /// `nearest_hit_distance` (N,) float32, `misses`, `uses`, `last_frame` (N,) uint32.
+    fn records<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let state = self.inner.read();
+        let s = state.store();
+        let n = s.len();
+        let headers: Vec<_> = (0..n).map(|i| *s.header(i)).collect();
+        drop(state);
+        let vec3s = |f: &dyn Fn(usize) -> [f32; 3]| -> PyResult<Bound<'py, PyArray2<f32>>> {
+            PyArray1::from_vec(py, (0..n).flat_map(f).collect()).reshape([n, 3])
+        };
+        let d = PyDict::new(py);
+        d.set_item("position", vec3s(&|i| headers[i].position)?)?;
+        d.set_item("normal", vec3s(&|i| headers[i].normal().to_array())?)?;
+        let f32s = |f: &dyn Fn(usize) -> f32| PyArray1::from_vec(py, (0..n).map(f).collect());
+        d.set_item("ao", f32s(&|i| headers[i].ambient_occlusion()))?;
+        d.set_item(
+            "nearest_hit_distance",
+            f32s(&|i| headers[i].nearest_hit_distance),
+        )?;
+        let u32s = |f: &dyn Fn(usize) -> u32| PyArray1::from_vec(py, (0..n).map(f).collect());
+        d.set_item("misses", u32s(&|i| headers[i].misses))?;
+        d.set_item("uses", u32s(&|i| headers[i].uses))?;
+        d.set_item("last_frame", u32s(&|i| headers[i].last_frame))?;
+        Ok(d)
+    }
+
+    /// Adds this frame's per-record counts (§5.3): `ids` (N,) record ids, `misses` and
+    /// `uses` (N,) non-negative integers with misses <= uses. Nothing changes on error.
+    fn record_misses(
+        &self,
+        ids: &Bound<'_, PyAny>,
+        misses: &Bound<'_, PyAny>,
+        uses: &Bound<'_, PyAny>,
+    ) -> PyResult<()> {
+        let ids = counts(ids, "ids")?;
+        let misses = counts(misses, "misses")?;
+        let uses = counts(uses, "uses")?;
+        self.inner.record_misses(&ids, &misses, &uses).py()
+    }
+
+    /// Ends the frame (§5.3): removes records whose miss rate this frame exceeds
+    /// `epsilon_max` (or the `evict_worst` worst) and records unused for `unused_frames`
+    /// frames; ids are compacted (kept records keep their order). Returns a dict: frame,
+    /// by_misses, unused, remaining.
+    fn end_frame<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let r = self.inner.end_frame();
+        let d = PyDict::new(py);
+        d.set_item("frame", r.frame)?;
+        d.set_item("by_misses", r.by_misses)?;
+        d.set_item("unused", r.unused)?;
+        d.set_item("remaining", r.remaining)?;
+        Ok(d)
+    }
+
+    /// Totals: records, frame, memory_bytes, bytes_per_record, index_bytes (estimate),
+    /// inserted, evicted, refused_full, shadow_rays, nearest_rays, lookups.
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let c = self.inner.counters();
+        let d = PyDict::new(py);
+        d.set_item("records", self.inner.len())?;
+        d.set_item("frame", self.inner.read().frame())?;
+        d.set_item("memory_bytes", self.inner.memory_bytes())?;
+        d.set_item(
+            "bytes_per_record",
+            bytes_per_record(self.inner.params().log2_resolution),
+        )?;
+        d.set_item("index_bytes", self.inner.index_bytes())?;
+        d.set_item("inserted", c.inserted)?;
+        d.set_item("evicted", c.evicted)?;
+        d.set_item("refused_full", c.refused_full)?;
+        d.set_item("shadow_rays", c.shadow_rays)?;
+        d.set_item("nearest_rays", c.nearest_rays)?;
+        d.set_item("lookups", c.lookups)?;
+        Ok(d)
+    }
+
+    /// Writes the cache (versioned binary format) to `path`.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let inner = self.inner.clone();
+        py.detach(|| inner.save(&path)).py()
+    }
+
+    /// Reads a cache written by `save`, attached to `scene`. A truncated or corrupted file
+    /// raises ValueError naming the file.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf, scene: Py<PyScene>) -> PyResult<Self> {
+        let cache = py.detach(|| VisibilityCache::load(&path)).py()?;
+        Ok(Self {
+            inner: Arc::new(cache),
+            scene,
+            default_radius: None,
+        })
+    }
+}
+
+impl PyVisibilityCache {
+    fn radii(
+        &self,
+        radius: Option<&Bound<'_, PyAny>>,
+        footprints: Option<&Bound<'_, PyAny>>,
+        n: usize,
+    ) -> PyResult<Vec<f32>> {
+        let radius = radius.filter(|r| !r.is_none());
+        let footprints = footprints.filter(|f| !f.is_none());
+        let positive = |v: Vec<f64>, name: &str, scale: f64| -> PyResult<Vec<f32>> {
+            if v.len() != n {
+                return Err(PyValueError::new_err(format!(
+                    "{name}: expected {n} values (one per point), got {}",
+                    v.len()
+                )));
+            }
+            if let Some(i) = v.iter().position(|x| !(x.is_finite() && *x >= 0.0)) {
+                return Err(PyValueError::new_err(format!(
+                    "{name}: entry {i} must be finite and >= 0, got {}",
+                    v[i]
+                )));
+            }
+            Ok(v.into_iter().map(|x| (x * scale) as f32).collect())
+        };
+        match (radius, footprints) {
+            (Some(_), Some(_)) => Err(PyValueError::new_err(
+                "radius: give radius or footprints, not both",
+            )),
+            (Some(r), None) => {
+                if let Ok(x) = f64_arg(r, "radius") {
+                    positive(vec![x; n], "radius", 1.0)
+                } else {
+                    positive(f64_vector(r, "radius")?, "radius", 1.0)
+                }
+            }
+            (None, Some(f)) => positive(
+                f64_vector(f, "footprints")?,
+                "footprints",
+                self.inner.params().d_max_scale as f64,
+            ),
+            (None, None) => match self.default_radius {
+                Some(r) => Ok(vec![r; n]),
+                None => Err(PyValueError::new_err(
+                    "radius: pass radius= or footprints= (no build has set a default radius)",
+                )),
+            },
+        }
+    }
+}
+
+/// A single point: three finite reals.
+fn one_row(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f32; 3]> {
+    let reshaped = obj
+        .call_method1("reshape", ((1, 3),))
+        .or_else(|_| {
+            let np = obj.py().import("numpy")?;
+            np.call_method1("reshape", (np.call_method1("asarray", (obj,))?, (1, 3)))
+        })
+        .map_err(|_| PyValueError::new_err(format!("{name}: expected three real numbers")))?;
+    Ok(finite_rows::<3>(&reshaped, name)?[0])
+}
+
+/// A 1-D array of counts (non-negative integers below 2^32).
+fn counts(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<u32>> {
+    let v = f64_vector(obj, name)?;
+    if let Some(i) = v
+        .iter()
+        .position(|x| !(x.fract() == 0.0 && *x >= 0.0 && *x <= u32::MAX as f64))
+    {
+        return Err(PyValueError::new_err(format!(
+            "{name}: entry {i} must be a non-negative integer, got {}",
+            v[i]
+        )));
+    }
+    Ok(v.into_iter().map(|x| x as u32).collect())
+}

@@ -1,0 +1,891 @@
+//! The visibility cache: records in a kd-tree, weighted lookups, adaptive insertion,
+//! eviction and reuse over frames (CAM08 §5.1–5.3).
+//!
+//! ## Lookup (§5.1, eq. 9, Fig. 7)
+//! For a query point `x` with unit normal `n` and radius `d_max`: take the `m` nearest
+//! records within `d_max` ([`kiddo`] range search), drop those with `θ_i >= θ_max`, weight
+//! the rest `w_i = w_g · ŵ(d, θ)` with
+//! `w(d, θ) = (1 − θ/π)(1 − x/(1 + λx))`, `x = d / d_max` (eq. 9),
+//! `ŵ = (w − w_lo)/(1 − w_lo)` where `w_lo = w(d_max, θ_max)`, and
+//! `w_g = sqrt(1 − |n·v|)` for the unit vector `v` from `x` to the record (`w_g = 1` for a
+//! record exactly at `x`). The `n` heaviest (ties: nearer, then lower id) are kept and
+//! normalised to `β_i = w_i / Σ w_j`; records of weight 0 carry nothing and are dropped.
+//!
+//! ## Insertion (§5.2)
+//! A lookup asks for a new record at `x` when `max w_i < w_min` (geometry) or when the mean
+//! pairwise eq. 11 difference `δ̄` of the kept records exceeds `δ̄_max` (visibility
+//! disagreement — records near occluders see different things, so the cache refines there).
+//!
+//! ## Index
+//! kiddo 5's mutable kd-tree (bucket 64) over *distinct* positions: records that share a
+//! position exactly (a user inserting many normals at one point) hang off one tree item in
+//! a chain, so no bucket ever overflows with identical points, which kiddo cannot split.
+//! Records on flat, grid-aligned geometry share one coordinate; kiddo's splitter handles
+//! that, and the large bucket keeps such leaves from splitting needlessly. Removal happens
+//! only in [`VisibilityCache::end_frame`], which compacts the store and rebuilds the tree —
+//! the paper's "occasionally rebalance". Record ids are therefore dense and stable between
+//! two `end_frame` calls.
+//!
+//! ## Concurrency
+//! One `RwLock` (as in the paper): lookups read in parallel, an insertion writes alone and
+//! publishes a whole record at once. [`VisibilityCache::build`] is deterministic for any
+//! thread count: it runs in waves (look up in parallel; trace the wave's requests in
+//! parallel; insert them in a fixed pixel order, re-checking each against the records
+//! inserted before it).
+//!
+//! ## Time (§5.3)
+//! Estimators report per record how many traced samples it predicted wrongly
+//! ([`VisibilityCache::record_misses`]). [`VisibilityCache::end_frame`] removes records
+//! whose miss rate over the frame exceeds `ε_max` (or the `k` worst), and those unused for
+//! `F` frames, then starts the next frame with fresh counters.
+
+use std::num::NonZeroUsize;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
+use std::time::Instant;
+
+use glam::Vec3;
+use kiddo::float::kdtree::KdTree;
+use kiddo::SquaredEuclidean;
+use rayon::prelude::*;
+
+use super::params::{raw_weight, CacheParams, MAX_SEARCH_COUNT};
+use super::record::{words_per_map, Record, RecordHeader, RecordRays, RecordStore, VisibilityView};
+use crate::camera::{Camera, GBuffer};
+use crate::error::{Error, Result};
+use crate::geometry::Scene;
+use crate::parallel::with_threads;
+use crate::sampling::octahedral::morton_decode;
+use crate::sampling::pattern::{default_pattern, record_pattern, DEFAULT_LLOYD_ITERATIONS};
+use crate::sampling::rng::SampleRng;
+
+mod io;
+#[cfg(test)]
+mod tests;
+
+/// Bucket size of the kd-tree's leaves.
+const BUCKET: usize = 64;
+/// End of a chain of records sharing one position.
+const NO_RECORD: u32 = u32::MAX;
+/// Pixels looked up per build wave.
+pub const BUILD_WAVE: usize = 4096;
+
+type Tree = KdTree<f32, u32, 3, BUCKET, u32>;
+
+/// One record a lookup kept.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Neighbour {
+    /// Record id.
+    pub id: u32,
+    /// `w_i = w_g · ŵ(d, θ)` in `(0, 1]`.
+    pub weight: f32,
+    /// `β_i = w_i / Σ w_j` over the kept records.
+    pub beta: f32,
+    /// Distance from the query point to the record, world units.
+    pub distance: f32,
+}
+
+/// The result of one lookup: up to `n` records with their `β`, and the two insertion
+/// figures of §5.2.
+#[derive(Clone, Copy, Debug)]
+pub struct Lookup {
+    len: usize,
+    kept: [Neighbour; MAX_SEARCH_COUNT as usize],
+    /// `max w_i` over every candidate within `d_max` and `θ_max` (0 when none).
+    pub max_weight: f32,
+    /// `δ̄`: mean eq. 11 difference over the pairs of kept records (0 for fewer than two).
+    pub mean_difference: f32,
+}
+
+impl Default for Lookup {
+    fn default() -> Self {
+        Self {
+            len: 0,
+            kept: [Neighbour::default(); MAX_SEARCH_COUNT as usize],
+            max_weight: 0.0,
+            mean_difference: 0.0,
+        }
+    }
+}
+
+impl Lookup {
+    /// The kept records, heaviest first; their `beta` sum to 1 (empty when none found).
+    pub fn neighbours(&self) -> &[Neighbour] {
+        &self.kept[..self.len]
+    }
+
+    /// §5.2: a new record is wanted when `max w_i < w_min` or `δ̄ > δ̄_max`.
+    pub fn needs_record(&self, params: &CacheParams) -> bool {
+        self.max_weight < params.w_min || self.mean_difference > params.delta_max
+    }
+}
+
+/// Totals since the cache was created (or loaded).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CacheCounters {
+    /// Records inserted.
+    pub inserted: u64,
+    /// Records removed by [`VisibilityCache::end_frame`].
+    pub evicted: u64,
+    /// Insertions refused because the cache held `max_records`.
+    pub refused_full: u64,
+    /// Shadow rays traced for records (including ones a build traced and then discarded).
+    pub shadow_rays: u64,
+    /// Closest-hit rays traced for `R_i`.
+    pub nearest_rays: u64,
+    /// Lookups answered.
+    pub lookups: u64,
+}
+
+/// What [`VisibilityCache::build`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BuildReport {
+    /// Records in the cache afterwards.
+    pub records: usize,
+    /// Records the bootstrap inserted (0 when the cache was not empty).
+    pub bootstrap_records: usize,
+    /// Records the G-buffer pass inserted.
+    pub refined_records: usize,
+    /// Records traced by a wave but found unneeded on re-check (their rays are counted).
+    pub discarded_records: usize,
+    /// Pixels of the camera.
+    pub pixels: usize,
+    /// Pixels whose primary ray hit something.
+    pub covered_pixels: usize,
+    /// Record shadow rays traced.
+    pub shadow_rays: u64,
+    /// Record closest-hit rays traced (for `R_i`).
+    pub nearest_rays: u64,
+    /// `shadow_rays / pixels`: CAM08 Table 2's amortised cost.
+    pub shadow_rays_per_pixel: f64,
+    /// Wall-clock seconds.
+    pub seconds: f64,
+    /// False when the time budget or the progress callback stopped the pass early.
+    pub complete: bool,
+}
+
+/// What [`VisibilityCache::end_frame`] removed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EvictionReport {
+    /// Frame that ended.
+    pub frame: u32,
+    /// Removed for their miss rate (or as the `k` worst).
+    pub by_misses: usize,
+    /// Removed for not being used for `F` frames.
+    pub unused: usize,
+    /// Records left.
+    pub remaining: usize,
+}
+
+/// The lock-protected part: records, their index and the frame.
+#[derive(Clone, Debug)]
+pub struct CacheState {
+    store: RecordStore,
+    tree: Tree,
+    /// `next_at_site[i]`: the next record with record `i`'s exact position, or `NO_RECORD`.
+    /// Only the first record at a position is in the tree.
+    next_at_site: Vec<u32>,
+    /// Last record of each chain, indexed by its head (only valid for heads).
+    chain_tail: Vec<u32>,
+    frame: u32,
+    counters: CacheCounters,
+}
+
+impl CacheState {
+    fn new(m: u32) -> Result<Self> {
+        Ok(Self {
+            store: RecordStore::new(m)?,
+            tree: Tree::new(),
+            next_at_site: Vec::new(),
+            chain_tail: Vec::new(),
+            frame: 0,
+            counters: CacheCounters::default(),
+        })
+    }
+
+    /// The records.
+    pub fn store(&self) -> &RecordStore {
+        &self.store
+    }
+
+    /// Number of records.
+    pub fn len(&self) -> usize {
+        self.store.len()
+    }
+
+    /// True without records.
+    pub fn is_empty(&self) -> bool {
+        self.store.is_empty()
+    }
+
+    /// The current frame (starts at 0, advanced by `end_frame`).
+    pub fn frame(&self) -> u32 {
+        self.frame
+    }
+
+    /// §5.1 lookup at `x` (normal `n`, unit) within `d_max` (world units). A non-positive
+    /// or non-finite `d_max` finds nothing.
+    pub fn lookup(&self, params: &CacheParams, x: Vec3, n: Vec3, d_max: f32) -> Lookup {
+        let mut out = Lookup::default();
+        if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
+            return out;
+        }
+        let m = params.m_search as usize;
+        let sites = self.tree.nearest_n_within::<SquaredEuclidean>(
+            &x.to_array(),
+            d_max * d_max,
+            NonZeroUsize::new(m).expect("m_search >= 1"),
+            false,
+        );
+        // Candidates: (squared distance, id), expanding shared positions, m nearest kept.
+        let mut cand: [(f32, u32); 2 * MAX_SEARCH_COUNT as usize] =
+            [(0.0, 0); 2 * MAX_SEARCH_COUNT as usize];
+        let mut len = 0;
+        for s in &sites {
+            let mut id = s.item;
+            while id != NO_RECORD {
+                if len == cand.len() {
+                    cand.sort_unstable_by(by_distance_then_id);
+                    len = m;
+                }
+                cand[len] = (s.distance, id);
+                len += 1;
+                id = self.next_at_site[id as usize];
+            }
+        }
+        let cand = &mut cand[..len];
+        cand.sort_unstable_by(by_distance_then_id);
+        let cand = &cand[..len.min(m)];
+
+        let theta_max = params.theta_max();
+        let w_lo = params.weight_floor();
+        let scale = 1.0 / (1.0 - w_lo);
+        let mut best = 0.0f32;
+        for &(d2, id) in cand {
+            let h = self.store.header(id as usize);
+            let cos = n.dot(h.normal()).clamp(-1.0, 1.0);
+            let theta = cos.acos();
+            // θ_i < θ_max (strict, as in §5.1); NaN never passes.
+            if theta.partial_cmp(&theta_max) != Some(std::cmp::Ordering::Less) {
+                continue;
+            }
+            let d = d2.sqrt();
+            let w_hat = ((raw_weight(d / d_max, theta, params.lambda_falloff) - w_lo) * scale)
+                .clamp(0.0, 1.0);
+            let to_record = h.position() - x;
+            let w_g = if d > 0.0 {
+                let c = (n.dot(to_record) / to_record.length()).abs().min(1.0);
+                (1.0 - c).sqrt()
+            } else {
+                1.0
+            };
+            let w = w_g * w_hat;
+            best = best.max(w);
+            if w > 0.0 {
+                out.kept[out.len] = Neighbour {
+                    id,
+                    weight: w,
+                    beta: 0.0,
+                    distance: d,
+                };
+                out.len += 1;
+            }
+        }
+        out.max_weight = best;
+        let kept = &mut out.kept[..out.len];
+        // Heaviest first; ties by distance then id keep the choice deterministic.
+        kept.sort_unstable_by(|a, b| {
+            b.weight
+                .total_cmp(&a.weight)
+                .then(a.distance.total_cmp(&b.distance))
+                .then(a.id.cmp(&b.id))
+        });
+        out.len = out.len.min(params.n_keep as usize);
+        let kept = &mut out.kept[..out.len];
+        let total: f32 = kept.iter().map(|k| k.weight).sum();
+        for k in kept.iter_mut() {
+            k.beta = k.weight / total;
+        }
+        out.mean_difference = self.mean_difference(kept);
+        out
+    }
+
+    /// `δ̄` of §5.2: mean eq. 11 difference over the pairs of `kept`.
+    fn mean_difference(&self, kept: &[Neighbour]) -> f32 {
+        if kept.len() < 2 {
+            return 0.0;
+        }
+        let mut sum = 0u64;
+        for (i, a) in kept.iter().enumerate() {
+            let va = self.store.bits(a.id as usize);
+            for b in &kept[i + 1..] {
+                sum += va.xor_popcount(&self.store.bits(b.id as usize)) as u64;
+            }
+        }
+        let pairs = (kept.len() * (kept.len() - 1) / 2) as f64;
+        let texels = (1u64 << (2 * self.store.m())) as f64;
+        (sum as f64 / (pairs * texels)) as f32
+    }
+
+    /// `Ṽ = Σ β_i V_i` of a lookup as `R x R` floats in texel layout (row `y`, column `x`
+    /// of the equal-area square; row-major).
+    pub fn interpolate(&self, lookup: &Lookup, out: &mut [f32]) {
+        let r = 1usize << self.store.m();
+        debug_assert_eq!(out.len(), r * r);
+        out.fill(0.0);
+        for k in lookup.neighbours() {
+            let bits = self.store.bits(k.id as usize);
+            for_each_set_bit(bits, |z| {
+                let t = morton_decode(z as u32);
+                out[t.y as usize * r + t.x as usize] += k.beta;
+            });
+        }
+    }
+
+    /// Appends a record (must have the store's resolution and a finite position); returns
+    /// its id, or `None` when `max_records` is reached.
+    fn push(&mut self, params: &CacheParams, record: &Record) -> Result<Option<u32>> {
+        if !record.position.is_finite() {
+            return Err(Error::invalid("position", "must be finite"));
+        }
+        self.admit(params, |store| store.push(record))
+    }
+
+    /// Appends a packed record (file loading).
+    fn push_packed(
+        &mut self,
+        params: &CacheParams,
+        header: RecordHeader,
+        words: &[u64],
+    ) -> Result<Option<u32>> {
+        self.admit(params, |store| store.push_packed(header, words))
+    }
+
+    fn admit(
+        &mut self,
+        params: &CacheParams,
+        push: impl FnOnce(&mut RecordStore) -> Result<usize>,
+    ) -> Result<Option<u32>> {
+        if self.store.len() >= params.max_records as usize {
+            self.counters.refused_full += 1;
+            return Ok(None);
+        }
+        let id = push(&mut self.store)? as u32;
+        self.next_at_site.push(NO_RECORD);
+        self.chain_tail.push(id);
+        self.index(id);
+        self.counters.inserted += 1;
+        Ok(Some(id))
+    }
+
+    /// Puts record `id` (the newest) into the tree, or at the end of the chain of a record
+    /// with the same position.
+    fn index(&mut self, id: u32) {
+        let p = self.store.header(id as usize).position;
+        let same =
+            self.tree
+                .nearest_n_within::<SquaredEuclidean>(&p, 0.0, NonZeroUsize::MIN, false);
+        match same.first() {
+            Some(head) if head.distance == 0.0 => {
+                let head = head.item as usize;
+                let tail = self.chain_tail[head] as usize;
+                self.next_at_site[tail] = id;
+                self.chain_tail[head] = id;
+            }
+            _ => self.tree.add(&p, id),
+        }
+    }
+
+    /// Rebuilds tree and chains from the store, inserting in id order.
+    fn reindex(&mut self) {
+        let n = self.store.len();
+        self.tree = Tree::with_capacity(n.max(BUCKET));
+        self.next_at_site = vec![NO_RECORD; n];
+        self.chain_tail = (0..n as u32).collect();
+        for id in 0..n as u32 {
+            self.index(id);
+        }
+    }
+}
+
+fn by_distance_then_id(a: &(f32, u32), b: &(f32, u32)) -> std::cmp::Ordering {
+    a.0.total_cmp(&b.0).then(a.1.cmp(&b.1))
+}
+
+/// Calls `f(z)` for every set bit `z` of a map.
+fn for_each_set_bit(bits: VisibilityView, mut f: impl FnMut(usize)) {
+    for (w, &word) in bits.bit_words().iter().enumerate() {
+        let mut x = word;
+        while x != 0 {
+            f(w * 64 + x.trailing_zeros() as usize);
+            x &= x - 1;
+        }
+    }
+}
+
+/// The visibility cache (module docs). `Sync`: share it between render threads.
+#[derive(Debug)]
+pub struct VisibilityCache {
+    params: CacheParams,
+    pattern: Vec<Vec3>,
+    state: RwLock<CacheState>,
+    lookups: AtomicU64,
+}
+
+impl Clone for VisibilityCache {
+    fn clone(&self) -> Self {
+        Self {
+            params: self.params,
+            pattern: self.pattern.clone(),
+            state: RwLock::new(self.read().clone()),
+            lookups: AtomicU64::new(self.lookups.load(Ordering::Relaxed)),
+        }
+    }
+}
+
+impl VisibilityCache {
+    /// An empty cache. Fails when `params` do not validate.
+    pub fn new(params: CacheParams) -> Result<Self> {
+        params.validate()?;
+        let m = params.log2_resolution;
+        let pattern = if params.pattern_seed == crate::sampling::pattern::DEFAULT_PATTERN_SEED {
+            default_pattern(m)?.to_vec()
+        } else {
+            record_pattern(m, params.pattern_seed, DEFAULT_LLOYD_ITERATIONS)?
+        };
+        Ok(Self {
+            params,
+            pattern,
+            state: RwLock::new(CacheState::new(m)?),
+            lookups: AtomicU64::new(0),
+        })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &CacheParams {
+        &self.params
+    }
+
+    /// The record directions, unit vectors in Morton order (`4^M` of them): bit `z` of
+    /// every record is the visibility along `directions()[z]`.
+    pub fn directions(&self) -> &[Vec3] {
+        &self.pattern
+    }
+
+    /// `2^M`.
+    pub fn resolution(&self) -> u32 {
+        1 << self.params.log2_resolution
+    }
+
+    /// Shared read access (many readers at once).
+    pub fn read(&self) -> RwLockReadGuard<'_, CacheState> {
+        self.state.read().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn write(&self) -> RwLockWriteGuard<'_, CacheState> {
+        self.state.write().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Number of records.
+    pub fn len(&self) -> usize {
+        self.read().len()
+    }
+
+    /// True without records.
+    pub fn is_empty(&self) -> bool {
+        self.read().is_empty()
+    }
+
+    /// Bytes the records occupy ([`super::record::bytes_per_record`] each: 172 at 32 x 32).
+    pub fn memory_bytes(&self) -> usize {
+        self.read().store.memory_bytes()
+    }
+
+    /// Estimated bytes of the spatial index on top of the records: per record a chain link
+    /// and tail (8 B), per tree item its position and id (16 B) at kiddo's worst leaf fill
+    /// of one half.
+    pub fn index_bytes(&self) -> usize {
+        self.len() * (8 + 2 * 16)
+    }
+
+    /// Totals since creation.
+    pub fn counters(&self) -> CacheCounters {
+        let mut c = self.read().counters;
+        c.lookups = self.lookups.load(Ordering::Relaxed);
+        c
+    }
+
+    /// One §5.1 lookup (see [`CacheState::lookup`]). For batches, take [`Self::read`] once.
+    pub fn lookup(&self, x: Vec3, n: Vec3, d_max: f32) -> Lookup {
+        self.lookups.fetch_add(1, Ordering::Relaxed);
+        self.read().lookup(&self.params, x, n, d_max)
+    }
+
+    /// Lookups for a batch of points under one read lock, in parallel. `d_max[i]` per point.
+    pub fn lookup_batch(
+        &self,
+        points: &[Vec3],
+        normals: &[Vec3],
+        d_max: &[f32],
+        threads: Option<usize>,
+    ) -> Result<Vec<Lookup>> {
+        if normals.len() != points.len() || d_max.len() != points.len() {
+            return Err(Error::invalid(
+                "normals",
+                "points, normals and radii must have the same length",
+            ));
+        }
+        self.lookups
+            .fetch_add(points.len() as u64, Ordering::Relaxed);
+        let state = self.read();
+        with_threads(threads, || {
+            (0..points.len())
+                .into_par_iter()
+                .with_min_len(64)
+                .map(|i| state.lookup(&self.params, points[i], normals[i], d_max[i]))
+                .collect()
+        })
+    }
+
+    /// Traces a record at `position` (normal `normal`, need not be unit) for the current
+    /// frame. Takes no lock.
+    pub fn trace(
+        &self,
+        scene: &Scene,
+        position: Vec3,
+        normal: Vec3,
+    ) -> Result<(Record, RecordRays)> {
+        let frame = self.read().frame;
+        Record::trace(scene, position, normal, &self.pattern, frame)
+    }
+
+    /// Traces and inserts a record unconditionally; returns its id (`None` at
+    /// `max_records`).
+    pub fn insert(&self, scene: &Scene, position: Vec3, normal: Vec3) -> Result<Option<u32>> {
+        let (record, rays) = self.trace(scene, position, normal)?;
+        let mut state = self.write();
+        count_rays(&mut state.counters, rays);
+        state.push(&self.params, &record)
+    }
+
+    /// Inserts a record traced elsewhere (its resolution must match).
+    pub fn insert_record(&self, record: &Record) -> Result<Option<u32>> {
+        self.write().push(&self.params, record)
+    }
+
+    /// The on-the-fly path for render threads: looks up at `x`; when §5.2 asks for a record,
+    /// traces one (no lock held), then re-checks under the write lock (another thread may
+    /// have inserted meanwhile) and inserts it. Returns the id inserted, if any.
+    pub fn insert_if_needed(
+        &self,
+        scene: &Scene,
+        x: Vec3,
+        n: Vec3,
+        d_max: f32,
+    ) -> Result<Option<u32>> {
+        if !self.lookup(x, n, d_max).needs_record(&self.params) {
+            return Ok(None);
+        }
+        let (record, rays) = self.trace(scene, x, n)?;
+        let mut state = self.write();
+        count_rays(&mut state.counters, rays);
+        if !state
+            .lookup(&self.params, x, n, d_max)
+            .needs_record(&self.params)
+        {
+            return Ok(None);
+        }
+        state.push(&self.params, &record)
+    }
+
+    /// Adds per-record miss and use counts for the current frame (§5.3); a record with uses
+    /// counts as used this frame. Fails (changing nothing) on an unknown id or on lengths
+    /// that differ.
+    pub fn record_misses(&self, ids: &[u32], misses: &[u32], uses: &[u32]) -> Result<()> {
+        if misses.len() != ids.len() || uses.len() != ids.len() {
+            return Err(Error::invalid(
+                "misses",
+                "ids, misses and uses must have the same length",
+            ));
+        }
+        let mut state = self.write();
+        let len = state.len();
+        if let Some(bad) = ids.iter().find(|&&i| i as usize >= len) {
+            return Err(Error::invalid(
+                "ids",
+                format!("record {bad} does not exist (the cache holds {len})"),
+            ));
+        }
+        if let Some(k) = (0..ids.len()).find(|&k| misses[k] > uses[k]) {
+            return Err(Error::invalid(
+                "misses",
+                format!("entry {k}: {} misses exceed {} uses", misses[k], uses[k]),
+            ));
+        }
+        let frame = state.frame;
+        for k in 0..ids.len() {
+            let h = state.store.header_mut(ids[k] as usize);
+            h.misses = h.misses.saturating_add(misses[k]);
+            h.uses = h.uses.saturating_add(uses[k]);
+            if uses[k] > 0 {
+                h.last_frame = frame;
+            }
+        }
+        Ok(())
+    }
+
+    /// Ends the frame (§5.3): removes records whose miss rate this frame exceeds `ε_max`
+    /// (or, with `evict_worst = k > 0`, the `k` with the highest rate among those that
+    /// missed), and records not used (nor created) during the last `F` frames; then
+    /// compacts ids (kept records keep their order), clears the miss and use counters and
+    /// advances the frame.
+    pub fn end_frame(&self) -> EvictionReport {
+        let p = self.params;
+        let mut state = self.write();
+        let frame = state.frame;
+        let n = state.len();
+        let rate = |h: &super::record::RecordHeader| {
+            if h.uses == 0 {
+                0.0
+            } else {
+                h.misses as f64 / h.uses as f64
+            }
+        };
+        let mut by_misses = vec![false; n];
+        if p.evict_worst > 0 {
+            let mut missed: Vec<(f64, u32)> = (0..n)
+                .filter(|&i| state.store.header(i).misses > 0)
+                .map(|i| (rate(state.store.header(i)), i as u32))
+                .collect();
+            missed.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+            for &(_, i) in missed.iter().take(p.evict_worst as usize) {
+                by_misses[i as usize] = true;
+            }
+        } else {
+            for (i, flag) in by_misses.iter_mut().enumerate() {
+                *flag = rate(state.store.header(i)) > p.epsilon_max as f64;
+            }
+        }
+        let unused: Vec<bool> = (0..n)
+            .map(|i| {
+                !by_misses[i]
+                    && frame.saturating_sub(state.store.header(i).last_frame) >= p.unused_frames
+            })
+            .collect();
+        let report = EvictionReport {
+            frame,
+            by_misses: by_misses.iter().filter(|&&b| b).count(),
+            unused: unused.iter().filter(|&&b| b).count(),
+            remaining: 0,
+        };
+        let removed = report.by_misses + report.unused;
+        if removed > 0 {
+            state.store.retain(|i| !(by_misses[i] || unused[i]));
+            state.reindex();
+        }
+        for i in 0..state.len() {
+            let h = state.store.header_mut(i);
+            h.misses = 0;
+            h.uses = 0;
+        }
+        state.counters.evicted += removed as u64;
+        state.frame = frame + 1;
+        EvictionReport {
+            remaining: state.len(),
+            ..report
+        }
+    }
+
+    /// Builds the cache for a view (§5): bootstraps `N_startup` records at the first hits of
+    /// rays stratified over the image (only when the cache is empty), then passes over the
+    /// G-buffer (pixel centres) applying §5.2's two criteria with `d_max = k · footprint`.
+    ///
+    /// Deterministic for any `threads`: pixels go coarse to fine (every 32nd pixel of every
+    /// 32nd row first, then the ones between, …) in waves of [`BUILD_WAVE`]; a wave looks up
+    /// in parallel, traces the requested records in parallel, then inserts them in that
+    /// order, re-checking each against the records inserted before it (the losers' rays are
+    /// still counted). `progress(done, total)` is called after each wave with pixels done;
+    /// returning false stops, as does `time_budget` (seconds, checked between waves).
+    pub fn build(
+        &self,
+        scene: &Scene,
+        camera: &Camera,
+        seed: u64,
+        threads: Option<usize>,
+        time_budget: Option<f64>,
+        progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
+    ) -> Result<BuildReport> {
+        if let Some(b) = time_budget {
+            if !(b.is_finite() && b > 0.0) {
+                return Err(Error::invalid(
+                    "time_budget",
+                    format!("must be finite and > 0 seconds, got {b}"),
+                ));
+            }
+        }
+        if scene.num_triangles() == 0 {
+            return Err(Error::invalid("scene", "has no triangles"));
+        }
+        let start = Instant::now();
+        let before = self.counters();
+        let mut report = BuildReport {
+            pixels: camera.num_pixels(),
+            complete: true,
+            ..BuildReport::default()
+        };
+        with_threads(threads, || -> Result<()> {
+            let gbuffer = GBuffer::render(scene, camera, seed, false, None)?;
+            report.covered_pixels = gbuffer.object.iter().filter(|&&o| o >= 0).count();
+            if self.is_empty() {
+                report.bootstrap_records = self.bootstrap(scene, camera, seed)?;
+            }
+            let order = coarse_to_fine(camera.width, camera.height);
+            let order: Vec<u32> = order
+                .into_iter()
+                .filter(|&i| gbuffer.object[i as usize] >= 0)
+                .collect();
+            let total = order.len();
+            for (w, wave) in order.chunks(BUILD_WAVE).enumerate() {
+                let (inserted, discarded) = self.refine_wave(scene, &gbuffer, wave)?;
+                report.refined_records += inserted;
+                report.discarded_records += discarded;
+                let done = ((w + 1) * BUILD_WAVE).min(total);
+                let over = time_budget.is_some_and(|b| start.elapsed().as_secs_f64() >= b);
+                if !progress(done, total) || (over && done < total) {
+                    report.complete = done == total;
+                    break;
+                }
+            }
+            Ok(())
+        })??;
+        let after = self.counters();
+        report.records = self.len();
+        report.shadow_rays = after.shadow_rays - before.shadow_rays;
+        report.nearest_rays = after.nearest_rays - before.nearest_rays;
+        report.shadow_rays_per_pixel = report.shadow_rays as f64 / report.pixels.max(1) as f64;
+        report.seconds = start.elapsed().as_secs_f64();
+        Ok(report)
+    }
+
+    /// `N_startup` records at the first hits of rays through jittered cells of a grid over
+    /// the image (as square as the aspect allows); returns how many were inserted.
+    fn bootstrap(&self, scene: &Scene, camera: &Camera, seed: u64) -> Result<usize> {
+        let n = self.params.n_startup as usize;
+        if n == 0 {
+            return Ok(0);
+        }
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        let cols = ((n as f64 * w / h).sqrt().round() as usize).max(1);
+        let rows = n.div_ceil(cols);
+        let cells: Vec<usize> = (0..n).collect();
+        let traced: Vec<Option<(Record, RecordRays)>> = cells
+            .par_iter()
+            .map(|&c| {
+                // Streams distinct from the G-buffer's: sample index u32::MAX.
+                let rng = SampleRng::new(seed, c as u64, u32::MAX as u64);
+                let [jx, jy] = rng.get2(0);
+                let x = ((c % cols) as f64 + jx as f64) * w / cols as f64;
+                let y = ((c / cols) as f64 + jy as f64) * h / rows as f64;
+                let d = camera.direction(x as f32, y as f32);
+                let mut counters = Default::default();
+                let hit = scene.intersect1(camera.eye, d, f32::INFINITY, &mut counters)?;
+                let normal = if hit.normal.dot(d) > 0.0 {
+                    -hit.normal
+                } else {
+                    hit.normal
+                };
+                Some(self.trace(scene, hit.position, normal))
+            })
+            .map(|r| r.transpose())
+            .collect::<Result<_>>()?;
+        let mut state = self.write();
+        let mut inserted = 0;
+        for (record, rays) in traced.into_iter().flatten() {
+            count_rays(&mut state.counters, rays);
+            inserted += state.push(&self.params, &record)?.is_some() as usize;
+        }
+        Ok(inserted)
+    }
+
+    /// One build wave (see [`Self::build`]); returns (inserted, discarded).
+    fn refine_wave(&self, scene: &Scene, g: &GBuffer, wave: &[u32]) -> Result<(usize, usize)> {
+        let k = self.params.d_max_scale;
+        let query = |i: u32| {
+            let i = i as usize;
+            (
+                Vec3::from(g.position[i]),
+                Vec3::from(g.normal[i]),
+                k * g.footprint[i],
+            )
+        };
+        let requests: Vec<u32> = {
+            let state = self.read();
+            wave.par_iter()
+                .copied()
+                .filter(|&i| {
+                    let (x, n, d) = query(i);
+                    state
+                        .lookup(&self.params, x, n, d)
+                        .needs_record(&self.params)
+                })
+                .collect()
+        };
+        self.lookups.fetch_add(wave.len() as u64, Ordering::Relaxed);
+        let traced: Vec<(Record, RecordRays)> = requests
+            .par_iter()
+            .map(|&i| {
+                let (x, n, _) = query(i);
+                self.trace(scene, x, n)
+            })
+            .collect::<Result<_>>()?;
+        let mut state = self.write();
+        let (mut inserted, mut discarded) = (0, 0);
+        for (&i, (record, rays)) in requests.iter().zip(&traced) {
+            count_rays(&mut state.counters, *rays);
+            let (x, n, d) = query(i);
+            if state
+                .lookup(&self.params, x, n, d)
+                .needs_record(&self.params)
+                && state.push(&self.params, record)?.is_some()
+            {
+                inserted += 1;
+            } else {
+                discarded += 1;
+            }
+        }
+        self.lookups
+            .fetch_add(requests.len() as u64, Ordering::Relaxed);
+        Ok((inserted, discarded))
+    }
+}
+
+fn count_rays(c: &mut CacheCounters, rays: RecordRays) {
+    c.shadow_rays += rays.shadow as u64;
+    c.nearest_rays += rays.nearest as u64;
+}
+
+/// Pixel indices of a `w x h` image, coarse to fine: those on the grid of spacing 32, then
+/// the new ones of spacing 16, …, 1; row-major within a level.
+pub fn coarse_to_fine(w: u32, h: u32) -> Vec<u32> {
+    let mut out = Vec::with_capacity((w * h) as usize);
+    let mut spacing = 32u32;
+    loop {
+        for y in (0..h).step_by(spacing as usize) {
+            for x in (0..w).step_by(spacing as usize) {
+                let coarser = 2 * spacing;
+                if spacing == 32 || x % coarser != 0 || y % coarser != 0 {
+                    out.push(y * w + x);
+                }
+            }
+        }
+        if spacing == 1 {
+            return out;
+        }
+        spacing /= 2;
+    }
+}
+
+/// Words of one record's map; re-exported for the file format.
+pub(crate) fn map_words(m: u32) -> usize {
+    words_per_map(m)
+}

@@ -1,0 +1,550 @@
+//! The cache against brute force: lookups against a linear scan implementing §5.1 from the
+//! formulas, concurrency under a read-write mix, deterministic builds, eviction, and the
+//! file format under truncation and corruption.
+
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+use super::*;
+use crate::sampling::rng::{hash4, to_unit_f32};
+use crate::scenes;
+use crate::testing::{synthetic_record, to_world};
+
+fn unit(seed: u64, k: u64) -> f32 {
+    to_unit_f32(hash4(seed, k, 0, 7))
+}
+
+fn random_dir(seed: u64, k: u64) -> Vec3 {
+    let z = 2.0 * unit(seed, 2 * k) - 1.0;
+    let phi = std::f32::consts::TAU * unit(seed, 2 * k + 1);
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// §5.1 by a linear scan over every record, straight from the formulas.
+fn brute_lookup(c: &VisibilityCache, x: Vec3, n: Vec3, d_max: f32) -> Vec<(u32, f32)> {
+    let p = c.params();
+    let s = c.read();
+    let mut near: Vec<(f32, u32)> = (0..s.len())
+        .map(|i| (s.store().header(i).position().distance_squared(x), i as u32))
+        .filter(|&(d2, _)| d2 <= d_max * d_max)
+        .collect();
+    near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    near.truncate(p.m_search as usize);
+    let theta_max = p.theta_max_deg.to_radians();
+    let lam = p.lambda_falloff;
+    let w = |x: f32, t: f32| (1.0 - t / std::f32::consts::PI) * (1.0 - x / (1.0 + lam * x));
+    let w_lo = w(1.0, theta_max);
+    let mut scored: Vec<(f32, f32, u32)> = near
+        .iter()
+        .filter_map(|&(d2, id)| {
+            let h = s.store().header(id as usize);
+            let theta = n.dot(h.normal()).clamp(-1.0, 1.0).acos();
+            if theta >= theta_max {
+                return None;
+            }
+            let d = d2.sqrt();
+            let w_hat = ((w(d / d_max, theta) - w_lo) / (1.0 - w_lo)).clamp(0.0, 1.0);
+            let v = h.position() - x;
+            let w_g = if d > 0.0 {
+                (1.0 - (n.dot(v) / v.length()).abs().min(1.0)).sqrt()
+            } else {
+                1.0
+            };
+            let wi = w_g * w_hat;
+            (wi > 0.0).then_some((wi, d, id))
+        })
+        .collect();
+    scored.sort_by(|a, b| {
+        b.0.total_cmp(&a.0)
+            .then(a.1.total_cmp(&b.1))
+            .then(a.2.cmp(&b.2))
+    });
+    scored.truncate(p.n_keep as usize);
+    let total: f32 = scored.iter().map(|s| s.0).sum();
+    scored.iter().map(|&(wi, _, id)| (id, wi / total)).collect()
+}
+
+/// `count` synthetic records on a 1 x 1 patch of the plane y = 0 with normals tilted up to
+/// 40° from +y, some sharing positions (a grid of 0.05) as records on flat geometry do.
+fn patch_cache(params: CacheParams, count: u64, seed: u64) -> VisibilityCache {
+    let c = VisibilityCache::new(params).unwrap();
+    for k in 0..count {
+        let snap = |v: f32| (v * 20.0).round() / 20.0;
+        let p = Vec3::new(snap(unit(seed, 3 * k)), 0.0, snap(unit(seed, 3 * k + 1)));
+        let tilt = 40f32.to_radians() * unit(seed, 3 * k + 2);
+        let n = to_world(Vec3::new(tilt.sin(), 0.0, tilt.cos()), Vec3::Y).normalize();
+        let n = Quat::from_rotation_y(std::f32::consts::TAU * unit(seed ^ 1, k)) * n;
+        let r = synthetic_record(params.log2_resolution, p, n, 0.7, seed + k);
+        c.insert_record(&r).unwrap().unwrap();
+    }
+    c
+}
+
+use glam::Quat;
+
+fn assert_matches_brute(c: &VisibilityCache, x: Vec3, n: Vec3, d_max: f32) {
+    let got = c.lookup(x, n, d_max);
+    let want = brute_lookup(c, x, n, d_max);
+    let ids: Vec<u32> = got.neighbours().iter().map(|k| k.id).collect();
+    let want_ids: Vec<u32> = want.iter().map(|w| w.0).collect();
+    assert_eq!(ids, want_ids, "x {x} n {n} d_max {d_max}");
+    for (k, w) in got.neighbours().iter().zip(&want) {
+        assert!((k.beta - w.1).abs() < 1e-5, "{} vs {}", k.beta, w.1);
+    }
+    if !want.is_empty() {
+        let sum: f32 = got.neighbours().iter().map(|k| k.beta).sum();
+        assert!((sum - 1.0).abs() < 1e-5);
+    }
+}
+
+#[test]
+fn lookups_equal_a_linear_scan_of_eq9_with_the_geometric_term() {
+    let c = patch_cache(CacheParams::MEDIUM, 3000, 11);
+    let s = c.read();
+    let mut queries = Vec::new();
+    for k in 0..400u64 {
+        let x = Vec3::new(
+            unit(5, 3 * k),
+            0.02 * (unit(5, 3 * k + 1) - 0.5),
+            unit(5, 3 * k + 2),
+        );
+        let n = (Vec3::Y + 0.4 * random_dir(6, k)).normalize();
+        queries.push((x, n, 0.01 + 0.2 * unit(8, k)));
+    }
+    // Records exactly at x, with their own normal (θ = 0) and with one just inside θ_max.
+    for id in [0usize, 17, 1234] {
+        let h = s.store().header(id);
+        queries.push((h.position(), h.normal(), 0.1));
+        let (t, _) = crate::testing::orthonormal_basis(h.normal());
+        let just_under = Quat::from_axis_angle(t, 29.9f32.to_radians()) * h.normal();
+        queries.push((h.position(), just_under, 0.1));
+    }
+    drop(s);
+    for (x, n, d) in queries {
+        assert_matches_brute(&c, x, n, d);
+    }
+}
+
+#[test]
+fn lookup_extremes() {
+    let empty = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
+    let l = empty.lookup(Vec3::ZERO, Vec3::Y, 1.0);
+    assert!(l.neighbours().is_empty() && l.max_weight == 0.0);
+    assert!(l.needs_record(empty.params()));
+
+    let c = patch_cache(CacheParams::MEDIUM, 500, 3);
+    let x = Vec3::new(0.5, 0.0, 0.5);
+    // A tiny d_max finds at most the records exactly at x; a huge one the m nearest.
+    assert!(c
+        .lookup(x + Vec3::X * 1e-3, Vec3::Y, 1e-9)
+        .neighbours()
+        .is_empty());
+    assert_matches_brute(&c, x, Vec3::Y, 1e-9);
+    assert_matches_brute(&c, x, Vec3::Y, 1e9);
+    // Zero, negative, NaN and infinite radii find nothing instead of failing.
+    for d in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+        assert!(c.lookup(x, Vec3::Y, d).neighbours().is_empty());
+    }
+    // θ_max = 0 accepts nothing (θ_i < 0 never holds); 180° accepts all but antipodes.
+    let narrow = VisibilityCache::new(CacheParams {
+        theta_max_deg: 0.0,
+        ..CacheParams::MEDIUM
+    })
+    .unwrap();
+    narrow
+        .insert_record(&synthetic_record(5, x, Vec3::Y, 0.5, 1))
+        .unwrap();
+    assert!(narrow.lookup(x, Vec3::Y, 1.0).neighbours().is_empty());
+    let wide = VisibilityCache::new(CacheParams {
+        theta_max_deg: 180.0,
+        ..CacheParams::MEDIUM
+    })
+    .unwrap();
+    for (k, n) in [Vec3::Y, Vec3::X, -Vec3::Y].into_iter().enumerate() {
+        wide.insert_record(&synthetic_record(5, x, n, 0.5, k as u64))
+            .unwrap();
+    }
+    let l = wide.lookup(x, Vec3::Y, 1.0);
+    let ids: Vec<u32> = l.neighbours().iter().map(|k| k.id).collect();
+    assert_eq!(ids, vec![0, 1]);
+    // Same position, weights from θ alone: (1 − θ/π) normalised with w_lo = 0.
+    assert!((l.neighbours()[1].weight - 0.5).abs() < 1e-5);
+    assert_matches_brute(&wide, x, Vec3::Y, 1.0);
+}
+
+#[test]
+fn many_records_at_one_position_with_different_normals() {
+    // More coincident records than a kd-tree bucket holds: they share one tree item.
+    let c = VisibilityCache::new(CacheParams {
+        theta_max_deg: 180.0,
+        ..CacheParams::MEDIUM
+    })
+    .unwrap();
+    let x = Vec3::new(1.0, 2.0, 3.0);
+    for k in 0..300u64 {
+        c.insert_record(&synthetic_record(5, x, random_dir(2, k), 0.5, k))
+            .unwrap();
+    }
+    assert_eq!(c.len(), 300);
+    for k in 0..20u64 {
+        let n = random_dir(9, k);
+        assert_matches_brute(&c, x, n, 0.5);
+        assert_matches_brute(&c, x + 0.1 * random_dir(10, k), n, 0.5);
+    }
+}
+
+#[test]
+fn kept_count_larger_than_found_and_beta_sum_to_one() {
+    let params = CacheParams {
+        n_keep: 16,
+        ..CacheParams::MEDIUM
+    };
+    let c = VisibilityCache::new(params).unwrap();
+    for k in 0..3 {
+        let p = Vec3::new(0.01 * k as f32, 0.0, 0.0);
+        c.insert_record(&synthetic_record(5, p, Vec3::Y, 0.5, k))
+            .unwrap();
+    }
+    let l = c.lookup(Vec3::new(0.005, 0.0, 0.001), Vec3::Y, 1.0);
+    assert_eq!(l.neighbours().len(), 3);
+    let sum: f32 = l.neighbours().iter().map(|k| k.beta).sum();
+    assert!((sum - 1.0).abs() < 1e-6);
+}
+
+#[test]
+fn mean_difference_and_interpolation_from_the_bits() {
+    let c = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
+    let recs: Vec<Record> = (0..3)
+        .map(|k| synthetic_record(5, Vec3::new(0.01 * k as f32, 0.0, 0.0), Vec3::Y, 0.5, k))
+        .collect();
+    for r in &recs {
+        c.insert_record(r).unwrap();
+    }
+    let l = c.lookup(Vec3::new(0.01, 0.0, 0.0), Vec3::Y, 1.0);
+    assert_eq!(l.neighbours().len(), 3);
+    let d = |a: usize, b: usize| {
+        (0..1024)
+            .filter(|&z| recs[a].bits.get(z) != recs[b].bits.get(z))
+            .count() as f32
+            / 1024.0
+    };
+    let want = (d(0, 1) + d(0, 2) + d(1, 2)) / 3.0;
+    assert!((l.mean_difference - want).abs() < 1e-6);
+    let mut map = vec![0.0; 1024];
+    c.read().interpolate(&l, &mut map);
+    for z in 0..1024usize {
+        let t = morton_decode(z as u32);
+        let want: f32 = l
+            .neighbours()
+            .iter()
+            .map(|k| {
+                if recs[k.id as usize].bits.get(z) {
+                    k.beta
+                } else {
+                    0.0
+                }
+            })
+            .sum();
+        assert!((map[t.y as usize * 32 + t.x as usize] - want).abs() < 1e-6);
+    }
+}
+
+#[test]
+fn concurrent_inserts_and_lookups_lose_nothing_and_see_whole_records() {
+    // Every record's bits are a function of its position, so a reader can tell a torn or
+    // mismatched record from a whole one.
+    let params = CacheParams {
+        max_records: 200_000,
+        ..CacheParams::MEDIUM.with_log2_resolution(3)
+    };
+    let c = Arc::new(VisibilityCache::new(params).unwrap());
+    const WRITERS: u64 = 2;
+    const PER_WRITER: u64 = 50_000;
+    let done = Arc::new(AtomicBool::new(false));
+    let seed_of = |p: Vec3| (p.x.to_bits() as u64) << 32 | p.z.to_bits() as u64;
+    std::thread::scope(|s| {
+        let mut writers = Vec::new();
+        for w in 0..WRITERS {
+            let c = c.clone();
+            writers.push(s.spawn(move || {
+                for k in 0..PER_WRITER {
+                    let i = w * PER_WRITER + k;
+                    let p = Vec3::new(unit(21, 2 * i) * 10.0, 0.0, unit(21, 2 * i + 1) * 10.0);
+                    let r = synthetic_record(3, p, Vec3::Y, 0.5, seed_of(p));
+                    c.insert_record(&r).unwrap().unwrap();
+                }
+            }));
+        }
+        for t in 0..2u64 {
+            let (c, done) = (c.clone(), done.clone());
+            s.spawn(move || {
+                let mut k = 0u64;
+                while !done.load(Ordering::Relaxed) || k < 1000 {
+                    let x = Vec3::new(
+                        unit(30 + t, 2 * k) * 10.0,
+                        0.0,
+                        unit(30 + t, 2 * k + 1) * 10.0,
+                    );
+                    let state = c.read();
+                    let l = state.lookup(c.params(), x, Vec3::Y, 0.3);
+                    for n in l.neighbours() {
+                        let h = state.store().header(n.id as usize);
+                        let want =
+                            synthetic_record(3, h.position(), Vec3::Y, 0.5, seed_of(h.position()));
+                        assert_eq!(
+                            state.store().bits(n.id as usize).words(),
+                            want.bits.view().words()
+                        );
+                    }
+                    k += 1;
+                }
+            });
+        }
+        // Flag the readers once the writers are done (or have failed).
+        for w in writers {
+            let finished = w.join();
+            if finished.is_err() {
+                done.store(true, Ordering::Relaxed);
+                panic!("a writer failed");
+            }
+        }
+        done.store(true, Ordering::Relaxed);
+    });
+    assert_eq!(c.len(), (WRITERS * PER_WRITER) as usize);
+    assert_eq!(c.counters().inserted, WRITERS * PER_WRITER);
+    // Every record is findable at its own position.
+    let s = c.read();
+    for i in (0..s.len()).step_by(97) {
+        let h = s.store().header(i);
+        let l = s.lookup(c.params(), h.position(), Vec3::Y, 1e-6);
+        assert!(
+            l.neighbours().iter().any(|n| n.id == i as u32),
+            "record {i} lost"
+        );
+    }
+}
+
+fn small_cornell() -> (scenes::Setup, Camera) {
+    let setup = scenes::load("cornell", 0.5, 0).unwrap();
+    let cam = setup.camera.with_resolution(48, 36).unwrap();
+    (setup, cam)
+}
+
+#[test]
+fn builds_are_identical_for_any_thread_count() {
+    let (setup, cam) = small_cornell();
+    let params = CacheParams {
+        n_startup: 100,
+        ..CacheParams::MEDIUM
+    };
+    let build = |threads| {
+        let c = VisibilityCache::new(params).unwrap();
+        let r = c
+            .build(&setup.scene, &cam, 3, Some(threads), None, &mut |_, _| true)
+            .unwrap();
+        (c.to_bytes(), r)
+    };
+    let (one, r1) = build(1);
+    let (two, r2) = build(2);
+    assert!(r1.records > r1.bootstrap_records && r1.complete);
+    assert_eq!(r1.records, r2.records);
+    assert_eq!(r1.shadow_rays, r2.shadow_rays);
+    assert!(one == two, "caches differ");
+    // Amortised cost is the record rays over the pixels.
+    assert_eq!(
+        r1.shadow_rays_per_pixel,
+        r1.shadow_rays as f64 / (48.0 * 36.0)
+    );
+    // After a build, every covered pixel finds records that satisfy the criteria
+    // unless the cache was full.
+    let c = VisibilityCache::load_bytes_for_test(&one);
+    let g = GBuffer::render(&setup.scene, &cam, 3, false, None).unwrap();
+    for i in 0..g.object.len() {
+        if g.object[i] >= 0 {
+            let l = c.lookup(
+                g.position[i].into(),
+                g.normal[i].into(),
+                12.0 * g.footprint[i],
+            );
+            assert!(!l.needs_record(c.params()), "pixel {i}");
+        }
+    }
+}
+
+#[test]
+fn build_stops_on_request_and_reports_incomplete() {
+    let (setup, cam) = small_cornell();
+    // More pixels than one wave, so stopping after the first leaves work undone.
+    let cam = cam.with_resolution(96, 72).unwrap();
+    let c = VisibilityCache::new(CacheParams {
+        n_startup: 10,
+        ..CacheParams::MEDIUM
+    })
+    .unwrap();
+    let mut calls = 0;
+    let r = c
+        .build(&setup.scene, &cam, 0, Some(2), None, &mut |_, _| {
+            calls += 1;
+            false
+        })
+        .unwrap();
+    assert_eq!(calls, 1);
+    assert!(!r.complete);
+    assert!(c
+        .build(&setup.scene, &cam, 0, None, Some(-1.0), &mut |_, _| true)
+        .is_err());
+    assert!(c
+        .build(
+            &crate::geometry::Scene::new(),
+            &cam,
+            0,
+            None,
+            None,
+            &mut |_, _| true
+        )
+        .is_err());
+}
+
+#[test]
+fn coarse_to_fine_visits_every_pixel_once() {
+    for (w, h) in [(1, 1), (48, 36), (100, 7), (64, 64)] {
+        let mut o = coarse_to_fine(w, h);
+        assert_eq!(o[0], 0);
+        o.sort_unstable();
+        assert_eq!(o, (0..w * h).collect::<Vec<_>>());
+    }
+}
+
+#[test]
+fn eviction_by_miss_rate_by_rank_and_by_age() {
+    let c = patch_cache(CacheParams::MEDIUM, 50, 4);
+    let before: Vec<[f32; 3]> = (0..50)
+        .map(|i| c.read().store().header(i).position)
+        .collect();
+    // Record 7 disagrees on 1 sample in 10 (> 5%), record 8 on 1 in 100 (kept).
+    c.record_misses(&[7, 8, 9], &[1, 1, 0], &[10, 100, 5])
+        .unwrap();
+    assert!(c.record_misses(&[50], &[0], &[1]).is_err());
+    assert!(c.record_misses(&[1], &[2], &[1]).is_err());
+    assert!(c.record_misses(&[1, 2], &[0], &[1]).is_err());
+    let r = c.end_frame();
+    assert_eq!((r.frame, r.by_misses, r.unused, r.remaining), (0, 1, 0, 49));
+    let after: Vec<[f32; 3]> = (0..49)
+        .map(|i| c.read().store().header(i).position)
+        .collect();
+    let mut expect = before.clone();
+    expect.remove(7);
+    assert_eq!(after, expect, "kept records keep their order");
+    assert_eq!(
+        c.read().store().header(7).uses,
+        0,
+        "counters restart each frame"
+    );
+    // The k worst instead of a threshold.
+    let worst = VisibilityCache::new(CacheParams {
+        evict_worst: 2,
+        ..CacheParams::MEDIUM
+    })
+    .unwrap();
+    for k in 0..5 {
+        worst
+            .insert_record(&synthetic_record(5, Vec3::X * k as f32, Vec3::Y, 0.5, k))
+            .unwrap();
+    }
+    worst
+        .record_misses(&[0, 1, 2, 3], &[1, 3, 2, 0], &[100, 100, 100, 100])
+        .unwrap();
+    assert_eq!(worst.end_frame().by_misses, 2);
+    let xs: Vec<f32> = (0..3)
+        .map(|i| worst.read().store().header(i).position[0])
+        .collect();
+    assert_eq!(xs, vec![0.0, 3.0, 4.0]);
+    // Unused records age out after F frames; a used one stays.
+    let aging = VisibilityCache::new(CacheParams {
+        unused_frames: 3,
+        ..CacheParams::MEDIUM
+    })
+    .unwrap();
+    for k in 0..2 {
+        aging
+            .insert_record(&synthetic_record(5, Vec3::X * k as f32, Vec3::Y, 0.5, k))
+            .unwrap();
+    }
+    let mut unused = 0;
+    for _ in 0..3 {
+        aging.record_misses(&[1], &[0], &[1]).unwrap();
+        unused += aging.end_frame().unused;
+    }
+    assert_eq!((unused, aging.len()), (0, 2));
+    aging.record_misses(&[1], &[0], &[1]).unwrap();
+    assert_eq!(aging.end_frame().unused, 1);
+    assert_eq!(aging.read().store().header(0).position[0], 1.0);
+    // Lookups still work after compaction.
+    assert_matches_brute(&c, Vec3::new(0.5, 0.0, 0.5), Vec3::Y, 0.3);
+}
+
+#[test]
+fn max_records_refuses_insertions() {
+    let c = VisibilityCache::new(CacheParams {
+        max_records: 3,
+        ..CacheParams::MEDIUM
+    })
+    .unwrap();
+    for k in 0..5u64 {
+        let got = c
+            .insert_record(&synthetic_record(5, Vec3::X * k as f32, Vec3::Y, 0.5, k))
+            .unwrap();
+        assert_eq!(got.is_some(), k < 3);
+    }
+    assert_eq!((c.len(), c.counters().refused_full), (3, 2));
+}
+
+#[test]
+fn files_round_trip_and_reject_truncation_and_corruption() {
+    let c = patch_cache(
+        CacheParams {
+            n_keep: 3,
+            ..CacheParams::HIGH
+        },
+        40,
+        9,
+    );
+    c.record_misses(&[3], &[1], &[4]).unwrap();
+    let bytes = c.to_bytes();
+    let back = VisibilityCache::from_bytes(&bytes, Path::new("mem")).unwrap();
+    assert_eq!(back.params(), c.params());
+    assert!(back.to_bytes() == bytes);
+    assert_matches_brute(&back, Vec3::new(0.5, 0.0, 0.5), Vec3::Y, 0.3);
+    for cut in [0, 5, 8, 12, 40, 100, bytes.len() / 2, bytes.len() - 1] {
+        let e = VisibilityCache::from_bytes(&bytes[..cut], Path::new("cut.vc")).unwrap_err();
+        assert!(e.to_string().starts_with("cut.vc"), "{e}");
+    }
+    for at in (0..bytes.len()).step_by(37) {
+        let mut bad = bytes.clone();
+        bad[at] ^= 0x10;
+        assert!(
+            VisibilityCache::from_bytes(&bad, Path::new("flip")).is_err(),
+            "byte {at}"
+        );
+    }
+    let mut longer = bytes.clone();
+    longer.push(0);
+    assert!(VisibilityCache::from_bytes(&longer, Path::new("long")).is_err());
+    // Inconsistent hierarchy codes with a valid checksum are still refused.
+    let mut forged = bytes[..bytes.len() - 8].to_vec();
+    let last_word = forged.len() - 8;
+    forged[last_word] ^= 0b11;
+    let sum = super::io::checksum(&forged);
+    forged.extend(sum.to_le_bytes());
+    let e = VisibilityCache::from_bytes(&forged, Path::new("forged")).unwrap_err();
+    assert!(e.to_string().contains("hierarchy"), "{e}");
+}
+
+use std::path::Path;
+
+impl VisibilityCache {
+    fn load_bytes_for_test(bytes: &[u8]) -> Self {
+        Self::from_bytes(bytes, Path::new("test")).unwrap()
+    }
+}
