@@ -67,8 +67,10 @@ mod tests;
 const BUCKET: usize = 64;
 /// End of a chain of records sharing one position.
 const NO_RECORD: u32 = u32::MAX;
-/// Pixels looked up per build wave.
+/// Most pixels looked up per build wave.
 pub const BUILD_WAVE: usize = 4096;
+/// Fewest pixels per build wave (fewer would leave threads idle).
+pub const MIN_BUILD_WAVE: usize = 32;
 
 type Tree = KdTree<f32, u32, 3, BUCKET, u32>;
 
@@ -701,7 +703,8 @@ impl VisibilityCache {
     /// G-buffer (pixel centres) applying §5.2's two criteria with `d_max = k · footprint`.
     ///
     /// Deterministic for any `threads`: pixels go coarse to fine (every 32nd pixel of every
-    /// 32nd row first, then the ones between, …) in waves of [`BUILD_WAVE`]; a wave looks up
+    /// 32nd row first, then the ones between, …) in waves within a level, of a quarter of
+    /// the records (between [`MIN_BUILD_WAVE`] and [`BUILD_WAVE`] pixels); a wave looks up
     /// in parallel, traces the requested records in parallel, then inserts them in that
     /// order, re-checking each against the records inserted before it (the losers' rays are
     /// still counted). `progress(done, total)` is called after each wave with pixels done;
@@ -739,21 +742,30 @@ impl VisibilityCache {
             if self.is_empty() {
                 report.bootstrap_records = self.bootstrap(scene, camera, seed)?;
             }
-            let order = coarse_to_fine(camera.width, camera.height);
-            let order: Vec<u32> = order
-                .into_iter()
-                .filter(|&i| gbuffer.object[i as usize] >= 0)
-                .collect();
-            let total = order.len();
-            for (w, wave) in order.chunks(BUILD_WAVE).enumerate() {
-                let (inserted, discarded) = self.refine_wave(scene, &gbuffer, wave)?;
-                report.refined_records += inserted;
-                report.discarded_records += discarded;
-                let done = ((w + 1) * BUILD_WAVE).min(total);
-                let over = time_budget.is_some_and(|b| start.elapsed().as_secs_f64() >= b);
-                if !progress(done, total) || (over && done < total) {
-                    report.complete = done == total;
-                    break;
+            let levels = coarse_to_fine_levels(camera.width, camera.height);
+            let total: usize = gbuffer.object.iter().filter(|&&o| o >= 0).count();
+            let mut done = 0;
+            'levels: for level in levels {
+                let mut fresh = level
+                    .into_iter()
+                    .filter(|&i| gbuffer.object[i as usize] >= 0)
+                    .peekable();
+                let mut deferred: Vec<u32> = Vec::new();
+                while fresh.peek().is_some() || !deferred.is_empty() {
+                    // Deferred pixels first, then fresh ones, in their order.
+                    let size = self.wave_size().max(deferred.len());
+                    let mut wave = std::mem::take(&mut deferred);
+                    wave.extend(fresh.by_ref().take(size - wave.len()));
+                    let (inserted, discarded, later) = self.refine_wave(scene, &gbuffer, &wave)?;
+                    report.refined_records += inserted;
+                    report.discarded_records += discarded;
+                    done += wave.len() - later.len();
+                    deferred = later;
+                    let over = time_budget.is_some_and(|b| start.elapsed().as_secs_f64() >= b);
+                    if !progress(done, total) || (over && done < total) {
+                        report.complete = done == total;
+                        break 'levels;
+                    }
                 }
             }
             Ok(())
@@ -807,8 +819,25 @@ impl VisibilityCache {
         Ok(inserted)
     }
 
-    /// One build wave (see [`Self::build`]); returns (inserted, discarded).
-    fn refine_wave(&self, scene: &Scene, g: &GBuffer, wave: &[u32]) -> Result<(usize, usize)> {
+    /// Pixels in the next build wave: a quarter of the records (so a wave rarely asks twice
+    /// for the same neighbourhood before either record exists), in
+    /// `MIN_BUILD_WAVE..=BUILD_WAVE`. A function of the cache alone, hence deterministic.
+    fn wave_size(&self) -> usize {
+        (self.len() / 4).clamp(MIN_BUILD_WAVE, BUILD_WAVE)
+    }
+
+    /// One build wave (see [`Self::build`]); returns (inserted, discarded, deferred pixels).
+    ///
+    /// Requests closer than `d_max / 2` (with normals within `θ_max`) to an earlier request
+    /// of the same wave are deferred to the next wave instead of traced: the earlier one's
+    /// record will most likely serve them, and tracing both would waste one. The first
+    /// request always goes ahead, so every wave makes progress.
+    fn refine_wave(
+        &self,
+        scene: &Scene,
+        g: &GBuffer,
+        wave: &[u32],
+    ) -> Result<(usize, usize, Vec<u32>)> {
         let k = self.params.d_max_scale;
         let query = |i: u32| {
             let i = i as usize;
@@ -818,7 +847,7 @@ impl VisibilityCache {
                 k * g.footprint[i],
             )
         };
-        let requests: Vec<u32> = {
+        let wanted: Vec<u32> = {
             let state = self.read();
             wave.par_iter()
                 .copied()
@@ -830,6 +859,21 @@ impl VisibilityCache {
                 })
                 .collect()
         };
+        let cos_max = self.params.theta_max().cos();
+        let mut requests: Vec<u32> = Vec::with_capacity(wanted.len());
+        let mut deferred = Vec::new();
+        for &i in &wanted {
+            let (x, n, d) = query(i);
+            let near = requests.iter().any(|&j| {
+                let (y, m, _) = query(j);
+                x.distance_squared(y) < 0.25 * d * d && n.dot(m) > cos_max
+            });
+            if near {
+                deferred.push(i);
+            } else {
+                requests.push(i);
+            }
+        }
         self.lookups.fetch_add(wave.len() as u64, Ordering::Relaxed);
         let traced: Vec<(Record, RecordRays)> = requests
             .par_iter()
@@ -855,7 +899,7 @@ impl VisibilityCache {
         }
         self.lookups
             .fetch_add(requests.len() as u64, Ordering::Relaxed);
-        Ok((inserted, discarded))
+        Ok((inserted, discarded, deferred))
     }
 }
 
@@ -864,22 +908,24 @@ fn count_rays(c: &mut CacheCounters, rays: RecordRays) {
     c.nearest_rays += rays.nearest as u64;
 }
 
-/// Pixel indices of a `w x h` image, coarse to fine: those on the grid of spacing 32, then
-/// the new ones of spacing 16, …, 1; row-major within a level.
-pub fn coarse_to_fine(w: u32, h: u32) -> Vec<u32> {
-    let mut out = Vec::with_capacity((w * h) as usize);
+/// Pixel indices of a `w x h` image, coarse to fine, one list per level: the pixels on the
+/// grid of spacing 32, then the new ones of spacing 16, …, 1; row-major within a level.
+pub fn coarse_to_fine_levels(w: u32, h: u32) -> Vec<Vec<u32>> {
+    let mut levels = Vec::new();
     let mut spacing = 32u32;
     loop {
+        let mut level = Vec::new();
         for y in (0..h).step_by(spacing as usize) {
             for x in (0..w).step_by(spacing as usize) {
                 let coarser = 2 * spacing;
                 if spacing == 32 || x % coarser != 0 || y % coarser != 0 {
-                    out.push(y * w + x);
+                    level.push(y * w + x);
                 }
             }
         }
+        levels.push(level);
         if spacing == 1 {
-            return out;
+            return levels;
         }
         spacing /= 2;
     }

@@ -10,8 +10,16 @@
 //!
 //! The presets differ only in how densely the cache refines: a complex scene (many small
 //! occluders) wants a higher `w_min`, a lower `δ̄_max` and a stricter `ε_max`. The paper
-//! leaves the values to the user; ours were chosen on the built-in scenes at 256 x 192
-//! (issue-4 closing note) and every one can be overridden.
+//! leaves the values to the user; ours were chosen on the built-in scenes at 256 x 192,
+//! and every one can be overridden. Two facts guided them:
+//!
+//! - Normalised by `w_lo`, a record at the full distance `d_max` with an equal normal still
+//!   weighs `ŵ ≈ 0.45` (`θ_max = 30°`, `λ = 5`), so `w_min` below that only inserts where
+//!   no record is in range at all; `w_min = 0.5` keeps a record within about `0.7 d_max` of
+//!   every point (on flat ground, normals equal), `0.55` within `0.43 d_max`, `0.6` within
+//!   `0.31 d_max`.
+//! - `k = 12` footprints is CAM08's "5% of the image width" at 256 pixels across; for the
+//!   same world-space density at width `W`, use `k = 0.05 W`.
 
 use crate::error::{Error, Result};
 use crate::sampling::pattern::{
@@ -66,9 +74,8 @@ pub struct CacheParams {
 impl CacheParams {
     /// Simple scenes: few, large occluders. Sparse records, tolerant thresholds.
     pub const LOW: Self = Self {
-        d_max_scale: 16.0,
-        w_min: 0.2,
-        delta_max: 0.08,
+        w_min: 0.5,
+        delta_max: 0.05,
         epsilon_max: 0.08,
         n_startup: 500,
         max_records: 200_000,
@@ -85,8 +92,8 @@ impl CacheParams {
         lambda_falloff: 5.0,
         m_search: 16,
         n_keep: 4,
-        w_min: 0.3,
-        delta_max: 0.05,
+        w_min: 0.55,
+        delta_max: 0.03,
         epsilon_max: 0.05,
         evict_worst: 0,
         unused_frames: 10,
@@ -96,9 +103,8 @@ impl CacheParams {
 
     /// Complex occlusion (foliage, many small parts): dense records, strict thresholds.
     pub const HIGH: Self = Self {
-        d_max_scale: 8.0,
-        w_min: 0.4,
-        delta_max: 0.03,
+        w_min: 0.6,
+        delta_max: 0.02,
         epsilon_max: 0.03,
         n_startup: 2000,
         max_records: 2_000_000,
@@ -214,7 +220,7 @@ mod tests {
         let (l, m, h) = (CacheParams::LOW, CacheParams::MEDIUM, CacheParams::HIGH);
         assert!(l.w_min < m.w_min && m.w_min < h.w_min);
         assert!(l.delta_max > m.delta_max && m.delta_max > h.delta_max);
-        assert!(l.d_max_scale > m.d_max_scale && m.d_max_scale > h.d_max_scale);
+        assert!(l.epsilon_max > m.epsilon_max && m.epsilon_max > h.epsilon_max);
         assert_eq!(
             CacheParams::preset("medium").unwrap(),
             CacheParams::default()

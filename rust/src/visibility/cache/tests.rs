@@ -375,8 +375,6 @@ fn builds_are_identical_for_any_thread_count() {
 #[test]
 fn build_stops_on_request_and_reports_incomplete() {
     let (setup, cam) = small_cornell();
-    // More pixels than one wave, so stopping after the first leaves work undone.
-    let cam = cam.with_resolution(96, 72).unwrap();
     let c = VisibilityCache::new(CacheParams {
         n_startup: 10,
         ..CacheParams::MEDIUM
@@ -409,7 +407,7 @@ fn build_stops_on_request_and_reports_incomplete() {
 #[test]
 fn coarse_to_fine_visits_every_pixel_once() {
     for (w, h) in [(1, 1), (48, 36), (100, 7), (64, 64)] {
-        let mut o = coarse_to_fine(w, h);
+        let mut o: Vec<u32> = coarse_to_fine_levels(w, h).concat();
         assert_eq!(o[0], 0);
         o.sort_unstable();
         assert_eq!(o, (0..w * h).collect::<Vec<_>>());
