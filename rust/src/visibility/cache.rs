@@ -265,8 +265,10 @@ impl CacheState {
         let mut best = 0.0f32;
         for &(d2, id) in cand {
             let h = self.store.header(id as usize);
-            let cos = n.dot(h.normal()).clamp(-1.0, 1.0);
-            let theta = cos.acos();
+            // atan2 of sine and cosine: accurate near θ = 0, where acos of an f32 dot
+            // product is off by up to 3e-4 rad.
+            let m = h.normal();
+            let theta = n.cross(m).length().atan2(n.dot(m));
             // θ_i < θ_max (strict, as in §5.1); NaN never passes.
             if theta.partial_cmp(&theta_max) != Some(std::cmp::Ordering::Less) {
                 continue;

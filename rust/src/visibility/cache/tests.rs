@@ -39,7 +39,7 @@ fn brute_lookup(c: &VisibilityCache, x: Vec3, n: Vec3, d_max: f32) -> Vec<(u32, 
         .iter()
         .filter_map(|&(d2, id)| {
             let h = s.store().header(id as usize);
-            let theta = n.dot(h.normal()).clamp(-1.0, 1.0).acos();
+            let theta = n.as_dvec3().angle_between(h.normal().as_dvec3()) as f32;
             if theta >= theta_max {
                 return None;
             }

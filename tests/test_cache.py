@@ -1,0 +1,364 @@
+"""The visibility cache (CAM08 sec. 5) from Python: record bits against ray-by-ray
+`scene.occluded`, differences and hierarchy against numpy, weights against a numpy eq. 9,
+insertion near occluders, determinism, eviction, files, extremes and bad input."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+import viscache_rs as vc
+
+
+def open_cornell() -> vc.Scene:
+    """The Cornell box without its ceiling and light: the closed box sees no sky (every
+    record would be all-occluded, so visibility differences could not show), the open one
+    sees it past the walls and blocks."""
+    setup = vc.scenes.load("cornell")
+    names = setup.scene.object_names()
+    tris = setup.scene.triangles()
+    ids = setup.scene.object_ids()
+    scene = vc.Scene()
+    for k, name in enumerate(names):
+        if name in ("ceiling", "light"):
+            continue
+        t = tris[ids == k]
+        faces = np.arange(3 * len(t)).reshape(-1, 3)
+        scene.add_mesh(t.reshape(-1, 3), faces, name=name)
+    return scene
+
+
+@pytest.fixture(scope="module")
+def cornell():
+    return vc.scenes.load("cornell")
+
+
+@pytest.fixture(scope="module")
+def open_box():
+    return open_cornell()
+
+
+def brute_bits(scene, cache, point, normal):
+    """Visibility of every record direction by one `occluded` call per ray."""
+    n = np.asarray(normal, np.float32) / np.linalg.norm(normal)
+    origin = scene.offset_points(np.asarray([point], np.float32), n[None])[0]
+    dirs = cache.directions()
+    r = cache.resolution
+    bits = np.zeros(r * r, bool)
+    for k, d in enumerate(dirs):
+        if float(np.dot(n, d)) > 0.0:
+            bits[k] = not scene.occluded(origin[None], d[None])[0]
+    return bits.reshape(r, r), dirs.reshape(r, r, 3) @ n <= 0.0
+
+
+@pytest.mark.parametrize("resolution", [2, 32, 128])
+def test_record_bits_equal_ray_by_ray_occlusion(open_box, resolution):
+    cache = vc.VisibilityCache(open_box, resolution=resolution)
+    points = [((0.1, 0.0, 1.8), (0, 1, 0)), ((2.0, 0.0, -0.2), (0, 1, 0)),
+              ((-2.75, 1.0, 0.5), (1, 0, 0)), ((0.2, 1.65, 0.8), (0.2, 1, 0.1))]
+    if resolution == 128:
+        points = points[:1]  # 16k rays one at a time
+    for p, n in points:
+        rid = cache.insert(p, n)
+        bits = cache.record_bits(rid)
+        want, below = brute_bits(open_box, cache, p, n)
+        assert bits.shape == (resolution, resolution) and bits.dtype == bool
+        np.testing.assert_array_equal(bits, want)
+        assert not bits[below].any()
+    d = cache.directions()
+    assert d.shape == (resolution**2, 3) and d.dtype == np.float32
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-6)
+    # Each direction lies in its own texel of the equal-area square (texel layout).
+    texels = vc.octahedral.texel_of(d, resolution)
+    r = resolution
+    np.testing.assert_array_equal(texels, np.stack([np.arange(r * r) % r, np.arange(r * r) // r], 1))
+
+
+def test_differences_and_hierarchy_from_numpy(open_box):
+    cache = vc.VisibilityCache(open_box, resolution=32, theta_max_deg=180.0, n_keep=4,
+                               m_search=4)
+    p0 = np.array([1.0, 0.0, 1.9])
+    ids = [cache.insert(p0 + (0.3 * k, 0, 0), (0, 1, 0)) for k in range(4)]
+    maps = [cache.record_bits(i) for i in ids]
+    look = cache.lookup([p0 + (0.45, 0, 0)], [(0, 1, 0)], radius=10.0, interpolate=True)
+    kept = look["ids"][0]
+    assert sorted(kept) == sorted(ids)
+    pairs = list(itertools.combinations([maps[ids.index(k)] for k in kept], 2))
+    mean = np.mean([np.count_nonzero(a ^ b) / a.size for a, b in pairs])
+    assert look["mean_difference"][0] == pytest.approx(mean, abs=1e-6)
+    beta = look["beta"][0]
+    want = sum(b * maps[ids.index(k)] for k, b in zip(kept, beta))
+    np.testing.assert_allclose(look["map"][0], want, atol=1e-6)
+    # (The 2-bit hierarchy codes are checked against numpy-style reductions of the bits in
+    # the core's record tests, which can see them.)
+
+
+def numpy_lookup(params, positions, normals, x, n, d_max):
+    """CAM08 sec. 5.1 with eq. 9 and w_g over all records, in float64."""
+    d = np.linalg.norm(positions - x, axis=1)
+    order = np.lexsort((np.arange(len(d)), d))
+    order = order[d[order] <= d_max][: params["m_search"]]
+    theta = np.arccos(np.clip(normals[order] @ n, -1, 1))
+    lam, tmax = params["lambda_falloff"], math.radians(params["theta_max_deg"])
+
+    def w(xx, t):
+        return (1 - t / math.pi) * (1 - xx / (1 + lam * xx))
+
+    w_lo = w(1.0, tmax)
+    keep = theta < tmax
+    order, theta, dd = order[keep], theta[keep], d[order][keep]
+    w_hat = np.clip((w(dd / d_max, theta) - w_lo) / (1 - w_lo), 0, 1)
+    v = positions[order] - x
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.abs(v @ n) / np.linalg.norm(v, axis=1)
+    w_g = np.where(dd > 0, np.sqrt(1 - np.minimum(c, 1)), 1.0)
+    wi = w_g * w_hat
+    rank = sorted(zip(-wi, dd, order))
+    rank = [(-a, o) for a, _, o in rank if -a > 0][: params["n_keep"]]
+    total = sum(a for a, _ in rank)
+    return [o for _, o in rank], [a / total for a, _ in rank], (wi.max() if len(wi) else 0.0)
+
+
+def test_weights_and_beta_equal_numpy_eq9(open_box):
+    rng = np.random.default_rng(4)
+    cache = vc.VisibilityCache(open_box, resolution=2, n_keep=4, m_search=16)
+    # Records on a patch of floor with tilted normals; some share a position.
+    pts = np.c_[rng.uniform(-0.5, 0.5, 200), np.zeros(200), rng.uniform(-0.5, 0.5, 200)]
+    pts[100:120] = pts[0]
+    nrm = np.c_[rng.normal(0, 0.3, 200), np.ones(200), rng.normal(0, 0.3, 200)]
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    for p, n in zip(pts, nrm):
+        cache.insert(p, n)
+    rec = cache.records()
+    positions, normals = rec["position"].astype(np.float64), rec["normal"].astype(np.float64)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    qs = np.c_[rng.uniform(-0.5, 0.5, 60), rng.normal(0, 0.01, 60), rng.uniform(-0.5, 0.5, 60)]
+    qn = np.c_[rng.normal(0, 0.3, 60), np.ones(60), rng.normal(0, 0.3, 60)]
+    qn /= np.linalg.norm(qn, axis=1, keepdims=True)
+    radii = rng.uniform(0.02, 0.3, 60)
+    # Records exactly at x (d = 0), with θ = 0 and θ just under θ_max; n > records found.
+    extra_p = [positions[0], positions[5], positions[5]]
+    extra_n = [normals[0], normals[5], None]
+    axis = np.cross(normals[5], [0, 0, 1.0])
+    axis /= np.linalg.norm(axis)
+    a = math.radians(29.9)
+    extra_n[2] = normals[5] * math.cos(a) + np.cross(axis, normals[5]) * math.sin(a)
+    qs = np.vstack([qs, extra_p, [[5.0, 0, 5.0]]])
+    qn = np.vstack([qn, extra_n, [[0, 1, 0]]])
+    radii = np.r_[radii, 0.1, 0.1, 0.1, 0.05]
+    got = cache.lookup(qs, qn, radius=radii)
+    params = cache.params
+    for i in range(len(qs)):
+        ids, beta, wmax = numpy_lookup(params, positions, normals, qs[i], qn[i], radii[i])
+        k = len(ids)
+        assert list(got["ids"][i][:k]) == ids, i
+        assert (got["ids"][i][k:] == -1).all()
+        np.testing.assert_allclose(got["beta"][i][:k], beta, atol=2e-5)
+        assert got["max_weight"][i] == pytest.approx(wmax, abs=2e-5)
+        if k:
+            assert got["beta"][i].sum() == pytest.approx(1.0, abs=1e-5)
+    assert got["ids"][-1][0] == -1  # nothing within reach
+    assert got["needs_record"][-1]
+
+
+def block_edges(scene):
+    """Points densely along the bottom edges of both Cornell blocks, (K, 2) in xz."""
+    tris, names, ids = scene.triangles(), scene.object_names(), scene.object_ids()
+    edges = []
+    for name in ("short_block", "tall_block"):
+        v = tris[ids == names.index(name)].reshape(-1, 3)
+        v = np.unique(v[np.abs(v[:, 1]) < 1e-3][:, [0, 2]], axis=0)
+        c = v.mean(0)
+        ring = v[np.argsort(np.arctan2(v[:, 1] - c[1], v[:, 0] - c[0]))]
+        for a, b in zip(ring, np.roll(ring, -1, axis=0)):
+            edges.append(a + np.linspace(0, 1, 40)[:, None] * (b - a))
+    return np.vstack(edges)
+
+
+def test_insertion_concentrates_records_near_contact_shadows(open_box, cornell):
+    """Records per unit floor area within 0.6 m of a block vs farther away, with the
+    visibility criterion (delta_max = 0.015) and without it (geometry only). A small
+    bootstrap (50) lets the criteria place nearly every record."""
+    cam = cornell.camera
+    edge = block_edges(open_box)
+
+    def dist(p):
+        return np.min(np.linalg.norm(edge[None] - p[:, None, [0, 2]], axis=2), axis=1)
+
+    g = open_box.gbuffer(cam, seed=0, jitter=False)
+    hits = g["position"].reshape(-1, 3)
+    on_floor = np.abs(hits[:, 1]) < 1e-3
+    # Floor area seen by the camera, from the pixels' footprints.
+    area = g["footprint"].reshape(-1)[on_floor] ** 2
+    near_px = dist(hits[on_floor]) < 0.6
+    area_near, area_far = area[near_px].sum(), area[~near_px].sum()
+    counts = {}
+    for label, delta_max in (("visibility", 0.015), ("geometry", 1.0)):
+        cache = vc.VisibilityCache(open_box, n_startup=50, delta_max=delta_max)
+        assert cache.build(cam, progress=False)["complete"]
+        pos = cache.records()["position"]
+        d = dist(pos[np.abs(pos[:, 1]) < 1e-3])
+        counts[label] = ((d < 0.6).sum(), (d >= 0.6).sum())
+    ratio = {k: (n / area_near) / (f / area_far) for k, (n, f) in counts.items()}
+    print(f"records near / far: {counts}; density ratio near/far {ratio}")
+    # Measured: 86 / 141 records with the criterion (ratio 1.99), 56 / 121 without (1.51).
+    assert ratio["visibility"] > 1.8
+    # The visibility criterion adds records near the blocks rather than everywhere (1.32x).
+    assert ratio["visibility"] > 1.2 * ratio["geometry"]
+
+
+def test_build_is_identical_for_one_and_two_threads(cornell):
+    cam = cornell.camera.with_resolution(64, 48)
+    caches = []
+    for threads in (1, 2):
+        c = vc.VisibilityCache(cornell.scene, n_startup=100)
+        c.build(cam, seed=5, threads=threads, progress=False)
+        caches.append(c)
+    a, b = caches
+    assert len(a) == len(b) > 100
+    ra, rb = a.records(), b.records()
+    for key in ra:
+        np.testing.assert_array_equal(ra[key], rb[key])
+    for i in range(0, len(a), 7):
+        np.testing.assert_array_equal(a.record_bits(i), b.record_bits(i))
+
+
+def test_build_report_and_stats(cornell):
+    cam = cornell.camera.with_resolution(64, 48)
+    c = vc.VisibilityCache(cornell.scene, n_startup=100)
+    r = c.build(cam, progress=True)
+    assert r["pixels"] == 64 * 48 and r["records"] == len(c)
+    assert r["records"] == r["bootstrap_records"] + r["refined_records"]
+    assert r["shadow_rays_per_pixel"] == pytest.approx(r["shadow_rays"] / r["pixels"])
+    s = c.stats()
+    assert s["bytes_per_record"] == 172 and s["memory_bytes"] == 172 * len(c)
+    assert s["shadow_rays"] == r["shadow_rays"] and s["inserted"] == len(c)
+    assert c.default_radius > 0
+    # A second build over the same view inserts nothing: every pixel is served.
+    again = c.build(cam, progress=False)
+    assert again["bootstrap_records"] == 0 and again["refined_records"] == 0
+    g = cornell.scene.gbuffer(cam, jitter=False)
+    look = c.lookup(g["position"].reshape(-1, 3), g["normal"].reshape(-1, 3),
+                    footprints=g["footprint"].reshape(-1))
+    assert look["ids"].shape == (64 * 48, 4)
+    assert not look["needs_record"].any()
+
+
+def test_eviction_and_aging(open_box):
+    c = vc.VisibilityCache(open_box, resolution=8, unused_frames=2)
+    for k in range(5):
+        c.insert((0.5 * k - 1, 0, 1.5), (0, 1, 0))
+    before = c.records()["position"]
+    # Record 2 is forced to disagree on 1 sample in 4; the others are used and right.
+    c.record_misses([0, 1, 2, 3], [0, 0, 1, 0], [10, 10, 4, 10])
+    r = c.end_frame()
+    assert (r["frame"], r["by_misses"], r["unused"], r["remaining"]) == (0, 1, 0, 4)
+    np.testing.assert_array_equal(c.records()["position"], np.delete(before, 2, axis=0))
+    assert c.frame == 1
+    # Record 3 (old id 4) was never used: it ages out after 2 frames.
+    c.record_misses([0, 1, 2], [0, 0, 0], [1, 1, 1])
+    assert c.end_frame()["unused"] == 0
+    c.record_misses([0, 1, 2], [0, 0, 0], [1, 1, 1])
+    r = c.end_frame()
+    assert r["unused"] == 1 and len(c) == 3
+    with pytest.raises(ValueError, match="ids"):
+        c.record_misses([7], [0], [1])
+    with pytest.raises(ValueError, match="misses"):
+        c.record_misses([0], [2], [1])
+    with pytest.raises(ValueError, match="misses"):
+        c.record_misses([0], [-1], [1])
+
+
+def test_save_and_load(tmp_path, open_box):
+    c = vc.VisibilityCache(open_box, resolution=16, preset="high", n_keep=3)
+    for k in range(20):
+        c.insert((0.1 * k - 1, 0, 1.5), (0, 1, 0))
+    path = tmp_path / "cache.vc"
+    c.save(path)
+    d = vc.VisibilityCache.load(path, open_box)
+    assert len(d) == 20 and d.params == c.params and d.resolution == 16
+    for i in range(20):
+        np.testing.assert_array_equal(d.record_bits(i), c.record_bits(i))
+    raw = path.read_bytes()
+    for cut in (0, 7, 30, len(raw) // 2, len(raw) - 1):
+        (tmp_path / "cut.vc").write_bytes(raw[:cut])
+        with pytest.raises(ValueError, match="cut.vc"):
+            vc.VisibilityCache.load(tmp_path / "cut.vc", open_box)
+    flipped = bytearray(raw)
+    flipped[len(raw) // 3] ^= 0x40
+    (tmp_path / "flip.vc").write_bytes(bytes(flipped))
+    with pytest.raises(ValueError, match="corrupted"):
+        vc.VisibilityCache.load(tmp_path / "flip.vc", open_box)
+    with pytest.raises(FileNotFoundError):
+        vc.VisibilityCache.load(tmp_path / "missing.vc", open_box)
+
+
+def test_extremes(open_box):
+    empty = vc.VisibilityCache(open_box)
+    look = empty.lookup([[0, 0, 0]], [[0, 1, 0]], radius=1.0)
+    assert look["ids"][0, 0] == -1 and look["needs_record"][0]
+    assert empty.lookup(np.zeros((0, 3)), np.zeros((0, 3)), radius=1.0)["ids"].shape == (0, 4)
+    # All records at one position with different normals (more than a kd-tree bucket).
+    c = vc.VisibilityCache(open_box, resolution=2, theta_max_deg=180.0)
+    rng = np.random.default_rng(1)
+    normals = rng.normal(size=(150, 3))
+    normals[:, 1] = np.abs(normals[:, 1]) + 0.1
+    for n in normals:
+        c.insert((0.3, 0.0, 1.0), n)
+    look = c.lookup([[0.3, 0.0, 1.0]], [[0, 1, 0]], radius=1e-6)
+    assert (look["ids"][0] >= 0).all()
+    # Tiny and huge radii; θ_max 0 finds nothing, 180 everything but antipodes.
+    assert c.lookup([[0.3, 1e-3, 1.0]], [[0, 1, 0]], radius=1e-9)["ids"][0, 0] == -1
+    assert (c.lookup([[9.0, 9.0, 9.0]], [[0, 1, 0]], radius=1e9)["ids"][0] >= 0).all()
+    narrow = vc.VisibilityCache(open_box, resolution=2, theta_max_deg=0.0)
+    narrow.insert((0.3, 0.0, 1.0), (0, 1, 0))
+    assert narrow.lookup([[0.3, 0, 1.0]], [[0, 1, 0]], radius=1.0)["ids"][0, 0] == -1
+
+
+def test_bad_input(open_box, cornell):
+    with pytest.raises(ValueError, match="resolution"):
+        vc.VisibilityCache(open_box, resolution=48)
+    with pytest.raises(ValueError, match="resolution"):
+        vc.VisibilityCache(open_box, resolution=256)
+    with pytest.raises(ValueError, match="preset"):
+        vc.VisibilityCache(open_box, preset="extreme")
+    with pytest.raises(TypeError, match="unknown parameter"):
+        vc.VisibilityCache(open_box, w_max=0.3)
+    for name, value in [("w_min", 1.5), ("delta_max", -0.1), ("theta_max_deg", 200.0),
+                        ("n_keep", 0), ("m_search", 65), ("d_max_scale", float("nan")),
+                        ("unused_frames", 0), ("max_records", 0), ("lambda_falloff", -1.0),
+                        ("epsilon_max", 2.0)]:
+        with pytest.raises(ValueError, match=name):
+            vc.VisibilityCache(open_box, **{name: value})
+    c = vc.VisibilityCache(open_box, resolution=4)
+    with pytest.raises(ValueError, match="normals"):
+        c.lookup([[0, 0, 0]], [[np.nan, 1, 0]], radius=1.0)
+    with pytest.raises(ValueError, match="normals"):
+        c.lookup([[0, 0, 0]], [[0, 0, 0]], radius=1.0)
+    with pytest.raises(ValueError, match="points"):
+        c.lookup([[0, np.inf, 0]], [[0, 1, 0]], radius=1.0)
+    with pytest.raises(ValueError, match="points"):
+        c.lookup([[0, 0]], [[0, 1, 0]], radius=1.0)
+    with pytest.raises(ValueError, match="normals"):
+        c.lookup([[0, 0, 0]], [[0, 1, 0], [0, 1, 0]], radius=1.0)
+    with pytest.raises(ValueError, match="radius"):
+        c.lookup([[0, 0, 0]], [[0, 1, 0]])  # no build yet: no default radius
+    with pytest.raises(ValueError, match="radius"):
+        c.lookup([[0, 0, 0]], [[0, 1, 0]], radius=-1.0)
+    with pytest.raises(ValueError, match="radius"):
+        c.lookup([[0, 0, 0]], [[0, 1, 0]], radius=1.0, footprints=[1.0])
+    with pytest.raises(ValueError, match="footprints"):
+        c.lookup([[0, 0, 0]], [[0, 1, 0]], footprints=[1.0, 2.0])
+    with pytest.raises(ValueError, match="normal"):
+        c.insert((0, 0, 0), (0, 0, 0))
+    with pytest.raises(ValueError, match="point"):
+        c.insert((0, np.nan, 0), (0, 1, 0))
+    with pytest.raises(ValueError, match="id"):
+        c.record_bits(0)
+    with pytest.raises(ValueError, match="time_budget"):
+        c.build(cornell.camera.with_resolution(8, 6), time_budget=-1.0, progress=False)
+    with pytest.raises(ValueError, match="scene"):
+        vc.VisibilityCache(vc.Scene()).build(cornell.camera, progress=False)
+    assert len(c) == 0
