@@ -73,7 +73,8 @@ def test_record_bits_equal_ray_by_ray_occlusion(open_box, resolution):
     # Each direction lies in its own texel of the equal-area square (texel layout).
     texels = vc.octahedral.texel_of(d, resolution)
     r = resolution
-    np.testing.assert_array_equal(texels, np.stack([np.arange(r * r) % r, np.arange(r * r) // r], 1))
+    expect = np.stack([np.arange(r * r) % r, np.arange(r * r) // r], 1)
+    np.testing.assert_array_equal(texels, expect)
 
 
 def test_differences_and_hierarchy_from_numpy(open_box):
@@ -89,7 +90,7 @@ def test_differences_and_hierarchy_from_numpy(open_box):
     mean = np.mean([np.count_nonzero(a ^ b) / a.size for a, b in pairs])
     assert look["mean_difference"][0] == pytest.approx(mean, abs=1e-6)
     beta = look["beta"][0]
-    want = sum(b * maps[ids.index(k)] for k, b in zip(kept, beta))
+    want = sum(b * maps[ids.index(k)] for k, b in zip(kept, beta, strict=True))
     np.testing.assert_allclose(look["map"][0], want, atol=1e-6)
     # (The 2-bit hierarchy codes are checked against numpy-style reductions of the bits in
     # the core's record tests, which can see them.)
@@ -115,7 +116,7 @@ def numpy_lookup(params, positions, normals, x, n, d_max):
         c = np.abs(v @ n) / np.linalg.norm(v, axis=1)
     w_g = np.where(dd > 0, np.sqrt(1 - np.minimum(c, 1)), 1.0)
     wi = w_g * w_hat
-    rank = sorted(zip(-wi, dd, order))
+    rank = sorted(zip(-wi, dd, order, strict=True))
     rank = [(-a, o) for a, _, o in rank if -a > 0][: params["n_keep"]]
     total = sum(a for a, _ in rank)
     return [o for _, o in rank], [a / total for a, _ in rank], (wi.max() if len(wi) else 0.0)
@@ -129,7 +130,7 @@ def test_weights_and_beta_equal_numpy_eq9(open_box):
     pts[100:120] = pts[0]
     nrm = np.c_[rng.normal(0, 0.3, 200), np.ones(200), rng.normal(0, 0.3, 200)]
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    for p, n in zip(pts, nrm):
+    for p, n in zip(pts, nrm, strict=True):
         cache.insert(p, n)
     rec = cache.records()
     positions, normals = rec["position"].astype(np.float64), rec["normal"].astype(np.float64)
@@ -172,7 +173,7 @@ def block_edges(scene):
         v = np.unique(v[np.abs(v[:, 1]) < 1e-3][:, [0, 2]], axis=0)
         c = v.mean(0)
         ring = v[np.argsort(np.arctan2(v[:, 1] - c[1], v[:, 0] - c[0]))]
-        for a, b in zip(ring, np.roll(ring, -1, axis=0)):
+        for a, b in zip(ring, np.roll(ring, -1, axis=0), strict=True):
             edges.append(a + np.linspace(0, 1, 40)[:, None] * (b - a))
     return np.vstack(edges)
 
