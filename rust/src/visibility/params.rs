@@ -33,6 +33,9 @@ use crate::sampling::pattern::{
 /// Largest `m` (candidates per lookup). Lookups keep candidates on the stack.
 pub const MAX_SEARCH_COUNT: u32 = 64;
 
+/// Largest `n` (records kept per lookup; CAM08 uses 3–4).
+pub const MAX_KEEP_COUNT: u32 = 16;
+
 /// Largest `max_records`: record ids are `u32` and the kd-tree indexes with `u32`.
 pub const MAX_RECORDS_LIMIT: u32 = 1 << 28;
 
@@ -54,7 +57,7 @@ pub struct CacheParams {
     pub lambda_falloff: f32,
     /// `m`: nearest records examined per lookup, `1..=64` (default 16).
     pub m_search: u32,
-    /// `n`: best-weighted records kept and blended, `1..=m` (default 4).
+    /// `n`: best-weighted records kept and blended, `1..=min(m, 16)` (default 4).
     pub n_keep: u32,
     /// `w_min` in `[0, 1]`: insert when the best weight `max w_i` is below it (§5.2).
     pub w_min: f32,
@@ -166,10 +169,10 @@ impl CacheParams {
         if !(1..=MAX_SEARCH_COUNT).contains(&self.m_search) {
             return Err(range("m_search", "be in 1..=64", self.m_search));
         }
-        if !(1..=self.m_search).contains(&self.n_keep) {
+        if !(1..=self.m_search.min(MAX_KEEP_COUNT)).contains(&self.n_keep) {
             return Err(range(
                 "n_keep",
-                &format!("be in 1..=m_search ({})", self.m_search),
+                &format!("be in 1..=min(m_search, 16) ({})", self.m_search.min(16)),
                 self.n_keep,
             ));
         }
