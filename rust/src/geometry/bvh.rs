@@ -15,7 +15,7 @@ use obvhs::bvh2::builder::build_bvh2_from_tris;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
-use super::bvh4::{decode, BoxRay, Bvh4, Child, Stack};
+use super::bvh4::{decode, BoxRay, Bvh4, Child, Parents, Stack};
 use super::mesh::{triangle_cross, Mesh};
 use super::watertight::{Triangle4, TriangleHit, WatertightRay};
 use crate::error::{Error, Result};
@@ -168,6 +168,23 @@ pub struct Bvh {
     to_world: f32,
     quality: BuildQuality,
     build_time: Duration,
+    /// Parent links, made by the first [`Bvh::refit`].
+    parents: Option<Parents>,
+    /// Number of mesh triangles (kept or not) the tree was built over.
+    mesh_triangles: usize,
+}
+
+/// How a built BVH follows geometry that moved (see [`super::Scene::set_object_transform`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum BvhUpdate {
+    /// Keep the tree's topology and recompute the boxes above the moved triangles: tens of
+    /// microseconds for the animated `dynamics` sphere against milliseconds for a rebuild,
+    /// with tracing within a few percent of a rebuilt tree (benches/README.md). The tree
+    /// degrades as objects move far from where it was built.
+    #[default]
+    Refit,
+    /// Drop the tree; it is rebuilt with the scene's preset on the next query.
+    Rebuild,
 }
 
 /// The power of two that brings `extent` into [256, 512).
@@ -237,7 +254,74 @@ impl Bvh {
             to_world: 1.0 / to_local,
             quality,
             build_time: start.elapsed(),
+            parents: None,
+            mesh_triangles: mesh.triangles.len(),
         }
+    }
+
+    /// Follows triangles `changed` of `mesh` that moved since the build (or the last refit):
+    /// repacks their leaf blocks and refits the boxes above them, keeping the topology.
+    /// Returns false, leaving the tree unusable, when a refit cannot give the tree a
+    /// rebuild would: the mesh has another number of triangles, a moved triangle became
+    /// degenerate or stopped being so (the build leaves degenerate ones out), or a vertex
+    /// leaves the `f32` range in the local frame. The caller must then rebuild.
+    ///
+    /// Boxes are the exact bounds of their triangles, as the builder makes them, so a
+    /// refit tree answers every query exactly as the tree of the same topology built over
+    /// the moved triangles (trees built with spatial splits get whole-triangle boxes).
+    pub fn refit(&mut self, mesh: &Mesh, changed: std::ops::Range<usize>) -> bool {
+        if mesh.triangles.len() != self.mesh_triangles || changed.end > self.mesh_triangles {
+            return false;
+        }
+        if changed.is_empty() || self.blocks.is_empty() {
+            return mesh.triangles[changed]
+                .iter()
+                .all(|t| triangle_cross(t) == Vec3::ZERO);
+        }
+        // Blocks holding a moved triangle, and which moved triangles the tree holds.
+        let mut in_tree = vec![false; changed.len()];
+        let mut blocks: Vec<u32> = Vec::new();
+        for (slot, &t) in self.triangle_ids.iter().enumerate() {
+            if changed.contains(&(t as usize)) {
+                in_tree[t as usize - changed.start] = true;
+                let b = (slot / 4) as u32;
+                if blocks.last() != Some(&b) {
+                    blocks.push(b);
+                }
+            }
+        }
+        let same_set = mesh.triangles[changed.clone()]
+            .iter()
+            .zip(&in_tree)
+            .all(|(t, &kept)| (triangle_cross(t) != Vec3::ZERO) == kept);
+        if !same_set {
+            return false;
+        }
+        let to_local = self.to_local;
+        let mut leaves = Vec::with_capacity(blocks.len());
+        for &b in &blocks {
+            let slots = &self.triangle_ids[4 * b as usize..4 * b as usize + 4];
+            let tris: [[Vec3A; 3]; 4] = std::array::from_fn(|l| {
+                mesh.triangles[slots[l] as usize].map(|v| Vec3A::from(v * to_local))
+            });
+            if !tris.iter().flatten().all(|v| v.is_finite()) {
+                return false;
+            }
+            // Unused lanes repeat the leaf's first triangle, so all four lanes bound it.
+            let min = tris
+                .iter()
+                .flatten()
+                .fold(Vec3A::INFINITY, |m, v| m.min(*v));
+            let max = tris
+                .iter()
+                .flatten()
+                .fold(Vec3A::NEG_INFINITY, |m, v| m.max(*v));
+            self.blocks[b as usize] = Triangle4::pack(&tris);
+            leaves.push((b, min, max));
+        }
+        let parents = self.parents.get_or_insert_with(|| self.tree.parents());
+        self.tree.refit_leaves(parents, leaves);
+        true
     }
 
     /// The preset it was built with.
@@ -539,5 +623,57 @@ mod tests {
             assert!(!bvh.occluded::<true>(o, vec3a(0.0, 0.0, -1.0), 1.999 * scale, &mut c));
             assert!(c.nodes >= 3 && c.triangles >= 3, "{c:?}");
         }
+    }
+
+    #[test]
+    fn refit_keeps_exact_boxes_and_detects_degeneracy_changes() {
+        let mut m = quad_mesh(1.0);
+        let v = [
+            [0.0, 0.0, 1.0],
+            [1.0, 0.0, 1.0],
+            [0.0, 1.0, 1.0],
+            [5.0, 5.0, 5.0],
+        ];
+        m.add_indexed(&v, &[[0, 1, 2], [3, 3, 3]], Material::DEFAULT, None)
+            .unwrap();
+        let built = Bvh::build(&m, BuildQuality::Medium);
+        let mut refit = built.clone();
+        // Unmoved: every box and triangle block comes out as the build made it.
+        assert!(refit.refit(&m, 0..4));
+        assert_eq!(
+            format!("{:?}", refit.tree.nodes),
+            format!("{:?}", built.tree.nodes)
+        );
+        assert_eq!(format!("{:?}", refit.blocks), format!("{:?}", built.blocks));
+        // Moved: the boxes follow.
+        let mut moved = m.clone();
+        for t in &mut moved.triangles[2..3] {
+            *t = t.map(|v| v + Vec3::new(0.0, 0.0, 2.0));
+        }
+        assert!(refit.refit(&moved, 2..4));
+        let mut c = TraversalCounters::default();
+        let o = vec3a(0.25, 0.25, 10.0);
+        let d = vec3a(0.0, 0.0, -1.0);
+        let h = refit
+            .intersect::<true>(o, d, f32::INFINITY, &mut c)
+            .unwrap();
+        assert_eq!((h.triangle, h.t), (2, 7.0));
+        // A triangle that becomes degenerate, or stops being so, needs a rebuild.
+        let mut flat = m.clone();
+        flat.triangles[2][2] = flat.triangles[2][1];
+        assert!(!built.clone().refit(&flat, 2..3));
+        let mut grown = m.clone();
+        grown.triangles[3] = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        assert!(!built.clone().refit(&grown, 3..4));
+        assert!(built.clone().refit(&grown, 0..2), "unchanged part");
+        assert!(
+            !built.clone().refit(&quad_mesh(1.0), 0..2),
+            "other triangle count"
+        );
+        // Out of the f32 range in the local frame.
+        let mut far = quad_mesh(1e-3);
+        far.triangles[0][0] = Vec3::splat(3e38);
+        let small = Bvh::build(&quad_mesh(1e-3), BuildQuality::Fast);
+        assert!(!small.clone().refit(&far, 0..1));
     }
 }
