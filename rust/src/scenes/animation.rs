@@ -4,9 +4,10 @@
 //!
 //! Moving goes through [`Scene::set_object_transform`] (rest pose times the frame's
 //! transform) with a BVH refit. The tree is always the one built at the rest pose (frame 0
-//! when the path starts there), refit to the frame: [`Animation::apply`] builds it at the
-//! rest pose if the scene has none yet. So node visits and closest-hit ties at a frame do
-//! not depend on the frames visited before (unless the scene is rebuilt by hand).
+//! when the path starts there), with the moving object in a subtree of its own, refit to
+//! the frame: [`Animation::apply`] builds it if the scene has none yet. So node visits and
+//! closest-hit ties at a frame do not depend on the frames visited before (unless the
+//! scene is rebuilt by hand at another frame).
 
 use std::f64::consts::TAU;
 
@@ -74,11 +75,12 @@ impl Animation {
         }
     }
 
-    /// Moves the object of `scene` to `frame` and refits the BVH (built at the rest pose
-    /// first if the scene has none). Fails, leaving the scene unchanged, when the scene has
-    /// no such object.
+    /// Moves the object of `scene` to `frame` and refits the BVH. The first time (or when
+    /// the scene has no BVH) the tree is built at the rest pose with the object in a
+    /// subtree of its own (see [`Scene::set_object_transform_with`]). Fails, leaving the
+    /// scene unchanged, when the scene has no such object.
     pub fn apply(&self, scene: &mut Scene, frame: u64) -> Result<()> {
-        if !scene.is_built() {
+        if !scene.is_built() || !scene.is_posed(self.object) {
             scene.set_object_transform(self.object, Affine3A::IDENTITY)?;
             scene.bvh();
         }
