@@ -944,7 +944,7 @@ mod tests {
     }
 
     #[test]
-    fn refit_traces_as_rebuild_and_keeps_tight_boxes() {
+    fn refit_traces_as_rebuild_and_keeps_the_topology() {
         let (mut refit, sphere) = sphere_of_dynamics();
         refit.bvh();
         assert!(!refit.is_posed(sphere));
