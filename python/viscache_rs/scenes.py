@@ -13,11 +13,16 @@ hairball   a dense tangle of thin tubes (~1.5M triangles) over a plane: complex 
 =========  =================================================================================
 
 Triangle counts are at ``detail=1``; ``detail`` in (0, 16] scales them roughly linearly.
+
+Animated variants (``animated_names()``; ``load("dynamics", animated=True)``): the
+``dynamics`` sphere rolls 2 m toward the open ground and back every 60 frames.
+``setup.at_frame(i)`` moves it (frame 0 is the static scene), ``setup.moving_object`` is its
+object id and ``setup.moving_bounds()`` its bounds at the current frame.
 """
 
-from ._core import Setup, load_scene, scene_names
+from ._core import Setup, animated_scene_names, load_scene, scene_names
 
-__all__ = ["Setup", "load", "names"]
+__all__ = ["Setup", "animated_names", "load", "names"]
 
 
 def names() -> list[str]:
@@ -25,7 +30,12 @@ def names() -> list[str]:
     return list(scene_names())
 
 
-def load(name: str, detail: float = 1.0, seed: int = 0) -> Setup:
+def animated_names() -> list[str]:
+    """Names of the built-in scenes that have an animated variant."""
+    return list(animated_scene_names())
+
+
+def load(name: str, detail: float = 1.0, seed: int = 0, animated: bool = False) -> Setup:
     """Builds the built-in scene ``name``.
 
     Returns a :class:`Setup` with ``.scene``, ``.camera`` (256x192 by default; use
@@ -33,5 +43,9 @@ def load(name: str, detail: float = 1.0, seed: int = 0) -> Setup:
     default :class:`EnvMap` (sky and sun for garden, dynamics and hairball; bright windows
     mostly hidden by the roof for garage; constant white for the closed cornell box). The
     same ``seed`` always gives the same triangles.
+
+    ``animated=True`` gives the animated variant (only for :func:`animated_names`; other
+    names raise ValueError naming ``animated``): at frame 0 it is the same scene; move it
+    with ``setup.at_frame(i)``.
     """
-    return load_scene(name, detail=detail, seed=seed)
+    return load_scene(name, detail=detail, seed=seed, animated=animated)

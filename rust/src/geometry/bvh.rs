@@ -12,10 +12,12 @@ use std::time::{Duration, Instant};
 
 use glam::{Vec3, Vec3A};
 use obvhs::bvh2::builder::build_bvh2_from_tris;
+use obvhs::bvh2::node::Bvh2Node;
+use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
-use super::bvh4::{decode, BoxRay, Bvh4, Child, Stack};
+use super::bvh4::{decode, BoxRay, Bvh4, Child, Parents, Stack};
 use super::mesh::{triangle_cross, Mesh};
 use super::watertight::{Triangle4, TriangleHit, WatertightRay};
 use crate::error::{Error, Result};
@@ -168,6 +170,34 @@ pub struct Bvh {
     to_world: f32,
     quality: BuildQuality,
     build_time: Duration,
+    /// Parent links, made by the first [`Bvh::refit`].
+    parents: Option<Parents>,
+    /// The leaf blocks of the last refit's triangle range, and which of its triangles the
+    /// tree holds (a moving object is refit range after range).
+    refit_blocks: Option<RefitBlocks>,
+    /// Number of mesh triangles (kept or not) the tree was built over.
+    mesh_triangles: usize,
+}
+
+/// Leaf blocks holding triangles `range`, and which of those triangles the tree holds.
+#[derive(Clone, Debug)]
+struct RefitBlocks {
+    range: std::ops::Range<usize>,
+    blocks: Vec<u32>,
+    in_tree: Vec<bool>,
+}
+
+/// How a built BVH follows geometry that moved (see [`super::Scene::set_object_transform`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum BvhUpdate {
+    /// Keep the tree's topology and recompute the boxes above the moved triangles: about
+    /// 50 times faster than a rebuild for the animated `dynamics` sphere. With the object
+    /// in a subtree of its own (as the scene builds moved objects) the refit tree traces
+    /// as fast as a rebuilt one (benches/README.md).
+    #[default]
+    Refit,
+    /// Drop the tree; it is rebuilt with the scene's preset on the next query.
+    Rebuild,
 }
 
 /// The power of two that brings `extent` into [256, 512).
@@ -179,14 +209,71 @@ fn local_scale(extent: f32) -> f32 {
     2f32.powi((8 - e).clamp(-120, 120))
 }
 
+/// A binary tree whose root has the roots of `a` and `b` as children. Nodes are laid out
+/// `[root, a's root, b's root, a's other nodes, b's other nodes]` (children stay adjacent)
+/// and `b`'s primitives follow `a`'s.
+fn join_bvh2(a: Bvh2, b: Bvh2) -> Bvh2 {
+    let (na, pa) = (a.nodes.len() as u32, a.primitive_indices.len() as u32);
+    let map_a = |i: u32| if i == 0 { 1 } else { i + 2 };
+    let map_b = |i: u32| if i == 0 { 2 } else { na + 1 + i };
+    let moved = |n: &Bvh2Node, map: &dyn Fn(u32) -> u32, prims: u32| {
+        let mut n = *n;
+        n.first_index = if n.is_leaf() {
+            n.first_index + prims
+        } else {
+            map(n.first_index)
+        };
+        n
+    };
+    let root = Bvh2Node::new(a.nodes[0].aabb().union(b.nodes[0].aabb()), 0, 1);
+    let mut nodes = Vec::with_capacity(a.nodes.len() + b.nodes.len() + 1);
+    nodes.push(root);
+    nodes.push(moved(&a.nodes[0], &map_a, 0));
+    nodes.push(moved(&b.nodes[0], &map_b, pa));
+    nodes.extend(a.nodes[1..].iter().map(|n| moved(n, &map_a, 0)));
+    nodes.extend(b.nodes[1..].iter().map(|n| moved(n, &map_b, pa)));
+    let mut primitive_indices = a.primitive_indices;
+    primitive_indices.extend(b.primitive_indices);
+    Bvh2 {
+        nodes,
+        primitive_indices,
+        ..Bvh2::default()
+    }
+}
+
 impl Bvh {
     /// Builds over every triangle of `mesh` with non-zero area, in parallel on the current
     /// rayon pool. Degenerate triangles are left out: they can never be hit.
     pub fn build(mesh: &Mesh, quality: BuildQuality) -> Self {
+        Self::build_grouped(mesh, quality, &[])
+    }
+
+    /// [`Bvh::build`] in which the triangles of each of `groups` (ranges of mesh triangles,
+    /// disjoint; e.g. objects that move) get a subtree of their own under the root, built
+    /// apart from the rest. A refit after such a group moves rigidly then keeps a tree as
+    /// good as a rebuild: the rest's boxes never change and the group's own boxes move with
+    /// it, instead of stretching boxes that mix it with the geometry it left. Without groups
+    /// this is exactly [`Bvh::build`].
+    pub fn build_grouped(
+        mesh: &Mesh,
+        quality: BuildQuality,
+        groups: &[std::ops::Range<usize>],
+    ) -> Self {
         let start = Instant::now();
-        let kept: Vec<u32> = (0..mesh.triangles.len() as u32)
-            .filter(|&i| triangle_cross(&mesh.triangles[i as usize]) != Vec3::ZERO)
+        let non_degenerate = |&i: &u32| triangle_cross(&mesh.triangles[i as usize]) != Vec3::ZERO;
+        // Kept triangles, the ungrouped first, then group after group.
+        let grouped = |i: u32| groups.iter().any(|g| g.contains(&(i as usize)));
+        let mut kept: Vec<u32> = (0..mesh.triangles.len() as u32)
+            .filter(|i| !grouped(*i))
+            .filter(non_degenerate)
             .collect();
+        let mut spans = Vec::with_capacity(groups.len() + 1);
+        spans.push(0..kept.len());
+        for g in groups {
+            let first = kept.len();
+            kept.extend((g.start as u32..g.end as u32).filter(non_degenerate));
+            spans.push(first..kept.len());
+        }
         let mut bounds = super::mesh::Bounds::EMPTY;
         for &i in &kept {
             for v in &mesh.triangles[i as usize] {
@@ -205,12 +292,22 @@ impl Bvh {
                 }
             })
             .collect();
-        let tree = if local.is_empty() {
-            Bvh4::default()
-        } else {
-            let bvh2 = build_bvh2_from_tris(&local, quality.params(), &mut Duration::default());
-            Bvh4::from_bvh2(&bvh2)
-        };
+        let tree = spans
+            .into_iter()
+            .filter(|span| !span.is_empty())
+            .map(|span| {
+                let mut bvh2 = build_bvh2_from_tris(
+                    &local[span.clone()],
+                    quality.params(),
+                    &mut Duration::default(),
+                );
+                bvh2.primitive_indices
+                    .iter_mut()
+                    .for_each(|p| *p += span.start as u32);
+                bvh2
+            })
+            .reduce(join_bvh2)
+            .map_or_else(Bvh4::default, |bvh2| Bvh4::from_bvh2(&bvh2));
         let blocks = tree
             .primitive_order
             .as_chunks::<4>()
@@ -237,7 +334,89 @@ impl Bvh {
             to_world: 1.0 / to_local,
             quality,
             build_time: start.elapsed(),
+            parents: None,
+            refit_blocks: None,
+            mesh_triangles: mesh.triangles.len(),
         }
+    }
+
+    /// Follows triangles `changed` of `mesh` that moved since the build (or the last refit):
+    /// repacks their leaf blocks and refits the boxes above them, keeping the topology.
+    /// Returns false, leaving the tree unusable, when a refit cannot give the tree a
+    /// rebuild would: the mesh has another number of triangles, a moved triangle became
+    /// degenerate or stopped being so (the build leaves degenerate ones out), or a vertex
+    /// leaves the `f32` range in the local frame. The caller must then rebuild.
+    ///
+    /// Boxes are the exact bounds of their triangles, as the builder makes them, so a
+    /// refit tree answers every query exactly as the tree of the same topology built over
+    /// the moved triangles (trees built with spatial splits get whole-triangle boxes).
+    pub fn refit(&mut self, mesh: &Mesh, changed: std::ops::Range<usize>) -> bool {
+        if mesh.triangles.len() != self.mesh_triangles || changed.end > self.mesh_triangles {
+            return false;
+        }
+        if changed.is_empty() || self.blocks.is_empty() {
+            return mesh.triangles[changed]
+                .iter()
+                .all(|t| triangle_cross(t) == Vec3::ZERO);
+        }
+        if self
+            .refit_blocks
+            .as_ref()
+            .is_none_or(|r| r.range != changed)
+        {
+            // Blocks holding a moved triangle, and which moved triangles the tree holds.
+            let mut in_tree = vec![false; changed.len()];
+            let mut blocks: Vec<u32> = Vec::new();
+            for (slot, &t) in self.triangle_ids.iter().enumerate() {
+                if changed.contains(&(t as usize)) {
+                    in_tree[t as usize - changed.start] = true;
+                    let b = (slot / 4) as u32;
+                    if blocks.last() != Some(&b) {
+                        blocks.push(b);
+                    }
+                }
+            }
+            self.refit_blocks = Some(RefitBlocks {
+                range: changed.clone(),
+                blocks,
+                in_tree,
+            });
+        }
+        let RefitBlocks {
+            blocks, in_tree, ..
+        } = self.refit_blocks.as_ref().expect("set above");
+        let same_set = mesh.triangles[changed.clone()]
+            .iter()
+            .zip(in_tree)
+            .all(|(t, &kept)| (triangle_cross(t) != Vec3::ZERO) == kept);
+        if !same_set {
+            return false;
+        }
+        let to_local = self.to_local;
+        let mut leaves = Vec::with_capacity(blocks.len());
+        for &b in blocks {
+            let slots = &self.triangle_ids[4 * b as usize..4 * b as usize + 4];
+            let tris: [[Vec3A; 3]; 4] = std::array::from_fn(|l| {
+                mesh.triangles[slots[l] as usize].map(|v| Vec3A::from(v * to_local))
+            });
+            if !tris.iter().flatten().all(|v| v.is_finite()) {
+                return false;
+            }
+            // Unused lanes repeat the leaf's first triangle, so all four lanes bound it.
+            let min = tris
+                .iter()
+                .flatten()
+                .fold(Vec3A::INFINITY, |m, v| m.min(*v));
+            let max = tris
+                .iter()
+                .flatten()
+                .fold(Vec3A::NEG_INFINITY, |m, v| m.max(*v));
+            self.blocks[b as usize] = Triangle4::pack(&tris);
+            leaves.push((b, min, max));
+        }
+        let parents = self.parents.get_or_insert_with(|| self.tree.parents());
+        self.tree.refit_leaves(parents, leaves);
+        true
     }
 
     /// The preset it was built with.
@@ -538,6 +717,112 @@ mod tests {
             assert!(bvh.occluded::<true>(o, vec3a(0.0, 0.0, -1.0), 2.001 * scale, &mut c));
             assert!(!bvh.occluded::<true>(o, vec3a(0.0, 0.0, -1.0), 1.999 * scale, &mut c));
             assert!(c.nodes >= 3 && c.triangles >= 3, "{c:?}");
+        }
+    }
+
+    #[test]
+    fn refit_keeps_exact_boxes_and_detects_degeneracy_changes() {
+        let mut m = quad_mesh(1.0);
+        let v = [
+            [0.0, 0.0, 1.0],
+            [1.0, 0.0, 1.0],
+            [0.0, 1.0, 1.0],
+            [5.0, 5.0, 5.0],
+        ];
+        m.add_indexed(&v, &[[0, 1, 2], [3, 3, 3]], Material::DEFAULT, None)
+            .unwrap();
+        let built = Bvh::build(&m, BuildQuality::Medium);
+        let mut refit = built.clone();
+        // Unmoved: every box and triangle block comes out as the build made it.
+        assert!(refit.refit(&m, 0..4));
+        assert_eq!(
+            format!("{:?}", refit.tree.nodes),
+            format!("{:?}", built.tree.nodes)
+        );
+        assert_eq!(format!("{:?}", refit.blocks), format!("{:?}", built.blocks));
+        // Moved: the boxes follow.
+        let mut moved = m.clone();
+        for t in &mut moved.triangles[2..3] {
+            *t = t.map(|v| v + Vec3::new(0.0, 0.0, 2.0));
+        }
+        assert!(refit.refit(&moved, 2..4));
+        let mut c = TraversalCounters::default();
+        let o = vec3a(0.25, 0.25, 10.0);
+        let d = vec3a(0.0, 0.0, -1.0);
+        let h = refit
+            .intersect::<true>(o, d, f32::INFINITY, &mut c)
+            .unwrap();
+        assert_eq!((h.triangle, h.t), (2, 7.0));
+        // A triangle that becomes degenerate, or stops being so, needs a rebuild.
+        let mut flat = m.clone();
+        flat.triangles[2][2] = flat.triangles[2][1];
+        assert!(!built.clone().refit(&flat, 2..3));
+        let mut grown = m.clone();
+        grown.triangles[3] = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        assert!(!built.clone().refit(&grown, 3..4));
+        assert!(built.clone().refit(&grown, 0..2), "unchanged part");
+        assert!(
+            !built.clone().refit(&quad_mesh(1.0), 0..2),
+            "other triangle count"
+        );
+        // Out of the f32 range in the local frame.
+        let mut far = quad_mesh(1e-3);
+        far.triangles[0][0] = Vec3::splat(3e38);
+        let small = Bvh::build(&quad_mesh(1e-3), BuildQuality::Fast);
+        assert!(!small.clone().refit(&far, 0..1));
+    }
+
+    #[test]
+    fn grouped_builds_answer_as_whole_ones() {
+        // A ground quad, a small soup, a one-triangle group, a group of degenerate
+        // triangles only and an empty group.
+        let mut m = quad_mesh(4.0);
+        let mut tris = Vec::new();
+        for i in 0..40 {
+            let c = Vec3::new(
+                (i % 7) as f32 * 0.5,
+                0.2 + (i % 3) as f32 * 0.3,
+                (i / 7) as f32 * 0.6,
+            );
+            tris.push([
+                c,
+                c + Vec3::new(0.3, 0.1, 0.0),
+                c + Vec3::new(0.0, 0.2, 0.3),
+            ]);
+        }
+        m.add_triangles(tris, Material::DEFAULT, None).unwrap();
+        m.add_triangles([[Vec3::Z, Vec3::ONE, Vec3::Y]], Material::DEFAULT, None)
+            .unwrap();
+        m.add_triangles([[Vec3::X; 3], [Vec3::Y; 3]], Material::DEFAULT, None)
+            .unwrap();
+        let whole = Bvh::build(&m, BuildQuality::Medium);
+        for groups in [
+            vec![2usize..42; 1],
+            vec![2..42, 42..43, 43..45, 45..45],
+            vec![0usize..45; 1],
+        ] {
+            let grouped = Bvh::build_grouped(&m, BuildQuality::Medium, &groups);
+            assert_eq!(grouped.triangle_ids.iter().max(), Some(&42), "{groups:?}");
+            let mut c = TraversalCounters::default();
+            for i in 0..2000u32 {
+                let r = crate::sampling::rng::SampleRng::new(5, i as u64, 0);
+                let o = Vec3A::new(r.get(0) * 4.0, r.get(1) * 2.0 - 0.5, r.get(2) * 4.0);
+                let [u, v] = r.get2(3);
+                let d = Vec3A::from(crate::scenes::shapes::sphere_dir(u, v));
+                let (a, b) = (
+                    whole.intersect::<true>(o, d, f32::INFINITY, &mut c),
+                    grouped.intersect::<true>(o, d, f32::INFINITY, &mut c),
+                );
+                assert_eq!(
+                    a.map(|h| (h.t, h.triangle)),
+                    b.map(|h| (h.t, h.triangle)),
+                    "{i}"
+                );
+                assert_eq!(
+                    whole.occluded::<true>(o, d, 1.0, &mut c),
+                    grouped.occluded::<true>(o, d, 1.0, &mut c)
+                );
+            }
         }
     }
 }

@@ -236,6 +236,115 @@ impl Node4 {
     }
 }
 
+/// Refitting: new boxes for moved leaves, propagated up to the root. The topology stays
+/// the one the builder chose; only boxes change.
+impl Bvh4 {
+    /// Parent links: the node that references each node (`u32::MAX` for the root) and the
+    /// node that references each leaf block.
+    pub fn parents(&self) -> Parents {
+        let mut p = Parents {
+            node: vec![u32::MAX; self.nodes.len()],
+            block: vec![u32::MAX; self.primitive_order.len() / 4],
+        };
+        for (i, n) in self.nodes.iter().enumerate() {
+            for &r in &n.children {
+                match decode(r) {
+                    Child::Node(c) => p.node[c as usize] = i as u32,
+                    Child::Leaf { first, count } if count > 0 => p.block[first as usize] = i as u32,
+                    Child::Leaf { .. } => {}
+                }
+            }
+        }
+        p
+    }
+
+    /// Sets the boxes of the given leaf blocks (`(block, min, max)`, local frame) and
+    /// refits every node above them, bottom-up. Nodes are stored after their parents (the
+    /// collapse writes a node before its children), so taking dirty nodes from the highest
+    /// index down finishes every child before its parent. A node whose box comes out
+    /// unchanged does not dirty its parent.
+    pub fn refit_leaves(
+        &mut self,
+        parents: &Parents,
+        leaves: impl IntoIterator<Item = (u32, Vec3A, Vec3A)>,
+    ) {
+        let mut dirty = std::collections::BinaryHeap::new();
+        let mut queued = vec![false; self.nodes.len()];
+        for (block, min, max) in leaves {
+            let n = parents.block[block as usize];
+            let node = &mut self.nodes[n as usize];
+            let slot = (0..4)
+                .find(|&i| matches!(decode(node.children[i]), Child::Leaf { first, count } if first == block && count > 0))
+                .expect("a leaf's parent references it");
+            node.set_box(slot, min, max);
+            if !std::mem::replace(&mut queued[n as usize], true) {
+                dirty.push(n);
+            }
+        }
+        while let Some(n) = dirty.pop() {
+            let parent = parents.node[n as usize];
+            if parent == u32::MAX {
+                continue;
+            }
+            let (min, max) = self.nodes[n as usize].bounds();
+            let node = &mut self.nodes[parent as usize];
+            let slot = (0..4)
+                .find(|&i| node.children[i] == n)
+                .expect("a node's parent references it");
+            if node.child_box(slot) == (min, max) {
+                continue;
+            }
+            node.set_box(slot, min, max);
+            if !std::mem::replace(&mut queued[parent as usize], true) {
+                dirty.push(parent);
+            }
+        }
+    }
+}
+
+/// Parent links of a [`Bvh4`] (see [`Bvh4::parents`]).
+#[derive(Clone, Debug, Default)]
+pub struct Parents {
+    /// Parent node of each node; `u32::MAX` for the root.
+    pub node: Vec<u32>,
+    /// Node whose child is each leaf block.
+    pub block: Vec<u32>,
+}
+
+impl Node4 {
+    /// Box of child `slot` as `(min, max)`.
+    pub fn child_box(&self, slot: usize) -> (Vec3A, Vec3A) {
+        let p = &self.planes;
+        (
+            Vec3A::new(p[0][slot], p[2][slot], p[4][slot]),
+            Vec3A::new(p[1][slot], p[3][slot], p[5][slot]),
+        )
+    }
+
+    /// Union of the children's boxes (empty slots hold the empty box).
+    pub fn bounds(&self) -> (Vec3A, Vec3A) {
+        let p = &self.planes;
+        let lo = |a: usize| p[2 * a].iter().copied().fold(f32::INFINITY, f32::min);
+        let hi = |a: usize| {
+            p[2 * a + 1]
+                .iter()
+                .copied()
+                .fold(f32::NEG_INFINITY, f32::max)
+        };
+        (
+            Vec3A::new(lo(0), lo(1), lo(2)),
+            Vec3A::new(hi(0), hi(1), hi(2)),
+        )
+    }
+
+    fn set_box(&mut self, slot: usize, min: Vec3A, max: Vec3A) {
+        for axis in 0..3 {
+            self.planes[2 * axis][slot] = min[axis];
+            self.planes[2 * axis + 1][slot] = max[axis];
+        }
+    }
+}
+
 /// A traversal stack of fixed size that spills to the heap in degenerate trees. The
 /// array is left uninitialised: zeroing it cost a memset per ray.
 pub struct Stack<T: Copy, const N: usize> {

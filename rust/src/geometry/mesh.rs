@@ -40,6 +40,25 @@ impl Bounds {
         self.max = self.max.max(p);
     }
 
+    /// The smallest box holding both.
+    pub fn union(&self, other: &Bounds) -> Bounds {
+        Bounds {
+            min: self.min.min(other.min),
+            max: self.max.max(other.max),
+        }
+    }
+
+    /// Bounds of the vertices of `triangles`.
+    pub fn of_triangles(triangles: &[[Vec3; 3]]) -> Bounds {
+        let mut b = Bounds::EMPTY;
+        for t in triangles {
+            for v in t {
+                b.grow(*v);
+            }
+        }
+        b
+    }
+
     /// True when nothing has been added.
     pub fn is_empty(&self) -> bool {
         self.min.x > self.max.x
@@ -99,13 +118,7 @@ impl Mesh {
 
     /// Bounds of all vertices (degenerate triangles included).
     pub fn bounds(&self) -> Bounds {
-        let mut b = Bounds::EMPTY;
-        for t in &self.triangles {
-            for v in t {
-                b.grow(*v);
-            }
-        }
-        b
+        Bounds::of_triangles(&self.triangles)
     }
 
     /// Adds an indexed triangle mesh as a new object and returns its id.

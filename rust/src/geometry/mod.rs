@@ -7,6 +7,6 @@ pub mod obj;
 pub mod scene;
 pub mod watertight;
 
-pub use bvh::{BuildQuality, Bvh, Hit, OccluderHint, TraversalCounters};
+pub use bvh::{BuildQuality, Bvh, BvhUpdate, Hit, OccluderHint, TraversalCounters};
 pub use mesh::{Bounds, Mesh, Object};
 pub use scene::{Hits, RayBatch, Scene, SurfaceHit, TMax};

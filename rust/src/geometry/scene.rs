@@ -1,13 +1,19 @@
 //! A scene: a [`Mesh`], the BVH over it (built on first query), and traversal counters.
 //! All batched queries validate every ray first and fail without side effects.
+//!
+//! Objects can be moved rigidly (any finite affine map) with
+//! [`Scene::set_object_transform`]: the scene keeps each moved object's rest-pose
+//! triangles and maps those, so a sequence of poses never accumulates rounding, and it
+//! refits (or drops) the BVH.
 
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::OnceLock;
 
-use glam::{Vec3, Vec3A};
+use glam::{Affine3A, Vec3, Vec3A};
 use rayon::prelude::*;
 
-use super::bvh::{BuildQuality, Bvh, OccluderHint, TraversalCounters};
+use super::bvh::{BuildQuality, Bvh, BvhUpdate, OccluderHint, TraversalCounters};
 use super::mesh::{check_finite, triangle_cross, Bounds, Mesh};
 use crate::bsdf::Material;
 use crate::error::{Error, Result};
@@ -164,10 +170,25 @@ pub struct Scene {
     mesh: Mesh,
     lights: Vec<AreaLight>,
     bounds: Bounds,
+    /// Bounds of the objects that were never moved, so that moving one costs time in its
+    /// own size only.
+    still_bounds: Bounds,
     quality: BuildQuality,
     bvh: OnceLock<Bvh>,
     counting: AtomicBool,
     counters: AtomicCounters,
+    /// Objects moved by [`Scene::set_object_transform`]: rest-pose triangles and the
+    /// current transform.
+    posed: BTreeMap<u32, Posed>,
+}
+
+/// A moved object's rest pose and the transform applied to it.
+#[derive(Clone, Debug)]
+struct Posed {
+    rest: Vec<[Vec3; 3]>,
+    transform: Affine3A,
+    /// Bounds of the object as it is now.
+    bounds: Bounds,
 }
 
 impl Default for Scene {
@@ -184,10 +205,12 @@ impl Clone for Scene {
             mesh: self.mesh.clone(),
             lights: self.lights.clone(),
             bounds: self.bounds,
+            still_bounds: self.still_bounds,
             quality: self.quality,
             bvh: OnceLock::new(),
             counting: AtomicBool::new(self.counting_enabled()),
             counters: AtomicCounters::default(),
+            posed: self.posed.clone(),
         };
         if let Some(b) = self.bvh.get() {
             let _ = s.bvh.set(b.clone());
@@ -206,12 +229,14 @@ impl Scene {
     pub fn from_mesh(mesh: Mesh) -> Self {
         Self {
             bounds: mesh.bounds(),
+            still_bounds: mesh.bounds(),
             mesh,
             lights: Vec::new(),
             quality: BuildQuality::default(),
             bvh: OnceLock::new(),
             counting: AtomicBool::new(true),
             counters: AtomicCounters::default(),
+            posed: BTreeMap::new(),
         }
     }
 
@@ -256,7 +281,27 @@ impl Scene {
 
     fn geometry_changed(&mut self) {
         self.bounds = self.mesh.bounds();
+        self.still_bounds = self.bounds_of_still_objects();
         self.bvh = OnceLock::new();
+    }
+
+    /// The triangles of object `i` (which must exist).
+    fn triangles_of(&self, i: usize) -> &[[Vec3; 3]] {
+        let o = &self.mesh.objects[i];
+        let first = o.first_triangle as usize;
+        &self.mesh.triangles[first..first + o.num_triangles as usize]
+    }
+
+    /// Bounds of the objects not in `posed` (all of the mesh when none moved).
+    fn bounds_of_still_objects(&self) -> Bounds {
+        if self.posed.is_empty() {
+            return self.bounds;
+        }
+        (0..self.mesh.objects.len())
+            .filter(|i| !self.posed.contains_key(&(*i as u32)))
+            .fold(Bounds::EMPTY, |b, i| {
+                b.union(&Bounds::of_triangles(self.triangles_of(i)))
+            })
     }
 
     /// Builds the BVH now with the given preset (on the current rayon pool).
@@ -266,10 +311,23 @@ impl Scene {
         self.bvh()
     }
 
-    /// The BVH, built with the scene's preset on first use.
+    /// The BVH, built with the scene's preset on first use. Objects that have been moved
+    /// ([`Scene::set_object_transform`]) get subtrees of their own
+    /// ([`Bvh::build_grouped`]), so that refits after they move keep the tree's quality.
     pub fn bvh(&self) -> &Bvh {
         self.bvh
-            .get_or_init(|| Bvh::build(&self.mesh, self.quality))
+            .get_or_init(|| Bvh::build_grouped(&self.mesh, self.quality, &self.posed_ranges()))
+    }
+
+    /// Triangle ranges of the moved objects, by object id.
+    fn posed_ranges(&self) -> Vec<std::ops::Range<usize>> {
+        self.posed
+            .keys()
+            .map(|&o| {
+                let o = &self.mesh.objects[o as usize];
+                o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize
+            })
+            .collect()
     }
 
     /// True once the BVH exists.
@@ -476,6 +534,133 @@ impl Scene {
     }
 }
 
+/// Rigid motion of objects (animation).
+impl Scene {
+    /// Object `object`, or an error naming `object`.
+    fn object(&self, object: u32) -> Result<&super::Object> {
+        self.mesh.objects.get(object as usize).ok_or_else(|| {
+            Error::invalid(
+                "object",
+                format!("no object {object} in a scene of {}", self.num_objects()),
+            )
+        })
+    }
+
+    /// Places object `object` at `transform` applied to its rest pose (its triangles as
+    /// they were before the first call), and refits a built BVH ([`BvhUpdate::Refit`]).
+    /// The identity restores the rest pose bit for bit. See
+    /// [`Scene::set_object_transform_with`].
+    pub fn set_object_transform(&mut self, object: u32, transform: Affine3A) -> Result<()> {
+        self.set_object_transform_with(object, transform, BvhUpdate::Refit)
+    }
+
+    /// [`Scene::set_object_transform`] with the BVH update chosen by `update`. The first
+    /// move of an object drops the BVH whatever `update` says: the next build gives the
+    /// object a subtree of its own ([`Scene::bvh`]), which later refits keep as good as a
+    /// rebuild. A refit that cannot match a rebuild (a triangle becomes degenerate or stops
+    /// being so, say) falls back to a rebuild. Bounds, and the object's area light if it
+    /// emits, follow the object. An unknown `object` or a non-finite `transform`, or one
+    /// that maps a vertex out of the `f32` range, is an error naming the argument, and the
+    /// scene is unchanged.
+    pub fn set_object_transform_with(
+        &mut self,
+        object: u32,
+        transform: Affine3A,
+        update: BvhUpdate,
+    ) -> Result<()> {
+        let obj = self.object(object)?;
+        let range = obj.first_triangle as usize..(obj.first_triangle + obj.num_triangles) as usize;
+        if !transform.is_finite() {
+            return Err(Error::invalid(
+                "transform",
+                format!("must be finite, got {transform:?}"),
+            ));
+        }
+        let rest = match self.posed.get(&object) {
+            Some(p) => &p.rest[..],
+            None => &self.mesh.triangles[range.clone()],
+        };
+        let moved: Vec<[Vec3; 3]> = rest
+            .iter()
+            .map(|t| t.map(|v| transform.transform_point3(v)))
+            .collect();
+        if moved.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(Error::invalid(
+                "transform",
+                format!("maps vertices of object {object} out of the f32 range"),
+            ));
+        }
+        let light = match self.lights.iter().position(|l| l.object == object) {
+            Some(i) => {
+                let radiance = self.lights[i].radiance().to_array();
+                let light = AreaLight::new(object, moved.clone(), radiance).map_err(|e| {
+                    Error::invalid("transform", format!("leaves the area light unusable: {e}"))
+                })?;
+                Some((i, light))
+            }
+            None => None,
+        };
+        // Validated: from here on nothing fails.
+        if let Some((i, light)) = light {
+            self.lights[i] = light;
+        }
+        let first_move = !self.posed.contains_key(&object);
+        if first_move {
+            let rest = self.mesh.triangles[range.clone()].to_vec();
+            let bounds = Bounds::of_triangles(&rest);
+            let posed = Posed {
+                rest,
+                transform: Affine3A::IDENTITY,
+                bounds,
+            };
+            self.posed.insert(object, posed);
+            self.still_bounds = self.bounds_of_still_objects();
+        }
+        let posed = self.posed.get_mut(&object).expect("inserted above");
+        posed.transform = transform;
+        posed.bounds = Bounds::of_triangles(&moved);
+        self.mesh.triangles[range.clone()].copy_from_slice(&moved);
+        self.bounds = (self.posed.values()).fold(self.still_bounds, |b, p| b.union(&p.bounds));
+        match update {
+            BvhUpdate::Refit if !first_move => {
+                let refit = match self.bvh.get_mut() {
+                    Some(bvh) => bvh.refit(&self.mesh, range),
+                    None => true,
+                };
+                if !refit {
+                    self.bvh = OnceLock::new();
+                    self.bvh();
+                }
+            }
+            _ => self.bvh = OnceLock::new(),
+        }
+        Ok(())
+    }
+
+    /// True once object `object` has been given a transform (false for unknown objects).
+    pub fn is_posed(&self, object: u32) -> bool {
+        self.posed.contains_key(&object)
+    }
+
+    /// The transform last given to object `object` (the identity if it never moved).
+    pub fn object_transform(&self, object: u32) -> Result<Affine3A> {
+        self.object(object)?;
+        Ok(self
+            .posed
+            .get(&object)
+            .map_or(Affine3A::IDENTITY, |p| p.transform))
+    }
+
+    /// Bounds of object `object`'s vertices as it is now (empty for an empty object).
+    pub fn object_bounds(&self, object: u32) -> Result<Bounds> {
+        self.object(object)?;
+        Ok(match self.posed.get(&object) {
+            Some(p) => p.bounds,
+            None => Bounds::of_triangles(self.triangles_of(object as usize)),
+        })
+    }
+}
+
 /// Area lights. Emitters are objects of the mesh (they occlude and can be hit like any
 /// other geometry); the scene keeps the [`AreaLight`] of each.
 impl Scene {
@@ -516,12 +701,7 @@ impl Scene {
     /// Makes the existing object `object` emit `radiance` from the winding side of its
     /// triangles (e.g. a lamp modelled as geometry). Fails if it already emits.
     pub fn set_emitter(&mut self, object: u32, radiance: [f32; 3]) -> Result<()> {
-        let obj = self.mesh.objects.get(object as usize).ok_or_else(|| {
-            Error::invalid(
-                "object",
-                format!("no object {object} in a scene of {}", self.num_objects()),
-            )
-        })?;
+        let obj = self.object(object)?;
         if self.emitter(object).is_some() {
             return Err(Error::invalid(
                 "object",
@@ -631,5 +811,275 @@ mod tests {
         s.set_counting(false);
         s.occluded(&RayBatch::new(&o, &d), None).unwrap();
         assert_eq!(s.counters(), TraversalCounters::default());
+    }
+
+    /// `n` rays from points uniform in `b` (grown by `margin`) in uniform directions, some
+    /// with a finite `tmax`.
+    fn random_rays(b: Bounds, margin: f32, n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+        use crate::sampling::rng::SampleRng;
+        use crate::scenes::shapes::sphere_dir;
+        let (lo, hi) = (b.min - margin, b.max + margin);
+        (0..n as u64)
+            .map(|i| {
+                let r = SampleRng::new(seed, i, 0);
+                let [a, c] = r.get2(0);
+                let p = lo + (hi - lo) * Vec3::new(a, c, r.get(2));
+                let [u, v] = r.get2(3);
+                (p.to_array(), sphere_dir(u, v).to_array())
+            })
+            .unzip()
+    }
+
+    /// Occluded answers (unbounded and with tmax 1) and closest hits of `s` on the rays.
+    fn answers(s: &Scene, o: &[[f32; 3]], d: &[[f32; 3]]) -> (Vec<bool>, Vec<bool>, Hits) {
+        let rays = RayBatch::new(o, d);
+        let short = RayBatch {
+            tmax: TMax::Scalar(1.0),
+            ..rays
+        };
+        (
+            s.occluded(&rays, None).unwrap(),
+            s.occluded(&short, None).unwrap(),
+            s.intersect(&rays, None).unwrap(),
+        )
+    }
+
+    /// Panics with the number of differing rays and the first, if the answers differ.
+    /// Shadow answers must agree exactly, and so must closest hits, except that trees of
+    /// other topologies may return different triangles where two lie at the same `t` up to
+    /// rounding (a box's bottom face on the ground, a shared edge): the traversal finds the
+    /// closest hit up to a few ulps, and which of such a pair it returns depends on the
+    /// order it visits them.
+    fn assert_same_answers(s: &Scene, t: &Scene, o: &[[f32; 3]], d: &[[f32; 3]], what: &str) {
+        let (a, b) = (answers(s, o, d), answers(t, o, d));
+        let differ: Vec<usize> = (0..o.len())
+            .filter(|&i| {
+                let (ta, tb) = (a.2.t[i], b.2.t[i]);
+                let tie = (ta - tb).abs() <= 1e-6 * ta.max(tb);
+                a.0[i] != b.0[i]
+                    || a.1[i] != b.1[i]
+                    || ((ta != tb || a.2.prim[i] != b.2.prim[i]) && !tie)
+            })
+            .collect();
+        if let Some(&i) = differ.first() {
+            panic!(
+                "{what}: {} of {} rays differ; first {i}: ray {:?} {:?}: occluded {} {} / {} {}, hit t {} {}, prim {} {}",
+                differ.len(),
+                o.len(),
+                o[i],
+                d[i],
+                a.0[i],
+                b.0[i],
+                a.1[i],
+                b.1[i],
+                a.2.t[i],
+                b.2.t[i],
+                a.2.prim[i],
+                b.2.prim[i]
+            );
+        }
+    }
+
+    fn sphere_of_dynamics() -> (Scene, u32) {
+        let s = crate::scenes::load("dynamics", 0.5, 0).unwrap().scene;
+        let id = s.mesh().objects.iter().position(|o| o.name == "sphere");
+        (s, id.unwrap() as u32)
+    }
+
+    fn some_motion(k: f32) -> Affine3A {
+        Affine3A::from_rotation_translation(
+            glam::Quat::from_euler(glam::EulerRot::XYZ, 0.3 * k, 1.1 * k, -0.2 * k),
+            Vec3::new(-0.7 * k, 0.05 * k, 0.9 * k),
+        )
+    }
+
+    #[test]
+    fn moving_an_object_answers_as_moving_its_vertices_and_rebuilding() {
+        let (mut s, sphere) = sphere_of_dynamics();
+        s.bvh();
+        let range = {
+            let o = &s.mesh().objects[sphere as usize];
+            o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize
+        };
+        let rest = s.mesh().clone();
+        for (k, update) in [
+            (1.0, BvhUpdate::Refit),
+            (2.0, BvhUpdate::Rebuild),
+            (-1.5, BvhUpdate::Refit),
+        ] {
+            let t = some_motion(k);
+            s.set_object_transform_with(sphere, t, update).unwrap();
+            assert_eq!(s.object_transform(sphere).unwrap(), t);
+            let mut by_hand = rest.clone();
+            for tri in &mut by_hand.triangles[range.clone()] {
+                *tri = tri.map(|v| t.transform_point3(v));
+            }
+            assert_eq!(s.mesh().triangles, by_hand.triangles);
+            let by_hand = Scene::from_mesh(by_hand);
+            assert_eq!(s.bounds(), by_hand.bounds());
+            let (o, d) = random_rays(
+                s.object_bounds(sphere).unwrap(),
+                1.0,
+                4000,
+                k.to_bits() as u64,
+            );
+            assert_same_answers(&s, &by_hand, &o, &d, &format!("{update:?} {k}"));
+            let a = answers(&s, &o, &d);
+            let hits = a.2.obj.iter().filter(|&&o| o == sphere as i32).count();
+            assert!(
+                hits > 200 && a.0.iter().any(|x| !x),
+                "rays see the sphere: {hits}"
+            );
+        }
+        // Back to the identity: the rest pose, bit for bit, after any number of poses.
+        s.set_object_transform(sphere, Affine3A::IDENTITY).unwrap();
+        let bits = |m: &Mesh| -> Vec<u32> {
+            m.triangles
+                .iter()
+                .flatten()
+                .flat_map(|v| v.to_array().map(f32::to_bits))
+                .collect()
+        };
+        assert_eq!(bits(s.mesh()), bits(&rest));
+    }
+
+    #[test]
+    fn refit_traces_as_rebuild_and_keeps_the_topology() {
+        let (mut refit, sphere) = sphere_of_dynamics();
+        refit.bvh();
+        assert!(!refit.is_posed(sphere));
+        refit
+            .set_object_transform(sphere, Affine3A::IDENTITY)
+            .unwrap();
+        assert!(
+            refit.is_posed(sphere) && !refit.is_built(),
+            "the first move drops the tree"
+        );
+        let nodes_before = refit.bvh().num_nodes();
+        let mut rebuilt = refit.clone();
+        for k in [0.25f32, 0.5, 1.0, 3.0] {
+            refit.set_object_transform(sphere, some_motion(k)).unwrap();
+            rebuilt
+                .set_object_transform_with(sphere, some_motion(k), BvhUpdate::Rebuild)
+                .unwrap();
+            assert!(refit.is_built() && !rebuilt.is_built());
+            assert_eq!(refit.bvh().num_nodes(), nodes_before, "topology kept");
+            let (o, d) = random_rays(refit.bounds(), 0.0, 3000, 7);
+            let (o2, d2) = random_rays(refit.object_bounds(sphere).unwrap(), 0.5, 3000, 8);
+            for (o, d) in [(o, d), (o2, d2)] {
+                assert_same_answers(&refit, &rebuilt, &o, &d, &format!("k = {k}"));
+            }
+        }
+    }
+
+    #[test]
+    fn bad_motion_arguments_leave_the_scene_unchanged() {
+        let (mut s, sphere) = sphere_of_dynamics();
+        s.set_object_transform(sphere, some_motion(0.5)).unwrap();
+        s.bvh();
+        let (tris, bounds) = (s.mesh().triangles.clone(), s.bounds());
+        let cases = [
+            (s.num_objects() as u32, Affine3A::IDENTITY, "object"),
+            (u32::MAX, Affine3A::IDENTITY, "object"),
+            (
+                sphere,
+                Affine3A::from_translation(Vec3::new(f32::NAN, 0.0, 0.0)),
+                "transform",
+            ),
+            (
+                sphere,
+                Affine3A::from_scale(Vec3::splat(f32::INFINITY)),
+                "transform",
+            ),
+            (sphere, Affine3A::from_scale(Vec3::splat(3e38)), "transform"),
+        ];
+        for (object, t, name) in cases {
+            for update in [BvhUpdate::Refit, BvhUpdate::Rebuild] {
+                let e = s
+                    .set_object_transform_with(object, t, update)
+                    .unwrap_err()
+                    .to_string();
+                assert!(e.starts_with(name), "{e}");
+                assert_eq!(s.mesh().triangles, tris);
+                assert_eq!(s.bounds(), bounds);
+                assert!(s.is_built());
+                assert_eq!(s.object_transform(sphere).unwrap(), some_motion(0.5));
+            }
+        }
+        assert!(s
+            .object_transform(99)
+            .unwrap_err()
+            .to_string()
+            .starts_with("object"));
+        assert!(s
+            .object_bounds(99)
+            .unwrap_err()
+            .to_string()
+            .starts_with("object"));
+    }
+
+    #[test]
+    fn flattening_an_object_falls_back_to_a_rebuild() {
+        // Scale 0 along y makes the pillar's side triangles degenerate (its top and bottom
+        // stay non-degenerate): the refit must notice and rebuild, and the answers match a
+        // scene built from the flattened triangles.
+        let (mut s, _) = sphere_of_dynamics();
+        let pillar = s
+            .mesh()
+            .objects
+            .iter()
+            .position(|o| o.name == "pillar")
+            .unwrap() as u32;
+        s.bvh();
+        let flat = Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0));
+        s.set_object_transform(pillar, flat).unwrap();
+        let b = s.object_bounds(pillar).unwrap();
+        assert_eq!((b.min.y, b.max.y), (0.0, 0.0));
+        let by_hand = Scene::from_mesh(s.mesh().clone());
+        let (o, d) = random_rays(b, 1.0, 3000, 3);
+        assert_same_answers(&s, &by_hand, &o, &d, "flattened");
+        // And back.
+        s.set_object_transform(pillar, Affine3A::IDENTITY).unwrap();
+        let b = s.object_bounds(pillar).unwrap();
+        assert_eq!((b.min.y, b.max.y), (0.0, 2.5));
+    }
+
+    #[test]
+    fn moving_an_emitter_moves_its_light_and_an_empty_object_is_fine() {
+        let mut s = unit_quad();
+        let quad = [
+            [0.0, 0.0, 2.0],
+            [1.0, 0.0, 2.0],
+            [1.0, 1.0, 2.0],
+            [0.0, 1.0, 2.0],
+        ];
+        let light = s.add_area_light(&quad, [1.0, 2.0, 3.0], None).unwrap();
+        let empty = s.add_indexed(&[], &[], Material::DEFAULT, None).unwrap();
+        s.set_object_transform(empty, some_motion(1.0)).unwrap();
+        let t = Affine3A::from_translation(Vec3::new(0.0, 0.0, 3.0));
+        s.set_object_transform(light, t).unwrap();
+        let l = s.emitter(light).unwrap();
+        assert_eq!(l.radiance(), Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(s.object_bounds(light).unwrap().min.z, 5.0);
+        assert_eq!(s.bounds().max.z, 5.0);
+        // Scale 0 leaves the light without area: an error, nothing changes.
+        let e = s
+            .set_object_transform(light, Affine3A::from_scale(Vec3::ZERO))
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("transform"), "{e}");
+        assert_eq!(s.object_bounds(light).unwrap().min.z, 5.0);
+        // Bounds stay those of all vertices with several moved objects and later additions.
+        let far = [[0.0, 0.0, -7.0], [1.0, 0.0, -7.0], [0.0, 1.0, -7.0]];
+        let added = s
+            .add_indexed(&far, &[[0, 1, 2]], Material::DEFAULT, None)
+            .unwrap();
+        assert_eq!(s.bounds(), s.mesh().bounds());
+        for (object, z) in [(0, -9.0), (added, 4.0), (light, -1.0), (added, 0.0)] {
+            let t = Affine3A::from_translation(Vec3::new(0.0, 0.0, z));
+            s.set_object_transform(object, t).unwrap();
+            assert_eq!(s.bounds(), s.mesh().bounds(), "object {object} to {z}");
+        }
+        assert_eq!(s.bounds().min.z, -9.0);
     }
 }

@@ -1,13 +1,16 @@
 //! Built-in setups: `vc.scenes.load(name)` returns a `Setup` with `scene`, `camera` and
-//! `envmap`.
+//! `envmap`; animated ones (`animated=True`) move an object with `setup.at_frame(i)`.
 
+use std::sync::Arc;
+
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use super::camera::PyCamera;
-use super::convert::{f64_arg, seed_arg, IntoPyResult};
+use super::convert::{f64_arg, int_arg, rows3_array, seed_arg, IntoPyResult};
 use super::envmap::PyEnvMap;
 use super::scene::PyScene;
-use crate::scenes;
+use crate::scenes::{self, animation, Animation};
 
 /// A scene with the camera that frames it and the environment map that lights it: what
 /// `vc.render` takes. Built-in ones come from `vc.scenes.load`; `Setup(scene, camera,
@@ -26,6 +29,10 @@ pub struct PySetup {
     /// The environment map that lights the scene.
     #[pyo3(get, set)]
     pub envmap: Py<PyEnvMap>,
+    /// The moving object and its path (animated setups only).
+    pub animation: Option<Animation>,
+    /// The frame the scene is at.
+    pub frame: u64,
 }
 
 #[pymethods]
@@ -43,12 +50,81 @@ impl PySetup {
             scene,
             camera,
             envmap,
+            animation: None,
+            frame: 0,
         }
     }
 
+    /// Moves the scene to frame `frame` (an int >= 0): the moving object takes its pose at
+    /// that frame (a pure function of `frame`, so any order of frames gives the same
+    /// scene) and the BVH is refit. `setup.scene` is updated in place; if the scene is
+    /// shared (e.g. held by a cache) it is copied first and the sharer keeps the old
+    /// geometry. Setups that are not animated have only frame 0, where this does nothing;
+    /// other frames raise ValueError. On error nothing changes.
+    fn at_frame(&mut self, py: Python<'_>, frame: &Bound<'_, PyAny>) -> PyResult<()> {
+        let frame = int_arg(frame, "frame", 0, u64::MAX as i128)? as u64;
+        match self.animation {
+            None => animation::static_frame(&self.name, frame).py()?,
+            Some(anim) => {
+                let mut scene = self.scene.try_borrow_mut(py).map_err(|_| {
+                    PyValueError::new_err("scene: is in use elsewhere and cannot be moved now")
+                })?;
+                let n = scene.inner.num_objects();
+                if anim.object as usize >= n {
+                    return Err(PyValueError::new_err(format!(
+                        "scene: has {n} objects, no moving object {} (was setup.scene replaced?)",
+                        anim.object
+                    )));
+                }
+                let s = Arc::make_mut(&mut scene.inner);
+                py.detach(|| anim.apply(s, frame)).py()?;
+            }
+        }
+        self.frame = frame;
+        Ok(())
+    }
+
+    /// The frame the scene is at (0 as loaded).
+    #[getter]
+    fn frame(&self) -> u64 {
+        self.frame
+    }
+
+    /// True for animated setups (`vc.scenes.load(name, animated=True)`).
+    #[getter]
+    fn animated(&self) -> bool {
+        self.animation.is_some()
+    }
+
+    /// Object id of the moving object, or None if the setup is not animated.
+    #[getter]
+    fn moving_object(&self) -> Option<u32> {
+        self.animation.map(|a| a.object)
+    }
+
+    /// Frames after which the motion repeats, or None if the setup is not animated.
+    #[getter]
+    fn period(&self) -> Option<u64> {
+        self.animation.map(|a| a.period())
+    }
+
+    /// (2, 3) float32 array [min, max]: bounds of the moving object at the current frame;
+    /// None if the setup is not animated.
+    fn moving_bounds<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let Some(anim) = self.animation else {
+            return Ok(None);
+        };
+        let b = anim.bounds(&self.scene.borrow(py).inner).py()?;
+        rows3_array(py, vec![b.min.into(), b.max.into()]).map(Some)
+    }
+
     fn __repr__(&self, py: Python<'_>) -> String {
+        let frame = match self.animation {
+            Some(_) => format!(", frame={}", self.frame),
+            None => String::new(),
+        };
         format!(
-            "Setup(name={:?}, scene={}, camera={}, envmap={})",
+            "Setup(name={:?}, scene={}, camera={}, envmap={}{frame})",
             self.name,
             self.scene.borrow(py).__repr__(),
             self.camera.get().__repr__(),
@@ -63,19 +139,34 @@ pub fn scene_names() -> Vec<&'static str> {
     scenes::names().to_vec()
 }
 
-/// Builds a built-in scene. `detail` in (0, 16] scales its triangle count; `seed` drives
-/// every random choice of the generator.
+/// Names of the built-in scenes that have an animated variant.
 #[pyfunction]
-#[pyo3(signature = (name, detail=None, seed=None))]
+pub fn animated_scene_names() -> Vec<&'static str> {
+    scenes::ANIMATED_NAMES.to_vec()
+}
+
+/// Builds a built-in scene. `detail` in (0, 16] scales its triangle count; `seed` drives
+/// every random choice of the generator; `animated` selects the animated variant.
+#[pyfunction]
+#[pyo3(signature = (name, detail=None, seed=None, animated=false))]
 pub fn load_scene(
     py: Python<'_>,
     name: &str,
     detail: Option<&Bound<'_, PyAny>>,
     seed: Option<&Bound<'_, PyAny>>,
+    animated: bool,
 ) -> PyResult<PySetup> {
     let detail = detail.map_or(Ok(1.0), |d| f64_arg(d, "detail"))? as f32;
     let seed = seed.map_or(Ok(0), seed_arg)?;
-    let setup = py.detach(|| scenes::load(name, detail, seed)).py()?;
+    let setup = py
+        .detach(|| {
+            if animated {
+                scenes::load_animated(name, detail, seed)
+            } else {
+                scenes::load(name, detail, seed)
+            }
+        })
+        .py()?;
     Ok(PySetup {
         name: setup.name,
         scene: Py::new(py, PyScene::new_from(setup.scene))?,
@@ -91,5 +182,7 @@ pub fn load_scene(
                 inner: setup.envmap,
             },
         )?,
+        animation: setup.animation,
+        frame: setup.frame,
     })
 }

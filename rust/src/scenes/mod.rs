@@ -17,7 +17,12 @@
 //! | `hairball` | 1,499,272             | yes    | dense tangle of thin tubes | sky and sun |
 //!
 //! Each module's `//!` gives the exact layout, sizes and camera.
+//!
+//! **Animated setups** ([`load_animated`], [`ANIMATED_NAMES`]): `dynamics` has a variant
+//! whose sphere rolls back and forth; [`Setup::at_frame`] moves it (see [`animation`]).
+//! Frame 0 of an animated setup is its static setup, triangle for triangle.
 
+pub mod animation;
 pub mod cornell;
 pub mod dynamics;
 pub mod garage;
@@ -27,8 +32,9 @@ pub mod shapes;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::geometry::{Mesh, Scene};
+use crate::geometry::{Bounds, Mesh, Scene};
 use crate::lights::{procedural, EnvMap};
+pub use animation::{Animation, Motion};
 
 /// A built-in setup: geometry, a camera that frames it and the environment that lights it.
 #[derive(Clone, Debug)]
@@ -41,6 +47,34 @@ pub struct Setup {
     pub camera: Camera,
     /// The default environment map (256² octahedral texels; see each scene's docs).
     pub envmap: EnvMap,
+    /// The moving object and its path, in animated setups ([`load_animated`]).
+    pub animation: Option<Animation>,
+    /// The frame the scene is at (0 as built).
+    pub frame: u64,
+}
+
+impl Setup {
+    /// Moves the scene to `frame` (see [`animation`]): the animated object takes its pose
+    /// at `frame` and the BVH is refit. Setups without animation have only frame 0, where
+    /// this does nothing; other frames are an error naming `frame`. On error nothing changes.
+    pub fn at_frame(&mut self, frame: u64) -> Result<()> {
+        match &self.animation {
+            None => animation::static_frame(&self.name, frame)?,
+            Some(a) => a.apply(&mut self.scene, frame)?,
+        }
+        self.frame = frame;
+        Ok(())
+    }
+
+    /// Object id of the moving object, if the setup is animated.
+    pub fn moving_object(&self) -> Option<u32> {
+        self.animation.map(|a| a.object)
+    }
+
+    /// Bounds of the moving object at the current frame, if the setup is animated.
+    pub fn moving_bounds(&self) -> Option<Bounds> {
+        self.animation.and_then(|a| a.bounds(&self.scene).ok())
+    }
 }
 
 /// Side of the default environment maps, in octahedral texels.
@@ -68,6 +102,9 @@ pub fn daylight(azimuth_deg: f32, elevation_deg: f32) -> Result<EnvMap> {
 
 /// Names of the built-in setups, in a fixed order.
 pub const NAMES: [&str; 5] = ["cornell", "garage", "garden", "dynamics", "hairball"];
+
+/// Names of the built-in setups that have an animated variant ([`load_animated`]).
+pub const ANIMATED_NAMES: [&str; 1] = ["dynamics"];
 
 /// Largest accepted `detail`.
 pub(crate) const MAX_DETAIL: f32 = 16.0;
@@ -102,6 +139,24 @@ pub fn load(name: &str, detail: f32, seed: u64) -> Result<Setup> {
     }
 }
 
+/// Builds the animated variant of setup `name` (one of [`ANIMATED_NAMES`]) at frame 0,
+/// where it equals [`load`]'s setup. Errors name `detail`, then `name` (unknown), then
+/// `animated` (a known scene without an animated variant).
+pub fn load_animated(name: &str, detail: f32, seed: u64) -> Result<Setup> {
+    check_detail(detail)?;
+    match name {
+        "dynamics" => dynamics::build_animated(detail, seed),
+        _ if NAMES.contains(&name) => Err(Error::invalid(
+            "animated",
+            format!(
+                "scene {name:?} has no animated variant; animated scenes are {}",
+                ANIMATED_NAMES.join(", ")
+            ),
+        )),
+        _ => load(name, detail, seed),
+    }
+}
+
 /// `detail` must be finite and lie in (0, 16].
 pub(crate) fn check_detail(detail: f32) -> Result<()> {
     if detail > 0.0 && detail <= MAX_DETAIL {
@@ -133,6 +188,8 @@ pub(crate) fn setup(name: &str, mesh: Mesh, camera: Camera, envmap: EnvMap) -> S
         scene: Scene::from_mesh(mesh),
         camera,
         envmap,
+        animation: None,
+        frame: 0,
     }
 }
 
