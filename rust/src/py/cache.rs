@@ -446,6 +446,33 @@ impl PyVisibilityCache {
         self.inner.record_misses(&ids, &misses, &uses).py()
     }
 
+    /// Re-traces `rays_per_record` of each record's directions (drawn from `seed`, the
+    /// record and the frame) in the scene as it is now and records the disagreements as
+    /// misses, as an estimator's samples would (§5.3); call after `setup.at_frame(i)` and
+    /// before `end_frame()`. Returns a dict: rays, misses.
+    #[pyo3(signature = (rays_per_record=None, seed=None, threads=None))]
+    fn validate<'py>(
+        &self,
+        py: Python<'py>,
+        rays_per_record: Option<&Bound<'py, PyAny>>,
+        seed: Option<&Bound<'py, PyAny>>,
+        threads: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let k = rays_per_record.map_or(Ok(16), |r| int_arg(r, "rays_per_record", 1, 1 << 14))?;
+        let k = k as u32;
+        let seed = seed.map_or(Ok(0), seed_arg)?;
+        let threads = threads_arg(threads)?;
+        let scene = self.scene.borrow(py).inner.clone();
+        let inner = self.inner.clone();
+        let (rays, misses) = py
+            .detach(|| inner.validate(&scene, k, seed, threads))
+            .py()?;
+        let d = PyDict::new(py);
+        d.set_item("rays", rays)?;
+        d.set_item("misses", misses)?;
+        Ok(d)
+    }
+
     /// Ends the frame (§5.3): removes records whose miss rate this frame exceeds
     /// `epsilon_max` (or the `evict_worst` worst) and records unused for `unused_frames`
     /// frames; ids are compacted (kept records keep their order). Returns a dict: frame,

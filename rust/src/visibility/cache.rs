@@ -3,8 +3,10 @@
 //!
 //! ## Lookup (§5.1, eq. 9, Fig. 7)
 //! For a query point `x` with unit normal `n` and radius `d_max`: take the `m` nearest
-//! records within `d_max` (kd-tree range search), drop those with `θ_i >= θ_max`, weight
-//! the rest `w_i = w_g · ŵ(d, θ)` with
+//! records among those within `d_max` (kd-tree range search) whose normals differ by
+//! `θ_i < θ_max` — filtering before counting, so that records on a nearby face of another
+//! orientation (a corner's other wall) cannot crowd out the matching ones — and weight
+//! them `w_i = w_g · ŵ(d, θ)` with
 //! `w(d, θ) = (1 − θ/π)(1 − x/(1 + λx))`, `x = d / d_max` (eq. 9),
 //! `ŵ = (w − w_lo)/(1 − w_lo)` where `w_lo = w(d_max, θ_max)`, and
 //! `w_g = sqrt(1 − |n·v|)` for the unit vector `v` from `x` to the record (`w_g = 1` for a
@@ -244,8 +246,12 @@ impl CacheState {
         let m = params.m_search as usize;
         // Candidates: (squared distance, id), expanding shared positions; whenever the
         // buffer fills, the m nearest are kept.
-        let mut cand: [(f32, u32); 2 * MAX_SEARCH_COUNT as usize] =
-            [(0.0, 0); 2 * MAX_SEARCH_COUNT as usize];
+        let theta_max = params.theta_max();
+        let cos_max = theta_max.cos();
+        // Candidates (squared distance, id, θ) within d_max and θ_max, expanding shared
+        // positions; whenever the buffer fills, the m nearest (ties by id) are kept.
+        let mut cand: [(f32, u32, f32); 2 * MAX_SEARCH_COUNT as usize] =
+            [(0.0, 0, 0.0); 2 * MAX_SEARCH_COUNT as usize];
         let mut len = 0;
         let sites = self
             .tree
@@ -253,44 +259,39 @@ impl CacheState {
         for s in &sites {
             let mut id = s.item;
             while id != NO_RECORD {
-                if len == cand.len() {
-                    cand.select_nth_unstable_by(m - 1, by_distance_then_id);
-                    len = m;
+                let normal = self.normals[id as usize];
+                let cos = n.dot(normal);
+                // θ = atan2(sin, cos) is accurate near 0, where acos of an f32 dot product
+                // is off by up to 3e-4 rad; clearly wide angles skip it.
+                if cos >= cos_max - 1e-3 {
+                    let theta = n.cross(normal).length().atan2(cos);
+                    // θ_i < θ_max (strict, as in §5.1); NaN never passes.
+                    if theta.partial_cmp(&theta_max) == Some(std::cmp::Ordering::Less) {
+                        if len == cand.len() {
+                            cand.select_nth_unstable_by(m - 1, by_distance_then_id);
+                            len = m;
+                        }
+                        cand[len] = (s.distance, id, theta);
+                        len += 1;
+                    }
                 }
-                cand[len] = (s.distance, id);
-                len += 1;
                 id = self.next_at_site[id as usize];
             }
         }
-        // The m nearest (ties by id), in no particular order: the scoring below sorts.
+        // The m nearest, in no particular order: the scoring below sorts.
         let cand = &mut cand[..len];
         if len > m {
             cand.select_nth_unstable_by(m - 1, by_distance_then_id);
         }
         let cand = &cand[..len.min(m)];
-        let cos_max = params.theta_max().cos();
 
-        let theta_max = params.theta_max();
         let w_lo = params.weight_floor();
         let scale = 1.0 / (1.0 - w_lo);
         let mut best = 0.0f32;
         let mut scored = [Neighbour::default(); MAX_SEARCH_COUNT as usize];
         let mut scored_len = 0;
-        for &(d2, id) in cand {
+        for &(d2, id, theta) in cand {
             let h = self.store.header(id as usize);
-            // atan2 of sine and cosine: accurate near θ = 0, where acos of an f32 dot
-            // product is off by up to 3e-4 rad.
-            let m = self.normals[id as usize];
-            let cos = n.dot(m);
-            // Clearly beyond θ_max: skip the arctangent.
-            if cos < cos_max - 1e-3 {
-                continue;
-            }
-            let theta = n.cross(m).length().atan2(cos);
-            // θ_i < θ_max (strict, as in §5.1); NaN never passes.
-            if theta.partial_cmp(&theta_max) != Some(std::cmp::Ordering::Less) {
-                continue;
-            }
             let d = d2.sqrt();
             let w_hat = ((raw_weight(d / d_max, theta, params.lambda_falloff) - w_lo) * scale)
                 .clamp(0.0, 1.0);
@@ -433,7 +434,7 @@ impl CacheState {
     }
 }
 
-fn by_distance_then_id(a: &(f32, u32), b: &(f32, u32)) -> std::cmp::Ordering {
+fn by_distance_then_id(a: &(f32, u32, f32), b: &(f32, u32, f32)) -> std::cmp::Ordering {
     a.0.total_cmp(&b.0).then(a.1.cmp(&b.1))
 }
 
@@ -657,6 +658,66 @@ impl VisibilityCache {
             }
         }
         Ok(())
+    }
+
+    /// Checks every record against `scene` as it is now, the way an estimator's samples do
+    /// (§5.3): `rays_per_record` of the record's own pattern directions above its tangent
+    /// plane, drawn from `(seed, record, frame)`, are traced again, and each one whose
+    /// answer differs from the stored bit counts as a miss; all count as uses. Returns
+    /// (rays traced, misses). For animations: call after the scene changed, then
+    /// [`Self::end_frame`] evicts the records the change made wrong.
+    pub fn validate(
+        &self,
+        scene: &Scene,
+        rays_per_record: u32,
+        seed: u64,
+        threads: Option<usize>,
+    ) -> Result<(u64, u64)> {
+        if rays_per_record == 0 {
+            return Err(Error::invalid("rays_per_record", "must be >= 1"));
+        }
+        let state = self.read();
+        let frame = state.frame;
+        let n = state.len();
+        let texels = self.pattern.len() as u64;
+        let counts: Vec<(u32, u32)> = with_threads(threads, || {
+            (0..n)
+                .into_par_iter()
+                .map(|i| {
+                    let h = state.store.header(i);
+                    let (p, normal) = (h.position(), state.normals[i]);
+                    let origin = scene.offset_point(p, normal);
+                    let bits = state.store.bits(i);
+                    let mut counters = Default::default();
+                    let (mut uses, mut misses) = (0u32, 0u32);
+                    // Draw until enough directions above the plane (bounded tries).
+                    for k in 0..8 * rays_per_record as u64 {
+                        if uses == rays_per_record {
+                            break;
+                        }
+                        let z = (crate::sampling::rng::hash4(seed, i as u64, frame as u64, k)
+                            % texels) as usize;
+                        let d = self.pattern[z];
+                        if normal.dot(d) <= 0.0 {
+                            continue;
+                        }
+                        uses += 1;
+                        let visible = !scene.occluded1(origin, d, f32::INFINITY, &mut counters);
+                        misses += (visible != bits.get(z)) as u32;
+                    }
+                    (misses, uses)
+                })
+                .collect()
+        })?;
+        drop(state);
+        let ids: Vec<u32> = (0..n as u32).collect();
+        let misses: Vec<u32> = counts.iter().map(|c| c.0).collect();
+        let uses: Vec<u32> = counts.iter().map(|c| c.1).collect();
+        self.record_misses(&ids, &misses, &uses)?;
+        Ok((
+            uses.iter().map(|&u| u as u64).sum(),
+            misses.iter().map(|&m| m as u64).sum(),
+        ))
     }
 
     /// Ends the frame (§5.3): removes records whose miss rate this frame exceeds `ε_max`

@@ -25,13 +25,18 @@ fn random_dir(seed: u64, k: u64) -> Vec3 {
 fn brute_lookup(c: &VisibilityCache, x: Vec3, n: Vec3, d_max: f32) -> Vec<(u32, f32)> {
     let p = c.params();
     let s = c.read();
+    let theta_max = p.theta_max_deg.to_radians();
+    let angle = |id: u32| {
+        n.as_dvec3()
+            .angle_between(s.store().header(id as usize).normal().as_dvec3()) as f32
+    };
+    // Filter by distance and angle first, then the m nearest.
     let mut near: Vec<(f32, u32)> = (0..s.len())
         .map(|i| (s.store().header(i).position().distance_squared(x), i as u32))
-        .filter(|&(d2, _)| d2 <= d_max * d_max)
+        .filter(|&(d2, id)| d2 <= d_max * d_max && angle(id) < theta_max)
         .collect();
     near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     near.truncate(p.m_search as usize);
-    let theta_max = p.theta_max_deg.to_radians();
     let lam = p.lambda_falloff;
     let w = |x: f32, t: f32| (1.0 - t / std::f32::consts::PI) * (1.0 - x / (1.0 + lam * x));
     let w_lo = w(1.0, theta_max);
@@ -39,10 +44,7 @@ fn brute_lookup(c: &VisibilityCache, x: Vec3, n: Vec3, d_max: f32) -> Vec<(u32, 
         .iter()
         .filter_map(|&(d2, id)| {
             let h = s.store().header(id as usize);
-            let theta = n.as_dvec3().angle_between(h.normal().as_dvec3()) as f32;
-            if theta >= theta_max {
-                return None;
-            }
+            let theta = angle(id);
             let d = d2.sqrt();
             let w_hat = ((w(d / d_max, theta) - w_lo) / (1.0 - w_lo)).clamp(0.0, 1.0);
             let v = h.position() - x;
@@ -356,8 +358,8 @@ fn builds_are_identical_for_any_thread_count() {
         r1.shadow_rays_per_pixel,
         r1.shadow_rays as f64 / (48.0 * 36.0)
     );
-    // After a build, every covered pixel finds records that satisfy the criteria
-    // unless the cache was full.
+    // After a build, every covered pixel meets the criteria (the closed box's records are
+    // all occluded, so they agree; elsewhere δ̄ can stay high where neighbours differ).
     let c = VisibilityCache::load_bytes_for_test(&one);
     let g = GBuffer::render(&setup.scene, &cam, 3, false, None).unwrap();
     for i in 0..g.object.len() {
