@@ -11,6 +11,7 @@ def test_demo_writes_an_image_per_method(tmp_path, capsys):
     assert code == 0
     out = capsys.readouterr().out
     assert "Mrays/s" in out and "BVH build" in out and "standard error" in out
+    assert "visibility cache" in out and "records" in out
     for method in ("mis", "product"):
         png = (tmp_path / f"cornell_{method}.png").read_bytes()
         assert png.startswith(b"\x89PNG") and len(png) > 100
