@@ -92,8 +92,20 @@ def test_differences_and_hierarchy_from_numpy(open_box):
     beta = look["beta"][0]
     want = sum(b * maps[ids.index(k)] for k, b in zip(kept, beta, strict=True))
     np.testing.assert_allclose(look["map"][0], want, atol=1e-6)
-    # (The 2-bit hierarchy codes are checked against numpy-style reductions of the bits in
-    # the core's record tests, which can see them.)
+    # The 2-bit hierarchy codes equal numpy reductions of the bits at every level:
+    # bit 0 = some direction of the node visible, bit 1 = some occluded.
+    for rid, bits in zip(ids, maps, strict=True):
+        levels = cache.record_hierarchy(rid)
+        assert len(levels) == 6
+        for level, codes in enumerate(levels):
+            s = 32 >> level
+            blocks = bits.reshape(2**level, s, 2**level, s).swapaxes(1, 2)
+            want = blocks.any(axis=(2, 3)) * 1 + (~blocks).any(axis=(2, 3)) * 2
+            np.testing.assert_array_equal(codes, want.astype(np.uint8), err_msg=f"level {level}")
+        assert {1, 2, 3} >= set(np.unique(levels[5]))
+    # An all-occluded record (inside the short block) is empty at every level.
+    shut = cache.insert((0.95, 0.8, 0.85), (0, 1, 0))
+    assert all((c == 2).all() for c in cache.record_hierarchy(shut))
 
 
 def numpy_lookup(params, positions, normals, x, n, d_max):

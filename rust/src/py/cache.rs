@@ -400,6 +400,36 @@ impl PyVisibilityCache {
         PyArray1::from_vec(py, out).reshape([r as usize, r as usize])
     }
 
+    /// The 2-bit coverage hierarchy of record `id` (CAM08 Fig. 9): one (2^l, 2^l) uint8
+    /// array per quadtree level l = 0..M in texel layout, each node's code as the core keeps
+    /// it: 1 = all visible, 2 = all occluded, 3 = partly visible (bit 0 "some direction
+    /// visible", bit 1 "some occluded"). Levels down to 8 x 8-texel nodes are the stored
+    /// codes; finer ones are read from the bits.
+    fn record_hierarchy<'py>(
+        &self,
+        py: Python<'py>,
+        id: &Bound<'py, PyAny>,
+    ) -> PyResult<Vec<Bound<'py, PyArray2<u8>>>> {
+        let i = self.record_id(id)?;
+        let m = self.inner.params().log2_resolution;
+        let state = self.inner.read();
+        let bits = state.store().bits(i);
+        let levels: Vec<(usize, Vec<u8>)> = (0..=m)
+            .map(|level| {
+                let side = 1u32 << level;
+                let codes = (0..side * side)
+                    .map(|t| bits.coverage(level, morton_encode(t % side, t / side)) as u8)
+                    .collect();
+                (side as usize, codes)
+            })
+            .collect();
+        drop(state);
+        levels
+            .into_iter()
+            .map(|(side, codes)| PyArray1::from_vec(py, codes).reshape([side, side]))
+            .collect()
+    }
+
     /// Bytes the records occupy (`len * bytes_per_record`; 172 per record at 32 x 32).
     fn memory_bytes(&self) -> usize {
         self.inner.memory_bytes()
