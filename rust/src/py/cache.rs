@@ -12,7 +12,8 @@ use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, f64_vector, finite_rows, int_arg, seed_arg, threads_arg, unit_directions, IntoPyResult,
+    f64_arg, f64_vector, finite_rows, int_arg, seed_arg, threads_arg, unit_directions, vec3_arg,
+    IntoPyResult,
 };
 use super::scene::PyScene;
 use crate::sampling::octahedral::{morton_decode, morton_encode};
@@ -268,15 +269,8 @@ impl PyVisibilityCache {
             return Err(e);
         }
         let r = out.py()?;
-        // Default lookup radius: k times the median footprint of the view.
-        let g = py
-            .detach(|| crate::camera::GBuffer::render(&scene, &cam, seed, false, threads))
-            .py()?;
-        let mut fp: Vec<f32> = g.footprint.into_iter().filter(|f| f.is_finite()).collect();
-        if !fp.is_empty() {
-            let mid = fp.len() / 2;
-            let (_, median, _) = fp.select_nth_unstable_by(mid, f32::total_cmp);
-            self.default_radius = Some(self.inner.params().d_max_scale * *median);
+        if let Some(f) = r.median_footprint {
+            self.default_radius = Some(self.inner.params().d_max_scale * f);
         }
         let d = PyDict::new(py);
         d.set_item("records", r.records)?;
@@ -301,8 +295,8 @@ impl PyVisibilityCache {
         point: &Bound<'_, PyAny>,
         normal: &Bound<'_, PyAny>,
     ) -> PyResult<Option<u32>> {
-        let p = one_row(point, "point")?;
-        let n = one_row(normal, "normal")?;
+        let p = vec3_arg(point, "point")?;
+        let n = vec3_arg(normal, "normal")?;
         let scene = self.scene.borrow(py).inner.clone();
         let inner = self.inner.clone();
         py.detach(|| inner.insert(&scene, p.into(), n.into())).py()
@@ -606,18 +600,6 @@ impl PyVisibilityCache {
             },
         }
     }
-}
-
-/// A single point: three finite reals.
-fn one_row(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f32; 3]> {
-    let reshaped = obj
-        .call_method1("reshape", ((1, 3),))
-        .or_else(|_| {
-            let np = obj.py().import("numpy")?;
-            np.call_method1("reshape", (np.call_method1("asarray", (obj,))?, (1, 3)))
-        })
-        .map_err(|_| PyValueError::new_err(format!("{name}: expected three real numbers")))?;
-    Ok(finite_rows::<3>(&reshaped, name)?[0])
 }
 
 /// A 1-D array of counts (non-negative integers below 2^32).

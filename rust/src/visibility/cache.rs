@@ -56,7 +56,7 @@ use kiddo::float::kdtree::KdTree;
 use kiddo::SquaredEuclidean;
 
 use super::params::{raw_weight, CacheParams, MAX_KEEP_COUNT, MAX_SEARCH_COUNT};
-use super::record::{words_per_map, Record, RecordHeader, RecordRays, RecordStore, VisibilityView};
+use super::record::{Record, RecordHeader, RecordRays, RecordStore, VisibilityView};
 use crate::camera::{Camera, GBuffer};
 use crate::error::{Error, Result};
 use crate::geometry::Scene;
@@ -167,6 +167,9 @@ pub struct BuildReport {
     pub nearest_rays: u64,
     /// `shadow_rays / pixels`: CAM08 Table 2's amortised cost.
     pub shadow_rays_per_pixel: f64,
+    /// Median footprint of the covered pixels (world units; `None` when nothing was hit):
+    /// `d_max_scale` times it is a fair search radius for lookups without footprints.
+    pub median_footprint: Option<f32>,
     /// Wall-clock seconds.
     pub seconds: f64,
     /// False when the time budget or the progress callback stopped the pass early.
@@ -822,12 +825,23 @@ impl VisibilityCache {
         };
         with_threads(threads, || -> Result<()> {
             let gbuffer = GBuffer::render(scene, camera, seed, false, None)?;
-            report.covered_pixels = gbuffer.object.iter().filter(|&&o| o >= 0).count();
+            let mut footprints: Vec<f32> = gbuffer
+                .footprint
+                .iter()
+                .copied()
+                .filter(|f| f.is_finite())
+                .collect();
+            report.covered_pixels = footprints.len();
+            if !footprints.is_empty() {
+                let mid = footprints.len() / 2;
+                report.median_footprint =
+                    Some(*footprints.select_nth_unstable_by(mid, f32::total_cmp).1);
+            }
             if self.is_empty() {
                 report.bootstrap_records = self.bootstrap(scene, camera, seed)?;
             }
             let levels = coarse_to_fine_levels(camera.width, camera.height);
-            let total: usize = gbuffer.object.iter().filter(|&&o| o >= 0).count();
+            let total = report.covered_pixels;
             let mut done = 0;
             'levels: for level in levels {
                 let mut fresh = level
@@ -1013,9 +1027,4 @@ pub fn coarse_to_fine_levels(w: u32, h: u32) -> Vec<Vec<u32>> {
         }
         spacing /= 2;
     }
-}
-
-/// Words of one record's map; re-exported for the file format.
-pub(crate) fn map_words(m: u32) -> usize {
-    words_per_map(m)
 }

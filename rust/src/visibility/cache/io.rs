@@ -20,10 +20,10 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use super::{map_words, CacheState, VisibilityCache};
+use super::{CacheState, VisibilityCache};
 use crate::error::{Error, Result};
 use crate::visibility::params::CacheParams;
-use crate::visibility::record::RecordHeader;
+use crate::visibility::record::{words_per_map, RecordHeader};
 
 const MAGIC: &[u8; 8] = b"VISCACHE";
 /// Version this build writes and reads.
@@ -47,7 +47,7 @@ impl VisibilityCache {
         let state = self.read();
         let m = p.log2_resolution;
         let n = state.len();
-        let mut out = Vec::with_capacity(100 + n * (HEADER_BYTES + 8 * map_words(m)));
+        let mut out = Vec::with_capacity(100 + n * (HEADER_BYTES + 8 * words_per_map(m)));
         out.extend_from_slice(MAGIC);
         let u32s =
             |out: &mut Vec<u8>, v: &[u32]| v.iter().for_each(|x| out.extend(x.to_le_bytes()));
@@ -126,7 +126,7 @@ impl VisibilityCache {
         params
             .validate()
             .map_err(|e| bad(format!("bad parameters: {e}")))?;
-        let words = map_words(params.log2_resolution);
+        let words = words_per_map(params.log2_resolution);
         let record_bytes = (HEADER_BYTES + 8 * words) as u64;
         let expect = (r.at as u64 + 8).checked_add(n.saturating_mul(record_bytes));
         if n > params.max_records as u64 || expect != Some(bytes.len() as u64) {
