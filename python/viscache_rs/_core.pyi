@@ -228,6 +228,7 @@ class VisibilityCache:
     @staticmethod
     def load(path: str | PathLike[str], scene: Scene) -> VisibilityCache: ...
 
+def write_exr(path: str | PathLike[str], image: ArrayLike) -> None: ...
 def render(
     scene: Scene,
     envmap: EnvMap,

@@ -5,6 +5,9 @@
                     then build the visibility cache for the view and print its size and
                     cost.
 ``viscache scenes`` list the built-in scenes.
+``viscache experiment NAME [--quick]``
+                    run an experiment (``viscache experiment --list``) and write
+                    ``results/NAME/``: JSON of every figure, markdown tables, images, plots.
 """
 
 from __future__ import annotations
@@ -60,6 +63,19 @@ def list_scenes(_args: argparse.Namespace) -> int:
     return 0
 
 
+def experiment(args: argparse.Namespace) -> int:
+    from . import experiments
+
+    if args.list or args.name is None:
+        for name in experiments.names():
+            print(f"{name:<16}{experiments.describe(name).strip().splitlines()[0]}")
+        return 0 if args.list else 2
+    ctx = experiments.run(args.name, quick=args.quick, out=args.out, seed=args.seed,
+                          threads=args.threads, progress=not args.quiet)
+    print(f"wrote {ctx.out}/ in {ctx.results['seconds']:.1f} s")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="viscache", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -79,6 +95,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--out", default="results/demo")
     p.set_defaults(func=demo)
+    p = sub.add_parser("experiment", help="run an experiment and write results/NAME/")
+    p.add_argument("name", nargs="?", help="the experiment (--list shows them)")
+    p.add_argument("--list", action="store_true", help="list the experiments")
+    p.add_argument("--quick", action="store_true", help="minutes on 2 cores")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--out", default="results", help="parent directory of results/NAME/")
+    p.set_defaults(func=experiment)
     p = sub.add_parser("scenes", help="list the built-in scenes")
     p.set_defaults(func=list_scenes)
     args = parser.parse_args(argv)

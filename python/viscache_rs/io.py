@@ -1,4 +1,4 @@
-"""Image output without extra dependencies."""
+"""Image output: sRGB PNG (no extra dependencies) and float OpenEXR (the Rust core)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["to_srgb8", "write_png"]
+__all__ = ["to_srgb8", "write_exr", "write_png"]
 
 
 def to_srgb8(linear: np.ndarray, exposure: float = 1.0) -> np.ndarray:
@@ -36,4 +36,15 @@ def write_png(path: str | Path, rgb8: np.ndarray) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(png)
+    return path
+
+
+def write_exr(path: str | Path, image: np.ndarray) -> Path:
+    """Writes an (H, W, 3) array of linear radiance as a float32 RGB OpenEXR file (lossless)
+    and returns the path."""
+    from ._core import write_exr as _write_exr
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _write_exr(path, image)
     return path

@@ -15,6 +15,7 @@ pub mod camera;
 pub mod error;
 pub mod estimators;
 pub mod geometry;
+pub mod image;
 pub mod lights;
 pub mod parallel;
 pub mod render;

@@ -896,41 +896,19 @@ impl EnvMap {
     /// (it reads back bit-exactly); [`ExrLayout::LatLong`] writes a `2res x res` image from
     /// [`Self::to_equirect`]. Failures are [`Error::Io`] naming the path.
     pub fn to_exr(&self, path: impl AsRef<Path>, layout: ExrLayout) -> Result<()> {
-        use exr::prelude::*;
-        let path = path.as_ref();
         let res = self.resolution as usize;
         let (width, height, pixels) = match layout {
             ExrLayout::Octahedral => (res, res, self.texels.clone()),
             ExrLayout::LatLong => (2 * res, res, self.to_equirect(2 * res, res)),
         };
-        let mut attributes = LayerAttributes::named("envmap");
-        attributes.software_name = Some(Text::from("viscache_rs"));
-        attributes.other.insert(
-            Text::from(EXR_LAYOUT_ATTRIBUTE),
-            AttributeValue::Text(Text::from(layout.name())),
-        );
-        let layer = Layer::new(
-            (width, height),
-            attributes,
-            Encoding::SMALL_LOSSLESS,
-            SpecificChannels::rgb(|p: Vec2<usize>| {
-                let [r, g, b] = pixels[p.y() * width + p.x()];
-                (r, g, b)
-            }),
-        );
-        Image::from_layer(layer)
-            .write()
-            .to_file(path)
-            .map_err(|e| match e {
-                exr::error::Error::Io(source) => crate::error::Error::Io {
-                    path: path.to_path_buf(),
-                    source,
-                },
-                other => crate::error::Error::Io {
-                    path: path.to_path_buf(),
-                    source: std::io::Error::other(other.to_string()),
-                },
-            })
+        crate::image::write_exr_rgb(
+            path.as_ref(),
+            width,
+            height,
+            &pixels,
+            "envmap",
+            &[(EXR_LAYOUT_ATTRIBUTE, layout.name())],
+        )
     }
 }
 

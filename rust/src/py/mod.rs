@@ -5,6 +5,7 @@ mod cache;
 mod camera;
 mod convert;
 mod envmap;
+mod image;
 mod material;
 mod octahedral;
 mod render;
@@ -25,6 +26,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<envmap::PyEnvMap>()?;
     m.add_class::<cache::PyVisibilityCache>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
+    m.add_function(wrap_pyfunction!(image::write_exr, m)?)?;
     m.add_function(wrap_pyfunction!(setup::scene_names, m)?)?;
     m.add_function(wrap_pyfunction!(setup::load_scene, m)?)?;
     m.add_function(wrap_pyfunction!(setup::animated_scene_names, m)?)?;

@@ -1,0 +1,83 @@
+"""Experiments that measure the speed/accuracy trade of visibility caching (CAM08 sec. 4-7).
+
+Each experiment is a module here with a ``DESCRIPTION`` string and a ``run(ctx)`` function
+that takes an :class:`ExperimentContext`. ``viscache experiment NAME [--quick]`` (or
+:func:`run`) creates ``results/NAME/`` and the experiment writes into it:
+
+- ``results.json``: every figure it measured (:meth:`ExperimentContext.record`);
+- ``results.md``: its tables in markdown (:meth:`ExperimentContext.table`), also printed;
+- images as float EXR plus tone-mapped PNG (:meth:`ExperimentContext.image`);
+- matplotlib figures as PNG (:meth:`ExperimentContext.figure`).
+
+``--quick`` runs in minutes on 2 cores (small images, few sample counts); the full mode
+follows the paper's settings more closely and can take much longer.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from ._context import ExperimentContext
+
+#: Experiment name -> module name.
+_MODULES = {
+    "variance-table": "variance_table",
+    "correlation": "correlation",
+    "ao": "ambient_occlusion",
+    "animation": "animation",
+    "tradeoff": "tradeoff",
+}
+
+
+def names() -> list[str]:
+    """Names of the experiments that are available."""
+    return [n for n in _MODULES if _module(n) is not None]
+
+
+def _module(name: str):
+    try:
+        return importlib.import_module(f"{__name__}.{_MODULES[name]}")
+    except ModuleNotFoundError as e:
+        if e.name == f"{__name__}.{_MODULES[name]}":
+            return None
+        raise
+
+
+def describe(name: str) -> str:
+    """One-paragraph description of experiment ``name``."""
+    return _get(name).DESCRIPTION
+
+
+def _get(name: str):
+    mod = _module(name) if name in _MODULES else None
+    if mod is None:
+        raise ValueError(f"name: unknown experiment {name!r}; expected one of {names()}")
+    return mod
+
+
+def run(
+    name: str,
+    quick: bool = False,
+    out: str | Path = "results",
+    seed: int = 0,
+    threads: int | None = None,
+    progress: bool = True,
+) -> ExperimentContext:
+    """Runs experiment ``name`` and writes ``out/name/``; returns the context, whose
+    ``results`` dict holds every recorded figure."""
+    mod = _get(name)
+    ctx = ExperimentContext(
+        name=name,
+        out=Path(out) / name,
+        quick=quick,
+        seed=seed,
+        threads=threads,
+        progress=progress,
+    )
+    mod.run(ctx)
+    ctx.finish()
+    return ctx
+
+
+__all__ = ["ExperimentContext", "describe", "names", "run"]
