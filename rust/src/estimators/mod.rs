@@ -1,3 +1,4 @@
 //! Estimators of direct illumination.
 
+pub mod control_variate;
 pub mod direct;
