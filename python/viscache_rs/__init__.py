@@ -6,12 +6,22 @@ environment maps, I/O and the ``viscache`` command line.
 """
 
 from . import envmaps, octahedral, scenes, testing
-from ._core import Camera, EnvMap, Material, Scene, Setup, VisibilityCache, __version__
-from .render import RenderResult, render
+from ._core import (
+    Camera,
+    EnvMap,
+    LightingPreview,
+    Material,
+    Scene,
+    Setup,
+    VisibilityCache,
+    __version__,
+)
+from .render import RenderResult, preview, render
 
 __all__ = [
     "Camera",
     "EnvMap",
+    "LightingPreview",
     "Material",
     "RenderResult",
     "Scene",
@@ -20,6 +30,7 @@ __all__ = [
     "__version__",
     "envmaps",
     "octahedral",
+    "preview",
     "render",
     "scenes",
     "testing",

@@ -127,6 +127,18 @@ def render(
     return RenderResult(out["image"], out["variance"], stats, out["alpha"])
 
 
+def preview(setup, cache, envmap=None, camera=None, product_level: int = 5,
+            threads: int | None = None) -> np.ndarray:
+    """CAM08 sec. 6.2's lighting preview: ``J = int L B~ V~`` per pixel, an (H, W, 3) float32
+    image, from ``cache``'s records under ``envmap`` (default: the setup's). For many
+    lightings of one view, make a :class:`LightingPreview` once (it traces the primary
+    rays) and call its ``render(cache, envmap)``, which traces none."""
+    camera = setup.camera if camera is None else camera
+    envmap = setup.envmap if envmap is None else envmap
+    view = _core.LightingPreview(setup.scene, camera, threads=threads)
+    return view.render(cache, envmap, product_level=product_level, threads=threads)
+
+
 def _progress_bar(progress: bool, spp: int, time_budget: float | None, method: str):
     if not progress:
         return None
@@ -134,4 +146,4 @@ def _progress_bar(progress: bool, spp: int, time_budget: float | None, method: s
     return tqdm(total=total, desc=f"render ({method})", unit="spp", leave=False)
 
 
-__all__ = ["RenderResult", "render"]
+__all__ = ["RenderResult", "preview", "render"]

@@ -273,6 +273,9 @@ enum Point {
 
 struct SurfacePoint {
     sp: ShadingPoint,
+    /// [`crate::bsdf::Material::channel_ratios`] of the material: the control variate's
+    /// per-channel scale.
+    ratios: [f64; 3],
     emitted: Vec3,
     product: Option<ProductDistribution>,
     interpolant: Interpolant,
@@ -362,6 +365,7 @@ impl Shader<'_> {
             }
         }
         Point::Surface(Box::new(SurfacePoint {
+            ratios: sp.material.channel_ratios().map(f64::from),
             sp,
             emitted,
             product,
@@ -424,7 +428,7 @@ impl Shader<'_> {
                 v.1 += 1;
             }
         }
-        let w = std::array::from_fn(|c| g.value[c] - interp.j[c]);
+        let w = std::array::from_fn(|c| p.ratios[c] * (g.value[c] - interp.j[c]));
         (z, w)
     }
 

@@ -344,24 +344,6 @@ pub fn record_texel_code(p: DVec2, m: u32) -> u32 {
     morton_encode(t.x, t.y)
 }
 
-/// `J` for direct visualisation (CAM08 §6.2) at one point: `Σ β_i J_i`, RGB, or zero when
-/// the point has no product (black map, nothing reflected) or no records. `tables` is
-/// scratch space.
-pub fn preview_value(
-    state: &CacheState,
-    lookup: &Lookup,
-    product: Option<&ProductDistribution>,
-    radiance: &RadiancePyramid,
-    tables: &mut ControlTables,
-) -> Vec3 {
-    let Some(product) = product else {
-        return Vec3::ZERO;
-    };
-    tables.fill(product, radiance, state.store().m());
-    let j = Interpolant::new(state, lookup, Some(tables)).j;
-    Vec3::new(j[0] as f32, j[1] as f32, j[2] as f32)
-}
-
 /// Centred sums of one pixel's samples of `Z` (the plain estimate) and `W` (the control
 /// variate's zero-mean term `g/p − J`), per channel, from which the estimate and its
 /// variance follow for any `α` ([`Self::estimate`]).

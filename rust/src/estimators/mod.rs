@@ -2,3 +2,4 @@
 
 pub mod control_variate;
 pub mod direct;
+pub mod preview;
