@@ -168,8 +168,18 @@ impl ControlTables {
                 acc = [acc[0] + b * l[0], acc[1] + b * l[1], acc[2] + b * l[2]];
                 self.prefix.push(acc);
             }
-        } else {
+        } else if self.level <= radiance.depth() {
             // Record texels finer than the cells: each takes its cell's B~.
+            let group = 1usize << (2 * (self.level - p));
+            for (texels, &b) in radiance.level(self.level).chunks_exact(group).zip(bsdf) {
+                let b = b as f64;
+                for l in texels {
+                    acc = [acc[0] + b * l[0], acc[1] + b * l[1], acc[2] + b * l[2]];
+                    self.prefix.push(acc);
+                }
+            }
+        } else {
+            // ... and finer than the map's texels too.
             let shift = 2 * (self.level - p);
             for t in 0..1u32 << (2 * self.level) {
                 let b = bsdf[(t >> shift) as usize] as f64;
