@@ -135,7 +135,7 @@ def test_bins_equal_numpy_for_all_pairs_and_sampled_pairs(small):
     assert (count > 0).sum() >= 8
     np.testing.assert_array_equal(got["distance_edges"], de)
 
-    pairs = analysis.sample_pairs(p, neighbours=6, far=6, seed=3)
+    pairs = analysis.sample_pairs(maps, neighbours=6, far=6, seed=3)
     got = analysis.correlation_bins(maps, de, te, pairs=pairs, threads=1)
     i, j = pairs[:, 0].astype(int), pairs[:, 1].astype(int)
     d, t = geometry(p, n, i, j)
@@ -149,14 +149,14 @@ def test_bins_equal_numpy_for_all_pairs_and_sampled_pairs(small):
 
 
 def test_sample_pairs_are_nearest_neighbours_then_far_partners(small):
-    p = small[0]
-    pairs = analysis.sample_pairs(p, neighbours=4, far=3, far_range=(0.1, 20.0), seed=1)
+    p, _, maps = small
+    pairs = analysis.sample_pairs(maps, neighbours=4, far=3, far_range=(0.1, 20.0), seed=1)
     assert pairs.dtype == np.uint32 and pairs.shape[1] == 2
     assert np.all(pairs[:, 0] != pairs[:, 1])
     np.testing.assert_array_equal(pairs, analysis.sample_pairs(
-        p, neighbours=4, far=3, far_range=(0.1, 20.0), seed=1, threads=2))
+        maps, neighbours=4, far=3, far_range=(0.1, 20.0), seed=1, threads=2))
     assert not np.array_equal(pairs, analysis.sample_pairs(
-        p, neighbours=4, far=3, far_range=(0.1, 20.0), seed=2))
+        maps, neighbours=4, far=3, far_range=(0.1, 20.0), seed=2))
     d2 = ((p[:, None].astype(np.float64) - p[None]) ** 2).sum(-1)
     np.fill_diagonal(d2, np.inf)
     starts = np.searchsorted(pairs[:, 0], np.arange(len(p)))
@@ -222,17 +222,17 @@ def test_bad_input_names_the_argument(dynamics, small):
     with pytest.raises(TypeError, match="pairs"):
         analysis.pair_correlations(maps, [[0.5, 1.0]])
     with pytest.raises(ValueError, match="points"):
-        analysis.sample_pairs(p[:1])
+        analysis.sample_pairs(analysis.visibility_maps(scene, p[:1], n[:1], resolution=2))
     with pytest.raises(ValueError, match="far_min"):
-        analysis.sample_pairs(p, far_range=(0.0, 1.0))
+        analysis.sample_pairs(maps, far_range=(0.0, 1.0))
     with pytest.raises(ValueError, match="far_max"):
-        analysis.sample_pairs(p, far_range=(1.0, 0.5))
+        analysis.sample_pairs(maps, far_range=(1.0, 0.5))
     with pytest.raises(ValueError, match="far_range"):
-        analysis.sample_pairs(p, far_range=(1.0, 2.0, 3.0))
+        analysis.sample_pairs(maps, far_range=(1.0, 2.0, 3.0))
     with pytest.raises(ValueError, match="neighbours"):
-        analysis.sample_pairs(p, neighbours=-1)
+        analysis.sample_pairs(maps, neighbours=-1)
     with pytest.raises(TypeError, match="far"):
-        analysis.sample_pairs(p, far=1.5)
+        analysis.sample_pairs(maps, far=1.5)
     with pytest.raises(ValueError, match="d_max"):
         analysis.local_correlation(maps, -1.0, 10.0)
     with pytest.raises(ValueError, match="theta_max_deg"):

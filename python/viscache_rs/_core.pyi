@@ -306,7 +306,7 @@ class _AnalysisModule:
     ) -> VisibilityMaps: ...
     @staticmethod
     def sample_pairs(
-        points: ArrayLike,
+        maps: VisibilityMaps,
         neighbours: int | None = 16,
         far: int | None = 16,
         far_range: ArrayLike | None = None,

@@ -10,8 +10,9 @@ in each map and in both): ``rho = (N c - a b) / sqrt(a (N - a) b (N - b))``; it 
 ``visibility_maps(scene, points, normals, resolution=32, threads=None, progress=False)``
     -> :class:`VisibilityMaps` (``len``, ``resolution``, ``points``, ``normals``,
     ``bits(indices=None)`` (N, R, R) bool in texel layout, ``visible_fraction()``).
-``sample_pairs(points, neighbours=16, far=16, far_range=None, seed=0)`` -> (P, 2) uint32:
-    each point's nearest neighbours, then partners at log-uniform distances.
+``sample_pairs(maps, neighbours=16, far=16, far_range=None, seed=0)`` -> (P, 2) uint32:
+    each point's nearest neighbours, then partners at log-uniform distances along its
+    tangent plane.
 ``pair_correlations(maps, pairs)`` -> dict of (P,) ``rho``, ``distance``, ``theta_deg``.
 ``correlation_bins(maps, distance_edges, theta_edges, pairs=None)`` -> dict of (D, T)
     ``count``, ``mean``, ``std``, ``undefined``: CAM08's ``rho_bar(d, theta)``.

@@ -3,9 +3,10 @@ a function of their distance d and the angle theta between their normals.
 
 Per scene: the first hits of a jittered G-buffer are the points (misses dropped); each gets
 its visibility map (``analysis.visibility_maps``, the cache's record pattern); pairs are
-each point's nearest neighbours plus partners at log-uniform distances up to the points'
-bounding-box diagonal (``analysis.sample_pairs``); ``analysis.correlation_bins`` gives
-rho_bar(d, theta) with standard deviations and pair counts. Distances are in world units;
+each point's nearest neighbours plus partners at log-uniform distances along its tangent
+plane, up to the points' bounding-box diagonal (``analysis.sample_pairs``);
+``analysis.correlation_bins`` gives rho_bar(d, theta) with standard deviations and pair
+counts. Distances are in world units;
 the plots span a quarter of each scene's diagonal, and "small d" is 2 % of the diagonal.
 """
 
@@ -71,7 +72,7 @@ def measure(setup, s: Settings, seed: int, threads: int | None, progress: bool) 
     d_edges = np.linspace(0.0, s.d_span * diag, s.d_bins + 1)
     theta_edges = np.arange(0.0, 180.0 + s.theta_step / 2, s.theta_step)
     d_small = s.d_small * diag
-    pairs = analysis.sample_pairs(points, neighbours=s.neighbours, far=s.far,
+    pairs = analysis.sample_pairs(maps, neighbours=s.neighbours, far=s.far,
                                   far_range=(d_edges[1] / 4, diag), seed=seed,
                                   threads=threads)
 

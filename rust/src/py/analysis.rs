@@ -218,27 +218,26 @@ pub fn visibility_maps(
     Ok(PyVisibilityMaps { inner: out.py()? })
 }
 
-/// Pairs of points for `correlation_bins` (CAM08 §4.1): for each point `i` in order, its
-/// `neighbours` (default 16) nearest points, then `far` (default 16) partners, each the
-/// point nearest to `x_i + r u`
-/// with `u` uniform on the sphere and `r` log-uniform in `far_range = (min, max)` (world
+/// Pairs of the maps' points for `correlation_bins` (CAM08 §4.1): for each point `i` in
+/// order, its `neighbours` (default 16) nearest points, then `far` (default 16) partners,
+/// each the point nearest to `x_i + r u` within `r / 2` of it, with `u` uniform on the
+/// circle of `x_i`'s tangent plane and `r` log-uniform in `far_range = (min, max)` (world
 /// units; default: 1e-3 to 1 times the points' bounding-box diagonal), drawn from
-/// `(seed, i, draw)`. Returns (P, 2) uint32 `(i, j)`, `i != j`. Deterministic.
+/// `(seed, i, draw)`; draws that find no point give no pair. Returns (P, 2) uint32
+/// `(i, j)`, `i != j`. Deterministic for any `threads`.
 #[pyfunction]
-#[pyo3(signature = (points, neighbours=None, far=None, far_range=None, seed=None, threads=None))]
+#[pyo3(signature = (maps, neighbours=None, far=None, far_range=None, seed=None, threads=None))]
 pub fn sample_pairs<'py>(
     py: Python<'py>,
-    points: &Bound<'py, PyAny>,
+    maps: PyRef<'py, PyVisibilityMaps>,
     neighbours: Option<&Bound<'py, PyAny>>,
     far: Option<&Bound<'py, PyAny>>,
     far_range: Option<&Bound<'py, PyAny>>,
     seed: Option<&Bound<'py, PyAny>>,
     threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let p: Vec<glam::Vec3> = finite_rows::<3>(points, "points")?
-        .into_iter()
-        .map(glam::Vec3::from_array)
-        .collect();
+    let m = &maps.inner;
+    let p = m.points();
     let count = |obj: Option<&Bound<'py, PyAny>>, name: &str| -> PyResult<usize> {
         obj.map_or(Ok(16), |o| int_arg(o, name, 0, MAX_PARTNERS as i128))
             .map(|v| v as usize)
@@ -273,7 +272,7 @@ pub fn sample_pairs<'py>(
         seed: seed.map_or(Ok(0), seed_arg)?,
     };
     let threads = threads_arg(threads)?;
-    let pairs = py.detach(|| pairs_core(&p, &s, threads)).py()?;
+    let pairs = py.detach(|| pairs_core(m, &s, threads)).py()?;
     rows_array(py, pairs)
 }
 

@@ -25,9 +25,13 @@
 //! [`sample_pairs`] draws each point's partners in two ways, both deterministic:
 //! - its `neighbours` nearest points (kd-tree; ties broken by the tree), which fill the
 //!   bins below a few point spacings;
-//! - `far` partners found as the point nearest to `x_i + r u`, `u` uniform on the sphere and
-//!   `r` log-uniform in `[far_min, far_max]`, drawn from `(seed, i, draw)`: distances spread
-//!   over every scale up to the scene's size.
+//! - `far` partners found as the point nearest to `x_i + r u` within `r / 2` of it, with `u`
+//!   uniform on the unit circle of `x_i`'s tangent plane and `r` log-uniform in
+//!   `[far_min, far_max]`, drawn from `(seed, i, draw)`: distances spread over every scale
+//!   up to the scene's size. Along the tangent plane the query stays near surfaces that
+//!   continue `x_i`'s; a query far above a large plane would make the kd-tree visit every
+//!   leaf of the plane within that height (all its points are about equally far), which the
+//!   `r / 2` bound also cuts off. A draw with no point within `r / 2` yields no pair.
 //!
 //! Pairs are ordered draws `(i, j)`: mutual neighbours appear twice and a far draw may
 //! repeat a pair. A bin's mean is therefore the mean over the drawn pairs, which weights
@@ -41,7 +45,7 @@
 
 use std::num::NonZeroUsize;
 
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
 use rayon::prelude::*;
@@ -319,26 +323,23 @@ pub struct PairSampling {
 /// Largest `neighbours` or `far` of [`PairSampling`].
 pub const MAX_PARTNERS: usize = 1024;
 
-/// Pairs `(i, j)`, `i != j`, for every point `i` in order: first its `neighbours` nearest
-/// points (nearest first), then its `far` draws in draw order (a draw whose nearest point is
-/// `i` itself yields no pair). At most `len * (neighbours + far)` pairs. See the module docs.
+/// Pairs `(i, j)`, `i != j`, of the maps' points, for every point `i` in order: first its
+/// `neighbours` nearest points (nearest first), then its `far` draws in draw order (a draw
+/// that finds no point or `i` itself yields no pair). At most `len * (neighbours + far)`
+/// pairs. See the module docs.
 ///
-/// Fails with fewer than two points, non-finite points or parameters out of range.
+/// Fails with fewer than two points or parameters out of range.
 pub fn sample_pairs(
-    points: &[Vec3],
+    maps: &VisibilityMaps,
     s: &PairSampling,
     threads: Option<usize>,
 ) -> Result<Vec<[u32; 2]>> {
+    let points = maps.points();
+    let normals = maps.normals();
     if points.len() < 2 || points.len() > u32::MAX as usize {
         return Err(Error::invalid(
             "points",
             format!("need 2 to 2^32 - 1 points, got {}", points.len()),
-        ));
-    }
-    if let Some(i) = points.iter().position(|p| !p.is_finite()) {
-        return Err(Error::invalid(
-            "points",
-            format!("row {i} is not finite: {}", points[i]),
         ));
     }
     if s.neighbours > MAX_PARTNERS {
@@ -389,18 +390,22 @@ pub fn sample_pairs(
                     );
                 }
                 let p = points[i].as_dvec3();
+                let (t1, t2) = normals[i].as_dvec3().any_orthonormal_pair();
                 for t in 0..s.far as u64 {
                     let u = |d: u64| to_unit_f64(hash4(s.seed, i as u64, t, d));
                     let r = s.far_min as f64 * (u(0) * log_ratio).exp();
-                    let z = 1.0 - 2.0 * u(1);
-                    let phi = std::f64::consts::TAU * u(2);
-                    let rxy = (1.0 - z * z).max(0.0).sqrt();
-                    let q = p + r * DVec3::new(rxy * phi.cos(), rxy * phi.sin(), z);
-                    let j = tree
-                        .nearest_one::<SquaredEuclidean>(&q.as_vec3().to_array())
-                        .item;
-                    if j as usize != i {
-                        out.push([i as u32, j]);
+                    let phi = std::f64::consts::TAU * u(1);
+                    let q = p + r * (phi.cos() * t1 + phi.sin() * t2);
+                    let found = tree.nearest_n_within::<SquaredEuclidean>(
+                        &q.as_vec3().to_array(),
+                        (0.25 * r * r) as f32,
+                        NonZeroUsize::MIN,
+                        true,
+                    );
+                    if let Some(j) = found.first().map(|nb| nb.item) {
+                        if j as usize != i {
+                            out.push([i as u32, j]);
+                        }
                     }
                 }
                 out

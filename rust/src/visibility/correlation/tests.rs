@@ -280,8 +280,8 @@ fn sampled_pairs_are_nearest_neighbours_then_far_draws() {
         far_max: 3.0,
         seed: 4,
     };
-    let pairs = sample_pairs(pts, &s, Some(1)).unwrap();
-    assert_eq!(pairs, sample_pairs(pts, &s, Some(2)).unwrap());
+    let pairs = sample_pairs(&maps, &s, Some(1)).unwrap();
+    assert_eq!(pairs, sample_pairs(&maps, &s, Some(2)).unwrap());
     assert!(pairs.iter().all(|p| p[0] != p[1]));
     assert!(pairs.len() <= 400 * 12 && pairs.len() >= 400 * 5);
     // Each point's first five partners are its five nearest by brute force.
@@ -307,7 +307,7 @@ fn sampled_pairs_are_nearest_neighbours_then_far_draws() {
         }
     }
     assert_eq!(k, pairs.len());
-    let other = sample_pairs(pts, &PairSampling { seed: 5, ..s }, Some(1)).unwrap();
+    let other = sample_pairs(&maps, &PairSampling { seed: 5, ..s }, Some(1)).unwrap();
     assert_ne!(pairs, other, "the seed changes the far draws");
 }
 
@@ -417,35 +417,37 @@ fn bad_arguments_name_themselves() {
         far_max: 1.0,
         seed: 0,
     };
-    let pairs = |pts: &[Vec3], s: PairSampling| sample_pairs(pts, &s, None).map(|_| ());
-    assert_eq!(name_of(pairs(&p[..1], s).unwrap_err()), "points");
-    assert_eq!(name_of(pairs(&nan, s).unwrap_err()), "points");
+    let dup = VisibilityMaps::from_bit_words(2, vec![0; 3], p.clone(), n.clone()).unwrap();
+    let one = VisibilityMaps::from_bit_words(2, vec![0; 1], p[..1].to_vec(), n[..1].to_vec());
+    let pairs = |m: &VisibilityMaps, s: PairSampling| sample_pairs(m, &s, None).map(|_| ());
+    assert_eq!(name_of(pairs(&one.unwrap(), s).unwrap_err()), "points");
+    let p = &dup;
     let with = |f: &dyn Fn(&mut PairSampling)| {
         let mut t = s;
         f(&mut t);
         t
     };
     assert_eq!(
-        name_of(pairs(&p, with(&|t| t.far_min = 0.0)).unwrap_err()),
+        name_of(pairs(p, with(&|t| t.far_min = 0.0)).unwrap_err()),
         "far_min"
     );
     assert_eq!(
-        name_of(pairs(&p, with(&|t| t.far_max = 0.05)).unwrap_err()),
+        name_of(pairs(p, with(&|t| t.far_max = 0.05)).unwrap_err()),
         "far_max"
     );
     assert_eq!(
-        name_of(pairs(&p, with(&|t| t.far_max = f32::INFINITY)).unwrap_err()),
+        name_of(pairs(p, with(&|t| t.far_max = f32::INFINITY)).unwrap_err()),
         "far_max"
     );
     assert_eq!(
-        name_of(pairs(&p, with(&|t| t.neighbours = 5000)).unwrap_err()),
+        name_of(pairs(p, with(&|t| t.neighbours = 5000)).unwrap_err()),
         "neighbours"
     );
     assert_eq!(
-        name_of(pairs(&p, with(&|t| t.far = 5000)).unwrap_err()),
+        name_of(pairs(p, with(&|t| t.far = 5000)).unwrap_err()),
         "far"
     );
-    assert!(pairs(&p, s).is_ok(), "duplicate points are fine");
+    assert!(pairs(p, s).is_ok(), "duplicate points are fine");
 
     assert_eq!(
         name_of(local_correlation(&maps, -1.0, 10.0, None).unwrap_err()),
