@@ -263,4 +263,6 @@ def test_correlation_experiment_tiny_run(tmp_path):
     assert c["count"] > 0 and c["mean"] > 0.5
     assert (out / "dynamics_correlation.png").read_bytes().startswith(b"\x89PNG")
     assert (out / "dynamics_local.png").stat().st_size > 0
+    assert (out / r["local"]["exr"]).read_bytes().startswith(b"\x76\x2f\x31\x01")  # EXR
+    assert "image" not in r["local"]
     assert "Visibility correlation per scene" in (out / "results.md").read_text()

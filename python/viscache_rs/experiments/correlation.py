@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from .. import analysis
+from ..io import write_exr
 from ..scenes import load
 from ._context import ExperimentContext, pyplot
 
@@ -154,7 +155,8 @@ def _plot(ctx: ExperimentContext, name: str, r: dict, s: Settings) -> None:
     img = np.clip(r["local"]["image"], 0.0, 1.0)
     im = a.imshow(np.ma.masked_invalid(img), cmap=cmap, vmin=0, vmax=1)
     a.set_axis_off()
-    a.set_title(f"{name}: mean rho within d < {r['d_small']:.3g}, "
+    a.set_title(f"{name}: mean rho to points within\n"
+                f"d < {r['d_small']:.3g}, "
                 f"theta < {r['local']['theta_max_deg']:g} deg")
     fig.colorbar(im, ax=a)
     ctx.figure(f"{name}_local", fig)
@@ -170,6 +172,12 @@ def run(ctx: ExperimentContext, scenes=SCENES, settings: Settings | None = None)
                   f"{s.resolution}x{s.resolution} maps)", flush=True)
         r = measure(load(name), s, ctx.seed, ctx.threads, ctx.progress)
         _plot(ctx, name, r, s)
+        # The per-pixel image goes to an EXR (NaN where the pixel missed or had no
+        # partner), not into results.json.
+        image = r["local"].pop("image")
+        write_exr(ctx.out / f"{name}_local.exr",
+                  np.repeat(image[..., None], 3, axis=2).astype(np.float32))
+        r["local"]["exr"] = f"{name}_local.exr"
         ctx.record(name, r)
         sm = r["summary"]
         c = sm["small_d_theta_lt_2"]
