@@ -5,7 +5,7 @@ caches visibility (``VisibilityCache``); this package re-exports it and adds bui
 environment maps, I/O and the ``viscache`` command line.
 """
 
-from . import envmaps, octahedral, scenes, testing
+from . import analysis, envmaps, octahedral, scenes, testing
 from ._core import (
     Camera,
     EnvMap,
@@ -28,6 +28,7 @@ __all__ = [
     "Setup",
     "VisibilityCache",
     "__version__",
+    "analysis",
     "envmaps",
     "octahedral",
     "preview",

@@ -1,5 +1,6 @@
 """Typed stubs of the native module viscache_rs._core."""
 
+from collections.abc import Callable
 from os import PathLike
 from typing import Any
 
@@ -296,5 +297,54 @@ class _TestingModule:
         significance: float | None = 0.01,
     ) -> dict[str, Any]: ...
 
+class VisibilityMaps:
+    """Visibility maps of many surface points (CAM08 eq. 7), from analysis.visibility_maps."""
+
+    def __len__(self) -> int: ...
+    @property
+    def resolution(self) -> int: ...
+    @property
+    def points(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def normals(self) -> npt.NDArray[np.float32]: ...
+    def visible_fraction(self) -> npt.NDArray[np.float64]: ...
+    def bits(self, indices: ArrayLike | None = None) -> npt.NDArray[np.bool_]: ...
+
+class _AnalysisModule:
+    VisibilityMaps: type[VisibilityMaps]
+    @staticmethod
+    def visibility_maps(
+        scene: Scene,
+        points: ArrayLike,
+        normals: ArrayLike,
+        resolution: int | None = 32,
+        threads: int | None = None,
+        callback: Callable[[int, int], Any] | None = None,
+    ) -> VisibilityMaps: ...
+    @staticmethod
+    def sample_pairs(
+        maps: VisibilityMaps,
+        neighbours: int | None = 16,
+        far: int | None = 16,
+        far_range: ArrayLike | None = None,
+        seed: int | None = 0,
+        threads: int | None = None,
+    ) -> npt.NDArray[np.uint32]: ...
+    @staticmethod
+    def pair_correlations(maps: VisibilityMaps, pairs: ArrayLike) -> dict[str, Any]: ...
+    @staticmethod
+    def correlation_bins(
+        maps: VisibilityMaps,
+        distance_edges: ArrayLike,
+        theta_edges: ArrayLike,
+        pairs: ArrayLike | None = None,
+        threads: int | None = None,
+    ) -> dict[str, Any]: ...
+    @staticmethod
+    def local_correlation(
+        maps: VisibilityMaps, d_max: float, theta_max_deg: float, threads: int | None = None
+    ) -> dict[str, Any]: ...
+
 octahedral: _OctahedralModule
 testing: _TestingModule
+analysis: _AnalysisModule

@@ -1,6 +1,7 @@
 //! PyO3 bindings: argument checks, numpy conversion, GIL release around the core. No logic
 //! lives here; everything calls into the crate's modules.
 
+mod analysis;
 mod cache;
 mod camera;
 mod convert;
@@ -42,5 +43,13 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     octa.add_function(wrap_pyfunction!(octahedral::square_to_sphere, &octa)?)?;
     octa.add_function(wrap_pyfunction!(octahedral::texel_of, &octa)?)?;
     m.add_submodule(&octa)?;
+    let analysis = PyModule::new(m.py(), "analysis")?;
+    analysis.add_class::<analysis::PyVisibilityMaps>()?;
+    analysis.add_function(wrap_pyfunction!(analysis::visibility_maps, &analysis)?)?;
+    analysis.add_function(wrap_pyfunction!(analysis::sample_pairs, &analysis)?)?;
+    analysis.add_function(wrap_pyfunction!(analysis::pair_correlations, &analysis)?)?;
+    analysis.add_function(wrap_pyfunction!(analysis::correlation_bins, &analysis)?)?;
+    analysis.add_function(wrap_pyfunction!(analysis::local_correlation, &analysis)?)?;
+    m.add_submodule(&analysis)?;
     Ok(())
 }

@@ -10,8 +10,12 @@
 //! [`cache`]: the records in a kd-tree with eq. 9 weighted lookups, §5.2's insertion
 //! criteria, a deterministic build, and eviction over frames (§5.3); [`params`]: Table 1's
 //! parameters with low / medium / high presets (§5.4).
+//!
+//! [`correlation`]: CAM08 §4.1's measurement of how visibility correlates between surface
+//! points, `ρ̄(d, θ)` by distance and normal difference (Figs. 3–4).
 
 pub mod cache;
+pub mod correlation;
 pub mod params;
 pub mod record;
 
