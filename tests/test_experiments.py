@@ -53,3 +53,79 @@ def test_unknown_experiment_names_itself():
 
     with pytest.raises(ValueError, match="name"):
         experiments.run("no-such-experiment")
+
+
+def _tiny_animation(quick):
+    return {"frames": [0, 10, 20], "width": 32, "height": 24, "spp": 2, "preset": "low",
+            "resolution": 16, "validate_rays": 8}
+
+
+def test_animation_experiment_smoke(tmp_path, monkeypatch):
+    from viscache_rs import experiments
+    from viscache_rs.experiments import animation
+
+    monkeypatch.setattr(animation, "settings", _tiny_animation)
+    assert animation.DESCRIPTION.splitlines()[0].startswith("N frames")
+    experiments.run("animation", quick=True, out=tmp_path, seed=1, threads=2, progress=False)
+    data = json.loads((tmp_path / "animation" / "results.json").read_text())
+    frames = data["frames"]
+    assert [f["frame"] for f in frames] == [0, 10, 20]
+    for f in frames:
+        assert f["records"] > 0 and f["fresh_records"] > 0
+        for key in ("reuse_rays_per_pixel", "fresh_rays_per_pixel", "reuse_variance",
+                    "fresh_variance", "product_variance", "reuse_ratio", "fresh_ratio",
+                    "reuse_render_seconds", "reuse_cache_seconds", "fresh_cache_seconds"):
+            assert np.isfinite(f[key]) and f[key] >= 0, key
+        assert f["reuse_ratio"] > 0 and f["fresh_ratio"] > 0
+    # The first frame builds the whole cache, like the fresh one; later frames only refill.
+    assert frames[0]["inserted"] == frames[0]["records"]
+    assert frames[0]["evicted_by_misses"] == 0
+    assert frames[0]["reuse_rays_per_pixel"] == pytest.approx(frames[0]["fresh_rays_per_pixel"])
+    # The sphere moves: records go stale and are evicted, and the refill costs less.
+    assert sum(f["evicted_by_misses"] for f in frames[1:]) > 0
+    assert all(f["validate_misses"] > 0 for f in frames[1:])
+    assert all(f["reuse_rays_per_pixel"] < f["fresh_rays_per_pixel"] for f in frames[1:])
+    md = (tmp_path / "animation" / "results.md").read_text()
+    assert "## Per frame" in md and "| 20 |" in md
+    for name in ("animation.png", "frame000_reuse.png", "frame020_reuse.png"):
+        assert (tmp_path / "animation" / name).read_bytes().startswith(b"\x89PNG")
+
+
+def _tiny_tradeoff(quick):
+    from viscache_rs.experiments import tradeoff
+
+    return {"scenes": ["garage"], "width": 24, "height": 18, "reference_spp": 64,
+            "spp": [2, 8], "configs": [tradeoff.CV_CONFIGS[0], tradeoff.CV_CONFIGS[3]]}
+
+
+def test_tradeoff_experiment_smoke(tmp_path, monkeypatch):
+    from viscache_rs import experiments
+    from viscache_rs.experiments import tradeoff
+
+    monkeypatch.setattr(tradeoff, "settings", _tiny_tradeoff)
+    assert "MSE against seconds" in tradeoff.DESCRIPTION.splitlines()[0]
+    experiments.run("tradeoff", quick=True, out=tmp_path, seed=2, threads=2, progress=False)
+    data = json.loads((tmp_path / "tradeoff" / "results.json").read_text())
+    rows = data["garage/rows"]
+    assert [(r["config"], r["spp"]) for r in rows] == [
+        (c, s) for c in ("product", "cv a=1 low", "cv a=est low") for s in (2, 8)]
+    for r in rows:
+        for key in ("render_seconds", "total_seconds", "mse_raw", "variance"):
+            assert np.isfinite(r[key]) and r[key] > 0, key
+        assert r["total_seconds"] == pytest.approx(r["render_seconds"] + r["cache_seconds"])
+        assert (r["cache_seconds"] > 0) == (r["config"] != "product")
+        assert (r["records"] > 0) == (r["config"] != "product")
+    # More samples, less error (4x the samples; generous for a tiny image).
+    for c in ("product", "cv a=1 low", "cv a=est low"):
+        mse = [r["mse_raw"] for r in rows if r["config"] == c]
+        assert mse[1] < mse[0]
+    # The cache is built once per preset and shared by both alphas.
+    assert data["garage/cache/low/32"]["records"] > 0
+    assert len({r["cache_seconds"] for r in rows if r["config"] != "product"}) == 1
+    assert data["garage/reference"]["spp"] == 64
+    summary = data["summary"]["garage"]
+    assert summary["product"]["mse_ratio_to_product"] == 1
+    assert all(v["mse_ratio_to_product"] > 0 for v in summary.values())
+    md = (tmp_path / "tradeoff" / "results.md").read_text()
+    assert "## garage: error against time" in md and "| cv a=est low | 8 |" in md
+    assert (tmp_path / "tradeoff" / "tradeoff_garage.png").read_bytes().startswith(b"\x89PNG")
