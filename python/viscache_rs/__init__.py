@@ -7,9 +7,11 @@ environment maps, I/O and the ``viscache`` command line.
 
 from . import envmaps, octahedral, scenes, testing
 from ._core import Camera, EnvMap, Material, Scene, Setup, VisibilityCache, __version__
+from .ambient import AOResult, render_ao
 from .render import RenderResult, render
 
 __all__ = [
+    "AOResult",
     "Camera",
     "EnvMap",
     "Material",
@@ -21,6 +23,7 @@ __all__ = [
     "envmaps",
     "octahedral",
     "render",
+    "render_ao",
     "scenes",
     "testing",
 ]

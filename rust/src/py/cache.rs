@@ -25,10 +25,10 @@ use crate::visibility::record::bytes_per_record;
 /// docs of `viscache_rs` and `VisibilityCache.build`.
 #[pyclass(name = "VisibilityCache", module = "viscache_rs._core")]
 pub struct PyVisibilityCache {
-    inner: Arc<VisibilityCache>,
+    pub(super) inner: Arc<VisibilityCache>,
     /// The scene records are traced in (read at each call, so edits are seen).
     #[pyo3(get)]
-    scene: Py<PyScene>,
+    pub(super) scene: Py<PyScene>,
     /// `k` times the median footprint of the last build's G-buffer, world units.
     default_radius: Option<f32>,
 }

@@ -190,6 +190,13 @@ fn bad_input_names_the_argument() {
             },
             "min_radius_scale",
         ),
+        (
+            AoParams {
+                w_min: 1.5,
+                ..AoParams::default()
+            },
+            "w_min",
+        ),
     ] {
         let e = render_cache_ao(
             &scene,
@@ -366,16 +373,18 @@ fn cache_ao_is_the_gaussian_average_and_the_criterion_its_formula() {
         let r_min = ao.min_radius_scale * footprint;
         assert!((coverage(&state, &nearest, r_min) - cover).abs() < 2e-3);
         assert_eq!(
-            needs_ao_record(&state, &params, &nearest, r_min),
-            coverage(&state, &nearest, r_min) < params.w_min
+            needs_ao_record(&state, &ao, &nearest, r_min),
+            coverage(&state, &nearest, r_min) < ao.w_min
         );
     }
     assert!(finite_radii > 0, "no record saw the wall");
 }
 
 #[test]
-fn criterion_inserts_more_records_near_geometry() {
-    // Same floor, with and without the wall: R_i makes the cache denser by the wall.
+fn nearest_hit_distance_makes_the_cache_denser_near_geometry() {
+    // The floor by the wall, with R_i as the paper has it (r = 0) and with R_i switched off
+    // (clamped to infinity): R_i must make the cache denser by the wall, and every covered
+    // pixel of a complete build must satisfy the criterion it was built with.
     let cam = Camera::look_at(
         Vec3::new(-3.0, 2.0, 0.0),
         Vec3::new(0.0, 0.0, 0.0),
@@ -385,20 +394,15 @@ fn criterion_inserts_more_records_near_geometry() {
         32,
     )
     .unwrap();
-    let count = |wall: bool| {
-        let scene = floor_and_wall(1.0, 1.0, 1.5, wall);
+    let scene = floor_and_wall(1.0, 1.0, 1.5, true);
+    let count = |min_radius_scale: f32| {
+        let ao = AoParams {
+            min_radius_scale,
+            ..AoParams::default()
+        };
         let cache = VisibilityCache::new(CacheParams::MEDIUM.with_log2_resolution(3)).unwrap();
-        let r = render_cache_ao(
-            &scene,
-            &cam,
-            &cache,
-            &AoParams::default(),
-            0,
-            None,
-            None,
-            &mut no_progress(),
-        )
-        .unwrap();
+        let r =
+            render_cache_ao(&scene, &cam, &cache, &ao, 0, None, None, &mut no_progress()).unwrap();
         // Every covered pixel of a complete build is covered by some record.
         assert!(r.stats.complete);
         assert_eq!(r.stats.resolved_pixels, r.stats.covered_pixels);
@@ -415,18 +419,16 @@ fn criterion_inserts_more_records_near_geometry() {
                 g.footprint[i],
             );
             let nearest = state.nearest(cache.params(), x, n, cache.params().d_max_scale * f);
-            assert!(
-                !needs_ao_record(&state, cache.params(), &nearest, 2.0 * f),
-                "pixel {i}"
-            );
+            let r_min = ao.min_radius_scale * f;
+            assert!(!needs_ao_record(&state, &ao, &nearest, r_min), "pixel {i}");
             assert!((0.0..=1.0).contains(&r.ao[i]));
         }
         r.stats.records_inserted
     };
-    let (open, walled) = (count(false), count(true));
+    let (with_r, without_r) = (count(0.0), count(f32::INFINITY));
     assert!(
-        walled > open,
-        "{walled} records with the wall vs {open} without"
+        with_r > without_r,
+        "{with_r} records with R_i vs {without_r} without"
     );
 }
 
