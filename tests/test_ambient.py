@@ -233,3 +233,10 @@ def test_an_existing_cache_is_reused_and_grows_no_further(wall_setup):
     assert again.stats["records_inserted"] == 0 and again.stats["rays"] == 0
     assert again.image.tobytes() == first.image.tobytes()
     assert len(cache) == first.stats["records"]
+
+
+def test_the_ao_experiment_is_registered():
+    from viscache_rs import experiments
+
+    assert "ao" in experiments.names()
+    assert "1024" in experiments.describe("ao")

@@ -20,12 +20,15 @@
 //! default was chosen by measurement on `garage` (see [`DEFAULT_SIGMA_SCALE`]).
 //!
 //! A record is inserted at `x` when `max_i [w_i · (1 − d_i / R_i)] < w_min` (§6.1's
-//! criterion; [`AoParams::w_min`], its own threshold, not the cache's §5.2 one), `w_i` the eq. 9 weight of the lookup, `R_i` the record's distance to its
-//! nearest hit (`∞` gives the factor 1; the factor is clamped at 0 when `d_i > R_i`). The
-//! §5.2 visibility-difference criterion is not used: §6.1 replaces it by `R_i`. Departure:
+//! criterion, with [`AoParams::w_min`], its own threshold, not the cache's §5.2 one), `w_i`
+//! the eq. 9 weight of the lookup, `R_i` the record's distance to its nearest hit (`∞`
+//! gives the factor 1; the factor is clamped at 0 when `d_i > R_i`). The §5.2
+//! visibility-difference criterion is not used: §6.1 replaces it by `R_i`. Departure:
 //! `R_i` is clamped below at `r·f` ([`AoParams::min_radius_scale`] footprints of the query
-//! pixel), as irradiance caches clamp their radii in screen space [TL04]; without it a
-//! record in a crease (`R_i → 0`) serves nobody and creases get one record per pixel.
+//! pixel), as irradiance caches clamp their radii in screen space [TL04]. Unclamped, a
+//! record in a crease (`R_i → 0`) serves almost nobody: on `garage` at 128x96 the paper's
+//! criterion took 7x the records and rays of the default clamp (1947 vs 279 records) for
+//! RMSE 3.4% instead of 4.5% of the mean (`viscache experiment ao --quick`).
 //!
 //! The build is deterministic for any thread count, in waves like
 //! [`VisibilityCache::build`]: pixels coarse to fine ([`coarse_to_fine_levels`]); a wave looks
