@@ -240,3 +240,12 @@ def test_the_ao_experiment_is_registered():
 
     assert "ao" in experiments.names()
     assert "1024" in experiments.describe("ao")
+
+
+def test_a_spent_time_budget_stops_the_build_but_still_gives_an_image(wall_setup):
+    r = vc.render_ao(wall_setup, progress=False, resolution=8, time_budget=1e-9)
+    st = r.stats
+    assert not st["complete"]
+    assert 0 < st["records"] and st["resolved_pixels"] > 0
+    full = vc.render_ao(wall_setup, progress=False, resolution=8)
+    assert st["records"] < full.stats["records"]

@@ -65,7 +65,7 @@ pub const DIM_AO: u64 = 2;
 pub const MAX_AO_RAYS: u32 = 1 << 16;
 /// Default `s` of `σ = s·footprint`. The three defaults were chosen together on `garage` at
 /// 256x192 (medium preset, 32x32 records, `k = 12`) against a 1024-ray reference, sweeping
-/// `s` in {2, 2.5, 3, 4, 6}, `r` in {4, 10, 20, 40, 60, ∞} and `w_min` in {0.3 … 0.5} for
+/// `s` in {2, 2.5, 3, 4, 6}, `r` in {4, 10, 20, 40, 60, 1000} and `w_min` in {0.3 … 0.5} for
 /// the least RMSE at ≥ 50x fewer rays: `s = 3, r = 40, w_min = 0.45` gave 59x fewer rays
 /// at RMSE 2.9% of the mean (the reference's own noise is 1.1%). Narrower Gaussians show
 /// each record's quadrature error as blotches; wider ones blur contact shadows.
