@@ -161,7 +161,11 @@ def test_stats_time_budget_and_progress(small_setups):
     r = _render(setup, "mis", 4)
     s = r.stats
     n = setup.camera.width * setup.camera.height
-    assert s["spp"] == 4 and s["samples"] == 4 * n and s["primary_rays"] == 4 * n
+    # One shading point per pixel: one primary ray per pixel and pass (a single pass here).
+    assert s["spp"] == 4 and s["samples"] == 4 * n and s["primary_rays"] == n
+    assert s["passes"] == 1 and s["complete"] and not s["jitter"]
+    jittered = _render(setup, "mis", 4, jitter=True).stats
+    assert jittered["primary_rays"] == 4 * n and jittered["samples"] == 4 * n
     assert s["shadow_rays"] > 0 and s["bsdf_rays"] > 0 and s["seconds"] > 0
     assert s["primary_seconds"] > 0 and s["direct_seconds"] > 0
     # A budget stops after the pass that spends it and says how far it got.

@@ -6,14 +6,24 @@ environment maps, I/O and the ``viscache`` command line.
 """
 
 from . import envmaps, octahedral, scenes, testing
-from ._core import Camera, EnvMap, Material, Scene, Setup, VisibilityCache, __version__
+from ._core import (
+    Camera,
+    EnvMap,
+    LightingPreview,
+    Material,
+    Scene,
+    Setup,
+    VisibilityCache,
+    __version__,
+)
 from .ambient import AOResult, render_ao
-from .render import RenderResult, render
+from .render import RenderResult, preview, render
 
 __all__ = [
     "AOResult",
     "Camera",
     "EnvMap",
+    "LightingPreview",
     "Material",
     "RenderResult",
     "Scene",
@@ -22,6 +32,7 @@ __all__ = [
     "__version__",
     "envmaps",
     "octahedral",
+    "preview",
     "render",
     "render_ao",
     "scenes",

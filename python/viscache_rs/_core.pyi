@@ -228,6 +228,18 @@ class VisibilityCache:
     @staticmethod
     def load(path: str | PathLike[str], scene: Scene) -> VisibilityCache: ...
 
+class LightingPreview:
+    def __init__(self, scene: Scene, camera: Camera, threads: int | None = None) -> None: ...
+    @property
+    def size(self) -> tuple[int, int]: ...
+    def render(
+        self,
+        cache: VisibilityCache,
+        envmap: EnvMap,
+        product_level: int | None = None,
+        threads: int | None = None,
+    ) -> npt.NDArray[np.float32]: ...
+
 def write_exr(path: str | PathLike[str], image: ArrayLike) -> None: ...
 def render(
     scene: Scene,
@@ -240,6 +252,11 @@ def render(
     time_budget: float | None = None,
     product_level: int | None = None,
     callback: Any = None,
+    cache: VisibilityCache | None = None,
+    jitter: bool = False,
+    alpha: float | str | None = None,
+    alpha_radius: int | None = None,
+    insert_missing: bool = False,
 ) -> dict[str, Any]: ...
 def render_ao(
     scene: Scene,

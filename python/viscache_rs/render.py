@@ -1,24 +1,36 @@
-"""The baseline renderer: direct illumination from the environment map and area lights.
+"""The renderer: direct illumination from the environment map and area lights.
 
 ``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
-time_budget=None, envmap=None, product_level=5)`` renders ``setup.scene`` lit by
-``setup.envmap`` (or ``envmap``) and the scene's area lights, through ``camera`` (default: the
-setup's). Methods:
+time_budget=None, envmap=None, product_level=5, cache=None, preset="medium", jitter=False,
+alpha=1.0, alpha_radius=4, insert_missing=False)`` renders ``setup.scene`` lit by
+``setup.envmap`` (or ``envmap``) and the scene's area lights, through ``camera`` (default:
+the setup's). Methods:
 
 - ``"env"``: light sampling (the map's own distribution, one point per area light);
 - ``"bsdf"``: BSDF sampling (what the sampled ray finds);
 - ``"mis"``: both, with the power heuristic;
 - ``"product"``: product importance sampling of map x BSDF (CAM08 sec. 5.5); area lights
-  by light sampling.
+  by light sampling;
+- ``"cv"``: product sampling with the visibility cache's ``L B~ V~`` as a control variate
+  (CAM08 eq. 2-3): ``cache=`` a built :class:`VisibilityCache`, or None to build one for
+  the view with ``preset`` (its cost is in ``stats["cache_seconds"]``). ``alpha`` is a
+  number in [0, 2] (CAM08 uses 1) or ``"estimate"``: per pixel, Cov(Z, W) / Var(W) pooled
+  over the other pixels of a ``(2 alpha_radius + 1)^2`` window, which keeps the estimate
+  unbiased (``res.alpha`` holds it). The records' misses go back to the cache (CAM08 sec.
+  5.3); ``insert_missing=True`` then gives records to the points that found none.
 
-All four are unbiased estimators of the same image. ``spp`` defaults to 16; with a
-``time_budget`` (seconds) the render runs passes of one sample per pixel until the budget
-is spent (at most ``spp`` passes if given) and ``stats["spp"]`` says how many it made.
-The result is bit-identical for any ``threads`` at a fixed seed and sample count.
+All are unbiased estimators of the same image. By default each pixel is shaded at the first
+hit through its centre and all its samples are drawn there, so per-point work (the product
+distribution, the cache lookup, J) is done once per pixel; ``jitter=True`` traces a new
+jittered primary ray per sample instead (antialiased, per-point work per sample).
+``spp`` defaults to 16; with a ``time_budget`` (seconds) the render runs passes of growing
+size until the budget is spent (at most ``spp`` samples if given) and ``stats["spp"]`` says
+how many every pixel got. The result is bit-identical for any ``threads`` at a fixed seed.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,11 +45,13 @@ _UNBOUNDED_SPP = 1 << 20
 @dataclass
 class RenderResult:
     """``image`` and ``variance`` (per-pixel variance of the mean) are (H, W, 3) float32;
-    ``stats`` holds seconds, spp, samples, rays and per-stage CPU seconds."""
+    ``alpha`` is the control variate's per-pixel alpha (method "cv", else None); ``stats``
+    holds seconds, spp, samples, rays, per-stage CPU seconds and, for "cv", cache figures."""
 
     image: np.ndarray
     variance: np.ndarray
     stats: dict[str, Any] = field(default_factory=dict)
+    alpha: np.ndarray | None = None
 
     @property
     def standard_error(self) -> np.ndarray:
@@ -56,19 +70,36 @@ def render(
     time_budget: float | None = None,
     envmap=None,
     product_level: int = 5,
+    cache=None,
+    preset: str = "medium",
+    jitter: bool = False,
+    alpha: float | str = 1.0,
+    alpha_radius: int = 4,
+    insert_missing: bool = False,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     camera = setup.camera if camera is None else camera
     envmap = setup.envmap if envmap is None else envmap
     if spp is None:
         spp = _UNBOUNDED_SPP if time_budget is not None else 16
+    cache_stats: dict[str, Any] = {}
+    if method == "cv" and cache is None:
+        cache = _core.VisibilityCache(setup.scene, preset=preset)
+        t = time.perf_counter()
+        report = cache.build(camera, seed=seed, threads=threads, progress=progress)
+        cache_stats = {"cache_seconds": time.perf_counter() - t,
+                       "cache_records": report["records"],
+                       "cache_shadow_rays": report["shadow_rays"]}
+    elif cache is not None and method != "cv":
+        raise ValueError(f"cache: only method 'cv' uses a cache, got method {method!r}")
+    pixels = camera.width * camera.height
     bar = _progress_bar(progress, spp, time_budget, method)
     try:
         callback = None
         if bar is not None:
 
             def callback(done: int, planned: int) -> bool:
-                bar.update(done - bar.n)
+                bar.update(done / pixels - bar.n)
                 return True
 
         out = _core.render(
@@ -82,11 +113,30 @@ def render(
             time_budget=time_budget,
             product_level=product_level,
             callback=callback,
+            cache=cache,
+            jitter=jitter,
+            alpha=alpha,
+            alpha_radius=alpha_radius,
+            insert_missing=insert_missing,
         )
     finally:
         if bar is not None:
             bar.close()
-    return RenderResult(out["image"], out["variance"], out["stats"])
+    stats = out["stats"]
+    stats.update(cache_stats)
+    return RenderResult(out["image"], out["variance"], stats, out["alpha"])
+
+
+def preview(setup, cache, envmap=None, camera=None, product_level: int = 5,
+            threads: int | None = None) -> np.ndarray:
+    """CAM08 sec. 6.2's lighting preview: ``J = int L B~ V~`` per pixel, an (H, W, 3) float32
+    image, from ``cache``'s records under ``envmap`` (default: the setup's). For many
+    lightings of one view, make a :class:`LightingPreview` once (it traces the primary
+    rays) and call its ``render(cache, envmap)``, which traces none."""
+    camera = setup.camera if camera is None else camera
+    envmap = setup.envmap if envmap is None else envmap
+    view = _core.LightingPreview(setup.scene, camera, threads=threads)
+    return view.render(cache, envmap, product_level=product_level, threads=threads)
 
 
 def _progress_bar(progress: bool, spp: int, time_budget: float | None, method: str):
@@ -96,4 +146,4 @@ def _progress_bar(progress: bool, spp: int, time_budget: float | None, method: s
     return tqdm(total=total, desc=f"render ({method})", unit="spp", leave=False)
 
 
-__all__ = ["RenderResult", "render"]
+__all__ = ["RenderResult", "preview", "render"]

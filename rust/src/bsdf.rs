@@ -125,6 +125,21 @@ impl Material {
         }
     }
 
+    /// Each channel of the albedo `kd + ks` over its luminance (0 for a black material):
+    /// how a channel of `f` compares with the luminance `B~` approximates. Exact at every
+    /// direction for Lambert; for Phong, where the diffuse and specular colours mix by
+    /// direction, the ratio of the two lobes' combined albedos. The control variate scales
+    /// channel `c` of `L B~ Ṽ` by it, so `Z_c ≈ W_c` where the records are right.
+    pub fn channel_ratios(&self) -> [f32; 3] {
+        let albedo = self.base_color();
+        let lum = luminance(albedo);
+        if lum > 0.0 {
+            albedo.map(|c| c / lum)
+        } else {
+            [0.0; 3]
+        }
+    }
+
     /// Probability that [`Material::sample`] picks the specular lobe: the lobe's share of
     /// the luminance of `kd + ks` (0 for Lambert and for a black material).
     #[inline]

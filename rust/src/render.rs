@@ -1,35 +1,69 @@
-//! The baseline renderer: direct illumination from an environment map and area lights,
-//! by any [`Method`] of [`crate::estimators::direct`].
+//! The renderer: direct illumination from an environment map and area lights by any
+//! [`Method`] of [`crate::estimators::direct`], including the visibility cache's control
+//! variate ([`crate::estimators::control_variate`]).
 //!
-//! Pixels are independent: sample `s` of pixel `i` draws every random number from
-//! `(seed, i, s, dimension)` and is accumulated in `f64` in sample order, so images are
-//! bit-identical for any thread count. Work is split into bands of rows over rayon and
-//! done in passes of one sample per pixel, so a time budget can stop between passes and
-//! progress is reported after each.
+//! ## Shading points
+//! By default every pixel is shaded at one point, the first hit through its centre (the
+//! G-buffer's point, where the cache was built), and all its samples are drawn there: the
+//! per-point work — the product distribution (B~ and the product pyramid), the cache
+//! lookup and `J` — is done once per pixel and pass, as in CAM08. With `jitter` every
+//! sample traces its own primary ray through a random point of the pixel (antialiasing)
+//! and redoes that work per sample.
+//!
+//! ## Passes, progress and budgets
+//! Without a time budget the render is one pass of `spp` samples per pixel. With one, it
+//! runs passes of 1, 1, 2, 4, … samples (each at most the samples already taken, and sized
+//! to fit the budget that is left) until the budget is spent; per-point work is redone each
+//! pass. Progress is reported from the calling thread while the workers run, in pixel
+//! samples; a `false` from it stops the pass (pixels not started keep the samples they
+//! had, `stats.complete` says so).
+//!
+//! ## Determinism
+//! Sample `s` of pixel `i` draws every random number from `(seed, i, s, dimension)`, a
+//! pixel is shaded by one worker per pass and accumulates in sample order in `f64`, and
+//! `α` is computed after all samples from neighbours' sums in a fixed order: images are
+//! bit-identical for any thread count.
 
-use std::time::Instant;
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
 
 use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::camera::{Camera, DIM_PIXEL_JITTER};
 use crate::error::{Error, Result};
-use crate::estimators::direct::{DirectCounters, Lighting, Method, ShadingPoint};
+use crate::estimators::control_variate::{
+    control_sample, neighbour_alphas, AlphaRule, ControlTables, CvSums, Interpolant,
+    RadiancePyramid, ALPHA_MAX,
+};
+use crate::estimators::direct::{
+    DirectCounters, Lighting, Method, ProductDistribution, ShadingPoint,
+};
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
 use crate::sampling::rng::SampleRng;
+use crate::visibility::cache::{CacheState, VisibilityCache};
 
 /// Rows per work item: small enough to balance two to hundreds of threads.
 const BAND_ROWS: usize = 4;
 
-/// Most passes a time-budgeted render makes.
+/// Most samples per pixel a render takes.
 pub const MAX_SPP: u32 = 1 << 20;
+
+thread_local! {
+    /// Scratch tables of the control variate, one per worker (24 KiB at 32² cells).
+    static TABLES: std::cell::RefCell<ControlTables> = std::cell::RefCell::new(ControlTables::default());
+}
+
+/// Seconds between progress reports.
+const PROGRESS_INTERVAL: Duration = Duration::from_millis(100);
 
 /// Parameters of [`render`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderParams {
-    /// Samples per pixel; with a time budget, the most passes to make.
+    /// Samples per pixel; with a time budget, the most to take.
     pub spp: u32,
     /// The direct-lighting estimator.
     pub method: Method,
@@ -37,18 +71,31 @@ pub struct RenderParams {
     pub seed: u64,
     /// Stop after the first pass that ends past this many seconds.
     pub time_budget: Option<f64>,
-    /// Octahedral level of the product's cells (5 = 32²), for [`Method::Product`].
+    /// Octahedral level of the product's cells (5 = 32²), for the product methods.
     pub product_level: u32,
+    /// A new jittered primary ray per sample (antialiased; per-point work per sample)
+    /// instead of one shading point per pixel (module docs).
+    pub jitter: bool,
+    /// `α` of the control variate ([`Method::ControlVariate`]).
+    pub alpha: AlphaRule,
+    /// One-pass mode: afterwards, the cache traces and inserts records for the shading
+    /// points that found none (§5.2's criteria re-checked, in pixel order), so the next
+    /// render of the view finds them.
+    pub insert_missing: bool,
 }
 
 impl RenderParams {
-    /// 16 samples per pixel by MIS, seed 0, no budget, 32² product cells.
+    /// 16 samples per pixel by MIS, seed 0, no budget, 32² product cells, one shading point
+    /// per pixel, `α = 1`, no insertion.
     pub const DEFAULT: Self = Self {
         spp: 16,
         method: Method::Mis,
         seed: 0,
         time_budget: None,
         product_level: 5,
+        jitter: false,
+        alpha: AlphaRule::PAPER,
+        insert_missing: false,
     };
 
     /// The defaults with another method and sample count.
@@ -81,6 +128,21 @@ impl RenderParams {
                 format!("must lie in [1, 8], got {}", self.product_level),
             ));
         }
+        match self.alpha {
+            AlphaRule::Fixed(a) if !(a.is_finite() && (0.0..=ALPHA_MAX).contains(&a)) => {
+                return Err(Error::invalid(
+                    "alpha",
+                    format!("must be a number in [0, {ALPHA_MAX}] or \"estimate\", got {a}"),
+                ))
+            }
+            AlphaRule::Neighbours { radius } if !(1..=64).contains(&radius) => {
+                return Err(Error::invalid(
+                    "alpha_radius",
+                    format!("must lie in [1, 64] pixels, got {radius}"),
+                ))
+            }
+            _ => {}
+        }
         Ok(())
     }
 }
@@ -96,8 +158,14 @@ impl Default for RenderParams {
 pub struct StageSeconds {
     /// Primary rays (closest hits).
     pub primary: f64,
-    /// Direct lighting: sampling, BSDF evaluation, shadow and BSDF rays.
-    pub direct: f64,
+    /// Product distributions: B~ per cell and the product pyramid.
+    pub product: f64,
+    /// Cache lookups.
+    pub lookup: f64,
+    /// `J`: the control variate's integral (prefix sums and hierarchy traversals).
+    pub control: f64,
+    /// Sampling and shading: BSDF evaluation, shadow and BSDF rays, `Ṽ`.
+    pub shading: f64,
 }
 
 /// Figures of one render.
@@ -105,9 +173,13 @@ pub struct StageSeconds {
 pub struct RenderStats {
     /// Wall-clock seconds.
     pub seconds: f64,
-    /// Samples per pixel reached.
+    /// Samples every pixel received.
     pub spp: u32,
-    /// Pixel samples taken (`spp × pixels`).
+    /// Passes made.
+    pub passes: u32,
+    /// False when progress stopped a pass part-way.
+    pub complete: bool,
+    /// Pixel samples taken.
     pub samples: u64,
     /// Primary rays traced.
     pub primary_rays: u64,
@@ -119,6 +191,20 @@ pub struct RenderStats {
     pub rays_per_second: f64,
     /// Per-stage CPU seconds.
     pub stages: StageSeconds,
+    /// Control variate: shading points that looked up the cache.
+    pub cache_points: u64,
+    /// ... and found no record (plain product sampling there).
+    pub points_without_records: u64,
+    /// Records kept, summed over the points that looked up.
+    pub records_used: u64,
+    /// Record predictions that disagreed with a traced shadow ray (CAM08 §5.3).
+    pub record_misses: u64,
+    /// Record predictions checked against a traced shadow ray.
+    pub record_uses: u64,
+    /// Records inserted afterwards ([`RenderParams::insert_missing`]).
+    pub inserted_records: u64,
+    /// Mean `α` over the pixels, per channel.
+    pub mean_alpha: [f64; 3],
 }
 
 /// A rendered image.
@@ -128,173 +214,487 @@ pub struct Rendered {
     pub height: u32,
     /// Mean radiance per pixel, row-major, row 0 at the top.
     pub image: Vec<[f32; 3]>,
-    /// Per-pixel variance of the mean, per channel (infinite with one sample).
+    /// Per-pixel variance of the mean, per channel (infinite below two samples).
     pub variance: Vec<[f32; 3]>,
+    /// Per-pixel `α` of the control variate (only for [`Method::ControlVariate`]).
+    pub alpha: Option<Vec<[f32; 3]>>,
     pub stats: RenderStats,
 }
 
-/// Running sums of one pixel.
-#[derive(Clone, Copy, Default)]
-struct PixelSums {
-    sum: [f64; 3],
-    sum_sq: [f64; 3],
-}
-
 /// What one band of one pass did.
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Default)]
 struct BandWork {
     direct: DirectCounters,
     bvh: TraversalCounters,
+    primary_rays: u64,
     primary_ns: u64,
-    direct_ns: u64,
+    product_ns: u64,
+    lookup_ns: u64,
+    control_ns: u64,
+    shading_ns: u64,
+    cache_points: u64,
+    points_without_records: u64,
+    records_used: u64,
+    /// Per record id: (misses, uses).
+    verdicts: BTreeMap<u32, (u32, u32)>,
+    /// Pixels whose shading point found no record: (pixel, position, normal, footprint).
+    requests: Vec<(u32, Vec3, Vec3, f32)>,
 }
 
 impl BandWork {
-    fn add(mut self, o: BandWork) -> BandWork {
+    fn merge(&mut self, o: BandWork) {
         self.direct.shadow_rays += o.direct.shadow_rays;
         self.direct.bsdf_rays += o.direct.bsdf_rays;
         self.bvh += o.bvh;
+        self.primary_rays += o.primary_rays;
         self.primary_ns += o.primary_ns;
-        self.direct_ns += o.direct_ns;
-        self
+        self.product_ns += o.product_ns;
+        self.lookup_ns += o.lookup_ns;
+        self.control_ns += o.control_ns;
+        self.shading_ns += o.shading_ns;
+        self.cache_points += o.cache_points;
+        self.points_without_records += o.points_without_records;
+        self.records_used += o.records_used;
+        for (id, (m, u)) in o.verdicts {
+            let e = self.verdicts.entry(id).or_default();
+            e.0 += m;
+            e.1 += u;
+        }
+        self.requests.extend(o.requests);
     }
 }
 
-/// One pixel sample: radiance along the primary ray (emission seen directly, the
-/// environment on a miss, direct illumination at the first hit).
-fn pixel_sample(
-    lighting: &Lighting,
-    camera: &Camera,
-    params: &RenderParams,
-    pixel: usize,
-    sample: u32,
-    work: &mut BandWork,
-) -> Vec3 {
-    let scene = lighting.scene;
-    let rng = SampleRng::new(params.seed, pixel as u64, sample as u64);
-    let width = camera.width as usize;
-    let (px, py) = ((pixel % width) as u32, (pixel / width) as u32);
-    let (origin, dir) = camera.pixel_ray(px, py, rng.get2(DIM_PIXEL_JITTER));
-    let start = Instant::now();
-    let hit = scene.intersect1(origin, dir, f32::INFINITY, &mut work.bvh);
-    let traced = Instant::now();
-    work.primary_ns += (traced - start).as_nanos() as u64;
-    let Some(hit) = hit else {
-        return lighting.env.eval(dir);
-    };
-    let wo = -dir;
-    let normal = if hit.normal.dot(wo) < 0.0 {
-        -hit.normal
-    } else {
-        hit.normal
-    };
-    let sp = ShadingPoint {
-        origin: scene.offset_point(hit.position, normal),
-        normal,
-        wo,
-        material: scene.mesh().objects[hit.obj as usize].material,
-    };
-    let radiance = scene.emitted(&hit, wo)
-        + lighting.estimate(&sp, params.method, &rng, &mut work.direct, &mut work.bvh);
-    work.direct_ns += traced.elapsed().as_nanos() as u64;
-    radiance
+/// A shading point with everything computed once for it.
+enum Point {
+    /// The primary ray escaped: the environment seen directly.
+    Miss(Vec3),
+    Surface(Box<SurfacePoint>),
+}
+
+struct SurfacePoint {
+    sp: ShadingPoint,
+    /// [`crate::bsdf::Material::channel_ratios`] of the material: the control variate's
+    /// per-channel scale.
+    ratios: [f64; 3],
+    emitted: Vec3,
+    product: Option<ProductDistribution>,
+    interpolant: Interpolant,
+}
+
+/// Everything a pass reads.
+struct Shader<'a> {
+    lighting: Lighting<'a>,
+    camera: &'a Camera,
+    params: &'a RenderParams,
+    /// The cache's records (read-locked for the pass) and its search-radius scale.
+    cache: Option<(&'a CacheState, &'a VisibilityCache)>,
+    radiance: Option<&'a RadiancePyramid>,
+}
+
+fn elapsed_ns(since: Instant) -> u64 {
+    since.elapsed().as_nanos() as u64
+}
+
+impl Shader<'_> {
+    fn uses_product(&self) -> bool {
+        matches!(self.params.method, Method::Product | Method::ControlVariate)
+    }
+
+    /// Traces the primary ray of `pixel` (jittered by `rng` or through the centre) and
+    /// prepares its shading point.
+    fn prepare(&self, pixel: usize, rng: &SampleRng, work: &mut BandWork) -> Point {
+        let scene = self.lighting.scene;
+        let width = self.camera.width as usize;
+        let (px, py) = ((pixel % width) as u32, (pixel / width) as u32);
+        let jitter = if self.params.jitter {
+            rng.get2(DIM_PIXEL_JITTER)
+        } else {
+            [0.5, 0.5]
+        };
+        let (origin, dir) = self.camera.pixel_ray(px, py, jitter);
+        let start = Instant::now();
+        let hit = scene.intersect1(origin, dir, f32::INFINITY, &mut work.bvh);
+        work.primary_rays += 1;
+        work.primary_ns += elapsed_ns(start);
+        let Some(hit) = hit else {
+            return Point::Miss(self.lighting.env.eval(dir));
+        };
+        let wo = -dir;
+        let normal = if hit.normal.dot(wo) < 0.0 {
+            -hit.normal
+        } else {
+            hit.normal
+        };
+        let sp = ShadingPoint {
+            origin: scene.offset_point(hit.position, normal),
+            normal,
+            wo,
+            material: scene.mesh().objects[hit.obj as usize].material,
+        };
+        let emitted = scene.emitted(&hit, wo);
+        let mut product = None;
+        if self.uses_product() {
+            let start = Instant::now();
+            product = self.lighting.product(&sp);
+            work.product_ns += elapsed_ns(start);
+        }
+        let mut interpolant = Interpolant::EMPTY;
+        if let (Some((state, cache)), Some(radiance)) = (self.cache, self.radiance) {
+            let start = Instant::now();
+            let footprint = self.camera.footprint(dir, hit.t, normal);
+            let d_max = cache.params().d_max_scale * footprint;
+            let lookup = state.lookup(cache.params(), hit.position, normal, d_max);
+            let looked = Instant::now();
+            work.lookup_ns += (looked - start).as_nanos() as u64;
+            let tables = product.as_ref().map(|p| {
+                TABLES.with_borrow_mut(|t| {
+                    t.fill(p, radiance, state.store().m());
+                    Interpolant::new(state, &lookup, Some(t))
+                })
+            });
+            interpolant = tables.unwrap_or_else(|| Interpolant::new(state, &lookup, None));
+            work.control_ns += elapsed_ns(looked);
+            work.cache_points += 1;
+            work.records_used += interpolant.ids().len() as u64;
+            if interpolant.is_empty() {
+                work.points_without_records += 1;
+                if self.params.insert_missing {
+                    work.requests
+                        .push((pixel as u32, hit.position, normal, d_max));
+                }
+            }
+        }
+        Point::Surface(Box::new(SurfacePoint {
+            ratios: sp.material.channel_ratios().map(f64::from),
+            sp,
+            emitted,
+            product,
+            interpolant,
+        }))
+    }
+
+    /// One sample at a prepared point: the plain estimate `Z` and the control variate's
+    /// zero-mean term `W = g/p − J` (zero without records). Record verdicts go to
+    /// `verdicts[k]` (misses, uses) for kept record `k`.
+    fn sample(
+        &self,
+        point: &Point,
+        rng: &SampleRng,
+        work: &mut BandWork,
+        verdicts: &mut [(u32, u32)],
+    ) -> (Vec3, [f64; 3]) {
+        let p = match point {
+            Point::Miss(l) => return (*l, [0.0; 3]),
+            Point::Surface(p) => p,
+        };
+        if !self.uses_product() {
+            let l = self.lighting.estimate(
+                &p.sp,
+                self.params.method,
+                rng,
+                &mut work.direct,
+                &mut work.bvh,
+            );
+            return (p.emitted + l, [0.0; 3]);
+        }
+        let (l, env_sample) = self.lighting.estimate_product(
+            &p.sp,
+            p.product.as_ref(),
+            rng,
+            &mut work.direct,
+            &mut work.bvh,
+        );
+        let z = p.emitted + l;
+        let interp = &p.interpolant;
+        let (Some((s, traced)), Some((state, _))) = (env_sample, self.cache) else {
+            return (z, [0.0; 3]);
+        };
+        if interp.is_empty() {
+            return (z, [0.0; 3]);
+        }
+        let g = control_sample(
+            state,
+            interp,
+            self.lighting.env,
+            s.texel,
+            s.square,
+            s.bsdf,
+            s.pdf,
+        );
+        if let Some(visible) = traced {
+            for (k, v) in verdicts.iter_mut().enumerate().take(interp.ids().len()) {
+                let predicted = g.visible_mask >> k & 1 == 1;
+                v.0 += (predicted != visible) as u32;
+                v.1 += 1;
+            }
+        }
+        let w = std::array::from_fn(|c| p.ratios[c] * (g.value[c] - interp.j[c]));
+        (z, w)
+    }
+
+    /// Samples `samples` of one pixel, accumulated into `acc`.
+    fn shade_pixel(
+        &self,
+        pixel: usize,
+        samples: std::ops::Range<u32>,
+        acc: &mut CvSums,
+        work: &mut BandWork,
+    ) {
+        let seed = self.params.seed;
+        let mut fixed: Option<Point> = None;
+        for s in samples {
+            let rng = SampleRng::new(seed, pixel as u64, s as u64);
+            let fresh;
+            let point = if self.params.jitter {
+                fresh = self.prepare(pixel, &rng, work);
+                &fresh
+            } else {
+                fixed.get_or_insert_with(|| self.prepare(pixel, &rng, work))
+            };
+            let start = Instant::now();
+            let mut verdicts = [(0u32, 0u32); crate::estimators::control_variate::MAX_KEPT];
+            let (z, w) = self.sample(point, &rng, work, &mut verdicts);
+            acc.add(z, w);
+            work.shading_ns += elapsed_ns(start);
+            if let Point::Surface(p) = point {
+                for (id, v) in p.interpolant.ids().iter().zip(verdicts) {
+                    if v.1 > 0 {
+                        let e = work.verdicts.entry(*id).or_default();
+                        e.0 += v.0;
+                        e.1 += v.1;
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// Renders `camera`'s view of `scene` lit by `env` and the scene's area lights.
-/// `progress(spp_done, spp_planned)` is called after every pass on the calling thread;
-/// returning `false` stops after that pass (the image so far is returned). Work runs on
-/// `threads` workers (`None`: all cores).
+///
+/// [`Method::ControlVariate`] needs `cache` (records of this scene); its miss counts are
+/// reported to the cache afterwards (`record_misses`), and with `insert_missing` the
+/// points that found no record are given one. `progress(done, planned)` (pixel samples)
+/// is called on the calling thread about every 0.1 s and after each pass; returning
+/// `false` stops. Work runs on `threads` workers (`None`: all cores).
 pub fn render(
     scene: &Scene,
     env: &EnvMap,
     camera: &Camera,
     params: &RenderParams,
+    cache: Option<&VisibilityCache>,
     threads: Option<usize>,
-    progress: &mut (dyn FnMut(u32, u32) -> bool + Send),
+    progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
 ) -> Result<Rendered> {
     params.validate()?;
+    let cv = params.method == Method::ControlVariate;
+    let cache = if cv {
+        Some(cache.ok_or_else(|| {
+            Error::invalid(
+                "cache",
+                "method \"cv\" needs a visibility cache of the scene",
+            )
+        })?)
+    } else {
+        None
+    };
+    // The product needs cells of level >= 1; a 1 x 1 map is the same map at 2 x 2.
+    let upsampled;
+    let env = if env.resolution() < 2 {
+        upsampled = env.resampled(2)?;
+        &upsampled
+    } else {
+        env
+    };
+    let radiance = cv.then(|| RadiancePyramid::new(env));
     let lighting = Lighting {
         scene,
         env,
         product_level: params.product_level,
     };
     let (width, height) = (camera.width as usize, camera.height as usize);
+    let pixels = width * height;
     let start = Instant::now();
-    let mut sums = vec![PixelSums::default(); width * height];
+    let mut sums = vec![CvSums::default(); pixels];
     let mut total = BandWork::default();
-    let mut spp = 0u32;
+    let mut spp_done = 0u32;
+    let mut passes = 0u32;
+    let mut complete = true;
+    let planned = params.spp as u64 * pixels as u64;
+    let done = AtomicU64::new(0);
+    let cancel = AtomicBool::new(false);
+    let mut last_pass_seconds = 0.0f64;
+    // The BVH is built once, in parallel, before the passes.
     with_threads(threads, || {
-        // The BVH is built once, in parallel, before the passes.
         let _ = scene.bvh();
-        while spp < params.spp {
-            let pass = spp;
-            let work = sums
-                .par_chunks_mut(BAND_ROWS * width)
-                .enumerate()
-                .map(|(band, pixels)| {
-                    let mut work = BandWork::default();
-                    let first = band * BAND_ROWS * width;
-                    for (i, acc) in pixels.iter_mut().enumerate() {
-                        let l = pixel_sample(&lighting, camera, params, first + i, pass, &mut work);
-                        for c in 0..3 {
-                            let v = l[c] as f64;
-                            acc.sum[c] += v;
-                            acc.sum_sq[c] += v * v;
-                        }
-                    }
-                    work
-                })
-                .reduce(BandWork::default, BandWork::add);
-            total = total.add(work);
-            spp += 1;
-            let keep_going = progress(spp, params.spp);
-            let over_budget = params
-                .time_budget
-                .is_some_and(|b| start.elapsed().as_secs_f64() >= b);
-            if !keep_going || over_budget {
-                break;
-            }
-        }
     })?;
+    while spp_done < params.spp {
+        let pass_len = match params.time_budget {
+            None => params.spp,
+            Some(budget) => {
+                let left = budget - start.elapsed().as_secs_f64();
+                let per_sample = last_pass_seconds / spp_done.max(1) as f64;
+                let fits = if per_sample > 0.0 {
+                    (left / per_sample).floor().max(1.0) as u32
+                } else {
+                    1
+                };
+                fits.min(spp_done.max(1)).min(params.spp - spp_done)
+            }
+        };
+        let range = spp_done..spp_done + pass_len;
+        let pass_start = Instant::now();
+        let guard = cache.map(|c| c.read());
+        let shader = Shader {
+            lighting,
+            camera,
+            params,
+            cache: guard.as_deref().zip(cache),
+            radiance: radiance.as_ref(),
+        };
+        let work = run_with_progress(
+            threads,
+            || {
+                sums.par_chunks_mut(BAND_ROWS * width)
+                    .enumerate()
+                    .map(|(band, band_sums)| {
+                        let mut work = BandWork::default();
+                        if cancel.load(Ordering::Relaxed) {
+                            return work;
+                        }
+                        let first = band * BAND_ROWS * width;
+                        for (i, acc) in band_sums.iter_mut().enumerate() {
+                            shader.shade_pixel(first + i, range.clone(), acc, &mut work);
+                        }
+                        done.fetch_add(band_sums.len() as u64 * pass_len as u64, Ordering::Relaxed);
+                        work
+                    })
+                    .collect::<Vec<BandWork>>()
+            },
+            &mut || {
+                let keep = progress(done.load(Ordering::Relaxed), planned);
+                if !keep {
+                    cancel.store(true, Ordering::Relaxed);
+                }
+                keep
+            },
+        )?;
+        drop(guard);
+        for w in work {
+            total.merge(w);
+        }
+        passes += 1;
+        last_pass_seconds += pass_start.elapsed().as_secs_f64();
+        if cancel.load(Ordering::Relaxed) {
+            complete = false;
+            break;
+        }
+        spp_done += pass_len;
+        let keep_going = progress(done.load(Ordering::Relaxed), planned);
+        let over_budget = params
+            .time_budget
+            .is_some_and(|b| start.elapsed().as_secs_f64() >= b);
+        if !keep_going || over_budget {
+            break;
+        }
+    }
     if scene.counting_enabled() {
         scene.add_counters(total.bvh);
     }
 
-    let n = spp as f64;
-    let image = sums.iter().map(|s| s.sum.map(|v| (v / n) as f32)).collect();
-    let variance = sums
-        .iter()
-        .map(|s| {
-            std::array::from_fn(|c| {
-                if spp < 2 {
-                    return f32::INFINITY;
-                }
-                let mean = s.sum[c] / n;
-                let var = ((s.sum_sq[c] - mean * s.sum[c]) / (n - 1.0)).max(0.0);
-                (var / n) as f32
-            })
-        })
-        .collect();
-    let seconds = start.elapsed().as_secs_f64();
-    let pixels = (width * height) as u64;
-    let rays = pixels * spp as u64 + total.direct.shadow_rays + total.direct.bsdf_rays;
+    // α per pixel, then the estimates.
+    let alpha: Vec<[f64; 3]> = match (cv, params.alpha) {
+        (true, AlphaRule::Neighbours { radius }) => neighbour_alphas(&sums, width, height, radius),
+        (_, AlphaRule::Fixed(a)) if cv => vec![[a; 3]; pixels],
+        _ => vec![[0.0; 3]; pixels],
+    };
+    let mut image = Vec::with_capacity(pixels);
+    let mut variance = Vec::with_capacity(pixels);
+    for (s, a) in sums.iter().zip(&alpha) {
+        let (mean, var) = s.estimate(*a);
+        image.push(mean.map(|v| v as f32));
+        variance.push(var.map(|v| v as f32));
+    }
+    let mut stats = RenderStats {
+        spp: sums.iter().map(|s| s.n).min().unwrap_or(0),
+        passes,
+        complete,
+        samples: sums.iter().map(|s| s.n as u64).sum(),
+        primary_rays: total.primary_rays,
+        shadow_rays: total.direct.shadow_rays,
+        bsdf_rays: total.direct.bsdf_rays,
+        stages: StageSeconds {
+            primary: total.primary_ns as f64 * 1e-9,
+            product: total.product_ns as f64 * 1e-9,
+            lookup: total.lookup_ns as f64 * 1e-9,
+            control: total.control_ns as f64 * 1e-9,
+            shading: total.shading_ns as f64 * 1e-9,
+        },
+        cache_points: total.cache_points,
+        points_without_records: total.points_without_records,
+        records_used: total.records_used,
+        record_misses: total.verdicts.values().map(|v| v.0 as u64).sum(),
+        record_uses: total.verdicts.values().map(|v| v.1 as u64).sum(),
+        ..RenderStats::default()
+    };
+    if cv {
+        for c in 0..3 {
+            stats.mean_alpha[c] = alpha.iter().map(|a| a[c]).sum::<f64>() / pixels.max(1) as f64;
+        }
+    }
+    if let Some(cache) = cache {
+        // §5.3: what the records predicted wrongly goes back to them.
+        let ids: Vec<u32> = total.verdicts.keys().copied().collect();
+        let misses: Vec<u32> = total.verdicts.values().map(|v| v.0).collect();
+        let uses: Vec<u32> = total.verdicts.values().map(|v| v.1).collect();
+        cache.record_misses(&ids, &misses, &uses)?;
+        if params.insert_missing && !total.requests.is_empty() {
+            // Pixel order, each point once (a jittered render may ask more than once).
+            total.requests.sort_by_key(|r| r.0);
+            total.requests.dedup_by_key(|r| r.0);
+            let points: Vec<(Vec3, Vec3, f32)> =
+                total.requests.iter().map(|r| (r.1, r.2, r.3)).collect();
+            stats.inserted_records =
+                with_threads(threads, || cache.refine_points(scene, &points))?? as u64;
+        }
+    }
+    stats.seconds = start.elapsed().as_secs_f64();
+    let rays = stats.primary_rays + stats.shadow_rays + stats.bsdf_rays;
+    stats.rays_per_second = rays as f64 / stats.seconds.max(1e-9);
     Ok(Rendered {
         width: camera.width,
         height: camera.height,
         image,
         variance,
-        stats: RenderStats {
-            seconds,
-            spp,
-            samples: pixels * spp as u64,
-            primary_rays: pixels * spp as u64,
-            shadow_rays: total.direct.shadow_rays,
-            bsdf_rays: total.direct.bsdf_rays,
-            rays_per_second: rays as f64 / seconds.max(1e-9),
-            stages: StageSeconds {
-                primary: total.primary_ns as f64 * 1e-9,
-                direct: total.direct_ns as f64 * 1e-9,
-            },
-        },
+        alpha: cv.then(|| alpha.iter().map(|a| a.map(|v| v as f32)).collect()),
+        stats,
+    })
+}
+
+/// Runs `work` on `threads` workers while the calling thread calls `poll` every
+/// [`PROGRESS_INTERVAL`] (it may ask the work to stop by returning false; the work checks
+/// a flag of its own).
+fn run_with_progress<R: Send>(
+    threads: Option<usize>,
+    work: impl FnOnce() -> R + Send,
+    poll: &mut dyn FnMut() -> bool,
+) -> Result<R> {
+    std::thread::scope(|scope| {
+        let (finished, wait) = std::sync::mpsc::channel::<()>();
+        let handle = scope.spawn(move || {
+            let out = with_threads(threads, work);
+            let _ = finished.send(());
+            out
+        });
+        let mut polling = true;
+        while let Err(std::sync::mpsc::RecvTimeoutError::Timeout) =
+            wait.recv_timeout(PROGRESS_INTERVAL)
+        {
+            if polling {
+                polling = poll();
+            }
+        }
+        handle
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
     })
 }

@@ -39,11 +39,21 @@ pub enum Method {
     /// Product importance sampling of environment × BSDF (CAM08 §5.5); area lights by
     /// light sampling.
     Product,
+    /// [`Method::Product`] with the visibility cache's `L B~ Ṽ` as a control variate
+    /// (CAM08 eq. 2–3; [`super::control_variate`]). Needs a cache; without records at a
+    /// point it is [`Method::Product`] there.
+    ControlVariate,
 }
 
 impl Method {
     /// Every method, in a fixed order.
-    pub const ALL: [Method; 4] = [Method::Env, Method::Bsdf, Method::Mis, Method::Product];
+    pub const ALL: [Method; 5] = [
+        Method::Env,
+        Method::Bsdf,
+        Method::Mis,
+        Method::Product,
+        Method::ControlVariate,
+    ];
 
     /// The name Python uses.
     pub const fn name(self) -> &'static str {
@@ -52,6 +62,7 @@ impl Method {
             Method::Bsdf => "bsdf",
             Method::Mis => "mis",
             Method::Product => "product",
+            Method::ControlVariate => "cv",
         }
     }
 
@@ -143,6 +154,13 @@ impl ProductDistribution {
     /// Samples a direction from `u ∈ [0,1)^2`: a cell of the product, then a texel of the
     /// map inside it. Returns the direction, its texel and its solid-angle pdf.
     pub fn sample(&self, env: &EnvMap, u: DVec2) -> (Vec3, UVec2, f64) {
+        let s = self.sample_point(env, u);
+        (s.direction, s.texel, s.pdf)
+    }
+
+    /// [`Self::sample`] with everything the control variate needs: the point of the
+    /// equal-area square the direction comes from and `B~` of its cell.
+    pub fn sample_point(&self, env: &EnvMap, u: DVec2) -> ProductSample {
         let dist = env
             .distribution()
             .expect("a product exists only for a lit map");
@@ -150,11 +168,29 @@ impl ProductDistribution {
             .cells
             .sample(u)
             .expect("the product has a positive total");
-        let (texel, within) = dist.descend(self.level, morton_encode(cell.x, cell.y), rest);
+        let cell_code = morton_encode(cell.x, cell.y);
+        let (texel, within) = dist.descend(self.level, cell_code, rest);
         let res = env.resolution();
-        let p = (texel.as_dvec2() + within) / res as f64;
-        let dir = square_to_sphere(p.as_vec2());
-        (dir, texel, self.texel_pdf(env, texel))
+        let square = (texel.as_dvec2() + within) / res as f64;
+        let bsdf = self.bsdf_cells[cell_code as usize] as f64;
+        let pdf = bsdf * dist.weight(texel) / self.normalization() / texel_solid_angle(res);
+        ProductSample {
+            direction: square_to_sphere(square.as_vec2()),
+            texel,
+            square,
+            bsdf,
+            pdf,
+        }
+    }
+
+    /// Octahedral level of the cells (`4^level` of them).
+    pub fn level(&self) -> u32 {
+        self.level
+    }
+
+    /// `B~` of every cell, Morton order.
+    pub fn bsdf_cells(&self) -> &[f32] {
+        &self.bsdf_cells
     }
 
     /// Solid-angle pdf of sampling a direction in `texel` of the map.
@@ -172,6 +208,21 @@ impl ProductDistribution {
     pub fn pdf(&self, env: &EnvMap, dir: Vec3) -> f64 {
         self.texel_pdf(env, texel_of(dir, env.resolution()))
     }
+}
+
+/// One draw of [`ProductDistribution::sample_point`].
+#[derive(Clone, Copy, Debug)]
+pub struct ProductSample {
+    /// Unit direction.
+    pub direction: Vec3,
+    /// The map's texel that contains it.
+    pub texel: UVec2,
+    /// Its point of the equal-area square, `[0,1)²` (what the direction was mapped from).
+    pub square: DVec2,
+    /// `B~` of the product cell that contains it.
+    pub bsdf: f64,
+    /// Solid-angle pdf, sr⁻¹ (`> 0`).
+    pub pdf: f64,
 }
 
 /// Power heuristic with exponent 2 for a sample of density `a` against `b`.
@@ -200,6 +251,8 @@ pub struct Lighting<'a> {
 impl Lighting<'_> {
     /// One estimate of direct illumination at `sp` by `method` with the random numbers of
     /// `rng`; adds the rays it traced to `counters` and the BVH counters to `bvh`.
+    /// [`Method::Product`] and [`Method::ControlVariate`] build the point's product
+    /// distribution here; to reuse one over many samples call [`Self::estimate_product`].
     pub fn estimate(
         &self,
         sp: &ShadingPoint,
@@ -208,57 +261,25 @@ impl Lighting<'_> {
         counters: &mut DirectCounters,
         bvh: &mut TraversalCounters,
     ) -> Vec3 {
+        if matches!(method, Method::Product | Method::ControlVariate) {
+            let product = self.product(sp);
+            return self
+                .estimate_product(sp, product.as_ref(), rng, counters, bvh)
+                .0;
+        }
         let mut total = Vec3::ZERO;
         let use_lights = method != Method::Bsdf;
         let use_bsdf = matches!(method, Method::Bsdf | Method::Mis);
         let mis = method == Method::Mis;
 
-        // Environment: by its own distribution or by the product.
+        // Environment by its own distribution.
         if use_lights {
             let u = DVec2::new(rng.get(dims::ENV) as f64, rng.get(dims::ENV + 1) as f64);
-            let sample = if method == Method::Product {
-                ProductDistribution::new(
-                    self.env,
-                    &sp.material,
-                    sp.normal,
-                    sp.wo,
-                    self.product_level,
-                )
-                .map(|product| {
-                    let (dir, texel, pdf) = product.sample(self.env, u);
-                    let res = self.env.resolution();
-                    let l = self.env.texels()[(texel.y * res + texel.x) as usize];
-                    (dir, Vec3::from_array(l), pdf)
-                })
-            } else {
-                self.env
-                    .sample(u)
-                    .map(|(dir, pdf)| (dir, self.env.eval(dir), pdf))
-            };
-            if let Some((dir, radiance, pdf)) = sample {
+            if let Some((dir, pdf)) = self.env.sample(u) {
+                let radiance = self.env.eval(dir);
                 total += self.light_term(sp, dir, radiance, pdf, f32::INFINITY, mis, counters, bvh);
             }
-        }
-
-        // Area lights: one point on each.
-        if use_lights {
-            for (k, light) in self.scene.area_lights().iter().enumerate() {
-                let d = dims::AREA + 3 * k as u64;
-                let u = Vec2::new(rng.get(d + 1), rng.get(d + 2));
-                if let Some(s) = light.sample(sp.origin, rng.get(d), u) {
-                    let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
-                    total += self.light_term(
-                        sp,
-                        s.direction,
-                        s.radiance,
-                        s.pdf,
-                        tmax,
-                        mis,
-                        counters,
-                        bvh,
-                    );
-                }
-            }
+            total += self.area_terms(sp, rng, mis, counters, bvh);
         }
 
         // BSDF sampling: what the sampled ray finds is the radiance.
@@ -266,6 +287,74 @@ impl Lighting<'_> {
             let u = Vec2::new(rng.get(dims::BSDF + 1), rng.get(dims::BSDF + 2));
             if let Some(wi) = sp.material.sample(sp.normal, sp.wo, rng.get(dims::BSDF), u) {
                 total += self.bsdf_term(sp, wi, mis, counters, bvh);
+            }
+        }
+        total
+    }
+
+    /// The product distribution of `sp` (`None` where the map or the surface sends no
+    /// light towards `wo`).
+    pub fn product(&self, sp: &ShadingPoint) -> Option<ProductDistribution> {
+        ProductDistribution::new(self.env, &sp.material, sp.normal, sp.wo, self.product_level)
+    }
+
+    /// [`Method::Product`] with a prebuilt `product` of `sp` (CAM08 builds it once per
+    /// shading point and draws every sample from it): the environment by one product
+    /// sample, each area light by one light sample. Also returns the environment sample and
+    /// what its shadow ray found (`None` when no ray was needed: `f cos = 0`), which the
+    /// control variate reads.
+    pub fn estimate_product(
+        &self,
+        sp: &ShadingPoint,
+        product: Option<&ProductDistribution>,
+        rng: &SampleRng,
+        counters: &mut DirectCounters,
+        bvh: &mut TraversalCounters,
+    ) -> (Vec3, Option<(ProductSample, Option<bool>)>) {
+        let mut total = self.area_terms(sp, rng, false, counters, bvh);
+        let Some(product) = product else {
+            return (total, None);
+        };
+        let u = DVec2::new(rng.get(dims::ENV) as f64, rng.get(dims::ENV + 1) as f64);
+        let s = product.sample_point(self.env, u);
+        let cos = sp.normal.dot(s.direction);
+        if cos <= 0.0 {
+            return (total, Some((s, None)));
+        }
+        let f = sp.material.eval(sp.normal, sp.wo, s.direction);
+        if f == Vec3::ZERO {
+            return (total, Some((s, None)));
+        }
+        counters.shadow_rays += 1;
+        let visible = !self
+            .scene
+            .occluded1(sp.origin, s.direction, f32::INFINITY, bvh);
+        if visible {
+            let res = self.env.resolution();
+            let l = Vec3::from_array(self.env.texels()[(s.texel.y * res + s.texel.x) as usize]);
+            total += f * l * cos * (1.0 / s.pdf) as f32;
+        }
+        (total, Some((s, Some(visible))))
+    }
+
+    /// One light sample of every area light (with the MIS weight against BSDF sampling
+    /// when `mis`).
+    fn area_terms(
+        &self,
+        sp: &ShadingPoint,
+        rng: &SampleRng,
+        mis: bool,
+        counters: &mut DirectCounters,
+        bvh: &mut TraversalCounters,
+    ) -> Vec3 {
+        let mut total = Vec3::ZERO;
+        for (k, light) in self.scene.area_lights().iter().enumerate() {
+            let d = dims::AREA + 3 * k as u64;
+            let u = Vec2::new(rng.get(d + 1), rng.get(d + 2));
+            if let Some(s) = light.sample(sp.origin, rng.get(d), u) {
+                let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
+                total +=
+                    self.light_term(sp, s.direction, s.radiance, s.pdf, tmax, mis, counters, bvh);
             }
         }
         total

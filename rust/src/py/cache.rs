@@ -25,7 +25,7 @@ use crate::visibility::record::bytes_per_record;
 /// docs of `viscache_rs` and `VisibilityCache.build`.
 #[pyclass(name = "VisibilityCache", module = "viscache_rs._core")]
 pub struct PyVisibilityCache {
-    pub(super) inner: Arc<VisibilityCache>,
+    pub(crate) inner: Arc<VisibilityCache>,
     /// The scene records are traced in (read at each call, so edits are seen).
     #[pyo3(get)]
     pub(super) scene: Py<PyScene>,

@@ -9,6 +9,7 @@ mod envmap;
 mod image;
 mod material;
 mod octahedral;
+mod preview;
 mod render;
 mod scene;
 mod setup;
@@ -26,6 +27,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<setup::PySetup>()?;
     m.add_class::<envmap::PyEnvMap>()?;
     m.add_class::<cache::PyVisibilityCache>()?;
+    m.add_class::<preview::PyLightingPreview>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(ambient::render_ao, m)?)?;
     m.add_function(wrap_pyfunction!(image::write_exr, m)?)?;

@@ -1,23 +1,49 @@
-//! `viscache_rs._core.render`: the baseline renderer of [`crate::render`]. The Python
-//! wrapper (`viscache_rs.render`) adds the progress bar.
+//! `viscache_rs._core.render`: the renderer of [`crate::render`]. The Python wrapper
+//! (`viscache_rs.render`) adds the progress bar and builds a cache when asked to.
 
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyString};
 
+use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
 use super::convert::{f64_arg, image_array, int_arg, seed_arg, threads_arg, IntoPyResult};
 use super::envmap::PyEnvMap;
 use super::scene::PyScene;
+use crate::estimators::control_variate::AlphaRule;
 use crate::estimators::direct::Method;
 use crate::render::{render as render_core, RenderParams, MAX_SPP};
 
+/// `alpha`: a number, or "estimate" (neighbour pooling with `radius`).
+fn alpha_arg(alpha: Option<&Bound<'_, PyAny>>, radius: u32) -> PyResult<AlphaRule> {
+    let Some(alpha) = alpha.filter(|a| !a.is_none()) else {
+        return Ok(AlphaRule::PAPER);
+    };
+    if let Ok(s) = alpha.cast::<PyString>() {
+        let s = s.to_str()?;
+        return if s == "estimate" {
+            Ok(AlphaRule::Neighbours { radius })
+        } else {
+            Err(PyValueError::new_err(format!(
+                "alpha: expected a number or \"estimate\", got {s:?}"
+            )))
+        };
+    }
+    if alpha.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(PyTypeError::new_err(
+            "alpha: expected a number or \"estimate\", got a bool",
+        ));
+    }
+    Ok(AlphaRule::Fixed(f64_arg(alpha, "alpha")?))
+}
+
 /// Renders direct illumination; returns a dict with `image` and `variance` (H, W, 3)
-/// float32 and `stats` (a dict). `callback(spp_done, spp_planned)`, if given, is called
+/// float32, `alpha` (H, W, 3) float32 for method "cv" (else None) and `stats` (a dict).
+/// `callback(done, planned)` (pixel samples), if given, is called about every 0.1 s and
 /// after every pass with the GIL held; a falsy return or an exception stops the render
-/// after that pass (the exception is then raised).
+/// (the exception is then raised).
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp, method, seed=None, threads=None, time_budget=None, product_level=None, callback=None))]
+#[pyo3(signature = (scene, envmap, camera, spp, method, seed=None, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=false, alpha=None, alpha_radius=None, insert_missing=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -31,11 +57,17 @@ pub fn render<'py>(
     time_budget: Option<&Bound<'py, PyAny>>,
     product_level: Option<&Bound<'py, PyAny>>,
     callback: Option<Py<PyAny>>,
+    cache: Option<PyRef<'py, PyVisibilityCache>>,
+    jitter: bool,
+    alpha: Option<&Bound<'py, PyAny>>,
+    alpha_radius: Option<&Bound<'py, PyAny>>,
+    insert_missing: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let method = Method::from_name(method).ok_or_else(|| {
         let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
         PyValueError::new_err(format!("method: expected one of {names:?}, got {method:?}"))
     })?;
+    let radius = alpha_radius.map_or(Ok(4), |r| int_arg(r, "alpha_radius", 1, 64))? as u32;
     let params = RenderParams {
         spp: int_arg(spp, "spp", 1, MAX_SPP as i128)? as u32,
         method,
@@ -45,15 +77,22 @@ pub fn render<'py>(
             _ => None,
         },
         product_level: product_level.map_or(Ok(5), |l| int_arg(l, "product_level", 1, 8))? as u32,
+        jitter,
+        alpha: alpha_arg(alpha, radius)?,
+        insert_missing,
     };
     let threads = threads_arg(threads)?;
     let (scene, cam) = (scene.inner.clone(), camera.inner);
+    let cache = cache.map(|c| c.inner.clone());
     let env: Py<PyEnvMap> = envmap.unbind();
     let mut failure: Option<PyErr> = None;
-    let mut progress = |done: u32, planned: u32| -> bool {
+    let mut progress = |done: u64, planned: u64| -> bool {
         let Some(cb) = &callback else {
             return true;
         };
+        if failure.is_some() {
+            return false;
+        }
         Python::attach(|py| match cb.call1(py, (done, planned)) {
             Ok(r) => r.is_truthy(py).unwrap_or(true),
             Err(e) => {
@@ -69,6 +108,7 @@ pub fn render<'py>(
                 &env.get().inner,
                 &cam,
                 &params,
+                cache.as_deref(),
                 threads,
                 &mut progress,
             )
@@ -87,11 +127,18 @@ pub fn render<'py>(
         "variance",
         image_array(py, out.variance.into_flattened(), h, w, Some(3))?,
     )?;
+    match out.alpha {
+        Some(a) => d.set_item("alpha", image_array(py, a.into_flattened(), h, w, Some(3))?)?,
+        None => d.set_item("alpha", py.None())?,
+    }
     let s = &out.stats;
     let stats = PyDict::new(py);
     stats.set_item("method", method.name())?;
     stats.set_item("seconds", s.seconds)?;
     stats.set_item("spp", s.spp)?;
+    stats.set_item("passes", s.passes)?;
+    stats.set_item("complete", s.complete)?;
+    stats.set_item("jitter", params.jitter)?;
     stats.set_item("samples", s.samples)?;
     stats.set_item("primary_rays", s.primary_rays)?;
     stats.set_item("shadow_rays", s.shadow_rays)?;
@@ -99,7 +146,35 @@ pub fn render<'py>(
     stats.set_item("rays_per_second", s.rays_per_second)?;
     stats.set_item("samples_per_second", s.samples as f64 / s.seconds.max(1e-9))?;
     stats.set_item("primary_seconds", s.stages.primary)?;
-    stats.set_item("direct_seconds", s.stages.direct)?;
+    stats.set_item("product_seconds", s.stages.product)?;
+    stats.set_item("lookup_seconds", s.stages.lookup)?;
+    stats.set_item("control_seconds", s.stages.control)?;
+    stats.set_item("shading_seconds", s.stages.shading)?;
+    stats.set_item(
+        "direct_seconds",
+        s.stages.product + s.stages.lookup + s.stages.control + s.stages.shading,
+    )?;
+    if method == Method::ControlVariate {
+        let points = s.cache_points.max(1) as f64;
+        stats.set_item(
+            "alpha",
+            match params.alpha {
+                AlphaRule::Fixed(a) => a.into_pyobject(py)?.into_any(),
+                AlphaRule::Neighbours { .. } => "estimate".into_pyobject(py)?.into_any(),
+            },
+        )?;
+        stats.set_item("mean_alpha", s.mean_alpha.to_vec())?;
+        stats.set_item("cache_points", s.cache_points)?;
+        stats.set_item("points_without_records", s.points_without_records)?;
+        stats.set_item("records_per_point", s.records_used as f64 / points)?;
+        stats.set_item("record_misses", s.record_misses)?;
+        stats.set_item("record_uses", s.record_uses)?;
+        stats.set_item(
+            "miss_rate",
+            s.record_misses as f64 / s.record_uses.max(1) as f64,
+        )?;
+        stats.set_item("inserted_records", s.inserted_records)?;
+    }
     d.set_item("stats", stats)?;
     Ok(d)
 }

@@ -938,14 +938,43 @@ impl VisibilityCache {
         wave: &[u32],
     ) -> Result<(usize, usize, Vec<u32>)> {
         let k = self.params.d_max_scale;
-        let query = |i: u32| {
+        self.refine_wave_with(scene, wave, |i: u32| {
             let i = i as usize;
             (
                 Vec3::from(g.position[i]),
                 Vec3::from(g.normal[i]),
                 k * g.footprint[i],
             )
-        };
+        })
+    }
+
+    /// Gives the points `(position, unit normal, d_max)` the records §5.2 asks for, in
+    /// their order and in waves like [`Self::build`] (deterministic for any thread count);
+    /// returns how many were inserted. This is the one-pass mode's insertion: a render
+    /// collects the points that found no record and hands them over afterwards.
+    pub fn refine_points(&self, scene: &Scene, points: &[(Vec3, Vec3, f32)]) -> Result<usize> {
+        let mut fresh = (0..points.len() as u32).peekable();
+        let mut deferred: Vec<u32> = Vec::new();
+        let mut inserted = 0;
+        while fresh.peek().is_some() || !deferred.is_empty() {
+            let size = self.wave_size().max(deferred.len());
+            let mut wave = std::mem::take(&mut deferred);
+            wave.extend(fresh.by_ref().take(size - wave.len()));
+            let (added, _, later) =
+                self.refine_wave_with(scene, &wave, |i: u32| points[i as usize])?;
+            inserted += added;
+            deferred = later;
+        }
+        Ok(inserted)
+    }
+
+    /// [`Self::refine_wave`] over points given by `query(index)`.
+    fn refine_wave_with(
+        &self,
+        scene: &Scene,
+        wave: &[u32],
+        query: impl Fn(u32) -> (Vec3, Vec3, f32) + Sync,
+    ) -> Result<(usize, usize, Vec<u32>)> {
         let wanted: Vec<u32> = {
             let state = self.read();
             wave.par_iter()

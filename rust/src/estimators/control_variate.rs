@@ -1,0 +1,814 @@
+//! The visibility cache as a control variate (CAM08 §3, eq. 2–6; §5.5; §6.2).
+//!
+//! Product importance sampling draws `ω` with `p(ω) = L(ω) B~(ω) / L_ns` (CAM08 eq. 3) and
+//! estimates `∫ L B V dω` by `L B V / p`. With the cache's interpolated visibility
+//! `Ṽ = Σ β_i V_i` (a lookup's records and weights), the control variate
+//! `g(ω) = L(ω) B~(ω) Ṽ(ω)` has the integral `J = ∫ g dω = Σ β_i J_i`, and eq. 2 becomes
+//!
+//! `⟨L_o⟩ = (1/N) Σ [L B V / p − α g / p] + α J`,
+//!
+//! unbiased for any `α` that does not depend on the samples it multiplies.
+//!
+//! ## Exactness of `J`
+//! `L` is piecewise constant over the map's texels, `B~` over the product's cells and every
+//! `V_i` over the record's texels, and all three grids are levels of one equal-area
+//! octahedral quadtree. So `g` is piecewise constant on the finest of them and `J` is an
+//! exact finite sum — there is no quadrature error for the control variate to leak into the
+//! estimate. Each sample's `Ṽ` is read at the record texel that contains the *sampled point
+//! of the square* (not a re-mapped direction), so `E[g/p] = J` holds to rounding.
+//!
+//! ## `J_i` by quadtree traversal (§5.5)
+//! [`VisibilityView::nodes`] walks record `i`'s 2-bit hierarchy, skipping empty nodes and
+//! stopping at full ones; a full node contributes `∫_node L B~ dω`. For nodes no finer than
+//! the product's cells that is a range of cells — contiguous in Morton order, so a prefix
+//! sum of `L_c B~_c` per channel answers it with one subtraction. A node finer than the
+//! cells (records of higher resolution than the product) lies in one cell and takes
+//! `B~_cell ∫_node L dω` from the map's radiance pyramid ([`RadiancePyramid`]).
+//!
+//! ## Choosing `α` (eq. 4–5)
+//! The variance of `Y = Z − α W` (eq. 4, `Z` the plain estimate and `W = g/p − J`) is least
+//! at `α* = Cov(Z, W) / Var(W)` (eq. 5). Estimating `α*` from the same samples biases the
+//! estimate (CAM08 §3.1). [`AlphaRule::Neighbours`] estimates it for a pixel from the
+//! *other* pixels of a window around it, pooling their centred sums; those samples are
+//! independent of the pixel's own (every random number comes from `(seed, pixel, sample,
+//! dimension)`), so the pixel's estimate stays exactly unbiased. The estimate is clamped
+//! to `[0, ALPHA_MAX]`, a function of the same independent data, which keeps it unbiased
+//! and bounds the harm of a noisy window.
+
+use glam::{DVec2, UVec2, Vec3};
+
+use crate::lights::envmap::EnvMap;
+use crate::sampling::octahedral::{morton_encode, texel_solid_angle};
+use crate::visibility::cache::{CacheState, Lookup};
+use crate::visibility::record::{word_level, Coverage, VisibilityView};
+
+use super::direct::ProductDistribution;
+
+/// Largest `α` an estimate may take (see the module docs).
+pub const ALPHA_MAX: f64 = 2.0;
+
+/// How `α` of eq. 2 is chosen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum AlphaRule {
+    /// A fixed value (CAM08 uses 1).
+    Fixed(f64),
+    /// Per pixel and channel, `Cov(Z, W) / Var(W)` pooled over the pixels of the
+    /// `(2r + 1)²` window centred on it, the pixel itself left out (module docs).
+    Neighbours {
+        /// Window radius `r` in pixels, `>= 1`.
+        radius: u32,
+    },
+}
+
+impl AlphaRule {
+    /// CAM08's choice: `α = 1`.
+    pub const PAPER: Self = Self::Fixed(1.0);
+    /// Estimated from a 9 x 9 window of neighbours.
+    pub const ESTIMATE: Self = Self::Neighbours { radius: 4 };
+}
+
+/// `∫ L_c dω` of an environment map over every node of the octahedral quadtree, per
+/// channel, levels `0..=depth` in Morton order (`f64`, steradian-weighted radiance).
+/// Nodes finer than the map's texels are answered by [`Self::node`] as equal shares of
+/// their texel (texels are equal-area).
+#[derive(Clone, Debug)]
+pub struct RadiancePyramid {
+    levels: Vec<Vec<[f64; 3]>>,
+}
+
+impl RadiancePyramid {
+    /// Builds the pyramid of `env`.
+    pub fn new(env: &EnvMap) -> Self {
+        let res = env.resolution();
+        let depth = res.trailing_zeros();
+        let omega = texel_solid_angle(res);
+        let mut finest = vec![[0.0f64; 3]; (res * res) as usize];
+        for (i, t) in env.texels().iter().enumerate() {
+            let (x, y) = (i as u32 % res, i as u32 / res);
+            finest[morton_encode(x, y) as usize] = t.map(|c| c as f64 * omega);
+        }
+        let mut levels = vec![finest];
+        while levels.last().unwrap().len() > 1 {
+            let coarse = levels
+                .last()
+                .unwrap()
+                .chunks_exact(4)
+                .map(|c| std::array::from_fn(|k| (c[0][k] + c[1][k]) + (c[2][k] + c[3][k])))
+                .collect();
+            levels.push(coarse);
+        }
+        levels.reverse();
+        debug_assert_eq!(levels.len() as u32, depth + 1);
+        Self { levels }
+    }
+
+    /// Finest level: the map's own texels.
+    pub fn depth(&self) -> u32 {
+        (self.levels.len() - 1) as u32
+    }
+
+    /// `∫ L dω` over node `index` (Morton) of `level`, any level.
+    #[inline]
+    pub fn node(&self, level: u32, index: u32) -> [f64; 3] {
+        let depth = self.depth();
+        if level <= depth {
+            return self.levels[level as usize][index as usize];
+        }
+        let shift = 2 * (level - depth);
+        let texel = self.levels[depth as usize][(index >> shift) as usize];
+        texel.map(|c| c / (1u64 << shift) as f64)
+    }
+
+    /// Node sums of `level <= depth`, Morton order.
+    pub fn level(&self, level: u32) -> &[[f64; 3]] {
+        &self.levels[level as usize]
+    }
+}
+
+/// `∫ L B~ dω` of one shading point as running sums over the texels of the finer of the
+/// product's cells and the records' grid (Morton order), so that any quadtree node
+/// integrates with one subtraction. Rebuilt per shading point with [`Self::fill`], which
+/// reuses the allocation.
+#[derive(Clone, Debug, Default)]
+pub struct ControlTables {
+    /// Level of the prefix's texels: `max(product level, record level)`.
+    level: u32,
+    /// Level of the records' grid.
+    record_m: u32,
+    /// `prefix[k] = Σ_{t < k} ∫_t L B~ dω` per channel; `4^level + 1` entries.
+    prefix: Vec<[f64; 3]>,
+}
+
+impl ControlTables {
+    /// The tables of `product` lit by `radiance` (the same map's pyramid) for records of
+    /// `2^record_m` texels a side.
+    pub fn new(product: &ProductDistribution, radiance: &RadiancePyramid, record_m: u32) -> Self {
+        let mut t = Self::default();
+        t.fill(product, radiance, record_m);
+        t
+    }
+
+    /// Rebuilds the tables in place for another point (see [`Self::new`]).
+    pub fn fill(
+        &mut self,
+        product: &ProductDistribution,
+        radiance: &RadiancePyramid,
+        record_m: u32,
+    ) {
+        let p = product.level();
+        self.level = p.max(record_m);
+        self.record_m = record_m;
+        self.prefix.clear();
+        let mut acc = [0.0f64; 3];
+        self.prefix.push(acc);
+        let bsdf = product.bsdf_cells();
+        if self.level == p {
+            for (l, &b) in radiance.level(p).iter().zip(bsdf) {
+                let b = b as f64;
+                acc = [acc[0] + b * l[0], acc[1] + b * l[1], acc[2] + b * l[2]];
+                self.prefix.push(acc);
+            }
+        } else {
+            // Record texels finer than the cells: each takes its cell's B~.
+            let shift = 2 * (self.level - p);
+            for t in 0..1u32 << (2 * self.level) {
+                let b = bsdf[(t >> shift) as usize] as f64;
+                let l = radiance.node(self.level, t);
+                acc = [acc[0] + b * l[0], acc[1] + b * l[1], acc[2] + b * l[2]];
+                self.prefix.push(acc);
+            }
+        }
+    }
+
+    /// `∫ L B~ dω` over the whole sphere, per channel (`J` of a record that sees everything).
+    pub fn total(&self) -> [f64; 3] {
+        *self.prefix.last().unwrap()
+    }
+
+    /// `∫_node L B~ dω` for node `index` of record level `level <= record_m`.
+    #[inline]
+    fn node(&self, level: u32, index: u32) -> [f64; 3] {
+        let shift = 2 * (self.level - level);
+        let a = self.prefix[(index as usize) << shift];
+        let b = self.prefix[((index as usize) + 1) << shift];
+        [b[0] - a[0], b[1] - a[1], b[2] - a[2]]
+    }
+
+    /// `∫ L B~ dω` over record texels `[lo, hi)` (Morton order).
+    #[inline]
+    fn texel_range(&self, lo: usize, hi: usize) -> [f64; 3] {
+        let shift = 2 * (self.level - self.record_m);
+        let a = self.prefix[lo << shift];
+        let b = self.prefix[hi << shift];
+        [b[0] - a[0], b[1] - a[1], b[2] - a[2]]
+    }
+
+    /// `J_i = ∫ L B~ V_i dω` of one record (CAM08 §5.5): a walk of its 2-bit hierarchy that
+    /// skips empty nodes and takes full ones whole; a partial node of one word adds its
+    /// visible texels one by one. `bits` must have the tables' record resolution.
+    pub fn record_integral(&self, bits: VisibilityView) -> [f64; 3] {
+        debug_assert_eq!(bits.m(), self.record_m);
+        let m = self.record_m;
+        let words = bits.bit_words();
+        let mut sum = [0.0f64; 3];
+        let add = |sum: &mut [f64; 3], v: [f64; 3]| {
+            *sum = [sum[0] + v[0], sum[1] + v[1], sum[2] + v[2]];
+        };
+        // Runs of consecutive visible texels are contiguous ranges of the prefix: one
+        // subtraction per run (visibility is coherent, so runs are long in Morton order).
+        let visible_texels = |sum: &mut [f64; 3], word: usize, mut x: u64| {
+            let base = word * 64;
+            while x != 0 {
+                let a = x.trailing_zeros();
+                let run = (!(x >> a)).trailing_zeros();
+                let (lo, hi) = (base + a as usize, base + (a + run) as usize);
+                add(sum, self.texel_range(lo, hi));
+                x &= if a + run >= 64 { 0 } else { !0u64 << (a + run) };
+            }
+        };
+        if m < 3 {
+            // One word holds the whole map.
+            visible_texels(&mut sum, 0, words[0]);
+            return sum;
+        }
+        let word_level = word_level(m);
+        let mut stack = [(0u32, 0u32); 1 + 3 * 8];
+        let mut len = 1;
+        while len > 0 {
+            len -= 1;
+            let (level, node) = stack[len];
+            match bits.coverage(level, node) {
+                Coverage::Empty => {}
+                Coverage::Full => add(&mut sum, self.node(level, node)),
+                Coverage::Partial if level == word_level => {
+                    visible_texels(&mut sum, node as usize, words[node as usize])
+                }
+                Coverage::Partial => {
+                    for k in (0..4).rev() {
+                        stack[len] = (level + 1, 4 * node + k);
+                        len += 1;
+                    }
+                }
+            }
+        }
+        sum
+    }
+}
+
+/// The cache's part of one shading point: the kept records, their `β`, and `J`.
+///
+/// Invariant: `len <= ids.len()`, `Σ beta = 1` over the first `len` entries when `len > 0`.
+#[derive(Clone, Copy, Debug)]
+pub struct Interpolant {
+    len: usize,
+    ids: [u32; MAX_KEPT],
+    beta: [f32; MAX_KEPT],
+    /// `J = Σ β_i J_i` per channel (0 without records).
+    pub j: [f64; 3],
+}
+
+/// Most records an interpolant keeps (the cache's `n_keep` cap).
+pub const MAX_KEPT: usize = crate::visibility::params::MAX_KEEP_COUNT as usize;
+
+impl Interpolant {
+    /// No records: `Ṽ = 0`, `J = 0` (plain product sampling).
+    pub const EMPTY: Self = Self {
+        len: 0,
+        ids: [0; MAX_KEPT],
+        beta: [0.0; MAX_KEPT],
+        j: [0.0; 3],
+    };
+
+    /// The interpolant of `lookup`, with `J = Σ β_i J_i` integrated against `tables`
+    /// (`None`: the point has no product, nothing to integrate, `J = 0`).
+    pub fn new(state: &CacheState, lookup: &Lookup, tables: Option<&ControlTables>) -> Self {
+        let mut out = Self::EMPTY;
+        for k in lookup.neighbours() {
+            out.ids[out.len] = k.id;
+            out.beta[out.len] = k.beta;
+            out.len += 1;
+            if let Some(tables) = tables {
+                let ji = tables.record_integral(state.store().bits(k.id as usize));
+                let b = k.beta as f64;
+                out.j = [
+                    out.j[0] + b * ji[0],
+                    out.j[1] + b * ji[1],
+                    out.j[2] + b * ji[2],
+                ];
+            }
+        }
+        out
+    }
+
+    /// Record ids, heaviest first.
+    pub fn ids(&self) -> &[u32] {
+        &self.ids[..self.len]
+    }
+
+    /// Their weights `β`.
+    pub fn betas(&self) -> &[f32] {
+        &self.beta[..self.len]
+    }
+
+    /// Whether the point found no record.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// `Ṽ` at the record texel containing square point `square ∈ [0,1)²`, as `Σ β_i V_i`,
+    /// and the record bits (bit `i` set when record `i` sees the direction).
+    #[inline]
+    pub fn eval(&self, state: &CacheState, square: DVec2) -> (f64, u32) {
+        if self.len == 0 {
+            return (0.0, 0);
+        }
+        let store = state.store();
+        let z = record_texel_code(square, store.m()) as usize;
+        let (mut v, mut mask) = (0.0f64, 0u32);
+        for i in 0..self.len {
+            if store.bits(self.ids[i] as usize).get(z) {
+                v += self.beta[i] as f64;
+                mask |= 1 << i;
+            }
+        }
+        (v, mask)
+    }
+}
+
+/// Morton code of the texel of a `2^m` grid containing square point `p ∈ [0,1)²`.
+#[inline]
+pub fn record_texel_code(p: DVec2, m: u32) -> u32 {
+    let r = (1u32 << m) as f64;
+    let max = (1u32 << m) - 1;
+    let t = UVec2::new(((p.x * r) as u32).min(max), ((p.y * r) as u32).min(max));
+    morton_encode(t.x, t.y)
+}
+
+/// Centred sums of one pixel's samples of `Z` (the plain estimate) and `W` (the control
+/// variate's zero-mean term `g/p − J`), per channel, from which the estimate and its
+/// variance follow for any `α` ([`Self::estimate`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CvSums {
+    /// Samples.
+    pub n: u32,
+    pub z: [f64; 3],
+    pub w: [f64; 3],
+    pub zz: [f64; 3],
+    pub ww: [f64; 3],
+    pub zw: [f64; 3],
+}
+
+impl CvSums {
+    /// Adds one sample.
+    #[inline]
+    pub fn add(&mut self, z: Vec3, w: [f64; 3]) {
+        self.n += 1;
+        for c in 0..3 {
+            let zc = z[c] as f64;
+            self.z[c] += zc;
+            self.w[c] += w[c];
+            self.zz[c] += zc * zc;
+            self.ww[c] += w[c] * w[c];
+            self.zw[c] += zc * w[c];
+        }
+    }
+
+    /// `(Σ (z−z̄)(w−w̄), Σ (w−w̄)²)` of channel `c`: what [`AlphaRule::Neighbours`] pools.
+    pub fn centred(&self, c: usize) -> (f64, f64) {
+        if self.n == 0 {
+            return (0.0, 0.0);
+        }
+        let n = self.n as f64;
+        let cov = self.zw[c] - self.z[c] * self.w[c] / n;
+        let var = (self.ww[c] - self.w[c] * self.w[c] / n).max(0.0);
+        (cov, var)
+    }
+
+    /// Mean of `Z − α W` per channel and the variance of that mean (`inf` below two
+    /// samples, `NaN`-free: 0 samples give mean 0).
+    pub fn estimate(&self, alpha: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+        let n = self.n as f64;
+        let mut mean = [0.0; 3];
+        let mut var = [f64::INFINITY; 3];
+        for c in 0..3 {
+            let a = alpha[c];
+            let sy = self.z[c] - a * self.w[c];
+            if self.n > 0 {
+                mean[c] = sy / n;
+            }
+            if self.n >= 2 {
+                let syy = self.zz[c] - 2.0 * a * self.zw[c] + a * a * self.ww[c];
+                var[c] = ((syy - sy * sy / n) / (n - 1.0)).max(0.0) / n;
+            }
+        }
+        (mean, var)
+    }
+}
+
+/// Per-pixel `α` of [`AlphaRule::Neighbours`] over a `width x height` image of sums
+/// (row-major): for each pixel and channel, the window's pooled centred covariance over its
+/// pooled centred variance, the pixel itself excluded, clamped to `[0, ALPHA_MAX]`; `1`
+/// where the window has no variance (the control variate is then constant and `α` does
+/// not matter). The window sums are formed directly, never as a total minus the pixel's
+/// own term, so not even rounding ties a pixel's `α` to its own samples.
+pub fn neighbour_alphas(
+    sums: &[CvSums],
+    width: usize,
+    height: usize,
+    radius: u32,
+) -> Vec<[f64; 3]> {
+    use rayon::prelude::*;
+    debug_assert_eq!(sums.len(), width * height);
+    let r = radius as usize;
+    let centred: Vec<[(f64, f64); 3]> = sums
+        .iter()
+        .map(|s| std::array::from_fn(|c| s.centred(c)))
+        .collect();
+    let mut out = vec![[1.0f64; 3]; sums.len()];
+    out.par_chunks_mut(width.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (y0, y1) = (y.saturating_sub(r), (y + r + 1).min(height));
+            for (x, alpha) in row.iter_mut().enumerate() {
+                let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(width));
+                let mut pooled = [(0.0f64, 0.0f64); 3];
+                for yy in y0..y1 {
+                    for xx in x0..x1 {
+                        if (xx, yy) == (x, y) {
+                            continue;
+                        }
+                        for (p, q) in pooled.iter_mut().zip(&centred[yy * width + xx]) {
+                            p.0 += q.0;
+                            p.1 += q.1;
+                        }
+                    }
+                }
+                for (a, (cov, var)) in alpha.iter_mut().zip(pooled) {
+                    if var > 0.0 {
+                        *a = (cov / var).clamp(0.0, ALPHA_MAX);
+                    }
+                }
+            }
+        });
+    out
+}
+
+/// What one pixel sample of the control-variate estimator found for the environment:
+/// the plain term `L B V / p` is the renderer's; this is `g/p` and the records' verdicts.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ControlSample {
+    /// `g / p = L B~ Ṽ / p` per channel.
+    pub value: [f64; 3],
+    /// Bit `i` set when kept record `i` sees the sampled direction.
+    pub visible_mask: u32,
+}
+
+/// `g/p` for a product sample in `texel` at square point `square` with solid-angle pdf
+/// `pdf`, `B~` of the texel's cell `bsdf` and the interpolant's `Ṽ`.
+#[inline]
+pub fn control_sample(
+    state: &CacheState,
+    interpolant: &Interpolant,
+    env: &EnvMap,
+    texel: UVec2,
+    square: DVec2,
+    bsdf: f64,
+    pdf: f64,
+) -> ControlSample {
+    let (v, mask) = interpolant.eval(state, square);
+    if v == 0.0 || pdf <= 0.0 {
+        return ControlSample {
+            value: [0.0; 3],
+            visible_mask: mask,
+        };
+    }
+    let l = env.texels()[(texel.y * env.resolution() + texel.x) as usize];
+    let k = bsdf * v / pdf;
+    ControlSample {
+        value: l.map(|c| c as f64 * k),
+        visible_mask: mask,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bsdf::Material;
+    use crate::lights::procedural::sky;
+    use crate::sampling::octahedral::{morton_decode, square_to_sphere};
+    use crate::sampling::rng::{hash4, to_unit_f64, SampleRng};
+    use crate::visibility::cache::VisibilityCache;
+    use crate::visibility::params::CacheParams;
+    use crate::visibility::record::{Record, VisibilityBits};
+
+    fn test_sky(res: u32) -> EnvMap {
+        let sun = Vec3::new(0.4, 0.6, -0.5).normalize();
+        sky(
+            sun,
+            [2e3, 1.5e3, 1e3],
+            6.0,
+            [0.2, 0.3, 0.6],
+            [0.8, 0.8, 0.9],
+            res,
+        )
+        .unwrap()
+    }
+
+    fn frame() -> (Vec3, Vec3) {
+        (
+            Vec3::new(0.2, 0.9, -0.3).normalize(),
+            Vec3::new(-0.5, 0.4, 0.6).normalize(),
+        )
+    }
+
+    /// Random bits with some coherence: blocks of 4^k texels share a coin.
+    fn random_bits(m: u32, seed: u64) -> VisibilityBits {
+        VisibilityBits::from_fn(m, |z| {
+            let block = (seed % 3) as u32 * 2;
+            let key = (z >> block.min(2 * m)) as u64;
+            !hash4(seed, key, 0, 0).is_multiple_of(3)
+        })
+        .unwrap()
+    }
+
+    /// `∫ L B~ V dω` as a plain sum over the finest grid of the three (texels of equal
+    /// solid angle), independent of prefix sums and hierarchies.
+    fn brute_force_j(
+        env: &EnvMap,
+        product: &ProductDistribution,
+        bits: &VisibilityBits,
+    ) -> [f64; 3] {
+        let e = env.resolution().trailing_zeros();
+        let (p, m) = (product.level(), bits.m());
+        let f = e.max(p).max(m);
+        let side = 1u32 << f;
+        let omega = texel_solid_angle(side);
+        let mut sum = [0.0f64; 3];
+        for code in 0..side * side {
+            let t = morton_decode(code);
+            let env_texel = UVec2::new(t.x >> (f - e), t.y >> (f - e));
+            let l = env.texels()[(env_texel.y * env.resolution() + env_texel.x) as usize];
+            let cell = morton_encode(t.x >> (f - p), t.y >> (f - p));
+            let b = product.bsdf_cells()[cell as usize] as f64;
+            let v = bits.get(morton_encode(t.x >> (f - m), t.y >> (f - m)) as usize);
+            if v {
+                for c in 0..3 {
+                    sum[c] += l[c] as f64 * b * omega;
+                }
+            }
+        }
+        sum
+    }
+
+    fn close(a: [f64; 3], b: [f64; 3], rel: f64) -> bool {
+        (0..3).all(|c| (a[c] - b[c]).abs() <= rel * b[c].abs().max(1e-300))
+    }
+
+    #[test]
+    fn record_integrals_equal_the_brute_force_sum() {
+        // (record M, product level, map resolution): records coarser, equal and finer than
+        // the cells; cells capped by coarse maps; sub-word maps.
+        let cases = [
+            (1, 1, 2),
+            (2, 3, 8),
+            (3, 3, 64),
+            (5, 5, 64),
+            (5, 3, 64),
+            (4, 5, 256),
+            (6, 5, 32),
+            (7, 4, 16),
+        ];
+        let materials = [
+            Material::lambert([0.8, 0.5, 0.3]).unwrap(),
+            Material::phong([0.2; 3], [0.7; 3], 40.0).unwrap(),
+        ];
+        for (k, &(m, level, res)) in cases.iter().enumerate() {
+            let env = test_sky(res);
+            let radiance = RadiancePyramid::new(&env);
+            for (i, mat) in materials.iter().enumerate() {
+                let (n, wo) = frame();
+                let product = ProductDistribution::new(&env, mat, n, wo, level).unwrap();
+                let tables = ControlTables::new(&product, &radiance, m);
+                for seed in 0..4u64 {
+                    let bits = random_bits(m, 100 * k as u64 + 10 * i as u64 + seed);
+                    let j = tables.record_integral(bits.view());
+                    let expect = brute_force_j(&env, &product, &bits);
+                    assert!(
+                        close(j, expect, 1e-9),
+                        "M={m} P={level} res={res}: {j:?} vs {expect:?}"
+                    );
+                }
+                let all = VisibilityBits::from_fn(m, |_| true).unwrap();
+                let none = VisibilityBits::from_fn(m, |_| false).unwrap();
+                assert!(close(
+                    tables.record_integral(all.view()),
+                    tables.total(),
+                    1e-12
+                ));
+                assert_eq!(tables.record_integral(none.view()), [0.0; 3]);
+                // The whole-sphere integral of L B~ is L_ns in RGB: its luminance is the
+                // product's normalisation times a texel's solid angle.
+                let lum: f64 = tables
+                    .total()
+                    .iter()
+                    .zip(crate::lights::envmap::LUMINANCE)
+                    .map(|(a, b)| a * b)
+                    .sum();
+                let l_ns = product.normalization() * texel_solid_angle(res);
+                assert!((lum / l_ns - 1.0).abs() < 1e-9, "{lum} vs {l_ns}");
+            }
+        }
+    }
+
+    #[test]
+    fn radiance_pyramid_splits_texels_evenly_below_the_map() {
+        let env = test_sky(4);
+        let r = RadiancePyramid::new(&env);
+        let total: [f64; 3] = env.total_power();
+        assert!(close(r.node(0, 0), total, 1e-12));
+        for level in 3..6 {
+            let sum = (0..1u32 << (2 * level)).fold([0.0; 3], |a, i| {
+                let v = r.node(level, i);
+                [a[0] + v[0], a[1] + v[1], a[2] + v[2]]
+            });
+            assert!(close(sum, total, 1e-12), "level {level}");
+        }
+        assert!(close(r.node(4, 7), r.node(2, 0).map(|c| c / 16.0), 1e-12));
+    }
+
+    /// A cache with three records of chosen bits around the origin, and the lookup there.
+    fn cache_with(bits: &[VisibilityBits]) -> (VisibilityCache, Lookup) {
+        let m = bits[0].m();
+        let cache = VisibilityCache::new(CacheParams::MEDIUM.with_log2_resolution(m)).unwrap();
+        for (i, b) in bits.iter().enumerate() {
+            let record = Record {
+                position: Vec3::new(0.01 * (i as f32 + 1.0), 0.0, 0.0),
+                normal: Vec3::Y,
+                bits: b.clone(),
+                ambient_occlusion: 0.5,
+                nearest_hit_distance: 1.0,
+                misses: 0,
+                uses: 0,
+                last_frame: 0,
+            };
+            cache.insert_record(&record).unwrap();
+        }
+        let lookup = cache.lookup(Vec3::ZERO, Vec3::Y, 1.0);
+        assert_eq!(lookup.neighbours().len(), bits.len());
+        (cache, lookup)
+    }
+
+    #[test]
+    fn the_control_variate_averages_to_j() {
+        // E[g/p] = J: product samples of a sky against three random records. The mean of
+        // g/p over N samples must lie within 4 standard errors (from the same samples).
+        let env = test_sky(64);
+        let radiance = RadiancePyramid::new(&env);
+        let mat = Material::phong([0.3; 3], [0.5; 3], 20.0).unwrap();
+        let (n, wo) = frame();
+        for m in [3u32, 5, 6] {
+            let bits: Vec<_> = (0..3).map(|i| random_bits(m, 7 + i)).collect();
+            let (cache, lookup) = cache_with(&bits);
+            let state = cache.read();
+            let product = ProductDistribution::new(&env, &mat, n, wo, 5).unwrap();
+            let tables = ControlTables::new(&product, &radiance, m);
+            let interp = Interpolant::new(&state, &lookup, Some(&tables));
+            let mut sums = CvSums::default();
+            let count = 200_000u64;
+            for i in 0..count {
+                let rng = SampleRng::new(3, i, 0);
+                let u = DVec2::new(rng.get(0) as f64, rng.get(1) as f64);
+                let s = product.sample_point(&env, u);
+                let g = control_sample(&state, &interp, &env, s.texel, s.square, s.bsdf, s.pdf);
+                sums.add(Vec3::ZERO, g.value);
+            }
+            let (mean, var) = sums.estimate([-1.0; 3]);
+            for c in 0..3 {
+                let z = (mean[c] - interp.j[c]) / var[c].sqrt();
+                assert!(
+                    z.abs() < 4.0,
+                    "M={m} channel {c}: {} vs {} ({z:.2} SE)",
+                    mean[c],
+                    interp.j[c]
+                );
+            }
+            // Ṽ at a sample equals Σ β_i V_i of the records' bits at its texel.
+            let p = DVec2::new(0.3, 0.7);
+            let z = record_texel_code(p, m) as usize;
+            let expect: f64 = interp
+                .ids()
+                .iter()
+                .zip(interp.betas())
+                .map(|(&id, &b)| {
+                    if state.store().bits(id as usize).get(z) {
+                        b as f64
+                    } else {
+                        0.0
+                    }
+                })
+                .sum();
+            assert!((interp.eval(&state, p).0 - expect).abs() < 1e-12);
+            // The texel of a square point is the texel of its direction.
+            let d = square_to_sphere(p.as_vec2());
+            let t = crate::sampling::octahedral::texel_of(d, 1 << m);
+            assert_eq!(morton_encode(t.x, t.y) as usize, z);
+        }
+    }
+
+    #[test]
+    fn cv_sums_give_the_mean_and_variance_of_z_minus_alpha_w() {
+        let samples: Vec<(Vec3, [f64; 3])> = (0..50u64)
+            .map(|i| {
+                let a = to_unit_f64(hash4(1, i, 0, 0));
+                let b = to_unit_f64(hash4(1, i, 0, 1));
+                (
+                    Vec3::new(a as f32, 2.0 * a as f32, 0.0),
+                    [a - 0.5 + 0.1 * b, b, 0.0],
+                )
+            })
+            .collect();
+        let mut sums = CvSums::default();
+        for (z, w) in &samples {
+            sums.add(*z, *w);
+        }
+        for alpha in [0.0, 0.7, 1.0, 2.0] {
+            let (mean, var) = sums.estimate([alpha; 3]);
+            for c in 0..3 {
+                let y: Vec<f64> = samples
+                    .iter()
+                    .map(|(z, w)| z[c] as f64 - alpha * w[c])
+                    .collect();
+                let n = y.len() as f64;
+                let m = y.iter().sum::<f64>() / n;
+                let v = y.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (n - 1.0) / n;
+                assert!((mean[c] - m).abs() < 1e-12 && (var[c] - v).abs() < 1e-12 * (1.0 + v));
+            }
+        }
+        // Channel 2: Z = 0 and W = 0, so zero variance, never negative or NaN.
+        assert_eq!(sums.estimate([1.0; 3]).1[2], 0.0);
+        let one = {
+            let mut s = CvSums::default();
+            s.add(Vec3::ONE, [1.0; 3]);
+            s
+        };
+        assert!(one.estimate([1.0; 3]).1.iter().all(|v| v.is_infinite()));
+        assert_eq!(CvSums::default().estimate([1.0; 3]).0, [0.0; 3]);
+    }
+
+    #[test]
+    fn neighbour_alphas_pool_the_window_without_the_pixel() {
+        let (w, h) = (7usize, 5usize);
+        let sums: Vec<CvSums> = (0..w * h)
+            .map(|i| {
+                let mut s = CvSums::default();
+                for k in 0..6u64 {
+                    let a = to_unit_f64(hash4(9, i as u64, k, 0));
+                    let b = to_unit_f64(hash4(9, i as u64, k, 1));
+                    // Z = 0.8 W + noise in channel 0; W constant in channel 1.
+                    s.add(Vec3::new((0.8 * a + 0.3 * b) as f32, 1.0, 0.0), [a, 0.0, a]);
+                }
+                s
+            })
+            .collect();
+        let alphas = neighbour_alphas(&sums, w, h, 2);
+        for y in 0..h {
+            for x in 0..w {
+                let (mut cov, mut var) = (0.0, 0.0);
+                for yy in y.saturating_sub(2)..(y + 3).min(h) {
+                    for xx in x.saturating_sub(2)..(x + 3).min(w) {
+                        if (xx, yy) != (x, y) {
+                            let (c, v) = sums[yy * w + xx].centred(0);
+                            cov += c;
+                            var += v;
+                        }
+                    }
+                }
+                let a = alphas[y * w + x];
+                assert!((a[0] - (cov / var).clamp(0.0, ALPHA_MAX)).abs() < 1e-12);
+                assert_eq!(a[1], 1.0, "no variance in W: alpha does not matter");
+                assert_eq!(a[2], 0.0, "Z = 0 is uncorrelated with W");
+            }
+        }
+        // A pixel's own samples do not move its alpha.
+        let mut changed = sums.clone();
+        changed[2 * w + 3].add(Vec3::splat(1e6), [1e6; 3]);
+        let again = neighbour_alphas(&changed, w, h, 2);
+        assert_eq!(again[2 * w + 3], alphas[2 * w + 3]);
+        assert_ne!(again[2 * w + 4], alphas[2 * w + 4]);
+        // Clamped: perfectly anti-correlated neighbours give 0, steep ones ALPHA_MAX.
+        let steep: Vec<CvSums> = (0..9)
+            .map(|i| {
+                let mut s = CvSums::default();
+                for k in 0..3 {
+                    let a = (i * 3 + k) as f64;
+                    s.add(Vec3::new(10.0 * a as f32, -(a as f32), 0.0), [a, a, 0.0]);
+                }
+                s
+            })
+            .collect();
+        let a = neighbour_alphas(&steep, 3, 3, 1);
+        assert!(a
+            .iter()
+            .all(|a| a[0] == ALPHA_MAX && a[1] == 0.0 && a[2] == 1.0));
+    }
+}

@@ -1,0 +1,67 @@
+//! `viscache_rs._core.LightingPreview`: CAM08 §6.2's preview of `J`
+//! ([`crate::estimators::preview`]).
+
+use pyo3::prelude::*;
+
+use super::cache::PyVisibilityCache;
+use super::camera::PyCamera;
+use super::convert::{image_array, int_arg, threads_arg, IntoPyResult};
+use super::envmap::PyEnvMap;
+use super::scene::PyScene;
+use crate::estimators::preview::LightingPreview;
+
+/// The first hits of a view, kept so that `render(cache, envmap)` can show `J` (the
+/// control variate's integral) under any lighting without tracing a ray.
+#[pyclass(name = "LightingPreview", module = "viscache_rs._core", frozen)]
+pub struct PyLightingPreview {
+    inner: LightingPreview,
+}
+
+#[pymethods]
+impl PyLightingPreview {
+    /// `LightingPreview(scene, camera, threads=None)`: traces one primary ray per pixel
+    /// centre.
+    #[new]
+    #[pyo3(signature = (scene, camera, threads=None))]
+    fn new(
+        py: Python<'_>,
+        scene: PyRef<'_, PyScene>,
+        camera: PyRef<'_, PyCamera>,
+        threads: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let threads = threads_arg(threads)?;
+        let (scene, cam) = (scene.inner.clone(), camera.inner);
+        let inner = py
+            .detach(|| LightingPreview::new(&scene, &cam, threads))
+            .py()?;
+        Ok(Self { inner })
+    }
+
+    /// (width, height) of the view.
+    #[getter]
+    fn size(&self) -> (u32, u32) {
+        self.inner.size()
+    }
+
+    /// `J` per pixel as an (H, W, 3) float32 image under `envmap` with `cache`'s records;
+    /// traces no rays.
+    #[pyo3(signature = (cache, envmap, product_level=None, threads=None))]
+    fn render<'py>(
+        &self,
+        py: Python<'py>,
+        cache: PyRef<'py, PyVisibilityCache>,
+        envmap: PyRef<'py, PyEnvMap>,
+        product_level: Option<&Bound<'py, PyAny>>,
+        threads: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let level = product_level.map_or(Ok(5), |l| int_arg(l, "product_level", 1, 8))? as u32;
+        let threads = threads_arg(threads)?;
+        let cache = cache.inner.clone();
+        let env = &envmap.inner;
+        let image = py
+            .detach(|| self.inner.render(&cache, env, level, threads))
+            .py()?;
+        let (w, h) = self.inner.size();
+        image_array(py, image.into_flattened(), h as usize, w as usize, Some(3))
+    }
+}

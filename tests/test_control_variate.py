@@ -1,0 +1,303 @@
+"""The cache as a control variate (CAM08 eq. 2-3): unbiased against product sampling with good
+and deliberately bad caches, alpha fixed and estimated, statistics, misses, one-pass
+insertion, the lighting preview, determinism, extremes and bad input.
+
+Agreement is judged as in test_render.py: independent seeds, per-pixel differences within
+the Bonferroni z for the channel count where both estimates are in their central-limit
+regime, and the whole-image mean within 4 standard errors over every pixel.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import viscache_rs as vc
+
+LUM = np.array([0.2126, 0.7152, 0.0722])
+
+
+def _bonferroni_z(n: int, alpha: float = 1e-3) -> float:
+    lo, hi = 0.0, 40.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if math.erfc(mid / math.sqrt(2)) > alpha / n:
+            lo = mid
+        else:
+            hi = mid
+    return max(4.0, hi)
+
+
+def scene_without(setup, drop=()):
+    """A copy of ``setup.scene`` without the objects named in ``drop``, materials kept."""
+    names = setup.scene.object_names()
+    tris = setup.scene.triangles()
+    ids = setup.scene.object_ids()
+    scene = vc.Scene()
+    for k, name in enumerate(names):
+        if name in drop:
+            continue
+        t = tris[ids == k]
+        faces = np.arange(3 * len(t)).reshape(-1, 3)
+        scene.add_mesh(t.reshape(-1, 3), faces, material=setup.scene.material(k), name=name)
+    return scene
+
+
+@pytest.fixture(scope="module")
+def garage():
+    setup = vc.scenes.load("garage", detail=0.3)
+    setup.camera = setup.camera.with_resolution(40, 30)
+    cache = vc.VisibilityCache(setup.scene)
+    cache.build(setup.camera, seed=0, progress=False)
+    return setup, cache
+
+
+@pytest.fixture(scope="module")
+def open_cornell():
+    """The Cornell box without its ceiling and light, under the garage's windows map: the
+    records see sky past the walls and blocks."""
+    base = vc.scenes.load("cornell")
+    scene = scene_without(base, drop=("ceiling", "light"))
+    camera = base.camera.with_resolution(40, 30)
+    env = vc.scenes.load("garage", detail=0.1).envmap
+    setup = vc.Setup(scene, camera, env, name="open-cornell")
+    cache = vc.VisibilityCache(scene)
+    cache.build(camera, seed=0, progress=False)
+    return setup, cache
+
+
+def _clt(r):
+    return (r.image > 0) & (np.sqrt(r.variance) <= 0.2 * r.image)
+
+
+def _assert_agree(a, b, min_coverage, label):
+    """Per-pixel (Bonferroni z, CLT pixels) and whole-image (4 SE, every pixel) agreement."""
+    for r in (a, b):
+        assert np.isfinite(r.image).all() and np.isfinite(r.variance).all(), label
+    n_pix = a.image.shape[0] * a.image.shape[1]
+    z = _bonferroni_z(3 * n_pix)
+    diff = a.image - b.image
+    se = np.sqrt(a.variance + b.variance)
+    clt = _clt(a) & _clt(b)
+    assert clt.mean() >= min_coverage, f"{label}: only {clt.mean():.3f} of pixels compared"
+    bad = clt & (np.abs(diff) > z * se)
+    assert bad.sum() == 0, f"{label}: {bad.sum()} pixel channels beyond {z:.2f} SE"
+    mean_diff = (diff @ LUM).mean()
+    mean_se = math.sqrt(((a.variance + b.variance) @ LUM**2).sum()) / n_pix
+    assert abs(mean_diff / mean_se) < 4, f"{label}: image means {mean_diff / mean_se:.2f} SE apart"
+
+
+def _render(setup, method, spp, seed, **kw):
+    return vc.render(setup, spp=spp, method=method, seed=seed, progress=False, **kw)
+
+
+@pytest.mark.parametrize("alpha", [1.0, "estimate"])
+@pytest.mark.parametrize("which", ["garage", "open_cornell"])
+def test_cv_agrees_with_product(request, which, alpha):
+    setup, cache = request.getfixturevalue(which)
+    product = _render(setup, "product", 256, seed=21)
+    cv = _render(setup, "cv", 256, seed=22, cache=cache, alpha=alpha)
+    _assert_agree(cv, product, 0.45, f"{which} alpha={alpha}")
+    # The cache was used, and it helped.
+    assert cv.stats["records_per_point"] > 1.0
+    assert (cv.variance @ LUM**2).mean() < 0.8 * (product.variance @ LUM**2).mean()
+
+
+def test_cv_agrees_with_product_in_the_closed_cornell_box():
+    # Lit by its ceiling light only: every record is all-occluded, J = 0, and the control
+    # variate must leave the area light's estimate alone.
+    setup = vc.scenes.load("cornell")
+    setup.camera = setup.camera.with_resolution(40, 30)
+    cache = vc.VisibilityCache(setup.scene)
+    cache.build(setup.camera, seed=0, progress=False)
+    assert cache.records()["ao"].max() == 0.0
+    product = _render(setup, "product", 128, seed=31)
+    for alpha in (1.0, "estimate"):
+        cv = _render(setup, "cv", 128, seed=32, cache=cache, alpha=alpha)
+        _assert_agree(cv, product, 0.9, f"closed cornell alpha={alpha}")
+
+
+@pytest.mark.parametrize("alpha", [1.0, "estimate"])
+def test_a_bad_cache_adds_variance_never_bias(garage, alpha):
+    # Records traced without the roof see the bright windows everywhere under it: the
+    # control variate is badly wrong, yet the estimate stays unbiased.
+    setup, _ = garage
+    roofless = scene_without(setup, drop=("roof",))
+    wrong = vc.VisibilityCache(roofless)
+    wrong.build(setup.camera, seed=0, progress=False)
+    product = _render(setup, "product", 256, seed=41)
+    cv = _render(setup, "cv", 256, seed=42, cache=wrong, alpha=alpha)
+    _assert_agree(cv, product, 0.4, f"roofless records alpha={alpha}")
+    assert cv.stats["miss_rate"] > 0.1
+    if alpha == "estimate":
+        # The neighbours see that W predicts Z badly and turn the control variate down.
+        assert np.mean(cv.stats["mean_alpha"]) < 0.9
+
+
+def test_records_of_another_scene_keep_it_unbiased(open_cornell):
+    # The open Cornell box's records used in the garage: a few land within reach, most
+    # points find none (plain product sampling there).
+    setup = vc.scenes.load("garage", detail=0.3)
+    setup.camera = setup.camera.with_resolution(40, 30)
+    _, cache = open_cornell
+    product = _render(setup, "product", 128, seed=51)
+    cv = _render(setup, "cv", 128, seed=52, cache=cache, alpha=1.0)
+    _assert_agree(cv, product, 0.4, "cornell records in the garage")
+
+
+def test_all_visible_records_neither_help_nor_hurt():
+    # A grey Lambert plane under a grey sky, nothing above it: every record sees the whole
+    # upper hemisphere, so V = V~ = 1 (except in the texels the horizon cuts, where a
+    # record's bit is its pattern direction's, which may lie below the plane). Then
+    # W = g/p - J = L_ns - J = 0 and product sampling's variance, all of it from B/B~,
+    # stays: with the same samples the two estimates and their variances coincide up to
+    # the horizon texels.
+    scene = vc.Scene()
+    v = np.array([[-50, 0, -50], [50, 0, -50], [50, 0, 50], [-50, 0, 50]], np.float32)
+    scene.add_mesh(v, np.array([[0, 2, 1], [0, 3, 2]]), material=vc.Material.lambert((0.5,) * 3))
+    camera = vc.Camera.look_at((0, 3, 5), (0, 0, 0), width=24, height=18)
+    sky = vc.envmaps.sky(sun_dir=(0.3, 1.0, -0.5), sun_radiance=2e3, resolution=64,
+                         zenith=(0.5, 0.5, 0.5), horizon=(1.0, 1.0, 1.0))
+    setup = vc.Setup(scene, camera, sky)
+    cache = vc.VisibilityCache(scene)
+    cache.build(camera, progress=False)
+    assert cache.records()["ao"].min() > 0.999
+    product = _render(setup, "product", 64, seed=61)
+    cv = _render(setup, "cv", 64, seed=61, cache=cache)
+    assert cv.stats["miss_rate"] < 0.01
+    assert np.allclose(cv.image, product.image, rtol=0.05)
+    ratio = (cv.variance @ LUM**2).mean() / (product.variance @ LUM**2).mean()
+    assert 0.9 < ratio < 1.1, ratio
+    independent = _render(setup, "cv", 64, seed=62, cache=cache)
+    _assert_agree(independent, product, 0.9, "open plane")
+
+
+def test_stats_report_the_cache_work_and_misses_reach_the_records(garage):
+    setup, _ = garage
+    cache = vc.VisibilityCache(setup.scene)
+    cache.build(setup.camera, seed=0, progress=False)
+    before = cache.records()["uses"].sum()
+    r = _render(setup, "cv", 8, seed=3, cache=cache)
+    s = r.stats
+    n = setup.camera.width * setup.camera.height
+    for key in ("lookup_seconds", "control_seconds", "product_seconds", "shading_seconds"):
+        assert s[key] > 0, key
+    assert s["cache_points"] <= n and s["primary_rays"] == n
+    assert 1.0 <= s["records_per_point"] <= 4.0
+    assert s["record_uses"] > 0 and 0.0 <= s["miss_rate"] < 0.2
+    recs = cache.records()
+    assert recs["uses"].sum() - before == s["record_uses"]
+    assert recs["misses"].sum() == s["record_misses"]
+    assert r.alpha.shape == r.image.shape and np.all(r.alpha == 1.0)
+    est = _render(setup, "cv", 8, seed=3, cache=cache, alpha="estimate")
+    assert est.stats["alpha"] == "estimate"
+    assert (est.alpha >= 0).all() and (est.alpha <= 2).all()
+    assert np.allclose(est.alpha.mean(axis=(0, 1)), est.stats["mean_alpha"])
+    # Without a cache, "cv" builds one and says what it cost.
+    built = _render(setup, "cv", 2, seed=3)
+    assert built.stats["cache_records"] > 0 and built.stats["cache_seconds"] > 0
+
+
+def test_no_records_means_product_sampling_and_one_pass_insertion(garage):
+    setup, _ = garage
+    empty = vc.VisibilityCache(setup.scene)
+    product = _render(setup, "product", 4, seed=5)
+    cv = _render(setup, "cv", 4, seed=5, cache=empty)
+    # Same seed, no records: the same samples, the same image.
+    assert np.array_equal(cv.image, product.image)
+    n_hit = cv.stats["cache_points"]
+    assert cv.stats["points_without_records"] == n_hit > 0
+    assert len(empty) == 0
+    once = _render(setup, "cv", 4, seed=5, cache=empty, insert_missing=True)
+    assert once.stats["inserted_records"] == len(empty) > 0
+    again = _render(setup, "cv", 4, seed=5, cache=empty)
+    assert again.stats["points_without_records"] < 0.1 * n_hit
+
+
+@pytest.mark.parametrize("alpha", [1.0, "estimate"])
+def test_bit_identical_for_any_thread_count(garage, alpha, tmp_path):
+    # Each run starts from the same saved cache (a render adds miss counts to its records).
+    setup, cache = garage
+    cache.save(tmp_path / "cache.vc")
+    runs = []
+    for threads in (1, 2):
+        c = vc.VisibilityCache.load(tmp_path / "cache.vc", setup.scene)
+        runs.append(_render(setup, "cv", 3, seed=7, cache=c, alpha=alpha, threads=threads))
+    a, b = runs
+    assert np.array_equal(a.image, b.image) and np.array_equal(a.variance, b.variance)
+    assert np.array_equal(a.alpha, b.alpha)
+    j = [_render(setup, "cv", 2, seed=7, cache=cache, jitter=True, threads=t) for t in (1, 2)]
+    assert np.array_equal(j[0].image, j[1].image)
+
+
+def test_jittered_cv_agrees_with_jittered_product(garage):
+    setup, cache = garage
+    product = _render(setup, "product", 256, seed=71, jitter=True)
+    cv = _render(setup, "cv", 256, seed=72, cache=cache, jitter=True)
+    _assert_agree(cv, product, 0.4, "jittered")
+    # Every sample that hits a surface looks the cache up at its own point.
+    assert cv.stats["cache_points"] > 200 * setup.camera.width * setup.camera.height
+
+
+def test_preview_is_j_and_traces_no_rays(garage):
+    setup, cache = garage
+    view = vc.LightingPreview(setup.scene, setup.camera)
+    assert view.size == (setup.camera.width, setup.camera.height)
+    setup.scene.counting = True
+    try:
+        setup.scene.reset_counters()
+        a = view.render(cache, setup.envmap)
+        b = view.render(cache, setup.envmap.rotated(90.0))
+        c = view.render(cache, vc.envmaps.constant((0.0, 0.0, 0.0), resolution=8))
+        assert setup.scene.counters()["rays"] == 0
+    finally:
+        setup.scene.counting = False
+    assert a.shape == (30, 40, 3) and np.isfinite(a).all() and (a >= 0).all()
+    assert not np.allclose(a, b)
+    assert (c == 0).all()
+    # J approximates the rendered image (CAM08 Fig. 11: blotchy but right on average).
+    ref = _render(setup, "product", 64, seed=9)
+    assert abs((a @ LUM).mean() / (ref.image @ LUM).mean() - 1) < 0.15
+    assert np.array_equal(vc.preview(setup, cache), a)
+
+
+def test_extreme_lighting_stays_finite(garage):
+    setup, cache = garage
+    maps = [
+        vc.envmaps.constant((0.0, 0.0, 0.0), resolution=16),
+        vc.envmaps.constant((1.0, 2.0, 3.0), resolution=1),
+        vc.envmaps.sky(sun_dir=(0.3, 1.0, -0.5), sun_radiance=1e6, resolution=64),
+    ]
+    for env in maps:
+        for alpha in (1.0, "estimate"):
+            r = _render(setup, "cv", 2, seed=1, cache=cache, envmap=env, alpha=alpha)
+            assert np.isfinite(r.image).all() and np.isfinite(r.variance).all()
+    black = _render(setup, "cv", 2, seed=1, cache=cache, envmap=maps[0])
+    assert (black.image == 0).all()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "needle"),
+    [
+        ({"alpha": -0.5}, ValueError, "alpha"),
+        ({"alpha": 3.0}, ValueError, "alpha"),
+        ({"alpha": float("nan")}, ValueError, "alpha"),
+        ({"alpha": "optimal"}, ValueError, "alpha"),
+        ({"alpha": True}, TypeError, "alpha"),
+        ({"alpha": "estimate", "alpha_radius": 0}, ValueError, "alpha_radius"),
+        ({"alpha_radius": 2.5}, TypeError, "alpha_radius"),
+    ],
+)
+def test_bad_arguments_name_themselves(garage, kwargs, exc, needle):
+    setup, cache = garage
+    with pytest.raises(exc, match=needle):
+        _render(setup, "cv", 1, seed=0, cache=cache, **kwargs)
+
+
+def test_cache_with_other_methods_is_refused(garage):
+    setup, cache = garage
+    with pytest.raises(ValueError, match="cache"):
+        _render(setup, "product", 1, seed=0, cache=cache)
+    with pytest.raises(TypeError, match="cache"):
+        vc._core.render(setup.scene, setup.envmap, setup.camera, 1, "cv", cache=setup.scene)
+    with pytest.raises(ValueError, match="cache"):
+        vc._core.render(setup.scene, setup.envmap, setup.camera, 1, "cv")
