@@ -16,9 +16,11 @@ from ._core import (
     VisibilityCache,
     __version__,
 )
+from .ambient import AOResult, render_ao
 from .render import RenderResult, preview, render
 
 __all__ = [
+    "AOResult",
     "Camera",
     "EnvMap",
     "LightingPreview",
@@ -33,6 +35,7 @@ __all__ = [
     "octahedral",
     "preview",
     "render",
+    "render_ao",
     "scenes",
     "testing",
 ]

@@ -259,6 +259,19 @@ def render(
     alpha_radius: int | None = None,
     insert_missing: bool = False,
 ) -> dict[str, Any]: ...
+def render_ao(
+    scene: Scene,
+    camera: Camera,
+    cache: VisibilityCache | None = None,
+    reference_rays: int | None = None,
+    seed: int | None = None,
+    threads: int | None = None,
+    time_budget: float | None = None,
+    sigma_scale: float | None = None,
+    min_radius_scale: float | None = None,
+    w_min: float | None = None,
+    callback: Any = None,
+) -> dict[str, Any]: ...
 def scene_names() -> list[str]: ...
 def load_scene(
     name: str,

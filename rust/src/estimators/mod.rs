@@ -1,5 +1,7 @@
-//! Estimators of direct illumination.
+//! Estimators: direct illumination, lighting preview (CAM08 §6.2) and ambient occlusion
+//! from the cache (CAM08 §6.1).
 
+pub mod ambient;
 pub mod control_variate;
 pub mod direct;
 pub mod preview;

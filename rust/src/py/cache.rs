@@ -28,7 +28,7 @@ pub struct PyVisibilityCache {
     pub(crate) inner: Arc<VisibilityCache>,
     /// The scene records are traced in (read at each call, so edits are seen).
     #[pyo3(get)]
-    scene: Py<PyScene>,
+    pub(super) scene: Py<PyScene>,
     /// `k` times the median footprint of the last build's G-buffer, world units.
     default_radius: Option<f32>,
 }

@@ -1,6 +1,7 @@
 //! PyO3 bindings: argument checks, numpy conversion, GIL release around the core. No logic
 //! lives here; everything calls into the crate's modules.
 
+mod ambient;
 mod analysis;
 mod cache;
 mod camera;
@@ -29,6 +30,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<cache::PyVisibilityCache>()?;
     m.add_class::<preview::PyLightingPreview>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
+    m.add_function(wrap_pyfunction!(ambient::render_ao, m)?)?;
     m.add_function(wrap_pyfunction!(image::write_exr, m)?)?;
     m.add_function(wrap_pyfunction!(setup::scene_names, m)?)?;
     m.add_function(wrap_pyfunction!(setup::load_scene, m)?)?;

@@ -66,6 +66,7 @@ use crate::sampling::pattern::{default_pattern, record_pattern, DEFAULT_LLOYD_IT
 use crate::sampling::rng::SampleRng;
 
 mod io;
+pub mod nearest;
 #[cfg(test)]
 mod tests;
 

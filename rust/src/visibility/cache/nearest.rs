@@ -1,0 +1,149 @@
+//! The `m` nearest records of a query, all of them (CAM08 §6.1), and ordered insertion of
+//! records traced elsewhere.
+//!
+//! [`CacheState::lookup`] (§5.1) keeps only the `n` heaviest candidates; ambient occlusion
+//! (§6.1) averages over all `m` nearest. The candidate set is the same: records within
+//! `d_max` whose normals differ by `θ_i < θ_max`, the `m` nearest of those (ties by id),
+//! each with its eq. 9 weight `w_i = w_g · ŵ(d, θ)`. The gathering is written out again here
+//! rather than shared with `lookup`, which is tuned separately; tests hold the two to the
+//! same candidates.
+
+use std::cmp::Ordering;
+
+use glam::Vec3;
+use kiddo::SquaredEuclidean;
+
+use super::{CacheState, VisibilityCache, NO_RECORD};
+use crate::error::Result;
+use crate::visibility::params::{raw_weight, CacheParams, MAX_SEARCH_COUNT};
+use crate::visibility::record::{Record, RecordRays};
+
+/// One of the `m` nearest records of a query.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Candidate {
+    /// Record id.
+    pub id: u32,
+    /// Distance from the query point to the record, world units.
+    pub distance: f32,
+    /// Angle between the query's and the record's normals, radians in `[0, θ_max)`.
+    pub theta: f32,
+    /// Eq. 9 weight `w_i = w_g · ŵ(d, θ)` in `[0, 1]` (as [`CacheState::lookup`] scores it).
+    pub weight: f32,
+    /// Its geometric factor `w_g = sqrt(1 − |n·v|)` in `[0, 1]` (Fig. 7).
+    pub geometric: f32,
+}
+
+/// The `m` nearest matching records of a query, nearest first (ties by id).
+#[derive(Clone, Copy, Debug)]
+pub struct Nearest {
+    len: usize,
+    items: [Candidate; MAX_SEARCH_COUNT as usize],
+}
+
+impl Default for Nearest {
+    fn default() -> Self {
+        Self {
+            len: 0,
+            items: [Candidate::default(); MAX_SEARCH_COUNT as usize],
+        }
+    }
+}
+
+impl Nearest {
+    /// The candidates, nearest first; empty when none matched.
+    pub fn candidates(&self) -> &[Candidate] {
+        &self.items[..self.len]
+    }
+}
+
+fn by_distance_then_id(a: &Candidate, b: &Candidate) -> Ordering {
+    a.distance.total_cmp(&b.distance).then(a.id.cmp(&b.id))
+}
+
+impl CacheState {
+    /// The `m_search` nearest records within `d_max` (world units) of `x` whose normals
+    /// differ from the unit `n` by less than `θ_max`, with their eq. 9 weights. A
+    /// non-positive or non-finite `d_max` finds nothing.
+    pub fn nearest(&self, params: &CacheParams, x: Vec3, n: Vec3, d_max: f32) -> Nearest {
+        let mut out = Nearest::default();
+        if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
+            return out;
+        }
+        let m = params.m_search as usize;
+        let theta_max = params.theta_max();
+        let cos_max = theta_max.cos();
+        let mut cand = [Candidate::default(); 2 * MAX_SEARCH_COUNT as usize];
+        let mut len = 0;
+        let sites = self
+            .tree
+            .within_unsorted::<SquaredEuclidean>(&x.to_array(), d_max * d_max);
+        for s in &sites {
+            let mut id = s.item;
+            while id != NO_RECORD {
+                let normal = self.normals[id as usize];
+                let cos = n.dot(normal);
+                if cos >= cos_max - 1e-3 {
+                    // atan2 is accurate near 0 where acos of an f32 dot product is not.
+                    let theta = n.cross(normal).length().atan2(cos);
+                    if theta.partial_cmp(&theta_max) == Some(Ordering::Less) {
+                        if len == cand.len() {
+                            cand.select_nth_unstable_by(m - 1, by_distance_then_id);
+                            len = m;
+                        }
+                        cand[len] = Candidate {
+                            id,
+                            distance: s.distance.sqrt(),
+                            theta,
+                            weight: 0.0,
+                            geometric: 0.0,
+                        };
+                        len += 1;
+                    }
+                }
+                id = self.next_at_site[id as usize];
+            }
+        }
+        let cand = &mut cand[..len];
+        cand.sort_unstable_by(by_distance_then_id);
+        let kept = len.min(m);
+        let w_lo = params.weight_floor();
+        let scale = 1.0 / (1.0 - w_lo);
+        for c in &mut cand[..kept] {
+            let w_hat = ((raw_weight(c.distance / d_max, c.theta, params.lambda_falloff) - w_lo)
+                * scale)
+                .clamp(0.0, 1.0);
+            let to_record = self.store.header(c.id as usize).position() - x;
+            let w_g = if c.distance > 0.0 {
+                let cos = (n.dot(to_record) / to_record.length()).abs().min(1.0);
+                (1.0 - cos).sqrt()
+            } else {
+                1.0
+            };
+            c.geometric = w_g;
+            c.weight = w_g * w_hat;
+        }
+        out.len = kept;
+        out.items[..kept].copy_from_slice(&cand[..kept]);
+        out
+    }
+}
+
+impl VisibilityCache {
+    /// Inserts a record traced earlier (by [`Self::trace`]) when `wanted(state)` still holds
+    /// under the write lock, counting its rays either way (they were spent). Returns the id
+    /// inserted, if any (`None` also at `max_records`). Drivers that insert a wave's records
+    /// in a fixed order use this to re-check each against those inserted before it.
+    pub fn insert_traced_if(
+        &self,
+        record: &Record,
+        rays: RecordRays,
+        wanted: impl FnOnce(&CacheState) -> bool,
+    ) -> Result<Option<u32>> {
+        let mut state = self.write();
+        super::count_rays(&mut state.counters, rays);
+        if !wanted(&state) {
+            return Ok(None);
+        }
+        state.push(&self.params, record)
+    }
+}
