@@ -237,7 +237,7 @@ class LightingPreview:
         self,
         cache: VisibilityCache,
         envmap: EnvMap,
-        product_level: int | None = None,
+        product_level: int | str | None = None,
         threads: int | None = None,
     ) -> npt.NDArray[np.float32]: ...
 
@@ -251,7 +251,7 @@ def render(
     seed: int | None = None,
     threads: int | None = None,
     time_budget: float | None = None,
-    product_level: int | None = None,
+    product_level: int | str | None = None,
     callback: Any = None,
     cache: VisibilityCache | None = None,
     jitter: bool = False,

@@ -1,7 +1,7 @@
 """The renderer: direct illumination from the environment map and area lights.
 
 ``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
-time_budget=None, envmap=None, product_level=5, cache=None, preset="medium", jitter=False,
+time_budget=None, envmap=None, product_level="auto", cache=None, preset="medium", jitter=False,
 alpha=1.0, alpha_radius=4, insert_missing=False)`` renders ``setup.scene`` lit by
 ``setup.envmap`` (or ``envmap``) and the scene's area lights, through ``camera`` (default:
 the setup's). Methods:
@@ -10,7 +10,8 @@ the setup's). Methods:
 - ``"bsdf"``: BSDF sampling (what the sampled ray finds);
 - ``"mis"``: both, with the power heuristic;
 - ``"product"``: product importance sampling of map x BSDF (CAM08 sec. 5.5); area lights
-  by light sampling;
+  by light sampling. The product's cells are 32^2 (``product_level=5``), or with
+  ``"auto"`` (default) 32^2 for diffuse surfaces and 64^2 for narrow glossy lobes;
 - ``"cv"``: product sampling with the visibility cache's ``L B~ V~`` as a control variate
   (CAM08 eq. 2-3): ``cache=`` a built :class:`VisibilityCache`, or None to build one for
   the view with ``preset`` (its cost is in ``stats["cache_seconds"]``). ``alpha`` is a
@@ -69,7 +70,7 @@ def render(
     progress: bool = True,
     time_budget: float | None = None,
     envmap=None,
-    product_level: int = 5,
+    product_level: int | str = "auto",
     cache=None,
     preset: str = "medium",
     jitter: bool = False,
@@ -127,7 +128,7 @@ def render(
     return RenderResult(out["image"], out["variance"], stats, out["alpha"])
 
 
-def preview(setup, cache, envmap=None, camera=None, product_level: int = 5,
+def preview(setup, cache, envmap=None, camera=None, product_level: int | str = "auto",
             threads: int | None = None) -> np.ndarray:
     """CAM08 sec. 6.2's lighting preview: ``J = int L B~ V~`` per pixel, an (H, W, 3) float32
     image, from ``cache``'s records under ``envmap`` (default: the setup's). For many

@@ -38,7 +38,7 @@ use crate::estimators::control_variate::{
     RadiancePyramid, ALPHA_MAX,
 };
 use crate::estimators::direct::{
-    DirectCounters, Lighting, Method, ProductDistribution, ShadingPoint,
+    DirectCounters, Lighting, Method, ProductDistribution, ProductLevel, ShadingPoint,
 };
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
@@ -71,8 +71,8 @@ pub struct RenderParams {
     pub seed: u64,
     /// Stop after the first pass that ends past this many seconds.
     pub time_budget: Option<f64>,
-    /// Octahedral level of the product's cells (5 = 32²), for the product methods.
-    pub product_level: u32,
+    /// Octahedral level of the product's cells, for the product methods.
+    pub product_level: ProductLevel,
     /// A new jittered primary ray per sample (antialiased; per-point work per sample)
     /// instead of one shading point per pixel (module docs).
     pub jitter: bool,
@@ -85,14 +85,14 @@ pub struct RenderParams {
 }
 
 impl RenderParams {
-    /// 16 samples per pixel by MIS, seed 0, no budget, 32² product cells, one shading point
-    /// per pixel, `α = 1`, no insertion.
+    /// 16 samples per pixel by MIS, seed 0, no budget, product cells per material, one
+    /// shading point per pixel, `α = 1`, no insertion.
     pub const DEFAULT: Self = Self {
         spp: 16,
         method: Method::Mis,
         seed: 0,
         time_budget: None,
-        product_level: 5,
+        product_level: ProductLevel::PerMaterial,
         jitter: false,
         alpha: AlphaRule::PAPER,
         insert_missing: false,
@@ -122,12 +122,7 @@ impl RenderParams {
                 ));
             }
         }
-        if !(1..=8).contains(&self.product_level) {
-            return Err(Error::invalid(
-                "product_level",
-                format!("must lie in [1, 8], got {}", self.product_level),
-            ));
-        }
+        self.product_level.validate()?;
         match self.alpha {
             AlphaRule::Fixed(a) if !(a.is_finite() && (0.0..=ALPHA_MAX).contains(&a)) => {
                 return Err(Error::invalid(
@@ -349,7 +344,7 @@ impl Shader<'_> {
             let tables = product.as_ref().map(|p| {
                 TABLES.with_borrow_mut(|t| {
                     t.fill(p, radiance, state.store().m());
-                    Interpolant::new(state, &lookup, Some(t))
+                    Interpolant::new(state, &lookup, Some((t, radiance)))
                 })
             });
             interpolant = tables.unwrap_or_else(|| Interpolant::new(state, &lookup, None));

@@ -125,18 +125,22 @@ impl RadiancePyramid {
     }
 }
 
-/// `∫ L B~ dω` of one shading point as running sums over the texels of the finer of the
-/// product's cells and the records' grid (Morton order), so that any quadtree node
-/// integrates with one subtraction. Rebuilt per shading point with [`Self::fill`], which
-/// reuses the allocation.
+/// `∫ L B~ dω` of one shading point over every quadtree node down to the product's
+/// cells, per channel: a pyramid of sums whose leaves are `B~_c ∫_c L dω`. Any node of a
+/// record's hierarchy integrates with one read — nodes finer than the cells take their
+/// cell's `B~` times the map's [`RadiancePyramid`] — and a run of consecutive visible
+/// texels with a few. Rebuilt per shading point with [`Self::fill`], which reuses the
+/// allocations; every step is independent (no running sums), so it pipelines.
 #[derive(Clone, Debug, Default)]
 pub struct ControlTables {
-    /// Level of the prefix's texels: `max(product level, record level)`.
+    /// Product level `P`: the leaves are its `4^P` cells.
     level: u32,
     /// Level of the records' grid.
     record_m: u32,
-    /// `prefix[k] = Σ_{t < k} ∫_t L B~ dω` per channel; `4^level + 1` entries.
-    prefix: Vec<[f64; 3]>,
+    /// `B~` per cell, Morton order.
+    bsdf: Vec<f64>,
+    /// `levels[l][j]`: `∫ L B~ dω` over node `j` of level `l <= P`, per channel.
+    levels: Vec<Vec<[f64; 3]>>,
 }
 
 impl ControlTables {
@@ -156,67 +160,71 @@ impl ControlTables {
         record_m: u32,
     ) {
         let p = product.level();
-        self.level = p.max(record_m);
+        self.level = p;
         self.record_m = record_m;
-        self.prefix.clear();
-        let mut acc = [0.0f64; 3];
-        self.prefix.push(acc);
-        let bsdf = product.bsdf_cells();
-        if self.level == p {
-            for (l, &b) in radiance.level(p).iter().zip(bsdf) {
-                let b = b as f64;
-                acc = [acc[0] + b * l[0], acc[1] + b * l[1], acc[2] + b * l[2]];
-                self.prefix.push(acc);
-            }
-        } else if self.level <= radiance.depth() {
-            // Record texels finer than the cells: each takes its cell's B~.
-            let group = 1usize << (2 * (self.level - p));
-            for (texels, &b) in radiance.level(self.level).chunks_exact(group).zip(bsdf) {
-                let b = b as f64;
-                for l in texels {
-                    acc = [acc[0] + b * l[0], acc[1] + b * l[1], acc[2] + b * l[2]];
-                    self.prefix.push(acc);
-                }
-            }
-        } else {
-            // ... and finer than the map's texels too.
-            let shift = 2 * (self.level - p);
-            for t in 0..1u32 << (2 * self.level) {
-                let b = bsdf[(t >> shift) as usize] as f64;
-                let l = radiance.node(self.level, t);
-                acc = [acc[0] + b * l[0], acc[1] + b * l[1], acc[2] + b * l[2]];
-                self.prefix.push(acc);
-            }
+        self.bsdf.clear();
+        self.bsdf
+            .extend(product.bsdf_cells().iter().map(|&b| b as f64));
+        self.levels.resize_with(p as usize + 1, Vec::new);
+        let leaves = &mut self.levels[p as usize];
+        leaves.clear();
+        leaves.extend(
+            radiance
+                .level(p)
+                .iter()
+                .zip(&self.bsdf)
+                .map(|(l, &b)| [b * l[0], b * l[1], b * l[2]]),
+        );
+        for level in (0..p as usize).rev() {
+            let (coarse, fine) = self.levels.split_at_mut(level + 1);
+            let (coarse, fine) = (&mut coarse[level], &fine[0]);
+            coarse.clear();
+            coarse.extend(
+                fine.chunks_exact(4)
+                    .map(|c| std::array::from_fn(|k| (c[0][k] + c[1][k]) + (c[2][k] + c[3][k]))),
+            );
         }
     }
 
     /// `∫ L B~ dω` over the whole sphere, per channel (`J` of a record that sees everything).
     pub fn total(&self) -> [f64; 3] {
-        *self.prefix.last().unwrap()
+        self.levels[0][0]
     }
 
-    /// `∫_node L B~ dω` for node `index` of record level `level <= record_m`.
+    /// `∫_node L B~ dω` for node `index` of any level.
     #[inline]
-    fn node(&self, level: u32, index: u32) -> [f64; 3] {
-        let shift = 2 * (self.level - level);
-        let a = self.prefix[(index as usize) << shift];
-        let b = self.prefix[((index as usize) + 1) << shift];
-        [b[0] - a[0], b[1] - a[1], b[2] - a[2]]
+    fn node(&self, level: u32, index: u32, radiance: &RadiancePyramid) -> [f64; 3] {
+        if level <= self.level {
+            return self.levels[level as usize][index as usize];
+        }
+        let b = self.bsdf[(index >> (2 * (level - self.level))) as usize];
+        radiance.node(level, index).map(|c| b * c)
     }
 
-    /// `∫ L B~ dω` over record texels `[lo, hi)` (Morton order).
+    /// `∫ L B~ dω` over record texels `[lo, hi)` (Morton order): the run split into
+    /// aligned quadtree blocks, largest first.
     #[inline]
-    fn texel_range(&self, lo: usize, hi: usize) -> [f64; 3] {
-        let shift = 2 * (self.level - self.record_m);
-        let a = self.prefix[lo << shift];
-        let b = self.prefix[hi << shift];
-        [b[0] - a[0], b[1] - a[1], b[2] - a[2]]
+    fn texel_range(&self, mut lo: u32, hi: u32, radiance: &RadiancePyramid) -> [f64; 3] {
+        let m = self.record_m;
+        let mut sum = [0.0f64; 3];
+        while lo < hi {
+            // Largest k with lo aligned to 4^k and the block inside the run.
+            let mut k = (lo.trailing_zeros() / 2).min(m);
+            while lo + (1 << (2 * k)) > hi {
+                k -= 1;
+            }
+            let v = self.node(m - k, lo >> (2 * k), radiance);
+            sum = [sum[0] + v[0], sum[1] + v[1], sum[2] + v[2]];
+            lo += 1 << (2 * k);
+        }
+        sum
     }
 
     /// `J_i = ∫ L B~ V_i dω` of one record (CAM08 §5.5): a walk of its 2-bit hierarchy that
-    /// skips empty nodes and takes full ones whole; a partial node of one word adds its
-    /// visible texels one by one. `bits` must have the tables' record resolution.
-    pub fn record_integral(&self, bits: VisibilityView) -> [f64; 3] {
+    /// skips empty nodes and takes full ones whole; a partial node of one word adds its runs
+    /// of visible texels. `bits` must have the tables' record resolution and `radiance` be
+    /// the pyramid the tables were filled with.
+    pub fn record_integral(&self, bits: VisibilityView, radiance: &RadiancePyramid) -> [f64; 3] {
         debug_assert_eq!(bits.m(), self.record_m);
         let m = self.record_m;
         let words = bits.bit_words();
@@ -224,15 +232,13 @@ impl ControlTables {
         let add = |sum: &mut [f64; 3], v: [f64; 3]| {
             *sum = [sum[0] + v[0], sum[1] + v[1], sum[2] + v[2]];
         };
-        // Runs of consecutive visible texels are contiguous ranges of the prefix: one
-        // subtraction per run (visibility is coherent, so runs are long in Morton order).
+        // Runs of consecutive visible texels are few in coherent maps (Morton order).
         let visible_texels = |sum: &mut [f64; 3], word: usize, mut x: u64| {
-            let base = word * 64;
+            let base = (word * 64) as u32;
             while x != 0 {
                 let a = x.trailing_zeros();
                 let run = (!(x >> a)).trailing_zeros();
-                let (lo, hi) = (base + a as usize, base + (a + run) as usize);
-                add(sum, self.texel_range(lo, hi));
+                add(sum, self.texel_range(base + a, base + a + run, radiance));
                 x &= if a + run >= 64 { 0 } else { !0u64 << (a + run) };
             }
         };
@@ -249,7 +255,7 @@ impl ControlTables {
             let (level, node) = stack[len];
             match bits.coverage(level, node) {
                 Coverage::Empty => {}
-                Coverage::Full => add(&mut sum, self.node(level, node)),
+                Coverage::Full => add(&mut sum, self.node(level, node, radiance)),
                 Coverage::Partial if level == word_level => {
                     visible_texels(&mut sum, node as usize, words[node as usize])
                 }
@@ -289,16 +295,21 @@ impl Interpolant {
         j: [0.0; 3],
     };
 
-    /// The interpolant of `lookup`, with `J = Σ β_i J_i` integrated against `tables`
-    /// (`None`: the point has no product, nothing to integrate, `J = 0`).
-    pub fn new(state: &CacheState, lookup: &Lookup, tables: Option<&ControlTables>) -> Self {
+    /// The interpolant of `lookup`, with `J = Σ β_i J_i` integrated against `tables` and
+    /// the map's `radiance` they were filled with (`None`: the point has no product,
+    /// nothing to integrate, `J = 0`).
+    pub fn new(
+        state: &CacheState,
+        lookup: &Lookup,
+        tables: Option<(&ControlTables, &RadiancePyramid)>,
+    ) -> Self {
         let mut out = Self::EMPTY;
         for k in lookup.neighbours() {
             out.ids[out.len] = k.id;
             out.beta[out.len] = k.beta;
             out.len += 1;
-            if let Some(tables) = tables {
-                let ji = tables.record_integral(state.store().bits(k.id as usize));
+            if let Some((tables, radiance)) = tables {
+                let ji = tables.record_integral(state.store().bits(k.id as usize), radiance);
                 let b = k.beta as f64;
                 out.j = [
                     out.j[0] + b * ji[0],
@@ -601,7 +612,7 @@ mod tests {
                 let tables = ControlTables::new(&product, &radiance, m);
                 for seed in 0..4u64 {
                     let bits = random_bits(m, 100 * k as u64 + 10 * i as u64 + seed);
-                    let j = tables.record_integral(bits.view());
+                    let j = tables.record_integral(bits.view(), &radiance);
                     let expect = brute_force_j(&env, &product, &bits);
                     assert!(
                         close(j, expect, 1e-9),
@@ -611,11 +622,11 @@ mod tests {
                 let all = VisibilityBits::from_fn(m, |_| true).unwrap();
                 let none = VisibilityBits::from_fn(m, |_| false).unwrap();
                 assert!(close(
-                    tables.record_integral(all.view()),
+                    tables.record_integral(all.view(), &radiance),
                     tables.total(),
                     1e-12
                 ));
-                assert_eq!(tables.record_integral(none.view()), [0.0; 3]);
+                assert_eq!(tables.record_integral(none.view(), &radiance), [0.0; 3]);
                 // The whole-sphere integral of L B~ is L_ns in RGB: its luminance is the
                 // product's normalisation times a texel's solid angle.
                 let lum: f64 = tables
@@ -682,7 +693,7 @@ mod tests {
             let state = cache.read();
             let product = ProductDistribution::new(&env, &mat, n, wo, 5).unwrap();
             let tables = ControlTables::new(&product, &radiance, m);
-            let interp = Interpolant::new(&state, &lookup, Some(&tables));
+            let interp = Interpolant::new(&state, &lookup, Some((&tables, &radiance)));
             let mut sums = CvSums::default();
             let count = 200_000u64;
             for i in 0..count {

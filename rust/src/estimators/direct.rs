@@ -239,13 +239,47 @@ fn power_heuristic(a: f64, b: f64) -> f64 {
     }
 }
 
+/// Octahedral level of the product's cells (`4^level` cells).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ProductLevel {
+    /// The same level, `1..=8`, at every shading point.
+    Fixed(u32),
+    /// Each material's [`Material::product_level_hint`]: 32² cells for diffuse surfaces,
+    /// 64² for narrow glossy lobes.
+    PerMaterial,
+}
+
+impl ProductLevel {
+    /// The level for a point of `material`.
+    #[inline]
+    pub fn for_material(self, material: &Material) -> u32 {
+        match self {
+            ProductLevel::Fixed(level) => level,
+            ProductLevel::PerMaterial => material.product_level_hint(),
+        }
+    }
+
+    /// Fails unless a fixed level lies in `1..=8`.
+    pub fn validate(self) -> crate::error::Result<()> {
+        match self {
+            ProductLevel::Fixed(level) if !(1..=8).contains(&level) => {
+                Err(crate::error::Error::invalid(
+                    "product_level",
+                    format!("must lie in [1, 8] or be \"auto\", got {level}"),
+                ))
+            }
+            _ => Ok(()),
+        }
+    }
+}
+
 /// Everything the estimators read: the scene (geometry and area lights) and the map.
 #[derive(Clone, Copy)]
 pub struct Lighting<'a> {
     pub scene: &'a Scene,
     pub env: &'a EnvMap,
-    /// Octahedral level of the product's cells (5 = 32² cells).
-    pub product_level: u32,
+    /// Octahedral level of the product's cells.
+    pub product_level: ProductLevel,
 }
 
 impl Lighting<'_> {
@@ -295,7 +329,13 @@ impl Lighting<'_> {
     /// The product distribution of `sp` (`None` where the map or the surface sends no
     /// light towards `wo`).
     pub fn product(&self, sp: &ShadingPoint) -> Option<ProductDistribution> {
-        ProductDistribution::new(self.env, &sp.material, sp.normal, sp.wo, self.product_level)
+        ProductDistribution::new(
+            self.env,
+            &sp.material,
+            sp.normal,
+            sp.wo,
+            self.product_level.for_material(&sp.material),
+        )
     }
 
     /// [`Method::Product`] with a prebuilt `product` of `sp` (CAM08 builds it once per

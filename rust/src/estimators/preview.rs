@@ -13,10 +13,10 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::control_variate::{ControlTables, Interpolant, RadiancePyramid};
-use super::direct::ProductDistribution;
+use super::direct::{ProductDistribution, ProductLevel};
 use crate::bsdf::Material;
 use crate::camera::{Camera, GBuffer};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
@@ -91,21 +91,16 @@ impl LightingPreview {
     }
 
     /// `J` per pixel (row-major RGB) under `env` with `cache`'s records, product cells of
-    /// `product_level` (`1..=8`). Escaped pixels show the map, emitters their emission,
+    /// `product_level`. Escaped pixels show the map, emitters their emission,
     /// pixels without records black. Traces no rays.
     pub fn render(
         &self,
         cache: &VisibilityCache,
         env: &EnvMap,
-        product_level: u32,
+        product_level: ProductLevel,
         threads: Option<usize>,
     ) -> Result<Vec<[f32; 3]>> {
-        if !(1..=8).contains(&product_level) {
-            return Err(Error::invalid(
-                "product_level",
-                format!("must lie in [1, 8], got {product_level}"),
-            ));
-        }
+        product_level.validate()?;
         let upsampled;
         let env = if env.resolution() < 2 {
             upsampled = env.resampled(2)?;
@@ -131,12 +126,12 @@ impl LightingPreview {
                         p.normal,
                         params.d_max_scale * p.footprint,
                     );
-                    let product =
-                        ProductDistribution::new(env, &p.material, p.normal, p.wo, product_level);
+                    let level = product_level.for_material(&p.material);
+                    let product = ProductDistribution::new(env, &p.material, p.normal, p.wo, level);
                     let j = match &product {
                         Some(product) if !lookup.neighbours().is_empty() => {
                             tables.fill(product, &radiance, state.store().m());
-                            Interpolant::new(&state, &lookup, Some(tables)).j
+                            Interpolant::new(&state, &lookup, Some((tables, &radiance))).j
                         }
                         _ => [0.0; 3],
                     };

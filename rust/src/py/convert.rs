@@ -350,3 +350,26 @@ pub fn nan_or_unit_rows(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Opti
         })
         .collect()
 }
+
+/// `product_level`: None or "auto" (per material) or an int in `[1, 8]`.
+pub fn product_level_arg(
+    obj: Option<&Bound<'_, PyAny>>,
+) -> PyResult<crate::estimators::direct::ProductLevel> {
+    use crate::estimators::direct::ProductLevel;
+    let Some(obj) = obj.filter(|o| !o.is_none()) else {
+        return Ok(ProductLevel::PerMaterial);
+    };
+    if let Ok(s) = obj.cast::<pyo3::types::PyString>() {
+        let s = s.to_str()?;
+        return if s == "auto" {
+            Ok(ProductLevel::PerMaterial)
+        } else {
+            Err(PyValueError::new_err(format!(
+                "product_level: expected an int in [1, 8] or \"auto\", got {s:?}"
+            )))
+        };
+    }
+    Ok(ProductLevel::Fixed(
+        int_arg(obj, "product_level", 1, 8)? as u32
+    ))
+}

@@ -5,7 +5,7 @@ use pyo3::prelude::*;
 
 use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
-use super::convert::{image_array, int_arg, threads_arg, IntoPyResult};
+use super::convert::{image_array, product_level_arg, threads_arg, IntoPyResult};
 use super::envmap::PyEnvMap;
 use super::scene::PyScene;
 use crate::estimators::preview::LightingPreview;
@@ -54,7 +54,7 @@ impl PyLightingPreview {
         product_level: Option<&Bound<'py, PyAny>>,
         threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let level = product_level.map_or(Ok(5), |l| int_arg(l, "product_level", 1, 8))? as u32;
+        let level = product_level_arg(product_level)?;
         let threads = threads_arg(threads)?;
         let cache = cache.inner.clone();
         let env = &envmap.inner;

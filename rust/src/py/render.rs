@@ -7,7 +7,9 @@ use pyo3::types::{PyDict, PyString};
 
 use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
-use super::convert::{f64_arg, image_array, int_arg, seed_arg, threads_arg, IntoPyResult};
+use super::convert::{
+    f64_arg, image_array, int_arg, product_level_arg, seed_arg, threads_arg, IntoPyResult,
+};
 use super::envmap::PyEnvMap;
 use super::scene::PyScene;
 use crate::estimators::control_variate::AlphaRule;
@@ -76,7 +78,7 @@ pub fn render<'py>(
             Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
             _ => None,
         },
-        product_level: product_level.map_or(Ok(5), |l| int_arg(l, "product_level", 1, 8))? as u32,
+        product_level: product_level_arg(product_level)?,
         jitter,
         alpha: alpha_arg(alpha, radius)?,
         insert_missing,
