@@ -73,7 +73,8 @@ fn control_variate(c: &mut Criterion) {
                 let i = k % prepared.len();
                 k += 1;
                 tables.fill(&prepared[i].0, &radiance, m);
-                black_box(Interpolant::new(&state, &lookups[i], Some((&tables, &radiance))).j)
+                let product = &prepared[i].0;
+                black_box(Interpolant::new(&state, &lookups[i], Some((&tables, product, env))).j)
             })
         });
     }

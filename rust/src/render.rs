@@ -52,11 +52,6 @@ const BAND_ROWS: usize = 4;
 /// Most samples per pixel a render takes.
 pub const MAX_SPP: u32 = 1 << 20;
 
-thread_local! {
-    /// Scratch tables of the control variate, one per worker (24 KiB at 32² cells).
-    static TABLES: std::cell::RefCell<ControlTables> = std::cell::RefCell::new(ControlTables::default());
-}
-
 /// Seconds between progress reports.
 const PROGRESS_INTERVAL: Duration = Duration::from_millis(100);
 
@@ -341,13 +336,13 @@ impl Shader<'_> {
             let lookup = state.lookup(cache.params(), hit.position, normal, d_max);
             let looked = Instant::now();
             work.lookup_ns += (looked - start).as_nanos() as u64;
-            let tables = product.as_ref().map(|p| {
-                TABLES.with_borrow_mut(|t| {
-                    t.fill(p, radiance, state.store().m());
-                    Interpolant::new(state, &lookup, Some((t, radiance)))
-                })
-            });
-            interpolant = tables.unwrap_or_else(|| Interpolant::new(state, &lookup, None));
+            interpolant = match product.as_ref() {
+                Some(p) if !lookup.neighbours().is_empty() => {
+                    let tables = ControlTables::new(p, radiance, state.store().m());
+                    Interpolant::new(state, &lookup, Some((&tables, p, self.lighting.env)))
+                }
+                _ => Interpolant::new(state, &lookup, None),
+            };
             work.control_ns += elapsed_ns(looked);
             work.cache_points += 1;
             work.records_used += interpolant.ids().len() as u64;
@@ -407,15 +402,7 @@ impl Shader<'_> {
         if interp.is_empty() {
             return (z, [0.0; 3]);
         }
-        let g = control_sample(
-            state,
-            interp,
-            self.lighting.env,
-            s.texel,
-            s.square,
-            s.bsdf,
-            s.pdf,
-        );
+        let g = control_sample(state, interp, s.square);
         if let Some(visible) = traced {
             for (k, v) in verdicts.iter_mut().enumerate().take(interp.ids().len()) {
                 let predicted = g.visible_mask >> k & 1 == 1;

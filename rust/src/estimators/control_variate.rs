@@ -125,22 +125,21 @@ impl RadiancePyramid {
     }
 }
 
-/// `∫ L B~ dω` of one shading point over every quadtree node down to the product's
-/// cells, per channel: a pyramid of sums whose leaves are `B~_c ∫_c L dω`. Any node of a
-/// record's hierarchy integrates with one read — nodes finer than the cells take their
-/// cell's `B~` times the map's [`RadiancePyramid`] — and a run of consecutive visible
-/// texels with a few. Rebuilt per shading point with [`Self::fill`], which reuses the
-/// allocations; every step is independent (no running sums), so it pipelines.
-#[derive(Clone, Debug, Default)]
+/// What the control variate needs of one shading point besides its product distribution:
+/// the unoccluded integral `∫ L_c B~ dω` per channel and its luminance, which turn the
+/// luminance integral `J_lum` into the channels' `J_c = κ_c J_lum` (module docs). Refilled
+/// per point by [`Self::fill`]; no allocation.
+#[derive(Clone, Copy, Debug, Default)]
 pub struct ControlTables {
-    /// Product level `P`: the leaves are its `4^P` cells.
-    level: u32,
     /// Level of the records' grid.
     record_m: u32,
-    /// `B~` per cell, Morton order.
-    bsdf: Vec<f64>,
-    /// `levels[l][j]`: `∫ L B~ dω` over node `j` of level `l <= P`, per channel.
-    levels: Vec<Vec<[f64; 3]>>,
+    /// `∫ L_c B~ dω` over the sphere, per channel.
+    unoccluded: [f64; 3],
+    /// `κ_c = unoccluded_c / ∫ L_lum B~ dω` (0 when nothing is lit).
+    kappa: [f64; 3],
+    /// Solid angle of one texel of the map (sr): the product pyramid's weights times it are
+    /// integrals.
+    texel_omega: f64,
 }
 
 impl ControlTables {
@@ -152,120 +151,216 @@ impl ControlTables {
         t
     }
 
-    /// Rebuilds the tables in place for another point (see [`Self::new`]).
+    /// Refills the tables for another point (see [`Self::new`]).
     pub fn fill(
         &mut self,
         product: &ProductDistribution,
         radiance: &RadiancePyramid,
         record_m: u32,
     ) {
-        let p = product.level();
-        self.level = p;
         self.record_m = record_m;
-        self.bsdf.clear();
-        self.bsdf
-            .extend(product.bsdf_cells().iter().map(|&b| b as f64));
-        self.levels.resize_with(p as usize + 1, Vec::new);
-        let leaves = &mut self.levels[p as usize];
-        leaves.clear();
-        leaves.extend(
-            radiance
-                .level(p)
-                .iter()
-                .zip(&self.bsdf)
-                .map(|(l, &b)| [b * l[0], b * l[1], b * l[2]]),
-        );
-        for level in (0..p as usize).rev() {
-            let (coarse, fine) = self.levels.split_at_mut(level + 1);
-            let (coarse, fine) = (&mut coarse[level], &fine[0]);
-            coarse.clear();
-            coarse.extend(
-                fine.chunks_exact(4)
-                    .map(|c| std::array::from_fn(|k| (c[0][k] + c[1][k]) + (c[2][k] + c[3][k]))),
-            );
-        }
-    }
-
-    /// `∫ L B~ dω` over the whole sphere, per channel (`J` of a record that sees everything).
-    pub fn total(&self) -> [f64; 3] {
-        self.levels[0][0]
-    }
-
-    /// `∫_node L B~ dω` for node `index` of any level.
-    #[inline]
-    fn node(&self, level: u32, index: u32, radiance: &RadiancePyramid) -> [f64; 3] {
-        if level <= self.level {
-            return self.levels[level as usize][index as usize];
-        }
-        let b = self.bsdf[(index >> (2 * (level - self.level))) as usize];
-        radiance.node(level, index).map(|c| b * c)
-    }
-
-    /// `∫ L B~ dω` over record texels `[lo, hi)` (Morton order): the run split into
-    /// aligned quadtree blocks, largest first.
-    #[inline]
-    fn texel_range(&self, mut lo: u32, hi: u32, radiance: &RadiancePyramid) -> [f64; 3] {
-        let m = self.record_m;
-        let mut sum = [0.0f64; 3];
-        while lo < hi {
-            // Largest k with lo aligned to 4^k and the block inside the run.
-            let mut k = (lo.trailing_zeros() / 2).min(m);
-            while lo + (1 << (2 * k)) > hi {
-                k -= 1;
+        self.texel_omega = texel_solid_angle(1 << radiance.depth());
+        // Eight partial sums per channel: a single running sum would wait on every add.
+        let mut acc = [[0.0f64; 3]; 8];
+        let cells = radiance.level(product.level());
+        let bsdf = product.bsdf_cells();
+        for (l8, b8) in cells.chunks_exact(8).zip(bsdf.chunks_exact(8)) {
+            for (a, (l, &b)) in acc.iter_mut().zip(l8.iter().zip(b8)) {
+                let b = b as f64;
+                *a = [a[0] + b * l[0], a[1] + b * l[1], a[2] + b * l[2]];
             }
-            let v = self.node(m - k, lo >> (2 * k), radiance);
-            sum = [sum[0] + v[0], sum[1] + v[1], sum[2] + v[2]];
-            lo += 1 << (2 * k);
         }
-        sum
+        let tail = cells.len() / 8 * 8;
+        for (l, &b) in cells[tail..].iter().zip(&bsdf[tail..]) {
+            let b = b as f64;
+            acc[0] = [
+                acc[0][0] + b * l[0],
+                acc[0][1] + b * l[1],
+                acc[0][2] + b * l[2],
+            ];
+        }
+        let rgb: [f64; 3] = std::array::from_fn(|c| acc.iter().map(|a| a[c]).sum());
+        let lum = product.normalization() * self.texel_omega;
+        self.unoccluded = rgb;
+        self.kappa = if lum > 0.0 {
+            rgb.map(|c| c / lum)
+        } else {
+            [0.0; 3]
+        };
     }
 
-    /// `J_i = ∫ L B~ V_i dω` of one record (CAM08 §5.5): a walk of its 2-bit hierarchy that
-    /// skips empty nodes and takes full ones whole; a partial node of one word adds its runs
-    /// of visible texels. `bits` must have the tables' record resolution and `radiance` be
-    /// the pyramid the tables were filled with.
-    pub fn record_integral(&self, bits: VisibilityView, radiance: &RadiancePyramid) -> [f64; 3] {
+    /// `∫ L_c B~ dω` over the whole sphere, per channel (`J` of a record that sees everything).
+    pub fn total(&self) -> [f64; 3] {
+        self.unoccluded
+    }
+
+    /// The channels' scale `κ_c` (luminance 1 wherever anything is lit).
+    pub fn kappa(&self) -> [f64; 3] {
+        self.kappa
+    }
+
+    /// `J_i = ∫ κ L_lum B~ V_i dω` of one record (CAM08 §5.5): a walk of its 2-bit hierarchy
+    /// that skips empty nodes and takes full ones whole from the product's own pyramid; a
+    /// partial node of one word adds its runs of visible texels. `bits` must have the
+    /// tables' record resolution, `product` be the point's and `env` its map.
+    pub fn record_integral(
+        &self,
+        bits: VisibilityView,
+        product: &ProductDistribution,
+        env: &EnvMap,
+    ) -> [f64; 3] {
         debug_assert_eq!(bits.m(), self.record_m);
+        let Some(dist) = env.distribution() else {
+            return [0.0; 3];
+        };
+        let nodes = LuminanceNodes { product, dist };
         let m = self.record_m;
         let words = bits.bit_words();
-        let mut sum = [0.0f64; 3];
-        let add = |sum: &mut [f64; 3], v: [f64; 3]| {
-            *sum = [sum[0] + v[0], sum[1] + v[1], sum[2] + v[2]];
-        };
-        // Runs of consecutive visible texels are few in coherent maps (Morton order).
-        let visible_texels = |sum: &mut [f64; 3], word: usize, mut x: u64| {
-            let base = (word * 64) as u32;
-            while x != 0 {
-                let a = x.trailing_zeros();
-                let run = (!(x >> a)).trailing_zeros();
-                add(sum, self.texel_range(base + a, base + a + run, radiance));
-                x &= if a + run >= 64 { 0 } else { !0u64 << (a + run) };
-            }
+        let mut sum = 0.0f64;
+        let visible_texels = |sum: &mut f64, word: usize, x: u64| {
+            *sum += nodes.visible_runs(m, word, x);
         };
         if m < 3 {
             // One word holds the whole map.
             visible_texels(&mut sum, 0, words[0]);
-            return sum;
-        }
-        let word_level = word_level(m);
-        let mut stack = [(0u32, 0u32); 1 + 3 * 8];
-        let mut len = 1;
-        while len > 0 {
-            len -= 1;
-            let (level, node) = stack[len];
-            match bits.coverage(level, node) {
-                Coverage::Empty => {}
-                Coverage::Full => add(&mut sum, self.node(level, node, radiance)),
-                Coverage::Partial if level == word_level => {
-                    visible_texels(&mut sum, node as usize, words[node as usize])
-                }
-                Coverage::Partial => {
-                    for k in (0..4).rev() {
-                        stack[len] = (level + 1, 4 * node + k);
-                        len += 1;
+        } else {
+            let word_level = word_level(m);
+            let mut stack = [(0u32, 0u32); 1 + 3 * 8];
+            let mut len = 1;
+            while len > 0 {
+                len -= 1;
+                let (level, node) = stack[len];
+                match bits.coverage(level, node) {
+                    Coverage::Empty => {}
+                    Coverage::Full => sum += nodes.node(level, node),
+                    Coverage::Partial if level == word_level => {
+                        visible_texels(&mut sum, node as usize, words[node as usize])
+                    }
+                    Coverage::Partial => {
+                        for k in (0..4).rev() {
+                            stack[len] = (level + 1, 4 * node + k);
+                            len += 1;
+                        }
                     }
                 }
             }
+        }
+        let lum = sum * self.texel_omega;
+        self.kappa.map(|k| k * lum)
+    }
+}
+
+impl ControlTables {
+    /// `J = Σ β_i J_i` of several records at once (the same value as summing
+    /// [`Self::record_integral`]s). The records of one lookup agree on most of the sphere,
+    /// so they are walked together one 64-texel word at a time: each distinct word is
+    /// integrated once, weighted by the `β` of the records that share it; all-visible words
+    /// are one node of the product's pyramid, all-occluded ones are skipped. Measured
+    /// against separate hierarchy walks on garage's lookups (benches/control_variate.rs),
+    /// this is the faster form of CAM08 §5.5's traversal for records that share words.
+    pub fn interpolated_integral(
+        &self,
+        maps: &[VisibilityView],
+        beta: &[f32],
+        product: &ProductDistribution,
+        env: &EnvMap,
+    ) -> [f64; 3] {
+        debug_assert_eq!(maps.len(), beta.len());
+        let (Some(dist), Some(first)) = (env.distribution(), maps.first()) else {
+            return [0.0; 3];
+        };
+        let nodes = LuminanceNodes { product, dist };
+        let m = self.record_m;
+        let full = if m < 3 {
+            (1u64 << (1 << (2 * m))) - 1
+        } else {
+            u64::MAX
+        };
+        let mut sum = 0.0f64;
+        let mut seen = [(0u64, 0.0f64); MAX_KEPT];
+        for w in 0..first.bit_words().len() {
+            // The distinct words of the records here, with their summed β.
+            let mut distinct = 0;
+            for (map, &b) in maps.iter().zip(beta) {
+                let x = map.bit_words()[w];
+                if x == 0 {
+                    continue;
+                }
+                match seen[..distinct].iter_mut().find(|s| s.0 == x) {
+                    Some(s) => s.1 += b as f64,
+                    None => {
+                        seen[distinct] = (x, b as f64);
+                        distinct += 1;
+                    }
+                }
+            }
+            for &(x, b) in &seen[..distinct] {
+                let integral = if x == full && m >= 3 {
+                    nodes.node(m - 3, w as u32)
+                } else {
+                    nodes.visible_runs(m, w, x)
+                };
+                sum += b * integral;
+            }
+        }
+        let lum = sum * self.texel_omega;
+        self.kappa.map(|k| k * lum)
+    }
+}
+
+/// `Σ L_lum B~` (the map's sampling weights times `B~`) over quadtree nodes of any level:
+/// the product's pyramid down to its cells, then `B~` of the cell times the map's own
+/// luminance pyramid (split evenly below its texels).
+struct LuminanceNodes<'a> {
+    product: &'a ProductDistribution,
+    dist: &'a crate::sampling::distribution::QuadPyramid,
+}
+
+impl LuminanceNodes<'_> {
+    #[inline]
+    fn node(&self, level: u32, index: u32) -> f64 {
+        let p = self.product.level();
+        if level <= p {
+            return self.product.pyramid().level(level)[index as usize];
+        }
+        let b = self.product.bsdf_cells()[(index >> (2 * (level - p))) as usize] as f64;
+        let e = self.dist.depth();
+        let l = if level <= e {
+            self.dist.level(level)[index as usize]
+        } else {
+            let shift = 2 * (level - e);
+            self.dist.level(e)[(index >> shift) as usize] / (1u64 << shift) as f64
+        };
+        b * l
+    }
+
+    /// Over the set bits of word `word` (bits `x`) of a level-`m` map, run by run: runs of
+    /// consecutive visible texels are few in coherent maps (Morton order).
+    #[inline]
+    fn visible_runs(&self, m: u32, word: usize, mut x: u64) -> f64 {
+        let base = (word * 64) as u32;
+        let mut sum = 0.0;
+        while x != 0 {
+            let a = x.trailing_zeros();
+            let run = (!(x >> a)).trailing_zeros();
+            sum += self.range(m, base + a, base + a + run);
+            x &= if a + run >= 64 { 0 } else { !0u64 << (a + run) };
+        }
+        sum
+    }
+
+    /// Over texels `[lo, hi)` of level `m`: the run split into aligned quadtree blocks,
+    /// largest first.
+    #[inline]
+    fn range(&self, m: u32, mut lo: u32, hi: u32) -> f64 {
+        let mut sum = 0.0;
+        while lo < hi {
+            let mut k = (lo.trailing_zeros() / 2).min(m);
+            while lo + (1 << (2 * k)) > hi {
+                k -= 1;
+            }
+            sum += self.node(m - k, lo >> (2 * k));
+            lo += 1 << (2 * k);
         }
         sum
     }
@@ -281,6 +376,8 @@ pub struct Interpolant {
     beta: [f32; MAX_KEPT],
     /// `J = Σ β_i J_i` per channel (0 without records).
     pub j: [f64; 3],
+    /// `∫ L_c B~ dω` unoccluded: `g/p = unoccluded · Ṽ` for every product sample.
+    pub unoccluded: [f64; 3],
 }
 
 /// Most records an interpolant keeps (the cache's `n_keep` cap).
@@ -293,30 +390,30 @@ impl Interpolant {
         ids: [0; MAX_KEPT],
         beta: [0.0; MAX_KEPT],
         j: [0.0; 3],
+        unoccluded: [0.0; 3],
     };
 
-    /// The interpolant of `lookup`, with `J = Σ β_i J_i` integrated against `tables` and
-    /// the map's `radiance` they were filled with (`None`: the point has no product,
-    /// nothing to integrate, `J = 0`).
+    /// The interpolant of `lookup`, with `J = Σ β_i J_i` integrated against `tables` for
+    /// the point's `product` under `env` (`None`: the point has no product, nothing to
+    /// integrate, `J = 0`).
     pub fn new(
         state: &CacheState,
         lookup: &Lookup,
-        tables: Option<(&ControlTables, &RadiancePyramid)>,
+        tables: Option<(&ControlTables, &ProductDistribution, &EnvMap)>,
     ) -> Self {
         let mut out = Self::EMPTY;
         for k in lookup.neighbours() {
             out.ids[out.len] = k.id;
             out.beta[out.len] = k.beta;
             out.len += 1;
-            if let Some((tables, radiance)) = tables {
-                let ji = tables.record_integral(state.store().bits(k.id as usize), radiance);
-                let b = k.beta as f64;
-                out.j = [
-                    out.j[0] + b * ji[0],
-                    out.j[1] + b * ji[1],
-                    out.j[2] + b * ji[2],
-                ];
-            }
+        }
+        if let Some((tables, product, env)) = tables {
+            out.unoccluded = tables.total();
+            let store = state.store();
+            let maps: [VisibilityView; MAX_KEPT] =
+                std::array::from_fn(|i| store.bits(out.ids[i.min(out.len.max(1) - 1)] as usize));
+            out.j =
+                tables.interpolated_integral(&maps[..out.len], &out.beta[..out.len], product, env);
         }
         out
     }
@@ -478,35 +575,23 @@ pub fn neighbour_alphas(
 /// the plain term `L B V / p` is the renderer's; this is `g/p` and the records' verdicts.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ControlSample {
-    /// `g / p = L B~ Ṽ / p` per channel.
+    /// `g / p = κ L_lum B~ Ṽ / p = (∫ L B~ dω) Ṽ` per channel.
     pub value: [f64; 3],
     /// Bit `i` set when kept record `i` sees the sampled direction.
     pub visible_mask: u32,
 }
 
-/// `g/p` for a product sample in `texel` at square point `square` with solid-angle pdf
-/// `pdf`, `B~` of the texel's cell `bsdf` and the interpolant's `Ṽ`.
+/// `g/p` for a product sample at square point `square`: the product's pdf is
+/// `L_lum B~ / ∫ L_lum B~`, so `g/p` is the unoccluded integral times `Ṽ` there.
 #[inline]
 pub fn control_sample(
     state: &CacheState,
     interpolant: &Interpolant,
-    env: &EnvMap,
-    texel: UVec2,
     square: DVec2,
-    bsdf: f64,
-    pdf: f64,
 ) -> ControlSample {
     let (v, mask) = interpolant.eval(state, square);
-    if v == 0.0 || pdf <= 0.0 {
-        return ControlSample {
-            value: [0.0; 3],
-            visible_mask: mask,
-        };
-    }
-    let l = env.texels()[(texel.y * env.resolution() + texel.x) as usize];
-    let k = bsdf * v / pdf;
     ControlSample {
-        value: l.map(|c| c as f64 * k),
+        value: interpolant.unoccluded.map(|c| c * v),
         visible_mask: mask,
     }
 }
@@ -552,33 +637,35 @@ mod tests {
         .unwrap()
     }
 
-    /// `∫ L B~ V dω` as a plain sum over the finest grid of the three (texels of equal
-    /// solid angle), independent of prefix sums and hierarchies.
-    fn brute_force_j(
+    /// `(∫ L_c B~ dω, ∫ L_lum B~ dω, ∫ L_lum B~ V dω)` as plain sums over the finest grid
+    /// of the three (texels of equal solid angle), independent of pyramids and hierarchies.
+    fn brute_force(
         env: &EnvMap,
         product: &ProductDistribution,
         bits: &VisibilityBits,
-    ) -> [f64; 3] {
+    ) -> ([f64; 3], f64, f64) {
         let e = env.resolution().trailing_zeros();
         let (p, m) = (product.level(), bits.m());
         let f = e.max(p).max(m);
         let side = 1u32 << f;
         let omega = texel_solid_angle(side);
-        let mut sum = [0.0f64; 3];
+        let (mut rgb, mut lum, mut j) = ([0.0f64; 3], 0.0, 0.0);
         for code in 0..side * side {
             let t = morton_decode(code);
             let env_texel = UVec2::new(t.x >> (f - e), t.y >> (f - e));
             let l = env.texels()[(env_texel.y * env.resolution() + env_texel.x) as usize];
             let cell = morton_encode(t.x >> (f - p), t.y >> (f - p));
-            let b = product.bsdf_cells()[cell as usize] as f64;
-            let v = bits.get(morton_encode(t.x >> (f - m), t.y >> (f - m)) as usize);
-            if v {
-                for c in 0..3 {
-                    sum[c] += l[c] as f64 * b * omega;
-                }
+            let b = product.bsdf_cells()[cell as usize] as f64 * omega;
+            let y = crate::lights::envmap::luminance(l);
+            for c in 0..3 {
+                rgb[c] += l[c] as f64 * b;
+            }
+            lum += y * b;
+            if bits.get(morton_encode(t.x >> (f - m), t.y >> (f - m)) as usize) {
+                j += y * b;
             }
         }
-        sum
+        (rgb, lum, j)
     }
 
     fn close(a: [f64; 3], b: [f64; 3], rel: f64) -> bool {
@@ -612,21 +699,53 @@ mod tests {
                 let tables = ControlTables::new(&product, &radiance, m);
                 for seed in 0..4u64 {
                     let bits = random_bits(m, 100 * k as u64 + 10 * i as u64 + seed);
-                    let j = tables.record_integral(bits.view(), &radiance);
-                    let expect = brute_force_j(&env, &product, &bits);
+                    let j = tables.record_integral(bits.view(), &product, &env);
+                    let (rgb, lum, j_lum) = brute_force(&env, &product, &bits);
+                    let kappa = rgb.map(|c| c / lum);
+                    assert!(
+                        close(tables.kappa(), kappa, 1e-9),
+                        "{:?} vs {kappa:?}",
+                        tables.kappa()
+                    );
+                    assert!(close(tables.total(), rgb, 1e-9));
+                    let expect = kappa.map(|c| c * j_lum);
                     assert!(
                         close(j, expect, 1e-9),
                         "M={m} P={level} res={res}: {j:?} vs {expect:?}"
                     );
                 }
+                // Several records at once: shared, partial, full and empty words.
+                let mut maps: Vec<VisibilityBits> = (0..3)
+                    .map(|s| random_bits(m, 1000 + 10 * k as u64 + s))
+                    .collect();
+                maps.push(maps[0].clone());
+                maps.push(VisibilityBits::from_fn(m, |_| true).unwrap());
+                let beta = [0.3f32, 0.1, 0.25, 0.15, 0.2];
+                let views: Vec<_> = maps.iter().map(|b| b.view()).collect();
+                let together = tables.interpolated_integral(&views, &beta, &product, &env);
+                let separate = maps.iter().zip(beta).fold([0.0; 3], |acc, (b, w)| {
+                    let j = tables.record_integral(b.view(), &product, &env);
+                    std::array::from_fn(|c| acc[c] + w as f64 * j[c])
+                });
+                assert!(
+                    close(together, separate, 1e-12),
+                    "{together:?} vs {separate:?}"
+                );
+                assert_eq!(
+                    tables.interpolated_integral(&[], &[], &product, &env),
+                    [0.0; 3]
+                );
                 let all = VisibilityBits::from_fn(m, |_| true).unwrap();
                 let none = VisibilityBits::from_fn(m, |_| false).unwrap();
                 assert!(close(
-                    tables.record_integral(all.view(), &radiance),
+                    tables.record_integral(all.view(), &product, &env),
                     tables.total(),
                     1e-12
                 ));
-                assert_eq!(tables.record_integral(none.view(), &radiance), [0.0; 3]);
+                assert_eq!(
+                    tables.record_integral(none.view(), &product, &env),
+                    [0.0; 3]
+                );
                 // The whole-sphere integral of L B~ is L_ns in RGB: its luminance is the
                 // product's normalisation times a texel's solid angle.
                 let lum: f64 = tables
@@ -693,14 +812,14 @@ mod tests {
             let state = cache.read();
             let product = ProductDistribution::new(&env, &mat, n, wo, 5).unwrap();
             let tables = ControlTables::new(&product, &radiance, m);
-            let interp = Interpolant::new(&state, &lookup, Some((&tables, &radiance)));
+            let interp = Interpolant::new(&state, &lookup, Some((&tables, &product, &env)));
             let mut sums = CvSums::default();
             let count = 200_000u64;
             for i in 0..count {
                 let rng = SampleRng::new(3, i, 0);
                 let u = DVec2::new(rng.get(0) as f64, rng.get(1) as f64);
                 let s = product.sample_point(&env, u);
-                let g = control_sample(&state, &interp, &env, s.texel, s.square, s.bsdf, s.pdf);
+                let g = control_sample(&state, &interp, s.square);
                 sums.add(Vec3::ZERO, g.value);
             }
             let (mean, var) = sums.estimate([-1.0; 3]);

@@ -193,6 +193,12 @@ impl ProductDistribution {
         &self.bsdf_cells
     }
 
+    /// The product `L_c B~_c` as a quadtree of sums (levels `0..=level`, Morton order), in
+    /// the map's sampling weights (luminance per texel, summed).
+    pub fn pyramid(&self) -> &QuadPyramid {
+        &self.cells
+    }
+
     /// Solid-angle pdf of sampling a direction in `texel` of the map.
     pub fn texel_pdf(&self, env: &EnvMap, texel: UVec2) -> f64 {
         let dist = env

@@ -115,7 +115,7 @@ impl LightingPreview {
             self.points
                 .par_iter()
                 .with_min_len(64)
-                .map_init(ControlTables::default, |tables, point| {
+                .map(|point| {
                     let p = match point {
                         Err(dir) => return env.eval(*dir).to_array(),
                         Ok(p) => p,
@@ -130,8 +130,8 @@ impl LightingPreview {
                     let product = ProductDistribution::new(env, &p.material, p.normal, p.wo, level);
                     let j = match &product {
                         Some(product) if !lookup.neighbours().is_empty() => {
-                            tables.fill(product, &radiance, state.store().m());
-                            Interpolant::new(&state, &lookup, Some((tables, &radiance))).j
+                            let tables = ControlTables::new(product, &radiance, state.store().m());
+                            Interpolant::new(&state, &lookup, Some((&tables, product, env))).j
                         }
                         _ => [0.0; 3],
                     };
