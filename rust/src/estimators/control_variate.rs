@@ -1,13 +1,18 @@
 //! The visibility cache as a control variate (CAM08 §3, eq. 2–6; §5.5; §6.2).
 //!
-//! Product importance sampling draws `ω` with `p(ω) = L(ω) B~(ω) / L_ns` (CAM08 eq. 3) and
-//! estimates `∫ L B V dω` by `L B V / p`. With the cache's interpolated visibility
-//! `Ṽ = Σ β_i V_i` (a lookup's records and weights), the control variate
-//! `g(ω) = L(ω) B~(ω) Ṽ(ω)` has the integral `J = ∫ g dω = Σ β_i J_i`, and eq. 2 becomes
+//! Product importance sampling draws `ω` with `p(ω) = L(ω) B~(ω) / L_ns` (CAM08 eq. 3, `L`
+//! the map's luminance) and estimates `∫ L B V dω` by `L B V / p`. With the cache's
+//! interpolated visibility `Ṽ = Σ β_i V_i` (a lookup's records and weights), the control
+//! variate of channel `c` is `g_c(ω) = κ_c L(ω) B~(ω) Ṽ(ω)` with the point's chroma
+//! `κ_c = ∫ L_c B~ dω / ∫ L B~ dω`; its integral is `J_c = κ_c Σ β_i J_i`, and eq. 2 becomes
 //!
-//! `⟨L_o⟩ = (1/N) Σ [L B V / p − α g / p] + α J`,
+//! `⟨L_o⟩ = (1/N) Σ [L B V / p − α g / p] + α J`, with `g_c / p = (∫ L_c B~ dω) Ṽ(ω)`,
 //!
-//! unbiased for any `α` that does not depend on the samples it multiplies.
+//! unbiased for any `α` that does not depend on the samples it multiplies. Using the
+//! luminance `L B~` the sampler already holds (instead of `L_c B~` per channel) makes `J`
+//! read the product's own pyramid; where the map's colour is uniform over what a point
+//! sees the two are identical, and on the built-in scenes the variance was the same to
+//! three digits (garage 128 x 96: 0.277 vs 0.276 of product sampling's).
 //!
 //! ## Exactness of `J`
 //! `L` is piecewise constant over the map's texels, `B~` over the product's cells and every
@@ -17,13 +22,14 @@
 //! estimate. Each sample's `Ṽ` is read at the record texel that contains the *sampled point
 //! of the square* (not a re-mapped direction), so `E[g/p] = J` holds to rounding.
 //!
-//! ## `J_i` by quadtree traversal (§5.5)
-//! [`VisibilityView::nodes`] walks record `i`'s 2-bit hierarchy, skipping empty nodes and
-//! stopping at full ones; a full node contributes `∫_node L B~ dω`. For nodes no finer than
-//! the product's cells that is a range of cells — contiguous in Morton order, so a prefix
-//! sum of `L_c B~_c` per channel answers it with one subtraction. A node finer than the
-//! cells (records of higher resolution than the product) lies in one cell and takes
-//! `B~_cell ∫_node L dω` from the map's radiance pyramid ([`RadiancePyramid`]).
+//! ## `J` by quadtree traversal (§5.5)
+//! [`ControlTables::record_integral`] walks record `i`'s 2-bit hierarchy, skipping empty
+//! nodes and stopping at full ones; a full node contributes its node of the product's
+//! pyramid (nodes finer than the product's cells take the cell's `B~` times the map's own
+//! pyramid), and a partial word its runs of visible texels, each split into aligned
+//! quadtree blocks. [`ControlTables::interpolated_integral`], which renders use, walks a
+//! lookup's records together word by word and integrates each distinct word once — they
+//! share most words.
 //!
 //! ## Choosing `α` (eq. 4–5)
 //! The variance of `Y = Z − α W` (eq. 4, `Z` the plain estimate and `W = g/p − J`) is least
