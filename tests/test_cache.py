@@ -435,3 +435,15 @@ def test_animated_scene_keeps_far_records_and_replaces_changed_ones():
     assert np.mean(evicted < 0.5) > 0.8
     with pytest.raises(ValueError, match="rays_per_record"):
         cache.validate(rays_per_record=0)
+
+
+def test_a_full_cache_traces_no_more_records():
+    # Once max_records is reached the build refuses further records without tracing them.
+    setup = vc.scenes.load("garage", detail=0.3)
+    cam = setup.camera.with_resolution(64, 48)
+    cache = vc.VisibilityCache(setup.scene, max_records=20, n_startup=0)
+    report = cache.build(cam, progress=False)
+    assert len(cache) == 20
+    r = cache.resolution
+    assert report["shadow_rays"] <= 20 * r * r
+    assert cache.stats()["refused_full"] > 0

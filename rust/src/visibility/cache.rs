@@ -1003,6 +1003,14 @@ impl VisibilityCache {
             }
         }
         self.lookups.fetch_add(wave.len() as u64, Ordering::Relaxed);
+        // A full cache refuses every record: tracing them would only waste rays.
+        let room = (self.params.max_records as usize).saturating_sub(self.len());
+        if room < requests.len() {
+            let refused = (requests.len() - room) as u64;
+            self.write().counters.refused_full += refused;
+            requests.truncate(room);
+            deferred.clear();
+        }
         let traced: Vec<(Record, RecordRays)> = requests
             .par_iter()
             .map(|&i| {
