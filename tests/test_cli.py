@@ -5,16 +5,21 @@ from viscache_rs import cli
 from viscache_rs.io import to_srgb8, write_png
 
 
-def test_demo_writes_an_image_per_method(tmp_path, capsys):
-    code = cli.main(["demo", "--scene", "cornell", "--width", "48", "--height", "36",
-                     "--spp", "2", "--quiet", "--out", str(tmp_path)])
+def test_demo_compares_product_and_cv_at_equal_time(tmp_path, capsys):
+    code = cli.main(["demo", "--scene", "garage", "--detail", "0.3", "--width", "48",
+                     "--height", "36", "--spp", "8", "--resolution", "32", "--quiet",
+                     "--out", str(tmp_path)])
     assert code == 0
     out = capsys.readouterr().out
-    assert "Mrays/s" in out and "BVH build" in out and "standard error" in out
     assert "visibility cache" in out and "records" in out
-    for method in ("mis", "product"):
-        png = (tmp_path / f"cornell_{method}.png").read_bytes()
+    assert "product (equal time)" in out and "cv (with cache build)" in out
+    assert "equal samples (8 spp): variance ratio cv/product" in out
+    for name in ("product_vs_cv", "product", "cv"):
+        png = (tmp_path / f"garage_{name}.png").read_bytes()
         assert png.startswith(b"\x89PNG") and len(png) > 100
+    assert cli.main(["demo", "--scene", "garage", "--detail", "0.3", "--width", "16",
+                     "--height", "12", "--spp", "2", "--alpha", "1", "--quiet",
+                     "--out", str(tmp_path)]) == 0
 
 
 def test_png_writer_roundtrip(tmp_path):

@@ -129,3 +129,30 @@ def test_tradeoff_experiment_smoke(tmp_path, monkeypatch):
     md = (tmp_path / "tradeoff" / "results.md").read_text()
     assert "## garage: error against time" in md and "| cv a=est low | 8 |" in md
     assert (tmp_path / "tradeoff" / "tradeoff_garage.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_variance_table_experiment_smoke(tmp_path, monkeypatch):
+    from viscache_rs import experiments
+    from viscache_rs.experiments import variance_table
+
+    def tiny(quick):
+        return {"width": 32, "height": 24, "spp": [2, 4], "scenes": ["garage"],
+                "equal_time_spp": 4}
+
+    monkeypatch.setattr(variance_table, "settings", tiny)
+    monkeypatch.setattr(variance_table, "REPEATS", 1)
+    monkeypatch.setitem(variance_table.CACHE, "garage", {"resolution": 16, "preset": "low"})
+    ctx = experiments.run("variance-table", quick=True, out=tmp_path, progress=False)
+    data = json.loads((tmp_path / "variance-table" / "results.json").read_text())
+    rows = data["scenes"]["garage"]["rows"]
+    assert [r["spp"] for r in rows] == [2, 4]
+    for r in rows:
+        assert r["time_product"] > 0 and r["time_cv"] > 0
+        assert 0 < r["ratio_cv"] < 1 and 0 < r["ratio_cv_est"] < 1
+    assert data["scenes"]["garage"]["build"]["records"] > 0
+    eq = data["equal_time"]
+    assert eq["render"]["product_spp"] >= 1 and eq["with_build"]["variance_ratio"] > 0
+    md = (tmp_path / "variance-table" / "results.md").read_text()
+    assert "Table 3" in md and "Table 2" in md and "Fig. 13" in md
+    assert (tmp_path / "variance-table" / "variance_table.png").exists()
+    assert ctx.results["experiment"] == "variance-table"
