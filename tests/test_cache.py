@@ -447,3 +447,15 @@ def test_a_full_cache_traces_no_more_records():
     r = cache.resolution
     assert report["shadow_rays"] <= 20 * r * r
     assert cache.stats()["refused_full"] > 0
+
+
+def test_nearest_hits_can_be_skipped_and_is_checked():
+    setup = vc.scenes.load("garage", detail=0.3)
+    cam = setup.camera.with_resolution(32, 24)
+    cache = vc.VisibilityCache(setup.scene, nearest_hits=False)
+    cache.build(cam, progress=False)
+    assert cache.params["nearest_hits"] is False
+    assert cache.stats()["nearest_rays"] == 0
+    assert np.isinf(cache.records()["nearest_hit_distance"]).all()
+    with pytest.raises(TypeError, match="nearest_hits"):
+        vc.VisibilityCache(setup.scene, nearest_hits="no")

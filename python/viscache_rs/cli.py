@@ -43,7 +43,8 @@ def demo(args: argparse.Namespace) -> int:
           f"env map {setup.envmap.resolution}^2 (generated and BVH built in "
           f"{time.perf_counter() - t:.2f} s)")
     quiet = args.quiet
-    cache = VisibilityCache(scene, resolution=args.resolution, preset=args.preset)
+    cache = VisibilityCache(scene, resolution=args.resolution, preset=args.preset,
+                            nearest_hits=False)
     b = cache.build(setup.camera, seed=args.seed, threads=args.threads, progress=not quiet)
     print(f"visibility cache: {b['records']:,} records of {args.resolution}x{args.resolution} "
           f"({cache.memory_bytes() / 1e6:.2f} MB), {b['shadow_rays_per_pixel']:.1f} shadow rays "
@@ -60,8 +61,10 @@ def demo(args: argparse.Namespace) -> int:
                    threads=args.threads, progress=False)
     b_spp = (same.stats["seconds"] - probe.stats["seconds"]) / max(
         same.stats["spp"] - probe.stats["spp"], 1)
+    # Tiny images time too fast to fit: never less than a tenth of the mean cost per sample.
+    b_spp = max(b_spp, 0.1 * same.stats["seconds"] / same.stats["spp"])
     a_fixed = same.stats["seconds"] - b_spp * same.stats["spp"]
-    spp_equal = max(1, round((cv_total - a_fixed) / max(b_spp, 1e-9)))
+    spp_equal = int(np.clip(round((cv_total - a_fixed) / b_spp), 2, 64 * args.spp))
     prod = render(setup, spp=spp_equal, method="product", seed=args.seed + 2,
                   threads=args.threads, progress=not quiet)
     rows = [

@@ -85,7 +85,8 @@ def render(
         spp = _UNBOUNDED_SPP if time_budget is not None else 16
     cache_stats: dict[str, Any] = {}
     if method == "cv" and cache is None:
-        cache = _core.VisibilityCache(setup.scene, preset=preset)
+        # The control variate never reads R_i: skip its closest-hit rays.
+        cache = _core.VisibilityCache(setup.scene, preset=preset, nearest_hits=False)
         t = time.perf_counter()
         report = cache.build(camera, seed=seed, threads=threads, progress=progress)
         cache_stats = {"cache_seconds": time.perf_counter() - t,

@@ -66,7 +66,7 @@ def run(ctx) -> None:
     pixels = cam.width * cam.height
     spp = s["spp"]
     kw = {"threads": ctx.threads, "progress": ctx.progress}
-    cache_kw = {"resolution": s["resolution"], "preset": s["preset"]}
+    cache_kw = {"resolution": s["resolution"], "preset": s["preset"], "nearest_hits": False}
     ctx.record("settings", s)
 
     reuse = VisibilityCache(setup.scene, **cache_kw)

@@ -108,7 +108,8 @@ def run(ctx) -> None:
         for label, preset, resolution, alpha in s["configs"]:
             key = (preset, resolution)
             if key not in caches:
-                cache = VisibilityCache(setup.scene, resolution=resolution, preset=preset)
+                cache = VisibilityCache(setup.scene, resolution=resolution, preset=preset,
+                                        nearest_hits=False)
                 report = cache.build(cam, seed=ctx.seed, **kw)
                 caches[key] = (cache, report["seconds"])
                 ctx.record(f"{name}/cache/{preset}/{resolution}",

@@ -53,6 +53,11 @@ fn apply_overrides(p: &mut CacheParams, overrides: &Bound<'_, PyDict>) -> PyResu
             "evict_worst" => p.evict_worst = u32_of(u32::MAX as i128)?,
             "unused_frames" => p.unused_frames = u32_of(u32::MAX as i128)?,
             "max_records" => p.max_records = u32_of(u32::MAX as i128)?,
+            "nearest_hits" => {
+                p.nearest_hits = value
+                    .extract::<bool>()
+                    .map_err(|_| PyTypeError::new_err("nearest_hits: must be a bool"))?
+            }
             "pattern_seed" => {
                 p.pattern_seed = seed_arg(&value).map_err(|_| {
                     PyValueError::new_err("pattern_seed: must be an integer in [0, 2^64)")
@@ -68,7 +73,7 @@ fn apply_overrides(p: &mut CacheParams, overrides: &Bound<'_, PyDict>) -> PyResu
     Ok(())
 }
 
-const PARAM_NAMES: [&str; 13] = [
+const PARAM_NAMES: [&str; 14] = [
     "n_startup",
     "d_max_scale",
     "theta_max_deg",
@@ -82,6 +87,7 @@ const PARAM_NAMES: [&str; 13] = [
     "unused_frames",
     "max_records",
     "pattern_seed",
+    "nearest_hits",
 ];
 
 fn params_dict<'py>(py: Python<'py>, p: &CacheParams) -> PyResult<Bound<'py, PyDict>> {
@@ -100,6 +106,7 @@ fn params_dict<'py>(py: Python<'py>, p: &CacheParams) -> PyResult<Bound<'py, PyD
     d.set_item("unused_frames", p.unused_frames)?;
     d.set_item("max_records", p.max_records)?;
     d.set_item("pattern_seed", p.pattern_seed)?;
+    d.set_item("nearest_hits", p.nearest_hits)?;
     Ok(d)
 }
 

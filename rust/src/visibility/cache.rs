@@ -586,7 +586,14 @@ impl VisibilityCache {
         normal: Vec3,
     ) -> Result<(Record, RecordRays)> {
         let frame = self.read().frame;
-        Record::trace(scene, position, normal, &self.pattern, frame)
+        Record::trace_with(
+            scene,
+            position,
+            normal,
+            &self.pattern,
+            frame,
+            self.params.nearest_hits,
+        )
     }
 
     /// Traces and inserts a record unconditionally; returns its id (`None` at

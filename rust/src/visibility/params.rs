@@ -76,6 +76,11 @@ pub struct CacheParams {
     pub max_records: u32,
     /// Seed of the per-texel direction pattern (§5.5); `0` is the shared default pattern.
     pub pattern_seed: u64,
+    /// Whether records find `R_i`, the distance to the nearest hit (§6.1), with closest-hit
+    /// rays on their occluded directions (about as many rays again). Only ambient
+    /// occlusion's insertion criterion reads it; caches for the control variate can skip it
+    /// (`R_i` is then `inf`, which that criterion ignores).
+    pub nearest_hits: bool,
 }
 
 impl CacheParams {
@@ -106,6 +111,7 @@ impl CacheParams {
         unused_frames: 10,
         max_records: 500_000,
         pattern_seed: DEFAULT_PATTERN_SEED,
+        nearest_hits: true,
     };
 
     /// Complex occlusion (foliage, many small parts): dense records, strict thresholds.

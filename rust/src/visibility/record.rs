@@ -593,6 +593,19 @@ impl Record {
         pattern: &[Vec3],
         frame: u32,
     ) -> Result<(Record, RecordRays)> {
+        Self::trace_with(scene, position, normal, pattern, frame, true)
+    }
+
+    /// [`Self::trace`], finding `R_i` only when `nearest_hits` (else `R_i = inf` and no
+    /// closest-hit ray is cast).
+    pub fn trace_with(
+        scene: &Scene,
+        position: Vec3,
+        normal: Vec3,
+        pattern: &[Vec3],
+        frame: u32,
+        nearest_hits: bool,
+    ) -> Result<(Record, RecordRays)> {
         let m = pattern_log2_resolution(pattern.len())?;
         if !position.is_finite() {
             return Err(Error::invalid(
@@ -634,11 +647,13 @@ impl Record {
         for (k, &occ) in occluded.iter().enumerate() {
             total_cos += cosines[k] as f64;
             if occ {
-                rays.nearest += 1;
-                if let Some(hit) =
-                    scene.intersect1(origin, Vec3::from(dirs[k]), nearest, &mut counters)
-                {
-                    nearest = hit.t;
+                if nearest_hits {
+                    rays.nearest += 1;
+                    if let Some(hit) =
+                        scene.intersect1(origin, Vec3::from(dirs[k]), nearest, &mut counters)
+                    {
+                        nearest = hit.t;
+                    }
                 }
             } else {
                 let z = index[k] as usize;

@@ -1,10 +1,11 @@
-//! The cache's file format, version 1 (all little-endian):
+//! The cache's file format, version 2 (all little-endian; version 1, without the flags
+//! word, is still read, with `nearest_hits` on):
 //!
 //! | bytes | field |
 //! |---|---|
 //! | 8 | magic `b"VISCACHE"` |
-//! | 4 | format version (`u32`, 1) |
-//! | 60 | parameters: `M`, `n_startup` (`u32`); `d_max_scale`, `theta_max_deg`, `lambda_falloff` (`f32`); `m_search`, `n_keep` (`u32`); `w_min`, `delta_max`, `epsilon_max` (`f32`); `evict_worst`, `unused_frames`, `max_records` (`u32`); `pattern_seed` (`u64`) |
+//! | 4 | format version (`u32`, 2) |
+//! | 60 | parameters: `M`, `n_startup` (`u32`); `d_max_scale`, `theta_max_deg`, `lambda_falloff` (`f32`); `m_search`, `n_keep` (`u32`); `w_min`, `delta_max`, `epsilon_max` (`f32`); `evict_worst`, `unused_frames`, `max_records` (`u32`); `pattern_seed` (`u64`); flags (`u32`: bit 0 `nearest_hits`) |
 //! | 4 | current frame (`u32`) |
 //! | 8 | record count `N` (`u64`) |
 //! | 36 N | record headers: position `3 x f32`, normal `2 x u16`, `R_i` `f32`, misses, uses, last frame `u32`, `A` `u16`, reserved `u16` |
@@ -27,7 +28,7 @@ use crate::visibility::record::{words_per_map, RecordHeader};
 
 const MAGIC: &[u8; 8] = b"VISCACHE";
 /// Version this build writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 const HEADER_BYTES: usize = 36;
 
 /// FNV-1a 64 of `bytes`: the file's trailing checksum.
@@ -41,7 +42,7 @@ pub(super) fn checksum(bytes: &[u8]) -> u64 {
 }
 
 impl VisibilityCache {
-    /// The cache as bytes of the version-1 format (module docs).
+    /// The cache as bytes of the version-2 format (module docs).
     pub fn to_bytes(&self) -> Vec<u8> {
         let p = &self.params;
         let state = self.read();
@@ -62,7 +63,7 @@ impl VisibilityCache {
         f32s(&mut out, &[p.w_min, p.delta_max, p.epsilon_max]);
         u32s(&mut out, &[p.evict_worst, p.unused_frames, p.max_records]);
         out.extend(p.pattern_seed.to_le_bytes());
-        u32s(&mut out, &[state.frame]);
+        u32s(&mut out, &[p.nearest_hits as u32, state.frame]);
         out.extend((n as u64).to_le_bytes());
         for i in 0..n {
             let h = state.store.header(i);
@@ -97,7 +98,7 @@ impl VisibilityCache {
         let mut r = Reader { bytes, at: 8 };
         let too_short = || bad(format!("truncated ({} bytes)", bytes.len()));
         let version = r.u32().ok_or_else(too_short)?;
-        if version != FORMAT_VERSION {
+        if !(1..=FORMAT_VERSION).contains(&version) {
             return Err(bad(format!(
                 "format version {version}, this build reads {FORMAT_VERSION}"
             )));
@@ -118,6 +119,13 @@ impl VisibilityCache {
             p.unused_frames = r.u32()?;
             p.max_records = r.u32()?;
             p.pattern_seed = r.u64()?;
+            if version >= 2 {
+                let flags = r.u32()?;
+                if flags > 1 {
+                    return None;
+                }
+                p.nearest_hits = flags == 1;
+            }
             let frame = r.u32()?;
             let n = r.u64()?;
             Some((p, frame, n))
@@ -177,7 +185,7 @@ impl VisibilityCache {
         Ok(cache)
     }
 
-    /// Writes the cache to `path` (version-1 format, module docs).
+    /// Writes the cache to `path` (version-2 format, module docs).
     pub fn save(&self, path: &Path) -> Result<()> {
         std::fs::write(path, self.to_bytes()).map_err(|source| Error::Io {
             path: path.to_path_buf(),

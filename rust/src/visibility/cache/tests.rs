@@ -548,3 +548,48 @@ impl VisibilityCache {
         Self::from_bytes(bytes, Path::new("test")).unwrap()
     }
 }
+
+#[test]
+fn records_without_nearest_hits_have_the_same_bits_and_version_one_files_load() {
+    let setup = scenes::load("garage", 0.3, 0).unwrap();
+    let cam = setup.camera.with_resolution(24, 18).unwrap();
+    let build = |nearest_hits: bool| {
+        let c = VisibilityCache::new(CacheParams {
+            nearest_hits,
+            n_startup: 20,
+            ..CacheParams::MEDIUM
+        })
+        .unwrap();
+        c.build(&setup.scene, &cam, 0, Some(1), None, &mut |_, _| true)
+            .unwrap();
+        c
+    };
+    let (with, without) = (build(true), build(false));
+    assert_eq!(with.len(), without.len());
+    assert!(with.counters().nearest_rays > 0);
+    assert_eq!(without.counters().nearest_rays, 0);
+    assert_eq!(with.counters().shadow_rays, without.counters().shadow_rays);
+    let (a, b) = (with.read(), without.read());
+    for i in 0..a.len() {
+        assert_eq!(a.store().bits(i), b.store().bits(i));
+        assert!(b.store().header(i).nearest_hit_distance.is_infinite());
+    }
+    drop((a, b));
+    // Version 2 keeps the flag; a version-1 stream (no flags word) reads with it on.
+    let bytes = without.to_bytes();
+    assert!(
+        !VisibilityCache::from_bytes(&bytes, Path::new("v2"))
+            .unwrap()
+            .params()
+            .nearest_hits
+    );
+    let flags_at = 8 + 4 + 60;
+    let mut v1 = bytes[..flags_at].to_vec();
+    v1.extend_from_slice(&bytes[flags_at + 4..bytes.len() - 8]);
+    v1[8..12].copy_from_slice(&1u32.to_le_bytes());
+    let sum = io::checksum(&v1);
+    v1.extend(sum.to_le_bytes());
+    let old = VisibilityCache::from_bytes(&v1, Path::new("v1")).unwrap();
+    assert!(old.params().nearest_hits);
+    assert_eq!(old.len(), without.len());
+}
