@@ -10,6 +10,21 @@ import viscache_rs as vc
 EDGE_TOLERANCE = 1e-5
 
 
+def bonferroni_z(n: int, alpha: float = 1e-3) -> float:
+    """The z with P(|Z| > z) * n = alpha for a standard Gaussian (at least 4): the per-test
+    threshold that keeps n independent comparisons' family-wise false alarms at alpha."""
+    import math
+
+    lo, hi = 0.0, 40.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if math.erfc(mid / math.sqrt(2)) > alpha / n:
+            lo = mid
+        else:
+            hi = mid
+    return max(4.0, hi)
+
+
 def brute_force(tris: np.ndarray, origins: np.ndarray, dirs: np.ndarray, tmax=np.inf,
                 chunk: int = 128) -> dict[str, np.ndarray]:
     """Closest hits over all triangles in float64 (Moller-Trumbore, no BVH).

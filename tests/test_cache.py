@@ -16,18 +16,7 @@ def open_cornell() -> vc.Scene:
     """The Cornell box without its ceiling and light: the closed box sees no sky (every
     record would be all-occluded, so visibility differences could not show), the open one
     sees it past the walls and blocks."""
-    setup = vc.scenes.load("cornell")
-    names = setup.scene.object_names()
-    tris = setup.scene.triangles()
-    ids = setup.scene.object_ids()
-    scene = vc.Scene()
-    for k, name in enumerate(names):
-        if name in ("ceiling", "light"):
-            continue
-        t = tris[ids == k]
-        faces = np.arange(3 * len(t)).reshape(-1, 3)
-        scene.add_mesh(t.reshape(-1, 3), faces, name=name)
-    return scene
+    return vc.scenes.without(vc.scenes.load("cornell"), ("ceiling", "light")).scene
 
 
 @pytest.fixture(scope="module")

@@ -12,34 +12,9 @@ import math
 import numpy as np
 import pytest
 import viscache_rs as vc
+from conftest import bonferroni_z
 
 LUM = np.array([0.2126, 0.7152, 0.0722])
-
-
-def _bonferroni_z(n: int, alpha: float = 1e-3) -> float:
-    lo, hi = 0.0, 40.0
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if math.erfc(mid / math.sqrt(2)) > alpha / n:
-            lo = mid
-        else:
-            hi = mid
-    return max(4.0, hi)
-
-
-def scene_without(setup, drop=()):
-    """A copy of ``setup.scene`` without the objects named in ``drop``, materials kept."""
-    names = setup.scene.object_names()
-    tris = setup.scene.triangles()
-    ids = setup.scene.object_ids()
-    scene = vc.Scene()
-    for k, name in enumerate(names):
-        if name in drop:
-            continue
-        t = tris[ids == k]
-        faces = np.arange(3 * len(t)).reshape(-1, 3)
-        scene.add_mesh(t.reshape(-1, 3), faces, material=setup.scene.material(k), name=name)
-    return scene
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +31,7 @@ def open_cornell():
     """The Cornell box without its ceiling and light, under the garage's windows map: the
     records see sky past the walls and blocks."""
     base = vc.scenes.load("cornell")
-    scene = scene_without(base, drop=("ceiling", "light"))
+    scene = vc.scenes.without(base, ("ceiling", "light")).scene
     camera = base.camera.with_resolution(40, 30)
     env = vc.scenes.load("garage", detail=0.1).envmap
     setup = vc.Setup(scene, camera, env, name="open-cornell")
@@ -74,7 +49,7 @@ def _assert_agree(a, b, min_coverage, label):
     for r in (a, b):
         assert np.isfinite(r.image).all() and np.isfinite(r.variance).all(), label
     n_pix = a.image.shape[0] * a.image.shape[1]
-    z = _bonferroni_z(3 * n_pix)
+    z = bonferroni_z(3 * n_pix)
     diff = a.image - b.image
     se = np.sqrt(a.variance + b.variance)
     clt = _clt(a) & _clt(b)
@@ -121,7 +96,7 @@ def test_a_bad_cache_adds_variance_never_bias(garage, alpha):
     # Records traced without the roof see the bright windows everywhere under it: the
     # control variate is badly wrong, yet the estimate stays unbiased.
     setup, _ = garage
-    roofless = scene_without(setup, drop=("roof",))
+    roofless = vc.scenes.without(setup, ("roof",)).scene
     wrong = vc.VisibilityCache(roofless)
     wrong.build(setup.camera, seed=0, progress=False)
     product = _render(setup, "product", 256, seed=41)
@@ -303,3 +278,16 @@ def test_cache_with_other_methods_is_refused(garage):
         vc._core.render(setup.scene, setup.envmap, setup.camera, 1, "cv", cache=setup.scene)
     with pytest.raises(ValueError, match="cache"):
         vc._core.render(setup.scene, setup.envmap, setup.camera, 1, "cv")
+
+
+def test_scenes_without_drops_objects_and_names_unknown_ones():
+    base = vc.scenes.load("cornell")
+    open_box = vc.scenes.without(base, ("ceiling", "light"), name="open")
+    assert open_box.name == "open"
+    names = open_box.scene.object_names()
+    assert "ceiling" not in names and "light" not in names
+    assert set(names) == set(base.scene.object_names()) - {"ceiling", "light"}
+    kept = np.isin(base.scene.object_ids(), [base.scene.object_names().index(n) for n in names])
+    assert open_box.scene.num_triangles == int(kept.sum())
+    with pytest.raises(ValueError, match="drop"):
+        vc.scenes.without(base, ("chimney",))

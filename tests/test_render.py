@@ -21,20 +21,9 @@ import math
 import numpy as np
 import pytest
 import viscache_rs as vc
+from conftest import bonferroni_z
 
 METHODS = ["env", "bsdf", "mis", "product"]
-
-
-def _bonferroni_z(n: int, alpha: float = 1e-3) -> float:
-    # Two-sided Gaussian tail: solve erfc(z / sqrt 2) = alpha / n by bisection.
-    lo, hi = 0.0, 40.0
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if math.erfc(mid / math.sqrt(2)) > alpha / n:
-            lo = mid
-        else:
-            hi = mid
-    return max(4.0, hi)
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +66,7 @@ def test_all_methods_agree_per_pixel_and_per_image(small_setups, name):
         assert np.isfinite(r.variance).all() and (r.variance >= 0).all()
     lum = np.array([0.2126, 0.7152, 0.0722])
     n_pix = setup.camera.width * setup.camera.height
-    z = _bonferroni_z(n_pix * 3)
+    z = bonferroni_z(n_pix * 3)
     ref = results["mis"]
     assert (ref.image @ lum).mean() > 0.01, "the scene must be lit"
     for m in ("env", "bsdf", "product"):
@@ -123,7 +112,7 @@ def test_furnace_white_sphere_in_a_constant_environment(method):
     err = np.abs(img - np.asarray(albedo, dtype=np.float32))
     # Channels are scaled copies of one estimate: one test per pixel. The 1e-5 absorbs f32
     # rounding where the estimator has zero variance (BSDF sampling of a Lambertian).
-    z = _bonferroni_z(int(inner.sum()))
+    z = bonferroni_z(int(inner.sum()))
     assert (err <= z * se + 1e-5).all(), f"{method}: worst {np.max(err / (se + 1e-12)):.2f} SE"
 
 

@@ -20,9 +20,11 @@ Animated variants (``animated_names()``; ``load("dynamics", animated=True)``): t
 object id and ``setup.moving_bounds()`` its bounds at the current frame.
 """
 
-from ._core import Setup, animated_scene_names, load_scene, scene_names
+import numpy as np
 
-__all__ = ["Setup", "animated_names", "load", "names"]
+from ._core import Scene, Setup, animated_scene_names, load_scene, scene_names
+
+__all__ = ["Setup", "animated_names", "load", "names", "without"]
 
 
 def names() -> list[str]:
@@ -49,3 +51,25 @@ def load(name: str, detail: float = 1.0, seed: int = 0, animated: bool = False) 
     with ``setup.at_frame(i)``.
     """
     return load_scene(name, detail=detail, seed=seed, animated=animated)
+
+
+def without(setup: Setup, drop, name: str | None = None) -> Setup:
+    """A copy of ``setup`` whose scene lacks the objects named in ``drop`` (materials and the
+    other objects' names kept; same camera and environment map). For example the Cornell
+    box without ``("ceiling", "light")`` sees the sky, and the garage without ``("roof",)``
+    gives a deliberately wrong visibility cache. Area lights are not carried over."""
+    drop = set(drop)
+    names = setup.scene.object_names()
+    unknown = drop - set(names)
+    if unknown:
+        raise ValueError(f"drop: no objects named {sorted(unknown)}; the scene has {names}")
+    tris = setup.scene.triangles()
+    ids = setup.scene.object_ids()
+    scene = Scene()
+    for k, obj in enumerate(names):
+        if obj in drop:
+            continue
+        t = tris[ids == k]
+        faces = np.arange(3 * len(t)).reshape(-1, 3)
+        scene.add_mesh(t.reshape(-1, 3), faces, material=setup.scene.material(k), name=obj)
+    return Setup(scene, setup.camera, setup.envmap, name=name or f"{setup.name}-without")

@@ -541,13 +541,7 @@ pub fn render(
         None
     };
     // The product needs cells of level >= 1; a 1 x 1 map is the same map at 2 x 2.
-    let upsampled;
-    let env = if env.resolution() < 2 {
-        upsampled = env.resampled(2)?;
-        &upsampled
-    } else {
-        env
-    };
+    let env = &*env.at_least(2)?;
     let radiance = cv.then(|| RadiancePyramid::new(env));
     let lighting = Lighting {
         scene,

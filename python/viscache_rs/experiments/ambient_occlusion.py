@@ -35,17 +35,8 @@ TARGET_RELATIVE_RMSE = 0.03
 
 def open_cornell():
     """The Cornell box without its ceiling and light, as a setup (same camera)."""
-    setup = vc.scenes.load("cornell")
-    names = setup.scene.object_names()
-    tris = setup.scene.triangles()
-    ids = setup.scene.object_ids()
-    scene = vc.Scene()
-    for k, name in enumerate(names):
-        if name in ("ceiling", "light"):
-            continue
-        t = tris[ids == k]
-        scene.add_mesh(t.reshape(-1, 3), np.arange(3 * len(t)).reshape(-1, 3), name=name)
-    return vc.Setup(scene, setup.camera, setup.envmap, name="cornell-open")
+    return vc.scenes.without(vc.scenes.load("cornell"), ("ceiling", "light"),
+                             name="cornell-open")
 
 
 def errors(image: np.ndarray, reference: np.ndarray) -> dict:

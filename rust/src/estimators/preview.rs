@@ -101,13 +101,7 @@ impl LightingPreview {
         threads: Option<usize>,
     ) -> Result<Vec<[f32; 3]>> {
         product_level.validate()?;
-        let upsampled;
-        let env = if env.resolution() < 2 {
-            upsampled = env.resampled(2)?;
-            &upsampled
-        } else {
-            env
-        };
+        let env = &*env.at_least(2)?;
         let radiance = RadiancePyramid::new(env);
         let state = cache.read();
         let params = cache.params();

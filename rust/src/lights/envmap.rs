@@ -694,6 +694,17 @@ impl EnvMap {
         Ok(Self::new_unchecked(resolution, texels))
     }
 
+    /// This map, or the same radiance on a finer grid when its resolution is below `min`
+    /// (exact: texels are split into equal-area sub-texels of the same radiance). Product
+    /// distributions need cells of level `>= 1`, so renders ask for `min = 2`.
+    pub fn at_least(&self, min: u32) -> Result<std::borrow::Cow<'_, EnvMap>> {
+        Ok(if self.resolution < min {
+            std::borrow::Cow::Owned(self.resampled(min)?)
+        } else {
+            std::borrow::Cow::Borrowed(self)
+        })
+    }
+
     /// `∫ L dω` over the whole sphere per channel (radiance times steradians, e.g.
     /// W·m⁻² for radiance in W·sr⁻¹·m⁻²), summed in `f64`.
     pub fn total_power(&self) -> [f64; 3] {
