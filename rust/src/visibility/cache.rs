@@ -247,47 +247,8 @@ impl CacheState {
         if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
             return out;
         }
-        let m = params.m_search as usize;
-        // Candidates: (squared distance, id), expanding shared positions; whenever the
-        // buffer fills, the m nearest are kept.
-        let theta_max = params.theta_max();
-        let cos_max = theta_max.cos();
-        // Candidates (squared distance, id, θ) within d_max and θ_max, expanding shared
-        // positions; whenever the buffer fills, the m nearest (ties by id) are kept.
-        let mut cand: [(f32, u32, f32); 2 * MAX_SEARCH_COUNT as usize] =
-            [(0.0, 0, 0.0); 2 * MAX_SEARCH_COUNT as usize];
-        let mut len = 0;
-        let sites = self
-            .tree
-            .within_unsorted::<SquaredEuclidean>(&x.to_array(), d_max * d_max);
-        for s in &sites {
-            let mut id = s.item;
-            while id != NO_RECORD {
-                let normal = self.normals[id as usize];
-                let cos = n.dot(normal);
-                // θ = atan2(sin, cos) is accurate near 0, where acos of an f32 dot product
-                // is off by up to 3e-4 rad; clearly wide angles skip it.
-                if cos >= cos_max - 1e-3 {
-                    let theta = n.cross(normal).length().atan2(cos);
-                    // θ_i < θ_max (strict, as in §5.1); NaN never passes.
-                    if theta.partial_cmp(&theta_max) == Some(std::cmp::Ordering::Less) {
-                        if len == cand.len() {
-                            cand.select_nth_unstable_by(m - 1, by_distance_then_id);
-                            len = m;
-                        }
-                        cand[len] = (s.distance, id, theta);
-                        len += 1;
-                    }
-                }
-                id = self.next_at_site[id as usize];
-            }
-        }
-        // The m nearest, in no particular order: the scoring below sorts.
-        let cand = &mut cand[..len];
-        if len > m {
-            cand.select_nth_unstable_by(m - 1, by_distance_then_id);
-        }
-        let cand = &cand[..len.min(m)];
+        let mut buffer = [(0.0, 0, 0.0); CANDIDATE_BUFFER];
+        let cand = self.m_nearest(params, x, n, d_max, &mut buffer);
 
         let w_lo = params.weight_floor();
         let scale = 1.0 / (1.0 - w_lo);
@@ -336,6 +297,55 @@ impl CacheState {
         }
         out.mean_difference = self.mean_difference(kept);
         out
+    }
+
+    /// The `m_search` nearest records (ties by id) among those within `d_max` of `x` whose
+    /// normals differ from the unit `n` by `θ_i < θ_max`, as `(squared distance, id, θ)` in
+    /// no particular order, in `buffer`. Shared positions are expanded; whenever the buffer
+    /// fills, the `m` nearest are kept. Both [`Self::lookup`] (§5.1) and
+    /// [`Self::nearest`] (§6.1) start from this set. `d_max` must be positive and finite.
+    pub(crate) fn m_nearest<'b>(
+        &self,
+        params: &CacheParams,
+        x: Vec3,
+        n: Vec3,
+        d_max: f32,
+        buffer: &'b mut [(f32, u32, f32); CANDIDATE_BUFFER],
+    ) -> &'b [(f32, u32, f32)] {
+        let m = params.m_search as usize;
+        let theta_max = params.theta_max();
+        let cos_max = theta_max.cos();
+        let mut len = 0;
+        let sites = self
+            .tree
+            .within_unsorted::<SquaredEuclidean>(&x.to_array(), d_max * d_max);
+        for s in &sites {
+            let mut id = s.item;
+            while id != NO_RECORD {
+                let normal = self.normals[id as usize];
+                let cos = n.dot(normal);
+                // θ = atan2(sin, cos) is accurate near 0, where acos of an f32 dot product
+                // is off by up to 3e-4 rad; clearly wide angles skip it.
+                if cos >= cos_max - 1e-3 {
+                    let theta = n.cross(normal).length().atan2(cos);
+                    // θ_i < θ_max (strict, as in §5.1); NaN never passes.
+                    if theta.partial_cmp(&theta_max) == Some(std::cmp::Ordering::Less) {
+                        if len == buffer.len() {
+                            buffer.select_nth_unstable_by(m - 1, by_distance_then_id);
+                            len = m;
+                        }
+                        buffer[len] = (s.distance, id, theta);
+                        len += 1;
+                    }
+                }
+                id = self.next_at_site[id as usize];
+            }
+        }
+        let cand = &mut buffer[..len];
+        if len > m {
+            cand.select_nth_unstable_by(m - 1, by_distance_then_id);
+        }
+        &buffer[..len.min(m)]
     }
 
     /// `δ̄` of §5.2: mean eq. 11 difference over the pairs of `kept`.
@@ -437,6 +447,9 @@ impl CacheState {
         }
     }
 }
+
+/// Room for twice the most records a lookup may search (`m <= MAX_SEARCH_COUNT`).
+pub(crate) const CANDIDATE_BUFFER: usize = 2 * MAX_SEARCH_COUNT as usize;
 
 fn by_distance_then_id(a: &(f32, u32, f32), b: &(f32, u32, f32)) -> std::cmp::Ordering {
     a.0.total_cmp(&b.0).then(a.1.cmp(&b.1))

@@ -4,16 +4,14 @@
 //! [`CacheState::lookup`] (§5.1) keeps only the `n` heaviest candidates; ambient occlusion
 //! (§6.1) averages over all `m` nearest. The candidate set is the same: records within
 //! `d_max` whose normals differ by `θ_i < θ_max`, the `m` nearest of those (ties by id),
-//! each with its eq. 9 weight `w_i = w_g · ŵ(d, θ)`. The gathering is written out again here
-//! rather than shared with `lookup`, which is tuned separately; tests hold the two to the
-//! same candidates.
+//! each with its eq. 9 weight `w_i = w_g · ŵ(d, θ)`; both gather it with
+//! [`CacheState::m_nearest`], and tests hold the two to the same candidates.
 
 use std::cmp::Ordering;
 
 use glam::Vec3;
-use kiddo::SquaredEuclidean;
 
-use super::{CacheState, VisibilityCache, NO_RECORD};
+use super::{CacheState, VisibilityCache, CANDIDATE_BUFFER};
 use crate::error::Result;
 use crate::visibility::params::{raw_weight, CacheParams, MAX_SEARCH_COUNT};
 use crate::visibility::record::{Record, RecordRays};
@@ -69,43 +67,22 @@ impl CacheState {
         if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
             return out;
         }
-        let m = params.m_search as usize;
-        let theta_max = params.theta_max();
-        let cos_max = theta_max.cos();
-        let mut cand = [Candidate::default(); 2 * MAX_SEARCH_COUNT as usize];
-        let mut len = 0;
-        let sites = self
-            .tree
-            .within_unsorted::<SquaredEuclidean>(&x.to_array(), d_max * d_max);
-        for s in &sites {
-            let mut id = s.item;
-            while id != NO_RECORD {
-                let normal = self.normals[id as usize];
-                let cos = n.dot(normal);
-                if cos >= cos_max - 1e-3 {
-                    // atan2 is accurate near 0 where acos of an f32 dot product is not.
-                    let theta = n.cross(normal).length().atan2(cos);
-                    if theta.partial_cmp(&theta_max) == Some(Ordering::Less) {
-                        if len == cand.len() {
-                            cand.select_nth_unstable_by(m - 1, by_distance_then_id);
-                            len = m;
-                        }
-                        cand[len] = Candidate {
-                            id,
-                            distance: s.distance.sqrt(),
-                            theta,
-                            weight: 0.0,
-                            geometric: 0.0,
-                        };
-                        len += 1;
-                    }
-                }
-                id = self.next_at_site[id as usize];
-            }
+        let mut buffer = [(0.0, 0, 0.0); CANDIDATE_BUFFER];
+        let found = self.m_nearest(params, x, n, d_max, &mut buffer);
+        let len = found.len();
+        let mut cand = [Candidate::default(); MAX_SEARCH_COUNT as usize];
+        for (c, &(d2, id, theta)) in cand.iter_mut().zip(found) {
+            *c = Candidate {
+                id,
+                distance: d2.sqrt(),
+                theta,
+                weight: 0.0,
+                geometric: 0.0,
+            };
         }
         let cand = &mut cand[..len];
         cand.sort_unstable_by(by_distance_then_id);
-        let kept = len.min(m);
+        let kept = len;
         let w_lo = params.weight_floor();
         let scale = 1.0 / (1.0 - w_lo);
         for c in &mut cand[..kept] {
