@@ -55,7 +55,8 @@ use crate::parallel::with_threads;
 use crate::sampling::rng::SampleRng;
 use crate::visibility::cache::nearest::Nearest;
 use crate::visibility::cache::{
-    coarse_to_fine_levels, CacheState, VisibilityCache, BUILD_WAVE, MIN_BUILD_WAVE,
+    check_scene_and_budget, coarse_to_fine_levels, CacheState, VisibilityCache, BUILD_WAVE,
+    MIN_BUILD_WAVE,
 };
 use crate::visibility::params::CacheParams;
 
@@ -170,6 +171,22 @@ pub struct AoImage {
     pub ao: Vec<f32>,
     /// Figures of the run.
     pub stats: AoStats,
+}
+
+impl AoImage {
+    /// `camera`'s image with no pixel resolved yet (all NaN).
+    fn unresolved(camera: &Camera) -> Self {
+        AoImage {
+            width: camera.width,
+            height: camera.height,
+            ao: vec![f32::NAN; camera.num_pixels()],
+            stats: AoStats {
+                pixels: camera.num_pixels(),
+                complete: true,
+                ..AoStats::default()
+            },
+        }
+    }
 }
 
 /// `max_i [w_i · (1 − d_i / max(R_i, r_min))]` over the candidates (0 when none): §6.1's
@@ -292,21 +309,6 @@ fn check_rays(rays: u32) -> Result<()> {
     Ok(())
 }
 
-fn check_common(scene: &Scene, time_budget: Option<f64>) -> Result<()> {
-    if let Some(b) = time_budget {
-        if !(b.is_finite() && b > 0.0) {
-            return Err(Error::invalid(
-                "time_budget",
-                format!("must be finite and > 0 seconds, got {b}"),
-            ));
-        }
-    }
-    if scene.num_triangles() == 0 {
-        return Err(Error::invalid("scene", "has no triangles"));
-    }
-    Ok(())
-}
-
 /// Reference AO at arbitrary points (unit `normals`; point `i` draws from "pixel" `i`).
 /// Deterministic for any `threads`.
 pub fn reference_ao_points(
@@ -318,7 +320,7 @@ pub fn reference_ao_points(
     threads: Option<usize>,
 ) -> Result<Vec<f32>> {
     check_rays(rays)?;
-    check_common(scene, None)?;
+    check_scene_and_budget(scene, None)?;
     if normals.len() != points.len() {
         return Err(Error::invalid(
             "normals",
@@ -347,18 +349,9 @@ pub fn render_reference_ao(
     progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
 ) -> Result<AoImage> {
     check_rays(rays)?;
-    check_common(scene, time_budget)?;
+    check_scene_and_budget(scene, time_budget)?;
     let start = Instant::now();
-    let mut image = AoImage {
-        width: camera.width,
-        height: camera.height,
-        ao: vec![f32::NAN; camera.num_pixels()],
-        stats: AoStats {
-            pixels: camera.num_pixels(),
-            complete: true,
-            ..AoStats::default()
-        },
-    };
+    let mut image = AoImage::unresolved(camera);
     with_threads(threads, || -> Result<()> {
         let g = GBuffer::render(scene, camera, seed, false, None)?;
         let covered: Vec<usize> = (0..g.object.len()).filter(|&i| g.object[i] >= 0).collect();
@@ -414,20 +407,11 @@ pub fn render_cache_ao(
     progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
 ) -> Result<AoImage> {
     ao.validate()?;
-    check_common(scene, time_budget)?;
+    check_scene_and_budget(scene, time_budget)?;
     let start = Instant::now();
     let before = cache.counters();
     let params = *cache.params();
-    let mut image = AoImage {
-        width: camera.width,
-        height: camera.height,
-        ao: vec![f32::NAN; camera.num_pixels()],
-        stats: AoStats {
-            pixels: camera.num_pixels(),
-            complete: true,
-            ..AoStats::default()
-        },
-    };
+    let mut image = AoImage::unresolved(camera);
     with_threads(threads, || -> Result<()> {
         let g = GBuffer::render(scene, camera, seed, false, None)?;
         let query = |i: u32| {

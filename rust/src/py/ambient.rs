@@ -8,7 +8,9 @@ use pyo3::types::PyDict;
 
 use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
-use super::convert::{f64_arg, image_array, int_arg, seed_arg, threads_arg, IntoPyResult};
+use super::convert::{
+    f64_arg, image_array, int_arg, seed_arg, threads_arg, IntoPyResult, PyProgress,
+};
 use super::scene::PyScene;
 use crate::estimators::ambient::{
     render_cache_ao, render_reference_ao, AoParams, AoStats, MAX_AO_RAYS,
@@ -75,19 +77,8 @@ pub fn render_ao<'py>(
     };
     let core_scene = scene.borrow().inner.clone();
     let cam = camera.inner;
-    let mut failure: Option<PyErr> = None;
-    let mut progress = |done: usize, total: usize| -> bool {
-        let Some(cb) = &callback else {
-            return true;
-        };
-        Python::attach(|py| match cb.call1(py, (done, total)) {
-            Ok(r) => r.is_truthy(py).unwrap_or(true),
-            Err(e) => {
-                failure = Some(e);
-                false
-            }
-        })
-    };
+    let mut reporter = PyProgress::new(callback);
+    let mut progress = |done: usize, total: usize| reporter.report(done as u64, total as u64);
     let out = py
         .detach(|| match (&cache, rays) {
             (_, Some(n)) => {
@@ -106,9 +97,7 @@ pub fn render_ao<'py>(
             (None, None) => unreachable!("checked above"),
         })
         .py()?;
-    if let Some(e) = failure {
-        return Err(e);
-    }
+    reporter.finish()?;
     let d = PyDict::new(py);
     let (h, w) = (out.height as usize, out.width as usize);
     d.set_item("image", image_array(py, out.ao, h, w, None)?)?;

@@ -11,7 +11,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use super::convert::{
-    f64_arg, f64_vector, finite_rows, int_arg, rows_array, seed_arg, threads_arg, IntoPyResult,
+    f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, rows_array, seed_arg, threads_arg,
+    IntoPyResult, PyProgress,
 };
 use super::scene::PyScene;
 use crate::sampling::octahedral::morton_encode;
@@ -115,17 +116,6 @@ impl PyVisibilityMaps {
     }
 }
 
-/// `log2` of a map resolution: a power of two in 2..=128.
-fn log2_resolution(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
-    let r = int_arg(obj, "resolution", 2, 128)? as u32;
-    if !r.is_power_of_two() {
-        return Err(PyValueError::new_err(format!(
-            "resolution: must be a power of two in 2..=128, got {r}"
-        )));
-    }
-    Ok(r.trailing_zeros())
-}
-
 /// An `(P, 2)` integer array of map indices as `u32` pairs, each below `n`.
 fn pairs_arg(obj: &Bound<'_, PyAny>, n: usize) -> PyResult<Vec<[u32; 2]>> {
     let np = obj.py().import("numpy")?;
@@ -198,23 +188,10 @@ pub fn visibility_maps(
         .map(|r| glam::Vec3::from_array(*r))
         .collect();
     let scene = scene.inner.clone();
-    let mut failure: Option<PyErr> = None;
-    let mut progress = |done: usize, total: usize| -> bool {
-        let Some(cb) = &callback else {
-            return true;
-        };
-        Python::attach(|py| match cb.call1(py, (done, total)) {
-            Ok(r) => r.is_truthy(py).unwrap_or(true),
-            Err(e) => {
-                failure = Some(e);
-                false
-            }
-        })
-    };
+    let mut reporter = PyProgress::new(callback);
+    let mut progress = |done: usize, total: usize| reporter.report(done as u64, total as u64);
     let out = py.detach(|| VisibilityMaps::trace(&scene, &p, &n, m, threads, &mut progress));
-    if let Some(e) = failure {
-        return Err(e);
-    }
+    reporter.finish()?;
     Ok(PyVisibilityMaps { inner: out.py()? })
 }
 

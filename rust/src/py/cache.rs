@@ -12,8 +12,8 @@ use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, f64_vector, finite_rows, int_arg, seed_arg, threads_arg, unit_directions, vec3_arg,
-    IntoPyResult,
+    f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, seed_arg, threads_arg,
+    unit_directions, vec3_arg, IntoPyResult,
 };
 use super::scene::PyScene;
 use crate::sampling::octahedral::{morton_decode, morton_encode};
@@ -108,17 +108,6 @@ fn params_dict<'py>(py: Python<'py>, p: &CacheParams) -> PyResult<Bound<'py, PyD
     d.set_item("pattern_seed", p.pattern_seed)?;
     d.set_item("nearest_hits", p.nearest_hits)?;
     Ok(d)
-}
-
-/// `log2` of a resolution argument that must be a power of two in 2..=128.
-fn log2_resolution(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
-    let r = int_arg(obj, "resolution", 2, 128)? as u32;
-    if !r.is_power_of_two() {
-        return Err(PyValueError::new_err(format!(
-            "resolution: must be a power of two in 2..=128, got {r}"
-        )));
-    }
-    Ok(r.trailing_zeros())
 }
 
 impl PyVisibilityCache {

@@ -9,6 +9,7 @@ use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
 use super::convert::{
     f64_arg, image_array, int_arg, product_level_arg, seed_arg, threads_arg, IntoPyResult,
+    PyProgress,
 };
 use super::envmap::PyEnvMap;
 use super::scene::PyScene;
@@ -87,22 +88,8 @@ pub fn render<'py>(
     let (scene, cam) = (scene.inner.clone(), camera.inner);
     let cache = cache.map(|c| c.inner.clone());
     let env: Py<PyEnvMap> = envmap.unbind();
-    let mut failure: Option<PyErr> = None;
-    let mut progress = |done: u64, planned: u64| -> bool {
-        let Some(cb) = &callback else {
-            return true;
-        };
-        if failure.is_some() {
-            return false;
-        }
-        Python::attach(|py| match cb.call1(py, (done, planned)) {
-            Ok(r) => r.is_truthy(py).unwrap_or(true),
-            Err(e) => {
-                failure = Some(e);
-                false
-            }
-        })
-    };
+    let mut reporter = PyProgress::new(callback);
+    let mut progress = |done: u64, planned: u64| reporter.report(done, planned);
     let out = py
         .detach(|| {
             render_core(
@@ -116,9 +103,7 @@ pub fn render<'py>(
             )
         })
         .py()?;
-    if let Some(e) = failure {
-        return Err(e);
-    }
+    reporter.finish()?;
     let (w, h) = (out.width as usize, out.height as usize);
     let d = PyDict::new(py);
     d.set_item(

@@ -826,17 +826,7 @@ impl VisibilityCache {
         time_budget: Option<f64>,
         progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
     ) -> Result<BuildReport> {
-        if let Some(b) = time_budget {
-            if !(b.is_finite() && b > 0.0) {
-                return Err(Error::invalid(
-                    "time_budget",
-                    format!("must be finite and > 0 seconds, got {b}"),
-                ));
-            }
-        }
-        if scene.num_triangles() == 0 {
-            return Err(Error::invalid("scene", "has no triangles"));
-        }
+        check_scene_and_budget(scene, time_budget)?;
         let start = Instant::now();
         let before = self.counters();
         let mut report = BuildReport {
@@ -1057,6 +1047,23 @@ impl VisibilityCache {
             .fetch_add(requests.len() as u64, Ordering::Relaxed);
         Ok((inserted, discarded, deferred))
     }
+}
+
+/// The arguments every pass over a camera's pixels checks: a scene with triangles and a
+/// time budget, if any, that is a finite positive number of seconds.
+pub(crate) fn check_scene_and_budget(scene: &Scene, time_budget: Option<f64>) -> Result<()> {
+    if let Some(b) = time_budget {
+        if !(b.is_finite() && b > 0.0) {
+            return Err(Error::invalid(
+                "time_budget",
+                format!("must be finite and > 0 seconds, got {b}"),
+            ));
+        }
+    }
+    if scene.num_triangles() == 0 {
+        return Err(Error::invalid("scene", "has no triangles"));
+    }
+    Ok(())
 }
 
 fn count_rays(c: &mut CacheCounters, rays: RecordRays) {
