@@ -9,7 +9,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use glam::Vec3;
 
 use _core::camera::GBuffer;
-use _core::estimators::control_variate::{ControlTables, Interpolant, RadiancePyramid};
+use _core::estimators::control_variate::{ControlTables, Interpolant, MapChroma};
 use _core::estimators::direct::ProductDistribution;
 use _core::visibility::cache::VisibilityCache;
 use _core::visibility::params::CacheParams;
@@ -18,7 +18,7 @@ fn control_variate(c: &mut Criterion) {
     let setup = _core::scenes::load("garage", 1.0, 0).unwrap();
     let camera = setup.camera.with_resolution(128, 96).unwrap();
     let env = &setup.envmap;
-    let radiance = RadiancePyramid::new(env);
+    let chroma = MapChroma::new(env);
     let g = GBuffer::render(&setup.scene, &camera, 0, false, None).unwrap();
     let objects = &setup.scene.mesh().objects;
     let points: Vec<usize> = (0..g.object.len()).filter(|&i| g.object[i] >= 0).collect();
@@ -63,7 +63,7 @@ fn control_variate(c: &mut Criterion) {
             b.iter(|| {
                 let (product, ..) = &prepared[k % prepared.len()];
                 k += 1;
-                tables.fill(product, &radiance, m);
+                tables.fill(product, &chroma, m);
                 black_box(tables.total())
             })
         });
@@ -72,7 +72,7 @@ fn control_variate(c: &mut Criterion) {
             b.iter(|| {
                 let i = k % prepared.len();
                 k += 1;
-                tables.fill(&prepared[i].0, &radiance, m);
+                tables.fill(&prepared[i].0, &chroma, m);
                 let product = &prepared[i].0;
                 black_box(Interpolant::new(&state, &lookups[i], Some((&tables, product, env))).j)
             })

@@ -37,8 +37,8 @@ use rayon::prelude::*;
 use crate::camera::{Camera, DIM_PIXEL_JITTER};
 use crate::error::{Error, Result};
 use crate::estimators::control_variate::{
-    control_sample, neighbour_alphas, AlphaRule, ControlTables, CvSums, Interpolant,
-    RadiancePyramid, ALPHA_MAX,
+    control_sample, neighbour_alphas, AlphaRule, ControlTables, CvSums, Interpolant, MapChroma,
+    ALPHA_MAX,
 };
 use crate::estimators::direct::{
     DirectCounters, Lighting, Method, ProductDistribution, ProductLevel, ShadingPoint,
@@ -299,7 +299,7 @@ struct Shader<'a> {
     params: &'a RenderParams,
     /// The cache's records (read-locked for the pass) and its search-radius scale.
     cache: Option<(&'a CacheState, &'a VisibilityCache)>,
-    radiance: Option<&'a RadiancePyramid>,
+    chroma: Option<&'a MapChroma>,
 }
 
 fn elapsed_ns(since: Instant) -> u64 {
@@ -350,7 +350,7 @@ impl Shader<'_> {
             work.product_ns += elapsed_ns(start);
         }
         let mut interpolant = Interpolant::EMPTY;
-        if let (Some((state, cache)), Some(radiance)) = (self.cache, self.radiance) {
+        if let (Some((state, cache)), Some(chroma)) = (self.cache, self.chroma) {
             let start = Instant::now();
             let footprint = self.camera.footprint(dir, hit.t, normal);
             let d_max = cache.params().d_max_scale * footprint;
@@ -375,7 +375,7 @@ impl Shader<'_> {
             work.lookup_ns += (looked - start).as_nanos() as u64;
             interpolant = match product.as_ref() {
                 Some(p) if !lookup.neighbours().is_empty() => {
-                    let tables = ControlTables::new(p, radiance, state.store().m());
+                    let tables = ControlTables::new(p, chroma, state.store().m());
                     Interpolant::new(state, &lookup, Some((&tables, p, self.lighting.env)))
                 }
                 _ => Interpolant::new(state, &lookup, None),
@@ -542,7 +542,7 @@ pub fn render(
     };
     // The product needs cells of level >= 1; a 1 x 1 map is the same map at 2 x 2.
     let env = &*env.at_least(2)?;
-    let radiance = cv.then(|| RadiancePyramid::new(env));
+    let chroma = cv.then(|| MapChroma::new(env));
     let lighting = Lighting {
         scene,
         env,
@@ -586,7 +586,7 @@ pub fn render(
             camera,
             params,
             cache: guard.as_deref().zip(cache),
-            radiance: radiance.as_ref(),
+            chroma: chroma.as_ref(),
         };
         let work = run_with_progress(
             threads,

@@ -75,45 +75,48 @@ impl AlphaRule {
     pub const ESTIMATE: Self = Self::Neighbours { radius: 4 };
 }
 
-/// `∫ L_c dω` of an environment map over every node of the octahedral quadtree, per
-/// channel, levels `0..=depth` in Morton order (`f64`, steradian-weighted radiance).
-/// Nodes finer than the map's texels are answered by [`Self::node`] as equal shares of
-/// their texel (texels are equal-area).
+/// The colour of an environment map's regions: per quadtree node of levels
+/// `0..=min(CHROMA_LEVEL, depth)`, `∫ L_c dω` over its luminance (0 where black). Built
+/// once per map; a point's `κ` weights the finest of these levels by its product.
 #[derive(Clone, Debug)]
-pub struct RadiancePyramid {
-    levels: Vec<Vec<[f64; 3]>>,
-    /// Per node of levels `0..=min(CHROMA_LEVEL, depth)`: RGB over luminance (0 where
-    /// black).
+pub struct MapChroma {
+    /// The map's quadtree depth (`log2` of its resolution).
+    depth: u32,
+    /// `chroma[l][j]`: RGB over luminance of node `j` (Morton) of level `l`.
     chroma: Vec<Vec<[f64; 3]>>,
 }
 
 /// Level of the regions whose colours make a point's `κ` (8 x 8 regions).
 pub const CHROMA_LEVEL: u32 = 3;
 
-impl RadiancePyramid {
-    /// Builds the pyramid of `env`.
+impl MapChroma {
+    /// The region colours of `env`.
     pub fn new(env: &EnvMap) -> Self {
         let res = env.resolution();
         let depth = res.trailing_zeros();
-        let omega = texel_solid_angle(res);
-        let mut finest = vec![[0.0f64; 3]; (res * res) as usize];
+        let mut sums = vec![[0.0f64; 3]; (res * res) as usize];
         for (i, t) in env.texels().iter().enumerate() {
             let (x, y) = (i as u32 % res, i as u32 / res);
-            finest[morton_encode(x, y) as usize] = t.map(|c| c as f64 * omega);
+            sums[morton_encode(x, y) as usize] = t.map(f64::from);
         }
-        let mut levels = vec![finest];
-        while levels.last().unwrap().len() > 1 {
-            let coarse = levels
-                .last()
-                .unwrap()
+        // Sum up to level CHROMA_LEVEL, then keep that level and the coarser ones.
+        let mut levels = Vec::new();
+        let mut level = depth;
+        loop {
+            if level <= CHROMA_LEVEL {
+                levels.push(sums.clone());
+            }
+            if level == 0 {
+                break;
+            }
+            sums = sums
                 .chunks_exact(4)
                 .map(|c| std::array::from_fn(|k| (c[0][k] + c[1][k]) + (c[2][k] + c[3][k])))
                 .collect();
-            levels.push(coarse);
+            level -= 1;
         }
         levels.reverse();
-        debug_assert_eq!(levels.len() as u32, depth + 1);
-        let chroma = levels[..=CHROMA_LEVEL.min(depth) as usize]
+        let chroma = levels
             .iter()
             .map(|level| {
                 level
@@ -129,7 +132,7 @@ impl RadiancePyramid {
                     .collect()
             })
             .collect();
-        Self { levels, chroma }
+        Self { depth, chroma }
     }
 
     /// RGB over luminance per node of `level <= min(CHROMA_LEVEL, depth)`.
@@ -137,26 +140,9 @@ impl RadiancePyramid {
         &self.chroma[level as usize]
     }
 
-    /// Finest level: the map's own texels.
+    /// The map's quadtree depth: its texels are level `depth`.
     pub fn depth(&self) -> u32 {
-        (self.levels.len() - 1) as u32
-    }
-
-    /// `∫ L dω` over node `index` (Morton) of `level`, any level.
-    #[inline]
-    pub fn node(&self, level: u32, index: u32) -> [f64; 3] {
-        let depth = self.depth();
-        if level <= depth {
-            return self.levels[level as usize][index as usize];
-        }
-        let shift = 2 * (level - depth);
-        let texel = self.levels[depth as usize][(index >> shift) as usize];
-        texel.map(|c| c / (1u64 << shift) as f64)
-    }
-
-    /// Node sums of `level <= depth`, Morton order.
-    pub fn level(&self, level: u32) -> &[[f64; 3]] {
-        &self.levels[level as usize]
+        self.depth
     }
 }
 
@@ -178,31 +164,26 @@ pub struct ControlTables {
 }
 
 impl ControlTables {
-    /// The tables of `product` lit by `radiance` (the same map's pyramid) for records of
+    /// The tables of `product` under the map whose region colours are `chroma`, for records of
     /// `2^record_m` texels a side.
-    pub fn new(product: &ProductDistribution, radiance: &RadiancePyramid, record_m: u32) -> Self {
+    pub fn new(product: &ProductDistribution, chroma: &MapChroma, record_m: u32) -> Self {
         let mut t = Self::default();
-        t.fill(product, radiance, record_m);
+        t.fill(product, chroma, record_m);
         t
     }
 
     /// Refills the tables for another point (see [`Self::new`]).
-    pub fn fill(
-        &mut self,
-        product: &ProductDistribution,
-        radiance: &RadiancePyramid,
-        record_m: u32,
-    ) {
+    pub fn fill(&mut self, product: &ProductDistribution, chroma: &MapChroma, record_m: u32) {
         self.record_m = record_m;
-        self.texel_omega = texel_solid_angle(1 << radiance.depth());
+        self.texel_omega = texel_solid_angle(1 << chroma.depth());
         // κ: the chroma of the map's 8 x 8 regions, weighted by the product's luminance over
         // them. Any per-point constant keeps the estimator unbiased; this one matches the
         // colour the point sees to within the regions' spread, for 64 multiply-adds.
-        let level = CHROMA_LEVEL.min(product.level()).min(radiance.depth());
+        let level = CHROMA_LEVEL.min(product.level()).min(chroma.depth());
         let weights = product.pyramid().level(level);
         let mut kappa = [0.0f64; 3];
         let mut total = 0.0f64;
-        for (&w, c) in weights.iter().zip(radiance.chroma(level)) {
+        for (&w, c) in weights.iter().zip(chroma.chroma(level)) {
             total += w;
             kappa = [
                 kappa[0] + w * c[0],
@@ -723,11 +704,11 @@ mod tests {
         ];
         for (k, &(m, level, res)) in cases.iter().enumerate() {
             let env = test_sky(res);
-            let radiance = RadiancePyramid::new(&env);
+            let chroma = MapChroma::new(&env);
             for (i, mat) in materials.iter().enumerate() {
                 let (n, wo) = frame();
                 let product = ProductDistribution::new(&env, mat, n, wo, level).unwrap();
-                let tables = ControlTables::new(&product, &radiance, m);
+                let tables = ControlTables::new(&product, &chroma, m);
                 for seed in 0..4u64 {
                     let bits = random_bits(m, 100 * k as u64 + 10 * i as u64 + seed);
                     let j = tables.record_integral(bits.view(), &product, &env);
@@ -797,19 +778,28 @@ mod tests {
     }
 
     #[test]
-    fn radiance_pyramid_splits_texels_evenly_below_the_map() {
-        let env = test_sky(4);
-        let r = RadiancePyramid::new(&env);
-        let total: [f64; 3] = env.total_power();
-        assert!(close(r.node(0, 0), total, 1e-12));
-        for level in 3..6 {
-            let sum = (0..1u32 << (2 * level)).fold([0.0; 3], |a, i| {
-                let v = r.node(level, i);
-                [a[0] + v[0], a[1] + v[1], a[2] + v[2]]
-            });
-            assert!(close(sum, total, 1e-12), "level {level}");
+    fn map_chroma_is_the_colour_of_each_region() {
+        for res in [1u32, 4, 64] {
+            let env = test_sky(res);
+            let c = MapChroma::new(&env);
+            assert_eq!(c.depth(), res.trailing_zeros());
+            // Level 0 is the whole map's colour.
+            let total = env.total_power();
+            let y: f64 = total.iter().zip(LUMINANCE).map(|(a, b)| a * b).sum();
+            assert!(close(c.chroma(0)[0], total.map(|t| t / y), 1e-12));
+            for level in 0..=CHROMA_LEVEL.min(c.depth()) {
+                assert_eq!(c.chroma(level).len(), 1 << (2 * level));
+                for rgb in c.chroma(level) {
+                    let y: f64 = rgb.iter().zip(LUMINANCE).map(|(a, b)| a * b).sum();
+                    assert!((y - 1.0).abs() < 1e-12, "{rgb:?}");
+                }
+            }
         }
-        assert!(close(r.node(4, 7), r.node(2, 0).map(|c| c / 16.0), 1e-12));
+        let black = EnvMap::constant([0.0; 3], 8).unwrap();
+        assert!(MapChroma::new(&black)
+            .chroma(2)
+            .iter()
+            .all(|c| *c == [0.0; 3]));
     }
 
     /// A cache with three records of chosen bits around the origin, and the lookup there.
@@ -839,7 +829,7 @@ mod tests {
         // E[g/p] = J: product samples of a sky against three random records. The mean of
         // g/p over N samples must lie within 4 standard errors (from the same samples).
         let env = test_sky(64);
-        let radiance = RadiancePyramid::new(&env);
+        let chroma = MapChroma::new(&env);
         let mat = Material::phong([0.3; 3], [0.5; 3], 20.0).unwrap();
         let (n, wo) = frame();
         for m in [3u32, 5, 6] {
@@ -847,7 +837,7 @@ mod tests {
             let (cache, lookup) = cache_with(&bits);
             let state = cache.read();
             let product = ProductDistribution::new(&env, &mat, n, wo, 5).unwrap();
-            let tables = ControlTables::new(&product, &radiance, m);
+            let tables = ControlTables::new(&product, &chroma, m);
             let interp = Interpolant::new(&state, &lookup, Some((&tables, &product, &env)));
             let mut sums = CvSums::default();
             let count = 200_000u64;

@@ -12,7 +12,7 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::control_variate::{ControlTables, Interpolant, RadiancePyramid};
+use super::control_variate::{ControlTables, Interpolant, MapChroma};
 use super::direct::{ProductDistribution, ProductLevel};
 use crate::bsdf::Material;
 use crate::camera::{Camera, GBuffer};
@@ -102,7 +102,7 @@ impl LightingPreview {
     ) -> Result<Vec<[f32; 3]>> {
         product_level.validate()?;
         let env = &*env.at_least(2)?;
-        let radiance = RadiancePyramid::new(env);
+        let chroma = MapChroma::new(env);
         let state = cache.read();
         let params = cache.params();
         with_threads(threads, || {
@@ -124,7 +124,7 @@ impl LightingPreview {
                     let product = ProductDistribution::new(env, &p.material, p.normal, p.wo, level);
                     let j = match &product {
                         Some(product) if !lookup.neighbours().is_empty() => {
-                            let tables = ControlTables::new(product, &radiance, state.store().m());
+                            let tables = ControlTables::new(product, &chroma, state.store().m());
                             Interpolant::new(&state, &lookup, Some((&tables, product, env))).j
                         }
                         _ => [0.0; 3],
