@@ -485,6 +485,9 @@ impl Shader<'_> {
     ) {
         let seed = self.params.seed;
         let mut fixed: Option<Point> = None;
+        // Record verdicts add up per point and reach the band's map once per point, not
+        // once per sample.
+        let mut verdicts = [(0u32, 0u32); crate::estimators::control_variate::MAX_KEPT];
         for s in samples {
             let rng = SampleRng::new(seed, pixel as u64, s as u64);
             let fresh;
@@ -495,21 +498,31 @@ impl Shader<'_> {
                 fixed.get_or_insert_with(|| self.prepare(pixel, &rng, work))
             };
             let start = Instant::now();
-            let mut verdicts = [(0u32, 0u32); crate::estimators::control_variate::MAX_KEPT];
             let (z, w) = self.sample(point, &rng, work, &mut verdicts);
             acc.add(z, w);
             work.shading_ns += elapsed_ns(start);
-            if let Point::Surface(p) = point {
-                for (id, v) in p.interpolant.ids().iter().zip(verdicts) {
-                    if v.1 > 0 {
-                        let e = work.verdicts.entry(*id).or_default();
-                        e.0 += v.0;
-                        e.1 += v.1;
-                    }
-                }
+            if self.params.jitter {
+                flush_verdicts(point, &mut verdicts, work);
+            }
+        }
+        if let Some(point) = &fixed {
+            flush_verdicts(point, &mut verdicts, work);
+        }
+    }
+}
+
+/// Adds a point's per-record `(misses, uses)` to the band's totals and clears them.
+fn flush_verdicts(point: &Point, verdicts: &mut [(u32, u32)], work: &mut BandWork) {
+    if let Point::Surface(p) = point {
+        for (id, v) in p.interpolant.ids().iter().zip(verdicts.iter()) {
+            if v.1 > 0 {
+                let e = work.verdicts.entry(*id).or_default();
+                e.0 += v.0;
+                e.1 += v.1;
             }
         }
     }
+    verdicts.fill((0, 0));
 }
 
 /// Renders `camera`'s view of `scene` lit by `env` and the scene's area lights.
