@@ -155,21 +155,127 @@ fn xor_popcount_avx2(a: &[u64], b: &[u64]) -> u32 {
     xor_popcount_portable(a, b)
 }
 
-/// `popcount(a xor b)`, vectorised with AVX2 or with the `popcnt` instruction when the CPU
-/// has them (checked once and cached by std).
+/// AVX-512 with `vpopcntq`: eight words per instruction, so a 32² map is two of them.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vpopcntdq,popcnt")]
+fn xor_popcount_avx512(a: &[u64], b: &[u64]) -> u32 {
+    use std::arch::x86_64::*;
+    let n = a.len().min(b.len());
+    let mut sum = _mm512_setzero_si512();
+    let mut k = 0;
+    while k + 8 <= n {
+        // SAFETY: `k + 8 <= n` words remain in both slices; unaligned loads.
+        let (x, y) = unsafe {
+            (
+                _mm512_loadu_si512(a.as_ptr().add(k).cast()),
+                _mm512_loadu_si512(b.as_ptr().add(k).cast()),
+            )
+        };
+        sum = _mm512_add_epi64(sum, _mm512_popcnt_epi64(_mm512_xor_si512(x, y)));
+        k += 8;
+    }
+    _mm512_reduce_add_epi64(sum) as u32 + xor_popcount_portable(&a[k..n], &b[k..n])
+}
+
+/// [`xor_popcount_avx512`] for 32² maps (16 words), straight-line: at a few nanoseconds a
+/// call, the generic loop's length checks and tail cost as much as the counting.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vpopcntdq")]
+fn xor_popcount_avx512_16(a: &[u64; 16], b: &[u64; 16]) -> u32 {
+    use std::arch::x86_64::*;
+    // SAFETY: both arrays hold 16 words, two unaligned 8-word loads each.
+    let (a0, a1, b0, b1) = unsafe {
+        (
+            _mm512_loadu_si512(a.as_ptr().cast()),
+            _mm512_loadu_si512(a.as_ptr().add(8).cast()),
+            _mm512_loadu_si512(b.as_ptr().cast()),
+            _mm512_loadu_si512(b.as_ptr().add(8).cast()),
+        )
+    };
+    let counts = _mm512_add_epi64(
+        _mm512_popcnt_epi64(_mm512_xor_si512(a0, b0)),
+        _mm512_popcnt_epi64(_mm512_xor_si512(a1, b1)),
+    );
+    _mm512_reduce_add_epi64(counts) as u32
+}
+
+/// Which of the forms above this CPU runs (detected once).
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+enum PopcountPath {
+    Avx512,
+    Avx2,
+    Popcnt,
+    Portable,
+}
+
+/// The detected [`PopcountPath`] as a `u8` (`u8::MAX` until detected). A relaxed atomic
+/// rather than a `OnceLock`: the check sits on a path of a few nanoseconds.
+#[cfg(target_arch = "x86_64")]
+static POPCOUNT_PATH: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(u8::MAX);
+
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn popcount_path() -> PopcountPath {
+    use std::sync::atomic::Ordering::Relaxed;
+    const PATHS: [PopcountPath; 4] = [
+        PopcountPath::Avx512,
+        PopcountPath::Avx2,
+        PopcountPath::Popcnt,
+        PopcountPath::Portable,
+    ];
+    if let Some(&path) = PATHS.get(POPCOUNT_PATH.load(Relaxed) as usize) {
+        return path;
+    }
+    let path = if std::arch::is_x86_feature_detected!("avx512vpopcntdq")
+        && std::arch::is_x86_feature_detected!("avx512f")
+    {
+        PopcountPath::Avx512
+    } else if std::arch::is_x86_feature_detected!("avx2") {
+        PopcountPath::Avx2
+    } else if std::arch::is_x86_feature_detected!("popcnt") {
+        PopcountPath::Popcnt
+    } else {
+        PopcountPath::Portable
+    };
+    POPCOUNT_PATH.store(path as u8, Relaxed);
+    path
+}
+
+/// `popcount(a xor b)`, vectorised with AVX-512, AVX2 or the `popcnt` instruction when the
+/// CPU has them (checked once). 32² maps on AVX-512 take the first branch, kept small
+/// enough to inline; everything else goes through [`xor_popcount_dispatch`].
 #[inline]
 fn xor_popcount(a: &[u64], b: &[u64]) -> u32 {
     #[cfg(target_arch = "x86_64")]
-    if a.len() >= 8 && std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 and popcnt (every AVX2 CPU has popcnt).
-        return unsafe { xor_popcount_avx2(a, b) };
+    {
+        use std::sync::atomic::Ordering::Relaxed;
+        if POPCOUNT_PATH.load(Relaxed) == PopcountPath::Avx512 as u8 {
+            if let (Ok(a), Ok(b)) = (<&[u64; 16]>::try_from(a), <&[u64; 16]>::try_from(b)) {
+                // SAFETY: the CPU has AVX-512 VPOPCNTDQ, detected by `popcount_path`.
+                return unsafe { xor_popcount_avx512_16(a, b) };
+            }
+        }
+        xor_popcount_dispatch(a, b)
     }
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("popcnt") {
-        // SAFETY: the CPU supports popcnt, checked just above.
-        return unsafe { xor_popcount_popcnt(a, b) };
-    }
+    #[cfg(not(target_arch = "x86_64"))]
     xor_popcount_portable(a, b)
+}
+
+/// [`xor_popcount`] for every length and CPU (and the first call, which detects the CPU).
+#[cfg(target_arch = "x86_64")]
+#[inline(never)]
+fn xor_popcount_dispatch(a: &[u64], b: &[u64]) -> u32 {
+    match popcount_path() {
+        // SAFETY (all three): the CPU has the features, detected by `popcount_path`.
+        PopcountPath::Avx512 if a.len() >= 8 => unsafe { xor_popcount_avx512(a, b) },
+        PopcountPath::Avx512 | PopcountPath::Avx2 if a.len() >= 8 => unsafe {
+            xor_popcount_avx2(a, b)
+        },
+        PopcountPath::Portable => xor_popcount_portable(a, b),
+        _ => unsafe { xor_popcount_popcnt(a, b) },
+    }
 }
 
 /// Writes the hierarchy codes of `words` (bits then codes, resolution `m`) from its bits.
@@ -304,7 +410,10 @@ impl<'a> VisibilityView<'a> {
     /// Both maps must have the same resolution (panics otherwise).
     #[inline]
     pub fn difference(&self, other: &VisibilityView) -> f32 {
-        self.xor_popcount(other) as f32 / self.len() as f32
+        // 4^-M exactly, built from its exponent: a multiply instead of a division, with the
+        // same result since the divisor is a power of two.
+        let inv_len = f32::from_bits((127 - 2 * self.m) << 23);
+        self.xor_popcount(other) as f32 * inv_len
     }
 
     /// Coverage of node `node` (Morton index, `< 4^level`) of quadtree level `level`

@@ -377,6 +377,42 @@ fn difference_equals_a_bit_by_bit_count() {
     }
 }
 
+/// Every kernel this CPU can run, on every length up to 40 words (whole vectors, tails and
+/// the straight-line 16-word form), against the portable count.
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn every_xor_popcount_kernel_agrees_with_the_portable_count() {
+    let has = |feature: &str| match feature {
+        "popcnt" => std::arch::is_x86_feature_detected!("popcnt"),
+        "avx2" => std::arch::is_x86_feature_detected!("avx2"),
+        _ => {
+            std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512vpopcntdq")
+        }
+    };
+    for len in 0..=40usize {
+        let a: Vec<u64> = (0..len).map(|i| hash4(1, len as u64, i as u64, 0)).collect();
+        let b: Vec<u64> = (0..len).map(|i| hash4(2, len as u64, i as u64, 0)).collect();
+        let expected = xor_popcount_portable(&a, &b);
+        assert_eq!(xor_popcount(&a, &b), expected, "dispatched, {len} words");
+        assert_eq!(xor_popcount_dispatch(&a, &b), expected, "{len} words");
+        // SAFETY (each call): the features were detected just before.
+        if has("popcnt") {
+            assert_eq!(unsafe { xor_popcount_popcnt(&a, &b) }, expected);
+        }
+        if has("avx2") && has("popcnt") {
+            assert_eq!(unsafe { xor_popcount_avx2(&a, &b) }, expected);
+        }
+        if has("avx512") {
+            assert_eq!(unsafe { xor_popcount_avx512(&a, &b) }, expected, "{len} words");
+            let pair = (<&[u64; 16]>::try_from(&a[..]), <&[u64; 16]>::try_from(&b[..]));
+            if let (Ok(a16), Ok(b16)) = pair {
+                assert_eq!(unsafe { xor_popcount_avx512_16(a16, b16) }, expected);
+            }
+        }
+    }
+}
+
 #[test]
 #[should_panic(expected = "different resolutions")]
 fn difference_of_maps_of_different_resolutions_panics() {
