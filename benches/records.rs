@@ -1,6 +1,7 @@
 //! Visibility records (CAM08 §5.5): the xor-popcount difference of two maps (eq. 11; issue
 //! target <= 5 ns at 32²), record creation on garden and cornell ground points (throughput in
-//! shadow rays; the closest-hit rays for `R_i` are extra work inside the same time), the
+//! shadow rays; the closest-hit rays for `R_i` are extra work inside the same time, and a
+//! second variant skips them as `nearest_hits = false` caches do), the
 //! same shadow rays through `Scene::occluded` in record order and shuffled (incoherent), and
 //! building the coverage hierarchy.
 //!
@@ -96,6 +97,16 @@ fn creation(c: &mut Criterion) {
                 let _ = _core::parallel::with_threads(Some(1), || {
                     for &(p, n) in &points {
                         black_box(Record::trace(&scene, p, n, pattern, 0).unwrap());
+                    }
+                });
+            })
+        });
+        g.bench_function("record_trace_32x32_without_nearest", |b| {
+            b.iter(|| {
+                let _ = _core::parallel::with_threads(Some(1), || {
+                    for &(p, n) in &points {
+                        let traced = Record::trace_with(&scene, p, n, pattern, 0, false);
+                        black_box(traced.unwrap());
                     }
                 });
             })

@@ -134,12 +134,16 @@ pub struct Hit {
 /// The occluder of the previous ray in a coherent sequence (see [`Bvh::occluded_hinted`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct OccluderHint {
-    slot: u32,
+    /// The BVH4 node with the occluding leaf among its children ([`NO_NODE`] for none).
+    node: u32,
 }
+
+/// A node index that no tree has.
+const NO_NODE: u32 = u32::MAX;
 
 impl OccluderHint {
     /// No previous occluder.
-    pub const NONE: OccluderHint = OccluderHint { slot: u32::MAX };
+    pub const NONE: OccluderHint = OccluderHint { node: NO_NODE };
 }
 
 impl Default for OccluderHint {
@@ -170,8 +174,8 @@ pub struct Bvh {
     to_world: f32,
     quality: BuildQuality,
     build_time: Duration,
-    /// Parent links, made by the first [`Bvh::refit`].
-    parents: Option<Parents>,
+    /// Parent links: the refit climbs them, and shadow-ray hints widen to a parent.
+    parents: Parents,
     /// The leaf blocks of the last refit's triangle range, and which of its triangles the
     /// tree holds (a moving object is refit range after range).
     refit_blocks: Option<RefitBlocks>,
@@ -327,6 +331,7 @@ impl Bvh {
             .map(|&p| kept[p as usize])
             .collect();
         Bvh {
+            parents: tree.parents(),
             tree,
             blocks,
             triangle_ids,
@@ -334,7 +339,6 @@ impl Bvh {
             to_world: 1.0 / to_local,
             quality,
             build_time: start.elapsed(),
-            parents: None,
             refit_blocks: None,
             mesh_triangles: mesh.triangles.len(),
         }
@@ -414,8 +418,7 @@ impl Bvh {
             self.blocks[b as usize] = Triangle4::pack(&tris);
             leaves.push((b, min, max));
         }
-        let parents = self.parents.get_or_insert_with(|| self.tree.parents());
-        self.tree.refit_leaves(parents, leaves);
+        self.tree.refit_leaves(&self.parents, leaves);
         true
     }
 
@@ -475,10 +478,11 @@ impl Bvh {
         self.occluded_hinted::<COUNT>(origin, direction, tmax, &mut no_hint, counters)
     }
 
-    /// [`Bvh::occluded`] that first tests the triangle that occluded the previous ray of a
-    /// coherent sequence (`hint`), and records this ray's occluder in it. Rays from one point
-    /// in nearby directions are often blocked by the same triangle, which then costs one
-    /// triangle test instead of a traversal. The answer is the same as without the hint.
+    /// [`Bvh::occluded`] that first searches the node whose leaf occluded the previous ray
+    /// of a coherent sequence (`hint`), and records this ray's in it. Rays from one point in
+    /// nearby directions are often blocked by the same wall, whose node then costs a few box
+    /// and triangle tests instead of a traversal from the root; on a miss the root traversal
+    /// skips that node. The answer is the same as without the hint.
     #[inline]
     pub fn occluded_hinted<const COUNT: bool>(
         &self,
@@ -495,18 +499,51 @@ impl Bvh {
             return false;
         }
         let r = self.local_ray(origin, direction, tmax);
-        if let Some(block) = self.blocks.get(hint.slot as usize / 4) {
-            if COUNT {
-                counters.triangles += 1;
-            }
-            let tri = block.lane(hint.slot as usize % 4);
-            if r.watertight.intersect(&tri, r.tmax).is_some() {
+        let mut skip = NO_NODE;
+        if (hint.node as usize) < self.tree.nodes.len() {
+            if self
+                .occluder_node::<COUNT>(&r, hint.node, NO_NODE, counters)
+                .is_some()
+            {
                 return true;
             }
+            if hint.node == 0 {
+                return false;
+            }
+            skip = hint.node;
         }
+        match self.occluder_node::<COUNT>(&r, 0, skip, counters) {
+            Some(node) => {
+                hint.node = self.hint_node(node);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The node a hint keeps for an occluder found in a leaf of `node`: its parent, whose
+    /// subtree is a wider patch of surface (a wall's grid cells, a block's faces).
+    #[inline]
+    fn hint_node(&self, node: u32) -> u32 {
+        match self.parents.node[node as usize] {
+            NO_NODE => node,
+            parent => parent,
+        }
+    }
+
+    /// Any-hit search of the subtree under node `start`, not entering node `skip`: the node
+    /// whose leaf holds the first occluder found, if any.
+    #[inline(always)]
+    fn occluder_node<const COUNT: bool>(
+        &self,
+        r: &LocalRay,
+        start: u32,
+        skip: u32,
+        counters: &mut TraversalCounters,
+    ) -> Option<u32> {
         let (mut nodes, mut tests) = (0u64, 0u64);
         let mut stack: Stack<u32, STACK> = Stack::new();
-        let mut node = 0u32;
+        let mut node = start;
         let mut occluder = None;
         'trace: loop {
             let n = &self.tree.nodes[node as usize];
@@ -518,7 +555,11 @@ impl Bvh {
                 let i = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
                 match decode(n.child(i)) {
-                    Child::Node(c) => stack.push(c),
+                    Child::Node(c) => {
+                        if c != skip {
+                            stack.push(c)
+                        }
+                    }
                     Child::Leaf { first, count } => {
                         if COUNT {
                             tests += count as u64;
@@ -527,7 +568,7 @@ impl Bvh {
                             .watertight
                             .intersect4(&self.blocks[first as usize], r.tmax);
                         if hit != 0 {
-                            occluder = Some(first * 4 + hit.trailing_zeros());
+                            occluder = Some(node);
                             break 'trace;
                         }
                     }
@@ -542,10 +583,7 @@ impl Bvh {
             counters.nodes += nodes;
             counters.triangles += tests;
         }
-        if let Some(slot) = occluder {
-            hint.slot = slot;
-        }
-        occluder.is_some()
+        occluder
     }
 
     /// Closest hit on `origin + t direction` with `t` in `[0, tmax)`, if any.

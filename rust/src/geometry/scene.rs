@@ -813,6 +813,49 @@ mod tests {
         assert_eq!(s.counters(), TraversalCounters::default());
     }
 
+    /// Bundles from one origin in pattern order (where the occluder hint is used) answer as
+    /// the same rays traced one at a time without hints, on a closed box and open ground.
+    #[test]
+    fn hinted_bundles_answer_as_single_rays() {
+        use crate::sampling::pattern::default_pattern;
+        use crate::testing::surface_points;
+        let pattern = default_pattern(5).unwrap();
+        for (name, ground) in [
+            ("cornell", "floor"),
+            ("garden", "ground"),
+            ("garage", "floor"),
+        ] {
+            let s = crate::scenes::load(name, 1.0, 0).unwrap().scene;
+            let (mut origins, mut dirs) = (Vec::new(), Vec::new());
+            for (p, n) in surface_points(&s, Some(ground), 64, 3) {
+                let o = s.offset_point(p, n).to_array();
+                for d in pattern.iter().filter(|d| n.dot(**d) > -0.2) {
+                    origins.push(o);
+                    dirs.push(d.to_array());
+                }
+            }
+            let bundled = s
+                .occluded(&RayBatch::new(&origins, &dirs), Some(2))
+                .unwrap();
+            let mut c = TraversalCounters::default();
+            let single: Vec<bool> = origins
+                .iter()
+                .zip(&dirs)
+                .map(|(o, d)| s.occluded1(Vec3::from(*o), Vec3::from(*d), f32::INFINITY, &mut c))
+                .collect();
+            assert_eq!(bundled, single, "{name}");
+            let occluded = single.iter().filter(|&&b| b).count();
+            if name == "cornell" {
+                assert_eq!(occluded, single.len(), "the closed box blocks every ray");
+            } else {
+                assert!(
+                    occluded > 0 && occluded < single.len(),
+                    "{name}: a mix of answers"
+                );
+            }
+        }
+    }
+
     /// `n` rays from points uniform in `b` (grown by `margin`) in uniform directions, some
     /// with a finite `tmax`.
     fn random_rays(b: Bounds, margin: f32, n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {

@@ -391,8 +391,12 @@ fn every_xor_popcount_kernel_agrees_with_the_portable_count() {
         }
     };
     for len in 0..=40usize {
-        let a: Vec<u64> = (0..len).map(|i| hash4(1, len as u64, i as u64, 0)).collect();
-        let b: Vec<u64> = (0..len).map(|i| hash4(2, len as u64, i as u64, 0)).collect();
+        let a: Vec<u64> = (0..len)
+            .map(|i| hash4(1, len as u64, i as u64, 0))
+            .collect();
+        let b: Vec<u64> = (0..len)
+            .map(|i| hash4(2, len as u64, i as u64, 0))
+            .collect();
         let expected = xor_popcount_portable(&a, &b);
         assert_eq!(xor_popcount(&a, &b), expected, "dispatched, {len} words");
         assert_eq!(xor_popcount_dispatch(&a, &b), expected, "{len} words");
@@ -404,8 +408,15 @@ fn every_xor_popcount_kernel_agrees_with_the_portable_count() {
             assert_eq!(unsafe { xor_popcount_avx2(&a, &b) }, expected);
         }
         if has("avx512") {
-            assert_eq!(unsafe { xor_popcount_avx512(&a, &b) }, expected, "{len} words");
-            let pair = (<&[u64; 16]>::try_from(&a[..]), <&[u64; 16]>::try_from(&b[..]));
+            assert_eq!(
+                unsafe { xor_popcount_avx512(&a, &b) },
+                expected,
+                "{len} words"
+            );
+            let pair = (
+                <&[u64; 16]>::try_from(&a[..]),
+                <&[u64; 16]>::try_from(&b[..]),
+            );
             if let (Ok(a16), Ok(b16)) = pair {
                 assert_eq!(unsafe { xor_popcount_avx512_16(a16, b16) }, expected);
             }
