@@ -55,7 +55,7 @@ use rayon::prelude::*;
 use kiddo::float::kdtree::KdTree;
 use kiddo::SquaredEuclidean;
 
-use super::params::{raw_weight, CacheParams, MAX_KEEP_COUNT, MAX_SEARCH_COUNT};
+use super::params::{normal_angle, raw_weight, CacheParams, MAX_KEEP_COUNT, MAX_SEARCH_COUNT};
 use super::record::{Record, RecordHeader, RecordRays, RecordStore, VisibilityView};
 use crate::camera::{Camera, GBuffer};
 use crate::error::{Error, Result};
@@ -72,7 +72,7 @@ mod tests;
 
 /// Bucket size of the kd-tree's leaves (raised from kiddo's 32 default: records on flat
 /// grid-aligned geometry share a coordinate, which leaves must hold before a split).
-const BUCKET: usize = 64;
+const BUCKET: usize = 16;
 /// End of a chain of records sharing one position.
 const NO_RECORD: u32 = u32::MAX;
 /// Most pixels looked up per build wave.
@@ -97,7 +97,7 @@ pub struct Neighbour {
 
 /// The result of one lookup: up to `n` records with their `β`, and the two insertion
 /// figures of §5.2.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Lookup {
     len: usize,
     kept: [Neighbour; MAX_KEEP_COUNT as usize],
@@ -195,14 +195,13 @@ pub struct EvictionReport {
 pub struct CacheState {
     store: RecordStore,
     tree: Tree,
-    /// `next_at_site[i]`: the next record with record `i`'s exact position, or `NO_RECORD`.
-    /// Only the first record at a position is in the tree.
-    next_at_site: Vec<u32>,
+    /// What a lookup reads of each record, by id, in one place: a candidate costs one
+    /// cache line rather than a header, a normal and a chain link in three arrays.
+    sites: Vec<Site>,
+    /// Changes with every insertion and re-index (see [`LookupScratch`]).
+    generation: u64,
     /// Last record of each chain, indexed by its head (only valid for heads).
     chain_tail: Vec<u32>,
-    /// Decoded unit normals (the store keeps them quantised): decoding costs a sine and a
-    /// cosine, which lookups would otherwise pay per candidate.
-    normals: Vec<Vec3>,
     frame: u32,
     counters: CacheCounters,
 }
@@ -212,9 +211,9 @@ impl CacheState {
         Ok(Self {
             store: RecordStore::new(m)?,
             tree: Tree::new(),
-            next_at_site: Vec::new(),
+            sites: Vec::new(),
+            generation: next_generation(),
             chain_tail: Vec::new(),
-            normals: Vec::new(),
             frame: 0,
             counters: CacheCounters::default(),
         })
@@ -243,12 +242,26 @@ impl CacheState {
     /// §5.1 lookup at `x` (normal `n`, unit) within `d_max` (world units). A non-positive
     /// or non-finite `d_max` finds nothing.
     pub fn lookup(&self, params: &CacheParams, x: Vec3, n: Vec3, d_max: f32) -> Lookup {
+        self.lookup_near(params, x, n, d_max, &mut LookupScratch::default())
+    }
+
+    /// [`Self::lookup`] for a sequence of nearby points (pixel order): `scratch` keeps the
+    /// records around an earlier point and serves later ones from them while they are
+    /// covered (see [`LookupScratch`]). The answer is the same as [`Self::lookup`]'s.
+    pub fn lookup_near(
+        &self,
+        params: &CacheParams,
+        x: Vec3,
+        n: Vec3,
+        d_max: f32,
+        scratch: &mut LookupScratch,
+    ) -> Lookup {
         let mut out = Lookup::default();
         if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
             return out;
         }
         let mut buffer = [(0.0, 0, 0.0); CANDIDATE_BUFFER];
-        let cand = self.m_nearest(params, x, n, d_max, &mut buffer);
+        let cand = self.m_nearest(params, x, n, d_max, scratch, &mut buffer);
 
         let w_lo = params.weight_floor();
         let scale = 1.0 / (1.0 - w_lo);
@@ -256,11 +269,10 @@ impl CacheState {
         let mut scored = [Neighbour::default(); MAX_SEARCH_COUNT as usize];
         let mut scored_len = 0;
         for &(d2, id, theta) in cand {
-            let h = self.store.header(id as usize);
             let d = d2.sqrt();
             let w_hat = ((raw_weight(d / d_max, theta, params.lambda_falloff) - w_lo) * scale)
                 .clamp(0.0, 1.0);
-            let to_record = h.position() - x;
+            let to_record = self.sites[id as usize].position - x;
             let w_g = if d > 0.0 {
                 let c = (n.dot(to_record) / to_record.length()).abs().min(1.0);
                 (1.0 - c).sqrt()
@@ -310,35 +322,35 @@ impl CacheState {
         x: Vec3,
         n: Vec3,
         d_max: f32,
+        scratch: &mut LookupScratch,
         buffer: &'b mut [(f32, u32, f32); CANDIDATE_BUFFER],
     ) -> &'b [(f32, u32, f32)] {
         let m = params.m_search as usize;
         let theta_max = params.theta_max();
         let cos_max = theta_max.cos();
         let mut len = 0;
-        let sites = self
-            .tree
-            .within_unsorted::<SquaredEuclidean>(&x.to_array(), d_max * d_max);
-        for s in &sites {
-            let mut id = s.item;
-            while id != NO_RECORD {
-                let normal = self.normals[id as usize];
-                let cos = n.dot(normal);
-                // θ = atan2(sin, cos) is accurate near 0, where acos of an f32 dot product
-                // is off by up to 3e-4 rad; clearly wide angles skip it.
-                if cos >= cos_max - 1e-3 {
-                    let theta = n.cross(normal).length().atan2(cos);
-                    // θ_i < θ_max (strict, as in §5.1); NaN never passes.
-                    if theta.partial_cmp(&theta_max) == Some(std::cmp::Ordering::Less) {
-                        if len == buffer.len() {
-                            buffer.select_nth_unstable_by(m - 1, by_distance_then_id);
-                            len = m;
-                        }
-                        buffer[len] = (s.distance, id, theta);
-                        len += 1;
+        let r2 = d_max * d_max;
+        for &(position, normal, id) in self.gather(x, d_max, scratch) {
+            // kiddo's squared distance, summed in its order, so that a gathered set gives
+            // bit for bit what a range query at `x` gives.
+            let e = position - x;
+            let d2 = e.x * e.x + e.y * e.y + e.z * e.z;
+            if d2 > r2 {
+                continue;
+            }
+            let cos = n.dot(normal);
+            // Clearly wide angles skip the arctangent.
+            if cos >= cos_max - 1e-3 {
+                let theta = normal_angle(n.cross(normal).length(), cos);
+                // θ_i < θ_max (strict, as in §5.1); NaN never passes.
+                if theta.partial_cmp(&theta_max) == Some(std::cmp::Ordering::Less) {
+                    if len == buffer.len() {
+                        buffer.select_nth_unstable_by(m - 1, by_distance_then_id);
+                        len = m;
                     }
+                    buffer[len] = (d2, id, theta);
+                    len += 1;
                 }
-                id = self.next_at_site[id as usize];
             }
         }
         let cand = &mut buffer[..len];
@@ -346,6 +358,48 @@ impl CacheState {
             cand.select_nth_unstable_by(m - 1, by_distance_then_id);
         }
         &buffer[..len.min(m)]
+    }
+
+    /// The records that may lie within `d_max` of `x`, as (position, normal, id): those the
+    /// scratch holds when its gathered ball covers this one, else a new gathering of the
+    /// ball of radius `LookupScratch::REACH · d_max` around `x` (one kd-tree range query).
+    fn gather<'s>(
+        &self,
+        x: Vec3,
+        d_max: f32,
+        scratch: &'s mut LookupScratch,
+    ) -> &'s [(Vec3, Vec3, u32)] {
+        // A margin of 1e-5 keeps rounding of the distances on the safe side: a record
+        // within d_max of x is within (|x − anchor| + d_max)(1 + 1e-6) of the anchor.
+        let covered = scratch.generation == self.generation
+            && (x - scratch.anchor).length() + d_max <= scratch.reach * (1.0 - 1e-5);
+        if covered {
+            scratch.served += 1;
+        } else {
+            // Gather wide while that pays (the last wide ball served another lookup); in
+            // scattered order a wide ball costs four times the records for nothing, so
+            // gather exactly, and try wide again every eighth time.
+            let wide = scratch.served > 1 || scratch.gathers % 8 == 7;
+            scratch.gathers = scratch.gathers.wrapping_add(1);
+            let reach = if wide { LookupScratch::REACH } else { 1.0 } * d_max;
+            scratch.served = 1;
+            scratch.generation = self.generation;
+            scratch.anchor = x;
+            scratch.reach = reach;
+            scratch.sites.clear();
+            let found = self
+                .tree
+                .within_unsorted::<SquaredEuclidean>(&x.to_array(), reach * reach);
+            for s in &found {
+                let mut id = s.item;
+                while id != NO_RECORD {
+                    let site = &self.sites[id as usize];
+                    scratch.sites.push((site.position, site.normal, id));
+                    id = site.next;
+                }
+            }
+        }
+        &scratch.sites
     }
 
     /// `δ̄` of §5.2: mean eq. 11 difference over the pairs of `kept`.
@@ -409,8 +463,8 @@ impl CacheState {
             return Ok(None);
         }
         let id = push(&mut self.store)? as u32;
-        self.normals.push(self.store.header(id as usize).normal());
-        self.next_at_site.push(NO_RECORD);
+        self.sites.push(Site::of(self.store.header(id as usize)));
+        self.generation = next_generation();
         self.chain_tail.push(id);
         self.index(id);
         self.counters.inserted += 1;
@@ -428,7 +482,7 @@ impl CacheState {
             Some(head) if head.distance == 0.0 => {
                 let head = head.item as usize;
                 let tail = self.chain_tail[head] as usize;
-                self.next_at_site[tail] = id;
+                self.sites[tail].next = id;
                 self.chain_tail[head] = id;
             }
             _ => self.tree.add(&p, id),
@@ -439,11 +493,64 @@ impl CacheState {
     fn reindex(&mut self) {
         let n = self.store.len();
         self.tree = Tree::with_capacity(n.max(BUCKET));
-        self.next_at_site = vec![NO_RECORD; n];
+        self.sites = (0..n).map(|i| Site::of(self.store.header(i))).collect();
+        self.generation = next_generation();
         self.chain_tail = (0..n as u32).collect();
-        self.normals = (0..n).map(|i| self.store.header(i).normal()).collect();
         for id in 0..n as u32 {
             self.index(id);
+        }
+    }
+}
+
+/// Records gathered around an earlier lookup point, reused by the lookups after it while
+/// their search balls lie inside the gathered one. Lookups in pixel order share most
+/// records, so a range query every few pixels replaces one per pixel. Valid for one cache
+/// state: any insertion or removal invalidates it (each change draws a new generation).
+/// Scattered lookups (nothing to share) fall back to exact range queries by themselves.
+#[derive(Clone, Debug, Default)]
+pub struct LookupScratch {
+    generation: u64,
+    anchor: Vec3,
+    reach: f32,
+    sites: Vec<(Vec3, Vec3, u32)>,
+    /// Lookups served by the current gathering, and gatherings so far.
+    served: u32,
+    gathers: u32,
+}
+
+impl LookupScratch {
+    /// Gathered radius over the first lookup's `d_max`: the following lookups reuse the
+    /// records while within `(REACH − 1) d_max` of the first point. At 2, the gathered ball
+    /// holds about 4x (flat surfaces) the records of one lookup.
+    pub const REACH: f32 = 2.0;
+}
+
+/// Source of [`CacheState`] generations: every state change takes the next number, so no
+/// two states (clones included) that differ share one. 0 is never drawn (fresh scratches).
+static GENERATIONS: AtomicU64 = AtomicU64::new(1);
+
+fn next_generation() -> u64 {
+    GENERATIONS.fetch_add(1, Ordering::Relaxed)
+}
+
+/// A record as lookups read it.
+#[derive(Clone, Copy, Debug)]
+struct Site {
+    position: Vec3,
+    /// Decoded unit normal (the store keeps it quantised; decoding costs a sine and a
+    /// cosine, which lookups would otherwise pay per candidate).
+    normal: Vec3,
+    /// The next record with this exact position, or `NO_RECORD`. Only the first record at
+    /// a position is in the tree.
+    next: u32,
+}
+
+impl Site {
+    fn of(header: &RecordHeader) -> Self {
+        Site {
+            position: header.position(),
+            normal: header.normal(),
+            next: NO_RECORD,
         }
     }
 }
@@ -544,11 +651,11 @@ impl VisibilityCache {
         self.read().store.memory_bytes()
     }
 
-    /// Estimated bytes of the index on top of the records: per record a chain link and
-    /// tail (8 B) and its decoded normal (12 B), per tree item its position and id (16 B)
-    /// at kiddo's worst leaf fill of one half.
+    /// Estimated bytes of the index on top of the records: per record its site (position,
+    /// decoded normal, chain link: 28 B) and chain tail (4 B), per tree item its position
+    /// and id (16 B) at kiddo's worst leaf fill of one half.
     pub fn index_bytes(&self) -> usize {
-        self.len() * (8 + 12 + 2 * 16)
+        self.len() * (std::mem::size_of::<Site>() + 4 + 2 * 16)
     }
 
     /// Totals since creation.
@@ -585,7 +692,9 @@ impl VisibilityCache {
             (0..points.len())
                 .into_par_iter()
                 .with_min_len(64)
-                .map(|i| state.lookup(&self.params, points[i], normals[i], d_max[i]))
+                .map_init(LookupScratch::default, |scratch, i| {
+                    state.lookup_near(&self.params, points[i], normals[i], d_max[i], scratch)
+                })
                 .collect()
         })
     }
@@ -708,8 +817,7 @@ impl VisibilityCache {
             (0..n)
                 .into_par_iter()
                 .map(|i| {
-                    let h = state.store.header(i);
-                    let (p, normal) = (h.position(), state.normals[i]);
+                    let (p, normal) = (state.sites[i].position, state.sites[i].normal);
                     let origin = scene.offset_point(p, normal);
                     let bits = state.store.bits(i);
                     let mut counters = Default::default();
@@ -989,12 +1097,12 @@ impl VisibilityCache {
             let state = self.read();
             wave.par_iter()
                 .copied()
-                .filter(|&i| {
+                .map_init(LookupScratch::default, |scratch, i| {
                     let (x, n, d) = query(i);
-                    state
-                        .lookup(&self.params, x, n, d)
-                        .needs_record(&self.params)
+                    let lookup = state.lookup_near(&self.params, x, n, d, scratch);
+                    (i, lookup.needs_record(&self.params))
                 })
+                .filter_map(|(i, needed)| needed.then_some(i))
                 .collect()
         };
         let cos_max = self.params.theta_max().cos();

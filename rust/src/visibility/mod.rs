@@ -19,7 +19,9 @@ pub mod correlation;
 pub mod params;
 pub mod record;
 
-pub use cache::{BuildReport, CacheCounters, EvictionReport, Lookup, Neighbour, VisibilityCache};
+pub use cache::{
+    BuildReport, CacheCounters, EvictionReport, Lookup, LookupScratch, Neighbour, VisibilityCache,
+};
 pub use params::CacheParams;
 pub use record::{
     bytes_per_record, Coverage, Node, NodeIter, Record, RecordHeader, RecordRays, RecordStore,

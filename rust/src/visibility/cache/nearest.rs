@@ -11,7 +11,7 @@ use std::cmp::Ordering;
 
 use glam::Vec3;
 
-use super::{CacheState, VisibilityCache, CANDIDATE_BUFFER};
+use super::{CacheState, LookupScratch, VisibilityCache, CANDIDATE_BUFFER};
 use crate::error::Result;
 use crate::visibility::params::{raw_weight, CacheParams, MAX_SEARCH_COUNT};
 use crate::visibility::record::{Record, RecordRays};
@@ -63,12 +63,25 @@ impl CacheState {
     /// differ from the unit `n` by less than `θ_max`, with their eq. 9 weights. A
     /// non-positive or non-finite `d_max` finds nothing.
     pub fn nearest(&self, params: &CacheParams, x: Vec3, n: Vec3, d_max: f32) -> Nearest {
+        self.nearest_near(params, x, n, d_max, &mut LookupScratch::default())
+    }
+
+    /// [`Self::nearest`] with a [`LookupScratch`] for sequences of nearby points; the same
+    /// answer.
+    pub fn nearest_near(
+        &self,
+        params: &CacheParams,
+        x: Vec3,
+        n: Vec3,
+        d_max: f32,
+        scratch: &mut LookupScratch,
+    ) -> Nearest {
         let mut out = Nearest::default();
         if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
             return out;
         }
         let mut buffer = [(0.0, 0, 0.0); CANDIDATE_BUFFER];
-        let found = self.m_nearest(params, x, n, d_max, &mut buffer);
+        let found = self.m_nearest(params, x, n, d_max, scratch, &mut buffer);
         let len = found.len();
         let mut cand = [Candidate::default(); MAX_SEARCH_COUNT as usize];
         for (c, &(d2, id, theta)) in cand.iter_mut().zip(found) {
@@ -89,7 +102,7 @@ impl CacheState {
             let w_hat = ((raw_weight(c.distance / d_max, c.theta, params.lambda_falloff) - w_lo)
                 * scale)
                 .clamp(0.0, 1.0);
-            let to_record = self.store.header(c.id as usize).position() - x;
+            let to_record = self.sites[c.id as usize].position - x;
             let w_g = if c.distance > 0.0 {
                 let cos = (n.dot(to_record) / to_record.length()).abs().min(1.0);
                 (1.0 - cos).sqrt()

@@ -128,6 +128,68 @@ fn lookups_equal_a_linear_scan_of_eq9_with_the_geometric_term() {
     }
 }
 
+/// Lookups through a [`LookupScratch`] in pixel order, in scattered order and across
+/// insertions give exactly what plain lookups give, and the coherent stretch reuses its
+/// gatherings.
+#[test]
+fn scratch_lookups_equal_plain_ones_and_follow_insertions() {
+    let c = patch_cache(CacheParams::MEDIUM, 3000, 11);
+    let params = *c.params();
+    let mut scratch = LookupScratch::default();
+    let row = |k: u64, d_max: f32| {
+        let x = Vec3::new(
+            0.005 * (k % 200) as f32,
+            0.001 * unit(4, k),
+            0.3 + 0.01 * (k / 200) as f32,
+        );
+        let n = (Vec3::Y + 0.3 * random_dir(6, k)).normalize();
+        (x, n, d_max * (1.0 + 0.2 * unit(9, k)))
+    };
+    let check = |s: &CacheState, scratch: &mut LookupScratch, (x, n, d): (Vec3, Vec3, f32)| {
+        let plain = s.lookup(&params, x, n, d);
+        assert_eq!(
+            s.lookup_near(&params, x, n, d, scratch),
+            plain,
+            "x {x} d {d}"
+        );
+        let nearest = s.nearest(&params, x, n, d);
+        let near = s.nearest_near(&params, x, n, d, scratch);
+        assert_eq!(format!("{near:?}"), format!("{nearest:?}"));
+        !plain.neighbours().is_empty()
+    };
+    {
+        let s = c.read();
+        let mut found = 0;
+        for k in 0..1000u64 {
+            found += check(&s, &mut scratch, row(k, 0.05)) as usize;
+        }
+        assert!(found > 900, "the path runs over records ({found})");
+        assert!(
+            scratch.gathers < 250,
+            "{} gatherings for 1000 lookups",
+            scratch.gathers
+        );
+        // Scattered points, some radii far larger and smaller than the gathered ball.
+        for k in 0..300u64 {
+            let x = Vec3::new(unit(12, k), 0.0, unit(13, k));
+            let d = [0.001, 0.05, 0.5][k as usize % 3];
+            check(&s, &mut scratch, (x, Vec3::Y, d));
+        }
+    }
+    // Records inserted where the scratch last gathered must be found.
+    let (x, n, d) = row(1000, 0.05);
+    check(&c.read(), &mut scratch, (x, n, d));
+    let fresh = synthetic_record(params.log2_resolution, x + Vec3::X * 1e-3, n, 0.7, 99);
+    let id = c.insert_record(&fresh).unwrap().unwrap();
+    let s = c.read();
+    let got = s.lookup_near(&params, x, n, d, &mut scratch);
+    assert!(
+        got.neighbours().iter().any(|k| k.id == id),
+        "the new record is seen"
+    );
+    assert_eq!(got, s.lookup(&params, x, n, d));
+}
+
 #[test]
 fn lookup_extremes() {
     let empty = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
