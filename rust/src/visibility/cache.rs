@@ -242,7 +242,7 @@ impl CacheState {
     /// §5.1 lookup at `x` (normal `n`, unit) within `d_max` (world units). A non-positive
     /// or non-finite `d_max` finds nothing.
     pub fn lookup(&self, params: &CacheParams, x: Vec3, n: Vec3, d_max: f32) -> Lookup {
-        self.lookup_near(params, x, n, d_max, &mut LookupScratch::default())
+        with_thread_scratch(|scratch| self.lookup_near(params, x, n, d_max, scratch))
     }
 
     /// [`Self::lookup`] for a sequence of nearby points (pixel order): `scratch` keeps the
@@ -330,34 +330,53 @@ impl CacheState {
         let cos_max = theta_max.cos();
         let mut len = 0;
         let r2 = d_max * d_max;
-        for &(position, normal, id) in self.gather(x, d_max, scratch) {
-            // kiddo's squared distance, summed in its order, so that a gathered set gives
-            // bit for bit what a range query at `x` gives.
-            let e = position - x;
-            let d2 = e.x * e.x + e.y * e.y + e.z * e.z;
+        let gathered = self.gather(x, d_max, scratch);
+        // kiddo's squared distance, summed in its order, so that a gathered set gives bit
+        // for bit what a range query at `x` gives; one vectorised pass over the coordinates.
+        gathered.d2.clear();
+        gathered
+            .d2
+            .extend((gathered.x.iter().zip(&gathered.y).zip(&gathered.z)).map(
+                |((&px, &py), &pz)| {
+                    let (ex, ey, ez) = (px - x.x, py - x.y, pz - x.z);
+                    ex * ex + ey * ey + ez * ez
+                },
+            ));
+        for (k, &d2) in gathered.d2.iter().enumerate() {
             if d2 > r2 {
                 continue;
             }
+            let (normal, id) = (gathered.normal[k], gathered.id[k]);
             let cos = n.dot(normal);
-            // Clearly wide angles skip the arctangent.
-            if cos >= cos_max - 1e-3 {
+            // θ_i < θ_max (strict, as in §5.1); NaN never passes. Only angles within 1e-3
+            // of θ_max's cosine need the angle to decide; the rest are clearly in or out,
+            // and θ is computed for the m kept alone.
+            if cos.is_nan() || cos < cos_max - 1e-3 {
+                continue;
+            }
+            if cos <= cos_max + 1e-3 {
                 let theta = normal_angle(n.cross(normal).length(), cos);
-                // θ_i < θ_max (strict, as in §5.1); NaN never passes.
-                if theta.partial_cmp(&theta_max) == Some(std::cmp::Ordering::Less) {
-                    if len == buffer.len() {
-                        buffer.select_nth_unstable_by(m - 1, by_distance_then_id);
-                        len = m;
-                    }
-                    buffer[len] = (d2, id, theta);
-                    len += 1;
+                if theta.partial_cmp(&theta_max) != Some(std::cmp::Ordering::Less) {
+                    continue;
                 }
             }
+            if len == buffer.len() {
+                buffer.select_nth_unstable_by(m - 1, by_distance_then_id);
+                len = m;
+            }
+            buffer[len] = (d2, id, 0.0);
+            len += 1;
         }
         let cand = &mut buffer[..len];
         if len > m {
             cand.select_nth_unstable_by(m - 1, by_distance_then_id);
         }
-        &buffer[..len.min(m)]
+        let kept = &mut buffer[..len.min(m)];
+        for (_, id, theta) in kept.iter_mut() {
+            let normal = self.sites[*id as usize].normal;
+            *theta = normal_angle(n.cross(normal).length(), n.dot(normal));
+        }
+        kept
     }
 
     /// The records that may lie within `d_max` of `x`, as (position, normal, id): those the
@@ -368,7 +387,7 @@ impl CacheState {
         x: Vec3,
         d_max: f32,
         scratch: &'s mut LookupScratch,
-    ) -> &'s [(Vec3, Vec3, u32)] {
+    ) -> &'s mut GatheredSites {
         // A margin of 1e-5 keeps rounding of the distances on the safe side: a record
         // within d_max of x is within (|x − anchor| + d_max)(1 + 1e-6) of the anchor.
         let covered = scratch.generation == self.generation
@@ -394,12 +413,12 @@ impl CacheState {
                 let mut id = s.item;
                 while id != NO_RECORD {
                     let site = &self.sites[id as usize];
-                    scratch.sites.push((site.position, site.normal, id));
+                    scratch.sites.push(site, id);
                     id = site.next;
                 }
             }
         }
-        &scratch.sites
+        &mut scratch.sites
     }
 
     /// `δ̄` of §5.2: mean eq. 11 difference over the pairs of `kept`.
@@ -512,10 +531,39 @@ pub struct LookupScratch {
     generation: u64,
     anchor: Vec3,
     reach: f32,
-    sites: Vec<(Vec3, Vec3, u32)>,
+    sites: GatheredSites,
     /// Lookups served by the current gathering, and gatherings so far.
     served: u32,
     gathers: u32,
+}
+
+/// Gathered records, structure of arrays, and the squared distances of the current lookup.
+#[derive(Clone, Debug, Default)]
+struct GatheredSites {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+    normal: Vec<Vec3>,
+    id: Vec<u32>,
+    d2: Vec<f32>,
+}
+
+impl GatheredSites {
+    fn clear(&mut self) {
+        self.x.clear();
+        self.y.clear();
+        self.z.clear();
+        self.normal.clear();
+        self.id.clear();
+    }
+
+    fn push(&mut self, site: &Site, id: u32) {
+        self.x.push(site.position.x);
+        self.y.push(site.position.y);
+        self.z.push(site.position.z);
+        self.normal.push(site.normal);
+        self.id.push(id);
+    }
 }
 
 impl LookupScratch {
@@ -523,6 +571,20 @@ impl LookupScratch {
     /// records while within `(REACH − 1) d_max` of the first point. At 2, the gathered ball
     /// holds about 4x (flat surfaces) the records of one lookup.
     pub const REACH: f32 = 2.0;
+}
+
+thread_local! {
+    /// The scratch of lookups made without one: its buffers are kept between calls, and
+    /// a thread's consecutive lookups still share gatherings when they are close.
+    static THREAD_SCRATCH: std::cell::RefCell<LookupScratch> = Default::default();
+}
+
+/// Runs `f` with this thread's [`LookupScratch`] (a fresh one if it is in use).
+pub(crate) fn with_thread_scratch<R>(f: impl FnOnce(&mut LookupScratch) -> R) -> R {
+    THREAD_SCRATCH.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut scratch) => f(&mut scratch),
+        Err(_) => f(&mut LookupScratch::default()),
+    })
 }
 
 /// Source of [`CacheState`] generations: every state change takes the next number, so no

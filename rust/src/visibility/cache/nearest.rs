@@ -63,7 +63,7 @@ impl CacheState {
     /// differ from the unit `n` by less than `θ_max`, with their eq. 9 weights. A
     /// non-positive or non-finite `d_max` finds nothing.
     pub fn nearest(&self, params: &CacheParams, x: Vec3, n: Vec3, d_max: f32) -> Nearest {
-        self.nearest_near(params, x, n, d_max, &mut LookupScratch::default())
+        super::with_thread_scratch(|scratch| self.nearest_near(params, x, n, d_max, scratch))
     }
 
     /// [`Self::nearest`] with a [`LookupScratch`] for sequences of nearby points; the same
