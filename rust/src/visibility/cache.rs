@@ -31,6 +31,12 @@
 //! the paper's "occasionally rebalance". Record ids are therefore dense and stable between
 //! two `end_frame` calls.
 //!
+//! What a lookup reads of a record (position, decoded normal, chain link) sits in one
+//! `Site` array. Lookups in pixel order go through a [`LookupScratch`]: one range query of
+//! twice the radius serves the lookups whose balls it covers, filtered by one vectorised
+//! distance pass, with the answer of a range query at each point bit for bit. Lookups made
+//! without a scratch use one per thread.
+//!
 //! ## Concurrency
 //! One `RwLock` (as in the paper): lookups read in parallel, an insertion writes alone and
 //! publishes a whole record at once. [`VisibilityCache::build`] is deterministic for any
