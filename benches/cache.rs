@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use _core::sampling::rng::{hash4, to_unit_f32};
 use _core::testing::synthetic_record;
-use _core::visibility::{bytes_per_record, CacheParams, LookupScratch, Record, VisibilityCache};
+use _core::visibility::{bytes_per_record, CacheParams, Record, VisibilityCache};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
 
@@ -91,7 +91,8 @@ fn lookup(c: &mut Criterion) {
             })
         });
         // Pixel order: rows of points one footprint (d_max / 12, the default k) apart, as a
-        // renderer walks a G-buffer; consecutive lookups share most records.
+        // renderer walks a G-buffer; consecutive lookups share most records, and the
+        // thread's LookupScratch serves several of them from one range query.
         let step = d_max / 12.0;
         let per_row = (1.0 / step) as usize;
         let rows: Vec<(Vec3, Vec3)> = (0..64 * per_row)
@@ -107,17 +108,6 @@ fn lookup(c: &mut Criterion) {
                 let (x, n) = rows[k % rows.len()];
                 k += 1;
                 black_box(state.lookup(&params, black_box(x), black_box(n), d_max))
-            })
-        });
-        // The same walk through a LookupScratch, as the renderer, the preview and cache
-        // builds look up: one range query serves the lookups of the next few points.
-        let (mut k, mut scratch) = (0, LookupScratch::default());
-        g.bench_function(BenchmarkId::new("m16_n4_pixel_order_scratch", count), |b| {
-            b.iter(|| {
-                let (x, n) = rows[k % rows.len()];
-                k += 1;
-                let (x, n) = (black_box(x), black_box(n));
-                black_box(state.lookup_near(&params, x, n, d_max, &mut scratch))
             })
         });
     }

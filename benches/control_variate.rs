@@ -11,7 +11,7 @@ use glam::Vec3;
 use _core::camera::GBuffer;
 use _core::estimators::control_variate::{ControlTables, Interpolant, MapChroma};
 use _core::estimators::direct::ProductDistribution;
-use _core::visibility::cache::{LookupScratch, VisibilityCache};
+use _core::visibility::cache::VisibilityCache;
 use _core::visibility::params::CacheParams;
 
 fn control_variate(c: &mut Criterion) {
@@ -51,15 +51,6 @@ fn control_variate(c: &mut Criterion) {
                 let (_, x, n, d) = &prepared[k % prepared.len()];
                 k += 1;
                 black_box(state.lookup(params, *x, *n, *d))
-            })
-        });
-        // As the renderer looks up: through a LookupScratch along the rows.
-        group.bench_function(format!("lookup_scratch/{r}x{r}"), |b| {
-            let (mut k, mut scratch) = (0, LookupScratch::default());
-            b.iter(|| {
-                let (_, x, n, d) = &prepared[k % prepared.len()];
-                k += 1;
-                black_box(state.lookup_near(params, *x, *n, *d, &mut scratch))
             })
         });
         let lookups: Vec<_> = prepared

@@ -47,7 +47,7 @@ use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
 use crate::sampling::rng::SampleRng;
-use crate::visibility::cache::{CacheState, Lookup, LookupScratch, VisibilityCache};
+use crate::visibility::cache::{CacheState, Lookup, VisibilityCache};
 
 /// Rows per work item: small enough to balance two to hundreds of threads.
 const BAND_ROWS: usize = 4;
@@ -239,8 +239,6 @@ struct BandWork {
     last_lookup: Option<SharedLookup>,
     /// Lookups answered by a neighbour's.
     shared_lookups: u64,
-    /// Records around recent lookups, reused along the band's rows.
-    lookup_scratch: LookupScratch,
 }
 
 /// A lookup and the point it was made for.
@@ -362,13 +360,7 @@ impl Shader<'_> {
                     shared
                 }
                 None => {
-                    let lookup = state.lookup_near(
-                        cache.params(),
-                        hit.position,
-                        normal,
-                        d_max,
-                        &mut work.lookup_scratch,
-                    );
+                    let lookup = state.lookup(cache.params(), hit.position, normal, d_max);
                     work.last_lookup = Some(SharedLookup {
                         pixel,
                         position: hit.position,

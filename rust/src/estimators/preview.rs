@@ -20,7 +20,7 @@ use crate::error::Result;
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
-use crate::visibility::cache::{LookupScratch, VisibilityCache};
+use crate::visibility::cache::VisibilityCache;
 
 /// A first hit kept for previews.
 #[derive(Clone, Copy, Debug)]
@@ -109,17 +109,16 @@ impl LightingPreview {
             self.points
                 .par_iter()
                 .with_min_len(64)
-                .map_init(LookupScratch::default, |scratch, point| {
+                .map(|point| {
                     let p = match point {
                         Err(dir) => return env.eval(*dir).to_array(),
                         Ok(p) => p,
                     };
-                    let lookup = state.lookup_near(
+                    let lookup = state.lookup(
                         params,
                         p.position,
                         p.normal,
                         params.d_max_scale * p.footprint,
-                        scratch,
                     );
                     let level = product_level.for_material(&p.material);
                     let product = ProductDistribution::new(env, &p.material, p.normal, p.wo, level);

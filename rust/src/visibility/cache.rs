@@ -35,7 +35,8 @@
 //! `Site` array. Lookups in pixel order go through a [`LookupScratch`]: one range query of
 //! twice the radius serves the lookups whose balls it covers, filtered by one vectorised
 //! distance pass, with the answer of a range query at each point bit for bit. Lookups made
-//! without a scratch use one per thread.
+//! without a scratch of their own ([`CacheState::lookup`], as the renderer, the preview and
+//! builds make them) use their thread's.
 //!
 //! ## Concurrency
 //! One `RwLock` (as in the paper): lookups read in parallel, an insertion writes alone and
@@ -263,9 +264,6 @@ impl CacheState {
         scratch: &mut LookupScratch,
     ) -> Lookup {
         let mut out = Lookup::default();
-        if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
-            return out;
-        }
         let mut buffer = [(0.0, 0, 0.0); CANDIDATE_BUFFER];
         let cand = self.m_nearest(params, x, n, d_max, scratch, &mut buffer);
 
@@ -321,7 +319,8 @@ impl CacheState {
     /// normals differ from the unit `n` by `θ_i < θ_max`, as `(squared distance, id, θ)` in
     /// no particular order, in `buffer`. Shared positions are expanded; whenever the buffer
     /// fills, the `m` nearest are kept. Both [`Self::lookup`] (§5.1) and
-    /// [`Self::nearest`] (§6.1) start from this set. `d_max` must be positive and finite.
+    /// [`Self::nearest`] (§6.1) start from this set. An empty cache or a non-positive or
+    /// non-finite `d_max` finds nothing.
     pub(crate) fn m_nearest<'b>(
         &self,
         params: &CacheParams,
@@ -331,6 +330,9 @@ impl CacheState {
         scratch: &mut LookupScratch,
         buffer: &'b mut [(f32, u32, f32); CANDIDATE_BUFFER],
     ) -> &'b [(f32, u32, f32)] {
+        if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
+            return &buffer[..0];
+        }
         let m = params.m_search as usize;
         let theta_max = params.theta_max();
         let cos_max = theta_max.cos();
@@ -760,9 +762,7 @@ impl VisibilityCache {
             (0..points.len())
                 .into_par_iter()
                 .with_min_len(64)
-                .map_init(LookupScratch::default, |scratch, i| {
-                    state.lookup_near(&self.params, points[i], normals[i], d_max[i], scratch)
-                })
+                .map(|i| state.lookup(&self.params, points[i], normals[i], d_max[i]))
                 .collect()
         })
     }
@@ -1165,12 +1165,12 @@ impl VisibilityCache {
             let state = self.read();
             wave.par_iter()
                 .copied()
-                .map_init(LookupScratch::default, |scratch, i| {
+                .filter(|&i| {
                     let (x, n, d) = query(i);
-                    let lookup = state.lookup_near(&self.params, x, n, d, scratch);
-                    (i, lookup.needs_record(&self.params))
+                    state
+                        .lookup(&self.params, x, n, d)
+                        .needs_record(&self.params)
                 })
-                .filter_map(|(i, needed)| needed.then_some(i))
                 .collect()
         };
         let cos_max = self.params.theta_max().cos();

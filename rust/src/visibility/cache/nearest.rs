@@ -77,9 +77,6 @@ impl CacheState {
         scratch: &mut LookupScratch,
     ) -> Nearest {
         let mut out = Nearest::default();
-        if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
-            return out;
-        }
         let mut buffer = [(0.0, 0, 0.0); CANDIDATE_BUFFER];
         let found = self.m_nearest(params, x, n, d_max, scratch, &mut buffer);
         let len = found.len();

@@ -129,8 +129,8 @@ fn lookups_equal_a_linear_scan_of_eq9_with_the_geometric_term() {
 }
 
 /// Lookups through a [`LookupScratch`] in pixel order, in scattered order and across
-/// insertions give exactly what plain lookups give, and the coherent stretch reuses its
-/// gatherings.
+/// insertions give exactly what single range queries give (a fresh scratch gathers exactly
+/// the ball of `d_max`), and the coherent stretch reuses its gatherings.
 #[test]
 fn scratch_lookups_equal_plain_ones_and_follow_insertions() {
     let c = patch_cache(CacheParams::MEDIUM, 3000, 11);
@@ -146,13 +146,13 @@ fn scratch_lookups_equal_plain_ones_and_follow_insertions() {
         (x, n, d_max * (1.0 + 0.2 * unit(9, k)))
     };
     let check = |s: &CacheState, scratch: &mut LookupScratch, (x, n, d): (Vec3, Vec3, f32)| {
-        let plain = s.lookup(&params, x, n, d);
+        let plain = s.lookup_near(&params, x, n, d, &mut LookupScratch::default());
         assert_eq!(
             s.lookup_near(&params, x, n, d, scratch),
             plain,
             "x {x} d {d}"
         );
-        let nearest = s.nearest(&params, x, n, d);
+        let nearest = s.nearest_near(&params, x, n, d, &mut LookupScratch::default());
         let near = s.nearest_near(&params, x, n, d, scratch);
         assert_eq!(format!("{near:?}"), format!("{nearest:?}"));
         !plain.neighbours().is_empty()
@@ -187,7 +187,8 @@ fn scratch_lookups_equal_plain_ones_and_follow_insertions() {
         got.neighbours().iter().any(|k| k.id == id),
         "the new record is seen"
     );
-    assert_eq!(got, s.lookup(&params, x, n, d));
+    let plain = s.lookup_near(&params, x, n, d, &mut LookupScratch::default());
+    assert_eq!(got, plain);
 }
 
 #[test]
