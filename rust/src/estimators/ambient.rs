@@ -55,8 +55,8 @@ use crate::parallel::with_threads;
 use crate::sampling::rng::SampleRng;
 use crate::visibility::cache::nearest::Nearest;
 use crate::visibility::cache::{
-    check_scene_and_budget, coarse_to_fine_levels, CacheState, VisibilityCache, BUILD_WAVE,
-    MIN_BUILD_WAVE,
+    check_scene_and_budget, coarse_to_fine_levels, split_requests, CacheState, VisibilityCache,
+    BUILD_WAVE, MIN_BUILD_WAVE,
 };
 use crate::visibility::params::CacheParams;
 
@@ -450,20 +450,11 @@ pub fn render_cache_ao(
                         .filter(|&i| wants(&state, i))
                         .collect()
                 };
-                let mut requests: Vec<u32> = Vec::with_capacity(wanted.len());
-                for &i in &wanted {
+                let (requests, later) = split_requests(&wanted, cos_max, |i| {
                     let (x, n, f) = query(i);
-                    let d = params.d_max_scale * f;
-                    let near = requests.iter().any(|&j| {
-                        let (y, m, _) = query(j);
-                        x.distance_squared(y) < 0.25 * d * d && n.dot(m) > cos_max
-                    });
-                    if near {
-                        deferred.push(i);
-                    } else {
-                        requests.push(i);
-                    }
-                }
+                    (x, n, params.d_max_scale * f)
+                });
+                deferred = later;
                 let traced: Vec<_> = requests
                     .par_iter()
                     .map(|&i| {

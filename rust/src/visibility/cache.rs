@@ -1113,10 +1113,9 @@ impl VisibilityCache {
 
     /// One build wave (see [`Self::build`]); returns (inserted, discarded, deferred pixels).
     ///
-    /// Requests closer than `d_max / 2` (with normals within `θ_max`) to an earlier request
-    /// of the same wave are deferred to the next wave instead of traced: the earlier one's
-    /// record will most likely serve them, and tracing both would waste one. The first
-    /// request always goes ahead, so every wave makes progress.
+    /// Requests next to an earlier one of the same wave are deferred to the next wave
+    /// instead of traced ([`split_requests`]): tracing both would most likely waste one.
+    /// The first request always goes ahead, so every wave makes progress.
     fn refine_wave(
         &self,
         scene: &Scene,
@@ -1173,21 +1172,8 @@ impl VisibilityCache {
                 })
                 .collect()
         };
-        let cos_max = self.params.theta_max().cos();
-        let mut requests: Vec<u32> = Vec::with_capacity(wanted.len());
-        let mut deferred = Vec::new();
-        for &i in &wanted {
-            let (x, n, d) = query(i);
-            let near = requests.iter().any(|&j| {
-                let (y, m, _) = query(j);
-                x.distance_squared(y) < 0.25 * d * d && n.dot(m) > cos_max
-            });
-            if near {
-                deferred.push(i);
-            } else {
-                requests.push(i);
-            }
-        }
+        let (mut requests, mut deferred) =
+            split_requests(&wanted, self.params.theta_max().cos(), &query);
         self.lookups.fetch_add(wave.len() as u64, Ordering::Relaxed);
         // A full cache refuses every record: tracing them would only waste rays.
         let room = (self.params.max_records as usize).saturating_sub(self.len());
@@ -1223,6 +1209,33 @@ impl VisibilityCache {
             .fetch_add(requests.len() as u64, Ordering::Relaxed);
         Ok((inserted, discarded, deferred))
     }
+}
+
+/// Splits a wave's points that want a record into requests, traced now, and points deferred
+/// to the next wave: those closer than `d_max / 2` to an earlier request whose normal is
+/// within `θ_max` (`cos_max`) of theirs, which that request's record will most likely
+/// serve. The first point is always a request. `query(i)` gives `(position, unit normal,
+/// d_max)`.
+pub(crate) fn split_requests(
+    wanted: &[u32],
+    cos_max: f32,
+    query: impl Fn(u32) -> (Vec3, Vec3, f32),
+) -> (Vec<u32>, Vec<u32>) {
+    let mut requests: Vec<u32> = Vec::with_capacity(wanted.len());
+    let mut deferred = Vec::new();
+    for &i in wanted {
+        let (x, n, d) = query(i);
+        let near = requests.iter().any(|&j| {
+            let (y, m, _) = query(j);
+            x.distance_squared(y) < 0.25 * d * d && n.dot(m) > cos_max
+        });
+        if near {
+            deferred.push(i);
+        } else {
+            requests.push(i);
+        }
+    }
+    (requests, deferred)
 }
 
 /// The arguments every pass over a camera's pixels checks: a scene with triangles and a
