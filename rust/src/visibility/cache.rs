@@ -75,7 +75,7 @@ use crate::sampling::rng::SampleRng;
 mod io;
 pub mod nearest;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 /// Bucket size of the kd-tree's leaves (raised from kiddo's 32 default: records on flat
 /// grid-aligned geometry share a coordinate, which leaves must hold before a split).

@@ -5,6 +5,7 @@
 use super::*;
 use crate::bsdf::Material;
 use crate::scenes::shapes::{quad, BoxGrid, Tri};
+use crate::visibility::cache::tests::brute_m_nearest;
 use crate::visibility::params::CacheParams;
 
 fn scene_of(tris: &[Tri]) -> Scene {
@@ -245,38 +246,6 @@ fn wall_cache(params: CacheParams) -> (Scene, VisibilityCache) {
     (scene, cache)
 }
 
-/// The m nearest by a linear scan, from the formulas of §5.1.
-fn brute_nearest(c: &VisibilityCache, x: Vec3, n: Vec3, d_max: f32) -> Vec<(u32, f32, f32, f32)> {
-    let p = c.params();
-    let s = c.read();
-    let theta_max = p.theta_max();
-    let mut near: Vec<(f32, u32, f32)> = (0..s.len())
-        .map(|i| {
-            let h = s.store().header(i);
-            let theta = n.as_dvec3().angle_between(h.normal().as_dvec3()) as f32;
-            (h.position().distance(x), i as u32, theta)
-        })
-        .filter(|&(d, _, t)| d <= d_max && t < theta_max)
-        .collect();
-    near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    near.truncate(p.m_search as usize);
-    let lam = p.lambda_falloff;
-    let w = |x: f32, t: f32| (1.0 - t / std::f32::consts::PI) * (1.0 - x / (1.0 + lam * x));
-    let w_lo = w(1.0, theta_max);
-    near.iter()
-        .map(|&(d, id, theta)| {
-            let v = s.store().header(id as usize).position() - x;
-            let w_g = if d > 0.0 {
-                (1.0 - (n.dot(v) / v.length()).abs().min(1.0)).sqrt()
-            } else {
-                1.0
-            };
-            let w_hat = ((w(d / d_max, theta) - w_lo) / (1.0 - w_lo)).clamp(0.0, 1.0);
-            (id, d, theta, w_g * w_hat)
-        })
-        .collect()
-}
-
 fn query_points() -> Vec<(Vec3, Vec3)> {
     (0..200u64)
         .map(|i| {
@@ -300,7 +269,7 @@ fn nearest_equals_a_linear_scan_and_agrees_with_lookup() {
     for (x, n) in query_points() {
         let d_max = 0.9;
         let got = state.nearest(&params, x, n, d_max);
-        let want = brute_nearest(&cache, x, n, d_max);
+        let want = brute_m_nearest(&cache, x, n, d_max);
         assert_eq!(got.candidates().len(), want.len());
         for (g, w) in got.candidates().iter().zip(&want) {
             assert_eq!(g.id, w.0);
@@ -334,7 +303,7 @@ fn cache_ao_is_the_gaussian_average_and_the_criterion_its_formula() {
     for (x, n) in query_points() {
         let footprint = 0.05;
         let d_max = params.d_max_scale * footprint;
-        let want = brute_nearest(&cache, x, n, d_max);
+        let want = brute_m_nearest(&cache, x, n, d_max);
         let sigma = (ao.sigma_scale * footprint) as f64;
         let (mut sum, mut total) = (0.0f64, 0.0f64);
         let mut cover = 0.0f32;

@@ -21,8 +21,15 @@ fn random_dir(seed: u64, k: u64) -> Vec3 {
     Vec3::new(r * phi.cos(), r * phi.sin(), z)
 }
 
-/// §5.1 by a linear scan over every record, straight from the formulas.
-fn brute_lookup(c: &VisibilityCache, x: Vec3, n: Vec3, d_max: f32) -> Vec<(u32, f32)> {
+/// The m nearest records within `d_max` and `θ_max` of `(x, n)` by a linear scan, nearest
+/// first (ties by id), as `(id, distance, θ, w)` with `w = w_g · ŵ` straight from the
+/// formulas of §5.1 (eq. 9). Shared by the lookup and the AO tests.
+pub(crate) fn brute_m_nearest(
+    c: &VisibilityCache,
+    x: Vec3,
+    n: Vec3,
+    d_max: f32,
+) -> Vec<(u32, f32, f32, f32)> {
     let p = c.params();
     let s = c.read();
     let theta_max = p.theta_max_deg.to_radians();
@@ -40,22 +47,30 @@ fn brute_lookup(c: &VisibilityCache, x: Vec3, n: Vec3, d_max: f32) -> Vec<(u32, 
     let lam = p.lambda_falloff;
     let w = |x: f32, t: f32| (1.0 - t / std::f32::consts::PI) * (1.0 - x / (1.0 + lam * x));
     let w_lo = w(1.0, theta_max);
-    let mut scored: Vec<(f32, f32, u32)> = near
-        .iter()
-        .filter_map(|&(d2, id)| {
-            let h = s.store().header(id as usize);
+    near.iter()
+        .map(|&(d2, id)| {
             let theta = angle(id);
             let d = d2.sqrt();
             let w_hat = ((w(d / d_max, theta) - w_lo) / (1.0 - w_lo)).clamp(0.0, 1.0);
-            let v = h.position() - x;
+            let v = s.store().header(id as usize).position() - x;
             let w_g = if d > 0.0 {
                 (1.0 - (n.dot(v) / v.length()).abs().min(1.0)).sqrt()
             } else {
                 1.0
             };
-            let wi = w_g * w_hat;
-            (wi > 0.0).then_some((wi, d, id))
+            (id, d, theta, w_g * w_hat)
         })
+        .collect()
+}
+
+/// §5.1 by a linear scan over every record: the n heaviest of [`brute_m_nearest`] (ties:
+/// nearer, then lower id) with their `β`.
+fn brute_lookup(c: &VisibilityCache, x: Vec3, n: Vec3, d_max: f32) -> Vec<(u32, f32)> {
+    let p = c.params();
+    let mut scored: Vec<(f32, f32, u32)> = brute_m_nearest(c, x, n, d_max)
+        .into_iter()
+        .filter(|&(_, _, _, wi)| wi > 0.0)
+        .map(|(id, d, _, wi)| (wi, d, id))
         .collect();
     scored.sort_by(|a, b| {
         b.0.total_cmp(&a.0)
