@@ -21,6 +21,7 @@ pub mod parallel;
 pub mod render;
 pub mod sampling;
 pub mod scenes;
+pub mod simd;
 pub mod testing;
 pub mod visibility;
 

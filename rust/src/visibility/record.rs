@@ -199,50 +199,6 @@ fn xor_popcount_avx512_16(a: &[u64; 16], b: &[u64; 16]) -> u32 {
     _mm512_reduce_add_epi64(counts) as u32
 }
 
-/// Which of the forms above this CPU runs (detected once).
-#[cfg(target_arch = "x86_64")]
-#[derive(Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
-enum PopcountPath {
-    Avx512,
-    Avx2,
-    Popcnt,
-    Portable,
-}
-
-/// The detected [`PopcountPath`] as a `u8` (`u8::MAX` until detected). A relaxed atomic
-/// rather than a `OnceLock`: the check sits on a path of a few nanoseconds.
-#[cfg(target_arch = "x86_64")]
-static POPCOUNT_PATH: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(u8::MAX);
-
-#[cfg(target_arch = "x86_64")]
-#[inline]
-fn popcount_path() -> PopcountPath {
-    use std::sync::atomic::Ordering::Relaxed;
-    const PATHS: [PopcountPath; 4] = [
-        PopcountPath::Avx512,
-        PopcountPath::Avx2,
-        PopcountPath::Popcnt,
-        PopcountPath::Portable,
-    ];
-    if let Some(&path) = PATHS.get(POPCOUNT_PATH.load(Relaxed) as usize) {
-        return path;
-    }
-    let path = if std::arch::is_x86_feature_detected!("avx512vpopcntdq")
-        && std::arch::is_x86_feature_detected!("avx512f")
-    {
-        PopcountPath::Avx512
-    } else if std::arch::is_x86_feature_detected!("avx2") {
-        PopcountPath::Avx2
-    } else if std::arch::is_x86_feature_detected!("popcnt") {
-        PopcountPath::Popcnt
-    } else {
-        PopcountPath::Portable
-    };
-    POPCOUNT_PATH.store(path as u8, Relaxed);
-    path
-}
-
 /// `popcount(a xor b)`, vectorised with AVX-512, AVX2 or the `popcnt` instruction when the
 /// CPU has them (checked once). 32² maps on AVX-512 take the first branch, kept small
 /// enough to inline; everything else goes through [`xor_popcount_dispatch`].
@@ -250,10 +206,9 @@ fn popcount_path() -> PopcountPath {
 fn xor_popcount(a: &[u64], b: &[u64]) -> u32 {
     #[cfg(target_arch = "x86_64")]
     {
-        use std::sync::atomic::Ordering::Relaxed;
-        if POPCOUNT_PATH.load(Relaxed) == PopcountPath::Avx512 as u8 {
+        if crate::simd::is_avx512() {
             if let (Ok(a), Ok(b)) = (<&[u64; 16]>::try_from(a), <&[u64; 16]>::try_from(b)) {
-                // SAFETY: the CPU has AVX-512 VPOPCNTDQ, detected by `popcount_path`.
+                // SAFETY: the CPU has AVX-512 VPOPCNTDQ (`crate::simd`).
                 return unsafe { xor_popcount_avx512_16(a, b) };
             }
         }
@@ -267,13 +222,12 @@ fn xor_popcount(a: &[u64], b: &[u64]) -> u32 {
 #[cfg(target_arch = "x86_64")]
 #[inline(never)]
 fn xor_popcount_dispatch(a: &[u64], b: &[u64]) -> u32 {
-    match popcount_path() {
-        // SAFETY (all three): the CPU has the features, detected by `popcount_path`.
-        PopcountPath::Avx512 if a.len() >= 8 => unsafe { xor_popcount_avx512(a, b) },
-        PopcountPath::Avx512 | PopcountPath::Avx2 if a.len() >= 8 => unsafe {
-            xor_popcount_avx2(a, b)
-        },
-        PopcountPath::Portable => xor_popcount_portable(a, b),
+    use crate::simd::SimdLevel;
+    match crate::simd::level() {
+        // SAFETY (all three): the CPU has the features, detected by `crate::simd`.
+        SimdLevel::Avx512 if a.len() >= 8 => unsafe { xor_popcount_avx512(a, b) },
+        SimdLevel::Avx512 | SimdLevel::Avx2 if a.len() >= 8 => unsafe { xor_popcount_avx2(a, b) },
+        SimdLevel::Portable => xor_popcount_portable(a, b),
         _ => unsafe { xor_popcount_popcnt(a, b) },
     }
 }
