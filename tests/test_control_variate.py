@@ -160,6 +160,8 @@ def test_stats_report_the_cache_work_and_misses_reach_the_records(garage):
     assert 1.0 <= s["records_per_point"] <= 4.0
     # Odd columns share their left neighbour's lookup where the points nearly coincide.
     assert 0 < s["shared_lookups"] < 0.5 * s["cache_points"] + 1
+    # ... and on garage's flat diffuse walls and ground, their J as well.
+    assert 0 < s["reused_integrals"] <= s["shared_lookups"]
     assert s["record_uses"] > 0 and 0.0 <= s["miss_rate"] < 0.2
     recs = cache.records()
     assert recs["uses"].sum() - before == s["record_uses"]

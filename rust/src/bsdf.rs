@@ -125,6 +125,16 @@ impl Material {
         }
     }
 
+    /// Whether [`Self::product_cells`] depends on the outgoing direction beyond its side of
+    /// the surface: only a specular lobe does. When it does not, points with the same
+    /// normal and material share their product distribution bit for bit.
+    pub fn product_depends_on_wo(&self) -> bool {
+        match *self {
+            Material::Lambert { .. } => false,
+            Material::Phong { ks, .. } => luminance(ks) > 0.0,
+        }
+    }
+
     /// The product cells' level this material needs (CAM08 §5.5 refines B~ where the
     /// lobe is narrow): level 5 (32², cells about 6.4° across) for Lambert and for Phong
     /// lobes at least twice a cell's width, else 6 (3.2°). The lobe width is
@@ -1145,6 +1155,33 @@ mod tests {
                     below_mass <= 2e-3 * total,
                     "{m:?}: {below_mass} of {total} below the horizon"
                 );
+            }
+        }
+    }
+
+    /// Points that share a normal and a material whose product ignores the view share
+    /// their cells bit for bit (the renderer then reuses `J`); a specular lobe follows the
+    /// view.
+    #[test]
+    fn product_cells_ignore_the_view_unless_the_material_says_otherwise() {
+        let diffuse_phong = Material::phong([0.5; 3], [0.0; 3], 50.0).unwrap();
+        for (m, depends) in [
+            (Material::DEFAULT, false),
+            (diffuse_phong, false),
+            (phong(100.0), true),
+        ] {
+            assert_eq!(m.product_depends_on_wo(), depends, "{m:?}");
+            for j in 0..10u64 {
+                let n = rand_dir(43, j);
+                let cells = |angle: f32| {
+                    let mut out = vec![0.0f32; 1024];
+                    m.product_cells(n, at_angle(n, angle, j as f32), 5, &mut out);
+                    out
+                };
+                let (a, b) = (cells(0.2), cells(1.2));
+                assert!(a.iter().any(|&c| c > 0.0));
+                let same = a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits());
+                assert_eq!(same, !depends, "{m:?}, normal {n}");
             }
         }
     }

@@ -34,6 +34,7 @@ use std::time::{Duration, Instant};
 use glam::Vec3;
 use rayon::prelude::*;
 
+use crate::bsdf::Material;
 use crate::camera::{Camera, DIM_PIXEL_JITTER};
 use crate::error::{Error, Result};
 use crate::estimators::control_variate::{
@@ -192,6 +193,9 @@ pub struct RenderStats {
     pub records_used: u64,
     /// Points that shared their left neighbour's lookup instead of making one.
     pub shared_lookups: u64,
+    /// ... and its `J` too: the same material, shading normal and (a BSDF whose product
+    /// ignores the view) so the same product distribution.
+    pub reused_integrals: u64,
     /// Record predictions that disagreed with a traced shadow ray (CAM08 §5.3).
     pub record_misses: u64,
     /// Record predictions checked against a traced shadow ray.
@@ -239,9 +243,11 @@ struct BandWork {
     last_lookup: Option<SharedLookup>,
     /// Lookups answered by a neighbour's.
     shared_lookups: u64,
+    /// ... whose `J` was the neighbour's too (the same product distribution).
+    reused_integrals: u64,
 }
 
-/// A lookup and the point it was made for.
+/// A lookup, the point it was made for, and the interpolant made of it there.
 #[derive(Clone, Copy)]
 struct SharedLookup {
     pixel: usize,
@@ -249,6 +255,11 @@ struct SharedLookup {
     normal: Vec3,
     d_max: f32,
     lookup: Lookup,
+    material: Material,
+    shading_normal: Vec3,
+    /// Whether the point had a product distribution (and so `interpolant` a `J`).
+    product_made: bool,
+    interpolant: Interpolant,
 }
 
 impl BandWork {
@@ -266,6 +277,7 @@ impl BandWork {
         self.points_without_records += o.points_without_records;
         self.records_used += o.records_used;
         self.shared_lookups += o.shared_lookups;
+        self.reused_integrals += o.reused_integrals;
         for (id, (m, u)) in o.verdicts {
             let e = self.verdicts.entry(id).or_default();
             e.0 += m;
@@ -354,32 +366,51 @@ impl Shader<'_> {
             let start = Instant::now();
             let footprint = self.camera.footprint(dir, hit.t, normal);
             let d_max = cache.params().d_max_scale * footprint;
-            let lookup = match self.shared_lookup(pixel, hit.position, normal, d_max, work) {
+            let shared = self.shared_lookup(pixel, hit.position, normal, d_max, work);
+            let lookup = match shared {
                 Some(shared) => {
                     work.shared_lookups += 1;
-                    shared
+                    shared.lookup
                 }
-                None => {
-                    let lookup = state.lookup(cache.params(), hit.position, normal, d_max);
-                    work.last_lookup = Some(SharedLookup {
-                        pixel,
-                        position: hit.position,
-                        normal,
-                        d_max,
-                        lookup,
-                    });
-                    lookup
-                }
+                None => state.lookup(cache.params(), hit.position, normal, d_max),
             };
             let looked = Instant::now();
             work.lookup_ns += (looked - start).as_nanos() as u64;
             interpolant = match product.as_ref() {
                 Some(p) if !lookup.neighbours().is_empty() => {
-                    let tables = ControlTables::new(p, chroma, state.store().m());
-                    Interpolant::new(state, &lookup, Some((&tables, p, self.lighting.env)))
+                    // The neighbour's J holds when its product was this point's too.
+                    let same_product = |s: &SharedLookup| {
+                        s.product_made
+                            && s.material == sp.material
+                            && !sp.material.product_depends_on_wo()
+                            && s.shading_normal == sp.normal
+                    };
+                    match shared.filter(same_product) {
+                        Some(s) => {
+                            work.reused_integrals += 1;
+                            s.interpolant
+                        }
+                        None => {
+                            let tables = ControlTables::new(p, chroma, state.store().m());
+                            Interpolant::new(state, &lookup, Some((&tables, p, self.lighting.env)))
+                        }
+                    }
                 }
                 _ => Interpolant::new(state, &lookup, None),
             };
+            if shared.is_none() {
+                work.last_lookup = Some(SharedLookup {
+                    pixel,
+                    position: hit.position,
+                    normal,
+                    d_max,
+                    lookup,
+                    material: sp.material,
+                    shading_normal: sp.normal,
+                    product_made: product.is_some(),
+                    interpolant,
+                });
+            }
             work.control_ns += elapsed_ns(looked);
             work.cache_points += 1;
             work.records_used += interpolant.ids().len() as u64;
@@ -411,7 +442,7 @@ impl Shader<'_> {
         normal: Vec3,
         d_max: f32,
         work: &BandWork,
-    ) -> Option<Lookup> {
+    ) -> Option<SharedLookup> {
         const COS_5_DEG: f32 = 0.996_194_7;
         let width = self.camera.width as usize;
         let last = work.last_lookup.as_ref()?;
@@ -421,7 +452,7 @@ impl Shader<'_> {
             && last.pixel + 1 == pixel
             && last.normal.dot(normal) >= COS_5_DEG
             && last.position.distance(position) <= 0.25 * d_max.min(last.d_max))
-        .then_some(last.lookup)
+        .then_some(*last)
     }
 
     /// One sample at a prepared point: the plain estimate `Z` and the control variate's
@@ -683,6 +714,7 @@ pub fn render(
         points_without_records: total.points_without_records,
         records_used: total.records_used,
         shared_lookups: total.shared_lookups,
+        reused_integrals: total.reused_integrals,
         record_misses: total.verdicts.values().map(|v| v.0 as u64).sum(),
         record_uses: total.verdicts.values().map(|v| v.1 as u64).sum(),
         ..RenderStats::default()

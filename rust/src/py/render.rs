@@ -155,6 +155,7 @@ pub fn render<'py>(
         stats.set_item("points_without_records", s.points_without_records)?;
         stats.set_item("records_per_point", s.records_used as f64 / points)?;
         stats.set_item("shared_lookups", s.shared_lookups)?;
+        stats.set_item("reused_integrals", s.reused_integrals)?;
         stats.set_item("record_misses", s.record_misses)?;
         stats.set_item("record_uses", s.record_uses)?;
         stats.set_item(
