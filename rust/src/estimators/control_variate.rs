@@ -56,9 +56,9 @@ use crate::visibility::record::{word_level, Coverage, VisibilityView};
 use super::direct::ProductDistribution;
 
 mod masked_sum;
-use masked_sum::{masked_sum, masked_sum_portable};
+use masked_sum::{word_sum, word_sum_portable, WordWeights};
 #[cfg(target_arch = "x86_64")]
-use masked_sum::{masked_sum_avx2, masked_sum_avx512};
+use masked_sum::{word_sum_avx2, word_sum_avx512};
 
 /// Largest `α` an estimate may take (see the module docs).
 pub const ALPHA_MAX: f64 = 2.0;
@@ -236,9 +236,9 @@ impl ControlTables {
         let nodes = LuminanceNodes { product, dist };
         let m = self.record_m;
         let words = bits.bit_words();
-        let mut buf = [0.0f64; 64];
+        let (mut buf, mut scratch) = ([0.0f64; 64], [0.0f64; 64]);
         let mut visible_texels =
-            |word: usize, x: u64| masked_sum(x, nodes.word_weights(m, word, &mut buf));
+            |word: usize, x: u64| word_sum(x, nodes.word_weights(m, word, &mut buf), &mut scratch);
         let mut sum = 0.0f64;
         if m < 3 {
             // One word holds the whole map.
@@ -300,11 +300,11 @@ impl ControlTables {
                     // SAFETY (both): the CPU has the features, detected by `crate::simd`.
                     SimdLevel::Avx512 => unsafe { nodes.interpolated_avx512(m, words, maps, beta) },
                     SimdLevel::Avx2 => unsafe { nodes.interpolated_avx2(m, words, maps, beta) },
-                    _ => nodes.interpolated(m, words, maps, beta, masked_sum_portable),
+                    _ => nodes.interpolated(m, words, maps, beta, word_sum_portable),
                 }
             }
             #[cfg(not(target_arch = "x86_64"))]
-            nodes.interpolated(m, words, maps, beta, masked_sum_portable)
+            nodes.interpolated(m, words, maps, beta, word_sum_portable)
         };
         let lum = sum * self.texel_omega;
         self.kappa.map(|k| k * lum)
@@ -339,35 +339,32 @@ impl LuminanceNodes<'_> {
 
     /// The weights of the 64 texels of word `word` of a level-`m` map (zero past the map's
     /// `4^m` texels when `m < 3`): a slice of the product's pyramid where its cells are no
-    /// finer than the texels, else [`Self::node`] per texel written into `buf`.
+    /// finer than the texels, `B~` of the cell times the map's texel where they are and
+    /// the map is as fine as the record, else [`Self::node`] per texel written into `buf`.
     #[inline(always)]
-    fn word_weights<'s>(&'s self, m: u32, word: usize, buf: &'s mut [f64; 64]) -> &'s [f64; 64] {
+    fn word_weights<'s>(&'s self, m: u32, word: usize, buf: &'s mut [f64; 64]) -> WordWeights<'s> {
         let p = self.product.level();
         let base = 64 * word;
         if m >= 3 && m <= p {
             let level = self.product.pyramid().level(m);
-            return level[base..base + 64].try_into().expect("64 texels a word");
+            return WordWeights::Given(level[base..base + 64].try_into().expect("a word"));
+        }
+        if m >= 3 && m > p && m <= self.dist.depth() {
+            let shift = 2 * (m - p);
+            return WordWeights::Product {
+                cells: &self.product.bsdf_cells()[base >> shift..],
+                shift,
+                texels: self.dist.level(m)[base..base + 64]
+                    .try_into()
+                    .expect("a word"),
+            };
         }
         let texels = 64.min(1usize << (2 * m));
-        if m > p && m <= self.dist.depth() {
-            // Cells coarser than texels, map at least as fine: B~ of the cell times the
-            // map's texel, in a loop the compiler vectorises (the values of `node`).
-            let per_cell = 1usize << (2 * (m - p));
-            let l = &self.dist.level(m)[base..base + texels];
-            let b = &self.product.bsdf_cells()[base / per_cell..];
-            let cells = buf[..texels].chunks_mut(per_cell).zip(l.chunks(per_cell));
-            for ((w, l), &b) in cells.zip(b) {
-                for (w, &l) in w.iter_mut().zip(l) {
-                    *w = b as f64 * l;
-                }
-            }
-        } else {
-            for (i, w) in buf[..texels].iter_mut().enumerate() {
-                *w = self.node(m, (base + i) as u32);
-            }
+        for (i, w) in buf[..texels].iter_mut().enumerate() {
+            *w = self.node(m, (base + i) as u32);
         }
         buf[texels..].fill(0.0);
-        buf
+        WordWeights::Given(buf)
     }
 
     /// `Σ_w Σ_x β_x ∫_x` over the words `w` of `maps` (level `m`, `words` each) and each
@@ -381,16 +378,18 @@ impl LuminanceNodes<'_> {
         words: usize,
         maps: &[VisibilityView],
         beta: &[f32],
-        sum: impl Fn(u64, &[f64; 64]) -> f64,
+        sum: impl Fn(u64, WordWeights, &mut [f64; 64]) -> f64,
     ) -> f64 {
         let mut total = 0.0f64;
         let mut seen = [(0u64, 0.0f64); MAX_KEPT];
-        let mut buf = [0.0f64; 64];
+        let (mut buf, mut scratch) = ([0.0f64; 64], [0.0f64; 64]);
+        let bits: [&[u64]; MAX_KEPT] =
+            std::array::from_fn(|i| maps.get(i).map_or(&[][..], |v| &v.bit_words()[..words]));
         for w in 0..words {
             // The distinct words of the records here, with their summed β.
             let mut distinct = 0;
-            for (map, &b) in maps.iter().zip(beta) {
-                let x = map.bit_words()[w];
+            for (map, &b) in bits[..maps.len()].iter().zip(beta) {
+                let x = map[w];
                 if x == 0 {
                     continue;
                 }
@@ -406,7 +405,7 @@ impl LuminanceNodes<'_> {
                 let integral = if x == u64::MAX && m >= 3 {
                     self.node(m - 3, w as u32)
                 } else {
-                    sum(x, self.word_weights(m, w, &mut buf))
+                    sum(x, self.word_weights(m, w, &mut buf), &mut scratch)
                 };
                 total += b * integral;
             }
@@ -424,7 +423,7 @@ impl LuminanceNodes<'_> {
         maps: &[VisibilityView],
         beta: &[f32],
     ) -> f64 {
-        self.interpolated(m, words, maps, beta, |x, w| masked_sum_avx512(x, w))
+        self.interpolated(m, words, maps, beta, |x, w, buf| word_sum_avx512(x, w, buf))
     }
 
     /// [`Self::interpolated`] with the AVX2 kernel.
@@ -437,7 +436,7 @@ impl LuminanceNodes<'_> {
         maps: &[VisibilityView],
         beta: &[f32],
     ) -> f64 {
-        self.interpolated(m, words, maps, beta, |x, w| masked_sum_avx2(x, w))
+        self.interpolated(m, words, maps, beta, |x, w, buf| word_sum_avx2(x, w, buf))
     }
 }
 

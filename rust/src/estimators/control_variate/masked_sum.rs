@@ -85,20 +85,132 @@ fn reduce_pairs(halves: std::arch::x86_64::__m256d) -> f64 {
     _mm_cvtsd_f64(_mm_add_sd(pairs, _mm_unpackhi_pd(pairs, pairs)))
 }
 
+/// The weights of one word's 64 texels.
+#[derive(Clone, Copy, Debug)]
+pub(super) enum WordWeights<'a> {
+    /// Texel by texel.
+    Given(&'a [f64; 64]),
+    /// `cells[i >> shift] as f64 * texels[i]`: a factor per cell of `2^shift` texels
+    /// (`shift >= 2`), `cells` starting at the word's first cell (the product's `B~` at
+    /// cells coarser than the record's texels, times the map's luminance).
+    Product {
+        cells: &'a [f32],
+        shift: u32,
+        texels: &'a [f64; 64],
+    },
+}
+
+impl<'a> WordWeights<'a> {
+    /// The 64 weights, written into `buf` when they are a product.
+    #[inline(always)]
+    pub(super) fn expand<'b>(self, buf: &'b mut [f64; 64]) -> &'b [f64; 64]
+    where
+        'a: 'b,
+    {
+        match self {
+            WordWeights::Given(w) => w,
+            WordWeights::Product {
+                cells,
+                shift,
+                texels,
+            } => {
+                let per_cell = 1usize << shift.min(6);
+                let rows = buf
+                    .chunks_exact_mut(per_cell)
+                    .zip(texels.chunks_exact(per_cell));
+                for ((w, l), &b) in rows.zip(cells) {
+                    for (w, &l) in w.iter_mut().zip(l) {
+                        *w = b as f64 * l;
+                    }
+                }
+                buf
+            }
+        }
+    }
+}
+
+/// `Σ` of `weights` over the set bits of `bits` (the module's order), portable form;
+/// `buf` is scratch.
+#[inline(always)]
+pub(super) fn word_sum_portable(bits: u64, weights: WordWeights, buf: &mut [f64; 64]) -> f64 {
+    masked_sum_portable(bits, weights.expand(buf))
+}
+
+/// [`word_sum_portable`] with AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn word_sum_avx2(bits: u64, weights: WordWeights, buf: &mut [f64; 64]) -> f64 {
+    masked_sum_avx2(bits, weights.expand(buf))
+}
+
+/// [`word_sum_portable`] with AVX-512: a product is formed in registers, each cell's
+/// factor widened once and spread over its texels by a permute.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub(super) fn word_sum_avx512(bits: u64, weights: WordWeights, _buf: &mut [f64; 64]) -> f64 {
+    use std::arch::x86_64::*;
+    let WordWeights::Product {
+        cells,
+        shift,
+        texels,
+    } = weights
+    else {
+        let WordWeights::Given(w) = weights else {
+            unreachable!()
+        };
+        return masked_sum_avx512(bits, w);
+    };
+    debug_assert!(shift >= 2);
+    // The word spans `64 >> shift` cells (at most 16), or lies inside one.
+    let spanned = (64usize >> shift.min(6)).min(cells.len());
+    let load_mask = ((1u32 << spanned) - 1) as u16;
+    // SAFETY: the load reads only the `spanned <= cells.len()` lanes its mask enables.
+    let factors = unsafe { _mm512_maskz_loadu_ps(load_mask, cells.as_ptr()) };
+    let low = _mm512_cvtps_pd(_mm512_castps512_ps256(factors));
+    let high = _mm512_cvtps_pd(_mm256_castpd_ps(_mm512_extractf64x4_pd::<1>(
+        _mm512_castps_pd(factors),
+    )));
+    let lane = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
+    let shift = _mm512_set1_epi64(shift.min(63) as i64);
+    let mut acc = _mm512_setzero_pd();
+    for k in 0..8 {
+        let cell = _mm512_srlv_epi64(
+            _mm512_add_epi64(lane, _mm512_set1_epi64(8 * k as i64)),
+            shift,
+        );
+        let factor = _mm512_permutex2var_pd(low, cell, high);
+        // SAFETY: `8k + 8 <= 64` texels; unaligned load.
+        let texel = unsafe { _mm512_loadu_pd(texels.as_ptr().add(8 * k)) };
+        acc = _mm512_mask_add_pd(
+            acc,
+            (bits >> (8 * k)) as u8,
+            acc,
+            _mm512_mul_pd(factor, texel),
+        );
+    }
+    let halves = _mm256_add_pd(
+        _mm512_castpd512_pd256(acc),
+        _mm512_extractf64x4_pd::<1>(acc),
+    );
+    reduce_pairs(halves)
+}
+
 /// The sum with the best kernel this CPU has (detected once; one call per word, for
 /// callers off the hot path).
-pub(super) fn masked_sum(bits: u64, weights: &[f64; 64]) -> f64 {
+pub(super) fn word_sum(bits: u64, weights: WordWeights, buf: &mut [f64; 64]) -> f64 {
     #[cfg(target_arch = "x86_64")]
     {
         use crate::simd::{level, SimdLevel};
         match level() {
             // SAFETY (both): the CPU has the features, detected by `crate::simd`.
-            SimdLevel::Avx512 => return unsafe { masked_sum_avx512(bits, weights) },
-            SimdLevel::Avx2 => return unsafe { masked_sum_avx2(bits, weights) },
+            SimdLevel::Avx512 => return unsafe { word_sum_avx512(bits, weights, buf) },
+            SimdLevel::Avx2 => return unsafe { word_sum_avx2(bits, weights, buf) },
             _ => {}
         }
     }
-    masked_sum_portable(bits, weights)
+    word_sum_portable(bits, weights, buf)
 }
 
 #[cfg(test)]
@@ -131,18 +243,45 @@ mod tests {
                 (expected - plain).abs() <= 1e-13 * plain,
                 "{expected} vs {plain}"
             );
-            assert_eq!(masked_sum(bits, &weights).to_bits(), expected.to_bits());
+            let mut buf = [0.0; 64];
+            let given = WordWeights::Given(&weights);
+            assert_eq!(
+                word_sum(bits, given, &mut buf).to_bits(),
+                expected.to_bits()
+            );
+            // The same weights as a product of a factor per cell and one per texel, at
+            // every cell size from 4 texels to more than the word.
+            let shift = 2 + (case % 6) as u32;
+            let cells: Vec<f32> = (0..16)
+                .map(|c| to_unit_f64(hash4(9, case, c, 0)) as f32)
+                .collect();
+            let texels = weights;
+            let product = WordWeights::Product {
+                cells: &cells[..(64 >> shift.min(6)).max(1)],
+                shift,
+                texels: &texels,
+            };
+            let expanded: [f64; 64] = std::array::from_fn(|i| cells[i >> shift] as f64 * texels[i]);
+            let expected_product = masked_sum_portable(bits, &expanded);
+            let portable = word_sum_portable(bits, product, &mut buf);
+            assert_eq!(portable.to_bits(), expected_product.to_bits());
+            let dispatched = word_sum(bits, product, &mut buf);
+            assert_eq!(dispatched.to_bits(), expected_product.to_bits());
             #[cfg(target_arch = "x86_64")]
             {
                 use std::arch::is_x86_feature_detected as has;
-                // SAFETY (both): the features were detected just before.
+                // SAFETY (each): the features were detected just before.
                 if has!("avx512f") {
                     let got = unsafe { masked_sum_avx512(bits, &weights) };
                     assert_eq!(got.to_bits(), expected.to_bits(), "AVX-512, case {case}");
+                    let got = unsafe { word_sum_avx512(bits, product, &mut buf) };
+                    assert_eq!(got.to_bits(), expected_product.to_bits(), "case {case}");
                 }
                 if has!("avx2") {
                     let got = unsafe { masked_sum_avx2(bits, &weights) };
                     assert_eq!(got.to_bits(), expected.to_bits(), "AVX2, case {case}");
+                    let got = unsafe { word_sum_avx2(bits, product, &mut buf) };
+                    assert_eq!(got.to_bits(), expected_product.to_bits(), "case {case}");
                 }
             }
         }
