@@ -264,14 +264,12 @@ impl CacheState {
         scratch: &mut LookupScratch,
     ) -> Lookup {
         let mut out = Lookup::default();
-        let mut buffer = [(0.0, 0, 0.0); CANDIDATE_BUFFER];
-        let cand = self.m_nearest(params, x, n, d_max, scratch, &mut buffer);
+        let cand = self.m_nearest(params, x, n, d_max, scratch);
 
         let w_lo = params.weight_floor();
         let scale = 1.0 / (1.0 - w_lo);
+        let keep = params.n_keep as usize;
         let mut best = 0.0f32;
-        let mut scored = [Neighbour::default(); MAX_SEARCH_COUNT as usize];
-        let mut scored_len = 0;
         for &(d2, id, theta) in cand {
             let d = d2.sqrt();
             let w_hat = ((raw_weight(d / d_max, theta, params.lambda_falloff) - w_lo) * scale)
@@ -286,26 +284,34 @@ impl CacheState {
             let w = w_g * w_hat;
             best = best.max(w);
             if w > 0.0 {
-                scored[scored_len] = Neighbour {
+                // The n heaviest, heaviest first; ties by distance then id keep the choice
+                // deterministic. Insertion into the few kept beats sorting all m.
+                let candidate = Neighbour {
                     id,
                     weight: w,
                     beta: 0.0,
                     distance: d,
                 };
-                scored_len += 1;
+                let heavier = |k: &Neighbour| {
+                    k.weight
+                        .total_cmp(&w)
+                        .then(d.total_cmp(&k.distance))
+                        .then(id.cmp(&k.id))
+                        .is_gt()
+                };
+                let at = out.kept[..out.len]
+                    .iter()
+                    .take_while(|k| heavier(k))
+                    .count();
+                if at < keep {
+                    let end = out.len.min(keep - 1);
+                    out.kept.copy_within(at..end, at + 1);
+                    out.kept[at] = candidate;
+                    out.len = end + 1;
+                }
             }
         }
         out.max_weight = best;
-        let scored = &mut scored[..scored_len];
-        // Heaviest first; ties by distance then id keep the choice deterministic.
-        scored.sort_unstable_by(|a, b| {
-            b.weight
-                .total_cmp(&a.weight)
-                .then(a.distance.total_cmp(&b.distance))
-                .then(a.id.cmp(&b.id))
-        });
-        out.len = scored_len.min(params.n_keep as usize);
-        out.kept[..out.len].copy_from_slice(&scored[..out.len]);
         let kept = &mut out.kept[..out.len];
         let total: f32 = kept.iter().map(|k| k.weight).sum();
         for k in kept.iter_mut() {
@@ -327,18 +333,23 @@ impl CacheState {
         x: Vec3,
         n: Vec3,
         d_max: f32,
-        scratch: &mut LookupScratch,
-        buffer: &'b mut [(f32, u32, f32); CANDIDATE_BUFFER],
+        scratch: &'b mut LookupScratch,
     ) -> &'b [(f32, u32, f32)] {
         if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
-            return &buffer[..0];
+            return &[];
         }
         let m = params.m_search as usize;
         let theta_max = params.theta_max();
         let cos_max = theta_max.cos();
         let mut len = 0;
         let r2 = d_max * d_max;
-        let gathered = self.gather(x, d_max, scratch);
+        self.gather(x, d_max, scratch);
+        let LookupScratch {
+            sites: gathered,
+            candidates: buffer,
+            ..
+        } = scratch;
+        buffer.resize(CANDIDATE_BUFFER, (0.0, 0, 0.0));
         // kiddo's squared distance, summed in its order, so that a gathered set gives bit
         // for bit what a range query at `x` gives; one vectorised pass over the coordinates.
         gathered.d2.clear();
@@ -350,39 +361,35 @@ impl CacheState {
                     ex * ex + ey * ey + ez * ez
                 },
             ));
+        // θ_i < θ_max (strict, as in §5.1). Only cosines within 1e-3 of θ_max's need the
+        // angle to decide; the rest are clearly in or out, and θ is computed for the m kept
+        // alone. Candidates are written whether they pass or not and counted when they do:
+        // which pass is random, and a branch on it would mispredict.
+        let (loose, tight) = (cos_max - 1e-3, cos_max + 1e-3);
         for (k, &d2) in gathered.d2.iter().enumerate() {
-            if d2 > r2 {
-                continue;
-            }
-            let (normal, id) = (gathered.normal[k], gathered.id[k]);
+            let normal = gathered.normal[k];
             let cos = n.dot(normal);
-            // θ_i < θ_max (strict, as in §5.1); NaN never passes. Only angles within 1e-3
-            // of θ_max's cosine need the angle to decide; the rest are clearly in or out,
-            // and θ is computed for the m kept alone.
-            if cos.is_nan() || cos < cos_max - 1e-3 {
-                continue;
-            }
-            if cos <= cos_max + 1e-3 {
+            // NaN fails both comparisons.
+            let mut pass = (d2 <= r2) & (cos >= loose);
+            if pass & (cos <= tight) {
                 let theta = normal_angle(n.cross(normal).length(), cos);
-                if theta.partial_cmp(&theta_max) != Some(std::cmp::Ordering::Less) {
-                    continue;
-                }
+                pass = theta.partial_cmp(&theta_max) == Some(std::cmp::Ordering::Less);
             }
+            buffer[len] = (d2, gathered.id[k], cos);
+            len += pass as usize;
             if len == buffer.len() {
                 buffer.select_nth_unstable_by(m - 1, by_distance_then_id);
                 len = m;
             }
-            buffer[len] = (d2, id, 0.0);
-            len += 1;
         }
         let cand = &mut buffer[..len];
         if len > m {
             cand.select_nth_unstable_by(m - 1, by_distance_then_id);
         }
         let kept = &mut buffer[..len.min(m)];
-        for (_, id, theta) in kept.iter_mut() {
+        for (_, id, cos_then_theta) in kept.iter_mut() {
             let normal = self.sites[*id as usize].normal;
-            *theta = normal_angle(n.cross(normal).length(), n.dot(normal));
+            *cos_then_theta = normal_angle(n.cross(normal).length(), *cos_then_theta);
         }
         kept
     }
@@ -390,12 +397,7 @@ impl CacheState {
     /// The records that may lie within `d_max` of `x`, as (position, normal, id): those the
     /// scratch holds when its gathered ball covers this one, else a new gathering of the
     /// ball of radius `LookupScratch::REACH · d_max` around `x` (one kd-tree range query).
-    fn gather<'s>(
-        &self,
-        x: Vec3,
-        d_max: f32,
-        scratch: &'s mut LookupScratch,
-    ) -> &'s mut GatheredSites {
+    fn gather(&self, x: Vec3, d_max: f32, scratch: &mut LookupScratch) {
         // A margin of 1e-5 keeps rounding of the distances on the safe side: a record
         // within d_max of x is within (|x − anchor| + d_max)(1 + 1e-6) of the anchor.
         let covered = scratch.generation == self.generation
@@ -426,7 +428,6 @@ impl CacheState {
                 }
             }
         }
-        &mut scratch.sites
     }
 
     /// `δ̄` of §5.2: mean eq. 11 difference over the pairs of `kept`.
@@ -540,6 +541,9 @@ pub struct LookupScratch {
     anchor: Vec3,
     reach: f32,
     sites: GatheredSites,
+    /// The candidates of the current lookup: `(squared distance, id, θ)`, room for
+    /// `CANDIDATE_BUFFER`.
+    candidates: Vec<(f32, u32, f32)>,
     /// Lookups served by the current gathering, and gatherings so far.
     served: u32,
     gathers: u32,

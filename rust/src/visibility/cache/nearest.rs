@@ -11,7 +11,7 @@ use std::cmp::Ordering;
 
 use glam::Vec3;
 
-use super::{CacheState, LookupScratch, VisibilityCache, CANDIDATE_BUFFER};
+use super::{CacheState, LookupScratch, VisibilityCache};
 use crate::error::Result;
 use crate::visibility::params::{raw_weight, CacheParams, MAX_SEARCH_COUNT};
 use crate::visibility::record::{Record, RecordRays};
@@ -77,8 +77,7 @@ impl CacheState {
         scratch: &mut LookupScratch,
     ) -> Nearest {
         let mut out = Nearest::default();
-        let mut buffer = [(0.0, 0, 0.0); CANDIDATE_BUFFER];
-        let found = self.m_nearest(params, x, n, d_max, scratch, &mut buffer);
+        let found = self.m_nearest(params, x, n, d_max, scratch);
         let len = found.len();
         let mut cand = [Candidate::default(); MAX_SEARCH_COUNT as usize];
         for (c, &(d2, id, theta)) in cand.iter_mut().zip(found) {
