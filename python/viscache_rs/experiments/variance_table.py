@@ -89,15 +89,18 @@ def run(ctx: ExperimentContext) -> None:
         for spp in cfg["spp"]:
             common = dict(spp=spp, seed=ctx.seed + spp, threads=ctx.threads,
                           progress=ctx.progress)
-            # Seconds are the least of REPEATS identical renders: sub-second renders on a
-            # shared machine vary by tens of percent from run to run.
-            runs = {
-                "product": [render(setup, method="product", **common) for _ in range(REPEATS)],
-                "cv": [render(setup, method="cv", cache=cache, alpha=1.0, **common)
-                       for _ in range(REPEATS)],
-                "cv_est": [render(setup, method="cv", cache=cache, alpha="estimate", **common)
-                           for _ in range(REPEATS)],
+            # Seconds are the least of REPEATS identical renders, the methods taking turns:
+            # sub-second renders on a shared machine vary by tens of percent from run to
+            # run, and drift (clock, other load) then hits every method alike.
+            methods = {
+                "product": dict(method="product"),
+                "cv": dict(method="cv", cache=cache, alpha=1.0),
+                "cv_est": dict(method="cv", cache=cache, alpha="estimate"),
             }
+            runs = {k: [] for k in methods}
+            for _ in range(REPEATS):
+                for k, kw in methods.items():
+                    runs[k].append(render(setup, **kw, **common))
             seconds = {k: min(r.stats["seconds"] for r in v) for k, v in runs.items()}
             prod, cv1, cve = runs["product"][0], runs["cv"][0], runs["cv_est"][0]
             vp = mean_variance(prod)
