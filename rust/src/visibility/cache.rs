@@ -264,34 +264,15 @@ impl CacheState {
         scratch: &mut LookupScratch,
     ) -> Lookup {
         let mut out = Lookup::default();
-        let cand = self.m_nearest(params, x, n, d_max, scratch);
-
-        let w_lo = params.weight_floor();
-        let scale = 1.0 / (1.0 - w_lo);
+        let hits = self.m_nearest(params, x, n, d_max, scratch);
         let keep = params.n_keep as usize;
         let mut best = 0.0f32;
-        for &(d2, id, theta) in cand {
-            let d = d2.sqrt();
-            let w_hat = ((raw_weight(d / d_max, theta, params.lambda_falloff) - w_lo) * scale)
-                .clamp(0.0, 1.0);
-            let to_record = self.sites[id as usize].position - x;
-            let w_g = if d > 0.0 {
-                let c = (n.dot(to_record) / to_record.length()).abs().min(1.0);
-                (1.0 - c).sqrt()
-            } else {
-                1.0
-            };
-            let w = w_g * w_hat;
+        for i in 0..hits.len {
+            let (w, d, id) = (hits.weight[i], hits.distance[i], hits.id[i]);
             best = best.max(w);
             if w > 0.0 {
                 // The n heaviest, heaviest first; ties by distance then id keep the choice
                 // deterministic. Insertion into the few kept beats sorting all m.
-                let candidate = Neighbour {
-                    id,
-                    weight: w,
-                    beta: 0.0,
-                    distance: d,
-                };
                 let heavier = |k: &Neighbour| {
                     k.weight
                         .total_cmp(&w)
@@ -306,7 +287,12 @@ impl CacheState {
                 if at < keep {
                     let end = out.len.min(keep - 1);
                     out.kept.copy_within(at..end, at + 1);
-                    out.kept[at] = candidate;
+                    out.kept[at] = Neighbour {
+                        id,
+                        weight: w,
+                        beta: 0.0,
+                        distance: d,
+                    };
                     out.len = end + 1;
                 }
             }
@@ -322,8 +308,8 @@ impl CacheState {
     }
 
     /// The `m_search` nearest records (ties by id) among those within `d_max` of `x` whose
-    /// normals differ from the unit `n` by `θ_i < θ_max`, as `(squared distance, id, θ)` in
-    /// no particular order, in `buffer`. Shared positions are expanded; whenever the buffer
+    /// normals differ from the unit `n` by `θ_i < θ_max`, in no particular order, with
+    /// their eq. 9 weights. Shared positions are expanded; whenever the candidate buffer
     /// fills, the `m` nearest are kept. Both [`Self::lookup`] (§5.1) and
     /// [`Self::nearest`] (§6.1) start from this set. An empty cache or a non-positive or
     /// non-finite `d_max` finds nothing.
@@ -334,9 +320,10 @@ impl CacheState {
         n: Vec3,
         d_max: f32,
         scratch: &'b mut LookupScratch,
-    ) -> &'b [(f32, u32, f32)] {
+    ) -> &'b Hits {
+        scratch.hits.len = 0;
         if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
-            return &[];
+            return &scratch.hits;
         }
         let m = params.m_search as usize;
         let theta_max = params.theta_max();
@@ -347,6 +334,7 @@ impl CacheState {
         let LookupScratch {
             sites: gathered,
             candidates: buffer,
+            hits,
             ..
         } = scratch;
         buffer.resize(CANDIDATE_BUFFER, (0.0, 0, 0.0));
@@ -386,12 +374,17 @@ impl CacheState {
         if len > m {
             cand.select_nth_unstable_by(m - 1, by_distance_then_id);
         }
-        let kept = &mut buffer[..len.min(m)];
-        for (_, id, cos_then_theta) in kept.iter_mut() {
-            let normal = self.sites[*id as usize].normal;
-            *cos_then_theta = normal_angle(n.cross(normal).length(), *cos_then_theta);
+        hits.len = len.min(m);
+        for (i, &(d2, id, cos)) in buffer[..hits.len].iter().enumerate() {
+            let site = &self.sites[id as usize];
+            hits.id[i] = id;
+            hits.d2[i] = d2;
+            hits.cos[i] = cos;
+            hits.sin[i] = n.cross(site.normal).length();
+            hits.along[i] = n.dot(site.position - x);
         }
-        kept
+        hits.score(params, d_max);
+        hits
     }
 
     /// The records that may lie within `d_max` of `x`, as (position, normal, id): those the
@@ -544,6 +537,8 @@ pub struct LookupScratch {
     /// The candidates of the current lookup: `(squared distance, id, θ)`, room for
     /// `CANDIDATE_BUFFER`.
     candidates: Vec<(f32, u32, f32)>,
+    /// The m nearest of the current lookup.
+    hits: Hits,
     /// Lookups served by the current gathering, and gatherings so far.
     served: u32,
     gathers: u32,
@@ -625,6 +620,107 @@ impl Site {
             position: header.position(),
             normal: header.normal(),
             next: NO_RECORD,
+        }
+    }
+}
+
+/// The m nearest records of a query (no order) and what §5.1 scores them by, as structure
+/// of arrays: [`Self::score`] runs one SIMD lane per record.
+#[derive(Clone, Debug)]
+pub(crate) struct Hits {
+    /// Records held.
+    pub(crate) len: usize,
+    pub(crate) id: [u32; HIT_LANES],
+    /// Squared distance `|p_i − x|²` (kiddo's summation order), `sin θ_i` as `|n × n_i|`,
+    /// `cos θ_i` and `n · (p_i − x)`: the inputs of [`Self::score`].
+    d2: [f32; HIT_LANES],
+    sin: [f32; HIT_LANES],
+    cos: [f32; HIT_LANES],
+    along: [f32; HIT_LANES],
+    /// Distance `d_i` (world units), `θ_i` (radians), `w_g` (Fig. 7) and the eq. 9 weight
+    /// `w_i = w_g · ŵ(d_i, θ_i)`, filled by [`Self::score`].
+    pub(crate) distance: [f32; HIT_LANES],
+    pub(crate) theta: [f32; HIT_LANES],
+    pub(crate) geometric: [f32; HIT_LANES],
+    pub(crate) weight: [f32; HIT_LANES],
+}
+
+/// Lanes of [`Hits`]: `m <= MAX_SEARCH_COUNT`, scored 16 at a time.
+const HIT_LANES: usize = MAX_SEARCH_COUNT as usize;
+
+impl Default for Hits {
+    fn default() -> Self {
+        // Lanes past `len` keep finite values: scoring runs over whole groups of 16.
+        Self {
+            len: 0,
+            id: [0; HIT_LANES],
+            d2: [1.0; HIT_LANES],
+            sin: [0.0; HIT_LANES],
+            cos: [1.0; HIT_LANES],
+            along: [0.0; HIT_LANES],
+            distance: [0.0; HIT_LANES],
+            theta: [0.0; HIT_LANES],
+            geometric: [0.0; HIT_LANES],
+            weight: [0.0; HIT_LANES],
+        }
+    }
+}
+
+impl Hits {
+    /// Eq. 9 with `w_g` for every record held, from `d2`, `sin`, `cos` and `along`:
+    /// `θ = atan2(sin, cos)`, `d = sqrt(d2)`, `ŵ = (w(d/d_max, θ) − w_lo)/(1 − w_lo)`
+    /// clamped to `[0, 1]`, `w_g = sqrt(1 − min(|along| / d, 1))` (1 at `d = 0`). The same
+    /// scalar operations per record as a loop would make, so every CPU gets the same bits;
+    /// with AVX2 or AVX-512 the compiler runs the branch-free body in 8 or 16 lanes (lanes
+    /// past `len` are computed and ignored; without them its cost model keeps it scalar).
+    fn score(&mut self, params: &CacheParams, d_max: f32) {
+        let w_lo = params.weight_floor();
+        let scale = 1.0 / (1.0 - w_lo);
+        let lambda = params.lambda_falloff;
+        #[cfg(target_arch = "x86_64")]
+        {
+            use crate::simd::{level, SimdLevel};
+            match level() {
+                // SAFETY (both): the CPU has the features, detected by `crate::simd`.
+                SimdLevel::Avx512 => {
+                    return unsafe { self.score_avx512(d_max, w_lo, scale, lambda) }
+                }
+                SimdLevel::Avx2 => return unsafe { self.score_avx2(d_max, w_lo, scale, lambda) },
+                _ => {}
+            }
+        }
+        self.score_lanes(d_max, w_lo, scale, lambda);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn score_avx512(&mut self, d_max: f32, w_lo: f32, scale: f32, lambda: f32) {
+        self.score_lanes(d_max, w_lo, scale, lambda);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn score_avx2(&mut self, d_max: f32, w_lo: f32, scale: f32, lambda: f32) {
+        self.score_lanes(d_max, w_lo, scale, lambda);
+    }
+
+    /// [`Self::score`]'s loop, inlined into each form.
+    #[inline(always)]
+    fn score_lanes(&mut self, d_max: f32, w_lo: f32, scale: f32, lambda: f32) {
+        let lanes = self.len.next_multiple_of(16).min(HIT_LANES);
+        for i in 0..lanes {
+            let theta = normal_angle(self.sin[i], self.cos[i]);
+            let d = self.d2[i].sqrt();
+            let w_hat = ((raw_weight(d / d_max, theta, lambda) - w_lo) * scale).clamp(0.0, 1.0);
+            let w_g = if d > 0.0 {
+                (1.0 - (self.along[i] / d).abs().min(1.0)).sqrt()
+            } else {
+                1.0
+            };
+            self.distance[i] = d;
+            self.theta[i] = theta;
+            self.geometric[i] = w_g;
+            self.weight[i] = w_g * w_hat;
         }
     }
 }

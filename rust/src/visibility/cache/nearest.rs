@@ -13,7 +13,7 @@ use glam::Vec3;
 
 use super::{CacheState, LookupScratch, VisibilityCache};
 use crate::error::Result;
-use crate::visibility::params::{raw_weight, CacheParams, MAX_SEARCH_COUNT};
+use crate::visibility::params::{CacheParams, MAX_SEARCH_COUNT};
 use crate::visibility::record::{Record, RecordRays};
 
 /// One of the `m` nearest records of a query.
@@ -77,37 +77,19 @@ impl CacheState {
         scratch: &mut LookupScratch,
     ) -> Nearest {
         let mut out = Nearest::default();
-        let found = self.m_nearest(params, x, n, d_max, scratch);
-        let len = found.len();
+        let hits = self.m_nearest(params, x, n, d_max, scratch);
+        let kept = hits.len;
         let mut cand = [Candidate::default(); MAX_SEARCH_COUNT as usize];
-        for (c, &(d2, id, theta)) in cand.iter_mut().zip(found) {
+        for (i, c) in cand[..kept].iter_mut().enumerate() {
             *c = Candidate {
-                id,
-                distance: d2.sqrt(),
-                theta,
-                weight: 0.0,
-                geometric: 0.0,
+                id: hits.id[i],
+                distance: hits.distance[i],
+                theta: hits.theta[i],
+                weight: hits.weight[i],
+                geometric: hits.geometric[i],
             };
         }
-        let cand = &mut cand[..len];
-        cand.sort_unstable_by(by_distance_then_id);
-        let kept = len;
-        let w_lo = params.weight_floor();
-        let scale = 1.0 / (1.0 - w_lo);
-        for c in &mut cand[..kept] {
-            let w_hat = ((raw_weight(c.distance / d_max, c.theta, params.lambda_falloff) - w_lo)
-                * scale)
-                .clamp(0.0, 1.0);
-            let to_record = self.sites[c.id as usize].position - x;
-            let w_g = if c.distance > 0.0 {
-                let cos = (n.dot(to_record) / to_record.length()).abs().min(1.0);
-                (1.0 - cos).sqrt()
-            } else {
-                1.0
-            };
-            c.geometric = w_g;
-            c.weight = w_g * w_hat;
-        }
+        cand[..kept].sort_unstable_by(by_distance_then_id);
         out.len = kept;
         out.items[..kept].copy_from_slice(&cand[..kept]);
         out

@@ -671,3 +671,84 @@ fn records_without_nearest_hits_have_the_same_bits_and_version_one_files_load() 
     assert!(old.params().nearest_hits);
     assert_eq!(old.len(), without.len());
 }
+
+/// The weights of the m nearest come out the same bit for bit whichever vector form scores
+/// them, and equal the scalar formulas record by record.
+#[test]
+fn every_scoring_form_gives_the_scalar_weights() {
+    let params = CacheParams::MEDIUM;
+    let d_max = 0.3f32;
+    for case in 0..200u64 {
+        let mut hits = Hits {
+            len: (case % (HIT_LANES as u64 + 1)) as usize,
+            ..Hits::default()
+        };
+        for i in 0..HIT_LANES {
+            let k = case * 1000 + i as u64;
+            // Distances from 0 to past d_max, angles from 0 to θ_max, record offsets
+            // anywhere from along the normal to in the tangent plane.
+            let d = if i % 7 == 0 {
+                0.0
+            } else {
+                1.1 * d_max * unit(21, k)
+            };
+            let theta = params.theta_max() * unit(22, k);
+            hits.d2[i] = d * d;
+            hits.sin[i] = theta.sin();
+            hits.cos[i] = theta.cos();
+            hits.along[i] = d * (2.0 * unit(23, k) - 1.0);
+        }
+        let mut reference = hits.clone();
+        reference.score_lanes(
+            d_max,
+            params.weight_floor(),
+            1.0 / (1.0 - params.weight_floor()),
+            params.lambda_falloff,
+        );
+        let mut dispatched = hits.clone();
+        dispatched.score(&params, d_max);
+        let lanes = hits.len.next_multiple_of(16).min(HIT_LANES);
+        let bits = |h: &Hits| {
+            let all = [h.distance, h.theta, h.geometric, h.weight];
+            all.map(|a| a[..lanes].iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+        };
+        assert_eq!(bits(&dispatched), bits(&reference), "case {case}");
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::is_x86_feature_detected as has;
+            let (w_lo, lam) = (params.weight_floor(), params.lambda_falloff);
+            let scale = 1.0 / (1.0 - w_lo);
+            // SAFETY (both): the features were detected just before.
+            if has!("avx512f") {
+                let mut h = hits.clone();
+                unsafe { h.score_avx512(d_max, w_lo, scale, lam) };
+                assert_eq!(bits(&h), bits(&reference), "AVX-512, case {case}");
+            }
+            if has!("avx2") {
+                let mut h = hits.clone();
+                unsafe { h.score_avx2(d_max, w_lo, scale, lam) };
+                assert_eq!(bits(&h), bits(&reference), "AVX2, case {case}");
+            }
+        }
+        for i in 0..hits.len {
+            let d = hits.d2[i].sqrt();
+            let theta = normal_angle(hits.sin[i], hits.cos[i]);
+            let w_hat = ((raw_weight(d / d_max, theta, params.lambda_falloff)
+                - params.weight_floor())
+                / (1.0 - params.weight_floor()))
+            .clamp(0.0, 1.0);
+            let w_g = if d > 0.0 {
+                (1.0 - (hits.along[i] / d).abs().min(1.0)).sqrt()
+            } else {
+                1.0
+            };
+            assert_eq!(reference.distance[i], d);
+            assert_eq!(reference.theta[i], theta);
+            assert_eq!(reference.geometric[i], w_g);
+            assert!(
+                (reference.weight[i] - w_g * w_hat).abs() <= 1e-6,
+                "case {case}, {i}"
+            );
+        }
+    }
+}
