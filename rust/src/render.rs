@@ -255,10 +255,10 @@ struct SharedLookup {
     normal: Vec3,
     d_max: f32,
     lookup: Lookup,
-    material: Material,
-    shading_normal: Vec3,
-    /// Whether the point had a product distribution (and so `interpolant` a `J`).
-    product_made: bool,
+    /// What the point's product distribution depended on — its material and shading
+    /// normal — when it had one and the material's product ignores the view: a point
+    /// with the same key has the same product, so `interpolant`'s `J` holds there too.
+    product_key: Option<(Material, Vec3)>,
     interpolant: Interpolant,
 }
 
@@ -379,13 +379,8 @@ impl Shader<'_> {
             interpolant = match product.as_ref() {
                 Some(p) if !lookup.neighbours().is_empty() => {
                     // The neighbour's J holds when its product was this point's too.
-                    let same_product = |s: &SharedLookup| {
-                        s.product_made
-                            && s.material == sp.material
-                            && !sp.material.product_depends_on_wo()
-                            && s.shading_normal == sp.normal
-                    };
-                    match shared.filter(same_product) {
+                    let key = Some((sp.material, sp.normal));
+                    match shared.filter(|s| s.product_key == key) {
                         Some(s) => {
                             work.reused_integrals += 1;
                             s.interpolant
@@ -405,9 +400,8 @@ impl Shader<'_> {
                     normal,
                     d_max,
                     lookup,
-                    material: sp.material,
-                    shading_normal: sp.normal,
-                    product_made: product.is_some(),
+                    product_key: (product.is_some() && !sp.material.product_depends_on_wo())
+                        .then_some((sp.material, sp.normal)),
                     interpolant,
                 });
             }

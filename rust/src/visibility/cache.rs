@@ -542,7 +542,7 @@ pub struct LookupScratch {
     anchor: Vec3,
     reach: f32,
     sites: GatheredSites,
-    /// The candidates of the current lookup: `(squared distance, id, θ)`, room for
+    /// The candidates of the current lookup: `(squared distance, id, cos θ)`, room for
     /// `CANDIDATE_BUFFER`.
     candidates: Vec<(f32, u32, f32)>,
     /// The m nearest of the current lookup.

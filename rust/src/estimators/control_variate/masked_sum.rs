@@ -36,11 +36,19 @@ pub(super) fn masked_sum_avx512(bits: u64, weights: &[f64; 64]) -> f64 {
         let w = unsafe { _mm512_loadu_pd(weights.as_ptr().add(8 * k)) };
         acc = _mm512_mask_add_pd(acc, (bits >> (8 * k)) as u8, acc, w);
     }
-    let halves = _mm256_add_pd(
+    reduce_lanes(acc)
+}
+
+/// The module's order over eight lanes: `(a0+a4, …, a3+a7)` and then [`reduce_pairs`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn reduce_lanes(acc: std::arch::x86_64::__m512d) -> f64 {
+    use std::arch::x86_64::*;
+    reduce_pairs(_mm256_add_pd(
         _mm512_castpd512_pd256(acc),
         _mm512_extractf64x4_pd::<1>(acc),
-    );
-    reduce_pairs(halves)
+    ))
 }
 
 /// AVX2: lanes 0–3 and 4–7 as two accumulators, a nibble of `bits` masking each load.
@@ -144,24 +152,28 @@ pub(super) fn word_sum_avx2(bits: u64, weights: WordWeights, buf: &mut [f64; 64]
     masked_sum_avx2(bits, weights.expand(buf))
 }
 
-/// [`word_sum_portable`] with AVX-512: a product is formed in registers, each cell's
-/// factor widened once and spread over its texels by a permute.
+/// [`word_sum_portable`] with AVX-512 (`buf` unused: a product is formed in registers).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[inline]
 pub(super) fn word_sum_avx512(bits: u64, weights: WordWeights, _buf: &mut [f64; 64]) -> f64 {
+    match weights {
+        WordWeights::Given(w) => masked_sum_avx512(bits, w),
+        WordWeights::Product {
+            cells,
+            shift,
+            texels,
+        } => masked_product_sum_avx512(bits, cells, shift, texels),
+    }
+}
+
+/// The masked sum of `cells[i >> shift] as f64 * texels[i]` ([`WordWeights::Product`]):
+/// each cell's factor widened once and spread over its texels by a permute.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn masked_product_sum_avx512(bits: u64, cells: &[f32], shift: u32, texels: &[f64; 64]) -> f64 {
     use std::arch::x86_64::*;
-    let WordWeights::Product {
-        cells,
-        shift,
-        texels,
-    } = weights
-    else {
-        let WordWeights::Given(w) = weights else {
-            unreachable!()
-        };
-        return masked_sum_avx512(bits, w);
-    };
     debug_assert!(shift >= 2);
     // The word spans `64 >> shift` cells (at most 16), or lies inside one.
     let spanned = (64usize >> shift.min(6)).min(cells.len());
@@ -183,18 +195,10 @@ pub(super) fn word_sum_avx512(bits: u64, weights: WordWeights, _buf: &mut [f64; 
         let factor = _mm512_permutex2var_pd(low, cell, high);
         // SAFETY: `8k + 8 <= 64` texels; unaligned load.
         let texel = unsafe { _mm512_loadu_pd(texels.as_ptr().add(8 * k)) };
-        acc = _mm512_mask_add_pd(
-            acc,
-            (bits >> (8 * k)) as u8,
-            acc,
-            _mm512_mul_pd(factor, texel),
-        );
+        let product = _mm512_mul_pd(factor, texel);
+        acc = _mm512_mask_add_pd(acc, (bits >> (8 * k)) as u8, acc, product);
     }
-    let halves = _mm256_add_pd(
-        _mm512_castpd512_pd256(acc),
-        _mm512_extractf64x4_pd::<1>(acc),
-    );
-    reduce_pairs(halves)
+    reduce_lanes(acc)
 }
 
 /// The sum with the best kernel this CPU has (detected once; one call per word, for

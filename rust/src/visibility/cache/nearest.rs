@@ -78,9 +78,9 @@ impl CacheState {
     ) -> Nearest {
         let mut out = Nearest::default();
         let hits = self.m_nearest(params, x, n, d_max, scratch);
-        let kept = hits.len;
-        let mut cand = [Candidate::default(); MAX_SEARCH_COUNT as usize];
-        for (i, c) in cand[..kept].iter_mut().enumerate() {
+        out.len = hits.len;
+        let items = &mut out.items[..hits.len];
+        for (i, c) in items.iter_mut().enumerate() {
             *c = Candidate {
                 id: hits.id[i],
                 distance: hits.distance[i],
@@ -89,9 +89,7 @@ impl CacheState {
                 geometric: hits.geometric[i],
             };
         }
-        cand[..kept].sort_unstable_by(by_distance_then_id);
-        out.len = kept;
-        out.items[..kept].copy_from_slice(&cand[..kept]);
+        items.sort_unstable_by(by_distance_then_id);
         out
     }
 }
