@@ -19,7 +19,7 @@
 //! disagreement — records near occluders see different things, so the cache refines there).
 //!
 //! ## Index
-//! kiddo 5's mutable kd-tree (bucket 64) over *distinct* positions: records that share a
+//! kiddo 5's mutable kd-tree (bucket 16) over *distinct* positions: records that share a
 //! position exactly (a user inserting many normals at one point) hang off one tree item in
 //! a chain, so no bucket ever overflows with identical points, which kiddo cannot split.
 //! Records on flat, grid-aligned geometry share one coordinate; kiddo's splitter handles
@@ -32,11 +32,15 @@
 //! two `end_frame` calls.
 //!
 //! What a lookup reads of a record (position, decoded normal, chain link) sits in one
-//! `Site` array. Lookups in pixel order go through a [`LookupScratch`]: one range query of
-//! twice the radius serves the lookups whose balls it covers, filtered by one vectorised
-//! distance pass, with the answer of a range query at each point bit for bit. Lookups made
-//! without a scratch of their own ([`CacheState::lookup`], as the renderer, the preview and
-//! builds make them) use their thread's.
+//! `Site` array. Lookups in pixel order go through a [`LookupScratch`] (module `gather`):
+//! one range query of twice the radius, centred ahead along the walk, serves the lookups
+//! whose balls it covers. Each lookup filters the gathered records by distance and normal
+//! sixteen at a time (AVX-512 masks and compression where the CPU has them), with the
+//! answer of a range query at its point bit for bit, and takes its `m` nearest by one
+//! integer key (squared distance, then id). A gathering prefetches the maps of its records,
+//! which the lookups it serves compare for `δ̄`. Lookups made without a scratch of their
+//! own ([`CacheState::lookup`], as the renderer, the preview and builds make them) use
+//! their thread's.
 //!
 //! ## Concurrency
 //! One `RwLock` (as in the paper): lookups read in parallel, an insertion writes alone and
@@ -72,8 +76,12 @@ use crate::sampling::octahedral::morton_decode;
 use crate::sampling::pattern::{default_pattern, record_pattern, DEFAULT_LLOYD_ITERATIONS};
 use crate::sampling::rng::SampleRng;
 
+mod gather;
 mod io;
 pub mod nearest;
+
+pub use gather::LookupScratch;
+use gather::{candidate_key, key_d2, key_id};
 #[cfg(test)]
 pub(crate) mod tests;
 
@@ -267,36 +275,40 @@ impl CacheState {
         let hits = self.m_nearest(params, x, n, d_max, scratch);
         let keep = params.n_keep as usize;
         let mut best = 0.0f32;
+        // The n heaviest, heaviest first, by one integer: the weight's bits (w >= 0 orders
+        // as its bits), then the complement of the nearer-first candidate key, so that ties
+        // go to the nearer record, then the lower id, and the choice is deterministic.
+        // Insertion into the few kept beats sorting all m.
+        let mut order = [(0u128, 0usize); MAX_KEEP_COUNT as usize];
+        let mut len = 0;
         for i in 0..hits.len {
-            let (w, d, id) = (hits.weight[i], hits.distance[i], hits.id[i]);
+            let w = hits.weight[i];
             best = best.max(w);
-            if w > 0.0 {
-                // The n heaviest, heaviest first; ties by distance then id keep the choice
-                // deterministic. Insertion into the few kept beats sorting all m.
-                let heavier = |k: &Neighbour| {
-                    k.weight
-                        .total_cmp(&w)
-                        .then(d.total_cmp(&k.distance))
-                        .then(id.cmp(&k.id))
-                        .is_gt()
-                };
-                let at = out.kept[..out.len]
-                    .iter()
-                    .take_while(|k| heavier(k))
-                    .count();
-                if at < keep {
-                    let end = out.len.min(keep - 1);
-                    out.kept.copy_within(at..end, at + 1);
-                    out.kept[at] = Neighbour {
-                        id,
-                        weight: w,
-                        beta: 0.0,
-                        distance: d,
-                    };
-                    out.len = end + 1;
-                }
+            // Weights are in [0, 1]: zero carries nothing.
+            if w <= 0.0 || w.is_nan() {
+                continue;
             }
+            let key = ((w.to_bits() as u128) << 64) | !hits.key[i] as u128;
+            if len == keep && key <= order[keep - 1].0 {
+                continue;
+            }
+            let mut at = len.min(keep - 1);
+            while at > 0 && order[at - 1].0 < key {
+                order[at] = order[at - 1];
+                at -= 1;
+            }
+            order[at] = (key, i);
+            len = (len + 1).min(keep);
         }
+        for (k, &(_, i)) in out.kept.iter_mut().zip(&order[..len]) {
+            *k = Neighbour {
+                id: hits.id[i],
+                weight: hits.weight[i],
+                beta: 0.0,
+                distance: hits.distance[i],
+            };
+        }
+        out.len = len;
         out.max_weight = best;
         let kept = &mut out.kept[..out.len];
         let total: f32 = kept.iter().map(|k| k.weight).sum();
@@ -309,8 +321,7 @@ impl CacheState {
 
     /// The `m_search` nearest records (ties by id) among those within `d_max` of `x` whose
     /// normals differ from the unit `n` by `θ_i < θ_max`, in no particular order, with
-    /// their eq. 9 weights. Shared positions are expanded; whenever the candidate buffer
-    /// fills, the `m` nearest are kept. Both [`Self::lookup`] (§5.1) and
+    /// their eq. 9 weights. Shared positions are expanded. Both [`Self::lookup`] (§5.1) and
     /// [`Self::nearest`] (§6.1) start from this set. An empty cache or a non-positive or
     /// non-finite `d_max` finds nothing.
     pub(crate) fn m_nearest<'b>(
@@ -328,68 +339,42 @@ impl CacheState {
         let m = params.m_search as usize;
         let theta_max = params.theta_max();
         let cos_max = theta_max.cos();
-        let mut len = 0;
-        let r2 = d_max * d_max;
         self.gather(x, d_max, scratch);
         let LookupScratch {
             sites: gathered,
-            candidates: buffer,
+            passed,
+            candidates,
             hits,
             ..
         } = scratch;
-        buffer.resize(CANDIDATE_BUFFER, (0.0, 0, 0.0));
-        // kiddo's squared distance, summed in its order, so that a gathered set gives bit
-        // for bit what a range query at `x` gives; one vectorised pass over the coordinates.
-        gathered.d2.clear();
-        gathered
-            .d2
-            .extend((gathered.x.iter().zip(&gathered.y).zip(&gathered.z)).map(
-                |((&px, &py), &pz)| {
-                    let (ex, ey, ez) = (px - x.x, py - x.y, pz - x.z);
-                    ex * ex + ey * ey + ez * ez
-                },
-            ));
         // θ_i < θ_max (strict, as in §5.1). Only cosines within 1e-3 of θ_max's need the
-        // angle to decide; the rest are clearly in or out, and θ is computed for the m kept
-        // alone. (A branch-free form that wrote every candidate and counted those passing
-        // was 11% faster on the synthetic bench's random queries and 2.7x slower on
-        // garage's, where nearly all gathered records fail the distance test.)
+        // angle to decide; the filter drops those clearly out, and θ is computed for the m
+        // kept alone.
         let (loose, tight) = (cos_max - 1e-3, cos_max + 1e-3);
-        for (k, &d2) in gathered.d2.iter().enumerate() {
-            if d2 > r2 {
-                continue;
-            }
-            let normal = gathered.normal[k];
-            let cos = n.dot(normal);
-            // NaN never passes.
-            if cos.is_nan() || cos < loose {
-                continue;
-            }
+        gathered.filter(x, n, d_max * d_max, loose, passed);
+        candidates.clear();
+        for ((&k, &d2), &cos) in passed.index.iter().zip(&passed.d2).zip(&passed.cos) {
+            let normal = gathered.normal(k as usize);
             if cos <= tight {
                 let theta = normal_angle(n.cross(normal).length(), cos);
                 if theta.partial_cmp(&theta_max) != Some(std::cmp::Ordering::Less) {
                     continue;
                 }
             }
-            if len == buffer.len() {
-                buffer.select_nth_unstable_by(m - 1, by_distance_then_id);
-                len = m;
-            }
-            buffer[len] = (d2, gathered.id[k], cos);
-            len += 1;
+            candidates.push((candidate_key(d2, gathered.id(k as usize)), k, cos));
         }
-        let cand = &mut buffer[..len];
-        if len > m {
-            cand.select_nth_unstable_by(m - 1, by_distance_then_id);
+        if candidates.len() > m {
+            candidates.select_nth_unstable_by_key(m - 1, |c| c.0);
         }
-        hits.len = len.min(m);
-        for (i, &(d2, id, cos)) in buffer[..hits.len].iter().enumerate() {
-            let site = &self.sites[id as usize];
-            hits.id[i] = id;
-            hits.d2[i] = d2;
+        hits.len = candidates.len().min(m);
+        for (i, &(key, k, cos)) in candidates[..hits.len].iter().enumerate() {
+            let k = k as usize;
+            hits.key[i] = key;
+            hits.id[i] = key_id(key);
+            hits.d2[i] = key_d2(key);
             hits.cos[i] = cos;
-            hits.sin[i] = n.cross(site.normal).length();
-            hits.along[i] = n.dot(site.position - x);
+            hits.sin[i] = n.cross(gathered.normal(k)).length();
+            hits.along[i] = n.dot(gathered.position(k) - x);
         }
         hits.score(params, d_max);
         hits
@@ -403,6 +388,7 @@ impl CacheState {
         // within d_max of x is within (|x − anchor| + d_max)(1 + 1e-6) of the anchor.
         let covered = scratch.generation == self.generation
             && (x - scratch.anchor).length() + d_max <= scratch.reach * (1.0 - 1e-5);
+        let previous = std::mem::replace(&mut scratch.previous, x);
         if covered {
             scratch.served += 1;
         } else {
@@ -412,20 +398,51 @@ impl CacheState {
             let wide = scratch.served > 1 || scratch.gathers % 8 == 7;
             scratch.gathers = scratch.gathers.wrapping_add(1);
             let reach = if wide { LookupScratch::REACH } else { 1.0 } * d_max;
+            // Lookups in pixel order walk on: a wide ball centred ahead of `x`, along the
+            // last step, serves twice the lookups of one centred on it (those behind are
+            // done). It must still cover this lookup's ball, or it is centred on `x`.
+            let step = x - previous;
+            let mut anchor = x;
+            if wide && step.length_squared() > 0.0 && step.length() < d_max {
+                let ahead = x + step.normalize() * ((LookupScratch::REACH - 1.0) * 0.9 * d_max);
+                if (x - ahead).length() + d_max <= reach * (1.0 - 1e-5) {
+                    anchor = ahead;
+                }
+            }
             scratch.served = 1;
             scratch.generation = self.generation;
-            scratch.anchor = x;
+            scratch.anchor = anchor;
             scratch.reach = reach;
             scratch.sites.clear();
             let found = self
                 .tree
-                .within_unsorted::<SquaredEuclidean>(&x.to_array(), reach * reach);
+                .within_unsorted::<SquaredEuclidean>(&anchor.to_array(), reach * reach);
+            // The sites of a range query lie scattered over the array: asking for them all
+            // first keeps the misses in flight together rather than one at a time.
+            for s in &found {
+                prefetch(&self.sites[s.item as usize]);
+            }
             for s in &found {
                 let mut id = s.item;
                 while id != NO_RECORD {
                     let site = &self.sites[id as usize];
                     scratch.sites.push(site, id);
                     id = site.next;
+                }
+            }
+            scratch.sites.seal();
+            // The lookups served from this gathering compare the maps of the records they
+            // keep (δ̄); these are among the gathered, so fetch their bits ahead.
+            if scratch.sites.len() <= PREFETCH_MAPS {
+                for k in 0..scratch.sites.len() {
+                    for line in self
+                        .store
+                        .bits(scratch.sites.id(k) as usize)
+                        .bit_words()
+                        .chunks(8)
+                    {
+                        prefetch(&line[0]);
+                    }
                 }
             }
         }
@@ -531,63 +548,6 @@ impl CacheState {
     }
 }
 
-/// Records gathered around an earlier lookup point, reused by the lookups after it while
-/// their search balls lie inside the gathered one. Lookups in pixel order share most
-/// records, so a range query every few pixels replaces one per pixel. Valid for one cache
-/// state: any insertion or removal invalidates it (each change draws a new generation).
-/// Scattered lookups (nothing to share) fall back to exact range queries by themselves.
-#[derive(Clone, Debug, Default)]
-pub struct LookupScratch {
-    generation: u64,
-    anchor: Vec3,
-    reach: f32,
-    sites: GatheredSites,
-    /// The candidates of the current lookup: `(squared distance, id, cos θ)`, room for
-    /// `CANDIDATE_BUFFER`.
-    candidates: Vec<(f32, u32, f32)>,
-    /// The m nearest of the current lookup.
-    hits: Hits,
-    /// Lookups served by the current gathering, and gatherings so far.
-    served: u32,
-    gathers: u32,
-}
-
-/// Gathered records, structure of arrays, and the squared distances of the current lookup.
-#[derive(Clone, Debug, Default)]
-struct GatheredSites {
-    x: Vec<f32>,
-    y: Vec<f32>,
-    z: Vec<f32>,
-    normal: Vec<Vec3>,
-    id: Vec<u32>,
-    d2: Vec<f32>,
-}
-
-impl GatheredSites {
-    fn clear(&mut self) {
-        self.x.clear();
-        self.y.clear();
-        self.z.clear();
-        self.normal.clear();
-        self.id.clear();
-    }
-
-    fn push(&mut self, site: &Site, id: u32) {
-        self.x.push(site.position.x);
-        self.y.push(site.position.y);
-        self.z.push(site.position.z);
-        self.normal.push(site.normal);
-        self.id.push(id);
-    }
-}
-
-impl LookupScratch {
-    /// Gathered radius over the first lookup's `d_max`: the following lookups reuse the
-    /// records while within `(REACH − 1) d_max` of the first point. At 2, the gathered ball
-    /// holds about 4x (flat surfaces) the records of one lookup.
-    pub const REACH: f32 = 2.0;
-}
-
 thread_local! {
     /// The scratch of lookups made without one: its buffers are kept between calls, and
     /// a thread's consecutive lookups still share gatherings when they are close.
@@ -639,6 +599,8 @@ pub(crate) struct Hits {
     /// Records held.
     pub(crate) len: usize,
     pub(crate) id: [u32; HIT_LANES],
+    /// [`candidate_key`]s: squared distance, then id, as one integer.
+    key: [u64; HIT_LANES],
     /// Squared distance `|p_i − x|²` (kiddo's summation order), `sin θ_i` as `|n × n_i|`,
     /// `cos θ_i` and `n · (p_i − x)`: the inputs of [`Self::score`].
     d2: [f32; HIT_LANES],
@@ -662,6 +624,7 @@ impl Default for Hits {
         Self {
             len: 0,
             id: [0; HIT_LANES],
+            key: [0; HIT_LANES],
             d2: [1.0; HIT_LANES],
             sin: [0.0; HIT_LANES],
             cos: [1.0; HIT_LANES],
@@ -733,11 +696,18 @@ impl Hits {
     }
 }
 
-/// Room for twice the most records a lookup may search (`m <= MAX_SEARCH_COUNT`).
-pub(crate) const CANDIDATE_BUFFER: usize = 2 * MAX_SEARCH_COUNT as usize;
+/// Most gathered records whose maps [`CacheState::gather`] prefetches.
+const PREFETCH_MAPS: usize = 256;
 
-fn by_distance_then_id(a: &(f32, u32, f32), b: &(f32, u32, f32)) -> std::cmp::Ordering {
-    a.0.total_cmp(&b.0).then(a.1.cmp(&b.1))
+/// Asks the CPU to bring the cache line of `item` closer (no effect off x86-64).
+#[inline(always)]
+fn prefetch<T>(item: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: prefetching is a hint and never faults; `item` is a valid reference anyway.
+    unsafe {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        _mm_prefetch::<_MM_HINT_T0>((item as *const T).cast());
+    }
 }
 
 /// Calls `f(z)` for every set bit `z` of a map.

@@ -1,0 +1,347 @@
+//! The records around a lookup point: gathered by a kd-tree range query, kept for the
+//! lookups after it while their balls lie inside the gathered one, and filtered per lookup
+//! by distance and normal in one vectorised pass (CAM08 §5.1's candidate set).
+
+use glam::Vec3;
+
+use super::{Hits, Site};
+
+/// Records gathered around an earlier lookup point, reused by the lookups after it while
+/// their search balls lie inside the gathered one. Lookups in pixel order share most
+/// records, so a range query every few pixels replaces one per pixel. Valid for one cache
+/// state: any insertion or removal invalidates it (each change draws a new generation).
+/// Scattered lookups (nothing to share) fall back to exact range queries by themselves.
+#[derive(Clone, Debug, Default)]
+pub struct LookupScratch {
+    pub(super) generation: u64,
+    pub(super) anchor: Vec3,
+    /// The point of the last lookup.
+    pub(super) previous: Vec3,
+    pub(super) reach: f32,
+    pub(super) sites: GatheredSites,
+    /// The gathered records that pass the current lookup's distance and loose normal tests.
+    pub(super) passed: Passed,
+    /// The candidates of the current lookup: `(key, gathered index, cos θ)` with
+    /// [`candidate_key`]s, so that the m nearest are a selection on one integer.
+    pub(super) candidates: Vec<(u64, u32, f32)>,
+    /// The m nearest of the current lookup.
+    pub(super) hits: Hits,
+    /// Lookups served by the current gathering, and gatherings so far.
+    pub(super) served: u32,
+    pub(super) gathers: u32,
+}
+
+impl LookupScratch {
+    /// Gathered radius over the first lookup's `d_max`: the following lookups reuse the
+    /// records while within `(REACH − 1) d_max` of the first point. At 2, the gathered ball
+    /// holds about 4x (flat surfaces) the records of one lookup.
+    pub const REACH: f32 = 2.0;
+}
+
+/// Lanes of the filter: the gathered arrays are padded to a multiple of this.
+const LANES: usize = 16;
+
+/// Gathered records as structure of arrays (position, decoded normal, id), padded to whole
+/// groups of [`LANES`] with positions of NaN, which no distance test passes.
+#[derive(Clone, Debug, Default)]
+pub(super) struct GatheredSites {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+    nx: Vec<f32>,
+    ny: Vec<f32>,
+    nz: Vec<f32>,
+    id: Vec<u32>,
+    /// Records held (the arrays are longer by the padding).
+    len: usize,
+}
+
+impl GatheredSites {
+    pub(super) fn clear(&mut self) {
+        for v in [
+            &mut self.x,
+            &mut self.y,
+            &mut self.z,
+            &mut self.nx,
+            &mut self.ny,
+            &mut self.nz,
+        ] {
+            v.clear();
+        }
+        self.id.clear();
+        self.len = 0;
+    }
+
+    pub(super) fn push(&mut self, site: &Site, id: u32) {
+        self.x.push(site.position.x);
+        self.y.push(site.position.y);
+        self.z.push(site.position.z);
+        self.nx.push(site.normal.x);
+        self.ny.push(site.normal.y);
+        self.nz.push(site.normal.z);
+        self.id.push(id);
+        self.len += 1;
+    }
+
+    /// Pads the arrays to whole groups of lanes; call after the last [`Self::push`].
+    pub(super) fn seal(&mut self) {
+        let padded = self.len.next_multiple_of(LANES);
+        for v in [&mut self.x, &mut self.y, &mut self.z] {
+            v.resize(padded, f32::NAN);
+        }
+        for v in [&mut self.nx, &mut self.ny, &mut self.nz] {
+            v.resize(padded, 0.0);
+        }
+        self.id.resize(padded, u32::MAX);
+    }
+
+    /// Records held.
+    pub(super) fn len(&self) -> usize {
+        self.len
+    }
+
+    pub(super) fn id(&self, k: usize) -> u32 {
+        self.id[k]
+    }
+
+    pub(super) fn position(&self, k: usize) -> Vec3 {
+        Vec3::new(self.x[k], self.y[k], self.z[k])
+    }
+
+    pub(super) fn normal(&self, k: usize) -> Vec3 {
+        Vec3::new(self.nx[k], self.ny[k], self.nz[k])
+    }
+
+    /// Writes into `out` the records with `|p − x|² <= r2` and `n · n_i >= cos_lo` (NaN
+    /// passes neither), in gathered order. The squared distance is summed as kiddo sums it,
+    /// and `n · n_i` as glam's `dot`, so every form (and a range query at `x`) decides alike.
+    pub(super) fn filter(&self, x: Vec3, n: Vec3, r2: f32, cos_lo: f32, out: &mut Passed) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+            // SAFETY: the CPU has AVX-512 F, detected by `crate::simd`.
+            return unsafe { self.filter_avx512(x, n, r2, cos_lo, out) };
+        }
+        self.filter_portable(x, n, r2, cos_lo, out);
+    }
+
+    /// [`Self::filter`] one record at a time (branches: on scenes where nearly every
+    /// gathered record is out of reach they predict well).
+    pub(super) fn filter_portable(&self, x: Vec3, n: Vec3, r2: f32, cos_lo: f32, out: &mut Passed) {
+        out.clear();
+        for k in 0..self.len {
+            let (ex, ey, ez) = (self.x[k] - x.x, self.y[k] - x.y, self.z[k] - x.z);
+            let d2 = ex * ex + ey * ey + ez * ez;
+            if d2 <= r2 {
+                let cos = n.dot(self.normal(k));
+                if cos >= cos_lo {
+                    out.index.push(k as u32);
+                    out.d2.push(d2);
+                    out.cos.push(cos);
+                }
+            }
+        }
+    }
+
+    /// [`Self::filter`] sixteen records at a time: the tests give a mask, and the passing
+    /// lanes are compressed in registers and stored whole (a compressing store to memory
+    /// is microcoded and slow on some CPUs), the end advancing by the mask's popcount.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    pub(super) fn filter_avx512(&self, x: Vec3, n: Vec3, r2: f32, cos_lo: f32, out: &mut Passed) {
+        use std::arch::x86_64::*;
+        let padded = self.x.len();
+        debug_assert_eq!(padded % LANES, 0);
+        // Whole stores of 16 lanes past the last passing record need room.
+        out.index.resize(padded + LANES, 0);
+        out.d2.resize(padded + LANES, 0.0);
+        out.cos.resize(padded + LANES, 0.0);
+        let (qx, qy, qz) = (
+            _mm512_set1_ps(x.x),
+            _mm512_set1_ps(x.y),
+            _mm512_set1_ps(x.z),
+        );
+        let (mx, my, mz) = (
+            _mm512_set1_ps(n.x),
+            _mm512_set1_ps(n.y),
+            _mm512_set1_ps(n.z),
+        );
+        let (reach, lo) = (_mm512_set1_ps(r2), _mm512_set1_ps(cos_lo));
+        let lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+        let mut len = 0usize;
+        for c in (0..padded).step_by(LANES) {
+            // SAFETY: `c + 16 <= padded`, the length of every gathered array, and
+            // `len + 16 <= padded + 16`, the length of every output array.
+            unsafe {
+                let ex = _mm512_sub_ps(_mm512_loadu_ps(self.x.as_ptr().add(c)), qx);
+                let ey = _mm512_sub_ps(_mm512_loadu_ps(self.y.as_ptr().add(c)), qy);
+                let ez = _mm512_sub_ps(_mm512_loadu_ps(self.z.as_ptr().add(c)), qz);
+                // No fused multiply-adds: the scalar forms round every product.
+                let d2 = _mm512_add_ps(
+                    _mm512_add_ps(_mm512_mul_ps(ex, ex), _mm512_mul_ps(ey, ey)),
+                    _mm512_mul_ps(ez, ez),
+                );
+                let within = _mm512_cmp_ps_mask::<_CMP_LE_OQ>(d2, reach);
+                if within == 0 {
+                    continue;
+                }
+                let cos = _mm512_add_ps(
+                    _mm512_add_ps(
+                        _mm512_mul_ps(mx, _mm512_loadu_ps(self.nx.as_ptr().add(c))),
+                        _mm512_mul_ps(my, _mm512_loadu_ps(self.ny.as_ptr().add(c))),
+                    ),
+                    _mm512_mul_ps(mz, _mm512_loadu_ps(self.nz.as_ptr().add(c))),
+                );
+                let pass = within & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(cos, lo);
+                let index = _mm512_add_epi32(lane, _mm512_set1_epi32(c as i32));
+                _mm512_storeu_si512(
+                    out.index.as_mut_ptr().add(len).cast(),
+                    _mm512_maskz_compress_epi32(pass, index),
+                );
+                _mm512_storeu_ps(
+                    out.d2.as_mut_ptr().add(len),
+                    _mm512_maskz_compress_ps(pass, d2),
+                );
+                _mm512_storeu_ps(
+                    out.cos.as_mut_ptr().add(len),
+                    _mm512_maskz_compress_ps(pass, cos),
+                );
+                len += pass.count_ones() as usize;
+            }
+        }
+        out.index.truncate(len);
+        out.d2.truncate(len);
+        out.cos.truncate(len);
+    }
+}
+
+/// What [`GatheredSites::filter`] lets through: gathered indices with their squared
+/// distance and `cos θ`, in gathered order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(super) struct Passed {
+    pub(super) index: Vec<u32>,
+    pub(super) d2: Vec<f32>,
+    pub(super) cos: Vec<f32>,
+}
+
+impl Passed {
+    fn clear(&mut self) {
+        self.index.clear();
+        self.d2.clear();
+        self.cos.clear();
+    }
+}
+
+/// Orders candidates by squared distance, then record id, as one integer: `d2` is finite
+/// and non-negative, so its bits order as it does.
+#[inline]
+pub(super) fn candidate_key(d2: f32, id: u32) -> u64 {
+    ((d2.to_bits() as u64) << 32) | id as u64
+}
+
+/// The squared distance of a [`candidate_key`].
+#[inline]
+pub(super) fn key_d2(key: u64) -> f32 {
+    f32::from_bits((key >> 32) as u32)
+}
+
+/// The record id of a [`candidate_key`].
+#[inline]
+pub(super) fn key_id(key: u64) -> u32 {
+    key as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::rng::{hash4, to_unit_f32};
+
+    fn unit(seed: u64, k: u64) -> f32 {
+        to_unit_f32(hash4(seed, k, 0, 5))
+    }
+
+    /// Gathered records around the origin: some share a position on the reach of
+    /// `r2 = 0.0625`, some lie exactly at the origin, one has a NaN normal.
+    fn gathered(count: usize, seed: u64) -> GatheredSites {
+        let mut sites = GatheredSites::default();
+        for k in 0..count as u64 {
+            let mut position = Vec3::new(
+                unit(seed, 3 * k),
+                unit(seed, 3 * k + 1),
+                unit(seed, 3 * k + 2),
+            ) - 0.5;
+            if k % 11 == 3 {
+                position = Vec3::new(0.25, 0.0, 0.0);
+            } else if k % 13 == 4 {
+                position = Vec3::ZERO;
+            }
+            let tilt = 1.5 * unit(seed + 1, k);
+            let mut normal = Vec3::new(tilt.sin(), tilt.cos(), 0.0);
+            if k == 5 {
+                normal = Vec3::NAN;
+            }
+            sites.push(
+                &Site {
+                    position,
+                    normal,
+                    next: 0,
+                },
+                1000 + k as u32,
+            );
+        }
+        sites.seal();
+        sites
+    }
+
+    #[test]
+    fn every_filter_form_passes_the_same_records_with_the_same_bits() {
+        let n = Vec3::Y;
+        for count in [0usize, 1, 15, 16, 17, 100, 333] {
+            let sites = gathered(count, count as u64);
+            for (r2, cos_lo) in [(0.0625f32, 0.8f32), (0.01, -1.0), (1.0, 0.99), (0.0, 0.0)] {
+                let mut want = Passed::default();
+                sites.filter_portable(Vec3::ZERO, n, r2, cos_lo, &mut want);
+                // The portable form against the definition, record by record.
+                let expected: Vec<u32> = (0..count)
+                    .filter(|&k| {
+                        let p = sites.position(k);
+                        p.length_squared() <= r2 && n.dot(sites.normal(k)) >= cos_lo
+                    })
+                    .map(|k| k as u32)
+                    .collect();
+                assert_eq!(want.index, expected, "{count} records, r2 {r2}");
+                assert!(!want.index.contains(&5), "a NaN normal never passes");
+                let mut got = Passed::default();
+                sites.filter(Vec3::ZERO, n, r2, cos_lo, &mut got);
+                let bits = |p: &Passed| {
+                    let f = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    (p.index.clone(), f(&p.d2), f(&p.cos))
+                };
+                assert_eq!(bits(&got), bits(&want), "dispatched, {count} records");
+                #[cfg(target_arch = "x86_64")]
+                if std::arch::is_x86_feature_detected!("avx512f") {
+                    let mut wide = Passed::default();
+                    // SAFETY: the feature was detected just before.
+                    unsafe { sites.filter_avx512(Vec3::ZERO, n, r2, cos_lo, &mut wide) };
+                    assert_eq!(bits(&wide), bits(&want), "AVX-512, {count} records");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn candidate_keys_order_by_distance_then_id() {
+        let mut keys = [
+            candidate_key(0.5, 7),
+            candidate_key(0.0, 9),
+            candidate_key(0.5, 3),
+            candidate_key(1e-30, 1),
+            candidate_key(2.0, 0),
+        ];
+        keys.sort_unstable();
+        let decoded: Vec<(f32, u32)> = keys.iter().map(|&k| (key_d2(k), key_id(k))).collect();
+        assert_eq!(
+            decoded,
+            vec![(0.0, 9), (1e-30, 1), (0.5, 3), (0.5, 7), (2.0, 0)]
+        );
+    }
+}
