@@ -305,7 +305,7 @@ impl CacheState {
         }
         for (k, &(_, i)) in out.kept.iter_mut().zip(&order[..len]) {
             *k = Neighbour {
-                id: hits.id[i],
+                id: hits.id(i),
                 weight: hits.weight[i],
                 beta: 0.0,
                 distance: hits.distance[i],
@@ -357,8 +357,8 @@ impl CacheState {
         gathered.filter(x, n, d_max * d_max, loose, passed);
         candidates.clear();
         for ((&k, &d2), &cos) in passed.index.iter().zip(&passed.d2).zip(&passed.cos) {
-            let normal = gathered.normal(k as usize);
             if cos <= tight {
+                let normal = gathered.normal(k as usize);
                 let theta = normal_angle(n.cross(normal).length(), cos);
                 if theta.partial_cmp(&theta_max) != Some(std::cmp::Ordering::Less) {
                     continue;
@@ -373,7 +373,6 @@ impl CacheState {
         for (i, &(key, k, cos)) in candidates[..hits.len].iter().enumerate() {
             let k = k as usize;
             hits.key[i] = key;
-            hits.id[i] = key_id(key);
             hits.d2[i] = key_d2(key);
             hits.cos[i] = cos;
             hits.sin[i] = n.cross(gathered.normal(k)).length();
@@ -383,9 +382,10 @@ impl CacheState {
         hits
     }
 
-    /// The records that may lie within `d_max` of `x`, as (position, normal, id): those the
-    /// scratch holds when its gathered ball covers this one, else a new gathering of the
-    /// ball of radius `LookupScratch::REACH · d_max` around `x` (one kd-tree range query).
+    /// Leaves in `scratch.sites` the records that may lie within `d_max` of `x`: those it
+    /// holds when its gathered ball covers this one, else a new gathering (one kd-tree range
+    /// query) of radius `LookupScratch::REACH · d_max` around `x` or just ahead of it, or
+    /// of radius `d_max` around `x` when lookups come scattered.
     fn gather(&self, x: Vec3, d_max: f32, scratch: &mut LookupScratch) {
         // A margin of 1e-5 keeps rounding of the distances on the safe side: a record
         // within d_max of x is within (|x − anchor| + d_max)(1 + 1e-6) of the anchor.
@@ -405,9 +405,10 @@ impl CacheState {
             // last step, serves twice the lookups of one centred on it (those behind are
             // done). It must still cover this lookup's ball, or it is centred on `x`.
             let step = x - previous;
+            let step_length = step.length();
             let mut anchor = x;
-            if wide && step.length_squared() > 0.0 && step.length() < d_max {
-                let ahead = x + step.normalize() * ((LookupScratch::REACH - 1.0) * 0.9 * d_max);
+            if wide && step_length > 0.0 && step_length < d_max {
+                let ahead = x + step * ((LookupScratch::REACH - 1.0) * 0.9 * d_max / step_length);
                 if (x - ahead).length() + d_max <= reach * (1.0 - 1e-5) {
                     anchor = ahead;
                 }
@@ -601,8 +602,7 @@ impl Site {
 pub(crate) struct Hits {
     /// Records held.
     pub(crate) len: usize,
-    pub(crate) id: [u32; HIT_LANES],
-    /// [`candidate_key`]s: squared distance, then id, as one integer.
+    /// [`candidate_key`]s: squared distance, then record id, as one integer.
     key: [u64; HIT_LANES],
     /// Squared distance `|p_i − x|²` (kiddo's summation order), `sin θ_i` as `|n × n_i|`,
     /// `cos θ_i` and `n · (p_i − x)`: the inputs of [`Self::score`].
@@ -626,7 +626,6 @@ impl Default for Hits {
         // Lanes past `len` keep finite values: scoring runs over whole groups of 16.
         Self {
             len: 0,
-            id: [0; HIT_LANES],
             key: [0; HIT_LANES],
             d2: [1.0; HIT_LANES],
             sin: [0.0; HIT_LANES],
@@ -641,6 +640,11 @@ impl Default for Hits {
 }
 
 impl Hits {
+    /// Record id of hit `i`.
+    pub(crate) fn id(&self, i: usize) -> u32 {
+        key_id(self.key[i])
+    }
+
     /// Eq. 9 with `w_g` for every record held, from `d2`, `sin`, `cos` and `along`:
     /// `θ = atan2(sin, cos)`, `d = sqrt(d2)`, `ŵ = (w(d/d_max, θ) − w_lo)/(1 − w_lo)`
     /// clamped to `[0, 1]`, `w_g = sqrt(1 − min(|along| / d, 1))` (1 at `d = 0`). The same

@@ -32,9 +32,10 @@ pub struct LookupScratch {
 }
 
 impl LookupScratch {
-    /// Gathered radius over the first lookup's `d_max`: the following lookups reuse the
-    /// records while within `(REACH − 1) d_max` of the first point. At 2, the gathered ball
-    /// holds about 4x (flat surfaces) the records of one lookup.
+    /// Gathered radius over the gathering lookup's `d_max`: the following lookups reuse the
+    /// records while within `(REACH − 1) d_max` of the ball's centre (set up to 0.9 of that
+    /// ahead of the gathering point along the walk). At 2, the gathered ball holds about 4x
+    /// (flat surfaces) the records of one lookup.
     pub const REACH: f32 = 2.0;
 }
 

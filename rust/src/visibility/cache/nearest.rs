@@ -82,7 +82,7 @@ impl CacheState {
         let items = &mut out.items[..hits.len];
         for (i, c) in items.iter_mut().enumerate() {
             *c = Candidate {
-                id: hits.id[i],
+                id: hits.id(i),
                 distance: hits.distance[i],
                 theta: hits.theta[i],
                 weight: hits.weight[i],
