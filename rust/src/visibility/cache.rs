@@ -19,25 +19,27 @@
 //! disagreement — records near occluders see different things, so the cache refines there).
 //!
 //! ## Index
-//! kiddo 5's mutable kd-tree (bucket 32) over *distinct* positions: records that share a
-//! position exactly (a user inserting many normals at one point) hang off one tree item in
-//! a chain, so no bucket ever overflows with identical points, which kiddo cannot split.
-//! Records on flat, grid-aligned geometry share one coordinate; kiddo's splitter handles
-//! that (tests insert records on grids of shared positions). A median-split
-//! tree of our own (leaf coordinates contiguous, no allocation per query) was measured
-//! against it on the same range queries and was not faster (0.86 vs 0.97 µs at 1k points,
-//! 1.98 vs 1.70 µs at 100k; issue 4's note), so kiddo stays. Removal happens
-//! only in [`VisibilityCache::end_frame`], which compacts the store and rebuilds the tree —
-//! the paper's "occasionally rebalance". Record ids are therefore dense and stable between
-//! two `end_frame` calls.
+//! A bucket kd-tree of our own (module `site_tree`) over *distinct* positions, holding each
+//! record's position, decoded normal and id inline in its leaf, 32 to a leaf, so that a
+//! range query reads the records it finds in sequence. kiddo 5's mutable tree holds bare
+//! ids, and fetching each found record's site from an id-indexed array was one cache miss
+//! per record (records lie in insertion order, scattered in space); on the cache bench at
+//! 100k records the inline tree looks up 1.1–1.5x faster at random and 1.1x in pixel order
+//! (benches/README.md). Leaves split at the median of their widest coordinate, so records
+//! on a floor (one height for all) split as well as any. Records that share a position
+//! exactly (a user inserting many normals at one point) hang off the first in a chain, so
+//! no leaf fills with points no split can separate. Removal happens only in
+//! [`VisibilityCache::end_frame`], which compacts the store and rebuilds the tree balanced
+//! — the paper's "occasionally rebalance". Record ids are therefore dense and stable
+//! between two `end_frame` calls.
 //!
-//! What a lookup reads of a record (position, decoded normal, chain link) sits in one
-//! `Site` array. Lookups in pixel order go through a [`LookupScratch`] (module `gather`):
+//! Chained records are read from the `Site` array (position, decoded normal, chain link).
+//! Lookups in pixel order go through a [`LookupScratch`] (module `gather`):
 //! one range query of twice the radius, centred ahead along the walk, serves the lookups
 //! whose balls it covers. Each lookup filters the gathered records by distance and normal
 //! sixteen at a time (AVX-512 masks and compression where the CPU has them), with the
 //! answer of a range query at its point bit for bit, and takes its `m` nearest by one
-//! integer key (squared distance, then id). A gathering prefetches the maps of its records,
+//! integer key (squared distance, then id). A wide gathering prefetches the maps of its records,
 //! which the lookups it serves compare for `δ̄`. Lookups made without a scratch of their
 //! own ([`CacheState::lookup`], as the renderer, the preview and builds make them) use
 //! their thread's.
@@ -55,16 +57,12 @@
 //! whose miss rate over the frame exceeds `ε_max` (or the `k` worst), and those unused for
 //! `F` frames, then starts the next frame with fresh counters.
 
-use std::num::NonZeroUsize;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::Instant;
 
 use glam::Vec3;
 use rayon::prelude::*;
-
-use kiddo::float::kdtree::KdTree;
-use kiddo::SquaredEuclidean;
 
 use super::params::{normal_angle, raw_weight, CacheParams, MAX_KEEP_COUNT, MAX_SEARCH_COUNT};
 use super::record::{Record, RecordHeader, RecordRays, RecordStore, VisibilityView};
@@ -79,26 +77,20 @@ use crate::sampling::rng::SampleRng;
 mod gather;
 mod io;
 pub mod nearest;
+mod site_tree;
 
 pub use gather::LookupScratch;
 use gather::{candidate_key, key_d2, key_id};
+use site_tree::SiteTree;
 #[cfg(test)]
 pub(crate) mod tests;
 
-/// Bucket size of the kd-tree's leaves (kiddo's default). Records on flat grid-aligned
-/// geometry share a coordinate, which a leaf must hold before it can split, and records at
-/// one position share a tree item (see the module docs), so no leaf overflows. Measured on
-/// the cache bench at 100k records: lookups take the same time with 16, 32 and 64 (0.85–0.91
-/// µs in pixel order, 2.8–3.5 µs random); insertion 47, 42 and 55 ms per 100k records.
-const BUCKET: usize = 32;
 /// End of a chain of records sharing one position.
 const NO_RECORD: u32 = u32::MAX;
 /// Most pixels looked up per build wave.
 pub const BUILD_WAVE: usize = 4096;
 /// Fewest pixels per build wave (fewer would leave threads idle).
 pub const MIN_BUILD_WAVE: usize = 32;
-
-type Tree = KdTree<f32, u32, 3, BUCKET, u32>;
 
 /// One record a lookup kept.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -212,7 +204,7 @@ pub struct EvictionReport {
 #[derive(Clone, Debug)]
 pub struct CacheState {
     store: RecordStore,
-    tree: Tree,
+    tree: SiteTree,
     /// What a lookup reads of each record, by id, in one place: a candidate costs one
     /// cache line rather than a header, a normal and a chain link in three arrays.
     sites: Vec<Site>,
@@ -220,6 +212,8 @@ pub struct CacheState {
     generation: u64,
     /// Last record of each chain, indexed by its head (only valid for heads).
     chain_tail: Vec<u32>,
+    /// Records that are not the first at their position (in a chain, not in the tree).
+    chained: usize,
     frame: u32,
     counters: CacheCounters,
 }
@@ -228,10 +222,11 @@ impl CacheState {
     fn new(m: u32) -> Result<Self> {
         Ok(Self {
             store: RecordStore::new(m)?,
-            tree: Tree::new(),
+            tree: SiteTree::default(),
             sites: Vec::new(),
             generation: next_generation(),
             chain_tail: Vec::new(),
+            chained: 0,
             frame: 0,
             counters: CacheCounters::default(),
         })
@@ -418,26 +413,27 @@ impl CacheState {
             scratch.anchor = anchor;
             scratch.reach = reach;
             scratch.sites.clear();
-            let found = self
-                .tree
-                .within_unsorted::<SquaredEuclidean>(&anchor.to_array(), reach * reach);
-            // The sites of a range query lie scattered over the array: asking for them all
-            // first keeps the misses in flight together rather than one at a time.
-            for s in &found {
-                prefetch(&self.sites[s.item as usize]);
-            }
-            for s in &found {
-                let mut id = s.item;
-                while id != NO_RECORD {
-                    let site = &self.sites[id as usize];
-                    scratch.sites.push(site, id);
-                    id = site.next;
+            self.tree.within(
+                anchor,
+                reach * reach,
+                &mut scratch.stack,
+                &mut scratch.sites,
+            );
+            if self.chained > 0 {
+                for k in 0..scratch.sites.len() {
+                    let mut id = self.sites[scratch.sites.id(k) as usize].next;
+                    while id != NO_RECORD {
+                        let site = &self.sites[id as usize];
+                        scratch.sites.push((site.position, site.normal, id));
+                        id = site.next;
+                    }
                 }
             }
             scratch.sites.seal();
-            // The lookups served from this gathering compare the maps of the records they
-            // keep (δ̄); these are among the gathered, so fetch their bits ahead.
-            if scratch.sites.len() <= PREFETCH_MAPS {
+            // The lookups served from a wide gathering compare the maps of the records they
+            // keep (δ̄); these are among the gathered, so fetch their bits ahead. (A lookup
+            // alone needs the maps of n of them: fetching all would only crowd them out.)
+            if wide && scratch.sites.len() <= PREFETCH_MAPS {
                 for k in 0..scratch.sites.len() {
                     for line in self
                         .store
@@ -524,31 +520,58 @@ impl CacheState {
     /// Puts record `id` (the newest) into the tree, or at the end of the chain of a record
     /// with the same position.
     fn index(&mut self, id: u32) {
-        let p = self.store.header(id as usize).position;
-        let same =
-            self.tree
-                .nearest_n_within::<SquaredEuclidean>(&p, 0.0, NonZeroUsize::MIN, false);
-        match same.first() {
-            Some(head) if head.distance == 0.0 => {
-                let head = head.item as usize;
-                let tail = self.chain_tail[head] as usize;
+        let site = self.sites[id as usize];
+        match self.tree.find(site.position) {
+            Some(head) => {
+                let tail = self.chain_tail[head as usize] as usize;
                 self.sites[tail].next = id;
-                self.chain_tail[head] = id;
+                self.chain_tail[head as usize] = id;
+                self.chained += 1;
             }
-            _ => self.tree.add(&p, id),
+            None => self.tree.insert((site.position, site.normal, id)),
         }
     }
 
-    /// Rebuilds tree and chains from the store, inserting in id order.
+    /// Rebuilds tree and chains from the store: the first record at each position (in id
+    /// order) goes into a balanced tree, the others into its chain.
     fn reindex(&mut self) {
         let n = self.store.len();
-        self.tree = Tree::with_capacity(n.max(BUCKET));
         self.sites = (0..n).map(|i| Site::of(self.store.header(i))).collect();
         self.generation = next_generation();
         self.chain_tail = (0..n as u32).collect();
-        for id in 0..n as u32 {
-            self.index(id);
+        self.chained = 0;
+        let mut heads: Vec<u32> = Vec::with_capacity(n);
+        {
+            // Position -> first record there, in id order.
+            let mut first = std::collections::HashMap::with_capacity(n);
+            for id in 0..n as u32 {
+                // `+ 0.0` makes −0 and 0 one key, as they are one position to `find`.
+                let key = (self.sites[id as usize].position + 0.0)
+                    .to_array()
+                    .map(f32::to_bits);
+                match first.entry(key) {
+                    std::collections::hash_map::Entry::Vacant(v) => {
+                        v.insert(id);
+                        heads.push(id);
+                    }
+                    std::collections::hash_map::Entry::Occupied(o) => {
+                        let head = *o.get() as usize;
+                        let tail = self.chain_tail[head] as usize;
+                        self.sites[tail].next = id;
+                        self.chain_tail[head] = id;
+                        self.chained += 1;
+                    }
+                }
+            }
         }
+        let entries = heads
+            .iter()
+            .map(|&id| {
+                let site = &self.sites[id as usize];
+                (site.position, site.normal, id)
+            })
+            .collect();
+        self.tree = SiteTree::build(entries);
     }
 }
 
@@ -806,11 +829,13 @@ impl VisibilityCache {
         self.read().store.memory_bytes()
     }
 
-    /// Estimated bytes of the index on top of the records: per record its site (position,
-    /// decoded normal, chain link: 28 B) and chain tail (4 B), per tree item its position
-    /// and id (16 B) at kiddo's worst leaf fill of one half.
+    /// Bytes of the index on top of the records: per record its site (position, decoded
+    /// normal, chain link: 28 B) and chain tail (4 B), and the tree with its leaves (which
+    /// hold position, normal and id inline: 28 B per record, at leaf fills of one half to
+    /// whole), spare capacity included.
     pub fn index_bytes(&self) -> usize {
-        self.len() * (std::mem::size_of::<Site>() + 4 + 2 * 16)
+        let state = self.read();
+        state.len() * (std::mem::size_of::<Site>() + 4) + state.tree.memory_bytes()
     }
 
     /// Totals since creation.

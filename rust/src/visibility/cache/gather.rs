@@ -4,7 +4,8 @@
 
 use glam::Vec3;
 
-use super::{Hits, Site};
+use super::site_tree::Entry;
+use super::Hits;
 
 /// Records gathered around an earlier lookup point, reused by the lookups after it while
 /// their search balls lie inside the gathered one. Lookups in pixel order share most
@@ -19,6 +20,8 @@ pub struct LookupScratch {
     pub(super) previous: Vec3,
     pub(super) reach: f32,
     pub(super) sites: GatheredSites,
+    /// Working space of range queries.
+    pub(super) stack: Vec<u32>,
     /// The gathered records that pass the current lookup's distance and loose normal tests.
     pub(super) passed: Passed,
     /// The candidates of the current lookup: `(key, gathered index, cos θ)` with
@@ -73,13 +76,13 @@ impl GatheredSites {
         self.len = 0;
     }
 
-    pub(super) fn push(&mut self, site: &Site, id: u32) {
-        self.x.push(site.position.x);
-        self.y.push(site.position.y);
-        self.z.push(site.position.z);
-        self.nx.push(site.normal.x);
-        self.ny.push(site.normal.y);
-        self.nz.push(site.normal.z);
+    pub(super) fn push(&mut self, (position, normal, id): Entry) {
+        self.x.push(position.x);
+        self.y.push(position.y);
+        self.z.push(position.z);
+        self.nx.push(normal.x);
+        self.ny.push(normal.y);
+        self.nz.push(normal.z);
         self.id.push(id);
         self.len += 1;
     }
@@ -114,7 +117,7 @@ impl GatheredSites {
     }
 
     /// Writes into `out` the records with `|p − x|² <= r2` and `n · n_i >= cos_lo` (NaN
-    /// passes neither), in gathered order. The squared distance is summed as kiddo sums it,
+    /// passes neither), in gathered order. The squared distance is summed as the tree's range query sums it,
     /// and `n · n_i` as glam's `dot`, so every form (and a range query at `x`) decides alike.
     pub(super) fn filter(&self, x: Vec3, n: Vec3, r2: f32, cos_lo: f32, out: &mut Passed) {
         #[cfg(target_arch = "x86_64")]
@@ -280,14 +283,7 @@ mod tests {
             if k == 5 {
                 normal = Vec3::NAN;
             }
-            sites.push(
-                &Site {
-                    position,
-                    normal,
-                    next: 0,
-                },
-                1000 + k as u32,
-            );
+            sites.push((position, normal, 1000 + k as u32));
         }
         sites.seal();
         sites

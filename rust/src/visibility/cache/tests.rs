@@ -143,6 +143,41 @@ fn lookups_equal_a_linear_scan_of_eq9_with_the_geometric_term() {
     }
 }
 
+/// After an eviction the index is rebuilt (a balanced tree of the first record at each
+/// position, the others chained): lookups still equal the linear scan, before and after
+/// further insertions split its leaves.
+#[test]
+fn lookups_equal_a_linear_scan_after_eviction_rebuilds_the_index() {
+    let c = patch_cache(CacheParams::MEDIUM, 3000, 21);
+    // Every third record predicted all its samples wrongly: out at the end of the frame.
+    let ids: Vec<u32> = (0..3000).step_by(3).collect();
+    let ones = vec![1u32; ids.len()];
+    c.record_misses(&ids, &ones, &ones).unwrap();
+    assert_eq!(c.end_frame().by_misses, 1000);
+    assert_eq!(c.len(), 2000);
+    let queries: Vec<(Vec3, Vec3, f32)> = (0..150u64)
+        .map(|k| {
+            let x = Vec3::new(unit(22, 2 * k), 0.0, unit(22, 2 * k + 1));
+            (
+                x,
+                (Vec3::Y + 0.3 * random_dir(23, k)).normalize(),
+                0.02 + 0.15 * unit(24, k),
+            )
+        })
+        .collect();
+    for &(x, n, d) in &queries {
+        assert_matches_brute(&c, x, n, d);
+    }
+    for k in 0..500u64 {
+        let p = Vec3::new(unit(25, 2 * k), 0.0, unit(25, 2 * k + 1));
+        c.insert_record(&synthetic_record(5, p, Vec3::Y, 0.6, k))
+            .unwrap();
+    }
+    for &(x, n, d) in &queries {
+        assert_matches_brute(&c, x, n, d);
+    }
+}
+
 /// Lookups through a [`LookupScratch`] in pixel order, in scattered order and across
 /// insertions give exactly what single range queries give (a fresh scratch gathers exactly
 /// the ball of `d_max`), and the coherent stretch reuses its gatherings.
