@@ -393,7 +393,8 @@ impl CacheState {
             // Gather wide while that pays (the last wide ball served another lookup); in
             // scattered order a wide ball costs four times the records for nothing, so
             // gather exactly, and try wide again every eighth time.
-            let wide = scratch.served > 1 || scratch.gathers % 8 == 7;
+            let coherent = scratch.served > 1;
+            let wide = coherent || scratch.gathers % 8 == 7;
             scratch.gathers = scratch.gathers.wrapping_add(1);
             let reach = if wide { LookupScratch::REACH } else { 1.0 } * d_max;
             // Lookups in pixel order walk on: a wide ball centred ahead of `x`, along the
@@ -431,9 +432,10 @@ impl CacheState {
             }
             scratch.sites.seal();
             // The lookups served from a wide gathering compare the maps of the records they
-            // keep (δ̄); these are among the gathered, so fetch their bits ahead. (A lookup
-            // alone needs the maps of n of them: fetching all would only crowd them out.)
-            if wide && scratch.sites.len() <= PREFETCH_MAPS {
+            // keep (δ̄); these are among the gathered, so fetch their bits ahead while the
+            // walk is coherent. (A lookup alone needs the maps of n of them: fetching all
+            // would only crowd those out.)
+            if coherent && scratch.sites.len() <= PREFETCH_MAPS {
                 for k in 0..scratch.sites.len() {
                     for line in self
                         .store
