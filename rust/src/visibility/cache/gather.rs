@@ -87,6 +87,47 @@ impl GatheredSites {
         self.len += 1;
     }
 
+    /// Appends the lanes of sixteen records set in `pass`: `lanes` holds their x, y, z
+    /// positions and normals, `id` their ids. Compresses in registers and stores whole
+    /// vectors (room for them is reserved first), then counts only the passing lanes.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    pub(super) fn append_masked_avx512(
+        &mut self,
+        pass: u16,
+        lanes: [std::arch::x86_64::__m512; 6],
+        id: std::arch::x86_64::__m512i,
+    ) {
+        use std::arch::x86_64::*;
+        let count = pass.count_ones() as usize;
+        let arrays = [
+            &mut self.x,
+            &mut self.y,
+            &mut self.z,
+            &mut self.nx,
+            &mut self.ny,
+            &mut self.nz,
+        ];
+        for (v, lane) in arrays.into_iter().zip(lanes) {
+            v.reserve(LANES);
+            // SAFETY: the reserve leaves room for 16 values past the length; the first
+            // `count` written are initialised values, and only they are taken in.
+            unsafe {
+                let end = v.as_mut_ptr().add(v.len());
+                _mm512_storeu_ps(end, _mm512_maskz_compress_ps(pass, lane));
+                v.set_len(v.len() + count);
+            }
+        }
+        self.id.reserve(LANES);
+        // SAFETY: as above.
+        unsafe {
+            let end = self.id.as_mut_ptr().add(self.id.len());
+            _mm512_storeu_si512(end.cast(), _mm512_maskz_compress_epi32(pass, id));
+            self.id.set_len(self.id.len() + count);
+        }
+        self.len += count;
+    }
+
     /// Pads the arrays to whole groups of lanes; call after the last [`Self::push`].
     pub(super) fn seal(&mut self) {
         let padded = self.len.next_multiple_of(LANES);

@@ -213,15 +213,62 @@ impl SiteTree {
                 }
                 node = stem.children[near];
             }
-            let leaf = &self.leaves[(node & !LEAF_BIT) as usize];
-            let mut d2 = [0.0f32; LEAF];
-            for (i, d) in d2.iter_mut().enumerate() {
-                let (ex, ey, ez) = (leaf.x[i] - x.x, leaf.y[i] - x.y, leaf.z[i] - x.z);
-                *d = ex * ex + ey * ey + ez * ez;
+            self.leaves[(node & !LEAF_BIT) as usize].append_within(x, r2, out);
+        }
+    }
+}
+
+impl Leaf {
+    /// Appends to `out` the records with `|p − x|² <= r2`, in lane order.
+    #[inline]
+    fn append_within(&self, x: Vec3, r2: f32, out: &mut GatheredSites) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+            // SAFETY: the CPU has AVX-512 F, detected by `crate::simd`.
+            return unsafe { self.append_within_avx512(x, r2, out) };
+        }
+        self.append_within_portable(x, r2, out);
+    }
+
+    fn append_within_portable(&self, x: Vec3, r2: f32, out: &mut GatheredSites) {
+        for i in 0..self.len as usize {
+            let (ex, ey, ez) = (self.x[i] - x.x, self.y[i] - x.y, self.z[i] - x.z);
+            if ex * ex + ey * ey + ez * ez <= r2 {
+                out.push(self.entry(i));
             }
-            for (i, &d) in d2.iter().enumerate().take(leaf.len as usize) {
-                if d <= r2 {
-                    out.push(leaf.entry(i));
+        }
+    }
+
+    /// [`Self::append_within_portable`] sixteen lanes at a time: the distance test gives a
+    /// mask (NaN lanes past `len` fail it) and the passing lanes are compressed and
+    /// appended whole, without a branch per record.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn append_within_avx512(&self, x: Vec3, r2: f32, out: &mut GatheredSites) {
+        use std::arch::x86_64::*;
+        let (qx, qy, qz) = (
+            _mm512_set1_ps(x.x),
+            _mm512_set1_ps(x.y),
+            _mm512_set1_ps(x.z),
+        );
+        let reach = _mm512_set1_ps(r2);
+        for c in (0..LEAF).step_by(16) {
+            // SAFETY: `c + 16 <= LEAF`, the length of every lane array.
+            unsafe {
+                let ex = _mm512_sub_ps(_mm512_loadu_ps(self.x.as_ptr().add(c)), qx);
+                let ey = _mm512_sub_ps(_mm512_loadu_ps(self.y.as_ptr().add(c)), qy);
+                let ez = _mm512_sub_ps(_mm512_loadu_ps(self.z.as_ptr().add(c)), qz);
+                // No fused multiply-adds: the portable form rounds every product.
+                let d2 = _mm512_add_ps(
+                    _mm512_add_ps(_mm512_mul_ps(ex, ex), _mm512_mul_ps(ey, ey)),
+                    _mm512_mul_ps(ez, ez),
+                );
+                let pass = _mm512_cmp_ps_mask::<_CMP_LE_OQ>(d2, reach);
+                if pass != 0 {
+                    let lanes = [&self.x, &self.y, &self.z, &self.nx, &self.ny, &self.nz]
+                        .map(|a| _mm512_loadu_ps(a.as_ptr().add(c)));
+                    let id = _mm512_loadu_si512(self.id.as_ptr().add(c).cast());
+                    out.append_masked_avx512(pass, lanes, id);
                 }
             }
         }
@@ -327,6 +374,57 @@ mod tests {
                 };
                 assert_eq!(ids_within(&grown, x, r2), want, "grown, {count} records");
                 assert_eq!(ids_within(&built, x, r2), want, "built, {count} records");
+            }
+        }
+    }
+
+    /// Every form of the leaf scan appends the same records in the same order with the
+    /// same bits, for full and partly filled leaves, records exactly on the reach and at
+    /// the query point.
+    #[test]
+    fn every_leaf_scan_form_appends_the_same_records() {
+        let bits = |g: &GatheredSites| {
+            (0..g.len())
+                .map(|k| {
+                    let (p, n) = (g.position(k), g.normal(k));
+                    ([p, n].map(|v| v.to_array().map(f32::to_bits)), g.id(k))
+                })
+                .collect::<Vec<_>>()
+        };
+        for fill in [0usize, 1, 15, 16, 17, LEAF] {
+            let mut leaf = Leaf::empty();
+            for k in 0..fill as u64 {
+                let p = match k % 5 {
+                    0 => Vec3::new(0.3, 0.0, 0.0),
+                    1 => Vec3::ZERO,
+                    _ => Vec3::new(unit(40, 2 * k), 0.0, unit(40, 2 * k + 1)) - 0.5,
+                };
+                leaf.push((p, Vec3::new(0.0, 1.0, unit(41, k)), k as u32));
+            }
+            for r2 in [0.0f32, 0.09, 0.04, 1.0] {
+                let mut want = GatheredSites::default();
+                leaf.append_within_portable(Vec3::ZERO, r2, &mut want);
+                let expected: Vec<u32> = (0..fill)
+                    .filter(|&i| leaf.entry(i).0.length_squared() <= r2)
+                    .map(|i| i as u32)
+                    .collect();
+                assert_eq!(
+                    bits(&want).iter().map(|b| b.1).collect::<Vec<_>>(),
+                    expected
+                );
+                let mut got = GatheredSites::default();
+                leaf.append_within(Vec3::ZERO, r2, &mut got);
+                assert_eq!(bits(&got), bits(&want), "dispatched, fill {fill}, r2 {r2}");
+                #[cfg(target_arch = "x86_64")]
+                if std::arch::is_x86_feature_detected!("avx512f") {
+                    let mut wide = GatheredSites::default();
+                    // Appending after records already held, as a range query does.
+                    leaf.append_within_portable(Vec3::ZERO, r2, &mut wide);
+                    // SAFETY: the feature was detected just before.
+                    unsafe { leaf.append_within_avx512(Vec3::ZERO, r2, &mut wide) };
+                    let twice = [bits(&want), bits(&want)].concat();
+                    assert_eq!(bits(&wide), twice, "AVX-512, fill {fill}, r2 {r2}");
+                }
             }
         }
     }
