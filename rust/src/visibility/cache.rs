@@ -271,34 +271,9 @@ impl CacheState {
     ) -> Lookup {
         let mut out = Lookup::default();
         let hits = self.m_nearest(params, x, n, d_max, scratch);
-        let keep = params.n_keep as usize;
-        let mut best = 0.0f32;
-        // The n heaviest, heaviest first, by one integer: the weight's bits (w >= 0 orders
-        // as its bits), then the complement of the nearer-first candidate key, so that ties
-        // go to the nearer record, then the lower id, and the choice is deterministic.
-        // Insertion into the few kept beats sorting all m.
-        let mut order = [(0u128, 0usize); MAX_KEEP_COUNT as usize];
-        let mut len = 0;
-        for i in 0..hits.len {
-            let w = hits.weight[i];
-            best = best.max(w);
-            // Weights are in [0, 1]: zero carries nothing.
-            if w <= 0.0 || w.is_nan() {
-                continue;
-            }
-            let key = ((w.to_bits() as u128) << 64) | !hits.key[i] as u128;
-            if len == keep && key <= order[keep - 1].0 {
-                continue;
-            }
-            let mut at = len.min(keep - 1);
-            while at > 0 && order[at - 1].0 < key {
-                order[at] = order[at - 1];
-                at -= 1;
-            }
-            order[at] = (key, i);
-            len = (len + 1).min(keep);
-        }
-        for (k, &(_, i)) in out.kept.iter_mut().zip(&order[..len]) {
+        let mut order = [0usize; MAX_KEEP_COUNT as usize];
+        let (len, best) = hits.heaviest(params.n_keep as usize, &mut order);
+        for (k, &i) in out.kept.iter_mut().zip(&order[..len]) {
             *k = Neighbour {
                 id: hits.id(i),
                 weight: hits.weight[i],
@@ -668,6 +643,93 @@ impl Hits {
     /// Record id of hit `i`.
     pub(crate) fn id(&self, i: usize) -> u32 {
         key_id(self.key[i])
+    }
+
+    /// The `keep` heaviest records held, heaviest first, into `order` (indices), and how
+    /// many there are: ties go to the nearer record, then the lower id, so the choice is
+    /// deterministic. Weights of 0 carry nothing and are left out. Also the greatest
+    /// weight (+0 when none is positive).
+    fn heaviest(&self, keep: usize, order: &mut [usize; MAX_KEEP_COUNT as usize]) -> (usize, f32) {
+        #[cfg(target_arch = "x86_64")]
+        if self.len <= 16 && crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+            // SAFETY: the CPU has AVX-512 F, detected by `crate::simd`.
+            return unsafe { self.heaviest_avx512(keep, order) };
+        }
+        self.heaviest_portable(keep, order)
+    }
+
+    /// [`Self::heaviest`] by one integer per record: the weight's bits (w >= 0 orders as
+    /// its bits), then the complement of the nearer-first candidate key. Insertion into
+    /// the few kept beats sorting all m.
+    fn heaviest_portable(
+        &self,
+        keep: usize,
+        order: &mut [usize; MAX_KEEP_COUNT as usize],
+    ) -> (usize, f32) {
+        let mut keys = [0u128; MAX_KEEP_COUNT as usize];
+        let mut len = 0;
+        for i in 0..self.len {
+            let w = self.weight[i];
+            // Weights are in [0, 1]; zero and NaN carry nothing.
+            if w <= 0.0 || w.is_nan() {
+                continue;
+            }
+            let key = ((w.to_bits() as u128) << 64) | !self.key[i] as u128;
+            if len == keep && key <= keys[keep - 1] {
+                continue;
+            }
+            let mut at = len.min(keep - 1);
+            while at > 0 && keys[at - 1] < key {
+                keys[at] = keys[at - 1];
+                order[at] = order[at - 1];
+                at -= 1;
+            }
+            keys[at] = key;
+            order[at] = i;
+            len = (len + 1).min(keep);
+        }
+        let best = if len > 0 { self.weight[order[0]] } else { 0.0 };
+        (len, best)
+    }
+
+    /// [`Self::heaviest`] for up to 16 records: `keep` rounds of a masked maximum over
+    /// the weights in one register, the record of that weight (the least candidate key
+    /// among equal ones) leaving the mask.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn heaviest_avx512(
+        &self,
+        keep: usize,
+        order: &mut [usize; MAX_KEEP_COUNT as usize],
+    ) -> (usize, f32) {
+        use std::arch::x86_64::*;
+        debug_assert!(self.len <= 16);
+        // SAFETY: `weight` holds at least 16 lanes.
+        let w = unsafe { _mm512_loadu_ps(self.weight.as_ptr()) };
+        let held = (1u32 << self.len).wrapping_sub(1) as u16;
+        let mut active = _mm512_mask_cmp_ps_mask::<_CMP_GT_OQ>(held, w, _mm512_setzero_ps());
+        let mut len = 0;
+        let mut best = 0.0;
+        while len < keep && active != 0 {
+            let top = _mm512_mask_reduce_max_ps(active, w);
+            if len == 0 {
+                best = top;
+            }
+            let equal = _mm512_mask_cmp_ps_mask::<_CMP_EQ_OQ>(active, w, _mm512_set1_ps(top));
+            let mut lane = equal.trailing_zeros() as usize;
+            let mut rest = equal & (equal - 1);
+            while rest != 0 {
+                let other = rest.trailing_zeros() as usize;
+                if self.key[other] < self.key[lane] {
+                    lane = other;
+                }
+                rest &= rest - 1;
+            }
+            order[len] = lane;
+            len += 1;
+            active &= !(1u16 << lane);
+        }
+        (len, best)
     }
 
     /// Eq. 9 with `w_g` for every record held, from `d2`, `sin`, `cos` and `along`:

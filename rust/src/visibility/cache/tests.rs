@@ -787,3 +787,59 @@ fn every_scoring_form_gives_the_scalar_weights() {
         }
     }
 }
+
+/// The n heaviest come out the same whichever form picks them, and equal a sort of all
+/// held records by weight (descending), then candidate key, with zero and NaN weights left
+/// out; ties of weight are common here (weights drawn from a few values).
+#[test]
+fn every_form_keeps_the_same_heaviest_records() {
+    let keep_max = MAX_KEEP_COUNT as usize;
+    for case in 0..400u64 {
+        let mut hits = Hits {
+            len: (case % 17) as usize,
+            ..Hits::default()
+        };
+        for i in 0..HIT_LANES {
+            let k = case * 100 + i as u64;
+            hits.weight[i] = match (unit(31, k) * 6.0) as u32 {
+                0 => 0.0,
+                1 if i % 5 == 0 => f32::NAN,
+                v => v as f32 / 8.0,
+            };
+            // Distinct keys (ids differ), some sharing a distance.
+            let d2 = (unit(32, k) * 3.0).floor() / 4.0;
+            hits.key[i] = candidate_key(d2, (unit(33, k) * 1e6) as u32 * 64 + i as u32);
+        }
+        let keep = 1 + (case as usize / 17) % keep_max;
+        let mut want: Vec<usize> = (0..hits.len).filter(|&i| hits.weight[i] > 0.0).collect();
+        want.sort_by(|&a, &b| {
+            hits.weight[b]
+                .total_cmp(&hits.weight[a])
+                .then(hits.key[a].cmp(&hits.key[b]))
+        });
+        want.truncate(keep);
+        let best = want.first().map_or(0.0, |&i| hits.weight[i]);
+        let run = |f: &dyn Fn(&mut [usize; MAX_KEEP_COUNT as usize]) -> (usize, f32)| {
+            let mut order = [usize::MAX; MAX_KEEP_COUNT as usize];
+            let (len, top) = f(&mut order);
+            (order[..len].to_vec(), top.to_bits())
+        };
+        let expected = (want.clone(), best.to_bits());
+        assert_eq!(
+            run(&|o| hits.heaviest_portable(keep, o)),
+            expected,
+            "case {case}"
+        );
+        assert_eq!(
+            run(&|o| hits.heaviest(keep, o)),
+            expected,
+            "dispatched, case {case}"
+        );
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the feature was detected just before.
+            let avx = run(&|o| unsafe { hits.heaviest_avx512(keep, o) });
+            assert_eq!(avx, expected, "AVX-512, case {case}");
+        }
+    }
+}
