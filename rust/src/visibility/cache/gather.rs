@@ -196,10 +196,12 @@ impl GatheredSites {
         use std::arch::x86_64::*;
         let padded = self.x.len();
         debug_assert_eq!(padded % LANES, 0);
-        // Whole stores of 16 lanes past the last passing record need room.
-        out.index.resize(padded + LANES, 0);
-        out.d2.resize(padded + LANES, 0.0);
-        out.cos.resize(padded + LANES, 0.0);
+        // Whole stores of 16 lanes past the last passing record need room (reserved, not
+        // filled: the stores initialise what the lengths take in at the end).
+        out.clear();
+        out.index.reserve(padded + LANES);
+        out.d2.reserve(padded + LANES);
+        out.cos.reserve(padded + LANES);
         let (qx, qy, qz) = (
             _mm512_set1_ps(x.x),
             _mm512_set1_ps(x.y),
@@ -215,7 +217,7 @@ impl GatheredSites {
         let mut len = 0usize;
         for c in (0..padded).step_by(LANES) {
             // SAFETY: `c + 16 <= padded`, the length of every gathered array, and
-            // `len + 16 <= padded + 16`, the length of every output array.
+            // `len + 16 <= padded + 16`, the capacity of every output array.
             unsafe {
                 let ex = _mm512_sub_ps(_mm512_loadu_ps(self.x.as_ptr().add(c)), qx);
                 let ey = _mm512_sub_ps(_mm512_loadu_ps(self.y.as_ptr().add(c)), qy);
@@ -253,9 +255,13 @@ impl GatheredSites {
                 len += pass.count_ones() as usize;
             }
         }
-        out.index.truncate(len);
-        out.d2.truncate(len);
-        out.cos.truncate(len);
+        // SAFETY: the stores wrote every lane up to `len` (and past it) within the
+        // capacity reserved above.
+        unsafe {
+            out.index.set_len(len);
+            out.d2.set_len(len);
+            out.cos.set_len(len);
+        }
     }
 }
 
