@@ -326,27 +326,26 @@ impl CacheState {
         let (loose, tight) = (cos_max - 1e-3, cos_max + 1e-3);
         gathered.filter(x, n, d_max * d_max, loose, passed);
         candidates.clear();
-        for ((&k, &d2), &cos) in passed.index.iter().zip(&passed.d2).zip(&passed.cos) {
-            if cos <= tight {
-                let normal = gathered.normal(k as usize);
-                let theta = normal_angle(n.cross(normal).length(), cos);
+        for (j, (&k, &d2)) in passed.index.iter().zip(&passed.d2).enumerate() {
+            if passed.cos[j] <= tight {
+                let theta = normal_angle(passed.sin[j], passed.cos[j]);
                 if theta.partial_cmp(&theta_max) != Some(std::cmp::Ordering::Less) {
                     continue;
                 }
             }
-            candidates.push((candidate_key(d2, gathered.id(k as usize)), k, cos));
+            candidates.push((candidate_key(d2, gathered.id(k as usize)), j as u32));
         }
         if candidates.len() > m {
             candidates.select_nth_unstable_by_key(m - 1, |c| c.0);
         }
         hits.len = candidates.len().min(m);
-        for (i, &(key, k, cos)) in candidates[..hits.len].iter().enumerate() {
-            let k = k as usize;
+        for (i, &(key, j)) in candidates[..hits.len].iter().enumerate() {
+            let j = j as usize;
             hits.key[i] = key;
             hits.d2[i] = key_d2(key);
-            hits.cos[i] = cos;
-            hits.sin[i] = n.cross(gathered.normal(k)).length();
-            hits.along[i] = n.dot(gathered.position(k) - x);
+            hits.cos[i] = passed.cos[j];
+            hits.sin[i] = passed.sin[j];
+            hits.along[i] = passed.along[j];
         }
         hits.score(params, d_max);
         hits

@@ -24,9 +24,9 @@ pub struct LookupScratch {
     pub(super) stack: Vec<u32>,
     /// The gathered records that pass the current lookup's distance and loose normal tests.
     pub(super) passed: Passed,
-    /// The candidates of the current lookup: `(key, gathered index, cos θ)` with
+    /// The candidates of the current lookup: `(key, index into passed)` with
     /// [`candidate_key`]s, so that the m nearest are a selection on one integer.
-    pub(super) candidates: Vec<(u64, u32, f32)>,
+    pub(super) candidates: Vec<(u64, u32)>,
     /// The m nearest of the current lookup.
     pub(super) hits: Hits,
     /// Lookups served by the current gathering, and gatherings so far.
@@ -149,6 +149,7 @@ impl GatheredSites {
         self.id[k]
     }
 
+    #[cfg(test)]
     pub(super) fn position(&self, k: usize) -> Vec3 {
         Vec3::new(self.x[k], self.y[k], self.z[k])
     }
@@ -158,8 +159,9 @@ impl GatheredSites {
     }
 
     /// Writes into `out` the records with `|p − x|² <= r2` and `n · n_i >= cos_lo` (NaN
-    /// passes neither), in gathered order. The squared distance is summed as the tree's range query sums it,
-    /// and `n · n_i` as glam's `dot`, so every form (and a range query at `x`) decides alike.
+    /// passes neither), in gathered order, with what scoring needs of them. The squared distance is summed as the tree's range query sums it,
+    /// and `n · n_i`, `|n × n_i|` and `n · (p_i − x)` as glam computes them, so every form (and
+    /// a range query at `x`) decides and scores alike.
     pub(super) fn filter(&self, x: Vec3, n: Vec3, r2: f32, cos_lo: f32, out: &mut Passed) {
         #[cfg(target_arch = "x86_64")]
         if crate::simd::level() == crate::simd::SimdLevel::Avx512 {
@@ -182,6 +184,8 @@ impl GatheredSites {
                     out.index.push(k as u32);
                     out.d2.push(d2);
                     out.cos.push(cos);
+                    out.sin.push(n.cross(self.normal(k)).length());
+                    out.along.push(n.dot(Vec3::new(ex, ey, ez)));
                 }
             }
         }
@@ -202,6 +206,8 @@ impl GatheredSites {
         out.index.reserve(padded + LANES);
         out.d2.reserve(padded + LANES);
         out.cos.reserve(padded + LANES);
+        out.sin.reserve(padded + LANES);
+        out.along.reserve(padded + LANES);
         let (qx, qy, qz) = (
             _mm512_set1_ps(x.x),
             _mm512_set1_ps(x.y),
@@ -231,14 +237,32 @@ impl GatheredSites {
                 if within == 0 {
                     continue;
                 }
+                let (nx, ny, nz) = (
+                    _mm512_loadu_ps(self.nx.as_ptr().add(c)),
+                    _mm512_loadu_ps(self.ny.as_ptr().add(c)),
+                    _mm512_loadu_ps(self.nz.as_ptr().add(c)),
+                );
                 let cos = _mm512_add_ps(
-                    _mm512_add_ps(
-                        _mm512_mul_ps(mx, _mm512_loadu_ps(self.nx.as_ptr().add(c))),
-                        _mm512_mul_ps(my, _mm512_loadu_ps(self.ny.as_ptr().add(c))),
-                    ),
-                    _mm512_mul_ps(mz, _mm512_loadu_ps(self.nz.as_ptr().add(c))),
+                    _mm512_add_ps(_mm512_mul_ps(mx, nx), _mm512_mul_ps(my, ny)),
+                    _mm512_mul_ps(mz, nz),
                 );
                 let pass = within & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(cos, lo);
+                if pass == 0 {
+                    continue;
+                }
+                // glam's `n.cross(n_i).length()` and `n.dot(p_i − x)`, operation for
+                // operation.
+                let cx = _mm512_sub_ps(_mm512_mul_ps(my, nz), _mm512_mul_ps(ny, mz));
+                let cy = _mm512_sub_ps(_mm512_mul_ps(mz, nx), _mm512_mul_ps(nz, mx));
+                let cz = _mm512_sub_ps(_mm512_mul_ps(mx, ny), _mm512_mul_ps(nx, my));
+                let sin = _mm512_sqrt_ps(_mm512_add_ps(
+                    _mm512_add_ps(_mm512_mul_ps(cx, cx), _mm512_mul_ps(cy, cy)),
+                    _mm512_mul_ps(cz, cz),
+                ));
+                let along = _mm512_add_ps(
+                    _mm512_add_ps(_mm512_mul_ps(mx, ex), _mm512_mul_ps(my, ey)),
+                    _mm512_mul_ps(mz, ez),
+                );
                 let index = _mm512_add_epi32(lane, _mm512_set1_epi32(c as i32));
                 _mm512_storeu_si512(
                     out.index.as_mut_ptr().add(len).cast(),
@@ -252,6 +276,14 @@ impl GatheredSites {
                     out.cos.as_mut_ptr().add(len),
                     _mm512_maskz_compress_ps(pass, cos),
                 );
+                _mm512_storeu_ps(
+                    out.sin.as_mut_ptr().add(len),
+                    _mm512_maskz_compress_ps(pass, sin),
+                );
+                _mm512_storeu_ps(
+                    out.along.as_mut_ptr().add(len),
+                    _mm512_maskz_compress_ps(pass, along),
+                );
                 len += pass.count_ones() as usize;
             }
         }
@@ -261,24 +293,30 @@ impl GatheredSites {
             out.index.set_len(len);
             out.d2.set_len(len);
             out.cos.set_len(len);
+            out.sin.set_len(len);
+            out.along.set_len(len);
         }
     }
 }
 
 /// What [`GatheredSites::filter`] lets through: gathered indices with their squared
-/// distance and `cos θ`, in gathered order.
+/// distance, `cos θ` (`n · n_i`), `sin θ` (`|n × n_i|`) and `n · (p_i − x)`, in gathered
+/// order.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub(super) struct Passed {
     pub(super) index: Vec<u32>,
     pub(super) d2: Vec<f32>,
     pub(super) cos: Vec<f32>,
+    pub(super) sin: Vec<f32>,
+    pub(super) along: Vec<f32>,
 }
 
 impl Passed {
     fn clear(&mut self) {
         self.index.clear();
-        self.d2.clear();
-        self.cos.clear();
+        for v in [&mut self.d2, &mut self.cos, &mut self.sin, &mut self.along] {
+            v.clear();
+        }
     }
 }
 
@@ -358,7 +396,10 @@ mod tests {
                 sites.filter(Vec3::ZERO, n, r2, cos_lo, &mut got);
                 let bits = |p: &Passed| {
                     let f = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                    (p.index.clone(), f(&p.d2), f(&p.cos))
+                    (
+                        p.index.clone(),
+                        [&p.d2, &p.cos, &p.sin, &p.along].map(|v| f(v)),
+                    )
                 };
                 assert_eq!(bits(&got), bits(&want), "dispatched, {count} records");
                 #[cfg(target_arch = "x86_64")]
