@@ -159,9 +159,10 @@ impl GatheredSites {
     }
 
     /// Writes into `out` the records with `|p − x|² <= r2` and `n · n_i >= cos_lo` (NaN
-    /// passes neither), in gathered order, with what scoring needs of them. The squared distance is summed as the tree's range query sums it,
-    /// and `n · n_i`, `|n × n_i|` and `n · (p_i − x)` as glam computes them, so every form (and
-    /// a range query at `x`) decides and scores alike.
+    /// passes neither), in gathered order, with what scoring needs of them. The squared
+    /// distance is summed as the tree's range query sums it, and `n · n_i`, `|n × n_i|`
+    /// and `n · (p_i − x)` as glam computes them, so every form (and a range query at `x`)
+    /// decides and scores alike.
     pub(super) fn filter(&self, x: Vec3, n: Vec3, r2: f32, cos_lo: f32, out: &mut Passed) {
         #[cfg(target_arch = "x86_64")]
         if crate::simd::level() == crate::simd::SimdLevel::Avx512 {
