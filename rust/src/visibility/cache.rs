@@ -391,7 +391,7 @@ impl CacheState {
             self.tree.within(
                 anchor,
                 reach * reach,
-                &mut scratch.stack,
+                &mut scratch.query,
                 &mut scratch.sites,
             );
             if self.chained > 0 {

@@ -4,7 +4,7 @@
 
 use glam::Vec3;
 
-use super::site_tree::Entry;
+use super::site_tree::{Entry, QueryScratch};
 use super::Hits;
 
 /// Records gathered around an earlier lookup point, reused by the lookups after it while
@@ -21,7 +21,7 @@ pub struct LookupScratch {
     pub(super) reach: f32,
     pub(super) sites: GatheredSites,
     /// Working space of range queries.
-    pub(super) stack: Vec<u32>,
+    pub(super) query: QueryScratch,
     /// The gathered records that pass the current lookup's distance and loose normal tests.
     pub(super) passed: Passed,
     /// The candidates of the current lookup: `(key, index into passed)` with

@@ -196,10 +196,20 @@ impl SiteTree {
     }
 
     /// Appends to `out` every record with `|p − x|² <= r2` (summed as
-    /// [`GatheredSites::filter`] sums it), leaf after leaf. `stack` is working space.
-    pub(super) fn within(&self, x: Vec3, r2: f32, stack: &mut Vec<u32>, out: &mut GatheredSites) {
+    /// [`GatheredSites::filter`] sums it), leaf after leaf.
+    pub(super) fn within(
+        &self,
+        x: Vec3,
+        r2: f32,
+        scratch: &mut QueryScratch,
+        out: &mut GatheredSites,
+    ) {
+        let QueryScratch { stack, leaves } = scratch;
         stack.clear();
+        leaves.clear();
         stack.push(self.root);
+        // The leaves in reach first, their positions asked for as they are found, so that
+        // their cache misses overlap; then their records.
         while let Some(mut node) = stack.pop() {
             // Down to a leaf, nearer side first; the farther side waits unless the
             // splitting plane alone puts it out of reach. Rounding is monotone, so a
@@ -213,12 +223,38 @@ impl SiteTree {
                 }
                 node = stem.children[near];
             }
-            self.leaves[(node & !LEAF_BIT) as usize].append_within(x, r2, out);
+            let leaf = &self.leaves[(node & !LEAF_BIT) as usize];
+            leaf.prefetch_positions();
+            leaves.push(node & !LEAF_BIT);
+        }
+        for &leaf in leaves.iter() {
+            self.leaves[leaf as usize].append_within(x, r2, out);
         }
     }
 }
 
+/// Working space of [`SiteTree::within`].
+#[derive(Clone, Debug, Default)]
+pub(super) struct QueryScratch {
+    stack: Vec<u32>,
+    leaves: Vec<u32>,
+}
+
 impl Leaf {
+    /// Asks for the cache lines of the positions (`x`, `y`, `z`: the first 384 bytes).
+    #[inline(always)]
+    fn prefetch_positions(&self) {
+        #[cfg(target_arch = "x86_64")]
+        for line in 0..3 * LEAF * 4 / 64 {
+            // SAFETY: prefetching is a hint and never faults; the address lies in `self`.
+            unsafe {
+                use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+                let at = (self as *const Self).cast::<u8>().add(64 * line);
+                _mm_prefetch::<_MM_HINT_T0>(at.cast());
+            }
+        }
+    }
+
     /// Appends to `out` the records with `|p − x|² <= r2`, in lane order.
     #[inline]
     fn append_within(&self, x: Vec3, r2: f32, out: &mut GatheredSites) {
@@ -335,7 +371,7 @@ mod tests {
 
     fn ids_within(tree: &SiteTree, x: Vec3, r2: f32) -> Vec<u32> {
         let mut out = GatheredSites::default();
-        tree.within(x, r2, &mut Vec::new(), &mut out);
+        tree.within(x, r2, &mut QueryScratch::default(), &mut out);
         let mut ids: Vec<u32> = (0..out.len()).map(|k| out.id(k)).collect();
         ids.sort_unstable();
         ids
