@@ -1,5 +1,6 @@
 //! The visibility cache (CAM08 §5.1–5.2): one lookup (`m = 16`, `n = 4`, eq. 9 weights,
-//! `w_g`, β and `δ̄`) among 1k, 10k, 100k and 1M records (issue target <= 1 µs at 100k),
+//! `w_g`, β and `δ̄`; `_records`: without `δ̄`, as a renderer asks) among 1k, 10k, 100k and
+//! 1M records (issue target <= 1 µs at 100k),
 //! and insertion into the kd-tree amortised over 100k records (target <= 2 µs, rays
 //! excluded: the records are made beforehand). Bytes per record are printed at start-up.
 //!
@@ -90,6 +91,15 @@ fn lookup(c: &mut Criterion) {
                 black_box(state.lookup(&params, black_box(x), black_box(n), d_max))
             })
         });
+        // The same, for the records and their β alone (what a renderer asks; no δ̄).
+        let mut k = 0;
+        g.bench_function(BenchmarkId::new("m16_n4_records_random", count), |b| {
+            b.iter(|| {
+                let (x, n) = queries[k % queries.len()];
+                k += 1;
+                black_box(state.lookup_records(&params, black_box(x), black_box(n), d_max))
+            })
+        });
         // Pixel order: rows of points one footprint (d_max / 12, the default k) apart, as a
         // renderer walks a G-buffer; consecutive lookups share most records, and the
         // thread's LookupScratch serves several of them from one range query.
@@ -108,6 +118,14 @@ fn lookup(c: &mut Criterion) {
                 let (x, n) = rows[k % rows.len()];
                 k += 1;
                 black_box(state.lookup(&params, black_box(x), black_box(n), d_max))
+            })
+        });
+        let mut k = 0;
+        g.bench_function(BenchmarkId::new("m16_n4_records_pixel_order", count), |b| {
+            b.iter(|| {
+                let (x, n) = rows[k % rows.len()];
+                k += 1;
+                black_box(state.lookup_records(&params, black_box(x), black_box(n), d_max))
             })
         });
     }

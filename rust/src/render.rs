@@ -372,7 +372,7 @@ impl Shader<'_> {
                     work.shared_lookups += 1;
                     shared.lookup
                 }
-                None => state.lookup(cache.params(), hit.position, normal, d_max),
+                None => state.lookup_records(cache.params(), hit.position, normal, d_max),
             };
             let looked = Instant::now();
             work.lookup_ns += (looked - start).as_nanos() as u64;

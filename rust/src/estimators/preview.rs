@@ -114,7 +114,7 @@ impl LightingPreview {
                         Err(dir) => return env.eval(*dir).to_array(),
                         Ok(p) => p,
                     };
-                    let lookup = state.lookup(
+                    let lookup = state.lookup_records(
                         params,
                         p.position,
                         p.normal,

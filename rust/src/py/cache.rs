@@ -507,7 +507,8 @@ impl PyVisibilityCache {
         Ok(d)
     }
 
-    /// Totals: records, frame, memory_bytes, bytes_per_record, index_bytes (estimate),
+    /// Totals: records, frame, memory_bytes, bytes_per_record, index_bytes (kd-tree leaves
+    /// and stems, sites and chain links, spare capacity included),
     /// inserted, evicted, refused_full, shadow_rays, nearest_rays, lookups.
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let c = self.inner.counters();

@@ -115,7 +115,8 @@ pub struct Lookup {
     kept: [Neighbour; MAX_KEEP_COUNT as usize],
     /// `max w_i` over every candidate within `d_max` and `θ_max` (0 when none).
     pub max_weight: f32,
-    /// `δ̄`: mean eq. 11 difference over the pairs of kept records (0 for fewer than two).
+    /// `δ̄`: mean eq. 11 difference over the pairs of kept records (0 for fewer than two;
+    /// NaN from [`CacheState::lookup_records`], which skips it).
     pub mean_difference: f32,
 }
 
@@ -136,7 +137,8 @@ impl Lookup {
         &self.kept[..self.len]
     }
 
-    /// §5.2: a new record is wanted when `max w_i < w_min` or `δ̄ > δ̄_max`.
+    /// §5.2: a new record is wanted when `max w_i < w_min` or `δ̄ > δ̄_max` (a NaN `δ̄`, from
+    /// [`CacheState::lookup_records`], counts as agreement: only the first test decides).
     pub fn needs_record(&self, params: &CacheParams) -> bool {
         self.max_weight < params.w_min || self.mean_difference > params.delta_max
     }
@@ -271,6 +273,25 @@ impl CacheState {
         d_max: f32,
         scratch: &mut LookupScratch,
     ) -> Lookup {
+        self.lookup_with(params, x, n, d_max, scratch, true)
+    }
+
+    /// [`Self::lookup`] without §5.2's `δ̄` (left NaN): the records and their `β`, which is
+    /// all a renderer reads. `δ̄` compares the kept records' maps pairwise, and their bits
+    /// are the lookup's slowest memory reads when lookups come scattered.
+    pub fn lookup_records(&self, params: &CacheParams, x: Vec3, n: Vec3, d_max: f32) -> Lookup {
+        with_thread_scratch(|scratch| self.lookup_with(params, x, n, d_max, scratch, false))
+    }
+
+    fn lookup_with(
+        &self,
+        params: &CacheParams,
+        x: Vec3,
+        n: Vec3,
+        d_max: f32,
+        scratch: &mut LookupScratch,
+        difference: bool,
+    ) -> Lookup {
         let mut out = Lookup::default();
         let hits = self.m_nearest(params, x, n, d_max, scratch);
         let mut order = [0usize; MAX_KEEP_COUNT as usize];
@@ -290,7 +311,11 @@ impl CacheState {
         for k in kept.iter_mut() {
             k.beta = k.weight / total;
         }
-        out.mean_difference = self.mean_difference(kept);
+        out.mean_difference = if difference {
+            self.mean_difference(kept)
+        } else {
+            f32::NAN
+        };
         out
     }
 

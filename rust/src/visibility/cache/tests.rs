@@ -843,3 +843,24 @@ fn every_form_keeps_the_same_heaviest_records() {
         }
     }
 }
+
+/// A lookup for its records alone keeps the same records with the same weights and `β` bit
+/// for bit, and leaves `δ̄` out.
+#[test]
+fn lookups_for_records_alone_equal_full_lookups_without_the_difference() {
+    let c = patch_cache(CacheParams::MEDIUM, 2000, 31);
+    let s = c.read();
+    let p = *c.params();
+    for k in 0..300u64 {
+        let x = Vec3::new(unit(32, 2 * k), 0.0, unit(32, 2 * k + 1));
+        let n = (Vec3::Y + 0.3 * random_dir(33, k)).normalize();
+        let d = 0.02 + 0.1 * unit(34, k);
+        let full = s.lookup(&p, x, n, d);
+        let records = s.lookup_records(&p, x, n, d);
+        assert_eq!(records.neighbours(), full.neighbours(), "query {k}");
+        assert_eq!(records.max_weight.to_bits(), full.max_weight.to_bits());
+        assert!(records.mean_difference.is_nan());
+        assert!(!full.mean_difference.is_nan());
+        assert_eq!(records.needs_record(&p), full.max_weight < p.w_min);
+    }
+}
