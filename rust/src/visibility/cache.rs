@@ -43,8 +43,8 @@
 //! answer of a range query at its point bit for bit, and takes its `m` nearest by one
 //! integer key (squared distance, then id). A wide gathering prefetches the maps of its records,
 //! which the lookups it serves compare for `δ̄`. Lookups made without a scratch of their
-//! own ([`CacheState::lookup`], as the renderer, the preview and builds make them) use
-//! their thread's.
+//! own ([`CacheState::lookup`] as builds make them, [`CacheState::lookup_records`] as the
+//! renderer and the preview make them) use their thread's.
 //!
 //! ## Concurrency
 //! One `RwLock` (as in the paper): lookups read in parallel, an insertion writes alone and
@@ -209,8 +209,9 @@ pub struct EvictionReport {
 pub struct CacheState {
     store: RecordStore,
     tree: SiteTree,
-    /// What a lookup reads of each record, by id, in one place: a candidate costs one
-    /// cache line rather than a header, a normal and a chain link in three arrays.
+    /// Each record's position, decoded normal and chain link, by id: what the tree takes
+    /// on insertion and rebuilds, and what lookups read of chained records (the tree
+    /// holds only the first record at each position).
     sites: Vec<Site>,
     /// Changes with every insertion and re-index (see [`LookupScratch`]).
     generation: u64,
@@ -524,15 +525,17 @@ impl CacheState {
     /// with the same position.
     fn index(&mut self, id: u32) {
         let site = self.sites[id as usize];
-        match self.tree.find(site.position) {
-            Some(head) => {
-                let tail = self.chain_tail[head as usize] as usize;
-                self.sites[tail].next = id;
-                self.chain_tail[head as usize] = id;
-                self.chained += 1;
-            }
-            None => self.tree.insert((site.position, site.normal, id)),
+        if let Some(head) = self.tree.insert((site.position, site.normal, id)) {
+            self.chain(head, id);
         }
+    }
+
+    /// Appends record `id` to the chain of `head`, the first record at its position.
+    fn chain(&mut self, head: u32, id: u32) {
+        let tail = self.chain_tail[head as usize] as usize;
+        self.sites[tail].next = id;
+        self.chain_tail[head as usize] = id;
+        self.chained += 1;
     }
 
     /// Rebuilds tree and chains from the store: the first record at each position (in id
@@ -544,27 +547,19 @@ impl CacheState {
         self.chain_tail = (0..n as u32).collect();
         self.chained = 0;
         let mut heads: Vec<u32> = Vec::with_capacity(n);
-        {
-            // Position -> first record there, in id order.
-            let mut first = std::collections::HashMap::with_capacity(n);
-            for id in 0..n as u32 {
-                // `+ 0.0` makes −0 and 0 one key, as they are one position to `find`.
-                let key = (self.sites[id as usize].position + 0.0)
-                    .to_array()
-                    .map(f32::to_bits);
-                match first.entry(key) {
-                    std::collections::hash_map::Entry::Vacant(v) => {
-                        v.insert(id);
-                        heads.push(id);
-                    }
-                    std::collections::hash_map::Entry::Occupied(o) => {
-                        let head = *o.get() as usize;
-                        let tail = self.chain_tail[head] as usize;
-                        self.sites[tail].next = id;
-                        self.chain_tail[head] = id;
-                        self.chained += 1;
-                    }
+        // Position -> first record there, in id order.
+        let mut first = std::collections::HashMap::with_capacity(n);
+        for id in 0..n as u32 {
+            // `+ 0.0` makes −0 and 0 one key, as they are one position to the tree.
+            let key = (self.sites[id as usize].position + 0.0)
+                .to_array()
+                .map(f32::to_bits);
+            match first.entry(key) {
+                std::collections::hash_map::Entry::Vacant(v) => {
+                    v.insert(id);
+                    heads.push(id);
                 }
+                std::collections::hash_map::Entry::Occupied(o) => self.chain(*o.get(), id),
             }
         }
         let entries = heads
@@ -600,12 +595,12 @@ fn next_generation() -> u64 {
     GENERATIONS.fetch_add(1, Ordering::Relaxed)
 }
 
-/// A record as lookups read it.
+/// A record as the index reads it.
 #[derive(Clone, Copy, Debug)]
 struct Site {
     position: Vec3,
     /// Decoded unit normal (the store keeps it quantised; decoding costs a sine and a
-    /// cosine, which lookups would otherwise pay per candidate).
+    /// cosine, which lookups would otherwise pay per chained candidate).
     normal: Vec3,
     /// The next record with this exact position, or `NO_RECORD`. Only the first record at
     /// a position is in the tree.

@@ -10,7 +10,7 @@
 //! Leaves split when full, at the median of the coordinate of widest extent (records on a
 //! floor share their height, which a split on it could not separate). Positions held are
 //! distinct: [`SiteTree::insert`] reports a record already at the exact position instead
-//! (the cache chains records sharing a position). [`SiteTree::build`] makes a balanced
+//! of adding another (the cache chains records sharing a position). [`SiteTree::build`] makes a balanced
 //! tree from a whole set at once, for rebuilds after removals.
 
 use glam::Vec3;
@@ -57,6 +57,15 @@ impl Leaf {
         (self.nx[i], self.ny[i], self.nz[i]) = (n.x, n.y, n.z);
         self.id[i] = id;
         self.len += 1;
+    }
+
+    /// The id of the record held at exactly `position`, if any.
+    fn holding(&self, position: Vec3) -> Option<u32> {
+        (0..self.len as usize)
+            .find(|&i| {
+                self.x[i] == position.x && self.y[i] == position.y && self.z[i] == position.z
+            })
+            .map(|i| self.id[i])
     }
 
     fn entry(&self, i: usize) -> Entry {
@@ -139,23 +148,25 @@ impl SiteTree {
     }
 
     /// The id of the record held at exactly `position`, if any.
+    #[cfg(test)]
     pub(super) fn find(&self, position: Vec3) -> Option<u32> {
         let leaf = &self.leaves[(self.leaf_of(position).0 & !LEAF_BIT) as usize];
-        (0..leaf.len as usize)
-            .find(|&i| {
-                leaf.x[i] == position.x && leaf.y[i] == position.y && leaf.z[i] == position.z
-            })
-            .map(|i| leaf.id[i])
+        leaf.holding(position)
     }
 
-    /// Adds a record at a position no record holds yet (see [`Self::find`]).
-    pub(super) fn insert(&mut self, entry: Entry) {
-        debug_assert!(entry.0.is_finite() && self.find(entry.0).is_none());
+    /// Adds a record (finite position) unless a record is held at exactly its position:
+    /// then returns that record's id and leaves the tree as it was. Both are found by one
+    /// descent, records at one position falling in one leaf.
+    pub(super) fn insert(&mut self, entry: Entry) -> Option<u32> {
+        debug_assert!(entry.0.is_finite());
         let (node, parent) = self.leaf_of(entry.0);
         let index = (node & !LEAF_BIT) as usize;
+        if let Some(id) = self.leaves[index].holding(entry.0) {
+            return Some(id);
+        }
         if (self.leaves[index].len as usize) < LEAF {
             self.leaves[index].push(entry);
-            return;
+            return None;
         }
         // Full: split the leaf's records and the new one in two leaves under a new stem.
         let leaf = std::mem::replace(&mut self.leaves[index], Leaf::empty());
@@ -180,6 +191,7 @@ impl SiteTree {
             Some((p, side)) => self.stems[p].children[side] = stem,
             None => self.root = stem,
         }
+        None
     }
 
     /// The leaf `position` falls in, with its parent stem and side.
@@ -384,8 +396,10 @@ mod tests {
             let mut grown = SiteTree::default();
             for &e in &all {
                 assert_eq!(grown.find(e.0), None);
-                grown.insert(e);
+                assert_eq!(grown.insert(e), None);
                 assert_eq!(grown.find(e.0), Some(e.2));
+                // A second record at the same position is reported, not added.
+                assert_eq!(grown.insert((e.0, Vec3::X, u32::MAX)), Some(e.2));
             }
             let built = SiteTree::build(all.clone());
             for q in 0..200u64 {
