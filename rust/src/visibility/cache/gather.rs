@@ -113,8 +113,7 @@ impl GatheredSites {
             // SAFETY: the reserve leaves room for 16 values past the length; the first
             // `count` written are initialised values, and only they are taken in.
             unsafe {
-                let end = v.as_mut_ptr().add(v.len());
-                _mm512_storeu_ps(end, _mm512_maskz_compress_ps(pass, lane));
+                store_compressed(v.as_mut_ptr().add(v.len()), pass, lane);
                 v.set_len(v.len() + count);
             }
         }
@@ -209,11 +208,7 @@ impl GatheredSites {
         out.cos.reserve(padded + LANES);
         out.sin.reserve(padded + LANES);
         out.along.reserve(padded + LANES);
-        let (qx, qy, qz) = (
-            _mm512_set1_ps(x.x),
-            _mm512_set1_ps(x.y),
-            _mm512_set1_ps(x.z),
-        );
+        let q = [x.x, x.y, x.z].map(|v| _mm512_set1_ps(v));
         let (mx, my, mz) = (
             _mm512_set1_ps(n.x),
             _mm512_set1_ps(n.y),
@@ -226,13 +221,11 @@ impl GatheredSites {
             // SAFETY: `c + 16 <= padded`, the length of every gathered array, and
             // `len + 16 <= padded + 16`, the capacity of every output array.
             unsafe {
-                let ex = _mm512_sub_ps(_mm512_loadu_ps(self.x.as_ptr().add(c)), qx);
-                let ey = _mm512_sub_ps(_mm512_loadu_ps(self.y.as_ptr().add(c)), qy);
-                let ez = _mm512_sub_ps(_mm512_loadu_ps(self.z.as_ptr().add(c)), qz);
-                // No fused multiply-adds: the scalar forms round every product.
-                let d2 = _mm512_add_ps(
-                    _mm512_add_ps(_mm512_mul_ps(ex, ex), _mm512_mul_ps(ey, ey)),
-                    _mm512_mul_ps(ez, ez),
+                let ([ex, ey, ez], d2) = offsets_avx512(
+                    self.x.as_ptr().add(c),
+                    self.y.as_ptr().add(c),
+                    self.z.as_ptr().add(c),
+                    q,
                 );
                 let within = _mm512_cmp_ps_mask::<_CMP_LE_OQ>(d2, reach);
                 if within == 0 {
@@ -269,22 +262,14 @@ impl GatheredSites {
                     out.index.as_mut_ptr().add(len).cast(),
                     _mm512_maskz_compress_epi32(pass, index),
                 );
-                _mm512_storeu_ps(
-                    out.d2.as_mut_ptr().add(len),
-                    _mm512_maskz_compress_ps(pass, d2),
-                );
-                _mm512_storeu_ps(
-                    out.cos.as_mut_ptr().add(len),
-                    _mm512_maskz_compress_ps(pass, cos),
-                );
-                _mm512_storeu_ps(
-                    out.sin.as_mut_ptr().add(len),
-                    _mm512_maskz_compress_ps(pass, sin),
-                );
-                _mm512_storeu_ps(
-                    out.along.as_mut_ptr().add(len),
-                    _mm512_maskz_compress_ps(pass, along),
-                );
+                for (to, v) in [
+                    (&mut out.d2, d2),
+                    (&mut out.cos, cos),
+                    (&mut out.sin, sin),
+                    (&mut out.along, along),
+                ] {
+                    store_compressed(to.as_mut_ptr().add(len), pass, v);
+                }
                 len += pass.count_ones() as usize;
             }
         }
@@ -298,6 +283,51 @@ impl GatheredSites {
             out.along.set_len(len);
         }
     }
+}
+
+/// The offsets `p − x` by axis and the squared distances `|p − x|²` of sixteen records
+/// whose coordinates start at `xs`, `ys` and `zs`, from `x` splatted in `q`. The sum is
+/// the portable forms' (no fused multiply-adds: they round every product), so the range
+/// query, the filter and their portable forms all decide alike.
+///
+/// # Safety
+/// Sixteen `f32`s must be readable from each pointer.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub(super) unsafe fn offsets_avx512(
+    xs: *const f32,
+    ys: *const f32,
+    zs: *const f32,
+    q: [std::arch::x86_64::__m512; 3],
+) -> ([std::arch::x86_64::__m512; 3], std::arch::x86_64::__m512) {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller's.
+    let (ex, ey, ez) = unsafe {
+        (
+            _mm512_sub_ps(_mm512_loadu_ps(xs), q[0]),
+            _mm512_sub_ps(_mm512_loadu_ps(ys), q[1]),
+            _mm512_sub_ps(_mm512_loadu_ps(zs), q[2]),
+        )
+    };
+    let d2 = _mm512_add_ps(
+        _mm512_add_ps(_mm512_mul_ps(ex, ex), _mm512_mul_ps(ey, ey)),
+        _mm512_mul_ps(ez, ez),
+    );
+    ([ex, ey, ez], d2)
+}
+
+/// `v`'s lanes set in `keep`, packed to the front, stored as sixteen lanes at `to`.
+///
+/// # Safety
+/// Sixteen `f32`s must be writable at `to`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+unsafe fn store_compressed(to: *mut f32, keep: u16, v: std::arch::x86_64::__m512) {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller's.
+    unsafe { _mm512_storeu_ps(to, _mm512_maskz_compress_ps(keep, v)) }
 }
 
 /// What [`GatheredSites::filter`] lets through: gathered indices with their squared

@@ -15,6 +15,8 @@
 
 use glam::Vec3;
 
+#[cfg(target_arch = "x86_64")]
+use super::gather::offsets_avx512;
 use super::gather::GatheredSites;
 
 /// Records per leaf.
@@ -294,22 +296,16 @@ impl Leaf {
     #[target_feature(enable = "avx512f")]
     fn append_within_avx512(&self, x: Vec3, r2: f32, out: &mut GatheredSites) {
         use std::arch::x86_64::*;
-        let (qx, qy, qz) = (
-            _mm512_set1_ps(x.x),
-            _mm512_set1_ps(x.y),
-            _mm512_set1_ps(x.z),
-        );
+        let q = [x.x, x.y, x.z].map(|v| _mm512_set1_ps(v));
         let reach = _mm512_set1_ps(r2);
         for c in (0..LEAF).step_by(16) {
             // SAFETY: `c + 16 <= LEAF`, the length of every lane array.
             unsafe {
-                let ex = _mm512_sub_ps(_mm512_loadu_ps(self.x.as_ptr().add(c)), qx);
-                let ey = _mm512_sub_ps(_mm512_loadu_ps(self.y.as_ptr().add(c)), qy);
-                let ez = _mm512_sub_ps(_mm512_loadu_ps(self.z.as_ptr().add(c)), qz);
-                // No fused multiply-adds: the portable form rounds every product.
-                let d2 = _mm512_add_ps(
-                    _mm512_add_ps(_mm512_mul_ps(ex, ex), _mm512_mul_ps(ey, ey)),
-                    _mm512_mul_ps(ez, ez),
+                let (_, d2) = offsets_avx512(
+                    self.x.as_ptr().add(c),
+                    self.y.as_ptr().add(c),
+                    self.z.as_ptr().add(c),
+                    q,
                 );
                 let pass = _mm512_cmp_ps_mask::<_CMP_LE_OQ>(d2, reach);
                 if pass != 0 {
