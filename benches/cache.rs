@@ -82,25 +82,8 @@ fn lookup(c: &mut Criterion) {
             "cache_lookup/{count}: d_max {d_max:.4}, mean kept {:.2}",
             found as f64 / queries.len() as f64
         );
-        // Random points: every lookup starts with cold caches (the worst case).
-        let mut k = 0;
-        g.bench_function(BenchmarkId::new("m16_n4_random", count), |b| {
-            b.iter(|| {
-                let (x, n) = queries[k % queries.len()];
-                k += 1;
-                black_box(state.lookup(&params, black_box(x), black_box(n), d_max))
-            })
-        });
-        // The same, for the records and their β alone (what a renderer asks; no δ̄).
-        let mut k = 0;
-        g.bench_function(BenchmarkId::new("m16_n4_records_random", count), |b| {
-            b.iter(|| {
-                let (x, n) = queries[k % queries.len()];
-                k += 1;
-                black_box(state.lookup_records(&params, black_box(x), black_box(n), d_max))
-            })
-        });
-        // Pixel order: rows of points one footprint (d_max / 12, the default k) apart, as a
+        // Random points: every lookup starts with cold caches (the worst case). Pixel
+        // order: rows of points one footprint (d_max / 12, the default k) apart, as a
         // renderer walks a G-buffer; consecutive lookups share most records, and the
         // thread's LookupScratch serves several of them from one range query.
         let step = d_max / 12.0;
@@ -112,22 +95,30 @@ fn lookup(c: &mut Criterion) {
                 (x, point(11, i as u64).1)
             })
             .collect();
-        let mut k = 0;
-        g.bench_function(BenchmarkId::new("m16_n4_pixel_order", count), |b| {
-            b.iter(|| {
-                let (x, n) = rows[k % rows.len()];
-                k += 1;
-                black_box(state.lookup(&params, black_box(x), black_box(n), d_max))
-            })
-        });
-        let mut k = 0;
-        g.bench_function(BenchmarkId::new("m16_n4_records_pixel_order", count), |b| {
-            b.iter(|| {
-                let (x, n) = rows[k % rows.len()];
-                k += 1;
-                black_box(state.lookup_records(&params, black_box(x), black_box(n), d_max))
-            })
-        });
+        // Full lookups (records, β and δ̄), and `_records`: the records and β alone, what a
+        // renderer asks.
+        for (order, points) in [("random", &queries), ("pixel_order", &rows)] {
+            for records in [false, true] {
+                let name = if records {
+                    format!("m16_n4_records_{order}")
+                } else {
+                    format!("m16_n4_{order}")
+                };
+                let mut k = 0;
+                g.bench_function(BenchmarkId::new(name, count), |b| {
+                    b.iter(|| {
+                        let (x, n) = points[k % points.len()];
+                        k += 1;
+                        let (x, n) = (black_box(x), black_box(n));
+                        black_box(if records {
+                            state.lookup_records(&params, x, n, d_max)
+                        } else {
+                            state.lookup(&params, x, n, d_max)
+                        })
+                    })
+                });
+            }
+        }
     }
     g.finish();
 }
