@@ -361,20 +361,19 @@ impl CacheState {
                     continue;
                 }
             }
-            candidates.push((candidate_key(d2, gathered.id(k as usize)), j as u32));
+            candidates.push(candidate_key(d2, gathered.id(k as usize)), j as u32);
         }
-        if candidates.len() > m {
-            candidates.select_nth_unstable_by_key(m - 1, |c| c.0);
-        }
-        hits.len = candidates.len().min(m);
-        for (i, &(key, j)) in candidates[..hits.len].iter().enumerate() {
+        let mut i = 0;
+        candidates.for_each_least(m, |key, j| {
             let j = j as usize;
             hits.key[i] = key;
             hits.d2[i] = key_d2(key);
             hits.cos[i] = passed.cos[j];
             hits.sin[i] = passed.sin[j];
             hits.along[i] = passed.along[j];
-        }
+            i += 1;
+        });
+        hits.len = i;
         hits.score(params, d_max);
         hits
     }
@@ -392,11 +391,26 @@ impl CacheState {
         if covered {
             scratch.served += 1;
         } else {
-            // Gather wide while that pays (the last wide ball served another lookup); in
+            // Gather wide while that pays (the last gathering served another lookup); in
             // scattered order a wide ball costs four times the records for nothing, so
-            // gather exactly, and try wide again every eighth time.
+            // gather exactly, and try wide again after a while, less often each time a
+            // try serves nothing more.
             let coherent = scratch.served > 1;
-            let wide = coherent || scratch.gathers % 8 == 7;
+            let (first, most) = LookupScratch::WIDE_RETRY;
+            scratch.wide_interval = if coherent || scratch.wide_interval == 0 {
+                first
+            } else if scratch.wide {
+                (2 * scratch.wide_interval).min(most)
+            } else {
+                scratch.wide_interval
+            };
+            let wide = coherent || scratch.until_wide == 0;
+            scratch.until_wide = if wide {
+                scratch.wide_interval
+            } else {
+                scratch.until_wide - 1
+            };
+            scratch.wide = wide;
             scratch.gathers = scratch.gathers.wrapping_add(1);
             let reach = if wide { LookupScratch::REACH } else { 1.0 } * d_max;
             // Lookups in pixel order walk on: a wide ball centred ahead of `x`, along the

@@ -225,6 +225,21 @@ fn scratch_lookups_equal_plain_ones_and_follow_insertions() {
             let d = [0.001, 0.05, 0.5][k as usize % 3];
             check(&s, &mut scratch, (x, Vec3::Y, d));
         }
+        // Scattered lookups back off from trying wide gatherings; a coherent walk takes
+        // them up again within one retry interval.
+        for k in 0..300u64 {
+            let x = Vec3::new(unit(14, k), 0.0, unit(15, k));
+            s.lookup_near(&params, x, Vec3::Y, 0.05, &mut scratch);
+        }
+        let (first, most) = LookupScratch::WIDE_RETRY;
+        assert_eq!(scratch.wide_interval, most);
+        let before = scratch.gathers;
+        for k in 0..1000u64 {
+            check(&s, &mut scratch, row(2000 + k, 0.05));
+        }
+        assert_eq!(scratch.wide_interval, first);
+        let walked = scratch.gathers - before;
+        assert!(walked < 250 + most, "{walked} gatherings for 1000 lookups");
     }
     // Records inserted where the scratch last gathered must be found.
     let (x, n, d) = row(1000, 0.05);
