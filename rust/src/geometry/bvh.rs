@@ -557,6 +557,7 @@ impl Bvh {
                 match decode(n.child(i)) {
                     Child::Node(c) => {
                         if c != skip {
+                            self.tree.prefetch(c);
                             stack.push(c)
                         }
                     }
@@ -661,6 +662,9 @@ impl Bvh {
                         k += 1;
                     }
                     for &h in &hits[..k] {
+                        if let Child::Node(c) = decode(h.0) {
+                            self.tree.prefetch(c);
+                        }
                         stack.push(h);
                     }
                 }
