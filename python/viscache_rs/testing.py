@@ -4,8 +4,9 @@
 objects named like "ground", offset along the normal, directions uniform on the hemisphere.
 
 ``record_bundle_rays(scene, points, side=32, seed=0)``: ``points`` origins on the ground with
-``side * side`` stratified hemisphere directions each, point after point (the coherent
-workload of building visibility records).
+``side * side`` stratified hemisphere directions each, point after point, each point's
+cells in Morton order as records trace them (the coherent workload of building visibility
+records).
 
 ``chi2_sphere(dirs, pdf, resolution=32, subdivisions=8, min_expected=5.0,
 significance=0.01)``: Pearson's chi-square test of sampled directions against their

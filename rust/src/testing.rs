@@ -127,8 +127,9 @@ pub fn ground_hemisphere_rays(
 }
 
 /// Record-building bundles: `points` origins on the ground, each with `side * side`
-/// directions from a jittered `side x side` grid over its upper hemisphere, traced point
-/// after point in grid order (the coherent workload of visibility records).
+/// directions from a jittered `side x side` grid over its upper hemisphere, point after
+/// point, each point's cells in Morton order (as records trace their directions: the
+/// coherent workload of visibility records).
 pub fn record_bundle_rays(
     scene: &Scene,
     points: usize,
@@ -142,7 +143,11 @@ pub fn record_bundle_rays(
         .enumerate()
     {
         let o = scene.offset_point(p, nrm);
-        for j in 0..side * side {
+        let mut cells: Vec<usize> = (0..side * side).collect();
+        cells.sort_by_key(|&j| {
+            crate::sampling::octahedral::morton_encode((j % side) as u32, (j / side) as u32)
+        });
+        for j in cells {
             let jit = SampleRng::new(seed, k as u64, 1 + j as u64).get2(0);
             let u = [
                 ((j / side) as f32 + jit[0]) / side as f32,

@@ -17,8 +17,10 @@ use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
-use super::bvh4::{decode, BoxRay, Bvh4, Child, Parents, Stack};
+use super::bvh4::{decode, BoxRay, Bvh4, Child, Parents, Stack, EXIT_SCALE};
 use super::mesh::{triangle_cross, Mesh};
+#[cfg(target_arch = "x86_64")]
+use super::watertight::WatertightPacket;
 use super::watertight::{Triangle4, TriangleHit, WatertightRay};
 use crate::error::{Error, Result};
 
@@ -99,6 +101,15 @@ impl BuildQuality {
 
 /// Largest leaf the builder makes: one four-lane block of [`Triangle4`].
 pub const MAX_LEAF: u32 = super::bvh4::MAX_LEAF_TRIANGLES;
+
+/// Rays of a packet reaching a leaf from which its triangles are tested against the rays
+/// all at once ([`WatertightPacket`]) rather than ray by ray.
+#[cfg(target_arch = "x86_64")]
+const VECTOR_TRIANGLE_LANES: u32 = 6;
+
+/// Largest number of rays [`Bvh::occluded_packet`] traces together: one AVX-512 register
+/// of `f32` lanes.
+pub const PACKET: usize = 16;
 
 /// Traversal stack size before spilling to the heap (three entries per level suffice for
 /// trees of depth 40).
@@ -587,6 +598,161 @@ impl Bvh {
         occluder
     }
 
+    /// Shadow queries for up to [`PACKET`] rays from one `origin` (`directions[l]`,
+    /// `tmax[l]`), traced together: each node's four child boxes are tested against all
+    /// the packet's rays at once (AVX-512, sixteen lanes), and each ray is tested against
+    /// the triangles of the leaves its own box tests reach, by the single-ray watertight
+    /// test. The box test is [`Node4::intersect`]'s, lane by lane, with the same
+    /// operations, so a ray reaches exactly the leaves it reaches alone and every answer
+    /// is [`Self::occluded`]'s. Like [`Self::occluded_hinted`], the packet first searches
+    /// the node where the previous packet from this origin found an occluder (`hint`).
+    /// Bit `l` of the result is set when ray `l` is occluded. Counters count each ray,
+    /// each node test once per ray taking part, and each ray's triangle tests. Without
+    /// AVX-512 the rays are traced one by one.
+    ///
+    /// [`Node4::intersect`]: super::bvh4::Node4::intersect
+    pub fn occluded_packet<const COUNT: bool>(
+        &self,
+        origin: Vec3A,
+        directions: &[Vec3A],
+        tmax: &[f32],
+        hint: &mut OccluderHint,
+        counters: &mut TraversalCounters,
+    ) -> u16 {
+        assert!(directions.len() <= PACKET && tmax.len() == directions.len());
+        #[cfg(target_arch = "x86_64")]
+        if !directions.is_empty()
+            && !self.blocks.is_empty()
+            && crate::simd::level() == crate::simd::SimdLevel::Avx512
+        {
+            if COUNT {
+                counters.rays += directions.len() as u64;
+            }
+            // SAFETY: the CPU has AVX-512 F; 1 to PACKET rays.
+            return unsafe {
+                let packet = Packet::new(self, origin, directions, tmax);
+                self.occluded_packet_avx512::<COUNT>(&packet, hint, counters)
+            };
+        }
+        let mut occluded = 0u16;
+        for (l, (&d, &t)) in directions.iter().zip(tmax).enumerate() {
+            if self.occluded_hinted::<COUNT>(origin, d, t, hint, counters) {
+                occluded |= 1 << l;
+            }
+        }
+        occluded
+    }
+
+    /// [`Self::occluded_packet`] under AVX-512: the hinted node's subtree, then the tree
+    /// without it, for the rays still unanswered.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn occluded_packet_avx512<const COUNT: bool>(
+        &self,
+        packet: &Packet,
+        hint: &mut OccluderHint,
+        counters: &mut TraversalCounters,
+    ) -> u16 {
+        let mut active = packet.all;
+        let mut skip = NO_NODE;
+        if (hint.node as usize) < self.tree.nodes.len() {
+            self.packet_subtree::<COUNT>(packet, hint.node, NO_NODE, &mut active, counters);
+            if hint.node == 0 || active == 0 {
+                return packet.all & !active;
+            }
+            skip = hint.node;
+        }
+        if let Some(node) = self.packet_subtree::<COUNT>(packet, 0, skip, &mut active, counters) {
+            hint.node = self.hint_node(node);
+        }
+        packet.all & !active
+    }
+
+    /// Any-hit search of the subtree under node `start`, not entering node `skip`, for the
+    /// rays of `active`; clears the bits of those found occluded and returns the node whose
+    /// leaf held the first occluder, if any.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn packet_subtree<const COUNT: bool>(
+        &self,
+        packet: &Packet,
+        start: u32,
+        skip: u32,
+        active: &mut u16,
+        counters: &mut TraversalCounters,
+    ) -> Option<u32> {
+        let (mut nodes, mut tests) = (0u64, 0u64);
+        let mut occluder = None;
+        let mut stack: Stack<(u32, u16), STACK> = Stack::new();
+        stack.push((start, *active));
+        'trace: while let Some((node, lanes)) = stack.pop() {
+            let lanes = lanes & *active;
+            if lanes == 0 {
+                continue;
+            }
+            let n = &self.tree.nodes[node as usize];
+            if COUNT {
+                nodes += lanes.count_ones() as u64;
+            }
+            for j in 0..4 {
+                let child = decode(n.child(j));
+                if let Child::Leaf { count: 0, .. } = child {
+                    continue;
+                }
+                let hit = packet.box_hits(n, j, lanes);
+                if hit == 0 {
+                    continue;
+                }
+                match child {
+                    Child::Node(c) => {
+                        if c != skip {
+                            self.tree.prefetch(c);
+                            stack.push((c, hit));
+                        }
+                    }
+                    Child::Leaf { first, count } => {
+                        let block = &self.blocks[first as usize];
+                        let todo = hit & *active;
+                        if COUNT {
+                            tests += count as u64 * todo.count_ones() as u64;
+                        }
+                        let mut occluded = 0u16;
+                        if todo.count_ones() >= VECTOR_TRIANGLE_LANES {
+                            for t in 0..count as usize {
+                                occluded |=
+                                    packet
+                                        .watertight
+                                        .hits(block, t, packet.tmax, todo & !occluded);
+                            }
+                        } else {
+                            let mut rest = todo;
+                            while rest != 0 {
+                                let l = rest.trailing_zeros() as usize;
+                                rest &= rest - 1;
+                                let r = &packet.rays[l];
+                                if r.watertight.intersect4(block, r.tmax).0 != 0 {
+                                    occluded |= 1 << l;
+                                }
+                            }
+                        }
+                        if occluded != 0 {
+                            *active &= !occluded;
+                            occluder.get_or_insert(node);
+                            if *active == 0 {
+                                break 'trace;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        if COUNT {
+            counters.nodes += nodes;
+            counters.triangles += tests;
+        }
+        occluder
+    }
+
     /// Closest hit on `origin + t direction` with `t` in `[0, tmax)`, if any.
     #[inline]
     pub fn intersect<const COUNT: bool>(
@@ -683,6 +849,105 @@ impl Bvh {
     }
 }
 
+/// A packet of up to [`PACKET`] rays from one origin, prepared for box tests sixteen lanes
+/// at a time (see [`Bvh::occluded_packet`]).
+#[cfg(target_arch = "x86_64")]
+struct Packet {
+    /// Each lane's ray as the single-ray traversal prepares it; lanes past the packet's
+    /// rays repeat the last one and are never active.
+    rays: [LocalRay; PACKET],
+    /// The lanes holding rays.
+    all: u16,
+    origin: [std::arch::x86_64::__m512; 3],
+    inverse: [std::arch::x86_64::__m512; 3],
+    /// Lanes whose direction is negative on each axis: they enter a box by its max plane.
+    negative: [std::arch::x86_64::__mmask16; 3],
+    /// `tmax · EXIT_SCALE` per lane.
+    exit: std::arch::x86_64::__m512,
+    /// `tmax` per lane (local frame).
+    tmax: std::arch::x86_64::__m512,
+    watertight: WatertightPacket,
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Packet {
+    /// `1..=PACKET` rays.
+    #[target_feature(enable = "avx512f")]
+    fn new(bvh: &Bvh, origin: Vec3A, directions: &[Vec3A], tmax: &[f32]) -> Self {
+        use std::arch::x86_64::*;
+        let count = directions.len();
+        let rays: [LocalRay; PACKET] = std::array::from_fn(|l| {
+            let l = l.min(count - 1);
+            bvh.local_ray(origin, directions[l], tmax[l])
+        });
+        let (o, _) = rays[0].boxes.origin_and_inverse();
+        let mut inverse = [[0f32; PACKET]; 3];
+        let mut exit = [0f32; PACKET];
+        let mut tmax = [0f32; PACKET];
+        for (l, r) in rays.iter().enumerate() {
+            let (_, inv) = r.boxes.origin_and_inverse();
+            for axis in 0..3 {
+                inverse[axis][l] = inv[axis];
+            }
+            exit[l] = r.tmax * EXIT_SCALE;
+            tmax[l] = r.tmax;
+        }
+        // SAFETY: each array holds PACKET = 16 f32s.
+        let (inverse, exit, tmax) = unsafe {
+            (
+                inverse.map(|a| _mm512_loadu_ps(a.as_ptr())),
+                _mm512_loadu_ps(exit.as_ptr()),
+                _mm512_loadu_ps(tmax.as_ptr()),
+            )
+        };
+        let watertight = WatertightPacket::new(&rays.map(|r| r.watertight));
+        Packet {
+            rays,
+            all: (u32::MAX >> (32 - count)) as u16,
+            origin: o.map(|v| _mm512_set1_ps(v)),
+            inverse,
+            negative: inverse.map(|v| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps())),
+            exit,
+            tmax,
+            watertight,
+        }
+    }
+
+    /// The lanes of `lanes` whose segment touches child `j`'s box of node `n`: the test of
+    /// [`super::bvh4::Node4::intersect`] with the same operations in every lane.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    fn box_hits(&self, n: &super::bvh4::Node4, j: usize, lanes: u16) -> u16 {
+        use std::arch::x86_64::*;
+        let planes = n.planes();
+        let slab = |axis: usize| {
+            let lo = _mm512_set1_ps(planes[2 * axis][j]);
+            let hi = _mm512_set1_ps(planes[2 * axis + 1][j]);
+            let near = _mm512_mask_blend_ps(self.negative[axis], lo, hi);
+            let far = _mm512_mask_blend_ps(self.negative[axis], hi, lo);
+            (
+                _mm512_mul_ps(_mm512_sub_ps(near, self.origin[axis]), self.inverse[axis]),
+                _mm512_mul_ps(_mm512_sub_ps(far, self.origin[axis]), self.inverse[axis]),
+            )
+        };
+        let (nx, fx) = slab(0);
+        let (ny, fy) = slab(1);
+        let (nz, fz) = slab(2);
+        let t_near = _mm512_max_ps(
+            _mm512_max_ps(_mm512_max_ps(nx, ny), nz),
+            _mm512_setzero_ps(),
+        );
+        let t_far = _mm512_min_ps(
+            _mm512_mul_ps(
+                _mm512_min_ps(_mm512_min_ps(fx, fy), fz),
+                _mm512_set1_ps(EXIT_SCALE),
+            ),
+            self.exit,
+        );
+        _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(lanes, t_near, t_far)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -744,6 +1009,81 @@ mod tests {
             .unwrap();
         assert_eq!(h.triangle, 1);
         assert!((h.t - 1.0).abs() < 1e-6);
+    }
+
+    /// Packets answer as single rays, bit for bit: a random soup and a grid of
+    /// axis-aligned quads (rays in their planes and through shared edges), packets of 1 to
+    /// 16 rays in narrow and wide cones, axis-aligned directions, finite and infinite
+    /// `tmax`, consecutive packets sharing a hint. Counters count every ray.
+    #[test]
+    fn packets_answer_as_single_rays() {
+        use crate::sampling::rng::{hash4, to_unit_f32};
+        let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 9));
+        let mut soup = Mesh::new();
+        let mut v = Vec::new();
+        for k in 0..600u64 {
+            let c = vec3a(unit(1, k), unit(2, k), unit(3, k)) * 4.0;
+            for j in 0..3u64 {
+                let e = vec3a(unit(4, 3 * k + j), unit(5, 3 * k + j), unit(6, 3 * k + j));
+                v.push((c + (e - 0.5) * 0.6).to_array());
+            }
+        }
+        let faces: Vec<[i64; 3]> = (0..600).map(|k| [3 * k, 3 * k + 1, 3 * k + 2]).collect();
+        soup.add_indexed(&v, &faces, Material::DEFAULT, None)
+            .unwrap();
+        let mut grid = Mesh::new();
+        for (i, j) in (0..4).flat_map(|i| (0..4).map(move |j| (i, j))) {
+            let (x, y) = (i as f32, j as f32);
+            let quad = [
+                [x, y, 1.0],
+                [x + 1.0, y, 1.0],
+                [x + 1.0, y + 1.0, 1.0],
+                [x, y + 1.0, 1.0],
+            ];
+            grid.add_indexed(&quad, &[[0, 1, 2], [0, 2, 3]], Material::DEFAULT, None)
+                .unwrap();
+        }
+        let mut tested = 0;
+        for (mesh, centre) in [(soup, vec3a(2.0, 2.0, 2.0)), (grid, vec3a(2.0, 2.0, 0.0))] {
+            let bvh = Bvh::build(&mesh, BuildQuality::Medium);
+            for k in 0..400u64 {
+                let origin = centre + (vec3a(unit(7, k), unit(8, k), unit(9, k)) - 0.5) * 3.0;
+                let origin = if k % 5 == 0 { origin.round() } else { origin };
+                let axis = vec3a(unit(10, k), unit(11, k), unit(12, k)) - 0.5;
+                let spread = [0.05, 0.5, 3.0][k as usize % 3];
+                let mut hint = OccluderHint::NONE;
+                for p in 0..3u64 {
+                    let count = 1 + ((k + p) % PACKET as u64) as usize;
+                    let dirs: Vec<Vec3A> = (0..count as u64)
+                        .map(|l| {
+                            let s = 64 * k + 16 * p + l;
+                            let d = axis
+                                + (vec3a(unit(13, s), unit(14, s), unit(15, s)) - 0.5) * spread;
+                            match s % 7 {
+                                0 => vec3a(0.0, 0.0, d.z.signum()),
+                                1 => vec3a(d.x, d.y, 0.0),
+                                _ => d,
+                            }
+                        })
+                        .filter(|d| d.length() > 0.0)
+                        .collect();
+                    let tmax: Vec<f32> = (0..dirs.len() as u64)
+                        .map(|l| [f32::INFINITY, 0.5, 2.0, 0.0][((k + l) % 4) as usize])
+                        .collect();
+                    let mut c = TraversalCounters::default();
+                    let got = bvh.occluded_packet::<true>(origin, &dirs, &tmax, &mut hint, &mut c);
+                    assert_eq!(c.rays, dirs.len() as u64);
+                    let mut none = TraversalCounters::default();
+                    for (l, (&d, &t)) in dirs.iter().zip(&tmax).enumerate() {
+                        let alone = bvh.occluded::<false>(origin, d, t, &mut none);
+                        assert_eq!(got >> l & 1 != 0, alone, "k {k} packet {p} ray {l}");
+                        tested += alone as usize;
+                    }
+                    assert_eq!(got as u32 >> dirs.len(), 0);
+                }
+            }
+        }
+        assert!(tested > 1000, "{tested} occluded rays");
     }
 
     #[test]

@@ -30,7 +30,8 @@ pub const MAX_LEAVES: usize = 1 << LEAF_COUNT_SHIFT;
 const EMPTY: u32 = LEAF;
 
 /// `1 + 2 gamma(3)` with `gamma(n) = n eps / (1 - n eps)`, `eps = 2^-24` (Ize 2013).
-const EXIT_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+pub const EXIT_SCALE: f32 =
+    1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
 
 /// One node: the boxes of up to four children as planes (`[min_x, max_x, min_y, max_y,
 /// min_z, max_z]`, each over the four children) and their references.
@@ -96,7 +97,26 @@ impl BoxRay {
     }
 }
 
+impl BoxRay {
+    /// The origin and the clamped inverse direction, per axis (what every lane of
+    /// [`Node4::intersect`] uses).
+    #[inline(always)]
+    pub fn origin_and_inverse(&self) -> ([f32; 3], [f32; 3]) {
+        (
+            [self.origin[0].x, self.origin[1].x, self.origin[2].x],
+            [self.inv[0].x, self.inv[1].x, self.inv[2].x],
+        )
+    }
+}
+
 impl Node4 {
+    /// Child boxes as planes: `[min_x, max_x, min_y, max_y, min_z, max_z]`, each over the
+    /// four children (empty slots hold `min = inf`, `max = -inf`).
+    #[inline(always)]
+    pub fn planes(&self) -> &[[f32; 4]; 6] {
+        &self.planes
+    }
+
     /// Entry distances of the four children and the mask of those the segment `[0, tmax)`
     /// may touch (bit `i` for child `i`).
     #[inline(always)]

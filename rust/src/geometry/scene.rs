@@ -13,7 +13,7 @@ use std::sync::OnceLock;
 use glam::{Affine3A, Vec3, Vec3A};
 use rayon::prelude::*;
 
-use super::bvh::{BuildQuality, Bvh, BvhUpdate, OccluderHint, TraversalCounters};
+use super::bvh::{BuildQuality, Bvh, BvhUpdate, OccluderHint, TraversalCounters, PACKET};
 use super::mesh::{check_finite, triangle_cross, Bounds, Mesh};
 use crate::bsdf::Material;
 use crate::error::{Error, Result};
@@ -22,6 +22,82 @@ use crate::parallel::with_threads;
 
 /// Rays traced per parallel work item; fixed so results never depend on the thread count.
 const CHUNK: usize = 1024;
+
+/// Shortest run of rays from one origin that [`Scene::occluded`] traces as a packet.
+pub const MIN_PACKET: usize = 4;
+
+/// Least cosine between a packet's directions and their mean for [`Scene::occluded`] to
+/// trace them together (45°): wider packets share few nodes, and their rays go faster
+/// one by one.
+const PACKET_COSINE: f32 = std::f32::consts::FRAC_1_SQRT_2;
+
+/// Whether `directions` (non-zero) lie within 45° of their mean direction.
+fn coherent(directions: &[Vec3A]) -> bool {
+    let units: [Vec3A; PACKET] =
+        std::array::from_fn(|l| directions[l.min(directions.len() - 1)].normalize());
+    let mean = units[..directions.len()].iter().sum::<Vec3A>();
+    let length = mean.length();
+    length > 0.0
+        && units[..directions.len()]
+            .iter()
+            .all(|u| u.dot(mean) >= PACKET_COSINE * length)
+}
+
+/// [`Scene::occluded`] on rays `base..base + out.len()`.
+fn occluded_chunk<const COUNT: bool>(
+    bvh: &Bvh,
+    rays: &RayBatch,
+    base: usize,
+    out: &mut [bool],
+    counters: &mut TraversalCounters,
+) {
+    let bits = |o: [f32; 3]| o.map(f32::to_bits);
+    let mut last = (None, OccluderHint::NONE);
+    let mut k = 0;
+    while k < out.len() {
+        let i = base + k;
+        let origin = bits(rays.origins[i]);
+        // Rays from the same origin, bit for bit (-0.0 and 0.0 would round apart).
+        let mut run = 1;
+        while run < PACKET && k + run < out.len() && bits(rays.origins[i + run]) == origin {
+            run += 1;
+        }
+        let o = Vec3A::from(rays.origins[i]);
+        if last.0 != Some(origin) {
+            last = (Some(origin), OccluderHint::NONE);
+        }
+        let direction = |l: usize| Vec3A::from(rays.directions[i + l]);
+        if run >= MIN_PACKET {
+            let directions: [Vec3A; PACKET] = std::array::from_fn(|l| direction(l.min(run - 1)));
+            if coherent(&directions[..run]) {
+                let tmax: [f32; PACKET] = std::array::from_fn(|l| rays.tmax_of(i + l.min(run - 1)));
+                let occluded = bvh.occluded_packet::<COUNT>(
+                    o,
+                    &directions[..run],
+                    &tmax[..run],
+                    &mut last.1,
+                    counters,
+                );
+                for (l, slot) in out[k..k + run].iter_mut().enumerate() {
+                    *slot = occluded >> l & 1 != 0;
+                }
+                k += run;
+                continue;
+            }
+        }
+        // One by one: a run too short or too wide for a packet.
+        for (l, slot) in out[k..k + run].iter_mut().enumerate() {
+            *slot = bvh.occluded_hinted::<COUNT>(
+                o,
+                direction(l),
+                rays.tmax_of(i + l),
+                &mut last.1,
+                counters,
+            );
+        }
+        k += run;
+    }
+}
 
 /// Upper ends of the ray segments of a batch.
 #[derive(Clone, Copy, Debug)]
@@ -463,32 +539,29 @@ impl Scene {
         })
     }
 
-    /// Shadow queries: `true` where something lies on the segment. Consecutive rays from
-    /// the same origin (record bundles) first try the previous ray's occluder.
+    /// Shadow queries: `true` where something lies on the segment. Runs of at least
+    /// [`MIN_PACKET`] consecutive rays from one origin (record bundles) are traced in
+    /// packets ([`Bvh::occluded_packet`]); other rays one by one, first trying the previous
+    /// ray's occluder when it shared their origin. The answers are the same either way.
     pub fn occluded(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
         rays.validate()?;
-        let bvh = self.bvh();
         let counting = self.counting_enabled();
-        self.map_rays_with_state(
-            rays.len(),
-            threads,
-            |i, last: &mut ([f32; 3], OccluderHint), c| {
-                let o = rays.origins[i];
-                if o != last.0 {
-                    *last = (o, OccluderHint::NONE);
-                }
-                let (o, d, t) = (
-                    Vec3A::from(o),
-                    Vec3A::from(rays.directions[i]),
-                    rays.tmax_of(i),
-                );
-                if counting {
-                    bvh.occluded_hinted::<true>(o, d, t, &mut last.1, c)
-                } else {
-                    bvh.occluded_hinted::<false>(o, d, t, &mut last.1, c)
-                }
-            },
-        )
+        with_threads(threads, || {
+            let bvh = self.bvh();
+            let mut out = vec![false; rays.len()];
+            out.par_chunks_mut(CHUNK)
+                .enumerate()
+                .for_each(|(c, chunk)| {
+                    let mut counters = TraversalCounters::default();
+                    if counting {
+                        occluded_chunk::<true>(bvh, rays, c * CHUNK, chunk, &mut counters);
+                    } else {
+                        occluded_chunk::<false>(bvh, rays, c * CHUNK, chunk, &mut counters);
+                    }
+                    self.add_counters(counters);
+                });
+            out
+        })
     }
 
     /// Closest hits.
@@ -854,6 +927,53 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Runs of 1 to 23 rays from one origin, in narrow cones (traced as packets) and in
+    /// scattered directions (one by one), with per-ray `tmax`, across chunk boundaries:
+    /// the answers are single rays' on 1 and 2 threads, and the counters count every ray.
+    #[test]
+    fn runs_of_any_length_answer_as_single_rays() {
+        use crate::sampling::rng::{hash4, to_unit_f32};
+        use crate::testing::surface_points;
+        let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 17));
+        let s = crate::scenes::load("garage", 1.0, 0).unwrap().scene;
+        let (mut origins, mut dirs, mut tmax) = (Vec::new(), Vec::new(), Vec::new());
+        for (k, (p, n)) in surface_points(&s, None, 400, 5).into_iter().enumerate() {
+            let k = k as u64;
+            let o = s.offset_point(p, n).to_array();
+            let axis = (n + Vec3::new(unit(1, k), unit(2, k), unit(3, k)) - 0.5).normalize();
+            let spread = [0.1, 0.4, 4.0][k as usize % 3];
+            for l in 0..1 + (7 * k) % 23 {
+                let r = 64 * k + l;
+                let jitter = Vec3::new(unit(4, r), unit(5, r), unit(6, r)) - 0.5;
+                origins.push(o);
+                dirs.push((axis + jitter * spread).to_array());
+                tmax.push([f32::INFINITY, 2.0, 0.5][(r % 3) as usize]);
+            }
+        }
+        assert!(origins.len() > 2 * CHUNK);
+        let rays = RayBatch {
+            origins: &origins,
+            directions: &dirs,
+            tmax: TMax::PerRay(&tmax),
+        };
+        s.set_counting(true);
+        s.reset_counters();
+        let one = s.occluded(&rays, Some(1)).unwrap();
+        assert_eq!(s.counters().rays, origins.len() as u64);
+        s.set_counting(false);
+        assert_eq!(s.occluded(&rays, Some(2)).unwrap(), one);
+        let mut c = TraversalCounters::default();
+        let single: Vec<bool> = (0..origins.len())
+            .map(|i| s.occluded1(Vec3::from(origins[i]), Vec3::from(dirs[i]), tmax[i], &mut c))
+            .collect();
+        assert_eq!(one, single);
+        let occluded = single.iter().filter(|&&b| b).count();
+        assert!(
+            occluded > 500 && occluded < single.len() - 500,
+            "{occluded}"
+        );
     }
 
     /// `n` rays from points uniform in `b` (grown by `margin`) in uniform directions, some

@@ -216,6 +216,135 @@ impl WatertightRay {
     }
 }
 
+/// Up to sixteen rays from one origin, for the watertight test run over the rays: one
+/// triangle against every lane at once (AVX-512), each lane with its own axis permutation
+/// and shear. Every lane computes what [`WatertightRay::intersect4`] computes for its ray,
+/// with the same operations, so the answers are the same bit for bit.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub struct WatertightPacket {
+    origin: Vec3A,
+    /// Lanes whose `kx` (`ky`, `kz`) is axis 1, and those where it is axis 2.
+    axis_is: [[std::arch::x86_64::__mmask16; 2]; 3],
+    shear: [std::arch::x86_64::__m512; 3],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl WatertightPacket {
+    /// `rays` must share their origin (bit for bit).
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 F.
+    #[target_feature(enable = "avx512f")]
+    pub fn new(rays: &[WatertightRay; 16]) -> Self {
+        use std::arch::x86_64::*;
+        let mut axis_is = [[0u16; 2]; 3];
+        let mut shear = [[0f32; 16]; 3];
+        for (l, r) in rays.iter().enumerate() {
+            for (which, k) in [r.kx, r.ky, r.kz].into_iter().enumerate() {
+                for axis in 1..3 {
+                    axis_is[which][axis - 1] |= ((k == axis) as u16) << l;
+                }
+            }
+            (shear[0][l], shear[1][l], shear[2][l]) = (r.sx, r.sy, r.sz);
+        }
+        // SAFETY: each row holds 16 f32s.
+        let shear = shear.map(|row| unsafe { _mm512_loadu_ps(row.as_ptr()) });
+        WatertightPacket {
+            origin: rays[0].origin,
+            axis_is,
+            shear,
+        }
+    }
+
+    /// The lanes of `lanes` whose ray hits triangle `t` (lane `t` of `tri`) within
+    /// `[0, tmax)` (`tmax` per lane), as [`WatertightRay::intersect4`] decides it.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 F.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    pub fn hits(
+        &self,
+        tri: &Triangle4,
+        t: usize,
+        tmax: std::arch::x86_64::__m512,
+        lanes: u16,
+    ) -> u16 {
+        use std::arch::x86_64::*;
+        let rel = |k: usize| [0, 1, 2].map(|axis| tri.v[k][axis].to_array()[t] - self.origin[axis]);
+        let pick = |which: usize, v: [f32; 3]| {
+            let [is_y, is_z] = self.axis_is[which];
+            let xy = _mm512_mask_blend_ps(is_y, _mm512_set1_ps(v[0]), _mm512_set1_ps(v[1]));
+            _mm512_mask_blend_ps(is_z, xy, _mm512_set1_ps(v[2]))
+        };
+        let [sx, sy, sz] = self.shear;
+        let (a, b, c) = (rel(0), rel(1), rel(2));
+        let (akz, bkz, ckz) = (pick(2, a), pick(2, b), pick(2, c));
+        let ax = _mm512_sub_ps(pick(0, a), _mm512_mul_ps(sx, akz));
+        let ay = _mm512_sub_ps(pick(1, a), _mm512_mul_ps(sy, akz));
+        let bx = _mm512_sub_ps(pick(0, b), _mm512_mul_ps(sx, bkz));
+        let by = _mm512_sub_ps(pick(1, b), _mm512_mul_ps(sy, bkz));
+        let cx = _mm512_sub_ps(pick(0, c), _mm512_mul_ps(sx, ckz));
+        let cy = _mm512_sub_ps(pick(1, c), _mm512_mul_ps(sy, ckz));
+        let cross = |p: __m512, q: __m512, r: __m512, s: __m512| {
+            _mm512_sub_ps(_mm512_mul_ps(p, q), _mm512_mul_ps(r, s))
+        };
+        let mut u = cross(cx, by, cy, bx);
+        let mut v = cross(ax, cy, ay, cx);
+        let mut w = cross(bx, ay, by, ax);
+        let zero = _mm512_setzero_ps();
+        let on_edge = _mm512_mask_cmp_ps_mask::<_CMP_EQ_OQ>(lanes, u, zero)
+            | _mm512_mask_cmp_ps_mask::<_CMP_EQ_OQ>(lanes, v, zero)
+            | _mm512_mask_cmp_ps_mask::<_CMP_EQ_OQ>(lanes, w, zero);
+        if on_edge != 0 {
+            // Lanes exactly on an edge in f32: decide them in f64, as the scalar test does.
+            let lane = |x: __m512| {
+                let mut a = [0f32; 16];
+                // SAFETY: `a` holds 16 f32s.
+                unsafe { _mm512_storeu_ps(a.as_mut_ptr(), x) };
+                a
+            };
+            let [ax, ay, bx, by, cx, cy] = [ax, ay, bx, by, cx, cy].map(lane);
+            let (mut ua, mut va, mut wa) = (lane(u), lane(v), lane(w));
+            let mut todo = on_edge;
+            while todo != 0 {
+                let l = todo.trailing_zeros() as usize;
+                todo &= todo - 1;
+                let f = |x: [f32; 16]| x[l] as f64;
+                let (ax, ay, bx, by, cx, cy) = (f(ax), f(ay), f(bx), f(by), f(cx), f(cy));
+                ua[l] = (cx * by - cy * bx) as f32;
+                va[l] = (ax * cy - ay * cx) as f32;
+                wa[l] = (bx * ay - by * ax) as f32;
+            }
+            // SAFETY: each array holds 16 f32s.
+            unsafe {
+                (u, v, w) = (
+                    _mm512_loadu_ps(ua.as_ptr()),
+                    _mm512_loadu_ps(va.as_ptr()),
+                    _mm512_loadu_ps(wa.as_ptr()),
+                );
+            }
+        }
+        let below = |x: __m512| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(x, zero);
+        let above = |x: __m512| _mm512_cmp_ps_mask::<_CMP_GT_OQ>(x, zero);
+        let neg = below(u) | below(v) | below(w);
+        let pos = above(u) | above(v) | above(w);
+        let det = _mm512_add_ps(_mm512_add_ps(u, v), w);
+        let along = _mm512_add_ps(
+            _mm512_add_ps(_mm512_mul_ps(u, akz), _mm512_mul_ps(v, bkz)),
+            _mm512_mul_ps(w, ckz),
+        );
+        let t_scaled = _mm512_mul_ps(sz, along);
+        let t = _mm512_mul_ps(t_scaled, _mm512_div_ps(_mm512_set1_ps(1.0), det));
+        lanes
+            & !(neg & pos)
+            & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(det, zero)
+            & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(t, zero)
+            & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(t, tmax)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -226,6 +355,76 @@ mod tests {
         Vec3A::new(1.0, 0.0, 0.0),
         Vec3A::new(0.0, 1.0, 0.0),
     ];
+
+    /// The packet test decides every (ray, triangle) pair as `intersect4` does: random
+    /// and integer-grid triangles (rays through their shared edges and vertices), degenerate
+    /// ones, axis-aligned and mixed directions, finite and infinite `tmax`.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn packet_test_decides_every_pair_as_the_single_ray_test() {
+        use crate::sampling::rng::{hash4, to_unit_f32};
+        use std::arch::x86_64::_mm512_loadu_ps;
+        if crate::simd::level() != crate::simd::SimdLevel::Avx512 {
+            return;
+        }
+        let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 21));
+        let mut hits = 0;
+        for case in 0..3000u64 {
+            let grid = case % 3 == 0;
+            let point = |k: u64| {
+                let p = vec3a(
+                    unit(case, 3 * k),
+                    unit(case, 3 * k + 1),
+                    unit(case, 3 * k + 2),
+                );
+                if grid {
+                    (p * 4.0).round()
+                } else {
+                    p * 2.0 - 1.0
+                }
+            };
+            let tris: Vec<[Vec3A; 3]> = (0..4u64)
+                .map(|t| match (case + t) % 9 {
+                    0 => [point(10 * t), point(10 * t), point(10 * t + 1)],
+                    _ => [point(10 * t), point(10 * t + 1), point(10 * t + 2)],
+                })
+                .collect();
+            let block = Triangle4::pack(&tris);
+            let origin = if grid {
+                (point(99) + 0.5).floor()
+            } else {
+                point(99) * 3.0
+            };
+            let rays: [WatertightRay; 16] = std::array::from_fn(|l| {
+                let aim = tris[l % 4][l / 4 % 3] + (point(100 + l as u64) - 0.5) * 0.3;
+                let mut d = aim - origin;
+                match (case as usize + l) % 6 {
+                    0 => d = vec3a(0.0, 0.0, if d.z < 0.0 { -1.0 } else { 1.0 }),
+                    1 => d.x = 0.0,
+                    2 if grid => d = tris[l % 4][0] - origin,
+                    _ => {}
+                }
+                if d.length() == 0.0 {
+                    d = Vec3A::Y;
+                }
+                WatertightRay::new(origin, d)
+            });
+            let tmax: [f32; 16] =
+                std::array::from_fn(|l| [f32::INFINITY, 1.0, 3.0, 0.0][(case as usize + l) % 4]);
+            // SAFETY: AVX-512 F detected; `tmax` holds 16 f32s.
+            let packet = unsafe { WatertightPacket::new(&rays) };
+            for t in 0..4 {
+                let got =
+                    unsafe { packet.hits(&block, t, _mm512_loadu_ps(tmax.as_ptr()), u16::MAX) };
+                for l in 0..16 {
+                    let alone = rays[l].intersect4(&block, tmax[l]).0 >> t & 1 != 0;
+                    assert_eq!(got >> l & 1 != 0, alone, "case {case} triangle {t} ray {l}");
+                    hits += alone as usize;
+                }
+            }
+        }
+        assert!(hits > 5000, "{hits} hits");
+    }
 
     #[test]
     fn hits_inside_with_barycentrics_and_both_windings() {
