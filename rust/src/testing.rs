@@ -138,16 +138,16 @@ pub fn record_bundle_rays(
 ) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
     let mut origins = Vec::with_capacity(points * side * side);
     let mut dirs = Vec::with_capacity(points * side * side);
+    let mut cells: Vec<usize> = (0..side * side).collect();
+    cells.sort_by_key(|&j| {
+        crate::sampling::octahedral::morton_encode((j % side) as u32, (j / side) as u32)
+    });
     for (k, (p, nrm)) in surface_points(scene, Some("ground"), points, seed)
         .into_iter()
         .enumerate()
     {
         let o = scene.offset_point(p, nrm);
-        let mut cells: Vec<usize> = (0..side * side).collect();
-        cells.sort_by_key(|&j| {
-            crate::sampling::octahedral::morton_encode((j % side) as u32, (j / side) as u32)
-        });
-        for j in cells {
+        for &j in &cells {
             let jit = SampleRng::new(seed, k as u64, 1 + j as u64).get2(0);
             let u = [
                 ((j / side) as f32 + jit[0]) / side as f32,

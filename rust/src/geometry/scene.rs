@@ -33,14 +33,14 @@ const PACKET_COSINE: f32 = std::f32::consts::FRAC_1_SQRT_2;
 
 /// Whether `directions` (non-zero) lie within 45° of their mean direction.
 fn coherent(directions: &[Vec3A]) -> bool {
-    let units: [Vec3A; PACKET] =
-        std::array::from_fn(|l| directions[l.min(directions.len() - 1)].normalize());
-    let mean = units[..directions.len()].iter().sum::<Vec3A>();
+    let mut units = [Vec3A::ZERO; PACKET];
+    for (u, d) in units.iter_mut().zip(directions) {
+        *u = d.normalize();
+    }
+    let units = &units[..directions.len()];
+    let mean = units.iter().sum::<Vec3A>();
     let length = mean.length();
-    length > 0.0
-        && units[..directions.len()]
-            .iter()
-            .all(|u| u.dot(mean) >= PACKET_COSINE * length)
+    length > 0.0 && units.iter().all(|u| u.dot(mean) >= PACKET_COSINE * length)
 }
 
 /// [`Scene::occluded`] on rays `base..base + out.len()`.
@@ -511,16 +511,21 @@ impl Scene {
         threads: Option<usize>,
         per_ray: impl Fn(usize, &mut TraversalCounters) -> T + Sync,
     ) -> Result<Vec<T>> {
-        self.map_rays_with_state(n, threads, |i, _: &mut (), c| per_ray(i, c))
+        self.map_chunks(n, threads, |base, chunk, counters| {
+            for (k, slot) in chunk.iter_mut().enumerate() {
+                *slot = per_ray(base + k, counters);
+            }
+        })
     }
 
-    /// [`Scene::map_rays`] with a state that each chunk starts from `S::default()` and
-    /// carries from ray to ray. Chunks are fixed, so results stay thread-count independent.
-    pub fn map_rays_with_state<T: Send + Copy + Default, S: Default>(
+    /// Fills the results of `n` rays chunk by chunk on `threads` workers: `per_chunk(base,
+    /// out, counters)` answers rays `base..base + out.len()`. Chunks are fixed, so results
+    /// never depend on the thread count; their counters are added to the scene's.
+    pub fn map_chunks<T: Send + Copy + Default>(
         &self,
         n: usize,
         threads: Option<usize>,
-        per_ray: impl Fn(usize, &mut S, &mut TraversalCounters) -> T + Sync,
+        per_chunk: impl Fn(usize, &mut [T], &mut TraversalCounters) + Sync,
     ) -> Result<Vec<T>> {
         with_threads(threads, || {
             self.bvh();
@@ -529,10 +534,7 @@ impl Scene {
                 .enumerate()
                 .for_each(|(c, chunk)| {
                     let mut counters = TraversalCounters::default();
-                    let mut state = S::default();
-                    for (k, slot) in chunk.iter_mut().enumerate() {
-                        *slot = per_ray(c * CHUNK + k, &mut state, &mut counters);
-                    }
+                    per_chunk(c * CHUNK, chunk, &mut counters);
                     self.add_counters(counters);
                 });
             out
@@ -546,21 +548,13 @@ impl Scene {
     pub fn occluded(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
         rays.validate()?;
         let counting = self.counting_enabled();
-        with_threads(threads, || {
+        self.map_chunks(rays.len(), threads, |base, out, counters| {
             let bvh = self.bvh();
-            let mut out = vec![false; rays.len()];
-            out.par_chunks_mut(CHUNK)
-                .enumerate()
-                .for_each(|(c, chunk)| {
-                    let mut counters = TraversalCounters::default();
-                    if counting {
-                        occluded_chunk::<true>(bvh, rays, c * CHUNK, chunk, &mut counters);
-                    } else {
-                        occluded_chunk::<false>(bvh, rays, c * CHUNK, chunk, &mut counters);
-                    }
-                    self.add_counters(counters);
-                });
-            out
+            if counting {
+                occluded_chunk::<true>(bvh, rays, base, out, counters);
+            } else {
+                occluded_chunk::<false>(bvh, rays, base, out, counters);
+            }
         })
     }
 
