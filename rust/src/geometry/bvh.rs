@@ -1,5 +1,5 @@
 //! The BVH: obvhs builds a binary PLOC tree (with reinsertion and leaf collapsing), which
-//! we collapse into a four-wide tree with `f32` child boxes ([`super::bvh4`]) and traverse
+//! we collapse into an eight-wide tree with `f32` child boxes ([`super::bvh8`]) and traverse
 //! with conservative SIMD box tests and watertight triangle tests. Closest-hit and
 //! early-exit shadow queries keep exact traversal counters.
 //!
@@ -17,7 +17,7 @@ use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
-use super::bvh4::{decode, BoxRay, Bvh4, Child, Parents, Stack, EXIT_SCALE};
+use super::bvh8::{decode, BoxRay, Bvh8, Child, Parents, Stack, EXIT_SCALE, WIDTH};
 use super::mesh::{triangle_cross, Mesh};
 #[cfg(target_arch = "x86_64")]
 use super::watertight::WatertightPacket;
@@ -100,7 +100,7 @@ impl BuildQuality {
 }
 
 /// Largest leaf the builder makes: one four-lane block of [`Triangle4`].
-pub const MAX_LEAF: u32 = super::bvh4::MAX_LEAF_TRIANGLES;
+pub const MAX_LEAF: u32 = super::bvh8::MAX_LEAF_TRIANGLES;
 
 /// Rays of a packet reaching a leaf from which its triangles are tested against the rays
 /// all at once ([`WatertightPacket`]) rather than ray by ray.
@@ -111,11 +111,11 @@ const VECTOR_TRIANGLE_LANES: u32 = 6;
 /// of `f32` lanes.
 pub const PACKET: usize = 16;
 
-/// Traversal stack size before spilling to the heap (three entries per level suffice for
-/// trees of depth 40).
+/// Traversal stack size before spilling to the heap (seven entries per level suffice for
+/// trees of depth 18; those of the built-in scenes are 5 to 13 deep).
 const STACK: usize = 128;
 
-/// Work done by traversals: rays traced, BVH nodes whose (up to four) children were
+/// Work done by traversals: rays traced, BVH nodes whose (up to eight) children were
 /// tested, and ray/triangle tests. Exact counts, summed over threads.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct TraversalCounters {
@@ -176,7 +176,7 @@ struct LocalRay {
 /// A built BVH over the non-degenerate triangles of a mesh.
 #[derive(Clone, Debug)]
 pub struct Bvh {
-    tree: Bvh4,
+    tree: Bvh8,
     /// Local-frame triangles, one four-lane block per leaf.
     blocks: Vec<Triangle4>,
     /// Mesh triangle index of each slot (`4 * block + lane`).
@@ -322,7 +322,7 @@ impl Bvh {
                 bvh2
             })
             .reduce(join_bvh2)
-            .map_or_else(Bvh4::default, |bvh2| Bvh4::from_bvh2(&bvh2));
+            .map_or_else(Bvh8::default, |bvh2| Bvh8::from_bvh2(&bvh2));
         let blocks = tree
             .primitive_order
             .as_chunks::<4>()
@@ -443,7 +443,7 @@ impl Bvh {
         self.build_time
     }
 
-    /// Number of four-wide nodes.
+    /// Number of eight-wide nodes.
     pub fn num_nodes(&self) -> usize {
         self.tree.nodes.len()
     }
@@ -455,7 +455,7 @@ impl Bvh {
 
     /// Bytes held by nodes, leaf triangles and index maps.
     pub fn memory_bytes(&self) -> usize {
-        self.tree.nodes.len() * std::mem::size_of::<super::bvh4::Node4>()
+        self.tree.nodes.len() * std::mem::size_of::<super::bvh8::Node8>()
             + self.blocks.len() * (std::mem::size_of::<Triangle4>() + 16)
     }
 
@@ -552,6 +552,37 @@ impl Bvh {
         skip: u32,
         counters: &mut TraversalCounters,
     ) -> Option<u32> {
+        #[cfg(target_arch = "x86_64")]
+        if crate::simd::level() >= crate::simd::SimdLevel::Avx2 {
+            // SAFETY: the CPU has AVX2.
+            return unsafe { self.occluder_node_avx2::<COUNT>(r, start, skip, counters) };
+        }
+        self.occluder_walk::<COUNT, false>(r, start, skip, counters)
+    }
+
+    /// [`Self::occluder_node`] with AVX2 box tests.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn occluder_node_avx2<const COUNT: bool>(
+        &self,
+        r: &LocalRay,
+        start: u32,
+        skip: u32,
+        counters: &mut TraversalCounters,
+    ) -> Option<u32> {
+        self.occluder_walk::<COUNT, true>(r, start, skip, counters)
+    }
+
+    /// The traversal of [`Self::occluder_node`]; `AVX2` selects the box test's
+    /// instructions (the CPU must have them), not its answer.
+    #[inline(always)]
+    fn occluder_walk<const COUNT: bool, const AVX2: bool>(
+        &self,
+        r: &LocalRay,
+        start: u32,
+        skip: u32,
+        counters: &mut TraversalCounters,
+    ) -> Option<u32> {
         let (mut nodes, mut tests) = (0u64, 0u64);
         let mut stack: Stack<u32, STACK> = Stack::new();
         let mut node = start;
@@ -561,7 +592,7 @@ impl Bvh {
             if COUNT {
                 nodes += 1;
             }
-            let (_, mut mask) = n.intersect(&r.boxes, r.tmax);
+            let (_, mut mask) = n.intersect_with::<AVX2>(&r.boxes, r.tmax);
             while mask != 0 {
                 let i = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
@@ -599,10 +630,10 @@ impl Bvh {
     }
 
     /// Shadow queries for up to [`PACKET`] rays from one `origin` (`directions[l]`,
-    /// `tmax[l]`), traced together: each node's four child boxes are tested against all
+    /// `tmax[l]`), traced together: each node's child boxes are tested against all
     /// the packet's rays at once (AVX-512, sixteen lanes), and each ray is tested against
     /// the triangles of the leaves its own box tests reach, by the single-ray watertight
-    /// test. The box test is [`Node4::intersect`]'s, lane by lane, with the same
+    /// test. The box test is [`Node8::intersect`]'s, lane by lane, with the same
     /// operations, so a ray reaches exactly the leaves it reaches alone and every answer
     /// is [`Self::occluded`]'s. Like [`Self::occluded_hinted`], the packet first searches
     /// the node where the previous packet from this origin found an occluder (`hint`).
@@ -610,7 +641,7 @@ impl Bvh {
     /// each node test once per ray taking part, and each ray's triangle tests. Without
     /// AVX-512 the rays are traced one by one.
     ///
-    /// [`Node4::intersect`]: super::bvh4::Node4::intersect
+    /// [`Node8::intersect`]: super::bvh8::Node8::intersect
     pub fn occluded_packet<const COUNT: bool>(
         &self,
         origin: Vec3A,
@@ -694,7 +725,7 @@ impl Bvh {
             if COUNT {
                 nodes += lanes.count_ones() as u64;
             }
-            for j in 0..4 {
+            for j in 0..WIDTH {
                 let child = decode(n.child(j));
                 if let Child::Leaf { count: 0, .. } = child {
                     continue;
@@ -769,6 +800,33 @@ impl Bvh {
             return None;
         }
         let r = self.local_ray(origin, direction, tmax);
+        #[cfg(target_arch = "x86_64")]
+        if crate::simd::level() >= crate::simd::SimdLevel::Avx2 {
+            // SAFETY: the CPU has AVX2.
+            return unsafe { self.closest_hit_avx2::<COUNT>(&r, counters) };
+        }
+        self.closest_hit::<COUNT, false>(&r, counters)
+    }
+
+    /// [`Self::intersect`] with AVX2 box tests.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn closest_hit_avx2<const COUNT: bool>(
+        &self,
+        r: &LocalRay,
+        counters: &mut TraversalCounters,
+    ) -> Option<Hit> {
+        self.closest_hit::<COUNT, true>(r, counters)
+    }
+
+    /// The traversal of [`Self::intersect`]; `AVX2` selects the box test's instructions
+    /// (the CPU must have them), not its answer.
+    #[inline(always)]
+    fn closest_hit<const COUNT: bool, const AVX2: bool>(
+        &self,
+        r: &LocalRay,
+        counters: &mut TraversalCounters,
+    ) -> Option<Hit> {
         let (mut nodes, mut tests) = (0u64, 0u64);
         let mut best_t = r.tmax;
         let mut best: Option<(u32, TriangleHit)> = None;
@@ -811,10 +869,9 @@ impl Bvh {
                     if COUNT {
                         nodes += 1;
                     }
-                    let (t_near, mut mask) = n.intersect(&r.boxes, best_t);
-                    let t_near = t_near.to_array();
+                    let (t_near, mut mask) = n.intersect_with::<AVX2>(&r.boxes, best_t);
                     // Push the hit children farthest first, so the nearest is popped next.
-                    let mut hits = [(0u32, 0f32); 4];
+                    let mut hits = [(0u32, 0f32); WIDTH];
                     let mut k = 0;
                     while mask != 0 {
                         let i = mask.trailing_zeros() as usize;
@@ -914,10 +971,10 @@ impl Packet {
     }
 
     /// The lanes of `lanes` whose segment touches child `j`'s box of node `n`: the test of
-    /// [`super::bvh4::Node4::intersect`] with the same operations in every lane.
+    /// [`super::bvh8::Node8::intersect`] with the same operations in every lane.
     #[target_feature(enable = "avx512f")]
     #[inline]
-    fn box_hits(&self, n: &super::bvh4::Node4, j: usize, lanes: u16) -> u16 {
+    fn box_hits(&self, n: &super::bvh8::Node8, j: usize, lanes: u16) -> u16 {
         use std::arch::x86_64::*;
         let planes = n.planes();
         let slab = |axis: usize| {

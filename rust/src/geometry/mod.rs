@@ -1,7 +1,7 @@
 //! Geometry: triangle meshes, OBJ loading, the BVH and the scene that ties them together.
 
 pub mod bvh;
-pub mod bvh4;
+pub mod bvh8;
 pub mod mesh;
 pub mod obj;
 pub mod scene;

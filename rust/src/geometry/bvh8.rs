@@ -1,11 +1,12 @@
-//! Four-wide BVH with uncompressed `f32` child boxes, collapsed from obvhs's binary PLOC
+//! Eight-wide BVH with uncompressed `f32` child boxes, collapsed from obvhs's binary PLOC
 //! BVH, and its conservative SIMD ray/box test.
 //!
 //! Why not obvhs's CWBVH: its 8-bit quantised nodes are designed for GPUs; on the CPU every
 //! visit converts 48 bytes to floats, and we measured its traversal at 0.2-0.3x Embree's
-//! speed on our scenes (benches/README.md). A BVH4 in structure-of-arrays layout tests all
-//! four children with one SSE register per plane (as Embree's SSE path does) and brought
-//! `occluded` to the figures in benches/README.md.
+//! speed on our scenes (benches/README.md). Nodes in structure-of-arrays layout test all
+//! their children at once: eight lanes per plane, one AVX register or two SSE ones (as
+//! Embree's BVH8). Eight children rather than four halve the tree's depth, and so the
+//! dependent node loads and the branches of a traversal (benches/README.md).
 //!
 //! The box test is robust in the sense of Ize ("Robust BVH Ray Traversal", JCGT 2013): each
 //! child's exit distance is scaled by `1 + 2 gamma(3)`, entry distances are clamped at 0 (not
@@ -33,13 +34,16 @@ const EMPTY: u32 = LEAF;
 pub const EXIT_SCALE: f32 =
     1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
 
-/// One node: the boxes of up to four children as planes (`[min_x, max_x, min_y, max_y,
-/// min_z, max_z]`, each over the four children) and their references.
+/// Children per node.
+pub const WIDTH: usize = 8;
+
+/// One node: the boxes of up to [`WIDTH`] children as planes (`[min_x, max_x, min_y,
+/// max_y, min_z, max_z]`, each over the children) and their references.
 #[derive(Clone, Copy, Debug)]
-#[repr(C, align(16))]
-pub struct Node4 {
-    planes: [[f32; 4]; 6],
-    children: [u32; 4],
+#[repr(C, align(32))]
+pub struct Node8 {
+    planes: [[f32; WIDTH]; 6],
+    children: [u32; WIDTH],
 }
 
 /// What a child reference points to.
@@ -99,7 +103,7 @@ impl BoxRay {
 
 impl BoxRay {
     /// The origin and the clamped inverse direction, per axis (what every lane of
-    /// [`Node4::intersect`] uses).
+    /// [`Node8::intersect`] uses).
     #[inline(always)]
     pub fn origin_and_inverse(&self) -> ([f32; 3], [f32; 3]) {
         (
@@ -109,30 +113,90 @@ impl BoxRay {
     }
 }
 
-impl Node4 {
+impl Node8 {
     /// Child boxes as planes: `[min_x, max_x, min_y, max_y, min_z, max_z]`, each over the
-    /// four children (empty slots hold `min = inf`, `max = -inf`).
+    /// children (empty slots hold `min = inf`, `max = -inf`).
     #[inline(always)]
-    pub fn planes(&self) -> &[[f32; 4]; 6] {
+    pub fn planes(&self) -> &[[f32; WIDTH]; 6] {
         &self.planes
     }
 
-    /// Entry distances of the four children and the mask of those the segment `[0, tmax)`
-    /// may touch (bit `i` for child `i`).
+    /// Entry distances of the children and the mask of those the segment `[0, tmax)` may
+    /// touch (bit `i` for child `i`). Every lane takes the same operations, whichever
+    /// instructions carry them ([`Self::intersect_avx2`] gives the same bits).
     #[inline(always)]
-    pub fn intersect(&self, r: &BoxRay, tmax: f32) -> (Vec4, u32) {
-        let p = &self.planes;
-        let slab = |axis: usize| {
-            let n = (Vec4::from_array(p[r.near[axis]]) - r.origin[axis]) * r.inv[axis];
-            let f = (Vec4::from_array(p[r.far[axis]]) - r.origin[axis]) * r.inv[axis];
-            (n, f)
+    pub fn intersect(&self, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        let half = |h: usize| {
+            let plane = |i: usize| Vec4::from_slice(&self.planes[i][4 * h..4 * h + 4]);
+            let slab = |axis: usize| {
+                let n = (plane(r.near[axis]) - r.origin[axis]) * r.inv[axis];
+                let f = (plane(r.far[axis]) - r.origin[axis]) * r.inv[axis];
+                (n, f)
+            };
+            let (nx, fx) = slab(0);
+            let (ny, fy) = slab(1);
+            let (nz, fz) = slab(2);
+            let t_near = nx.max(ny).max(nz).max(Vec4::ZERO);
+            let t_far = (fx.min(fy).min(fz) * EXIT_SCALE).min(Vec4::splat(tmax * EXIT_SCALE));
+            (t_near, t_near.cmple(t_far).bitmask())
         };
-        let (nx, fx) = slab(0);
-        let (ny, fy) = slab(1);
-        let (nz, fz) = slab(2);
-        let t_near = nx.max(ny).max(nz).max(Vec4::ZERO);
-        let t_far = (fx.min(fy).min(fz) * EXIT_SCALE).min(Vec4::splat(tmax * EXIT_SCALE));
-        (t_near, t_near.cmple(t_far).bitmask())
+        let (lo, lo_mask) = half(0);
+        let (hi, hi_mask) = half(1);
+        let mut t = [0.0; WIDTH];
+        t[..4].copy_from_slice(&lo.to_array());
+        t[4..].copy_from_slice(&hi.to_array());
+        (t, lo_mask | hi_mask << 4)
+    }
+
+    /// [`Self::intersect`], by [`Self::intersect_avx2`] when `AVX2` (the caller has checked
+    /// that the CPU has it and runs with the feature enabled, so that it inlines).
+    #[inline(always)]
+    pub fn intersect_with<const AVX2: bool>(&self, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        #[cfg(target_arch = "x86_64")]
+        if AVX2 {
+            // SAFETY: `AVX2` is only set on CPUs that have it.
+            return unsafe { self.intersect_avx2(r, tmax) };
+        }
+        self.intersect(r, tmax)
+    }
+
+    /// [`Self::intersect`] in one AVX register per plane.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub fn intersect_avx2(&self, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        use std::arch::x86_64::*;
+        // SAFETY: each plane row holds WIDTH = 8 f32s; `t` has room for 8.
+        unsafe {
+            let slab = |axis: usize| {
+                let o = _mm256_set1_ps(r.origin[axis].x);
+                let inv = _mm256_set1_ps(r.inv[axis].x);
+                let near = _mm256_loadu_ps(self.planes[r.near[axis]].as_ptr());
+                let far = _mm256_loadu_ps(self.planes[r.far[axis]].as_ptr());
+                (
+                    _mm256_mul_ps(_mm256_sub_ps(near, o), inv),
+                    _mm256_mul_ps(_mm256_sub_ps(far, o), inv),
+                )
+            };
+            let (nx, fx) = slab(0);
+            let (ny, fy) = slab(1);
+            let (nz, fz) = slab(2);
+            let t_near = _mm256_max_ps(
+                _mm256_max_ps(_mm256_max_ps(nx, ny), nz),
+                _mm256_setzero_ps(),
+            );
+            let t_far = _mm256_min_ps(
+                _mm256_mul_ps(
+                    _mm256_min_ps(_mm256_min_ps(fx, fy), fz),
+                    _mm256_set1_ps(EXIT_SCALE),
+                ),
+                _mm256_set1_ps(tmax * EXIT_SCALE),
+            );
+            let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t_near, t_far)) as u32;
+            let mut t = [0.0; WIDTH];
+            _mm256_storeu_ps(t.as_mut_ptr(), t_near);
+            (t, mask)
+        }
     }
 
     /// Reference of child `i`.
@@ -142,21 +206,21 @@ impl Node4 {
     }
 }
 
-/// A BVH4: `nodes[0]` is the root; each leaf references one block of four triangle slots,
+/// An eight-wide BVH: `nodes[0]` is the root; each leaf references one block of four triangle slots,
 /// slots `4 * block .. 4 * block + 4` of `primitive_order` (unused slots repeat the
 /// leaf's first primitive).
 #[derive(Clone, Debug, Default)]
-pub struct Bvh4 {
-    pub nodes: Vec<Node4>,
+pub struct Bvh8 {
+    pub nodes: Vec<Node8>,
     /// Index into the builder's primitive list of each triangle slot, four per leaf.
     pub primitive_order: Vec<u32>,
     /// Largest number of nodes from the root to a leaf.
     pub depth: u32,
 }
 
-impl Bvh4 {
+impl Bvh8 {
     /// Nodes above which a tree outgrows a core's L2 cache (1 MB and more on current CPUs).
-    const LARGE: usize = (1 << 20) / std::mem::size_of::<Node4>();
+    const LARGE: usize = (1 << 20) / std::mem::size_of::<Node8>();
 
     /// Asks for the cache lines of node `i`, in trees too large for the L2 cache, where a
     /// traversal waits on memory: a node pushed on the stack then arrives while its
@@ -172,16 +236,16 @@ impl Bvh4 {
         unsafe {
             use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
             let at = self.nodes.as_ptr().wrapping_add(i as usize).cast::<i8>();
-            _mm_prefetch::<_MM_HINT_T0>(at);
-            _mm_prefetch::<_MM_HINT_T0>(at.wrapping_add(64));
-            _mm_prefetch::<_MM_HINT_T0>(at.wrapping_add(111));
+            for line in (0..std::mem::size_of::<Node8>()).step_by(64) {
+                _mm_prefetch::<_MM_HINT_T0>(at.wrapping_add(line));
+            }
         }
     }
 
-    /// Collapses a binary BVH (leaves of at most [`MAX_LEAF_TRIANGLES`] primitives) into a
-    /// four-wide one, greedily opening the child of largest surface area.
+    /// Collapses a binary BVH (leaves of at most [`MAX_LEAF_TRIANGLES`] primitives) into an
+    /// eight-wide one, greedily opening the child of largest surface area.
     pub fn from_bvh2(bvh2: &Bvh2) -> Self {
-        let mut out = Bvh4 {
+        let mut out = Bvh8 {
             nodes: Vec::with_capacity(bvh2.nodes.len() / 2 + 1),
             primitive_order: Vec::with_capacity(bvh2.primitive_indices.len()),
             depth: 0,
@@ -192,7 +256,7 @@ impl Bvh4 {
         if bvh2.nodes[0].is_leaf() {
             // A root that is a leaf becomes a node with one child.
             let leaf = out.leaf(bvh2, 0);
-            out.nodes.push(Node4::single(bvh2, 0, leaf));
+            out.nodes.push(Node8::single(bvh2, 0, leaf));
             out.depth = 1;
             return out;
         }
@@ -219,10 +283,10 @@ impl Bvh4 {
 
     fn convert(&mut self, bvh2: &Bvh2, n2: usize, depth: u32) -> u32 {
         self.depth = self.depth.max(depth);
-        // Open the inner child of largest area until there are four.
+        // Open the inner child of largest area until there are WIDTH.
         let first = bvh2.nodes[n2].first_index as usize;
         let mut kids = vec![first, first + 1];
-        while kids.len() < 4 {
+        while kids.len() < WIDTH {
             let best = kids
                 .iter()
                 .enumerate()
@@ -238,7 +302,7 @@ impl Bvh4 {
             kids.extend([f, f + 1]);
         }
         let index = self.nodes.len();
-        self.nodes.push(Node4::empty());
+        self.nodes.push(Node8::empty());
         for (slot, &k) in kids.iter().enumerate() {
             let r = if bvh2.nodes[k].is_leaf() {
                 self.leaf(bvh2, k)
@@ -251,15 +315,15 @@ impl Bvh4 {
     }
 }
 
-impl Node4 {
+impl Node8 {
     fn empty() -> Self {
-        let mut planes = [[f32::INFINITY; 4]; 6];
+        let mut planes = [[f32::INFINITY; WIDTH]; 6];
         for axis in 0..3 {
-            planes[2 * axis + 1] = [f32::NEG_INFINITY; 4];
+            planes[2 * axis + 1] = [f32::NEG_INFINITY; WIDTH];
         }
-        Node4 {
+        Node8 {
             planes,
-            children: [EMPTY; 4],
+            children: [EMPTY; WIDTH],
         }
     }
 
@@ -281,7 +345,7 @@ impl Node4 {
 
 /// Refitting: new boxes for moved leaves, propagated up to the root. The topology stays
 /// the one the builder chose; only boxes change.
-impl Bvh4 {
+impl Bvh8 {
     /// Parent links: the node that references each node (`u32::MAX` for the root) and the
     /// node that references each leaf block.
     pub fn parents(&self) -> Parents {
@@ -316,7 +380,7 @@ impl Bvh4 {
         for (block, min, max) in leaves {
             let n = parents.block[block as usize];
             let node = &mut self.nodes[n as usize];
-            let slot = (0..4)
+            let slot = (0..WIDTH)
                 .find(|&i| matches!(decode(node.children[i]), Child::Leaf { first, count } if first == block && count > 0))
                 .expect("a leaf's parent references it");
             node.set_box(slot, min, max);
@@ -331,7 +395,7 @@ impl Bvh4 {
             }
             let (min, max) = self.nodes[n as usize].bounds();
             let node = &mut self.nodes[parent as usize];
-            let slot = (0..4)
+            let slot = (0..WIDTH)
                 .find(|&i| node.children[i] == n)
                 .expect("a node's parent references it");
             if node.child_box(slot) == (min, max) {
@@ -345,7 +409,7 @@ impl Bvh4 {
     }
 }
 
-/// Parent links of a [`Bvh4`] (see [`Bvh4::parents`]).
+/// Parent links of a [`Bvh8`] (see [`Bvh8::parents`]).
 #[derive(Clone, Debug, Default)]
 pub struct Parents {
     /// Parent node of each node; `u32::MAX` for the root.
@@ -354,7 +418,7 @@ pub struct Parents {
     pub block: Vec<u32>,
 }
 
-impl Node4 {
+impl Node8 {
     /// Box of child `slot` as `(min, max)`.
     pub fn child_box(&self, slot: usize) -> (Vec3A, Vec3A) {
         let p = &self.planes;
@@ -441,8 +505,8 @@ mod tests {
     use super::*;
     use glam::vec3a;
 
-    fn node_with_unit_box() -> Node4 {
-        let mut n = Node4::empty();
+    fn node_with_unit_box() -> Node8 {
+        let mut n = Node8::empty();
         for axis in 0..3 {
             n.planes[2 * axis][0] = 0.0;
             n.planes[2 * axis + 1][0] = 1.0;
@@ -477,11 +541,63 @@ mod tests {
         // Starting on the box: entry at t = 0.
         let r = BoxRay::new(vec3a(1.0, 0.5, 0.5), vec3a(1.0, 0.0, 0.0));
         let (t, mask) = n.intersect(&r, 1.0);
-        assert_eq!((mask, t.x), (1, 0.0));
+        assert_eq!((mask, t[0]), (1, 0.0));
         // Segment ending before the box.
         let r = BoxRay::new(vec3a(-2.0, 0.5, 0.5), vec3a(1.0, 0.0, 0.0));
         assert_eq!(n.intersect(&r, 1.5).1, 0);
         assert_eq!(n.intersect(&r, 2.5).1, 1);
+    }
+
+    /// The AVX2 box test gives the portable one's bits: entry distances and masks, on
+    /// random boxes (some empty, some flat, some holding the origin) and rays with zero,
+    /// negative-zero and tiny direction components, at finite and infinite `tmax`.
+    #[test]
+    fn avx2_and_portable_box_tests_agree_bit_for_bit() {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            use crate::sampling::rng::SampleRng;
+            let mut compared = 0;
+            for case in 0..20_000u64 {
+                let rng = SampleRng::new(11, case, 0);
+                let mut d = 0;
+                let mut u = || {
+                    d += 1;
+                    rng.get(d)
+                };
+                let mut n = Node8::empty();
+                for slot in 0..WIDTH {
+                    if u() < 0.15 {
+                        continue;
+                    }
+                    let c = Vec3A::new(u(), u(), u()) * 4.0 - 2.0;
+                    let mut h = Vec3A::new(u(), u(), u());
+                    if u() < 0.2 {
+                        h.y = 0.0;
+                    }
+                    n.set_box(slot, c - h, c + h);
+                    n.children[slot] = LEAF | (1 << LEAF_COUNT_SHIFT);
+                }
+                let special = [0.0, -0.0, 1e-30, -1e-38];
+                let mut dir = Vec3A::new(u(), u(), u()) * 2.0 - 1.0;
+                for axis in 0..3 {
+                    if u() < 0.2 {
+                        dir[axis] = special[(u() * 4.0) as usize % 4];
+                    }
+                }
+                if dir.abs().max_element() == 0.0 {
+                    continue;
+                }
+                let r = BoxRay::new(Vec3A::new(u(), u(), u()) * 4.0 - 2.0, dir);
+                let tmax = if u() < 0.5 { f32::INFINITY } else { u() * 3.0 };
+                let (t, mask) = n.intersect(&r, tmax);
+                // SAFETY: the CPU has AVX2.
+                let (t2, mask2) = unsafe { n.intersect_avx2(&r, tmax) };
+                assert_eq!(mask, mask2, "case {case}");
+                assert_eq!(t.map(f32::to_bits), t2.map(f32::to_bits), "case {case}");
+                compared += mask.count_ones();
+            }
+            assert!(compared > 2_000, "too few boxes hit: {compared}");
+        }
     }
 
     #[test]
