@@ -161,6 +161,9 @@ impl Node8 {
     }
 
     /// [`Self::intersect`] in one AVX register per plane.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     #[inline]
