@@ -17,7 +17,7 @@ use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
-use super::bvh8::{decode, BoxRay, Bvh8, Child, Parents, Stack, EXIT_SCALE, WIDTH};
+use super::bvh8::{decode, BoxRay, Bvh8, Child, Node8, Parents, Stack, EXIT_SCALE, WIDTH};
 use super::mesh::{triangle_cross, Mesh};
 #[cfg(target_arch = "x86_64")]
 use super::watertight::WatertightPacket;
@@ -455,7 +455,7 @@ impl Bvh {
 
     /// Bytes held by nodes, leaf triangles and index maps.
     pub fn memory_bytes(&self) -> usize {
-        self.tree.nodes.len() * std::mem::size_of::<super::bvh8::Node8>()
+        self.tree.nodes.len() * std::mem::size_of::<Node8>()
             + self.blocks.len() * (std::mem::size_of::<Triangle4>() + 16)
     }
 
@@ -557,7 +557,7 @@ impl Bvh {
             // SAFETY: the CPU has AVX2.
             return unsafe { self.occluder_node_avx2::<COUNT>(r, start, skip, counters) };
         }
-        self.occluder_walk::<COUNT, false>(r, start, skip, counters)
+        self.occluder_walk::<COUNT>(r, start, skip, counters, Node8::intersect)
     }
 
     /// [`Self::occluder_node`] with AVX2 box tests.
@@ -570,18 +570,21 @@ impl Bvh {
         skip: u32,
         counters: &mut TraversalCounters,
     ) -> Option<u32> {
-        self.occluder_walk::<COUNT, true>(r, start, skip, counters)
+        // SAFETY: the CPU has AVX2, and this function is compiled for it.
+        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
+        self.occluder_walk::<COUNT>(r, start, skip, counters, box_test)
     }
 
-    /// The traversal of [`Self::occluder_node`]; `AVX2` selects the box test's
-    /// instructions (the CPU must have them), not its answer.
+    /// The traversal of [`Self::occluder_node`], with `box_test` one of the forms of
+    /// [`Node8::intersect`] (they differ in instructions, not in answers).
     #[inline(always)]
-    fn occluder_walk<const COUNT: bool, const AVX2: bool>(
+    fn occluder_walk<const COUNT: bool>(
         &self,
         r: &LocalRay,
         start: u32,
         skip: u32,
         counters: &mut TraversalCounters,
+        box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
     ) -> Option<u32> {
         let (mut nodes, mut tests) = (0u64, 0u64);
         let mut stack: Stack<u32, STACK> = Stack::new();
@@ -592,7 +595,7 @@ impl Bvh {
             if COUNT {
                 nodes += 1;
             }
-            let (_, mut mask) = n.intersect_with::<AVX2>(&r.boxes, r.tmax);
+            let (_, mut mask) = box_test(n, &r.boxes, r.tmax);
             while mask != 0 {
                 let i = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
@@ -641,7 +644,7 @@ impl Bvh {
     /// each node test once per ray taking part, and each ray's triangle tests. Without
     /// AVX-512 the rays are traced one by one.
     ///
-    /// [`Node8::intersect`]: super::bvh8::Node8::intersect
+    /// [`Node8::intersect`]: Node8::intersect
     pub fn occluded_packet<const COUNT: bool>(
         &self,
         origin: Vec3A,
@@ -805,7 +808,7 @@ impl Bvh {
             // SAFETY: the CPU has AVX2.
             return unsafe { self.closest_hit_avx2::<COUNT>(&r, counters) };
         }
-        self.closest_hit::<COUNT, false>(&r, counters)
+        self.closest_hit::<COUNT>(&r, counters, Node8::intersect)
     }
 
     /// [`Self::intersect`] with AVX2 box tests.
@@ -816,16 +819,19 @@ impl Bvh {
         r: &LocalRay,
         counters: &mut TraversalCounters,
     ) -> Option<Hit> {
-        self.closest_hit::<COUNT, true>(r, counters)
+        // SAFETY: the CPU has AVX2, and this function is compiled for it.
+        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
+        self.closest_hit::<COUNT>(r, counters, box_test)
     }
 
-    /// The traversal of [`Self::intersect`]; `AVX2` selects the box test's instructions
-    /// (the CPU must have them), not its answer.
+    /// The traversal of [`Self::intersect`], with `box_test` one of the forms of
+    /// [`Node8::intersect`].
     #[inline(always)]
-    fn closest_hit<const COUNT: bool, const AVX2: bool>(
+    fn closest_hit<const COUNT: bool>(
         &self,
         r: &LocalRay,
         counters: &mut TraversalCounters,
+        box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
     ) -> Option<Hit> {
         let (mut nodes, mut tests) = (0u64, 0u64);
         let mut best_t = r.tmax;
@@ -869,7 +875,7 @@ impl Bvh {
                     if COUNT {
                         nodes += 1;
                     }
-                    let (t_near, mut mask) = n.intersect_with::<AVX2>(&r.boxes, best_t);
+                    let (t_near, mut mask) = box_test(n, &r.boxes, best_t);
                     // Push the hit children farthest first, so the nearest is popped next.
                     let mut hits = [(0u32, 0f32); WIDTH];
                     let mut k = 0;
@@ -971,10 +977,10 @@ impl Packet {
     }
 
     /// The lanes of `lanes` whose segment touches child `j`'s box of node `n`: the test of
-    /// [`super::bvh8::Node8::intersect`] with the same operations in every lane.
+    /// [`Node8::intersect`] with the same operations in every lane.
     #[target_feature(enable = "avx512f")]
     #[inline]
-    fn box_hits(&self, n: &super::bvh8::Node8, j: usize, lanes: u16) -> u16 {
+    fn box_hits(&self, n: &Node8, j: usize, lanes: u16) -> u16 {
         use std::arch::x86_64::*;
         let planes = n.planes();
         let slab = |axis: usize| {

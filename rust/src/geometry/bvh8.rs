@@ -148,42 +148,39 @@ impl Node8 {
         (t, lo_mask | hi_mask << 4)
     }
 
-    /// [`Self::intersect`], by [`Self::intersect_avx2`] when `AVX2` (the caller has checked
-    /// that the CPU has it and runs with the feature enabled, so that it inlines).
-    #[inline(always)]
-    pub fn intersect_with<const AVX2: bool>(&self, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
-        #[cfg(target_arch = "x86_64")]
-        if AVX2 {
-            // SAFETY: `AVX2` is only set on CPUs that have it.
-            return unsafe { self.intersect_avx2(r, tmax) };
-        }
-        self.intersect(r, tmax)
-    }
-
     /// [`Self::intersect`] in one AVX register per plane.
+    /// Not itself compiled for AVX2 but always inlined, so that it inlines into traversals
+    /// that are: a `#[target_feature]` function would be left as a call (LLVM declined to
+    /// inline it, and the call cost a quarter of a shadow ray's time).
     ///
     /// # Safety
-    /// The CPU must have AVX2.
+    /// The CPU must have AVX2, and the caller should be compiled with it.
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    #[inline]
-    pub fn intersect_avx2(&self, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+    #[inline(always)]
+    pub unsafe fn intersect_avx2(&self, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
         use std::arch::x86_64::*;
-        // SAFETY: each plane row holds WIDTH = 8 f32s; `t` has room for 8.
+        // SAFETY: the CPU has AVX2 (the caller's contract); each plane row holds WIDTH = 8
+        // f32s and `t` has room for 8.
         unsafe {
-            let slab = |axis: usize| {
-                let o = _mm256_set1_ps(r.origin[axis].x);
-                let inv = _mm256_set1_ps(r.inv[axis].x);
-                let near = _mm256_loadu_ps(self.planes[r.near[axis]].as_ptr());
-                let far = _mm256_loadu_ps(self.planes[r.far[axis]].as_ptr());
-                (
-                    _mm256_mul_ps(_mm256_sub_ps(near, o), inv),
-                    _mm256_mul_ps(_mm256_sub_ps(far, o), inv),
-                )
-            };
-            let (nx, fx) = slab(0);
-            let (ny, fy) = slab(1);
-            let (nz, fz) = slab(2);
+            // A function, not a closure: closures do not take `#[inline(always)]`, and one
+            // was left as a call.
+            #[inline(always)]
+            unsafe fn slab(n: &Node8, r: &BoxRay, axis: usize) -> (__m256, __m256) {
+                // SAFETY: as for the caller.
+                unsafe {
+                    let o = _mm256_set1_ps(r.origin[axis].x);
+                    let inv = _mm256_set1_ps(r.inv[axis].x);
+                    let near = _mm256_loadu_ps(n.planes[r.near[axis]].as_ptr());
+                    let far = _mm256_loadu_ps(n.planes[r.far[axis]].as_ptr());
+                    (
+                        _mm256_mul_ps(_mm256_sub_ps(near, o), inv),
+                        _mm256_mul_ps(_mm256_sub_ps(far, o), inv),
+                    )
+                }
+            }
+            let (nx, fx) = slab(self, r, 0);
+            let (ny, fy) = slab(self, r, 1);
+            let (nz, fz) = slab(self, r, 2);
             let t_near = _mm256_max_ps(
                 _mm256_max_ps(_mm256_max_ps(nx, ny), nz),
                 _mm256_setzero_ps(),
@@ -593,8 +590,13 @@ mod tests {
                 let r = BoxRay::new(Vec3A::new(u(), u(), u()) * 4.0 - 2.0, dir);
                 let tmax = if u() < 0.5 { f32::INFINITY } else { u() * 3.0 };
                 let (t, mask) = n.intersect(&r, tmax);
+                #[target_feature(enable = "avx2")]
+                fn with_avx2(n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+                    // SAFETY: compiled for AVX2, and only called on CPUs that have it.
+                    unsafe { n.intersect_avx2(r, tmax) }
+                }
                 // SAFETY: the CPU has AVX2.
-                let (t2, mask2) = unsafe { n.intersect_avx2(&r, tmax) };
+                let (t2, mask2) = unsafe { with_avx2(&n, &r, tmax) };
                 assert_eq!(mask, mask2, "case {case}");
                 assert_eq!(t.map(f32::to_bits), t2.map(f32::to_bits), "case {case}");
                 compared += mask.count_ones();
