@@ -15,6 +15,8 @@ use glam::{Vec3A, Vec4};
 #[derive(Clone, Copy, Debug)]
 pub struct WatertightRay {
     origin: Vec3A,
+    /// `origin[kx], origin[ky], origin[kz]`.
+    permuted_origin: [f32; 3],
     kx: usize,
     ky: usize,
     kz: usize,
@@ -58,6 +60,7 @@ impl WatertightRay {
         let sz = 1.0 / direction[kz];
         Self {
             origin,
+            permuted_origin: [origin[kx], origin[ky], origin[kz]],
             kx,
             ky,
             kz,
@@ -158,29 +161,22 @@ impl WatertightRay {
     /// Returns the mask of lanes hit within `[0, tmax)` and their `(t, u, v)`.
     #[inline(always)]
     pub fn intersect4(&self, tri: &Triangle4, tmax: f32) -> (u32, Vec4, Vec4, Vec4) {
-        let o = [
-            Vec4::splat(self.origin.x),
-            Vec4::splat(self.origin.y),
-            Vec4::splat(self.origin.z),
-            Vec4::ZERO,
-        ];
-        let rel = |k: usize| {
-            [
-                tri.v[k][0] - o[0],
-                tri.v[k][1] - o[1],
-                tri.v[k][2] - o[2],
-                Vec4::ZERO,
-            ]
+        // The permuted rows are read straight from the block (no copy of all nine rows to
+        // index), and `relative[k][axis]` is the vertex minus the origin, as in `intersect`.
+        let [ox, oy, oz] = self.permuted_origin.map(Vec4::splat);
+        let (kx, ky, kz) = (self.kx, self.ky, self.kz);
+        let relative = |k: usize| {
+            let v = &tri.v[k];
+            [v[kx] - ox, v[ky] - oy, v[kz] - oz]
         };
-        let (a, b, c) = (rel(0), rel(1), rel(2));
-        let (kx, ky, kz) = (self.kx & 3, self.ky & 3, self.kz & 3);
+        let (a, b, c) = (relative(0), relative(1), relative(2));
         let (sx, sy) = (Vec4::splat(self.sx), Vec4::splat(self.sy));
-        let ax = a[kx] - sx * a[kz];
-        let ay = a[ky] - sy * a[kz];
-        let bx = b[kx] - sx * b[kz];
-        let by = b[ky] - sy * b[kz];
-        let cx = c[kx] - sx * c[kz];
-        let cy = c[ky] - sy * c[kz];
+        let ax = a[0] - sx * a[2];
+        let ay = a[1] - sy * a[2];
+        let bx = b[0] - sx * b[2];
+        let by = b[1] - sy * b[2];
+        let cx = c[0] - sx * c[2];
+        let cy = c[1] - sy * c[2];
         let mut u = cx * by - cy * bx;
         let mut v = ax * cy - ay * cx;
         let mut w = bx * ay - by * ax;
@@ -206,7 +202,7 @@ impl WatertightRay {
         let neg = u.cmplt(Vec4::ZERO) | v.cmplt(Vec4::ZERO) | w.cmplt(Vec4::ZERO);
         let pos = u.cmpgt(Vec4::ZERO) | v.cmpgt(Vec4::ZERO) | w.cmpgt(Vec4::ZERO);
         let det = u + v + w;
-        let t_scaled = Vec4::splat(self.sz) * (u * a[kz] + v * b[kz] + w * c[kz]);
+        let t_scaled = Vec4::splat(self.sz) * (u * a[2] + v * b[2] + w * c[2]);
         let inv_det = Vec4::ONE / det;
         let t = t_scaled * inv_det;
         // NaN t (det = 0) fails both comparisons.
