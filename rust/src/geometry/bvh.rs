@@ -633,8 +633,9 @@ impl Bvh {
     }
 
     /// Shadow queries for up to [`PACKET`] rays from one `origin` (`directions[l]`,
-    /// `tmax[l]`), traced together: each node's child boxes are tested against all
-    /// the packet's rays at once (AVX-512, sixteen lanes), and each ray is tested against
+    /// `tmax[l]`), traced together: each node's children are first tested against the
+    /// packet as one interval ray (eight at once), and the boxes that test keeps against
+    /// all the packet's rays at once (AVX-512, sixteen lanes); each ray is tested against
     /// the triangles of the leaves its own box tests reach, by the single-ray watertight
     /// test. The box test is [`Node8::intersect`]'s, lane by lane, with the same
     /// operations, so a ray reaches exactly the leaves it reaches alone and every answer
@@ -728,11 +729,11 @@ impl Bvh {
             if COUNT {
                 nodes += lanes.count_ones() as u64;
             }
-            for j in 0..WIDTH {
+            let mut touched = packet.children_touched(n);
+            while touched != 0 {
+                let j = touched.trailing_zeros() as usize;
+                touched &= touched - 1;
                 let child = decode(n.child(j));
-                if let Child::Leaf { count: 0, .. } = child {
-                    continue;
-                }
                 let hit = packet.box_hits(n, j, lanes);
                 if hit == 0 {
                     continue;
@@ -930,6 +931,14 @@ struct Packet {
     /// `tmax` per lane (local frame).
     tmax: std::arch::x86_64::__m512,
     watertight: WatertightPacket,
+    /// The packet's rays as one interval ray, for [`Packet::children_touched`]: per axis
+    /// the least and greatest inverse direction component over the lanes, and whether
+    /// the lanes disagree in sign there.
+    inverse_low: [f32; 3],
+    inverse_high: [f32; 3],
+    mixed_signs: [bool; 3],
+    /// The greatest `tmax · EXIT_SCALE` over the lanes.
+    exit_high: f32,
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -964,16 +973,83 @@ impl Packet {
             )
         };
         let watertight = WatertightPacket::new(&rays.map(|r| r.watertight));
+        let negative = inverse.map(|v| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps()));
         Packet {
             rays,
             all: (u32::MAX >> (32 - count)) as u16,
             origin: o.map(|v| _mm512_set1_ps(v)),
             inverse,
-            negative: inverse.map(|v| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps())),
+            negative,
+            exit_high: _mm512_reduce_max_ps(exit),
             exit,
             tmax,
             watertight,
+            inverse_low: inverse.map(|v| _mm512_reduce_min_ps(v)),
+            inverse_high: inverse.map(|v| _mm512_reduce_max_ps(v)),
+            mixed_signs: negative.map(|m| m != 0 && m != u16::MAX),
         }
+    }
+
+    /// The children of `n` whose box some ray of the packet may touch (bit `j` for child
+    /// `j`): a superset of the children [`Self::box_hits`] finds for any lane, tested for
+    /// all children at once against the interval of the lanes' inverse directions.
+    ///
+    /// Why it is conservative: the lanes share the origin, so a plane's offset `p - o` is
+    /// the same in every lane, and rounded products are monotone in each factor, so
+    /// `(p - o) · inv` over the lanes lies between its values at the least and greatest
+    /// inverse. The lower ends of the entry terms and the upper ends of the exit terms
+    /// then bound every lane's entry from below and exit from above through the same
+    /// (monotone) max, min and scaling. On an axis where the lanes' signs differ, their
+    /// near planes differ too, and that axis is left unbounded.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    fn children_touched(&self, n: &Node8) -> u32 {
+        use std::arch::x86_64::*;
+        let planes = n.planes();
+        let bound = |axis: usize| {
+            let (near, far) = if self.inverse_high[axis] < 0.0 {
+                (2 * axis + 1, 2 * axis)
+            } else {
+                (2 * axis, 2 * axis + 1)
+            };
+            let o = _mm256_set1_ps(self.rays[0].boxes.origin_and_inverse().0[axis]);
+            let (lo, hi) = (
+                _mm256_set1_ps(self.inverse_low[axis]),
+                _mm256_set1_ps(self.inverse_high[axis]),
+            );
+            // SAFETY: each plane row holds WIDTH = 8 f32s.
+            let (n, f) = unsafe {
+                (
+                    _mm256_sub_ps(_mm256_loadu_ps(planes[near].as_ptr()), o),
+                    _mm256_sub_ps(_mm256_loadu_ps(planes[far].as_ptr()), o),
+                )
+            };
+            let entry = _mm256_min_ps(_mm256_mul_ps(n, lo), _mm256_mul_ps(n, hi));
+            let exit = _mm256_max_ps(_mm256_mul_ps(f, lo), _mm256_mul_ps(f, hi));
+            if self.mixed_signs[axis] {
+                (
+                    _mm256_set1_ps(f32::NEG_INFINITY),
+                    _mm256_set1_ps(f32::INFINITY),
+                )
+            } else {
+                (entry, exit)
+            }
+        };
+        let (nx, fx) = bound(0);
+        let (ny, fy) = bound(1);
+        let (nz, fz) = bound(2);
+        let entry = _mm256_max_ps(
+            _mm256_max_ps(_mm256_max_ps(nx, ny), nz),
+            _mm256_setzero_ps(),
+        );
+        let exit = _mm256_min_ps(
+            _mm256_mul_ps(
+                _mm256_min_ps(_mm256_min_ps(fx, fy), fz),
+                _mm256_set1_ps(EXIT_SCALE),
+            ),
+            _mm256_set1_ps(self.exit_high),
+        );
+        _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(entry, exit)) as u32
     }
 
     /// The lanes of `lanes` whose segment touches child `j`'s box of node `n`: the test of
@@ -1072,6 +1148,68 @@ mod tests {
             .unwrap();
         assert_eq!(h.triangle, 1);
         assert!((h.t - 1.0).abs() < 1e-6);
+    }
+
+    /// The packet's interval test keeps every child that some lane's own box test hits,
+    /// on every node of a random soup's tree, for packets narrow and wide, with lanes of
+    /// one sign and of mixed signs per axis, axis-parallel directions and finite `tmax`.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn packet_interval_test_keeps_every_child_a_lane_touches() {
+        use crate::sampling::rng::{hash4, to_unit_f32};
+        if crate::simd::level() != crate::simd::SimdLevel::Avx512 {
+            return;
+        }
+        let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 21));
+        let mut soup = Mesh::new();
+        let v: Vec<[f32; 3]> = (0..3000u64)
+            .map(|i| [unit(1, i) * 8.0, unit(2, i) * 8.0, unit(3, i) * 8.0])
+            .collect();
+        let faces: Vec<[i64; 3]> = (0..1000).map(|k| [3 * k, 3 * k + 1, 3 * k + 2]).collect();
+        soup.add_indexed(&v, &faces, Material::DEFAULT, None)
+            .unwrap();
+        let bvh = Bvh::build(&soup, BuildQuality::Medium);
+        let (mut kept, mut culled) = (0u64, 0u64);
+        for k in 0..300u64 {
+            let origin = vec3a(unit(4, k), unit(5, k), unit(6, k)) * 10.0 - 1.0;
+            let axis = vec3a(unit(7, k), unit(8, k), unit(9, k)) - 0.5;
+            let spread = [0.02, 0.3, 2.0][k as usize % 3];
+            let dirs: Vec<Vec3A> = (0..PACKET as u64)
+                .map(|l| {
+                    let s = 16 * k + l;
+                    let d = axis + (vec3a(unit(10, s), unit(11, s), unit(12, s)) - 0.5) * spread;
+                    if s % 11 == 0 {
+                        vec3a(d.x, 0.0, d.z)
+                    } else {
+                        d
+                    }
+                })
+                .filter(|d| d.length() > 0.0)
+                .collect();
+            let tmax: Vec<f32> = (0..dirs.len())
+                .map(|l| [f32::INFINITY, 3.0, 0.5][(k as usize + l) % 3])
+                .collect();
+            // SAFETY: the CPU has AVX-512 F.
+            let packet = unsafe { Packet::new(&bvh, origin, &dirs, &tmax) };
+            for n in &bvh.tree.nodes {
+                // SAFETY: as above.
+                let touched = unsafe { packet.children_touched(n) };
+                for j in 0..WIDTH {
+                    // SAFETY: as above.
+                    let lanes = unsafe { packet.box_hits(n, j, packet.all) };
+                    if lanes != 0 {
+                        assert!(touched >> j & 1 != 0, "packet {k}: child {j} culled");
+                        kept += 1;
+                    } else if touched >> j & 1 == 0 {
+                        culled += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            kept > 1000 && culled > 10_000,
+            "kept {kept}, culled {culled}"
+        );
     }
 
     /// Packets answer as single rays, bit for bit: a random soup and a grid of
