@@ -170,8 +170,10 @@ impl Node8 {
                 unsafe {
                     let o = _mm256_set1_ps(r.origin[axis].x);
                     let inv = _mm256_set1_ps(r.inv[axis].x);
-                    let near = _mm256_loadu_ps(n.planes[r.near[axis]].as_ptr());
-                    let far = _mm256_loadu_ps(n.planes[r.far[axis]].as_ptr());
+                    // `near` and `far` hold plane indices below 6 (set by `BoxRay::new`
+                    // alone), so the rows are read without bounds checks: six per node.
+                    let near = _mm256_loadu_ps(n.planes.get_unchecked(r.near[axis]).as_ptr());
+                    let far = _mm256_loadu_ps(n.planes.get_unchecked(r.far[axis]).as_ptr());
                     (
                         _mm256_mul_ps(_mm256_sub_ps(near, o), inv),
                         _mm256_mul_ps(_mm256_sub_ps(far, o), inv),
