@@ -1287,6 +1287,71 @@ mod tests {
         assert!(tested > 1000, "{tested} occluded rays");
     }
 
+    /// The portable traversals (for CPUs without AVX2) and the AVX2 ones give the same
+    /// answers and the same counts, any-hit and closest-hit, on a random soup: rays from
+    /// inside and outside, axis-parallel and with zero components, finite `tmax`.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_and_portable_traversals_agree() {
+        use crate::sampling::rng::{hash4, to_unit_f32};
+        if crate::simd::level() < crate::simd::SimdLevel::Avx2 {
+            return;
+        }
+        let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 33));
+        let mut soup = Mesh::new();
+        let v: Vec<[f32; 3]> = (0..6000u64)
+            .map(|i| {
+                let c = (i / 3) as f32;
+                [
+                    unit(1, i) + c % 7.0,
+                    unit(2, i) * 2.0,
+                    unit(3, i) + c % 11.0,
+                ]
+            })
+            .collect();
+        let faces: Vec<[i64; 3]> = (0..2000).map(|k| [3 * k, 3 * k + 1, 3 * k + 2]).collect();
+        soup.add_indexed(&v, &faces, Material::DEFAULT, None)
+            .unwrap();
+        let bvh = Bvh::build(&soup, BuildQuality::Medium);
+        let (mut occluded, mut hit) = (0, 0);
+        for k in 0..4000u64 {
+            let o = vec3a(
+                unit(4, k) * 10.0 - 1.5,
+                unit(5, k) * 4.0 - 1.0,
+                unit(6, k) * 13.0 - 1.0,
+            );
+            let mut d = vec3a(unit(7, k), unit(8, k), unit(9, k)) - 0.5;
+            match k % 5 {
+                0 => d.y = 0.0,
+                1 => d = vec3a(0.0, 0.0, -1.0),
+                _ => {}
+            }
+            if d.length() == 0.0 {
+                continue;
+            }
+            let tmax = [f32::INFINITY, 1.0, 4.0][k as usize % 3];
+            let r = bvh.local_ray(o, d, tmax);
+            let (mut c1, mut c2) = (TraversalCounters::default(), TraversalCounters::default());
+            let portable = bvh.occluder_walk::<true>(&r, 0, NO_NODE, &mut c1, Node8::intersect);
+            // SAFETY: the CPU has AVX2.
+            let avx2 = unsafe { bvh.occluder_node_avx2::<true>(&r, 0, NO_NODE, &mut c2) };
+            assert_eq!((portable, c1), (avx2, c2), "ray {k}");
+            occluded += portable.is_some() as u32;
+            let portable = bvh.closest_hit::<true>(&r, &mut c1, Node8::intersect);
+            // SAFETY: as above.
+            let avx2 = unsafe { bvh.closest_hit_avx2::<true>(&r, &mut c2) };
+            let bits = |h: Option<Hit>| {
+                h.map(|h| (h.t.to_bits(), h.triangle, h.u.to_bits(), h.v.to_bits()))
+            };
+            assert_eq!((bits(portable), c1), (bits(avx2), c2), "ray {k}");
+            hit += portable.is_some() as u32;
+        }
+        assert!(
+            occluded > 500 && hit > 500,
+            "{occluded} occluded, {hit} hit"
+        );
+    }
+
     #[test]
     fn scale_invariant_answers() {
         for scale in [1e-4f32, 1.0, 1e4] {
