@@ -17,6 +17,8 @@ use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
+#[cfg(target_arch = "x86_64")]
+use super::bvh8::slab_overlap_avx2;
 use super::bvh8::{decode, BoxRay, Bvh8, Child, Node8, Parents, Stack, EXIT_SCALE, WIDTH};
 use super::mesh::{triangle_cross, Mesh};
 #[cfg(target_arch = "x86_64")]
@@ -1012,7 +1014,8 @@ impl Packet {
             } else {
                 (2 * axis, 2 * axis + 1)
             };
-            let o = _mm256_set1_ps(self.rays[0].boxes.origin_and_inverse().0[axis]);
+            // The origin's splat, from the lower half of its sixteen-lane register.
+            let o = _mm512_castps512_ps256(self.origin[axis]);
             let (lo, hi) = (
                 _mm256_set1_ps(self.inverse_low[axis]),
                 _mm256_set1_ps(self.inverse_high[axis]),
@@ -1038,18 +1041,11 @@ impl Packet {
         let (nx, fx) = bound(0);
         let (ny, fy) = bound(1);
         let (nz, fz) = bound(2);
-        let entry = _mm256_max_ps(
-            _mm256_max_ps(_mm256_max_ps(nx, ny), nz),
-            _mm256_setzero_ps(),
-        );
-        let exit = _mm256_min_ps(
-            _mm256_mul_ps(
-                _mm256_min_ps(_mm256_min_ps(fx, fy), fz),
-                _mm256_set1_ps(EXIT_SCALE),
-            ),
-            _mm256_set1_ps(self.exit_high),
-        );
-        _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(entry, exit)) as u32
+        // SAFETY: AVX-512 F includes AVX2, and this function is compiled for it.
+        let (_, touched) = unsafe {
+            slab_overlap_avx2([nx, ny, nz], [fx, fy, fz], _mm256_set1_ps(self.exit_high))
+        };
+        touched
     }
 
     /// The lanes of `lanes` whose segment touches child `j`'s box of node `n`: the test of

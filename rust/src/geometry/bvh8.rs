@@ -183,18 +183,11 @@ impl Node8 {
             let (nx, fx) = slab(self, r, 0);
             let (ny, fy) = slab(self, r, 1);
             let (nz, fz) = slab(self, r, 2);
-            let t_near = _mm256_max_ps(
-                _mm256_max_ps(_mm256_max_ps(nx, ny), nz),
-                _mm256_setzero_ps(),
-            );
-            let t_far = _mm256_min_ps(
-                _mm256_mul_ps(
-                    _mm256_min_ps(_mm256_min_ps(fx, fy), fz),
-                    _mm256_set1_ps(EXIT_SCALE),
-                ),
+            let (t_near, mask) = slab_overlap_avx2(
+                [nx, ny, nz],
+                [fx, fy, fz],
                 _mm256_set1_ps(tmax * EXIT_SCALE),
             );
-            let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t_near, t_far)) as u32;
             let mut t = [0.0; WIDTH];
             _mm256_storeu_ps(t.as_mut_ptr(), t_near);
             (t, mask)
@@ -451,6 +444,39 @@ impl Node8 {
             self.planes[2 * axis][slot] = min[axis];
             self.planes[2 * axis + 1][slot] = max[axis];
         }
+    }
+}
+
+/// The last step of the slab test over eight boxes, from the entry (`near`) and exit
+/// (`far`) distances per axis: entry `max(near, 0)`, exit `min(far) · EXIT_SCALE` capped at
+/// `exit_limit`, and the mask of boxes whose entry is not past their exit.
+///
+/// # Safety
+/// The CPU must have AVX2, and the caller should be compiled with it (see
+/// [`Node8::intersect_avx2`]).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub unsafe fn slab_overlap_avx2(
+    near: [std::arch::x86_64::__m256; 3],
+    far: [std::arch::x86_64::__m256; 3],
+    exit_limit: std::arch::x86_64::__m256,
+) -> (std::arch::x86_64::__m256, u32) {
+    use std::arch::x86_64::*;
+    // SAFETY: the CPU has AVX2 (the caller's contract).
+    unsafe {
+        let entry = _mm256_max_ps(
+            _mm256_max_ps(_mm256_max_ps(near[0], near[1]), near[2]),
+            _mm256_setzero_ps(),
+        );
+        let exit = _mm256_min_ps(
+            _mm256_mul_ps(
+                _mm256_min_ps(_mm256_min_ps(far[0], far[1]), far[2]),
+                _mm256_set1_ps(EXIT_SCALE),
+            ),
+            exit_limit,
+        );
+        let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(entry, exit)) as u32;
+        (entry, mask)
     }
 }
 
