@@ -99,7 +99,7 @@ def test_build_presets_give_the_same_answers(cornell):
     o = rng.uniform(0.5, 5.0, (5000, 3)).astype(np.float32)
     d = rng.normal(size=(5000, 3)).astype(np.float32)
     answers = []
-    for q in ["fastest", "fast", "medium", "slow"]:
+    for q in ["sah", "fastest", "fast", "medium", "slow"]:
         s = vc.Scene()
         s.add_mesh(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))
         assert s.build(quality=q, threads=2) >= 0.0

@@ -1,7 +1,8 @@
-//! The BVH: obvhs builds a binary PLOC tree (with reinsertion and leaf collapsing), which
-//! we collapse into an eight-wide tree with `f32` child boxes ([`super::bvh8`]) and traverse
-//! with conservative SIMD box tests and watertight triangle tests. Closest-hit and
-//! early-exit shadow queries keep exact traversal counters.
+//! The BVH: a binary tree, built by our binned SAH builder ([`super::binned_sah`], the
+//! default) or by obvhs's PLOC presets, is collapsed into an eight-wide tree with `f32`
+//! child boxes ([`super::bvh8`]) and traversed with conservative SIMD box tests and
+//! watertight triangle tests. Closest-hit and early-exit shadow queries keep exact
+//! traversal counters.
 //!
 //! The tree is built in a *local frame*: world coordinates times a power of two chosen so
 //! that the scene's largest side lies in [256, 512), which keeps every traversal quantity
@@ -17,6 +18,7 @@ use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
+use super::binned_sah::{self, BinnedSahParams};
 #[cfg(target_arch = "x86_64")]
 use super::bvh8::slab_overlap_avx2;
 use super::bvh8::{decode, BoxRay, Bvh8, Child, Node8, Parents, Stack, EXIT_SCALE, WIDTH};
@@ -26,17 +28,20 @@ use super::watertight::WatertightPacket;
 use super::watertight::{Triangle4, TriangleHit, WatertightRay};
 use crate::error::{Error, Result};
 
-/// Build presets, mapped onto obvhs's [`BvhBuildParams`] presets (leaves capped at
-/// [`MAX_LEAF`] triangles).
+/// Build presets: our binned SAH builder ([`BuildQuality::Sah`], the default) or one of
+/// obvhs's PLOC presets ([`BvhBuildParams`], leaves capped at [`MAX_LEAF`] triangles).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum BuildQuality {
+    /// Top-down binned SAH whose cost counts four-triangle blocks ([`super::binned_sah`]):
+    /// the default. Fewer node visits and block tests per ray than any PLOC preset below
+    /// on the built-in scenes, at about the build time of `Medium` (benches/README.md).
+    #[default]
+    Sah,
     /// PLOC with search radius 1, no reinsertion; fastest build, slowest traversal.
     Fastest,
     VeryFast,
     Fast,
-    /// The default: 1M triangles in 0.6 s on 2 cores, and 20% faster shadow rays than
-    /// `Fast` on the garden's grass (see benches/README.md).
-    #[default]
+    /// obvhs's medium preset (the default before [`BuildQuality::Sah`]).
     Medium,
     /// Spatial pre-splits and more reinsertion; best traversal, several times slower build.
     Slow,
@@ -44,8 +49,9 @@ pub enum BuildQuality {
 }
 
 impl BuildQuality {
-    /// All presets, fastest build first.
-    pub const ALL: [BuildQuality; 6] = [
+    /// All presets: the default, then obvhs's, fastest build first.
+    pub const ALL: [BuildQuality; 7] = [
+        BuildQuality::Sah,
         BuildQuality::Fastest,
         BuildQuality::VeryFast,
         BuildQuality::Fast,
@@ -54,29 +60,42 @@ impl BuildQuality {
         BuildQuality::VerySlow,
     ];
 
-    /// The obvhs parameters of this preset.
-    pub const fn params(self) -> BvhBuildParams {
-        let mut p = self.obvhs_preset();
+    /// The obvhs parameters of this preset (None for [`BuildQuality::Sah`], which is not
+    /// obvhs's).
+    pub const fn params(self) -> Option<BvhBuildParams> {
+        let Some(mut p) = self.obvhs_preset() else {
+            return None;
+        };
         if p.max_prims_per_leaf > MAX_LEAF {
             p.max_prims_per_leaf = MAX_LEAF;
         }
-        p
+        Some(p)
     }
 
-    const fn obvhs_preset(self) -> BvhBuildParams {
-        match self {
+    const fn obvhs_preset(self) -> Option<BvhBuildParams> {
+        Some(match self {
+            BuildQuality::Sah => return None,
             BuildQuality::Fastest => BvhBuildParams::fastest_build(),
             BuildQuality::VeryFast => BvhBuildParams::very_fast_build(),
             BuildQuality::Fast => BvhBuildParams::fast_build(),
             BuildQuality::Medium => BvhBuildParams::medium_build(),
             BuildQuality::Slow => BvhBuildParams::slow_build(),
             BuildQuality::VerySlow => BvhBuildParams::very_slow_build(),
+        })
+    }
+
+    /// Builds the binary tree of this preset over `triangles` (local frame).
+    fn build_bvh2(self, triangles: &[Triangle]) -> Bvh2 {
+        match self.params() {
+            Some(p) => build_bvh2_from_tris(triangles, p, &mut Duration::default()),
+            None => binned_sah::build_bvh2(triangles, &BinnedSahParams::default_build()),
         }
     }
 
     /// Snake-case name as used by the Python API (`"fast"`, `"very_slow"`, ...).
     pub const fn name(self) -> &'static str {
         match self {
+            BuildQuality::Sah => "sah",
             BuildQuality::Fastest => "fastest",
             BuildQuality::VeryFast => "very_fast",
             BuildQuality::Fast => "fast",
@@ -313,11 +332,7 @@ impl Bvh {
             .into_iter()
             .filter(|span| !span.is_empty())
             .map(|span| {
-                let mut bvh2 = build_bvh2_from_tris(
-                    &local[span.clone()],
-                    quality.params(),
-                    &mut Duration::default(),
-                );
+                let mut bvh2 = quality.build_bvh2(&local[span.clone()]);
                 bvh2.primitive_indices
                     .iter_mut()
                     .for_each(|p| *p += span.start as u32);

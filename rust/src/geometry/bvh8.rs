@@ -1,5 +1,5 @@
-//! Eight-wide BVH with uncompressed `f32` child boxes, collapsed from obvhs's binary PLOC
-//! BVH, and its conservative SIMD ray/box test.
+//! Eight-wide BVH with uncompressed `f32` child boxes, collapsed from a binary BVH (our
+//! binned SAH tree or one of obvhs's PLOC trees), and its conservative SIMD ray/box test.
 //!
 //! Why not obvhs's CWBVH: its 8-bit quantised nodes are designed for GPUs; on the CPU every
 //! visit converts 48 bytes to floats, and we measured its traversal at 0.2-0.3x Embree's

@@ -1,5 +1,6 @@
 //! Geometry: triangle meshes, OBJ loading, the BVH and the scene that ties them together.
 
+pub mod binned_sah;
 pub mod bvh;
 pub mod bvh8;
 pub mod mesh;

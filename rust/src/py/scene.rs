@@ -280,10 +280,10 @@ impl PyScene {
             })
     }
 
-    /// Builds the BVH now (otherwise it is built on the first query). quality: one of
-    /// "fastest", "very_fast", "fast", "medium" (default), "slow", "very_slow". Returns the
-    /// build time in seconds.
-    #[pyo3(signature = (quality="medium", threads=None))]
+    /// Builds the BVH now (otherwise it is built on the first query). quality: "sah"
+    /// (default: our binned SAH builder) or one of obvhs's PLOC presets "fastest",
+    /// "very_fast", "fast", "medium", "slow", "very_slow". Returns the build time in seconds.
+    #[pyo3(signature = (quality="sah", threads=None))]
     fn build(
         &mut self,
         py: Python<'_>,
