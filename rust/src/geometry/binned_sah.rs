@@ -36,10 +36,14 @@ pub struct BinnedSahParams {
 }
 
 impl BinnedSahParams {
-    /// 32 bins, traversal cost 1 (as Embree's builders), tasks above 4096 triangles.
+    /// 16 bins, traversal cost 1 (as Embree's builders), tasks above 4096 triangles.
+    ///
+    /// 16 bins rather than the usual 32: on garden's grass they give trees with a quarter
+    /// fewer triangle tests per shadow ray (21 against 28; 8 and 12 bins give 19 but cost
+    /// garage a third more node visits), and the other built-in scenes trace the same.
     pub const fn default_build() -> Self {
         Self {
-            bins: 32,
+            bins: 16,
             traversal_cost: 1.0,
             parallel_threshold: 4096,
         }
