@@ -39,33 +39,25 @@ impl WatertightRay {
     #[inline]
     pub fn new(origin: Vec3A, direction: Vec3A) -> Self {
         // Largest axis of the direction becomes z; keep the winding by swapping x/y when
-        // that axis points backwards.
+        // that axis points backwards. Chosen with table look-ups rather than branches (the
+        // axis is random for incoherent rays, so branches on it mispredict) and components
+        // read from arrays (indexing a Vec3A by a run-time axis compiles to a branchy match).
         let a = direction.abs();
-        let kz = if a.x > a.y {
-            if a.x > a.z {
-                0
-            } else {
-                2
-            }
-        } else if a.y > a.z {
-            1
-        } else {
-            2
-        };
-        let mut kx = (kz + 1) % 3;
-        let mut ky = (kx + 1) % 3;
-        if direction[kz] < 0.0 {
-            std::mem::swap(&mut kx, &mut ky);
-        }
-        let sz = 1.0 / direction[kz];
+        let kz = [[2, 1][(a.y > a.z) as usize], [2, 0][(a.x > a.z) as usize]][(a.x > a.y) as usize];
+        let d = direction.to_array();
+        let o = origin.to_array();
+        let backwards = (d[kz] < 0.0) as usize;
+        let kx = [[1, 2, 0], [2, 0, 1]][backwards][kz];
+        let ky = [[2, 0, 1], [1, 2, 0]][backwards][kz];
+        let sz = 1.0 / d[kz];
         Self {
             origin,
-            permuted_origin: [origin[kx], origin[ky], origin[kz]],
+            permuted_origin: [o[kx], o[ky], o[kz]],
             kx,
             ky,
             kz,
-            sx: direction[kx] * sz,
-            sy: direction[ky] * sz,
+            sx: d[kx] * sz,
+            sy: d[ky] * sz,
             sz,
         }
     }
