@@ -25,6 +25,46 @@ pub struct WatertightRay {
     sz: f32,
 }
 
+impl WatertightRay {
+    /// The ray of [`Self::new`] from its already chosen parts: `kz` the direction's largest
+    /// axis, `kx, ky` the other two in the order `new` picks, and the shear `sx, sy, sz`
+    /// (for packets, which compute them sixteen lanes at a time with the same operations).
+    #[inline(always)]
+    pub fn from_parts(origin: Vec3A, axes: [usize; 3], shear: [f32; 3]) -> Self {
+        let [kx, ky, kz] = axes.map(|k| k & 3);
+        let o = origin.extend(0.0).to_array();
+        Self {
+            origin,
+            permuted_origin: [o[kx], o[ky], o[kz]],
+            kx,
+            ky,
+            kz,
+            sx: shear[0],
+            sy: shear[1],
+            sz: shear[2],
+        }
+    }
+
+    /// Every field's bits, for tests that hold two ways of preparing a ray to each other.
+    pub fn bits(&self) -> [u32; 12] {
+        let f = |x: f32| x.to_bits();
+        [
+            f(self.origin.x),
+            f(self.origin.y),
+            f(self.origin.z),
+            f(self.permuted_origin[0]),
+            f(self.permuted_origin[1]),
+            f(self.permuted_origin[2]),
+            self.kx as u32,
+            self.ky as u32,
+            self.kz as u32,
+            f(self.sx),
+            f(self.sy),
+            f(self.sz),
+        ]
+    }
+}
+
 /// A hit on one triangle: `t` is the ray parameter, `(u, v)` the barycentric weights of the
 /// second and third vertex (position = (1 - u - v) v0 + u v1 + v v2).
 #[derive(Clone, Copy, Debug, PartialEq)]
