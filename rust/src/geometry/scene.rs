@@ -26,21 +26,24 @@ const CHUNK: usize = 1024;
 /// Shortest run of rays from one origin that [`Scene::occluded`] traces as a packet.
 pub const MIN_PACKET: usize = 4;
 
-/// Least cosine between a packet's directions and their mean for [`Scene::occluded`] to
-/// trace them together (45°): wider packets share few nodes, and their rays go faster
-/// one by one.
-const PACKET_COSINE: f32 = std::f32::consts::FRAC_1_SQRT_2;
+/// Square of the least cosine between a packet's directions and their mean for
+/// [`Scene::occluded`] to trace them together (45°): wider packets share few nodes, and
+/// their rays go faster one by one.
+const PACKET_COSINE_SQUARED: f32 = 0.5;
 
-/// Whether `directions` (non-zero) lie within 45° of their mean direction.
+/// Whether `directions` (non-zero) lie within 45° of their sum (their mean direction when
+/// they have one length, as record bundles' unit directions do). Squared, so that no
+/// direction is normalised (the normalisations were a third of the batch driver's time on
+/// record bundles): `d · m >= cos 45° |d| |m|` as `(d · m)² >= ½ |d|² |m|²` with
+/// `d · m > 0`. It only chooses how rays are traced, never what they answer.
 fn coherent(directions: &[Vec3A]) -> bool {
-    let mut units = [Vec3A::ZERO; PACKET];
-    for (u, d) in units.iter_mut().zip(directions) {
-        *u = d.normalize();
-    }
-    let units = &units[..directions.len()];
-    let mean = units.iter().sum::<Vec3A>();
-    let length = mean.length();
-    length > 0.0 && units.iter().all(|u| u.dot(mean) >= PACKET_COSINE * length)
+    let sum = directions.iter().sum::<Vec3A>();
+    let sum_sq = sum.length_squared();
+    sum_sq > 0.0
+        && directions.iter().all(|d| {
+            let along = d.dot(sum);
+            along > 0.0 && along * along >= PACKET_COSINE_SQUARED * d.length_squared() * sum_sq
+        })
 }
 
 /// [`Scene::occluded`] on rays `base..base + out.len()`.
