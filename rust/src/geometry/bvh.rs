@@ -1017,25 +1017,21 @@ impl Packet {
             unsafe { _mm512_storeu_ps(a.as_mut_ptr(), v) };
             a
         };
-        let axis_of = |is: [__mmask16; 2], l: usize| {
-            if is[0] >> l & 1 != 0 {
-                0
-            } else if is[1] >> l & 1 != 0 {
-                1
-            } else {
-                2
-            }
-        };
+        // Masks of the lanes where an axis is 1 and where it is 2 (else it is 0).
+        let one_two = |is: [__mmask16; 2]| [is[1], !(is[0] | is[1])];
+        let (kx_12, ky_12, kz_12) = (one_two(kx_is), one_two(ky_is), one_two(kz_is));
+        let axis_of =
+            |m: [__mmask16; 2], l: usize| (m[0] >> l & 1) as usize + 2 * (m[1] >> l & 1) as usize;
         let (sx_l, sy_l, sz_l) = (lanes(sx), lanes(sy), lanes(sz));
         let rays: [WatertightRay; PACKET] = std::array::from_fn(|l| {
             WatertightRay::from_parts(
                 o,
-                [axis_of(kx_is, l), axis_of(ky_is, l), axis_of(kz_is, l)],
+                [axis_of(kx_12, l), axis_of(ky_12, l), axis_of(kz_12, l)],
                 [sx_l[l], sy_l[l], sz_l[l]],
             )
         });
         let exit = mul(tmax, splat(EXIT_SCALE));
-        let watertight = WatertightPacket::new(&rays);
+        let watertight = WatertightPacket::from_lanes(o, [kx_12, ky_12, kz_12], [sx, sy, sz]);
         let negative = inverse.map(|v| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps()));
         Packet {
             rays,
@@ -1258,6 +1254,9 @@ mod tests {
                 .collect();
             // SAFETY: the CPU has AVX-512 F.
             let packet = unsafe { Packet::new(&bvh, origin, &dirs, &tmax) };
+            // SAFETY: as above.
+            let gathered = unsafe { WatertightPacket::new(&packet.rays) };
+            assert_eq!(packet.watertight.bits(), gathered.bits(), "packet {k}");
             let inverse = packet.inverse.map(|v| {
                 let mut a = [0f32; PACKET];
                 // SAFETY: `a` holds 16 f32s.

@@ -285,6 +285,32 @@ impl WatertightPacket {
         }
     }
 
+    /// The packet of the rays whose axes and shear are given lane by lane: `axis_is[k]` the
+    /// lanes whose `kx` (`k = 0`), `ky` (1) or `kz` (2) is axis 1 and those where it is axis
+    /// 2, and `shear` the lanes' `sx`, `sy`, `sz`; what [`Self::new`] gathers from the rays.
+    pub fn from_lanes(
+        origin: Vec3A,
+        axis_is: [[std::arch::x86_64::__mmask16; 2]; 3],
+        shear: [std::arch::x86_64::__m512; 3],
+    ) -> Self {
+        WatertightPacket {
+            origin,
+            axis_is,
+            shear,
+        }
+    }
+
+    /// The axis masks and the shear's bits, for tests that hold two ways of making a packet
+    /// to each other.
+    pub fn bits(&self) -> ([[u16; 2]; 3], [[u32; 16]; 3]) {
+        // SAFETY: a __m512 is sixteen f32s (a copy of bits, no AVX-512 instruction).
+        let shear = self.shear.map(|v| {
+            unsafe { std::mem::transmute::<std::arch::x86_64::__m512, [f32; 16]>(v) }
+                .map(f32::to_bits)
+        });
+        (self.axis_is, shear)
+    }
+
     /// The lanes of `lanes` whose ray hits triangle `t` (lane `t` of `tri`) within
     /// `[0, tmax)` (`tmax` per lane), as [`WatertightRay::intersect4`] decides it.
     ///
