@@ -460,6 +460,12 @@ impl Bvh {
         self.build_time
     }
 
+    /// True when the tree outgrows a core's L2 cache (traversals then wait on memory, and
+    /// batches gain from tracing nearby rays one after another).
+    pub fn outgrows_l2(&self) -> bool {
+        self.tree.outgrows_l2()
+    }
+
     /// Number of eight-wide nodes.
     pub fn num_nodes(&self) -> usize {
         self.tree.nodes.len()

@@ -217,13 +217,20 @@ impl Bvh8 {
     /// Nodes above which a tree outgrows a core's L2 cache (1 MB and more on current CPUs).
     const LARGE: usize = (1 << 20) / std::mem::size_of::<Node8>();
 
+    /// True for trees whose nodes outgrow a core's L2 cache, where traversals wait on
+    /// memory.
+    #[inline(always)]
+    pub fn outgrows_l2(&self) -> bool {
+        self.nodes.len() > Self::LARGE
+    }
+
     /// Asks for the cache lines of node `i`, in trees too large for the L2 cache, where a
     /// traversal waits on memory: a node pushed on the stack then arrives while its
     /// siblings are searched (garden's 400k triangles: 1.25x on incoherent shadow rays).
     /// Small trees stay cached, and there the request would be pure overhead.
     #[inline(always)]
     pub fn prefetch(&self, i: u32) {
-        if self.nodes.len() <= Self::LARGE {
+        if !self.outgrows_l2() {
             return;
         }
         #[cfg(target_arch = "x86_64")]
