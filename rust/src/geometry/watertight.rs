@@ -28,7 +28,8 @@ pub struct WatertightRay {
 impl WatertightRay {
     /// The ray of [`Self::new`] from its already chosen parts: `kz` the direction's largest
     /// axis, `kx, ky` the other two in the order `new` picks, and the shear `sx, sy, sz`
-    /// (for packets, which compute them sixteen lanes at a time with the same operations).
+    /// (`new` ends here; packets compute the parts sixteen lanes at a time with the same
+    /// operations).
     #[inline(always)]
     pub fn from_parts(origin: Vec3A, axes: [usize; 3], shear: [f32; 3]) -> Self {
         let [kx, ky, kz] = axes.map(|k| k & 3);
@@ -85,21 +86,11 @@ impl WatertightRay {
         let a = direction.abs();
         let kz = [[2, 1][(a.y > a.z) as usize], [2, 0][(a.x > a.z) as usize]][(a.x > a.y) as usize];
         let d = direction.to_array();
-        let o = origin.to_array();
         let backwards = (d[kz] < 0.0) as usize;
         let kx = [[1, 2, 0], [2, 0, 1]][backwards][kz];
         let ky = [[2, 0, 1], [1, 2, 0]][backwards][kz];
         let sz = 1.0 / d[kz];
-        Self {
-            origin,
-            permuted_origin: [o[kx], o[ky], o[kz]],
-            kx,
-            ky,
-            kz,
-            sx: d[kx] * sz,
-            sy: d[ky] * sz,
-            sz,
-        }
+        Self::from_parts(origin, [kx, ky, kz], [d[kx] * sz, d[ky] * sz, sz])
     }
 
     /// Intersects the triangle, returning the hit if its parameter lies in `[0, tmax)`.
