@@ -936,6 +936,13 @@ impl Bvh {
     }
 }
 
+/// The sixteen lanes of a register.
+#[cfg(target_arch = "x86_64")]
+fn lanes(v: std::arch::x86_64::__m512) -> [f32; PACKET] {
+    // SAFETY: a __m512 is sixteen f32s (a copy of bits, no AVX-512 instruction).
+    unsafe { std::mem::transmute::<std::arch::x86_64::__m512, [f32; PACKET]>(v) }
+}
+
 /// A packet of up to [`PACKET`] rays from one origin, prepared for box tests sixteen lanes
 /// at a time (see [`Bvh::occluded_packet`]).
 #[cfg(target_arch = "x86_64")]
@@ -1017,12 +1024,6 @@ impl Packet {
         let sz = div(splat(1.0), d_kz);
         let sx = mul(pick(unit, kx_is), sz);
         let sy = mul(pick(unit, ky_is), sz);
-        let lanes = |v: __m512| {
-            let mut a = [0f32; PACKET];
-            // SAFETY: `a` holds 16 f32s.
-            unsafe { _mm512_storeu_ps(a.as_mut_ptr(), v) };
-            a
-        };
         // Masks of the lanes where an axis is 1 and where it is 2 (else it is 0).
         let one_two = |is: [__mmask16; 2]| [is[1], !(is[0] | is[1])];
         let (kx_12, ky_12, kz_12) = (one_two(kx_is), one_two(ky_is), one_two(kz_is));
@@ -1210,9 +1211,6 @@ mod tests {
         assert!((h.t - 1.0).abs() < 1e-6);
     }
 
-    /// The packet's interval test keeps every child that some lane's own box test hits,
-    /// on every node of a random soup's tree, for packets narrow and wide, with lanes of
-    /// one sign and of mixed signs per axis, axis-parallel directions and finite `tmax`.
     /// A packet prepares each lane exactly as the single-ray traversal prepares that ray:
     /// the same watertight ray (axes, shear, permuted origin), inverse direction and local
     /// `tmax`, bit for bit. Directions of every octant and largest axis, with zero and
@@ -1228,7 +1226,7 @@ mod tests {
         let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 33));
         let bvh = Bvh::build(&quad_mesh(3.0), BuildQuality::Sah);
         let special = [0.0, -0.0, 1.0, -1.0, 1e-20, -3e-38, 7e20];
-        let mut lanes = 0;
+        let mut checked = 0;
         for k in 0..400u64 {
             let count = 1 + (k as usize % PACKET);
             let origin = vec3a(unit(1, k), unit(2, k), unit(3, k)) * 20.0 - 10.0;
@@ -1263,12 +1261,7 @@ mod tests {
             // SAFETY: as above.
             let gathered = unsafe { WatertightPacket::new(&packet.rays) };
             assert_eq!(packet.watertight.bits(), gathered.bits(), "packet {k}");
-            let inverse = packet.inverse.map(|v| {
-                let mut a = [0f32; PACKET];
-                // SAFETY: `a` holds 16 f32s.
-                unsafe { std::arch::x86_64::_mm512_storeu_ps(a.as_mut_ptr(), v) };
-                a
-            });
+            let inverse = packet.inverse.map(lanes);
             for (l, ray) in packet.rays.iter().enumerate() {
                 let s = l.min(count - 1);
                 let r = bvh.local_ray(origin, dirs[s], tmax[s]);
@@ -1279,12 +1272,15 @@ mod tests {
                     assert_eq!(inverse[axis][l].to_bits(), inv[axis].to_bits());
                 }
                 assert_eq!(o.map(f32::to_bits), ray.bits()[..3]);
-                lanes += 1;
+                checked += 1;
             }
         }
-        assert_eq!(lanes, 400 * PACKET);
+        assert_eq!(checked, 400 * PACKET);
     }
 
+    /// The packet's interval test keeps every child that some lane's own box test hits,
+    /// on every node of a random soup's tree, for packets narrow and wide, with lanes of
+    /// one sign and of mixed signs per axis, axis-parallel directions and finite `tmax`.
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn packet_interval_test_keeps_every_child_a_lane_touches() {

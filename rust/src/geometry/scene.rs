@@ -11,6 +11,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::OnceLock;
 
 use glam::{Affine3A, Vec3, Vec3A};
+use obvhs::ploc::morton::morton_encode_u64;
 use rayon::prelude::*;
 
 use super::bvh::{BuildQuality, Bvh, BvhUpdate, OccluderHint, TraversalCounters, PACKET};
@@ -37,19 +38,6 @@ const SPATIAL_ORDER_MIN: usize = 1 << 16;
 /// Least mean number of node visits per ray, over a sample of a batch, for
 /// [`Scene::occluded`] to reorder it by origin.
 const SPATIAL_ORDER_NODES: f64 = 6.0;
-
-/// Morton code of three 21-bit coordinates.
-fn morton3(x: u64, y: u64, z: u64) -> u64 {
-    fn spread(mut v: u64) -> u64 {
-        v &= 0x1f_ffff;
-        v = (v | v << 32) & 0x1f00000000ffff;
-        v = (v | v << 16) & 0x1f0000ff0000ff;
-        v = (v | v << 8) & 0x100f00f00f00f00f;
-        v = (v | v << 4) & 0x10c30c30c30c30c3;
-        (v | v << 2) & 0x1249249249249249
-    }
-    spread(x) | spread(y) << 1 | spread(z) << 2
-}
 
 /// Whether `directions` (non-zero) lie within 45° of their sum (their mean direction when
 /// they have one length, as record bundles' unit directions do). Squared, so that no
@@ -577,9 +565,14 @@ impl Scene {
     /// count; the sample that decides is not counted.
     pub fn occluded(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
         rays.validate()?;
-        if let Some(order) = with_threads(threads, || self.spatial_order(rays))? {
-            return self.occluded_in_order(rays, &order, threads);
+        match with_threads(threads, || self.spatial_order(rays))? {
+            Some(order) => self.occluded_in_order(rays, &order, threads),
+            None => self.occluded_as_given(rays, threads),
         }
+    }
+
+    /// [`Scene::occluded`] on validated rays, traced in the order given.
+    fn occluded_as_given(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
         let counting = self.counting_enabled();
         self.map_chunks(rays.len(), threads, |base, out, counters| {
             let bvh = self.bvh();
@@ -596,7 +589,8 @@ impl Scene {
     /// scattered rays; None where tracing in the given order is as good.
     fn spatial_order(&self, rays: &RayBatch) -> Option<Vec<u32>> {
         let n = rays.len();
-        if n < SPATIAL_ORDER_MIN || !self.bvh().outgrows_l2() {
+        let bvh = self.bvh();
+        if n < SPATIAL_ORDER_MIN || !bvh.outgrows_l2() {
             return None;
         }
         // Runs of rays from one origin (record bundles) are coherent already.
@@ -612,7 +606,6 @@ impl Scene {
         // Rays that leave the tree after a node or two (a small object under an open sky)
         // gain nothing: trace a sample of every 256th ray and reorder only when rays visit
         // many nodes, as they do in dense geometry that waits on memory.
-        let bvh = self.bvh();
         let mut sample = TraversalCounters::default();
         for i in (0..n).step_by(256) {
             bvh.occluded::<true>(
@@ -634,7 +627,10 @@ impl Scene {
             .map(|(i, o)| {
                 let q = ((Vec3::from(*o) - b.min) * scale)
                     .clamp(Vec3::ZERO, Vec3::splat((1 << 21) as f32 - 1.0));
-                (morton3(q.x as u64, q.y as u64, q.z as u64), i as u32)
+                (
+                    morton_encode_u64(q.x as u32, q.y as u32, q.z as u32),
+                    i as u32,
+                )
             })
             .collect();
         keyed.par_sort_unstable();
@@ -665,15 +661,7 @@ impl Scene {
             directions: &directions,
             tmax,
         };
-        let counting = self.counting_enabled();
-        let answers = self.map_chunks(sorted.len(), threads, |base, out, counters| {
-            let bvh = self.bvh();
-            if counting {
-                occluded_chunk::<true>(bvh, &sorted, base, out, counters);
-            } else {
-                occluded_chunk::<false>(bvh, &sorted, base, out, counters);
-            }
-        })?;
+        let answers = self.occluded_as_given(&sorted, threads)?;
         let mut out = vec![false; rays.len()];
         for (&i, a) in order.iter().zip(answers) {
             out[i as usize] = a;
