@@ -13,7 +13,8 @@ pub enum SimdLevel {
     Popcnt = 1,
     /// AVX2 (with `popcnt`): four `f64` or `u64` lanes.
     Avx2 = 2,
-    /// AVX-512 F and VPOPCNTDQ (with AVX2 and `popcnt`): eight lanes and mask registers.
+    /// AVX-512 F, VL and VPOPCNTDQ (with AVX2 and `popcnt`): eight lanes, mask registers,
+    /// and 32 vector registers for 256-bit code.
     Avx512 = 3,
 }
 
@@ -54,7 +55,7 @@ fn detect() -> SimdLevel {
         SimdLevel::Portable
     } else if !has!("avx2") {
         SimdLevel::Popcnt
-    } else if !(has!("avx512f") && has!("avx512vpopcntdq")) {
+    } else if !(has!("avx512f") && has!("avx512vl") && has!("avx512vpopcntdq")) {
         SimdLevel::Avx2
     } else {
         SimdLevel::Avx512

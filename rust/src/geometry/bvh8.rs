@@ -487,6 +487,47 @@ pub unsafe fn slab_overlap_avx2(
     }
 }
 
+/// A last-in first-out store of the nodes a traversal has yet to visit.
+pub trait TraversalStack<T: Copy> {
+    fn new() -> Self;
+    fn push(&mut self, v: T);
+    fn pop(&mut self) -> Option<T>;
+}
+
+/// A traversal stack of fixed size that never spills, for trees shallow enough that a
+/// depth-first search never holds more than `N` entries (seven per level below the root
+/// and eight at the deepest: `7 depth + 1`). Without [`Stack`]'s spill path the traversal
+/// loop makes no call, so the compiler keeps the ray in registers instead of reloading
+/// it from memory at every node (cornell's shadow rays: about 10% faster). A push beyond
+/// `N` panics rather than spills.
+pub struct BoundedStack<T: Copy, const N: usize> {
+    buf: [MaybeUninit<T>; N],
+    len: usize,
+}
+
+impl<T: Copy, const N: usize> TraversalStack<T> for BoundedStack<T, N> {
+    #[inline(always)]
+    fn new() -> Self {
+        Self {
+            buf: [const { MaybeUninit::uninit() }; N],
+            len: 0,
+        }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, v: T) {
+        self.buf[self.len] = MaybeUninit::new(v);
+        self.len += 1;
+    }
+
+    #[inline(always)]
+    fn pop(&mut self) -> Option<T> {
+        self.len = self.len.checked_sub(1)?;
+        // SAFETY: slots below the old `len` were written by `push` (T: Copy).
+        Some(unsafe { self.buf[self.len].assume_init() })
+    }
+}
+
 /// A traversal stack of fixed size that spills to the heap in degenerate trees. The
 /// array is left uninitialised: zeroing it cost a memset per ray.
 pub struct Stack<T: Copy, const N: usize> {
@@ -526,6 +567,23 @@ impl<T: Copy, const N: usize> Stack<T, N> {
         self.len -= 1;
         // SAFETY: slots below `len` were written by `push` and never moved out (T: Copy).
         Some(unsafe { self.buf[self.len].assume_init() })
+    }
+}
+
+impl<T: Copy, const N: usize> TraversalStack<T> for Stack<T, N> {
+    #[inline(always)]
+    fn new() -> Self {
+        Stack::new()
+    }
+
+    #[inline(always)]
+    fn push(&mut self, v: T) {
+        Stack::push(self, v)
+    }
+
+    #[inline(always)]
+    fn pop(&mut self) -> Option<T> {
+        Stack::pop(self)
     }
 }
 
