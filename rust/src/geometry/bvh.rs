@@ -553,27 +553,119 @@ impl Bvh {
         if self.blocks.is_empty() {
             return false;
         }
+        #[cfg(target_arch = "x86_64")]
+        match crate::simd::level() {
+            // SAFETY: the CPU has AVX-512 F and VL.
+            crate::simd::SimdLevel::Avx512 => unsafe {
+                return self.hinted_avx512::<COUNT>(origin, direction, tmax, hint, counters);
+            },
+            // SAFETY: the CPU has AVX2.
+            crate::simd::SimdLevel::Avx2 => unsafe {
+                return self.hinted_avx2::<COUNT>(origin, direction, tmax, hint, counters);
+            },
+            _ => {}
+        }
+        type Spilling = Stack<u32, STACK>;
+        let box_test = Node8::intersect;
+        self.hinted_search::<COUNT, Spilling>(origin, direction, tmax, hint, counters, box_test)
+    }
+
+    /// [`Self::occluded_hinted`] with AVX2 box tests.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn hinted_avx2<const COUNT: bool>(
+        &self,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
+        hint: &mut OccluderHint,
+        counters: &mut TraversalCounters,
+    ) -> bool {
+        // A closure defined here, so that it is compiled for this function's instruction
+        // set (closures take their features from the function that defines them).
+        // SAFETY: the CPU has AVX2 (this function's contract).
+        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
+        self.hinted_vector::<COUNT>(origin, direction, tmax, hint, counters, box_test)
+    }
+
+    /// [`Self::hinted_avx2`] compiled for AVX-512 VL: the same instructions in 256 bits,
+    /// but 32 vector registers instead of 16, so that the ray's origin, inverse and segment
+    /// stay in registers across the leaf tests instead of being reloaded at every node;
+    /// the ray's setup is compiled for it too (cornell's shadow rays: 1.07x).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,avx512f,avx512vl")]
+    fn hinted_avx512<const COUNT: bool>(
+        &self,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
+        hint: &mut OccluderHint,
+        counters: &mut TraversalCounters,
+    ) -> bool {
+        // As in `hinted_avx2`, the closure takes this function's features.
+        // SAFETY: the CPU has AVX2 (this function's contract).
+        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
+        self.hinted_vector::<COUNT>(origin, direction, tmax, hint, counters, box_test)
+    }
+
+    /// The body of [`Self::hinted_avx2`] and [`Self::hinted_avx512`], inlined into each so
+    /// that it is compiled for its instruction set, with its `box_test`.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn hinted_vector<const COUNT: bool>(
+        &self,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
+        hint: &mut OccluderHint,
+        counters: &mut TraversalCounters,
+        box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
+    ) -> bool {
+        if self.stack_is_bounded() {
+            type Bounded = BoundedStack<u32, STACK>;
+            self.hinted_search::<COUNT, Bounded>(origin, direction, tmax, hint, counters, box_test)
+        } else {
+            type Spilling = Stack<u32, STACK>;
+            self.hinted_search::<COUNT, Spilling>(origin, direction, tmax, hint, counters, box_test)
+        }
+    }
+
+    /// The search of [`Self::occluded_hinted`] on a non-empty tree (the ray not yet
+    /// counted): the hinted node first, if any, then the root without it.
+    #[inline(always)]
+    fn hinted_search<const COUNT: bool, S: TraversalStack<u32>>(
+        &self,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
+        hint: &mut OccluderHint,
+        counters: &mut TraversalCounters,
+        box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
+    ) -> bool {
         let r = self.local_ray(origin, direction, tmax);
-        let mut skip = NO_NODE;
-        if (hint.node as usize) < self.tree.nodes.len() {
-            if self
-                .occluder_node::<COUNT>(&r, hint.node, NO_NODE, counters)
-                .is_some()
+        // One traversal site for both searches, so that it is inlined once.
+        let mut from_hint = (hint.node as usize) < self.tree.nodes.len();
+        let (mut start, mut skip) = (if from_hint { hint.node } else { 0 }, NO_NODE);
+        loop {
+            if let Some(node) = self.occluder_walk::<COUNT, S>(&r, start, skip, counters, &box_test)
             {
+                if !from_hint {
+                    hint.node = self.hint_node(node);
+                }
                 return true;
             }
-            if hint.node == 0 {
+            if !from_hint || start == 0 {
                 return false;
             }
-            skip = hint.node;
+            (start, skip, from_hint) = (0, start, false);
         }
-        match self.occluder_node::<COUNT>(&r, 0, skip, counters) {
-            Some(node) => {
-                hint.node = self.hint_node(node);
-                true
-            }
-            None => false,
-        }
+    }
+
+    /// Whether a depth-first search of this tree never holds more than [`STACK`] entries:
+    /// `7 depth + 1` (see [`BoundedStack`]).
+    #[inline(always)]
+    fn stack_is_bounded(&self) -> bool {
+        7 * (self.tree.depth as usize) < STACK
     }
 
     /// The node a hint keeps for an occluder found in a leaf of `node`: its parent, whose
@@ -587,96 +679,7 @@ impl Bvh {
     }
 
     /// Any-hit search of the subtree under node `start`, not entering node `skip`: the node
-    /// whose leaf holds the first occluder found, if any.
-    #[inline(always)]
-    fn occluder_node<const COUNT: bool>(
-        &self,
-        r: &LocalRay,
-        start: u32,
-        skip: u32,
-        counters: &mut TraversalCounters,
-    ) -> Option<u32> {
-        #[cfg(target_arch = "x86_64")]
-        match crate::simd::level() {
-            // SAFETY: the CPU has AVX-512 F and VL.
-            crate::simd::SimdLevel::Avx512 => unsafe {
-                return self.occluder_node_avx512::<COUNT>(r, start, skip, counters);
-            },
-            // SAFETY: the CPU has AVX2.
-            crate::simd::SimdLevel::Avx2 => unsafe {
-                return self.occluder_node_avx2::<COUNT>(r, start, skip, counters);
-            },
-            _ => {}
-        }
-        self.occluder_walk::<COUNT, Stack<u32, STACK>>(r, start, skip, counters, Node8::intersect)
-    }
-
-    /// [`Self::occluder_node`] with AVX2 box tests.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn occluder_node_avx2<const COUNT: bool>(
-        &self,
-        r: &LocalRay,
-        start: u32,
-        skip: u32,
-        counters: &mut TraversalCounters,
-    ) -> Option<u32> {
-        // A closure defined here, so that it is compiled for this function's instruction
-        // set (closures take their features from the function that defines them).
-        // SAFETY: the CPU has AVX2 (this function's contract).
-        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
-        self.occluder_node_vector::<COUNT>(r, start, skip, counters, box_test)
-    }
-
-    /// [`Self::occluder_node_avx2`] compiled for AVX-512 VL: the same instructions in
-    /// 256 bits, but 32 vector registers instead of 16, so that the ray's origin, inverse
-    /// and segment stay in registers across the leaf tests instead of being reloaded at
-    /// every node (cornell's shadow rays: 1.07x).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,avx512f,avx512vl")]
-    fn occluder_node_avx512<const COUNT: bool>(
-        &self,
-        r: &LocalRay,
-        start: u32,
-        skip: u32,
-        counters: &mut TraversalCounters,
-    ) -> Option<u32> {
-        // A closure defined here, so that it is compiled for this function's instruction
-        // set (closures take their features from the function that defines them).
-        // SAFETY: the CPU has AVX2 (this function's contract).
-        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
-        self.occluder_node_vector::<COUNT>(r, start, skip, counters, box_test)
-    }
-
-    /// The body of [`Self::occluder_node_avx2`] and [`Self::occluder_node_avx512`], inlined
-    /// into each so that it is compiled for its instruction set, with its `box_test`.
-    #[cfg(target_arch = "x86_64")]
-    #[inline(always)]
-    fn occluder_node_vector<const COUNT: bool>(
-        &self,
-        r: &LocalRay,
-        start: u32,
-        skip: u32,
-        counters: &mut TraversalCounters,
-        box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
-    ) -> Option<u32> {
-        if self.stack_is_bounded() {
-            type Bounded = BoundedStack<u32, STACK>;
-            self.occluder_walk::<COUNT, Bounded>(r, start, skip, counters, box_test)
-        } else {
-            type Spilling = Stack<u32, STACK>;
-            self.occluder_walk::<COUNT, Spilling>(r, start, skip, counters, box_test)
-        }
-    }
-
-    /// Whether a depth-first search of this tree never holds more than [`STACK`] entries:
-    /// `7 depth + 1` (see [`BoundedStack`]).
-    #[inline(always)]
-    fn stack_is_bounded(&self) -> bool {
-        7 * (self.tree.depth as usize) < STACK
-    }
-
-    /// The traversal of [`Self::occluder_node`], with `box_test` one of the forms of
+    /// whose leaf holds the first occluder found, if any. `box_test` is one of the forms of
     /// [`Node8::intersect`] (they differ in instructions, not in answers).
     #[inline(always)]
     fn occluder_walk<const COUNT: bool, S: TraversalStack<u32>>(
@@ -925,49 +928,53 @@ impl Bvh {
         if self.blocks.is_empty() {
             return None;
         }
-        let r = self.local_ray(origin, direction, tmax);
         #[cfg(target_arch = "x86_64")]
         match crate::simd::level() {
             // SAFETY: the CPU has AVX-512 F and VL.
             crate::simd::SimdLevel::Avx512 => unsafe {
-                return self.closest_hit_avx512::<COUNT>(&r, counters);
+                return self.closest_hit_avx512::<COUNT>(origin, direction, tmax, counters);
             },
             // SAFETY: the CPU has AVX2.
             crate::simd::SimdLevel::Avx2 => unsafe {
-                return self.closest_hit_avx2::<COUNT>(&r, counters);
+                return self.closest_hit_avx2::<COUNT>(origin, direction, tmax, counters);
             },
             _ => {}
         }
+        let r = self.local_ray(origin, direction, tmax);
         self.closest_hit::<COUNT, Stack<_, STACK>>(&r, counters, Node8::intersect)
     }
 
-    /// [`Self::intersect`] with AVX2 box tests.
+    /// [`Self::intersect`] on a non-empty tree (the ray not yet counted) with AVX2 box
+    /// tests.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn closest_hit_avx2<const COUNT: bool>(
         &self,
-        r: &LocalRay,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
         counters: &mut TraversalCounters,
     ) -> Option<Hit> {
-        // As in `occluder_node_avx2`, the closure takes this function's features.
+        // As in `hinted_avx2`, the closure takes this function's features.
         // SAFETY: the CPU has AVX2 (this function's contract).
         let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
-        self.closest_hit_vector::<COUNT>(r, counters, box_test)
+        self.closest_hit_vector::<COUNT>(origin, direction, tmax, counters, box_test)
     }
 
-    /// [`Self::closest_hit_avx2`] with 32 vector registers (see
-    /// [`Self::occluder_node_avx512`]).
+    /// [`Self::closest_hit_avx2`] with 32 vector registers (see [`Self::hinted_avx512`]).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,avx512f,avx512vl")]
     fn closest_hit_avx512<const COUNT: bool>(
         &self,
-        r: &LocalRay,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
         counters: &mut TraversalCounters,
     ) -> Option<Hit> {
-        // As in `occluder_node_avx2`, the closure takes this function's features.
+        // As in `hinted_avx2`, the closure takes this function's features.
         // SAFETY: the CPU has AVX2 (this function's contract).
         let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
-        self.closest_hit_vector::<COUNT>(r, counters, box_test)
+        self.closest_hit_vector::<COUNT>(origin, direction, tmax, counters, box_test)
     }
 
     /// The body of [`Self::closest_hit_avx2`] and [`Self::closest_hit_avx512`], with their
@@ -976,14 +983,17 @@ impl Bvh {
     #[inline(always)]
     fn closest_hit_vector<const COUNT: bool>(
         &self,
-        r: &LocalRay,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
         counters: &mut TraversalCounters,
         box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
     ) -> Option<Hit> {
+        let r = self.local_ray(origin, direction, tmax);
         if self.stack_is_bounded() {
-            self.closest_hit::<COUNT, BoundedStack<_, STACK>>(r, counters, box_test)
+            self.closest_hit::<COUNT, BoundedStack<_, STACK>>(&r, counters, box_test)
         } else {
-            self.closest_hit::<COUNT, Stack<_, STACK>>(r, counters, box_test)
+            self.closest_hit::<COUNT, Stack<_, STACK>>(&r, counters, box_test)
         }
     }
 
@@ -1655,18 +1665,15 @@ mod tests {
                 if d.length() == 0.0 {
                     continue;
                 }
-                let r = bvh.local_ray(o, d, tmax);
                 let mut c = TraversalCounters::default();
-                let portable = bvh.occluder_walk::<true, Stack<_, STACK>>(
-                    &r,
-                    0,
-                    NO_NODE,
-                    &mut c,
-                    Node8::intersect,
+                let mut hint = OccluderHint::NONE;
+                let box_test = Node8::intersect;
+                let portable = bvh.hinted_search::<true, Stack<_, STACK>>(
+                    o, d, tmax, &mut hint, &mut c, box_test,
                 );
                 let mut ch = TraversalCounters::default();
-                let closest =
-                    bvh.closest_hit::<true, Stack<_, STACK>>(&r, &mut ch, Node8::intersect);
+                let r = bvh.local_ray(o, d, tmax);
+                let closest = bvh.closest_hit::<true, Stack<_, STACK>>(&r, &mut ch, box_test);
                 let bits = |h: Option<Hit>| {
                     h.map(|h| (h.t.to_bits(), h.triangle, h.u.to_bits(), h.v.to_bits()))
                 };
@@ -1676,27 +1683,32 @@ mod tests {
                     }
                     let (mut c2, mut ch2) =
                         (TraversalCounters::default(), TraversalCounters::default());
+                    let mut hint2 = OccluderHint::NONE;
                     // SAFETY: the CPU has `simd`.
                     let (vector, vector_closest) = unsafe {
                         match simd {
                             SimdLevel::Avx2 => (
-                                bvh.occluder_node_avx2::<true>(&r, 0, NO_NODE, &mut c2),
-                                bvh.closest_hit_avx2::<true>(&r, &mut ch2),
+                                bvh.hinted_avx2::<true>(o, d, tmax, &mut hint2, &mut c2),
+                                bvh.closest_hit_avx2::<true>(o, d, tmax, &mut ch2),
                             ),
                             _ => (
-                                bvh.occluder_node_avx512::<true>(&r, 0, NO_NODE, &mut c2),
-                                bvh.closest_hit_avx512::<true>(&r, &mut ch2),
+                                bvh.hinted_avx512::<true>(o, d, tmax, &mut hint2, &mut c2),
+                                bvh.closest_hit_avx512::<true>(o, d, tmax, &mut ch2),
                             ),
                         }
                     };
-                    assert_eq!((portable, c), (vector, c2), "{name} {simd:?} ray {k}");
+                    assert_eq!(
+                        (portable, hint, c),
+                        (vector, hint2, c2),
+                        "{name} {simd:?} ray {k}"
+                    );
                     assert_eq!(
                         (bits(closest), ch),
                         (bits(vector_closest), ch2),
                         "{name} {simd:?} ray {k}"
                     );
                 }
-                occluded += portable.is_some() as u32;
+                occluded += portable as u32;
                 hit += closest.is_some() as u32;
                 missed += closest.is_none() as u32;
             }
