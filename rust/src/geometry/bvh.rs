@@ -547,12 +547,6 @@ impl Bvh {
         hint: &mut OccluderHint,
         counters: &mut TraversalCounters,
     ) -> bool {
-        if COUNT {
-            counters.rays += 1;
-        }
-        if self.blocks.is_empty() {
-            return false;
-        }
         #[cfg(target_arch = "x86_64")]
         match crate::simd::level() {
             // SAFETY: the CPU has AVX-512 F and VL.
@@ -570,10 +564,12 @@ impl Bvh {
         self.hinted_search::<COUNT, Spilling>(origin, direction, tmax, hint, counters, box_test)
     }
 
-    /// [`Self::occluded_hinted`] with AVX2 box tests.
+    /// [`Self::occluded_hinted`] with AVX2 box tests. Batch drivers compiled for AVX2 call
+    /// it directly, so that it is inlined into their loop.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn hinted_avx2<const COUNT: bool>(
+    #[inline]
+    pub(crate) fn hinted_avx2<const COUNT: bool>(
         &self,
         origin: Vec3A,
         direction: Vec3A,
@@ -594,7 +590,8 @@ impl Bvh {
     /// the ray's setup is compiled for it too (cornell's shadow rays: 1.07x).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,avx512f,avx512vl")]
-    fn hinted_avx512<const COUNT: bool>(
+    #[inline]
+    pub(crate) fn hinted_avx512<const COUNT: bool>(
         &self,
         origin: Vec3A,
         direction: Vec3A,
@@ -630,8 +627,8 @@ impl Bvh {
         }
     }
 
-    /// The search of [`Self::occluded_hinted`] on a non-empty tree (the ray not yet
-    /// counted): the hinted node first, if any, then the root without it.
+    /// The search of [`Self::occluded_hinted`]: the hinted node first, if any, then the
+    /// root without it.
     #[inline(always)]
     fn hinted_search<const COUNT: bool, S: TraversalStack<u32>>(
         &self,
@@ -642,6 +639,12 @@ impl Bvh {
         counters: &mut TraversalCounters,
         box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
     ) -> bool {
+        if COUNT {
+            counters.rays += 1;
+        }
+        if self.blocks.is_empty() {
+            return false;
+        }
         let r = self.local_ray(origin, direction, tmax);
         // One traversal site for both searches, so that it is inlined once.
         let mut from_hint = (hint.node as usize) < self.tree.nodes.len();
