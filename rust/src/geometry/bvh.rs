@@ -564,6 +564,22 @@ impl Bvh {
         self.hinted_search::<COUNT, Spilling>(origin, direction, tmax, hint, counters, box_test)
     }
 
+    /// [`Self::occluded_hinted`] with the portable box tests whatever the CPU, for tests of
+    /// the vector forms.
+    #[cfg(test)]
+    pub(crate) fn occluded_hinted_portable<const COUNT: bool>(
+        &self,
+        origin: Vec3A,
+        direction: Vec3A,
+        tmax: f32,
+        hint: &mut OccluderHint,
+        counters: &mut TraversalCounters,
+    ) -> bool {
+        type Spilling = Stack<u32, STACK>;
+        let box_test = Node8::intersect;
+        self.hinted_search::<COUNT, Spilling>(origin, direction, tmax, hint, counters, box_test)
+    }
+
     /// [`Self::occluded_hinted`] with AVX2 box tests. Batch drivers compiled for AVX2 call
     /// it directly, so that it is inlined into their loop.
     #[cfg(target_arch = "x86_64")]

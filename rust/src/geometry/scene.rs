@@ -1186,6 +1186,37 @@ mod tests {
             occluded > 500 && occluded < single.len() - 500,
             "{occluded}"
         );
+        // Every instruction set's chunk loop: the same answers and counts as the portable.
+        let bvh = s.bvh();
+        let chunk = |f: &dyn Fn(&mut [bool], &mut TraversalCounters)| {
+            let (mut out, mut c) = (vec![false; origins.len()], TraversalCounters::default());
+            f(&mut out, &mut c);
+            (out, c)
+        };
+        let portable = chunk(&|out, c| {
+            let trace = |o, d, t, hint: &mut _, c: &mut _| {
+                bvh.occluded_hinted_portable::<true>(o, d, t, hint, c)
+            };
+            occluded_chunk_with::<true>(bvh, &rays, 0, out, c, trace)
+        });
+        assert_eq!(portable.0, one);
+        #[cfg(target_arch = "x86_64")]
+        {
+            use crate::simd::SimdLevel;
+            if crate::simd::level() >= SimdLevel::Avx2 {
+                // SAFETY: the CPU has AVX2.
+                let avx2 =
+                    chunk(&|out, c| unsafe { occluded_chunk_avx2::<true>(bvh, &rays, 0, out, c) });
+                assert_eq!(avx2, portable);
+            }
+            if crate::simd::level() >= SimdLevel::Avx512 {
+                // SAFETY: the CPU has AVX-512 F and VL.
+                let avx512 = chunk(&|out, c| unsafe {
+                    occluded_chunk_avx512::<true>(bvh, &rays, 0, out, c)
+                });
+                assert_eq!(avx512, portable);
+            }
+        }
     }
 
     /// `n` rays from points uniform in `b` (grown by `margin`) in uniform directions, some
