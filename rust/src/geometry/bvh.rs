@@ -908,7 +908,7 @@ impl Bvh {
                             while rest != 0 {
                                 let l = rest.trailing_zeros() as usize;
                                 rest &= rest - 1;
-                                let r = &packet.rays[l];
+                                let r = packet.watertight.lane_ray(l);
                                 if r.intersect4(block, packet.lane_tmax[l]).0 != 0 {
                                     occluded |= 1 << l;
                                 }
@@ -1115,10 +1115,8 @@ fn lanes(v: std::arch::x86_64::__m512) -> [f32; PACKET] {
 /// at a time (see [`Bvh::occluded_packet`]).
 #[cfg(target_arch = "x86_64")]
 struct Packet {
-    /// Each lane's watertight ray and `tmax` (local frame) as the single-ray traversal
-    /// prepares them; lanes past the packet's rays repeat the last one and are never
-    /// active.
-    rays: [WatertightRay; PACKET],
+    /// Each lane's `tmax` (local frame) as the single-ray traversal prepares it; lanes past
+    /// the packet's rays repeat the last one and are never active.
     lane_tmax: [f32; PACKET],
     /// The lanes holding rays.
     all: u16,
@@ -1211,21 +1209,10 @@ impl Packet {
         // Masks of the lanes where an axis is 1 and where it is 2 (else it is 0).
         let one_two = |is: [__mmask16; 2]| [is[1], !(is[0] | is[1])];
         let (kx_12, ky_12, kz_12) = (one_two(kx_is), one_two(ky_is), one_two(kz_is));
-        let axis_of =
-            |m: [__mmask16; 2], l: usize| (m[0] >> l & 1) as usize + 2 * (m[1] >> l & 1) as usize;
-        let (sx_l, sy_l, sz_l) = (lanes(sx), lanes(sy), lanes(sz));
-        let rays: [WatertightRay; PACKET] = std::array::from_fn(|l| {
-            WatertightRay::from_parts(
-                o,
-                [axis_of(kx_12, l), axis_of(ky_12, l), axis_of(kz_12, l)],
-                [sx_l[l], sy_l[l], sz_l[l]],
-            )
-        });
         let exit = mul(tmax, splat(EXIT_SCALE));
         let watertight = WatertightPacket::from_lanes(o, [kx_12, ky_12, kz_12], [sx, sy, sz]);
         let negative = inverse.map(|v| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps()));
         Packet {
-            rays,
             lane_tmax: lanes(tmax),
             all: (u32::MAX >> (32 - count)) as u16,
             origin: [o.x, o.y, o.z].map(|v| _mm512_set1_ps(v)),
@@ -1453,13 +1440,16 @@ mod tests {
                 .collect();
             // SAFETY: the CPU has AVX-512 F.
             let packet = unsafe { Packet::new(&bvh, origin, &dirs, &tmax) };
+            let singles: [LocalRay; PACKET] = std::array::from_fn(|l| {
+                let s = l.min(count - 1);
+                bvh.local_ray(origin, dirs[s], tmax[s])
+            });
             // SAFETY: as above.
-            let gathered = unsafe { WatertightPacket::new(&packet.rays) };
+            let gathered = unsafe { WatertightPacket::new(&singles.map(|r| r.watertight)) };
             assert_eq!(packet.watertight.bits(), gathered.bits(), "packet {k}");
             let inverse = packet.inverse.map(lanes);
-            for (l, ray) in packet.rays.iter().enumerate() {
-                let s = l.min(count - 1);
-                let r = bvh.local_ray(origin, dirs[s], tmax[s]);
+            for (l, r) in singles.iter().enumerate() {
+                let ray = packet.watertight.lane_ray(l);
                 assert_eq!(ray.bits(), r.watertight.bits(), "packet {k} lane {l}");
                 assert_eq!(packet.lane_tmax[l].to_bits(), r.tmax.to_bits());
                 let (o, inv) = r.boxes.origin_and_inverse();

@@ -291,6 +291,20 @@ impl WatertightPacket {
         }
     }
 
+    /// Lane `l`'s ray, as [`WatertightRay::new`] prepares it: for the few lanes that reach
+    /// a leaf, whose triangles are then tested ray by ray (four at once).
+    #[inline]
+    pub fn lane_ray(&self, l: usize) -> WatertightRay {
+        let axis = |is: [std::arch::x86_64::__mmask16; 2]| {
+            (is[0] >> l & 1) as usize + 2 * (is[1] >> l & 1) as usize
+        };
+        // SAFETY: a __m512 is sixteen f32s (a copy of bits, no AVX-512 instruction).
+        let lane = |v: std::arch::x86_64::__m512| unsafe {
+            std::mem::transmute::<std::arch::x86_64::__m512, [f32; 16]>(v)[l & 15]
+        };
+        WatertightRay::from_parts(self.origin, self.axis_is.map(axis), self.shear.map(lane))
+    }
+
     /// The axis masks and the shear's bits, for tests that hold two ways of making a packet
     /// to each other.
     pub fn bits(&self) -> ([[u16; 2]; 3], [[u32; 16]; 3]) {
