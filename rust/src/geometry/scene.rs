@@ -120,43 +120,47 @@ fn occluded_chunk_with<const COUNT: bool>(
     counters: &mut TraversalCounters,
     trace: impl Fn(Vec3A, Vec3A, f32, &mut OccluderHint, &mut TraversalCounters) -> bool,
 ) {
-    let bits = |o: [f32; 3]| o.map(f32::to_bits);
-    let mut last = (None, OccluderHint::NONE);
-    let mut k = 0;
-    while k < out.len() {
+    let origins = &rays.origins[base..base + out.len()];
+    // Origins compared bit for bit (-0.0 and 0.0 would round apart), each read once.
+    let bits = |k: usize| origins.get(k).map(|o| o.map(f32::to_bits));
+    let mut hint = OccluderHint::NONE;
+    let (mut k, mut next) = (0, bits(0));
+    while let Some(origin) = next {
         let i = base + k;
-        let origin = bits(rays.origins[i]);
-        // Rays from the same origin, bit for bit (-0.0 and 0.0 would round apart).
+        // A run of rays from one origin (up to a packet).
         let mut run = 1;
-        while run < PACKET && k + run < out.len() && bits(rays.origins[i + run]) == origin {
+        next = bits(k + 1);
+        while run < PACKET && next == Some(origin) {
             run += 1;
+            next = bits(k + run);
         }
-        let o = Vec3A::from(rays.origins[i]);
-        if last.0 != Some(origin) {
-            last = (Some(origin), OccluderHint::NONE);
-        }
+        let o = Vec3A::from(origins[k]);
         let direction = |l: usize| Vec3A::from(rays.directions[i + l]);
-        if run >= MIN_PACKET {
-            let directions: [Vec3A; PACKET] = std::array::from_fn(|l| direction(l.min(run - 1)));
-            if coherent(&directions[..run]) {
-                let tmax: [f32; PACKET] = std::array::from_fn(|l| rays.tmax_of(i + l.min(run - 1)));
-                let occluded = bvh.occluded_packet::<COUNT>(
-                    o,
-                    &directions[..run],
-                    &tmax[..run],
-                    &mut last.1,
-                    counters,
-                );
-                for (l, slot) in out[k..k + run].iter_mut().enumerate() {
-                    *slot = occluded >> l & 1 != 0;
-                }
-                k += run;
-                continue;
+        let directions: [Vec3A; PACKET];
+        if run >= MIN_PACKET && {
+            directions = std::array::from_fn(|l| direction(l.min(run - 1)));
+            coherent(&directions[..run])
+        } {
+            let tmax: [f32; PACKET] = std::array::from_fn(|l| rays.tmax_of(i + l.min(run - 1)));
+            let occluded = bvh.occluded_packet::<COUNT>(
+                o,
+                &directions[..run],
+                &tmax[..run],
+                &mut hint,
+                counters,
+            );
+            for (l, slot) in out[k..k + run].iter_mut().enumerate() {
+                *slot = occluded >> l & 1 != 0;
+            }
+        } else {
+            // One by one: a run too short or too wide for a packet.
+            for (l, slot) in out[k..k + run].iter_mut().enumerate() {
+                *slot = trace(o, direction(l), rays.tmax_of(i + l), &mut hint, counters);
             }
         }
-        // One by one: a run too short or too wide for a packet.
-        for (l, slot) in out[k..k + run].iter_mut().enumerate() {
-            *slot = trace(o, direction(l), rays.tmax_of(i + l), &mut last.1, counters);
+        // The hint carries over to the next run only when it shares the origin.
+        if next != Some(origin) {
+            hint = OccluderHint::NONE;
         }
         k += run;
     }
