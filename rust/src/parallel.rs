@@ -2,21 +2,25 @@
 //! work is split into fixed-size chunks and every random number comes from a counter-based
 //! generator, so pools only change speed.
 
+use std::cell::RefCell;
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::Arc;
 
 use crate::error::{Error, Result};
 
 /// Largest accepted `threads` argument.
 pub const MAX_THREADS: usize = 1024;
 
-fn pools() -> &'static Mutex<HashMap<usize, Arc<rayon::ThreadPool>>> {
-    static POOLS: OnceLock<Mutex<HashMap<usize, Arc<rayon::ThreadPool>>>> = OnceLock::new();
-    POOLS.get_or_init(Default::default)
+thread_local! {
+    /// This calling thread's pools, by size. Each caller has its own, so that callers on
+    /// different threads (Python threads with `threads=1`, say) run side by side instead of
+    /// queueing for one shared pool's workers; a thread's pools end with it.
+    static POOLS: RefCell<HashMap<usize, Arc<rayon::ThreadPool>>> = RefCell::default();
 }
 
 /// Runs `f` on a pool of `threads` workers (`None`: rayon's global pool, one per core).
-/// Pools are created once per size and kept.
+/// Pools are created once per calling thread and size, and kept. A call made from a
+/// worker of a pool of that size (a nested call) runs on that pool.
 pub fn with_threads<R: Send>(threads: Option<usize>, f: impl FnOnce() -> R + Send) -> Result<R> {
     let Some(n) = threads else {
         return Ok(f());
@@ -27,21 +31,66 @@ pub fn with_threads<R: Send>(threads: Option<usize>, f: impl FnOnce() -> R + Sen
             format!("must be between 1 and {MAX_THREADS}, got {n}"),
         ));
     }
-    let pool = {
-        let mut map = pools().lock().unwrap_or_else(|e| e.into_inner());
-        match map.get(&n) {
-            Some(p) => p.clone(),
-            None => {
-                let p = rayon::ThreadPoolBuilder::new()
-                    .num_threads(n)
-                    .thread_name(|i| format!("viscache-{i}"))
-                    .build()
-                    .map_err(|e| Error::invalid("threads", e.to_string()))?;
-                let p = Arc::new(p);
-                map.insert(n, p.clone());
-                p
-            }
+    if rayon::current_thread_index().is_some() && rayon::current_num_threads() == n {
+        return Ok(f());
+    }
+    let pool = POOLS.with(|pools| -> Result<_> {
+        let mut pools = pools.borrow_mut();
+        if let Some(p) = pools.get(&n) {
+            return Ok(p.clone());
         }
-    };
+        let p = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .thread_name(|i| format!("viscache-{i}"))
+            .build()
+            .map_err(|e| Error::invalid("threads", e.to_string()))?;
+        Ok(pools.entry(n).or_insert(Arc::new(p)).clone())
+    })?;
     Ok(pool.install(f))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Callers on two threads asking for one worker each get a worker each, and run at the
+    /// same time: each call waits (up to ten seconds, so that a regression fails rather
+    /// than hangs) until the other has started.
+    #[test]
+    fn callers_on_different_threads_run_side_by_side() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        use std::time::{Duration, Instant};
+        let started = AtomicUsize::new(0);
+        let run = || {
+            with_threads(Some(1), || {
+                started.fetch_add(1, Ordering::SeqCst);
+                let t = Instant::now();
+                while started.load(Ordering::SeqCst) < 2 && t.elapsed() < Duration::from_secs(10) {
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+                started.load(Ordering::SeqCst) == 2
+            })
+            .unwrap()
+        };
+        let both = std::thread::scope(|s| {
+            let a = s.spawn(run);
+            let b = s.spawn(run);
+            [a.join().unwrap(), b.join().unwrap()]
+        });
+        assert_eq!(both, [true, true]);
+    }
+
+    /// A call nested in a pool of the same size stays on it; bad sizes are refused.
+    #[test]
+    fn nested_calls_stay_and_bad_sizes_are_refused() {
+        let outer = with_threads(Some(2), || {
+            let pool_thread = std::thread::current().id();
+            with_threads(Some(2), || std::thread::current().id() == pool_thread).unwrap()
+        });
+        assert!(outer.unwrap());
+        for bad in [0, MAX_THREADS + 1] {
+            let e = with_threads(Some(bad), || ()).unwrap_err().to_string();
+            assert!(e.starts_with("threads"), "{e}");
+        }
+    }
 }
