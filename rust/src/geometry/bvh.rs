@@ -600,10 +600,11 @@ impl Bvh {
         self.hinted_vector::<COUNT>(origin, direction, tmax, hint, counters, box_test)
     }
 
-    /// [`Self::hinted_avx2`] compiled for AVX-512 VL: the same instructions in 256 bits,
-    /// but 32 vector registers instead of 16, so that the ray's origin, inverse and segment
-    /// stay in registers across the leaf tests instead of being reloaded at every node;
-    /// the ray's setup is compiled for it too (cornell's shadow rays: 1.07x).
+    /// [`Self::hinted_avx2`] compiled for AVX-512 VL: the same arithmetic in 256 bits, but
+    /// 32 vector registers instead of 16, so that the ray's origin, inverse and segment
+    /// stay in registers across the leaf tests instead of being reloaded at every node,
+    /// and the box test of [`Node8::intersect_avx512`]; the ray's setup is compiled for it
+    /// too (cornell's shadow rays: 1.07x).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,avx512f,avx512vl")]
     #[inline]
@@ -616,8 +617,8 @@ impl Bvh {
         counters: &mut TraversalCounters,
     ) -> bool {
         // As in `hinted_avx2`, the closure takes this function's features.
-        // SAFETY: the CPU has AVX2 (this function's contract).
-        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
+        // SAFETY: the CPU has AVX-512 F and VL (this function's contract).
+        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx512(b, t) };
         self.hinted_vector::<COUNT>(origin, direction, tmax, hint, counters, box_test)
     }
 
@@ -991,8 +992,8 @@ impl Bvh {
         counters: &mut TraversalCounters,
     ) -> Option<Hit> {
         // As in `hinted_avx2`, the closure takes this function's features.
-        // SAFETY: the CPU has AVX2 (this function's contract).
-        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
+        // SAFETY: the CPU has AVX-512 F and VL (this function's contract).
+        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx512(b, t) };
         self.closest_hit_vector::<COUNT>(origin, direction, tmax, counters, box_test)
     }
 

@@ -73,6 +73,9 @@ pub struct BoxRay {
     inv: [Vec4; 3],
     near: [usize; 3],
     far: [usize; 3],
+    /// Per axis, all eight bits set where the direction is negative (the near plane is the
+    /// max plane): a blend mask for [`Node8::intersect_avx512`].
+    negative: [u8; 3],
 }
 
 impl BoxRay {
@@ -91,6 +94,7 @@ impl BoxRay {
                 Vec4::splat(origin.z),
             ],
             inv: [Vec4::splat(inv.x), Vec4::splat(inv.y), Vec4::splat(inv.z)],
+            negative: neg.map(|n| 0u8.wrapping_sub(n as u8)),
             near: [neg[0] as usize, 2 + neg[1] as usize, 4 + neg[2] as usize],
             far: [
                 1 - neg[0] as usize,
@@ -177,6 +181,55 @@ impl Node8 {
                     (
                         _mm256_mul_ps(_mm256_sub_ps(near, o), inv),
                         _mm256_mul_ps(_mm256_sub_ps(far, o), inv),
+                    )
+                }
+            }
+            let (nx, fx) = slab(self, r, 0);
+            let (ny, fy) = slab(self, r, 1);
+            let (nz, fz) = slab(self, r, 2);
+            let (t_near, mask) = slab_overlap_avx2(
+                [nx, ny, nz],
+                [fx, fy, fz],
+                _mm256_set1_ps(tmax * EXIT_SCALE),
+            );
+            let mut t = [0.0; WIDTH];
+            _mm256_storeu_ps(t.as_mut_ptr(), t_near);
+            (t, mask)
+        }
+    }
+
+    /// [`Self::intersect_avx2`] without choosing plane rows by the ray's signs: both rows of
+    /// each axis are loaded at fixed offsets and their distances blended by the ray's sign
+    /// masks (AVX-512 mask registers). The same operations on the same values, so the same
+    /// bits; but the six row offsets no longer take general registers, which the traversal
+    /// had to reload from memory at every node.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 F and VL, and the caller should be compiled with them.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    pub unsafe fn intersect_avx512(&self, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        use std::arch::x86_64::*;
+        // SAFETY: the CPU has AVX-512 F and VL (the caller's contract); each plane row holds
+        // WIDTH = 8 f32s and `t` has room for 8.
+        unsafe {
+            #[inline(always)]
+            unsafe fn slab(n: &Node8, r: &BoxRay, axis: usize) -> (__m256, __m256) {
+                // SAFETY: as for the caller.
+                unsafe {
+                    let o = _mm256_set1_ps(r.origin[axis].x);
+                    let inv = _mm256_set1_ps(r.inv[axis].x);
+                    let distance = |row: &[f32; WIDTH]| {
+                        _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(row.as_ptr()), o), inv)
+                    };
+                    let (low, high) = (
+                        distance(&n.planes[2 * axis]),
+                        distance(&n.planes[2 * axis + 1]),
+                    );
+                    let negative = r.negative[axis];
+                    (
+                        _mm256_mask_blend_ps(negative, low, high),
+                        _mm256_mask_blend_ps(negative, high, low),
                     )
                 }
             }
@@ -645,7 +698,7 @@ mod tests {
     /// random boxes (some empty, some flat, some holding the origin) and rays with zero,
     /// negative-zero and tiny direction components, at finite and infinite `tmax`.
     #[test]
-    fn avx2_and_portable_box_tests_agree_bit_for_bit() {
+    fn vector_and_portable_box_tests_agree_bit_for_bit() {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             use crate::sampling::rng::SampleRng;
@@ -692,6 +745,17 @@ mod tests {
                 let (t2, mask2) = unsafe { with_avx2(&n, &r, tmax) };
                 assert_eq!(mask, mask2, "case {case}");
                 assert_eq!(t.map(f32::to_bits), t2.map(f32::to_bits), "case {case}");
+                if crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+                    #[target_feature(enable = "avx2,avx512f,avx512vl")]
+                    fn with_avx512(n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+                        // SAFETY: compiled for AVX-512 VL, only called on CPUs that have it.
+                        unsafe { n.intersect_avx512(r, tmax) }
+                    }
+                    // SAFETY: the CPU has AVX-512 F and VL.
+                    let (t3, mask3) = unsafe { with_avx512(&n, &r, tmax) };
+                    assert_eq!(mask, mask3, "case {case}");
+                    assert_eq!(t.map(f32::to_bits), t3.map(f32::to_bits), "case {case}");
+                }
                 compared += mask.count_ones();
             }
             assert!(compared > 2_000, "too few boxes hit: {compared}");
