@@ -22,9 +22,11 @@ use super::binned_sah::{self, BinnedSahParams};
 #[cfg(target_arch = "x86_64")]
 use super::bvh8::slab_overlap_avx2;
 use super::bvh8::{
-    decode, BoundedStack, BoxRay, Bvh8, Child, Node8, Parents, Stack, TraversalStack, EXIT_SCALE,
-    WIDTH,
+    decode, BoundedStack, BoxRay, BoxTest, Bvh8, Child, Node8, Parents, PortableBoxTest, Stack,
+    TraversalStack, EXIT_SCALE, WIDTH,
 };
+#[cfg(target_arch = "x86_64")]
+use super::bvh8::{Avx2BoxTest, Avx512BoxTest};
 use super::mesh::{triangle_cross, Mesh};
 #[cfg(target_arch = "x86_64")]
 use super::watertight::WatertightPacket;
@@ -137,7 +139,7 @@ pub const PACKET: usize = 16;
 
 /// Traversal stack size: a fixed stack of this size serves trees of depth 18 or less (seven
 /// entries per level, plus one); deeper ones use a stack that spills to the heap. The
-/// built-in scenes' trees are 5 to 13 deep.
+/// built-in scenes' SAH trees are 4 to 9 deep.
 const STACK: usize = 128;
 
 /// Work done by traversals: rays traced, BVH nodes whose (up to eight) children were
@@ -560,7 +562,7 @@ impl Bvh {
             _ => {}
         }
         type Spilling = Stack<u32, STACK>;
-        let box_test = Node8::intersect;
+        let box_test = PortableBoxTest;
         self.hinted_search::<COUNT, Spilling>(origin, direction, tmax, hint, counters, box_test)
     }
 
@@ -576,7 +578,7 @@ impl Bvh {
         counters: &mut TraversalCounters,
     ) -> bool {
         type Spilling = Stack<u32, STACK>;
-        let box_test = Node8::intersect;
+        let box_test = PortableBoxTest;
         self.hinted_search::<COUNT, Spilling>(origin, direction, tmax, hint, counters, box_test)
     }
 
@@ -593,10 +595,8 @@ impl Bvh {
         hint: &mut OccluderHint,
         counters: &mut TraversalCounters,
     ) -> bool {
-        // A closure defined here, so that it is compiled for this function's instruction
-        // set (closures take their features from the function that defines them).
         // SAFETY: the CPU has AVX2 (this function's contract).
-        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
+        let box_test = unsafe { Avx2BoxTest::new() };
         self.hinted_vector::<COUNT>(origin, direction, tmax, hint, counters, box_test)
     }
 
@@ -616,9 +616,8 @@ impl Bvh {
         hint: &mut OccluderHint,
         counters: &mut TraversalCounters,
     ) -> bool {
-        // As in `hinted_avx2`, the closure takes this function's features.
         // SAFETY: the CPU has AVX-512 F and VL (this function's contract).
-        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx512(b, t) };
+        let box_test = unsafe { Avx512BoxTest::new() };
         self.hinted_vector::<COUNT>(origin, direction, tmax, hint, counters, box_test)
     }
 
@@ -633,7 +632,7 @@ impl Bvh {
         tmax: f32,
         hint: &mut OccluderHint,
         counters: &mut TraversalCounters,
-        box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
+        box_test: impl BoxTest,
     ) -> bool {
         if self.stack_is_bounded() {
             type Bounded = BoundedStack<u32, STACK>;
@@ -654,7 +653,7 @@ impl Bvh {
         tmax: f32,
         hint: &mut OccluderHint,
         counters: &mut TraversalCounters,
-        box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
+        box_test: impl BoxTest,
     ) -> bool {
         if COUNT {
             counters.rays += 1;
@@ -667,7 +666,7 @@ impl Bvh {
         let mut from_hint = (hint.node as usize) < self.tree.nodes.len();
         let (mut start, mut skip) = (if from_hint { hint.node } else { 0 }, NO_NODE);
         loop {
-            if let Some(node) = self.occluder_walk::<COUNT, S>(&r, start, skip, counters, &box_test)
+            if let Some(node) = self.occluder_walk::<COUNT, S>(&r, start, skip, counters, box_test)
             {
                 if !from_hint {
                     hint.node = self.hint_node(node);
@@ -708,7 +707,7 @@ impl Bvh {
         start: u32,
         skip: u32,
         counters: &mut TraversalCounters,
-        box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
+        box_test: impl BoxTest,
     ) -> Option<u32> {
         let (mut nodes, mut tests) = (0u64, 0u64);
         let mut stack = S::new();
@@ -719,7 +718,7 @@ impl Bvh {
             if COUNT {
                 nodes += 1;
             }
-            let (_, mut mask) = box_test(n, &r.boxes, r.tmax);
+            let (_, mut mask) = box_test.test(n, &r.boxes, r.tmax);
             while mask != 0 {
                 let i = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
@@ -961,7 +960,7 @@ impl Bvh {
             _ => {}
         }
         let r = self.local_ray(origin, direction, tmax);
-        self.closest_hit::<COUNT, Stack<_, STACK>>(&r, counters, Node8::intersect)
+        self.closest_hit::<COUNT, Stack<_, STACK>>(&r, counters, PortableBoxTest)
     }
 
     /// [`Self::intersect`] on a non-empty tree (the ray not yet counted) with AVX2 box
@@ -975,9 +974,8 @@ impl Bvh {
         tmax: f32,
         counters: &mut TraversalCounters,
     ) -> Option<Hit> {
-        // As in `hinted_avx2`, the closure takes this function's features.
         // SAFETY: the CPU has AVX2 (this function's contract).
-        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx2(b, t) };
+        let box_test = unsafe { Avx2BoxTest::new() };
         self.closest_hit_vector::<COUNT>(origin, direction, tmax, counters, box_test)
     }
 
@@ -991,9 +989,8 @@ impl Bvh {
         tmax: f32,
         counters: &mut TraversalCounters,
     ) -> Option<Hit> {
-        // As in `hinted_avx2`, the closure takes this function's features.
         // SAFETY: the CPU has AVX-512 F and VL (this function's contract).
-        let box_test = |n: &Node8, b: &BoxRay, t: f32| unsafe { n.intersect_avx512(b, t) };
+        let box_test = unsafe { Avx512BoxTest::new() };
         self.closest_hit_vector::<COUNT>(origin, direction, tmax, counters, box_test)
     }
 
@@ -1007,7 +1004,7 @@ impl Bvh {
         direction: Vec3A,
         tmax: f32,
         counters: &mut TraversalCounters,
-        box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
+        box_test: impl BoxTest,
     ) -> Option<Hit> {
         let r = self.local_ray(origin, direction, tmax);
         if self.stack_is_bounded() {
@@ -1024,7 +1021,7 @@ impl Bvh {
         &self,
         r: &LocalRay,
         counters: &mut TraversalCounters,
-        box_test: impl Fn(&Node8, &BoxRay, f32) -> ([f32; WIDTH], u32),
+        box_test: impl BoxTest,
     ) -> Option<Hit> {
         let (mut nodes, mut tests) = (0u64, 0u64);
         let mut best_t = r.tmax;
@@ -1068,7 +1065,7 @@ impl Bvh {
                     if COUNT {
                         nodes += 1;
                     }
-                    let (t_near, mut mask) = box_test(n, &r.boxes, best_t);
+                    let (t_near, mut mask) = box_test.test(n, &r.boxes, best_t);
                     // Push the hit children farthest first, so the nearest is popped next.
                     let mut hits = [(0u32, 0f32); WIDTH];
                     let mut k = 0;
@@ -1677,7 +1674,7 @@ mod tests {
                 }
                 let mut c = TraversalCounters::default();
                 let mut hint = OccluderHint::NONE;
-                let box_test = Node8::intersect;
+                let box_test = PortableBoxTest;
                 let portable = bvh.hinted_search::<true, Stack<_, STACK>>(
                     o, d, tmax, &mut hint, &mut c, box_test,
                 );

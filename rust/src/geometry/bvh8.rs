@@ -254,6 +254,72 @@ impl Node8 {
     }
 }
 
+/// A form of [`Node8::intersect`] (the forms differ in instructions, not in answers), as a
+/// type whose test is always inlined into the traversal. Traversals took closures before,
+/// and the Python module's build (other code, other inlining choices) left the closure as
+/// a call at every node: a third of the shadow rays' time.
+pub trait BoxTest: Copy {
+    fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32);
+}
+
+/// [`Node8::intersect`].
+#[derive(Clone, Copy, Debug)]
+pub struct PortableBoxTest;
+
+impl BoxTest for PortableBoxTest {
+    #[inline(always)]
+    fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        n.intersect(r, tmax)
+    }
+}
+
+/// [`Node8::intersect_avx2`]; made only on CPUs with AVX2, for code compiled with it.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, Debug)]
+pub struct Avx2BoxTest(());
+
+#[cfg(target_arch = "x86_64")]
+impl Avx2BoxTest {
+    /// # Safety
+    /// The CPU must have AVX2.
+    pub unsafe fn new() -> Self {
+        Self(())
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl BoxTest for Avx2BoxTest {
+    #[inline(always)]
+    fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        // SAFETY: the CPU has AVX2 (the contract of `new`, the only way to make one).
+        unsafe { n.intersect_avx2(r, tmax) }
+    }
+}
+
+/// [`Node8::intersect_avx512`]; made only on CPUs with AVX-512 F and VL, for code compiled
+/// with them.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, Debug)]
+pub struct Avx512BoxTest(());
+
+#[cfg(target_arch = "x86_64")]
+impl Avx512BoxTest {
+    /// # Safety
+    /// The CPU must have AVX-512 F and VL.
+    pub unsafe fn new() -> Self {
+        Self(())
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl BoxTest for Avx512BoxTest {
+    #[inline(always)]
+    fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        // SAFETY: the CPU has AVX-512 F and VL (the contract of `new`).
+        unsafe { n.intersect_avx512(r, tmax) }
+    }
+}
+
 /// An eight-wide BVH: `nodes[0]` is the root; each leaf references one block of four triangle slots,
 /// slots `4 * block .. 4 * block + 4` of `primitive_order` (unused slots repeat the
 /// leaf's first primitive).
