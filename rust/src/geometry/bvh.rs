@@ -29,7 +29,7 @@ use super::bvh8::{
 use super::bvh8::{Avx2BoxTest, Avx512BoxTest};
 use super::mesh::{triangle_cross, Mesh};
 #[cfg(target_arch = "x86_64")]
-use super::watertight::WatertightPacket;
+use super::watertight::{lanes, WatertightPacket};
 use super::watertight::{Triangle4, TriangleHit, WatertightRay};
 use crate::error::{Error, Result};
 
@@ -561,15 +561,12 @@ impl Bvh {
             },
             _ => {}
         }
-        type Spilling = Stack<u32, STACK>;
-        let box_test = PortableBoxTest;
-        self.hinted_search::<COUNT, Spilling>(origin, direction, tmax, hint, counters, box_test)
+        self.hinted_portable::<COUNT>(origin, direction, tmax, hint, counters)
     }
 
-    /// [`Self::occluded_hinted`] with the portable box tests whatever the CPU, for tests of
-    /// the vector forms.
-    #[cfg(test)]
-    pub(crate) fn occluded_hinted_portable<const COUNT: bool>(
+    /// [`Self::occluded_hinted`] with the portable box tests, whatever the CPU (tests hold
+    /// the vector forms to it).
+    pub(crate) fn hinted_portable<const COUNT: bool>(
         &self,
         origin: Vec3A,
         direction: Vec3A,
@@ -863,6 +860,7 @@ impl Bvh {
         let (mut nodes, mut tests) = (0u64, 0u64);
         let mut occluder = None;
         let mut stack = S::new();
+        let lane_tmax = lanes(packet.tmax);
         stack.push((start, *active));
         'trace: while let Some((node, lanes)) = stack.pop() {
             let lanes = lanes & *active;
@@ -909,7 +907,7 @@ impl Bvh {
                                 let l = rest.trailing_zeros() as usize;
                                 rest &= rest - 1;
                                 let r = packet.watertight.lane_ray(l);
-                                if r.intersect4(block, packet.lane_tmax[l]).0 != 0 {
+                                if r.intersect4(block, lane_tmax[l]).0 != 0 {
                                     occluded |= 1 << l;
                                 }
                             }
@@ -1102,20 +1100,10 @@ impl Bvh {
     }
 }
 
-/// The sixteen lanes of a register.
-#[cfg(target_arch = "x86_64")]
-fn lanes(v: std::arch::x86_64::__m512) -> [f32; PACKET] {
-    // SAFETY: a __m512 is sixteen f32s (a copy of bits, no AVX-512 instruction).
-    unsafe { std::mem::transmute::<std::arch::x86_64::__m512, [f32; PACKET]>(v) }
-}
-
 /// A packet of up to [`PACKET`] rays from one origin, prepared for box tests sixteen lanes
 /// at a time (see [`Bvh::occluded_packet`]).
 #[cfg(target_arch = "x86_64")]
 struct Packet {
-    /// Each lane's `tmax` (local frame) as the single-ray traversal prepares it; lanes past
-    /// the packet's rays repeat the last one and are never active.
-    lane_tmax: [f32; PACKET],
     /// The lanes holding rays.
     all: u16,
     origin: [std::arch::x86_64::__m512; 3],
@@ -1211,7 +1199,6 @@ impl Packet {
         let watertight = WatertightPacket::from_lanes(o, [kx_12, ky_12, kz_12], [sx, sy, sz]);
         let negative = inverse.map(|v| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps()));
         Packet {
-            lane_tmax: lanes(tmax),
             all: (u32::MAX >> (32 - count)) as u16,
             origin: [o.x, o.y, o.z].map(|v| _mm512_set1_ps(v)),
             inverse,
@@ -1449,7 +1436,7 @@ mod tests {
             for (l, r) in singles.iter().enumerate() {
                 let ray = packet.watertight.lane_ray(l);
                 assert_eq!(ray.bits(), r.watertight.bits(), "packet {k} lane {l}");
-                assert_eq!(packet.lane_tmax[l].to_bits(), r.tmax.to_bits());
+                assert_eq!(lanes(packet.tmax)[l].to_bits(), r.tmax.to_bits());
                 let (o, inv) = r.boxes.origin_and_inverse();
                 for axis in 0..3 {
                     assert_eq!(inverse[axis][l].to_bits(), inv[axis].to_bits());
@@ -1674,13 +1661,11 @@ mod tests {
                 }
                 let mut c = TraversalCounters::default();
                 let mut hint = OccluderHint::NONE;
-                let box_test = PortableBoxTest;
-                let portable = bvh.hinted_search::<true, Stack<_, STACK>>(
-                    o, d, tmax, &mut hint, &mut c, box_test,
-                );
+                let portable = bvh.hinted_portable::<true>(o, d, tmax, &mut hint, &mut c);
                 let mut ch = TraversalCounters::default();
                 let r = bvh.local_ray(o, d, tmax);
-                let closest = bvh.closest_hit::<true, Stack<_, STACK>>(&r, &mut ch, box_test);
+                let closest =
+                    bvh.closest_hit::<true, Stack<_, STACK>>(&r, &mut ch, PortableBoxTest);
                 let bits = |h: Option<Hit>| {
                     h.map(|h| (h.t.to_bits(), h.triangle, h.u.to_bits(), h.v.to_bits()))
                 };

@@ -184,17 +184,7 @@ impl Node8 {
                     )
                 }
             }
-            let (nx, fx) = slab(self, r, 0);
-            let (ny, fy) = slab(self, r, 1);
-            let (nz, fz) = slab(self, r, 2);
-            let (t_near, mask) = slab_overlap_avx2(
-                [nx, ny, nz],
-                [fx, fy, fz],
-                _mm256_set1_ps(tmax * EXIT_SCALE),
-            );
-            let mut t = [0.0; WIDTH];
-            _mm256_storeu_ps(t.as_mut_ptr(), t_near);
-            (t, mask)
+            entries_and_mask([slab(self, r, 0), slab(self, r, 1), slab(self, r, 2)], tmax)
         }
     }
 
@@ -219,12 +209,12 @@ impl Node8 {
                 unsafe {
                     let o = _mm256_set1_ps(r.origin[axis].x);
                     let inv = _mm256_set1_ps(r.inv[axis].x);
-                    let distance = |row: &[f32; WIDTH]| {
-                        _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(row.as_ptr()), o), inv)
-                    };
+                    // No closure for the two rows: as in `intersect_avx2`.
+                    let low = _mm256_loadu_ps(n.planes[2 * axis].as_ptr());
+                    let high = _mm256_loadu_ps(n.planes[2 * axis + 1].as_ptr());
                     let (low, high) = (
-                        distance(&n.planes[2 * axis]),
-                        distance(&n.planes[2 * axis + 1]),
+                        _mm256_mul_ps(_mm256_sub_ps(low, o), inv),
+                        _mm256_mul_ps(_mm256_sub_ps(high, o), inv),
                     );
                     let negative = r.negative[axis];
                     (
@@ -233,17 +223,7 @@ impl Node8 {
                     )
                 }
             }
-            let (nx, fx) = slab(self, r, 0);
-            let (ny, fy) = slab(self, r, 1);
-            let (nz, fz) = slab(self, r, 2);
-            let (t_near, mask) = slab_overlap_avx2(
-                [nx, ny, nz],
-                [fx, fy, fz],
-                _mm256_set1_ps(tmax * EXIT_SCALE),
-            );
-            let mut t = [0.0; WIDTH];
-            _mm256_storeu_ps(t.as_mut_ptr(), t_near);
-            (t, mask)
+            entries_and_mask([slab(self, r, 0), slab(self, r, 1), slab(self, r, 2)], tmax)
         }
     }
 
@@ -644,6 +624,31 @@ impl<T: Copy, const N: usize> TraversalStack<T> for BoundedStack<T, N> {
         self.len = self.len.checked_sub(1)?;
         // SAFETY: slots below the old `len` were written by `push` (T: Copy).
         Some(unsafe { self.buf[self.len].assume_init() })
+    }
+}
+
+/// The entry distances and hit mask of one ray against eight boxes, from its `(near, far)`
+/// distances per axis (see [`slab_overlap_avx2`]).
+///
+/// # Safety
+/// The CPU must have AVX2, and the caller should be compiled with it.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn entries_and_mask(
+    slabs: [(std::arch::x86_64::__m256, std::arch::x86_64::__m256); 3],
+    tmax: f32,
+) -> ([f32; WIDTH], u32) {
+    use std::arch::x86_64::*;
+    // SAFETY: the CPU has AVX2 (the caller's contract); `t` has room for 8 f32s.
+    unsafe {
+        let (t_near, mask) = slab_overlap_avx2(
+            [slabs[0].0, slabs[1].0, slabs[2].0],
+            [slabs[0].1, slabs[1].1, slabs[2].1],
+            _mm256_set1_ps(tmax * EXIT_SCALE),
+        );
+        let mut t = [0.0; WIDTH];
+        _mm256_storeu_ps(t.as_mut_ptr(), t_near);
+        (t, mask)
     }
 }
 

@@ -136,11 +136,10 @@ fn occluded_chunk_with<const COUNT: bool>(
         }
         let o = Vec3A::from(origins[k]);
         let direction = |l: usize| Vec3A::from(rays.directions[i + l]);
-        let directions: [Vec3A; PACKET];
-        if run >= MIN_PACKET && {
-            directions = std::array::from_fn(|l| direction(l.min(run - 1)));
-            coherent(&directions[..run])
-        } {
+        let packet = (run >= MIN_PACKET)
+            .then(|| std::array::from_fn::<_, PACKET, _>(|l| direction(l.min(run - 1))))
+            .filter(|directions| coherent(&directions[..run]));
+        if let Some(directions) = packet {
             let tmax: [f32; PACKET] = std::array::from_fn(|l| rays.tmax_of(i + l.min(run - 1)));
             let occluded = bvh.occluded_packet::<COUNT>(
                 o,
@@ -215,21 +214,22 @@ impl<'a> RayBatch<'a> {
     /// Costs a few percent of tracing the batch: fixed chunks are scanned in parallel with
     /// a branch-free test and only a failing chunk is searched for its first bad row.
     pub fn validate(&self) -> Result<()> {
-        self.validate_lengths()?;
-        let bad = [
-            first_where(self.origins, bad_origin),
-            first_where(self.directions, bad_direction),
-            match self.tmax {
-                TMax::PerRay(t) => first_where(t, |v| bad_tmax(*v)),
+        self.validate_shape()?;
+        let first = first_where(self.origins, bad_origin)
+            .map(|i| (BadArgument::Origins, i))
+            .or_else(|| {
+                first_where(self.directions, bad_direction).map(|i| (BadArgument::Directions, i))
+            })
+            .or_else(|| match self.tmax {
+                TMax::PerRay(t) => first_where(t, |v| bad_tmax(*v)).map(|i| (BadArgument::Tmax, i)),
                 TMax::Scalar(_) => None,
-            },
-        ];
-        self.first_error(bad)
+            });
+        first.map_or(Ok(()), |bad| Err(self.error_at(bad)))
     }
 
     /// The checks of [`Self::validate`] that do not read the rays: as many directions and
-    /// `tmax` values (when not one for all) as origins.
-    pub fn validate_lengths(&self) -> Result<()> {
+    /// `tmax` values (when not one for all) as origins, and a valid scalar `tmax`.
+    pub fn validate_shape(&self) -> Result<()> {
         let n = self.origins.len();
         if self.directions.len() != n {
             return Err(Error::invalid(
@@ -238,6 +238,9 @@ impl<'a> RayBatch<'a> {
             ));
         }
         match self.tmax {
+            TMax::Scalar(t) if bad_tmax(t) => {
+                Err(Error::invalid("tmax", format!("must be >= 0, got {t}")))
+            }
             TMax::PerRay(t) if t.len() != n => Err(Error::invalid(
                 "tmax",
                 format!("has {} values but there are {n} rays", t.len()),
@@ -246,63 +249,56 @@ impl<'a> RayBatch<'a> {
         }
     }
 
-    /// The first bad origin, direction and `tmax` value among rays `range` (batches whose
-    /// lengths [`Self::validate_lengths`] accepted): one branch-free pass, and a search only
-    /// where it fails.
+    /// The first bad row among rays `range` (of a batch whose shape
+    /// [`Self::validate_shape`] accepted), as [`Self::validate`] orders them: origins, then
+    /// directions, then `tmax`. The least over ranges is the batch's first.
     #[inline]
-    pub fn first_bad(&self, range: std::ops::Range<usize>) -> [Option<usize>; 3] {
-        let first = |len: usize, bad: &dyn Fn(usize) -> bool| {
-            let any = (0..len).fold(false, |acc, i| acc | bad(i));
-            any.then(|| (0..len).position(bad).map(|i| range.start + i))
-                .flatten()
-        };
-        let origins = &self.origins[range.clone()];
-        let directions = &self.directions[range.clone()];
-        [
-            first(origins.len(), &|i| bad_origin(&origins[i])),
-            first(directions.len(), &|i| bad_direction(&directions[i])),
-            match self.tmax {
+    pub fn first_bad(&self, range: std::ops::Range<usize>) -> Option<(BadArgument, usize)> {
+        let at = |argument| move |i| (argument, range.start + i);
+        first_in(&self.origins[range.clone()], bad_origin)
+            .map(at(BadArgument::Origins))
+            .or_else(|| {
+                first_in(&self.directions[range.clone()], bad_direction)
+                    .map(at(BadArgument::Directions))
+            })
+            .or_else(|| match self.tmax {
                 TMax::PerRay(t) => {
-                    let t = &t[range.clone()];
-                    first(t.len(), &|i| bad_tmax(t[i]))
+                    first_in(&t[range.clone()], |v| bad_tmax(*v)).map(at(BadArgument::Tmax))
                 }
                 TMax::Scalar(_) => None,
-            },
-        ]
+            })
     }
 
-    /// The error [`Self::validate`] reports for the first bad origin, direction and `tmax`
-    /// value (in that order of precedence, a bad scalar `tmax` before per-ray values),
-    /// if any.
-    pub fn first_error(&self, bad: [Option<usize>; 3]) -> Result<()> {
-        if let Some(i) = bad[0] {
-            return Err(Error::invalid(
+    /// The error for a bad row.
+    pub fn error_at(&self, (argument, i): (BadArgument, usize)) -> Error {
+        match (argument, self.tmax) {
+            (BadArgument::Origins, _) => Error::invalid(
                 "origins",
                 format!("row {i} is not finite: {:?}", self.origins[i]),
-            ));
-        }
-        if let Some(i) = bad[1] {
-            return Err(Error::invalid(
+            ),
+            (BadArgument::Directions, _) => Error::invalid(
                 "directions",
                 format!(
                     "row {i} must be finite and non-zero, got {:?}",
                     self.directions[i]
                 ),
-            ));
-        }
-        if let TMax::Scalar(t) = self.tmax {
-            if bad_tmax(t) {
-                return Err(Error::invalid("tmax", format!("must be >= 0, got {t}")));
+            ),
+            (BadArgument::Tmax, TMax::PerRay(t)) => {
+                Error::invalid("tmax", format!("value {i} must be >= 0, got {}", t[i]))
+            }
+            (BadArgument::Tmax, TMax::Scalar(t)) => {
+                Error::invalid("tmax", format!("must be >= 0, got {t}"))
             }
         }
-        if let (Some(i), TMax::PerRay(t)) = (bad[2], self.tmax) {
-            return Err(Error::invalid(
-                "tmax",
-                format!("value {i} must be >= 0, got {}", t[i]),
-            ));
-        }
-        Ok(())
     }
+}
+
+/// The argument of a [`RayBatch`] that holds a bad row, in the order errors are reported.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum BadArgument {
+    Origins,
+    Directions,
+    Tmax,
 }
 
 /// An origin with a non-finite coordinate (branch-free).
@@ -323,14 +319,25 @@ fn bad_tmax(t: f32) -> bool {
     t.is_nan() | (t < 0.0)
 }
 
-/// Index of the first item for which `bad` holds, scanning fixed chunks in parallel.
+/// Index of the first item for which `bad` holds: a branch-free pass, and a search only
+/// when it finds one.
+#[inline]
+fn first_in<T>(items: &[T], bad: impl Fn(&T) -> bool) -> Option<usize> {
+    let any = items.iter().fold(false, |acc, x| acc | bad(x));
+    if any {
+        items.iter().position(bad)
+    } else {
+        None
+    }
+}
+
+/// [`first_in`] over fixed chunks scanned in parallel.
 fn first_where<T: Sync>(items: &[T], bad: impl Fn(&T) -> bool + Sync) -> Option<usize> {
     const SCAN: usize = 16 * 1024;
-    let chunk = items
+    items
         .par_chunks(SCAN)
-        .position_first(|c| c.iter().fold(false, |acc, x| acc | bad(x)))?;
-    let start = chunk * SCAN;
-    items[start..].iter().position(&bad).map(|i| start + i)
+        .enumerate()
+        .find_map_first(|(c, chunk)| first_in(chunk, &bad).map(|i| c * SCAN + i))
 }
 
 /// Closest hits of a batch, one entry per ray. Misses have `t = inf`, `prim = obj = -1`,
@@ -654,17 +661,47 @@ impl Scene {
         threads: Option<usize>,
         per_chunk: impl Fn(usize, &mut [T], &mut TraversalCounters) + Sync,
     ) -> Result<Vec<T>> {
+        let all = |base, out: &mut [T], c: &mut _| -> std::result::Result<(), ()> {
+            per_chunk(base, out, c);
+            Ok(())
+        };
+        Ok(self.try_map_chunks(n, threads, all)?.unwrap_or_default())
+    }
+
+    /// [`Self::map_chunks`] whose chunks may refuse their rays: `per_chunk` returns the
+    /// reason, and the least reason over the refusing chunks (whichever threads ran them)
+    /// is returned instead of the results. Counters are added only when no chunk refused.
+    fn try_map_chunks<T: Send + Copy + Default, E: Ord + Send>(
+        &self,
+        n: usize,
+        threads: Option<usize>,
+        per_chunk: impl Fn(usize, &mut [T], &mut TraversalCounters) -> std::result::Result<(), E> + Sync,
+    ) -> Result<std::result::Result<Vec<T>, E>> {
         with_threads(threads, || {
             self.bvh();
             let mut out = vec![T::default(); n];
-            out.par_chunks_mut(CHUNK)
+            let (counters, refused) = out
+                .par_chunks_mut(CHUNK)
                 .enumerate()
-                .for_each(|(c, chunk)| {
+                .map(|(c, chunk)| {
                     let mut counters = TraversalCounters::default();
-                    per_chunk(c * CHUNK, chunk, &mut counters);
+                    let refused = per_chunk(c * CHUNK, chunk, &mut counters).err();
+                    (counters, refused)
+                })
+                .reduce(
+                    || (TraversalCounters::default(), None),
+                    |(mut a, ra), (b, rb)| {
+                        a += b;
+                        (a, ra.into_iter().chain(rb).min())
+                    },
+                );
+            match refused {
+                Some(reason) => Err(reason),
+                None => {
                     self.add_counters(counters);
-                });
-            out
+                    Ok(out)
+                }
+            }
         })
     }
 
@@ -680,7 +717,7 @@ impl Scene {
     /// depends only on the rays, so answers and counters are the same for any thread
     /// count; the sample that decides is not counted.
     pub fn occluded(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
-        rays.validate_lengths()?;
+        rays.validate_shape()?;
         if self.may_reorder(rays) {
             rays.validate()?;
             if let Some(order) = with_threads(threads, || self.spatial_order(rays))? {
@@ -696,38 +733,19 @@ impl Scene {
     /// counters are added only when every ray is valid.
     fn occluded_as_given(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
         let counting = self.counting_enabled();
-        let bad = std::sync::Mutex::new([None::<usize>; 3]);
-        let total = std::sync::Mutex::new(TraversalCounters::default());
-        let out = with_threads(threads, || {
-            self.bvh();
-            let mut out = vec![false; rays.len()];
-            out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, out)| {
-                let base = c * CHUNK;
-                let found = rays.first_bad(base..base + out.len());
-                if found.iter().any(Option::is_some) {
-                    let mut bad = bad.lock().unwrap_or_else(|e| e.into_inner());
-                    for (b, f) in bad.iter_mut().zip(found) {
-                        *b = match (*b, f) {
-                            (Some(x), Some(y)) => Some(x.min(y)),
-                            (x, y) => x.or(y),
-                        };
-                    }
-                    return;
-                }
-                let mut counters = TraversalCounters::default();
-                let bvh = self.bvh();
-                if counting {
-                    occluded_chunk::<true>(bvh, rays, base, out, &mut counters);
-                    *total.lock().unwrap_or_else(|e| e.into_inner()) += counters;
-                } else {
-                    occluded_chunk::<false>(bvh, rays, base, out, &mut counters);
-                }
-            });
-            out
-        })?;
-        rays.first_error(bad.into_inner().unwrap_or_else(|e| e.into_inner()))?;
-        self.add_counters(total.into_inner().unwrap_or_else(|e| e.into_inner()));
-        Ok(out)
+        self.try_map_chunks(rays.len(), threads, |base, out, counters| {
+            if let Some(bad) = rays.first_bad(base..base + out.len()) {
+                return Err(bad);
+            }
+            let bvh = self.bvh();
+            if counting {
+                occluded_chunk::<true>(bvh, rays, base, out, counters);
+            } else {
+                occluded_chunk::<false>(bvh, rays, base, out, counters);
+            }
+            Ok(())
+        })?
+        .map_err(|bad| rays.error_at(bad))
     }
 
     /// Whether [`Self::spatial_order`] may reorder `rays`: a large batch in a tree larger
@@ -1333,9 +1351,8 @@ mod tests {
             (out, c)
         };
         let portable = chunk(&|out, c| {
-            let trace = |o, d, t, hint: &mut _, c: &mut _| {
-                bvh.occluded_hinted_portable::<true>(o, d, t, hint, c)
-            };
+            let trace =
+                |o, d, t, hint: &mut _, c: &mut _| bvh.hinted_portable::<true>(o, d, t, hint, c);
             occluded_chunk_with::<true>(bvh, &rays, 0, out, c, trace)
         });
         assert_eq!(portable.0, one);

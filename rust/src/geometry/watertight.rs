@@ -235,6 +235,14 @@ impl WatertightRay {
     }
 }
 
+/// The sixteen lanes of a register.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub fn lanes(v: std::arch::x86_64::__m512) -> [f32; 16] {
+    // SAFETY: a __m512 is sixteen f32s (a copy of bits, no AVX-512 instruction).
+    unsafe { std::mem::transmute::<std::arch::x86_64::__m512, [f32; 16]>(v) }
+}
+
 /// Up to sixteen rays from one origin, for the watertight test run over the rays: one
 /// triangle against every lane at once (AVX-512), each lane with its own axis permutation
 /// and shear. Every lane computes what [`WatertightRay::intersect4`] computes for its ray,
@@ -298,22 +306,14 @@ impl WatertightPacket {
         let axis = |is: [std::arch::x86_64::__mmask16; 2]| {
             (is[0] >> l & 1) as usize + 2 * (is[1] >> l & 1) as usize
         };
-        // SAFETY: a __m512 is sixteen f32s (a copy of bits, no AVX-512 instruction).
-        let lane = |v: std::arch::x86_64::__m512| unsafe {
-            std::mem::transmute::<std::arch::x86_64::__m512, [f32; 16]>(v)[l & 15]
-        };
+        let lane = |v| lanes(v)[l & 15];
         WatertightRay::from_parts(self.origin, self.axis_is.map(axis), self.shear.map(lane))
     }
 
     /// The axis masks and the shear's bits, for tests that hold two ways of making a packet
     /// to each other.
     pub fn bits(&self) -> ([[u16; 2]; 3], [[u32; 16]; 3]) {
-        // SAFETY: a __m512 is sixteen f32s (a copy of bits, no AVX-512 instruction).
-        let shear = self.shear.map(|v| {
-            unsafe { std::mem::transmute::<std::arch::x86_64::__m512, [f32; 16]>(v) }
-                .map(f32::to_bits)
-        });
-        (self.axis_is, shear)
+        (self.axis_is, self.shear.map(|v| lanes(v).map(f32::to_bits)))
     }
 
     /// The lanes of `lanes` whose ray hits triangle `t` (lane `t` of `tri`) within
