@@ -27,6 +27,7 @@ use super::bvh8::{
 };
 #[cfg(target_arch = "x86_64")]
 use super::bvh8::{Avx2BoxTest, Avx512BoxTest};
+use super::huge_pages::advise_huge_pages;
 use super::mesh::{triangle_cross, Mesh};
 #[cfg(target_arch = "x86_64")]
 use super::watertight::{lanes, WatertightPacket};
@@ -380,7 +381,7 @@ impl Bvh {
             })
             .reduce(join_bvh2)
             .map_or_else(Bvh8::default, |bvh2| Bvh8::from_bvh2(&bvh2));
-        let blocks = tree
+        let blocks: Vec<Triangle4> = tree
             .primitive_order
             .as_chunks::<4>()
             .0
@@ -393,6 +394,9 @@ impl Bvh {
                 Triangle4::pack(&tris)
             })
             .collect();
+        // The arrays the traversals read at random.
+        advise_huge_pages(&blocks);
+        advise_huge_pages(&tree.nodes);
         let triangle_ids = tree
             .primitive_order
             .iter()

@@ -3,6 +3,7 @@
 pub mod binned_sah;
 pub mod bvh;
 pub mod bvh8;
+pub mod huge_pages;
 pub mod mesh;
 pub mod obj;
 pub mod scene;
