@@ -22,8 +22,8 @@ use super::binned_sah::{self, BinnedSahParams};
 #[cfg(target_arch = "x86_64")]
 use super::bvh8::slab_overlap_avx2;
 use super::bvh8::{
-    decode, BoundedStack, BoxRay, BoxTest, Bvh8, Child, Node8, Parents, PortableBoxTest, Stack,
-    TraversalStack, EXIT_SCALE, WIDTH,
+    decode, prefetch_lines, BoundedStack, BoxRay, BoxTest, Bvh8, Child, Node8, Parents,
+    PortableBoxTest, Stack, TraversalStack, EXIT_SCALE, WIDTH,
 };
 #[cfg(target_arch = "x86_64")]
 use super::bvh8::{Avx2BoxTest, Avx512BoxTest};
@@ -175,22 +175,6 @@ pub struct Hit {
 pub struct OccluderHint {
     /// The BVH4 node with the occluding leaf among its children ([`NO_NODE`] for none).
     node: u32,
-}
-
-/// Asks for the cache lines of `value` without waiting for them.
-#[inline(always)]
-fn prefetch_lines<T>(value: &T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: prefetching is a hint and never faults, whatever the address.
-    unsafe {
-        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        // Every line the value touches, also when it starts mid-line.
-        let at = (value as *const T).cast::<i8>();
-        let skew = at as usize % 64;
-        for line in (0..skew + std::mem::size_of::<T>()).step_by(64) {
-            _mm_prefetch::<_MM_HINT_T0>(at.wrapping_add(line).wrapping_sub(skew));
-        }
-    }
 }
 
 /// A node index that no tree has.
@@ -701,7 +685,7 @@ impl Bvh {
     #[inline(always)]
     fn prefetch_block(&self, first: u32) {
         if self.tree.outgrows_l2() {
-            prefetch_lines(&self.blocks[first as usize]);
+            prefetch_lines(self.blocks.as_ptr().wrapping_add(first as usize));
         }
     }
 

@@ -46,6 +46,22 @@ pub struct Node8 {
     children: [u32; WIDTH],
 }
 
+/// Asks for every cache line of the `T` at `at` (also when it starts mid-line) without
+/// waiting for them. Any address will do: a prefetch never faults.
+#[inline(always)]
+pub fn prefetch_lines<T>(at: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: prefetching is a hint and never faults, whatever the address.
+    unsafe {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let at = at.cast::<i8>();
+        let skew = at as usize % 64;
+        for line in (0..skew + std::mem::size_of::<T>()).step_by(64) {
+            _mm_prefetch::<_MM_HINT_T0>(at.wrapping_add(line).wrapping_sub(skew));
+        }
+    }
+}
+
 /// What a child reference points to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Child {
@@ -329,17 +345,8 @@ impl Bvh8 {
     /// Small trees stay cached, and there the request would be pure overhead.
     #[inline(always)]
     pub fn prefetch(&self, i: u32) {
-        if !self.outgrows_l2() {
-            return;
-        }
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: prefetching is a hint and never faults, whatever the address.
-        unsafe {
-            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-            let at = self.nodes.as_ptr().wrapping_add(i as usize).cast::<i8>();
-            for line in (0..std::mem::size_of::<Node8>()).step_by(64) {
-                _mm_prefetch::<_MM_HINT_T0>(at.wrapping_add(line));
-            }
+        if self.outgrows_l2() {
+            prefetch_lines(self.nodes.as_ptr().wrapping_add(i as usize));
         }
     }
 
