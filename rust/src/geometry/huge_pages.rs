@@ -34,6 +34,8 @@ pub fn advise_huge_pages<T>(items: &[T]) {
             }
         }
     }
+    #[cfg(not(target_os = "linux"))]
+    let _ = items;
 }
 
 #[cfg(test)]
