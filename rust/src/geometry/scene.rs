@@ -54,6 +54,40 @@ fn coherent(directions: &[Vec3A]) -> bool {
         })
 }
 
+/// How [`Scene::occluded`] traces a batch (see [`Scene::spatial_order`]).
+#[derive(Debug, PartialEq)]
+enum TraceOrder {
+    /// In the order given.
+    Given,
+    /// Ray after ray in this order (a permutation of the batch).
+    Rays(Vec<u32>),
+    /// Run after run of rays from one origin (ranges of the batch), in this order.
+    Runs(Vec<std::ops::Range<u32>>),
+}
+
+/// The runs of consecutive rays from one origin (compared bit for bit) in the order of
+/// `key` of their origins (ties in the given order); None when the runs are in that order
+/// already.
+fn bundle_order(
+    origins: &[[f32; 3]],
+    key: impl Fn(&[f32; 3]) -> u64,
+) -> Option<Vec<std::ops::Range<u32>>> {
+    let bits = |o: &[f32; 3]| o.map(f32::to_bits);
+    let mut runs: Vec<(u64, u32, u32)> = Vec::new();
+    let mut start = 0;
+    for i in 1..=origins.len() {
+        if i == origins.len() || bits(&origins[i]) != bits(&origins[start]) {
+            runs.push((key(&origins[start]), start as u32, i as u32));
+            start = i;
+        }
+    }
+    if runs.is_sorted() {
+        return None;
+    }
+    runs.sort_unstable();
+    Some(runs.into_iter().map(|(_, s, e)| s..e).collect())
+}
+
 /// [`Scene::occluded`] on rays `base..base + out.len()`.
 fn occluded_chunk<const COUNT: bool>(
     bvh: &Bvh,
@@ -720,8 +754,10 @@ impl Scene {
         rays.validate_shape()?;
         if self.may_reorder(rays) {
             rays.validate()?;
-            if let Some(order) = with_threads(threads, || self.spatial_order(rays))? {
-                return self.occluded_in_order(rays, &order, threads);
+            match with_threads(threads, || self.spatial_order(rays))? {
+                TraceOrder::Rays(order) => return self.occluded_in_order(rays, &order, threads),
+                TraceOrder::Runs(runs) => return self.occluded_by_runs(rays, &runs, threads),
+                TraceOrder::Given => {}
             }
         }
         self.occluded_as_given(rays, threads)
@@ -756,55 +792,124 @@ impl Scene {
 
     /// An order of the rays (valid ones) in which consecutive ones start near each other
     /// (Morton order of their origins; ties in the given order), for large trees and large
-    /// batches of scattered rays; None where tracing in the given order is as good.
-    fn spatial_order(&self, rays: &RayBatch) -> Option<Vec<u32>> {
+    /// batches whose rays visit many nodes; [`TraceOrder::Given`] where tracing in the
+    /// given order is as good. Runs of rays from one origin (record bundles) are coherent
+    /// already and stay whole: the runs are ordered by their origins instead, so that
+    /// consecutive bundles start near each other and share the nodes and blades they read;
+    /// runs already in that order are left as given.
+    fn spatial_order(&self, rays: &RayBatch) -> TraceOrder {
         let n = rays.len();
         let bvh = self.bvh();
         if !self.may_reorder(rays) {
-            return None;
+            return TraceOrder::Given;
         }
-        // Runs of rays from one origin (record bundles) are coherent already.
         let repeated = rays
             .origins
             .windows(2)
             .step_by(61)
             .filter(|w| w[0] == w[1])
             .count();
-        if repeated * 2 > n.div_ceil(61) {
-            return None;
-        }
+        let bundles = repeated * 2 > n.div_ceil(61);
         // Rays that leave the tree after a node or two (a small object under an open sky)
         // gain nothing: trace a sample of every 256th ray and reorder only when rays visit
         // many nodes, as they do in dense geometry that waits on memory.
-        let mut sample = TraversalCounters::default();
-        for i in (0..n).step_by(256) {
-            bvh.occluded::<true>(
-                Vec3A::from(rays.origins[i]),
-                Vec3A::from(rays.directions[i]),
-                rays.tmax_of(i),
-                &mut sample,
-            );
-        }
+        let sample = (0..n)
+            .into_par_iter()
+            .step_by(256)
+            .map(|i| {
+                let mut c = TraversalCounters::default();
+                bvh.occluded::<true>(
+                    Vec3A::from(rays.origins[i]),
+                    Vec3A::from(rays.directions[i]),
+                    rays.tmax_of(i),
+                    &mut c,
+                );
+                c
+            })
+            .reduce(TraversalCounters::default, |mut a, b| {
+                a += b;
+                a
+            });
         if (sample.nodes as f64) < SPATIAL_ORDER_NODES * sample.rays as f64 {
-            return None;
+            return TraceOrder::Given;
         }
         let b = self.bounds();
-        let scale = Vec3::splat((1 << 21) as f32 - 1.0) / (b.max - b.min).max(Vec3::splat(1e-30));
+        let top = (1 << 21) as f32 - 1.0;
+        let scale = Vec3::splat(top) / (b.max - b.min).max(Vec3::splat(1e-30));
+        let key = |o: &[f32; 3]| {
+            let q = ((Vec3::from(*o) - b.min) * scale).clamp(Vec3::ZERO, Vec3::splat(top));
+            morton_encode_u64(q.x as u32, q.y as u32, q.z as u32)
+        };
+        if bundles {
+            return bundle_order(rays.origins, key).map_or(TraceOrder::Given, TraceOrder::Runs);
+        }
         let mut keyed: Vec<(u64, u32)> = rays
             .origins
             .par_iter()
             .enumerate()
-            .map(|(i, o)| {
-                let q = ((Vec3::from(*o) - b.min) * scale)
-                    .clamp(Vec3::ZERO, Vec3::splat((1 << 21) as f32 - 1.0));
-                (
-                    morton_encode_u64(q.x as u32, q.y as u32, q.z as u32),
-                    i as u32,
-                )
-            })
+            .map(|(i, o)| (key(o), i as u32))
             .collect();
         keyed.par_sort_unstable();
-        Some(keyed.into_iter().map(|(_, i)| i).collect())
+        TraceOrder::Rays(keyed.into_iter().map(|(_, i)| i).collect())
+    }
+
+    /// [`Scene::occluded`] on valid rays traced run after run in the order of `runs`
+    /// (ranges of the batch that together cover it once) and answered in the given order.
+    /// The runs are read where they lie, not copied into a reordered batch (the copy cost
+    /// as much as the order gained on garden's bundles). Work items are consecutive runs
+    /// of at least [`CHUNK`] rays together, fixed by the runs alone, so answers and
+    /// counters are the same for any thread count.
+    fn occluded_by_runs(
+        &self,
+        rays: &RayBatch,
+        runs: &[std::ops::Range<u32>],
+        threads: Option<usize>,
+    ) -> Result<Vec<bool>> {
+        let mut items = Vec::new();
+        let (mut first, mut size) = (0, 0);
+        for (k, run) in runs.iter().enumerate() {
+            size += run.len();
+            if size >= CHUNK || k + 1 == runs.len() {
+                items.push(first..k + 1);
+                (first, size) = (k + 1, 0);
+            }
+        }
+        let counting = self.counting_enabled();
+        let bvh = self.bvh();
+        with_threads(threads, || {
+            let traced: Vec<(Vec<bool>, TraversalCounters)> = items
+                .par_iter()
+                .map(|item| {
+                    let runs = &runs[item.clone()];
+                    let mut out = vec![false; runs.iter().map(|r| r.len()).sum()];
+                    let mut counters = TraversalCounters::default();
+                    let mut k = 0;
+                    for run in runs {
+                        let (base, slots) = (run.start as usize, &mut out[k..k + run.len()]);
+                        if counting {
+                            occluded_chunk::<true>(bvh, rays, base, slots, &mut counters);
+                        } else {
+                            occluded_chunk::<false>(bvh, rays, base, slots, &mut counters);
+                        }
+                        k += run.len();
+                    }
+                    (out, counters)
+                })
+                .collect();
+            let mut out = vec![false; rays.len()];
+            let mut counters = TraversalCounters::default();
+            for (item, (answers, c)) in items.into_iter().zip(traced) {
+                counters += c;
+                let mut k = 0;
+                for run in &runs[item] {
+                    let r = run.start as usize..run.end as usize;
+                    out[r].copy_from_slice(&answers[k..k + run.len()]);
+                    k += run.len();
+                }
+            }
+            self.add_counters(counters);
+            out
+        })
     }
 
     /// [`Scene::occluded`] traced in `order` (a permutation of the rays), answered in the
@@ -1201,9 +1306,10 @@ mod tests {
     }
 
     /// Large batches of scattered rays in a tree larger than L2 are traced in the Morton
-    /// order of their origins; they answer as each ray traced alone, with counters that
-    /// count the batch's rays, the same on one and two threads. Batches that take that path
-    /// and batches that do not (too few rays, record bundles) are both covered.
+    /// order of their origins, and record bundles in the Morton order of their points;
+    /// they answer as each ray traced alone, with counters that count the batch's rays,
+    /// the same on one and two threads. Batches that take that path and batches that do
+    /// not (too few rays, bundles already in order) are both covered.
     #[test]
     fn reordered_batches_answer_as_single_rays() {
         let scene = crate::scenes::load("garden", 0.25, 3).unwrap().scene;
@@ -1214,13 +1320,28 @@ mod tests {
         let (o, d) = crate::testing::ground_hemisphere_rays(&scene, SPATIAL_ORDER_MIN + 77, 5);
         let rays = RayBatch::new(&o, &d);
         assert!(
-            scene.spatial_order(&rays).is_some(),
+            matches!(scene.spatial_order(&rays), TraceOrder::Rays(_)),
             "this batch must be reordered"
         );
         let (bo, bd) = crate::testing::record_bundle_rays(&scene, 70, 32, 5);
-        assert!(scene.spatial_order(&RayBatch::new(&bo, &bd)).is_none());
+        let bundles = RayBatch::new(&bo, &bd);
+        let TraceOrder::Runs(order) = scene.spatial_order(&bundles) else {
+            panic!("scattered bundles are reordered")
+        };
+        // Each bundle is traced whole, from its first ray to its last.
+        assert_eq!(order.len(), 70);
+        assert!(order.iter().all(|r| r.start % 1024 == 0 && r.len() == 1024));
+        let sorted: Vec<u32> = order.iter().map(|r| r.start / 1024).collect();
+        let (so, sd): (Vec<_>, Vec<_>) = sorted
+            .iter()
+            .flat_map(|&k| (k as usize * 1024..(k as usize + 1) * 1024).map(|i| (bo[i], bd[i])))
+            .unzip();
+        assert!(
+            scene.spatial_order(&RayBatch::new(&so, &sd)) == TraceOrder::Given,
+            "bundles in order stay as given"
+        );
         let few = RayBatch::new(&o[..1000], &d[..1000]);
-        assert!(scene.spatial_order(&few).is_none());
+        assert_eq!(scene.spatial_order(&few), TraceOrder::Given);
         let tmax: Vec<f32> = (0..o.len())
             .map(|i| [f32::INFINITY, 0.05, 0.3][i % 3])
             .collect();
@@ -1228,7 +1349,14 @@ mod tests {
             tmax: TMax::PerRay(&tmax),
             ..rays
         };
-        for batch in [rays, limited] {
+        let bundle_tmax: Vec<f32> = (0..bo.len())
+            .map(|i| [f32::INFINITY, 0.05, 0.3][i % 3])
+            .collect();
+        let limited_bundles = RayBatch {
+            tmax: TMax::PerRay(&bundle_tmax),
+            ..bundles
+        };
+        for batch in [rays, limited, bundles, limited_bundles] {
             let alone: Vec<bool> = (0..batch.len())
                 .map(|i| {
                     let mut c = TraversalCounters::default();
@@ -1253,6 +1381,30 @@ mod tests {
             assert!(alone.iter().any(|&a| a) && alone.iter().any(|&a| !a));
         }
         scene.set_counting(false);
+    }
+
+    /// Runs of rays from one origin stay whole and go in the order of their origins' keys
+    /// (ties in the given order); runs in that order already, or a single run, stay put.
+    #[test]
+    fn bundle_order_keeps_runs_whole() {
+        let o = |x: f32| [x, 0.0, 0.0];
+        // Runs: 3 at x=2, 1 at x=0, 2 at x=1, 2 at x=0 (a second run from that point).
+        let origins = [o(2.), o(2.), o(2.), o(0.), o(1.), o(1.), o(0.), o(0.)];
+        let key = |p: &[f32; 3]| p[0] as u64;
+        assert_eq!(
+            bundle_order(&origins, key),
+            Some(vec![3..4, 6..8, 4..6, 0..3])
+        );
+        let in_order = [o(0.), o(0.), o(1.), o(2.), o(2.)];
+        assert_eq!(bundle_order(&in_order, key), None);
+        assert_eq!(bundle_order(&[o(5.); 4], key), None);
+        assert_eq!(bundle_order(&[], key), None);
+        // -0.0 and 0.0 start different runs (origins are compared bit for bit).
+        let signed = [o(1.), [-0.0, 0.0, 0.0], o(0.)];
+        assert_eq!(
+            bundle_order(&signed, |p| p[0].abs() as u64),
+            Some(vec![1..2, 2..3, 0..1])
+        );
     }
 
     /// Bundles from one origin in pattern order (where the occluder hint is used) answer as
