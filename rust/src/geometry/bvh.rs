@@ -22,8 +22,8 @@ use super::binned_sah::{self, BinnedSahParams};
 #[cfg(target_arch = "x86_64")]
 use super::bvh8::slab_overlap_avx2;
 use super::bvh8::{
-    decode, prefetch_lines, BoundedStack, BoxRay, BoxTest, Bvh8, Child, Node8, Parents,
-    PortableBoxTest, Stack, TraversalStack, EXIT_SCALE, WIDTH,
+    decode, is_leaf, leaf_block, prefetch_lines, BoundedStack, BoxRay, BoxTest, Bvh8, Child, Node8,
+    Parents, PortableBoxTest, Stack, TraversalStack, EXIT_SCALE, WIDTH,
 };
 #[cfg(target_arch = "x86_64")]
 use super::bvh8::{Avx2BoxTest, Avx512BoxTest};
@@ -894,6 +894,8 @@ impl Bvh {
         let mut occluder = None;
         let mut stack = S::new();
         let lane_tmax = lanes(packet.tmax);
+        let (node_array, blocks) = (self.tree.nodes.as_ptr(), self.blocks.as_ptr());
+        let large = self.tree.outgrows_l2();
         stack.push((start, *active, NO_NODE));
         'trace: while let Some((entry, lanes, holder)) = stack.pop() {
             let lanes = lanes & *active;
@@ -942,26 +944,27 @@ impl Bvh {
             }
             let relative = packet.relative_planes(n);
             let mut touched = packet.children_touched(&relative);
+            // Without branches on whether a child is hit or is a leaf: neither can be
+            // predicted. A child not kept asks for its node's own (cached) first lines.
             while touched != 0 {
                 let j = touched.trailing_zeros() as usize;
                 touched &= touched - 1;
-                let child = decode(n.child(j));
+                let r = n.child(j);
                 let hit = packet.box_hits(&relative, j, lanes);
-                if hit == 0 {
-                    continue;
+                let leaf = is_leaf(r);
+                let keep = hit != 0 && r != skip;
+                if large {
+                    let block = blocks.wrapping_add(leaf_block(r) as usize).cast::<u8>();
+                    let child = node_array.wrapping_add(r as usize).cast::<u8>();
+                    let at = if leaf { block } else { child };
+                    let at = if keep {
+                        at
+                    } else {
+                        (n as *const Node8).cast::<u8>()
+                    };
+                    prefetch_lines(at.wrapping_sub(at as usize % 64).cast::<[u8; 256]>());
                 }
-                match child {
-                    Child::Node(c) => {
-                        if c != skip {
-                            self.tree.prefetch(c);
-                            stack.push((c, hit, NO_NODE));
-                        }
-                    }
-                    Child::Leaf { first, .. } => {
-                        self.prefetch_block(first);
-                        stack.push((n.child(j), hit, node));
-                    }
-                }
+                stack.push_if((r, hit, if leaf { node } else { NO_NODE }), keep);
             }
         }
         if COUNT {

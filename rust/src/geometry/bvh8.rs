@@ -69,6 +69,18 @@ pub enum Child {
     Leaf { first: u32, count: u32 },
 }
 
+/// Whether reference `r` is a leaf (with [`leaf_block`], [`decode`] without its branch).
+#[inline(always)]
+pub fn is_leaf(r: u32) -> bool {
+    r & LEAF != 0
+}
+
+/// The triangle block of leaf reference `r`.
+#[inline(always)]
+pub fn leaf_block(r: u32) -> u32 {
+    r & ((1 << LEAF_COUNT_SHIFT) - 1)
+}
+
 #[inline(always)]
 pub fn decode(r: u32) -> Child {
     if r & LEAF != 0 {
@@ -598,6 +610,13 @@ pub trait TraversalStack<T: Copy> {
     fn new() -> Self;
     fn push(&mut self, v: T);
     fn pop(&mut self) -> Option<T>;
+    /// Pushes `v` when `keep`.
+    #[inline(always)]
+    fn push_if(&mut self, v: T, keep: bool) {
+        if keep {
+            self.push(v)
+        }
+    }
 }
 
 /// A traversal stack of fixed size that never spills, for trees shallow enough that a
@@ -624,6 +643,18 @@ impl<T: Copy, const N: usize> TraversalStack<T> for BoundedStack<T, N> {
     fn push(&mut self, v: T) {
         self.buf[self.len] = MaybeUninit::new(v);
         self.len += 1;
+    }
+
+    /// Without a branch on `keep`, which traversals cannot predict (whether a child's box
+    /// is hit): `v` is written to the free slot, which only `keep` claims.
+    #[inline(always)]
+    fn push_if(&mut self, v: T, keep: bool) {
+        if self.len < N {
+            self.buf[self.len] = MaybeUninit::new(v);
+            self.len += keep as usize;
+        } else if keep {
+            self.push(v)
+        }
     }
 
     #[inline(always)]
