@@ -823,7 +823,8 @@ impl Bvh {
             // PACKET rays.
             return unsafe {
                 let packet = Packet::new(self, origin, directions, tmax);
-                self.occluded_packet_avx512::<COUNT>(&packet, hint, counters)
+                let rays = &mut LaneRays::new(origin, directions, tmax);
+                self.occluded_packet_avx512::<COUNT>(&packet, rays, hint, counters)
             };
         }
         let mut occluded = 0u16;
@@ -842,12 +843,12 @@ impl Bvh {
     fn occluded_packet_avx512<const COUNT: bool>(
         &self,
         packet: &Packet,
+        rays: &mut LaneRays,
         hint: &mut OccluderHint,
         counters: &mut TraversalCounters,
     ) -> u16 {
         let mut active = packet.all;
         let mut skip = NO_NODE;
-        let rays = &mut LaneRays::new();
         if (hint.node as usize) < self.tree.nodes.len() {
             self.packet_search::<COUNT>(packet, rays, hint.node, NO_NODE, &mut active, counters);
             if hint.node == 0 || active == 0 {
@@ -929,9 +930,7 @@ impl Bvh {
                 // (its bundles about 1.03x; on cornell's small tree 0.95x, so not there).
                 Child::Node(node) if large && lanes.count_ones() == 1 => {
                     let l = lanes.trailing_zeros() as usize % PACKET;
-                    let w = &packet.world_rays;
-                    let d = Vec3A::new(w[0][l], w[1][l], w[2][l]);
-                    let r = self.local_ray(packet.world_origin, d, w[3][l]);
+                    let r = self.local_ray(rays.origin, rays.directions[l], rays.tmax[l]);
                     // SAFETY: the CPU has AVX-512 F and VL (this function's contract).
                     let box_test = unsafe { Avx512BoxTest::new() };
                     if let Some(holder) =
@@ -1173,24 +1172,33 @@ impl Bvh {
     }
 }
 
-/// The single watertight rays of a packet's lanes, each prepared when its lane first
-/// tests a leaf alone and kept for the packet's later leaves: extracting a lane's ray from
-/// the packet's registers at every leaf cost about as much as the triangle test itself
-/// (garden's bundles test 2.4 lanes per leaf, 36 leaves per packet).
+/// A packet's rays as given, for the lanes that continue alone, and their single
+/// watertight rays, each prepared when its lane first tests a leaf alone and kept for the
+/// packet's later leaves (extracting a lane's ray from the packet's registers at every
+/// leaf cost about as much as the triangle test itself; garden's bundles test 2.4 lanes
+/// per leaf, 36 leaves per packet).
 #[cfg(target_arch = "x86_64")]
-struct LaneRays {
-    rays: [WatertightRay; PACKET],
+struct LaneRays<'a> {
+    /// The packet's rays as given (one origin).
+    origin: Vec3A,
+    directions: &'a [Vec3A],
+    tmax: &'a [f32],
+    /// Left uninitialised until prepared: filling all sixteen up front cost a kilobyte of
+    /// stores per packet, as much as a packet of `dynamics`'s short rays takes to trace.
+    rays: [std::mem::MaybeUninit<WatertightRay>; PACKET],
     /// The lanes whose ray is prepared.
     ready: u16,
 }
 
 #[cfg(target_arch = "x86_64")]
-impl LaneRays {
+impl<'a> LaneRays<'a> {
     #[inline(always)]
-    fn new() -> Self {
-        let none = WatertightRay::from_parts(Vec3A::ZERO, [0, 1, 2], [0.0; 3]);
+    fn new(origin: Vec3A, directions: &'a [Vec3A], tmax: &'a [f32]) -> Self {
         LaneRays {
-            rays: [none; PACKET],
+            origin,
+            directions,
+            tmax,
+            rays: [const { std::mem::MaybeUninit::uninit() }; PACKET],
             ready: 0,
         }
     }
@@ -1200,10 +1208,11 @@ impl LaneRays {
     fn get(&mut self, packet: &WatertightPacket, l: usize) -> &WatertightRay {
         let l = l % PACKET;
         if self.ready >> l & 1 == 0 {
-            self.rays[l] = packet.lane_ray(l);
+            self.rays[l].write(packet.lane_ray(l));
             self.ready |= 1 << l;
         }
-        &self.rays[l]
+        // SAFETY: lane `l` was written above or when its `ready` bit was set.
+        unsafe { self.rays[l].assume_init_ref() }
     }
 }
 
@@ -1213,9 +1222,6 @@ impl LaneRays {
 struct Packet {
     /// The lanes holding rays.
     all: u16,
-    /// The rays as given: origin, and per lane direction x, y, z and `tmax`.
-    world_origin: Vec3A,
-    world_rays: [[f32; PACKET]; 4],
     origin: [std::arch::x86_64::__m512; 3],
     inverse: [std::arch::x86_64::__m512; 3],
     /// Lanes whose direction is negative on each axis: they enter a box by its max plane.
@@ -1314,8 +1320,6 @@ impl Packet {
         let negative = inverse.map(|v| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps()));
         let all_negative = negative.map(|m| m != 0);
         Packet {
-            world_origin: origin,
-            world_rays: rows,
             near_row: [0, 1, 2].map(|a| 2 * a + all_negative[a] as usize),
             far_row: [0, 1, 2].map(|a| 2 * a + 1 - all_negative[a] as usize),
             all: (u32::MAX >> (32 - count)) as u16,
