@@ -1342,16 +1342,14 @@ mod tests {
         );
         let few = RayBatch::new(&o[..1000], &d[..1000]);
         assert_eq!(scene.spatial_order(&few), TraceOrder::Given);
-        let tmax: Vec<f32> = (0..o.len())
-            .map(|i| [f32::INFINITY, 0.05, 0.3][i % 3])
-            .collect();
+        let cycled_tmax =
+            |n: usize| -> Vec<f32> { (0..n).map(|i| [f32::INFINITY, 0.05, 0.3][i % 3]).collect() };
+        let tmax = cycled_tmax(o.len());
         let limited = RayBatch {
             tmax: TMax::PerRay(&tmax),
             ..rays
         };
-        let bundle_tmax: Vec<f32> = (0..bo.len())
-            .map(|i| [f32::INFINITY, 0.05, 0.3][i % 3])
-            .collect();
+        let bundle_tmax = cycled_tmax(bo.len());
         let limited_bundles = RayBatch {
             tmax: TMax::PerRay(&bundle_tmax),
             ..bundles
