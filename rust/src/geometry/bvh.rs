@@ -1318,10 +1318,11 @@ impl Packet {
         let exit = mul(tmax, splat(EXIT_SCALE));
         let watertight = WatertightPacket::from_lanes(o, [kx_12, ky_12, kz_12], [sx, sy, sz]);
         let negative = inverse.map(|v| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps()));
-        let all_negative = negative.map(|m| m != 0);
+        // Only read on axes where the lanes agree in sign, where any lane is every lane.
+        let any_negative = negative.map(|m| m != 0);
         Packet {
-            near_row: [0, 1, 2].map(|a| 2 * a + all_negative[a] as usize),
-            far_row: [0, 1, 2].map(|a| 2 * a + 1 - all_negative[a] as usize),
+            near_row: [0, 1, 2].map(|a| 2 * a + any_negative[a] as usize),
+            far_row: [0, 1, 2].map(|a| 2 * a + 1 - any_negative[a] as usize),
             all: (u32::MAX >> (32 - count)) as u16,
             origin: [o.x, o.y, o.z].map(|v| _mm512_set1_ps(v)),
             inverse,
@@ -1352,11 +1353,9 @@ impl Packet {
     fn children_touched(&self, relative: &[[f32; WIDTH]; 6]) -> u32 {
         use std::arch::x86_64::*;
         let bound = |axis: usize| {
-            let (near, far) = if self.inverse_high[axis] < 0.0 {
-                (2 * axis + 1, 2 * axis)
-            } else {
-                (2 * axis, 2 * axis + 1)
-            };
+            // The rows of the lanes' common sign; on an axis of mixed signs the bound
+            // is dropped below, whichever rows these are.
+            let (near, far) = (self.near_row[axis], self.far_row[axis]);
             let (lo, hi) = (
                 _mm256_set1_ps(self.inverse_low[axis]),
                 _mm256_set1_ps(self.inverse_high[axis]),

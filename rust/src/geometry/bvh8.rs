@@ -83,9 +83,9 @@ pub fn leaf_block(r: u32) -> u32 {
 
 #[inline(always)]
 pub fn decode(r: u32) -> Child {
-    if r & LEAF != 0 {
+    if is_leaf(r) {
         Child::Leaf {
-            first: r & ((1 << LEAF_COUNT_SHIFT) - 1),
+            first: leaf_block(r),
             count: (r & !LEAF) >> LEAF_COUNT_SHIFT,
         }
     } else {

@@ -88,6 +88,22 @@ fn bundle_order(
     Some(runs.into_iter().map(|(_, s, e)| s..e).collect())
 }
 
+/// [`occluded_chunk`] with counters on or off.
+fn occluded_chunk_counting(
+    counting: bool,
+    bvh: &Bvh,
+    rays: &RayBatch,
+    base: usize,
+    out: &mut [bool],
+    counters: &mut TraversalCounters,
+) {
+    if counting {
+        occluded_chunk::<true>(bvh, rays, base, out, counters);
+    } else {
+        occluded_chunk::<false>(bvh, rays, base, out, counters);
+    }
+}
+
 /// [`Scene::occluded`] on rays `base..base + out.len()`.
 fn occluded_chunk<const COUNT: bool>(
     bvh: &Bvh,
@@ -774,11 +790,7 @@ impl Scene {
                 return Err(bad);
             }
             let bvh = self.bvh();
-            if counting {
-                occluded_chunk::<true>(bvh, rays, base, out, counters);
-            } else {
-                occluded_chunk::<false>(bvh, rays, base, out, counters);
-            }
+            occluded_chunk_counting(counting, bvh, rays, base, out, counters);
             Ok(())
         })?
         .map_err(|bad| rays.error_at(bad))
@@ -886,11 +898,7 @@ impl Scene {
                     let mut k = 0;
                     for run in runs {
                         let (base, slots) = (run.start as usize, &mut out[k..k + run.len()]);
-                        if counting {
-                            occluded_chunk::<true>(bvh, rays, base, slots, &mut counters);
-                        } else {
-                            occluded_chunk::<false>(bvh, rays, base, slots, &mut counters);
-                        }
+                        occluded_chunk_counting(counting, bvh, rays, base, slots, &mut counters);
                         k += run.len();
                     }
                     (out, counters)
