@@ -147,14 +147,18 @@ def test_bit_identical_for_any_thread_count(small_setups):
 
 def test_stats_time_budget_and_progress(small_setups):
     setup = small_setups["cornell"]
-    r = _render(setup, "mis", 4)
+    r = _render(setup, "mis", 4, jitter=False)
     s = r.stats
     n = setup.camera.width * setup.camera.height
     # One shading point per pixel: one primary ray per pixel and pass (a single pass here).
     assert s["spp"] == 4 and s["samples"] == 4 * n and s["primary_rays"] == n
     assert s["passes"] == 1 and s["complete"] and not s["jitter"]
-    jittered = _render(setup, "mis", 4, jitter=True).stats
-    assert jittered["primary_rays"] == 4 * n and jittered["samples"] == 4 * n
+    # Jittered (the default): a primary ray per sample, and for the product methods one more
+    # per pixel through its centre, the anchor that their per-pixel work is done at.
+    jittered = _render(setup, "mis", 4).stats
+    assert jittered["jitter"] and jittered["samples"] == 4 * n
+    assert jittered["primary_rays"] == 4 * n
+    assert _render(setup, "product", 4).stats["primary_rays"] == 5 * n
     assert s["shadow_rays"] > 0 and s["bsdf_rays"] > 0 and s["seconds"] > 0
     assert s["primary_seconds"] > 0 and s["direct_seconds"] > 0
     # A budget stops after the pass that spends it and says how far it got.

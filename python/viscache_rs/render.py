@@ -1,8 +1,8 @@
 """The renderer: direct illumination from the environment map and area lights.
 
 ``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
-time_budget=None, envmap=None, product_level="auto", cache=None, preset="medium", jitter=False,
-alpha=1.0, alpha_radius=4, insert_missing=False)`` renders ``setup.scene`` lit by
+time_budget=None, envmap=None, product_level="auto", cache=None, preset="medium", jitter=True,
+alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None)`` renders ``setup.scene`` lit by
 ``setup.envmap`` (or ``envmap``) and the scene's area lights, through ``camera`` (default:
 the setup's). Methods:
 
@@ -20,10 +20,16 @@ the setup's). Methods:
   unbiased (``res.alpha`` holds it). The records' misses go back to the cache (CAM08 sec.
   5.3); ``insert_missing=True`` then gives records to the points that found none.
 
-All are unbiased estimators of the same image. By default each pixel is shaded at the first
-hit through its centre and all its samples are drawn there, so per-point work (the product
-distribution, the cache lookup, J) is done once per pixel; ``jitter=True`` traces a new
-jittered primary ray per sample instead (antialiased, per-point work per sample).
+All are unbiased estimators of the same image. Every pixel's per-point work (the product
+distribution, the cache lookup, J) is done once, at its *anchor*, the first hit through its
+centre. By default (``jitter=True``, antialiased with a box filter) every sample traces its
+own jittered primary ray and shades its own hit with the anchor's work: for "product" and
+"cv" the environment is drawn from a one-sample mixture of the anchor's product
+distribution, BSDF sampling at the hit and the map's own distribution, with probabilities
+``technique_weights=(product, bsdf, env)`` (default (0.8, 0.1, 0.1)); the BSDF share keeps
+it unbiased at any hit. ``jitter=False`` shades every sample at the anchor (CAM08's fixed
+points; aliased); with ``technique_weights={"product": 1}`` that is the paper's plain product
+sampling.
 ``spp`` defaults to 16; with a ``time_budget`` (seconds) the render runs passes of growing
 size until the budget is spent (at most ``spp`` samples if given) and ``stats["spp"]`` says
 how many every pixel got. The result is bit-identical for any ``threads`` at a fixed seed.
@@ -73,10 +79,11 @@ def render(
     product_level: int | str = "auto",
     cache=None,
     preset: str = "medium",
-    jitter: bool = False,
+    jitter: bool = True,
     alpha: float | str = 1.0,
     alpha_radius: int = 4,
     insert_missing: bool = False,
+    technique_weights: dict[str, float] | None = None,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     camera = setup.camera if camera is None else camera
@@ -120,6 +127,7 @@ def render(
             alpha=alpha,
             alpha_radius=alpha_radius,
             insert_missing=insert_missing,
+            technique_weights=technique_weights,
         )
     finally:
         if bar is not None:

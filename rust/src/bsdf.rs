@@ -156,6 +156,22 @@ impl Material {
         }
     }
 
+    /// How far (radians) a surface normal may turn from the normal a product distribution
+    /// was built at before the product stops describing this material's reflection there:
+    /// 10° for diffuse reflection (B~ follows the cosine), and a quarter of the specular
+    /// lobe's width `sqrt(2 / (e + 2))` when that is less (the mirror direction turns
+    /// twice as fast as the normal). The renderer shares a pixel's product with the
+    /// samples whose hits lie within it.
+    pub fn product_tolerance(&self) -> f32 {
+        const DIFFUSE: f32 = 10.0 * std::f32::consts::PI / 180.0;
+        match *self {
+            Material::Phong { exponent, ks, .. } if luminance(ks) > 0.0 => {
+                DIFFUSE.min(0.25 * (2.0 / (exponent + 2.0)).sqrt())
+            }
+            _ => DIFFUSE,
+        }
+    }
+
     /// Each channel of the albedo `kd + ks` over its luminance (0 for a black material):
     /// how a channel of `f` compares with the luminance `B~` approximates. Exact at every
     /// direction for Lambert; for Phong, where the diffuse and specular colours mix by

@@ -2,30 +2,55 @@
 //! [`Method`] of [`crate::estimators::direct`], including the visibility cache's control
 //! variate ([`crate::estimators::control_variate`]).
 //!
-//! ## Shading points
-//! By default every pixel is shaded at one point, the first hit through its centre (the
-//! G-buffer's point, where the cache was built), and all its samples are drawn there: the
-//! per-point work — the product distribution (B~ and the product pyramid), the cache
-//! lookup and `J` — is done once per pixel and pass, as in CAM08. With `jitter` every
-//! sample traces its own primary ray through a random point of the pixel (antialiasing)
-//! and redoes that work per sample. With one point per pixel, a pixel in an odd column
-//! shares its left neighbour's cache lookup when the two points nearly coincide
-//! ([`Shader::shared_lookup`]): any `Ṽ` keeps the control variate unbiased, and the
-//! lookup is a third of what the control variate adds per pixel.
+//! ## Anchors and samples
+//! Every pixel has an *anchor*, the first hit through its centre (the G-buffer's point,
+//! where the cache was built), and the per-point work is done there once per pixel and
+//! pass: the product distribution (B~ and the product pyramid), the cache lookup and `J`,
+//! as in CAM08. By default (`jitter`) every sample then traces its own primary ray
+//! through a random point of the pixel (antialiasing, box filter) and shades its own hit
+//! with the anchor's work: the environment is drawn from the one-sample mixture of the
+//! anchor's product, BSDF sampling at the sample's hit and the map's own distribution
+//! ([`Techniques`], [`Lighting::estimate_mixture`]), unbiased for any hit because BSDF
+//! sampling covers every direction the hit reflects. Without `jitter` every sample is
+//! drawn at the anchor (CAM08's fixed shading points).
+//!
+//! The control variate stays unbiased at any hit: its `g = κ L B~ Ṽ` and `J = ∫ g` are the
+//! anchor's, a fixed function with a known integral, and the mixture's density is
+//! positive wherever `g` is (the product's share covers `B~ > 0`), so `E[g/p] = J` for any
+//! sample. A sample whose hit lies on another object than the anchor, or whose normal
+//! turns away by more than the material's product tolerance
+//! ([`crate::bsdf::Material::product_tolerance`]), is *unmatched*: it leaves the anchor's
+//! product out of its mixture (BSDF and map sampling only) and the control variate out
+//! (`W = 0`). That choice depends only on the pixel jitter, which is independent of the
+//! directions drawn, so each sample's estimate is unbiased given its hit, while a product
+//! or a `g` that does not describe the hit adds no noise. With one anchor per pixel, a pixel in an odd
+//! column shares its left neighbour's cache lookup when the two anchors nearly coincide
+//! ([`Shader::shared_lookup`]): any `Ṽ` keeps the control variate unbiased, and the lookup
+//! is a third of what the control variate adds per pixel.
 //!
 //! ## Passes, progress and budgets
-//! Without a time budget the render is one pass of `spp` samples per pixel. With one, it
-//! runs passes of 1, 1, 2, 4, … samples (each at most the samples already taken, and sized
-//! to fit the budget that is left) until the budget is spent; per-point work is redone each
-//! pass. Progress is reported from the calling thread while the workers run, in pixel
-//! samples; a `false` from it stops the pass (pixels not started keep the samples they
-//! had, `stats.complete` says so).
+//! Without a time budget the render is one pass of `spp` samples per pixel. With one, the
+//! first pass takes one sample per pixel; from its timing the renderer models a pass as a
+//! fixed cost (the anchors) plus a cost per sample, and sizes the next pass to spend about
+//! half of the budget that is left, the one after that nearly all of it, and stops when
+//! not even one more sample per pixel fits. Anchors are redone each pass (they are not
+//! kept: a product distribution is kilobytes). Progress is reported from the calling
+//! thread while the workers run, in pixel samples; a `false` from it stops the pass
+//! (pixels not started keep the samples they had, `stats.complete` says so).
+//!
+//! ## Samples
+//! Sample `s` of pixel `i` draws every random number from `(seed, i, s, dimension)`
+//! through [`PixelSampler`]: Owen-scrambled Sobol points, so the samples of a pixel are
+//! stratified over the pixel and over the environment's 2D sample together, and each is
+//! uniform (unbiased). `variance` is the sample variance of the mean, which overestimates
+//! the error of stratified samples (conservative).
 //!
 //! ## Determinism
-//! Sample `s` of pixel `i` draws every random number from `(seed, i, s, dimension)`, a
+//! Every random number is a pure function of `(seed, pixel, sample, dimension)`, a
 //! pixel is shaded by one worker per pass and accumulates in sample order in `f64`, and
 //! `α` is computed after all samples from neighbours' sums in a fixed order: images are
-//! bit-identical for any thread count.
+//! bit-identical for any thread count. (Pass sizes under a time budget depend on timing,
+//! so a budgeted render is reproducible only through its `spp`.)
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -42,12 +67,14 @@ use crate::estimators::control_variate::{
     ALPHA_MAX,
 };
 use crate::estimators::direct::{
-    DirectCounters, Lighting, Method, ProductDistribution, ProductLevel, ShadingPoint,
+    DirectCounters, GuidedProduct, Lighting, Method, ProductDistribution, ProductLevel,
+    ShadingPoint, Techniques,
 };
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
-use crate::sampling::rng::SampleRng;
+use crate::sampling::rng::Sampler;
+use crate::sampling::sobol::PixelSampler;
 use crate::visibility::cache::{CacheState, Lookup, VisibilityCache};
 
 /// Rows per work item: small enough to balance two to hundreds of threads.
@@ -72,9 +99,13 @@ pub struct RenderParams {
     pub time_budget: Option<f64>,
     /// Octahedral level of the product's cells, for the product methods.
     pub product_level: ProductLevel,
-    /// A new jittered primary ray per sample (antialiased; per-point work per sample)
-    /// instead of one shading point per pixel (module docs).
+    /// A new jittered primary ray per sample (antialiased, box filter), shaded with its
+    /// pixel's anchor (module docs), instead of every sample at the anchor.
     pub jitter: bool,
+    /// Weights of the one-sample mixture that samples the environment in the product
+    /// methods ([`Techniques`]); `None`: the method's default
+    /// ([`Techniques::default_for`]).
+    pub techniques: Option<Techniques>,
     /// `α` of the control variate ([`Method::ControlVariate`]).
     pub alpha: AlphaRule,
     /// One-pass mode: afterwards, the cache traces and inserts records for the shading
@@ -84,15 +115,16 @@ pub struct RenderParams {
 }
 
 impl RenderParams {
-    /// 16 samples per pixel by MIS, seed 0, no budget, product cells per material, one
-    /// shading point per pixel, `α = 1`, no insertion.
+    /// 16 samples per pixel by MIS, seed 0, no budget, product cells per material,
+    /// jittered samples with the defensive mixture, `α = 1`, no insertion.
     pub const DEFAULT: Self = Self {
         spp: 16,
         method: Method::Mis,
         seed: 0,
         time_budget: None,
         product_level: ProductLevel::PerMaterial,
-        jitter: false,
+        jitter: true,
+        techniques: None,
         alpha: AlphaRule::PAPER,
         insert_missing: false,
     };
@@ -106,7 +138,22 @@ impl RenderParams {
         }
     }
 
-    fn validate(&self) -> Result<()> {
+    /// CAM08's setting: every sample at the pixel's anchor, the environment by plain
+    /// product sampling (for the paper's tables).
+    pub const fn fixed_points(mut self) -> Self {
+        self.jitter = false;
+        self.techniques = Some(Techniques::PRODUCT_ONLY);
+        self
+    }
+
+    /// The mixture's weights: the given ones or the method's default.
+    pub fn techniques(&self) -> Techniques {
+        self.techniques
+            .unwrap_or(Techniques::default_for(self.method))
+    }
+
+    /// Fails with an error naming the first parameter out of range.
+    pub fn validate(&self) -> Result<()> {
         if self.spp == 0 || self.spp > MAX_SPP {
             return Err(Error::invalid(
                 "spp",
@@ -122,6 +169,7 @@ impl RenderParams {
             }
         }
         self.product_level.validate()?;
+        self.techniques().validate(self.jitter)?;
         match self.alpha {
             AlphaRule::Fixed(a) if !(a.is_finite() && (0.0..=ALPHA_MAX).contains(&a)) => {
                 return Err(Error::invalid(
@@ -147,10 +195,12 @@ impl Default for RenderParams {
     }
 }
 
-/// Where the time went, summed over threads (CPU seconds).
+/// Where the time went, summed over threads (CPU seconds). The anchors' stages are timed
+/// one by one; the samples as a whole, per pixel (a clock read per sample would cost a
+/// tenth of a sample).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StageSeconds {
-    /// Primary rays (closest hits).
+    /// The anchors' primary rays (closest hits).
     pub primary: f64,
     /// Product distributions: B~ per cell and the product pyramid.
     pub product: f64,
@@ -158,7 +208,8 @@ pub struct StageSeconds {
     pub lookup: f64,
     /// `J`: the control variate's integral (prefix sums and hierarchy traversals).
     pub control: f64,
-    /// Sampling and shading: BSDF evaluation, shadow and BSDF rays, `Ṽ`.
+    /// The samples: their jittered primary rays, sampling and shading, BSDF evaluation,
+    /// shadow and BSDF rays, `Ṽ`.
     pub shading: f64,
 }
 
@@ -196,6 +247,10 @@ pub struct RenderStats {
     /// ... and its `J` too: the same material, shading normal and (a BSDF whose product
     /// ignores the view) so the same product distribution.
     pub reused_integrals: u64,
+    /// Jittered samples whose hit was not their anchor's surface (another object, or a
+    /// normal turned beyond the material's product tolerance): they were shaded without
+    /// the anchor's product and control variate.
+    pub unmatched_samples: u64,
     /// Record predictions that disagreed with a traced shadow ray (CAM08 §5.3).
     pub record_misses: u64,
     /// Record predictions checked against a traced shadow ray.
@@ -231,6 +286,11 @@ struct BandWork {
     lookup_ns: u64,
     control_ns: u64,
     shading_ns: u64,
+    /// CPU time of the anchors (all of [`Shader::prepare`]) and of the samples.
+    anchor_ns: u64,
+    sample_ns: u64,
+    /// Samples whose hit left the control variate out (another object than the anchor).
+    unmatched_samples: u64,
     cache_points: u64,
     points_without_records: u64,
     records_used: u64,
@@ -273,6 +333,9 @@ impl BandWork {
         self.lookup_ns += o.lookup_ns;
         self.control_ns += o.control_ns;
         self.shading_ns += o.shading_ns;
+        self.anchor_ns += o.anchor_ns;
+        self.sample_ns += o.sample_ns;
+        self.unmatched_samples += o.unmatched_samples;
         self.cache_points += o.cache_points;
         self.points_without_records += o.points_without_records;
         self.records_used += o.records_used;
@@ -287,7 +350,7 @@ impl BandWork {
     }
 }
 
-/// A shading point with everything computed once for it.
+/// A pixel's anchor: the hit through its centre, with everything computed once for it.
 enum Point {
     /// The primary ray escaped: the environment seen directly.
     Miss(Vec3),
@@ -296,12 +359,29 @@ enum Point {
 
 struct SurfacePoint {
     sp: ShadingPoint,
+    /// The object hit.
+    object: u32,
+    /// `cos` of the material's [`crate::bsdf::Material::product_tolerance`]: a sample's
+    /// hit on the same object whose normal is this close shares the anchor's work.
+    cos_match: f32,
     /// [`crate::bsdf::Material::channel_ratios`] of the material: the control variate's
     /// per-channel scale.
     ratios: [f64; 3],
     emitted: Vec3,
     product: Option<ProductDistribution>,
+    /// The product guided by the records' visibility (method "cv", records found).
+    guided: Option<GuidedProduct>,
     interpolant: Interpolant,
+}
+
+/// What one sample shades: the hit of its own primary ray.
+enum SampleHit {
+    Miss(Vec3),
+    Surface {
+        sp: ShadingPoint,
+        object: u32,
+        emitted: Vec3,
+    },
 }
 
 /// Everything a pass reads.
@@ -312,6 +392,8 @@ struct Shader<'a> {
     /// The cache's records (read-locked for the pass) and its search-radius scale.
     cache: Option<(&'a CacheState, &'a VisibilityCache)>,
     chroma: Option<&'a MapChroma>,
+    /// The mixture's weights.
+    techniques: Techniques,
 }
 
 fn elapsed_ns(since: Instant) -> u64 {
@@ -323,24 +405,27 @@ impl Shader<'_> {
         matches!(self.params.method, Method::Product | Method::ControlVariate)
     }
 
-    /// Traces the primary ray of `pixel` (jittered by `rng` or through the centre) and
-    /// prepares its shading point.
-    fn prepare(&self, pixel: usize, rng: &SampleRng, work: &mut BandWork) -> Point {
+    /// Whether samples need their pixel's anchor: always without jitter (they are shaded
+    /// there), and for the product methods (its product, lookup and `J`).
+    fn needs_anchor(&self) -> bool {
+        !self.params.jitter || self.uses_product()
+    }
+
+    /// Traces the primary ray through `pixel`'s point `jitter` (`[0.5, 0.5]`: the centre).
+    fn trace_primary(
+        &self,
+        pixel: usize,
+        jitter: [f32; 2],
+        work: &mut BandWork,
+    ) -> (Vec3, Option<(crate::geometry::SurfaceHit, ShadingPoint)>) {
         let scene = self.lighting.scene;
         let width = self.camera.width as usize;
         let (px, py) = ((pixel % width) as u32, (pixel / width) as u32);
-        let jitter = if self.params.jitter {
-            rng.get2(DIM_PIXEL_JITTER)
-        } else {
-            [0.5, 0.5]
-        };
         let (origin, dir) = self.camera.pixel_ray(px, py, jitter);
-        let start = Instant::now();
         let hit = scene.intersect1(origin, dir, f32::INFINITY, &mut work.bvh);
         work.primary_rays += 1;
-        work.primary_ns += elapsed_ns(start);
         let Some(hit) = hit else {
-            return Point::Miss(self.lighting.env.eval(dir));
+            return (dir, None);
         };
         let wo = -dir;
         let normal = if hit.normal.dot(wo) < 0.0 {
@@ -354,7 +439,31 @@ impl Shader<'_> {
             wo,
             material: scene.mesh().objects[hit.obj as usize].material,
         };
-        let emitted = scene.emitted(&hit, wo);
+        (dir, Some((hit, sp)))
+    }
+
+    /// The hit of one sample's jittered primary ray.
+    fn trace_sample(&self, pixel: usize, rng: &PixelSampler, work: &mut BandWork) -> SampleHit {
+        match self.trace_primary(pixel, rng.get2(DIM_PIXEL_JITTER), work) {
+            (dir, None) => SampleHit::Miss(self.lighting.env.eval(dir)),
+            (_, Some((hit, sp))) => SampleHit::Surface {
+                emitted: self.lighting.scene.emitted(&hit, sp.wo),
+                object: hit.obj,
+                sp,
+            },
+        }
+    }
+
+    /// Traces the primary ray through the centre of `pixel` and prepares its anchor.
+    fn prepare(&self, pixel: usize, work: &mut BandWork) -> Point {
+        let start = Instant::now();
+        let (dir, hit) = self.trace_primary(pixel, [0.5, 0.5], work);
+        work.primary_ns += elapsed_ns(start);
+        let Some((hit, sp)) = hit else {
+            return Point::Miss(self.lighting.env.eval(dir));
+        };
+        let normal = sp.normal;
+        let emitted = self.lighting.scene.emitted(&hit, sp.wo);
         let mut product = None;
         if self.uses_product() {
             let start = Instant::now();
@@ -362,6 +471,7 @@ impl Shader<'_> {
             work.product_ns += elapsed_ns(start);
         }
         let mut interpolant = Interpolant::EMPTY;
+        let mut guided = None;
         if let (Some((state, cache)), Some(chroma)) = (self.cache, self.chroma) {
             let start = Instant::now();
             let footprint = self.camera.footprint(dir, hit.t, normal);
@@ -405,6 +515,11 @@ impl Shader<'_> {
                     interpolant,
                 });
             }
+            if let Some(p) = product.as_ref().filter(|_| !interpolant.is_empty()) {
+                if self.techniques.guided > 0.0 {
+                    guided = p.guided(interpolant.cell_visibility(state, p.level()));
+                }
+            }
             work.control_ns += elapsed_ns(looked);
             work.cache_points += 1;
             work.records_used += interpolant.ids().len() as u64;
@@ -418,17 +533,20 @@ impl Shader<'_> {
         }
         Point::Surface(Box::new(SurfacePoint {
             ratios: sp.material.channel_ratios().map(f64::from),
+            object: hit.obj,
+            cos_match: sp.material.product_tolerance().cos(),
             sp,
             emitted,
             product,
+            guided,
             interpolant,
         }))
     }
 
-    /// The lookup of the pixel to the left when this pixel may share it: an odd column, one
-    /// shading point per pixel, and the neighbour's point within a quarter of `d_max` with a
-    /// normal within 5°. Records chosen for a point that close serve this one about as well
-    /// (the estimate stays unbiased whatever `Ṽ` is), and half the lookups are saved.
+    /// The lookup of the pixel to the left when this pixel may share it: an odd column, and
+    /// the neighbour's anchor within a quarter of `d_max` with a normal within 5°. Records
+    /// chosen for a point that close serve this one about as well (the estimate stays
+    /// unbiased whatever `Ṽ` is), and half the lookups are saved.
     fn shared_lookup(
         &self,
         pixel: usize,
@@ -441,62 +559,78 @@ impl Shader<'_> {
         let width = self.camera.width as usize;
         let last = work.last_lookup.as_ref()?;
         let odd = (pixel % width) % 2 == 1;
-        (!self.params.jitter
-            && odd
-            && last.pixel + 1 == pixel
+        (odd && last.pixel + 1 == pixel
             && last.normal.dot(normal) >= COS_5_DEG
             && last.position.distance(position) <= 0.25 * d_max.min(last.d_max))
         .then_some(*last)
     }
 
-    /// One sample at a prepared point: the plain estimate `Z` and the control variate's
-    /// zero-mean term `W = g/p − J` (zero without records). Record verdicts go to
-    /// `verdicts[k]` (misses, uses) for kept record `k`.
+    /// One sample at `sp` (the anchor's point, or the sample's own hit with `anchor` its
+    /// pixel's): the plain estimate `Z` and the control variate's zero-mean term
+    /// `W = g/p − J` (zero without records, or when `matched` is false: the hit is not the
+    /// anchor's surface). Record verdicts go to `verdicts[k]` (misses, uses) for kept
+    /// record `k`.
+    #[allow(clippy::too_many_arguments)]
     fn sample(
         &self,
-        point: &Point,
-        rng: &SampleRng,
+        anchor: Option<&SurfacePoint>,
+        sp: &ShadingPoint,
+        emitted: Vec3,
+        matched: bool,
+        rng: &PixelSampler,
         work: &mut BandWork,
         verdicts: &mut [(u32, u32)],
     ) -> (Vec3, [f64; 3]) {
-        let p = match point {
-            Point::Miss(l) => return (*l, [0.0; 3]),
-            Point::Surface(p) => p,
-        };
         if !self.uses_product() {
             let l = self.lighting.estimate(
-                &p.sp,
+                sp,
                 self.params.method,
                 rng,
                 &mut work.direct,
                 &mut work.bvh,
             );
-            return (p.emitted + l, [0.0; 3]);
+            return (emitted + l, [0.0; 3]);
         }
-        let (l, env_sample) = self.lighting.estimate_product(
-            &p.sp,
-            p.product.as_ref(),
+        // The anchor's product where it describes the hit; BSDF and map sampling elsewhere.
+        let (product, guided, techniques) = match anchor {
+            Some(a) if matched && a.product.is_some() => {
+                (a.product.as_ref(), a.guided.as_ref(), self.techniques)
+            }
+            _ => (None, None, self.techniques.without_product()),
+        };
+        let (l, drawn) = self.lighting.estimate_mixture(
+            sp,
+            product,
+            guided,
+            &techniques,
             rng,
             &mut work.direct,
             &mut work.bvh,
         );
-        let z = p.emitted + l;
-        let interp = &p.interpolant;
-        let (Some((s, traced)), Some((state, _))) = (env_sample, self.cache) else {
+        let z = emitted + l;
+        let (Some(a), Some((state, _)), true) = (anchor, self.cache, matched) else {
             return (z, [0.0; 3]);
         };
-        if interp.is_empty() {
+        let interp = &a.interpolant;
+        if interp.is_empty() || a.product.is_none() {
             return (z, [0.0; 3]);
         }
-        let g = control_sample(state, interp, s.square);
-        if let Some(visible) = traced {
-            for (k, v) in verdicts.iter_mut().enumerate().take(interp.ids().len()) {
-                let predicted = g.visible_mask >> k & 1 == 1;
-                v.0 += (predicted != visible) as u32;
-                v.1 += 1;
+        // g/p of the mixture; a draw of no direction is a sample of g/p = 0.
+        let g_over_p = match drawn {
+            None => [0.0; 3],
+            Some(d) => {
+                let g = control_sample(state, interp, d.square);
+                if let Some(visible) = d.visible {
+                    for (k, v) in verdicts.iter_mut().enumerate().take(interp.ids().len()) {
+                        let predicted = g.visible_mask >> k & 1 == 1;
+                        v.0 += (predicted != visible) as u32;
+                        v.1 += 1;
+                    }
+                }
+                g.value.map(|v| v * d.product_ratio)
             }
-        }
-        let w = std::array::from_fn(|c| p.ratios[c] * (g.value[c] - interp.j[c]));
+        };
+        let w = std::array::from_fn(|c| a.ratios[c] * (g_over_p[c] - interp.j[c]));
         (z, w)
     }
 
@@ -509,42 +643,67 @@ impl Shader<'_> {
         work: &mut BandWork,
     ) {
         let seed = self.params.seed;
-        let mut fixed: Option<Point> = None;
-        // Record verdicts add up per point and reach the band's map once per point, not
-        // once per sample.
+        let start = Instant::now();
+        let anchor = self.needs_anchor().then(|| self.prepare(pixel, work));
+        let prepared = Instant::now();
+        work.anchor_ns += (prepared - start).as_nanos() as u64;
+        let anchor_surface = match &anchor {
+            Some(Point::Surface(p)) => Some(&**p),
+            _ => None,
+        };
+        // Record verdicts add up over the pixel and reach the band's map once.
         let mut verdicts = [(0u32, 0u32); crate::estimators::control_variate::MAX_KEPT];
         for s in samples {
-            let rng = SampleRng::new(seed, pixel as u64, s as u64);
-            let fresh;
-            let point = if self.params.jitter {
-                fresh = self.prepare(pixel, &rng, work);
-                &fresh
+            let rng = PixelSampler::new(seed, pixel as u64, s as u64);
+            let (z, w) = if self.params.jitter {
+                match self.trace_sample(pixel, &rng, work) {
+                    SampleHit::Miss(l) => (l, [0.0; 3]),
+                    SampleHit::Surface {
+                        sp,
+                        object,
+                        emitted,
+                    } => {
+                        let matched = anchor_surface.is_some_and(|a| {
+                            a.object == object && a.sp.normal.dot(sp.normal) >= a.cos_match
+                        });
+                        work.unmatched_samples += !matched as u64;
+                        self.sample(
+                            anchor_surface,
+                            &sp,
+                            emitted,
+                            matched,
+                            &rng,
+                            work,
+                            &mut verdicts,
+                        )
+                    }
+                }
             } else {
-                fixed.get_or_insert_with(|| self.prepare(pixel, &rng, work))
+                match anchor.as_ref().expect("fixed points have an anchor") {
+                    Point::Miss(l) => (*l, [0.0; 3]),
+                    Point::Surface(p) => {
+                        self.sample(Some(p), &p.sp, p.emitted, true, &rng, work, &mut verdicts)
+                    }
+                }
             };
-            let start = Instant::now();
-            let (z, w) = self.sample(point, &rng, work, &mut verdicts);
             acc.add(z, w);
-            work.shading_ns += elapsed_ns(start);
-            if self.params.jitter {
-                flush_verdicts(point, &mut verdicts, work);
-            }
         }
-        if let Some(point) = &fixed {
-            flush_verdicts(point, &mut verdicts, work);
+        let sampled = elapsed_ns(prepared);
+        work.sample_ns += sampled;
+        work.shading_ns += sampled;
+        if let Some(a) = anchor_surface {
+            flush_verdicts(a, &mut verdicts, work);
         }
     }
 }
 
 /// Adds a point's per-record `(misses, uses)` to the band's totals and clears them.
-fn flush_verdicts(point: &Point, verdicts: &mut [(u32, u32)], work: &mut BandWork) {
-    if let Point::Surface(p) = point {
-        for (id, v) in p.interpolant.ids().iter().zip(verdicts.iter()) {
-            if v.1 > 0 {
-                let e = work.verdicts.entry(*id).or_default();
-                e.0 += v.0;
-                e.1 += v.1;
-            }
+fn flush_verdicts(point: &SurfacePoint, verdicts: &mut [(u32, u32)], work: &mut BandWork) {
+    for (id, v) in point.interpolant.ids().iter().zip(verdicts.iter()) {
+        if v.1 > 0 {
+            let e = work.verdicts.entry(*id).or_default();
+            e.0 += v.0;
+            e.1 += v.1;
         }
     }
     verdicts.fill((0, 0));
@@ -597,23 +756,20 @@ pub fn render(
     let planned = params.spp as u64 * pixels as u64;
     let done = AtomicU64::new(0);
     let cancel = AtomicBool::new(false);
-    let mut last_pass_seconds = 0.0f64;
     // The BVH is built once, in parallel, before the passes.
     with_threads(threads, || {
         let _ = scene.bvh();
     })?;
+    let mut schedule = PassSchedule::default();
     while spp_done < params.spp {
         let pass_len = match params.time_budget {
             None => params.spp,
             Some(budget) => {
                 let left = budget - start.elapsed().as_secs_f64();
-                let per_sample = last_pass_seconds / spp_done.max(1) as f64;
-                let fits = if per_sample > 0.0 {
-                    (left / per_sample).floor().max(1.0) as u32
-                } else {
-                    1
-                };
-                fits.min(spp_done.max(1)).min(params.spp - spp_done)
+                match schedule.next_pass(left, spp_done) {
+                    Some(n) => n.min(params.spp - spp_done),
+                    None => break,
+                }
             }
         };
         let range = spp_done..spp_done + pass_len;
@@ -625,6 +781,7 @@ pub fn render(
             params,
             cache: guard.as_deref().zip(cache),
             chroma: chroma.as_ref(),
+            techniques: params.techniques(),
         };
         let work = run_with_progress(
             threads,
@@ -654,11 +811,19 @@ pub fn render(
             },
         )?;
         drop(guard);
+        let (anchor_ns, sample_ns) = work
+            .iter()
+            .fold((0, 0), |(a, b), w| (a + w.anchor_ns, b + w.sample_ns));
         for w in work {
             total.merge(w);
         }
         passes += 1;
-        last_pass_seconds += pass_start.elapsed().as_secs_f64();
+        schedule.record(
+            pass_start.elapsed().as_secs_f64(),
+            pass_len,
+            anchor_ns,
+            sample_ns,
+        );
         if cancel.load(Ordering::Relaxed) {
             complete = false;
             break;
@@ -709,6 +874,7 @@ pub fn render(
         records_used: total.records_used,
         shared_lookups: total.shared_lookups,
         reused_integrals: total.reused_integrals,
+        unmatched_samples: total.unmatched_samples,
         record_misses: total.verdicts.values().map(|v| v.0 as u64).sum(),
         record_uses: total.verdicts.values().map(|v| v.1 as u64).sum(),
         ..RenderStats::default()
@@ -745,6 +911,54 @@ pub fn render(
         alpha: cv.then(|| alpha.iter().map(|a| a.map(|v| v as f32)).collect()),
         stats,
     })
+}
+
+/// Sizes the passes of a budgeted render from the timing of the passes so far: a pass
+/// costs a fixed part (its anchors) plus a part per sample per pixel, both scaled from
+/// CPU to wall-clock seconds by what the passes took.
+#[derive(Clone, Copy, Debug, Default)]
+struct PassSchedule {
+    passes: u32,
+    wall: f64,
+    samples: u64,
+    anchor_ns: u64,
+    sample_ns: u64,
+}
+
+impl PassSchedule {
+    /// Share of the budget left that the second pass aims to spend; later passes aim at
+    /// [`Self::LATER_SHARE`]. Half leaves room to correct a model made from one sample.
+    const SECOND_SHARE: f64 = 0.5;
+    const LATER_SHARE: f64 = 0.97;
+
+    fn record(&mut self, wall: f64, samples: u32, anchor_ns: u64, sample_ns: u64) {
+        self.passes += 1;
+        self.wall += wall;
+        self.samples += samples as u64;
+        self.anchor_ns += anchor_ns;
+        self.sample_ns += sample_ns;
+    }
+
+    /// Samples per pixel of the next pass with `left` seconds of budget, or `None` when
+    /// not even one fits (never before the first pass).
+    fn next_pass(&self, left: f64, done: u32) -> Option<u32> {
+        if self.passes == 0 || done == 0 {
+            return Some(1);
+        }
+        let cpu = (self.anchor_ns + self.sample_ns).max(1) as f64;
+        let per_pass = self.wall * self.anchor_ns as f64 / cpu / self.passes as f64;
+        let per_sample = self.wall * self.sample_ns as f64 / cpu / self.samples.max(1) as f64;
+        if left < per_pass + per_sample {
+            return None;
+        }
+        let share = if self.passes == 1 {
+            Self::SECOND_SHARE
+        } else {
+            Self::LATER_SHARE
+        };
+        let n = ((left * share - per_pass) / per_sample.max(1e-12)).floor();
+        Some(n.clamp(1.0, MAX_SPP as f64) as u32)
+    }
 }
 
 /// Runs `work` on `threads` workers while the calling thread calls `poll` every

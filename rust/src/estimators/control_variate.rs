@@ -492,6 +492,46 @@ impl Interpolant {
         out
     }
 
+    /// `Ṽ` over each cell of octahedral level `level` (Morton order): per cell, the `β`-
+    /// weighted share of its record texels that the kept records see, in `[0, 1]`. What
+    /// [`super::direct::ProductDistribution::guided`] samples by.
+    pub fn cell_visibility(&self, state: &CacheState, level: u32) -> Vec<f32> {
+        let store = state.store();
+        let m = store.m();
+        let mut out = vec![0.0f32; 1 << (2 * level)];
+        for (&id, &beta) in self.ids().iter().zip(self.betas()) {
+            let bits = store.bits(id as usize);
+            let words = bits.bit_words();
+            if m <= level {
+                // Each record texel covers 4^(level - m) cells.
+                let shift = 2 * (level - m);
+                for (w, &word) in words.iter().enumerate() {
+                    let mut x = word;
+                    while x != 0 {
+                        let texel = 64 * w + x.trailing_zeros() as usize;
+                        x &= x - 1;
+                        let first = texel << shift;
+                        for v in &mut out[first..first + (1 << shift)] {
+                            *v += beta;
+                        }
+                    }
+                }
+            } else {
+                // Each cell covers 4^(m - level) record texels, a Morton range.
+                let per_cell = 1usize << (2 * (m - level));
+                let share = beta / per_cell as f32;
+                for (c, v) in out.iter_mut().enumerate() {
+                    let visible = count_bits(words, c * per_cell, per_cell);
+                    *v += share * visible as f32;
+                }
+            }
+        }
+        for v in &mut out {
+            *v = v.min(1.0);
+        }
+        out
+    }
+
     /// Record ids, heaviest first.
     pub fn ids(&self) -> &[u32] {
         &self.ids[..self.len]
@@ -524,6 +564,21 @@ impl Interpolant {
             }
         }
         (v, mask)
+    }
+}
+
+/// Set bits among bits `start .. start + len` of `words` (`len` a power of two, `start` a
+/// multiple of it).
+#[inline]
+fn count_bits(words: &[u64], start: usize, len: usize) -> u32 {
+    if len >= 64 {
+        words[start / 64..(start + len) / 64]
+            .iter()
+            .map(|w| w.count_ones())
+            .sum()
+    } else {
+        let mask = (1u64 << len) - 1;
+        ((words[start / 64] >> (start % 64)) & mask).count_ones()
     }
 }
 
@@ -884,6 +939,88 @@ mod tests {
         let lookup = cache.lookup(Vec3::ZERO, Vec3::Y, 1.0);
         assert_eq!(lookup.neighbours().len(), bits.len());
         (cache, lookup)
+    }
+
+    #[test]
+    fn cell_visibility_is_the_weighted_share_of_visible_record_texels() {
+        for m in [2u32, 3, 5, 6, 7] {
+            let bits: Vec<_> = (0..3).map(|i| random_bits(m, 11 + i)).collect();
+            let (cache, lookup) = cache_with(&bits);
+            let state = cache.read();
+            let interp = Interpolant::new(&state, &lookup, None);
+            for level in [4u32, 5, 6] {
+                let got = interp.cell_visibility(&state, level);
+                for (c, &v) in got.iter().enumerate() {
+                    let mut want = 0.0f64;
+                    for (&id, &beta) in interp.ids().iter().zip(interp.betas()) {
+                        let b = state.store().bits(id as usize);
+                        let share = if m >= level {
+                            let k = 1usize << (2 * (m - level));
+                            (0..k).filter(|t| b.get(c * k + t)).count() as f64 / k as f64
+                        } else {
+                            b.get(c >> (2 * (level - m))) as u32 as f64
+                        };
+                        want += beta as f64 * share;
+                    }
+                    assert!(
+                        (v as f64 - want.min(1.0)).abs() < 1e-5,
+                        "m {m} level {level}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_control_variate_averages_to_j_under_the_mixture() {
+        // E[g/p] = J for draws of the renderer's mixture (guided by these records, built
+        // for the product's point but used at another: a jittered sample's hit).
+        use crate::estimators::direct::{Mixture, ShadingPoint, Techniques};
+        let env = test_sky(64);
+        let chroma = MapChroma::new(&env);
+        let mat = Material::phong([0.3; 3], [0.5; 3], 20.0).unwrap();
+        let (n, wo) = frame();
+        let bits: Vec<_> = (0..3).map(|i| random_bits(5, 17 + i)).collect();
+        let (cache, lookup) = cache_with(&bits);
+        let state = cache.read();
+        let product = ProductDistribution::new(&env, &mat, n, wo, 5).unwrap();
+        let tables = ControlTables::new(&product, &chroma, 5);
+        let interp = Interpolant::new(&state, &lookup, Some((&tables, &product, &env)));
+        let guided = product.guided(interp.cell_visibility(&state, 5)).unwrap();
+        let sp = ShadingPoint {
+            origin: Vec3::ZERO,
+            normal: Vec3::new(0.3, 0.9, -0.2).normalize(),
+            wo,
+            material: mat,
+        };
+        let mixture = Mixture::new(
+            &env,
+            &sp,
+            Some(&product),
+            Some(&guided),
+            &Techniques::CONTROL_VARIATE,
+        );
+        let mut sums = CvSums::default();
+        for i in 0..300_000u64 {
+            let rng = SampleRng::new(5, i, 0);
+            let value = match mixture.sample(rng.get2(0), rng.get(2)) {
+                Some(d) => control_sample(&state, &interp, d.square)
+                    .value
+                    .map(|v| v * d.product_pdf / d.pdf),
+                None => [0.0; 3],
+            };
+            sums.add(Vec3::ZERO, value);
+        }
+        let (mean, var) = sums.estimate([-1.0; 3]);
+        for c in 0..3 {
+            let z = (mean[c] - interp.j[c]) / var[c].sqrt();
+            assert!(
+                z.abs() < 4.0,
+                "channel {c}: {} vs {} ({z:.2} SE)",
+                mean[c],
+                interp.j[c]
+            );
+        }
     }
 
     #[test]

@@ -17,6 +17,19 @@
 //!
 //! All four return the estimate of `∫ f(ωo, ω) L(ω) V(ω) cos θ dω` for one sample index;
 //! averaging over samples is the renderer's job.
+//!
+//! ## The product inside a one-sample mixture ([`Techniques`])
+//! A product distribution is built for one point and costs microseconds; the renderer
+//! builds it once per pixel (at the hit through the pixel's centre) and draws every
+//! jittered sample of the pixel from it ([`Lighting::estimate_mixture`]). A sample whose
+//! hit differs from that point may need light where the centre's `B~` is zero, so the
+//! product is one technique of a one-sample mixture with BSDF sampling at the sample's own
+//! point and the map's own distribution: a technique is picked with probability `c_t`, and
+//! the estimate is `f L V cos / Σ_t c_t p_t(ω)` — the balance heuristic of Veach's
+//! one-sample model (Veach 1997, §9.2.4), unbiased wherever one technique with `c_t > 0`
+//! has `p_t > 0`. BSDF sampling covers every direction where `f cos > 0`, so any weights
+//! with `c_bsdf > 0` are unbiased for any hit; weights `(1, 0, 0)` are CAM08's plain
+//! product sampling, unbiased only at the point the product was built for.
 
 use glam::{DVec2, UVec2, Vec2, Vec3};
 
@@ -24,8 +37,12 @@ use crate::bsdf::Material;
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::sampling::distribution::QuadPyramid;
-use crate::sampling::octahedral::{morton_encode, square_to_sphere, texel_of, texel_solid_angle};
+use crate::sampling::octahedral::{
+    morton_encode, sphere_to_square, texel_of, texel_of_square, texel_solid_angle,
+};
+#[cfg(test)]
 use crate::sampling::rng::SampleRng;
+use crate::sampling::rng::Sampler;
 
 /// Which estimator of direct illumination to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -72,16 +89,135 @@ impl Method {
     }
 }
 
-/// Random-number dimensions of one pixel sample, after the two of the pixel jitter.
+/// Random-number dimensions of one pixel sample, laid out in sets of four (the renderer's
+/// quasi-random samples stratify each set jointly, [`crate::sampling::sobol`]).
 pub mod dims {
-    /// First dimension of the direct-lighting estimators.
-    pub const FIRST: u64 = 2;
-    /// BSDF lobe choice and direction (3 dimensions).
-    pub const BSDF: u64 = FIRST;
-    /// Environment or product sample (2 dimensions).
-    pub const ENV: u64 = FIRST + 3;
-    /// Area light `k` uses 3 dimensions from `AREA + 3k`.
-    pub const AREA: u64 = FIRST + 5;
+    /// Set 0 holds the pixel jitter (dimensions 0-1) and the environment's 2D sample
+    /// (product, map, or the mixture's technique and direction).
+    pub const ENV: u64 = 2;
+    /// Set 1: the BSDF's lobe choice ...
+    pub const BSDF_LOBE: u64 = 4;
+    /// ... and the BSDF sample's direction (methods "bsdf" and "mis").
+    pub const BSDF: u64 = 6;
+    /// Area light `k` takes set `2 + k`: its triangle choice at `AREA + 4k` and the point
+    /// on it at `AREA + 4k + 2` (two dimensions).
+    pub const AREA: u64 = 8;
+}
+
+/// Weights of the techniques of the one-sample mixture that samples the environment in the
+/// product methods (module docs): the pixel's product distribution, the product guided by
+/// the cache's records ([`GuidedProduct`], method "cv" only), BSDF sampling at the sample's
+/// own hit, and the map's own distribution. Any non-negative weights with a positive sum;
+/// they are normalised; the guided share falls to the plain product where no records guide
+/// it, and a technique that cannot draw otherwise (no product at the point, an all-black
+/// map) gives its share to the others in proportion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Techniques {
+    /// Weight of product sampling (CAM08 §5.5).
+    pub product: f32,
+    /// Weight of product sampling guided by the records' visibility.
+    pub guided: f32,
+    /// Weight of BSDF sampling at the sample's own hit.
+    pub bsdf: f32,
+    /// Weight of the map's own distribution.
+    pub env: f32,
+}
+
+impl Techniques {
+    /// Plain product sampling (CAM08): unbiased only at the point the product was built
+    /// for, so only for renders without jitter.
+    pub const PRODUCT_ONLY: Self = Self::new(1.0, 0.0, 0.0, 0.0);
+    /// The default of method "product": mostly the product, a tenth each of BSDF and map
+    /// sampling for the parts of the integrand the pixel's product misses.
+    pub const PRODUCT: Self = Self::new(0.8, 0.0, 0.1, 0.1);
+    /// The default of method "cv": half the samples guided by the records, the rest by
+    /// the plain product (where the records are wrong), the BSDF and the map.
+    pub const CONTROL_VARIATE: Self = Self::new(0.3, 0.5, 0.1, 0.1);
+
+    /// Weights `(product, guided, bsdf, env)`.
+    pub const fn new(product: f32, guided: f32, bsdf: f32, env: f32) -> Self {
+        Self {
+            product,
+            guided,
+            bsdf,
+            env,
+        }
+    }
+
+    /// The method's default weights.
+    pub const fn default_for(method: Method) -> Self {
+        match method {
+            Method::ControlVariate => Self::CONTROL_VARIATE,
+            _ => Self::PRODUCT,
+        }
+    }
+
+    /// The weights as an array `[product, guided, bsdf, env]`.
+    pub const fn to_array(&self) -> [f32; 4] {
+        [self.product, self.guided, self.bsdf, self.env]
+    }
+
+    /// Fails unless every weight is finite and non-negative with a positive sum, and
+    /// (for samples away from the product's point, `jitter`) BSDF sampling has a share
+    /// whenever a product technique has one.
+    pub fn validate(&self, jitter: bool) -> crate::error::Result<()> {
+        let w = self.to_array();
+        if w.iter().any(|x| !(x.is_finite() && *x >= 0.0)) || w.iter().sum::<f32>() <= 0.0 {
+            return Err(crate::error::Error::invalid(
+                "technique_weights",
+                format!(
+                    "must be finite non-negative weights (product, guided, bsdf, env) with \
+                     a positive sum, got {w:?}"
+                ),
+            ));
+        }
+        if jitter && self.product + self.guided > 0.0 && self.bsdf == 0.0 {
+            return Err(crate::error::Error::invalid(
+                "technique_weights",
+                "with jitter a sample's hit differs from the point the pixel's product was \
+                 built for, so BSDF sampling needs a positive weight to keep the estimate \
+                 unbiased; render with jitter=False for plain product sampling",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The weights for a sample that the product was not built for (another surface): the
+    /// product techniques' shares split evenly between BSDF and map sampling.
+    pub fn without_product(&self) -> Self {
+        let half = 0.5 * (self.product + self.guided);
+        Self::new(0.0, 0.0, self.bsdf + half, self.env + half)
+    }
+
+    /// Normalised probabilities `[product, guided, bsdf, env]` of the techniques that can
+    /// draw (all zero when none can). Without guidance (no records) the guided share goes
+    /// to the plain product, so "cv" without records samples as "product" does.
+    #[inline]
+    pub fn probabilities(&self, has_product: bool, has_guided: bool, has_env: bool) -> [f64; 4] {
+        let (product, guided) = match (has_product, has_guided) {
+            (false, _) => (0.0, 0.0),
+            (true, false) => (self.product as f64 + self.guided as f64, 0.0),
+            (true, true) => (self.product as f64, self.guided as f64),
+        };
+        let w = [
+            product,
+            guided,
+            self.bsdf as f64,
+            if has_env { self.env as f64 } else { 0.0 },
+        ];
+        let total: f64 = w.iter().sum();
+        if total > 0.0 {
+            w.map(|x| x / total)
+        } else {
+            [0.0; 4]
+        }
+    }
+}
+
+impl Default for Techniques {
+    fn default() -> Self {
+        Self::PRODUCT
+    }
 }
 
 /// A surface point being shaded.
@@ -161,21 +297,28 @@ impl ProductDistribution {
     /// [`Self::sample`] with everything the control variate needs: the point of the
     /// equal-area square the direction comes from and `B~` of its cell.
     pub fn sample_point(&self, env: &EnvMap, u: DVec2) -> ProductSample {
-        let dist = env
-            .distribution()
-            .expect("a product exists only for a lit map");
         let (cell, rest) = self
             .cells
             .sample(u)
             .expect("the product has a positive total");
-        let cell_code = morton_encode(cell.x, cell.y);
+        self.sample_in_cell(env, morton_encode(cell.x, cell.y), rest)
+    }
+
+    /// The draw of [`Self::sample_point`] once its cell (Morton code) is chosen: a texel of
+    /// the map inside it by the map's own quadtree, from the cell's rescaled `rest`.
+    fn sample_in_cell(&self, env: &EnvMap, cell_code: u32, rest: DVec2) -> ProductSample {
+        let dist = env
+            .distribution()
+            .expect("a product exists only for a lit map");
         let (texel, within) = dist.descend(self.level, cell_code, rest);
         let res = env.resolution();
         let square = (texel.as_dvec2() + within) / res as f64;
         let bsdf = self.bsdf_cells[cell_code as usize] as f64;
         let pdf = bsdf * dist.weight(texel) / self.normalization() / texel_solid_angle(res);
         ProductSample {
-            direction: square_to_sphere(square.as_vec2()),
+            // In the texel even where rounding would map the point across its border, so
+            // the densities read at the direction are the ones it was drawn with.
+            direction: env.direction_in(texel, within),
             texel,
             square,
             bsdf,
@@ -199,13 +342,40 @@ impl ProductDistribution {
         &self.cells
     }
 
+    /// The product cell (Morton code) holding `texel` of the map.
+    #[inline]
+    pub fn cell_of(&self, env: &EnvMap, texel: UVec2) -> usize {
+        let shift = env.resolution().trailing_zeros() - self.level;
+        morton_encode(texel.x >> shift, texel.y >> shift) as usize
+    }
+
+    /// Product sampling guided by a visibility estimate: cells drawn in proportion to
+    /// `L_c B~_c v_c` for `visibility[c] = v_c ∈ [0, 1]` (Morton order, one per cell), texels
+    /// inside a cell as by the product. `None` when that is zero everywhere.
+    pub fn guided(&self, visibility: Vec<f32>) -> Option<GuidedProduct> {
+        debug_assert_eq!(visibility.len(), self.bsdf_cells.len());
+        let weights: Vec<f64> = self
+            .cells
+            .level(self.level)
+            .iter()
+            .zip(&visibility)
+            .map(|(&w, &v)| w * v as f64)
+            .collect();
+        let cells = QuadPyramid::from_morton_unchecked(weights);
+        let total = cells.total();
+        (total > 0.0).then(|| GuidedProduct {
+            visibility,
+            scale: self.normalization() / total,
+            cells,
+        })
+    }
+
     /// Solid-angle pdf of sampling a direction in `texel` of the map.
     pub fn texel_pdf(&self, env: &EnvMap, texel: UVec2) -> f64 {
         let dist = env
             .distribution()
             .expect("a product exists only for a lit map");
-        let shift = dist.depth() - self.level;
-        let cell = morton_encode(texel.x >> shift, texel.y >> shift) as usize;
+        let cell = self.cell_of(env, texel);
         let b = self.bsdf_cells[cell] as f64;
         b * dist.weight(texel) / self.normalization() / texel_solid_angle(env.resolution())
     }
@@ -213,6 +383,44 @@ impl ProductDistribution {
     /// Solid-angle pdf of [`Self::sample`] producing `dir`.
     pub fn pdf(&self, env: &EnvMap, dir: Vec3) -> f64 {
         self.texel_pdf(env, texel_of(dir, env.resolution()))
+    }
+}
+
+/// Product sampling guided by a visibility estimate per cell ([`ProductDistribution::guided`]):
+/// `p_guided(ω) = p_product(ω) · v_c · L_ns / W`, `W = Σ_c L_c B~_c v_c`. The renderer's
+/// control variate takes `v_c` from the cache's records (the share of the cell that the
+/// interpolated records see), so a point in shadow spends its samples where its records see
+/// the sky instead of where the bright but occluded part of the product lies. Like any
+/// technique of the mixture it needs no exact `v`: the other techniques cover the cells it
+/// calls occluded.
+#[derive(Clone, Debug)]
+pub struct GuidedProduct {
+    visibility: Vec<f32>,
+    /// `L_ns / W`.
+    scale: f64,
+    cells: QuadPyramid,
+}
+
+impl GuidedProduct {
+    /// Draws a direction from `u ∈ [0,1)²`: a cell by `L_c B~_c v_c`, then a texel of the
+    /// map inside it. The sample's `pdf` is the guided one.
+    pub fn sample_point(
+        &self,
+        product: &ProductDistribution,
+        env: &EnvMap,
+        u: DVec2,
+    ) -> ProductSample {
+        let (cell, rest) = self.cells.sample(u).expect("a positive total");
+        let code = morton_encode(cell.x, cell.y);
+        let mut s = product.sample_in_cell(env, code, rest);
+        s.pdf *= self.ratio(code as usize);
+        s
+    }
+
+    /// `p_guided / p_product` in product cell `cell` (Morton code).
+    #[inline]
+    pub fn ratio(&self, cell: usize) -> f64 {
+        self.visibility[cell] as f64 * self.scale
     }
 }
 
@@ -229,6 +437,171 @@ pub struct ProductSample {
     pub bsdf: f64,
     /// Solid-angle pdf, sr⁻¹ (`> 0`).
     pub pdf: f64,
+}
+
+/// The one-sample mixture of [`Techniques`] at one shading point (module docs): a sampler
+/// and its density, the balance heuristic's `Σ_t c_t p_t(ω)`.
+pub struct Mixture<'a> {
+    env: &'a EnvMap,
+    sp: &'a ShadingPoint,
+    product: Option<&'a ProductDistribution>,
+    guided: Option<&'a GuidedProduct>,
+    /// Probabilities `[product, guided, bsdf, env]`.
+    c: [f64; 4],
+}
+
+/// One draw of a [`Mixture`].
+#[derive(Clone, Copy, Debug)]
+pub struct MixtureDraw {
+    /// Unit direction.
+    pub direction: Vec3,
+    /// Its point of the equal-area square (for product draws, the point it was mapped
+    /// from), and the map's texel that every density is read at.
+    pub square: DVec2,
+    pub texel: UVec2,
+    /// The mixture's solid-angle density there (`> 0`).
+    pub pdf: f64,
+    /// The plain product's density there (0 without a product).
+    pub product_pdf: f64,
+}
+
+impl<'a> Mixture<'a> {
+    /// The mixture of `techniques` at `sp` under `env` around `product` (and its `guided`
+    /// form), with the shares of techniques that cannot draw given to the others.
+    pub fn new(
+        env: &'a EnvMap,
+        sp: &'a ShadingPoint,
+        product: Option<&'a ProductDistribution>,
+        guided: Option<&'a GuidedProduct>,
+        techniques: &Techniques,
+    ) -> Self {
+        let c = if env.is_black() {
+            [0.0; 4]
+        } else {
+            techniques.probabilities(product.is_some(), guided.is_some(), true)
+        };
+        Self {
+            env,
+            sp,
+            product,
+            guided,
+            c,
+        }
+    }
+
+    /// Draws a direction from `u ∈ [0,1)²` (and `lobe ∈ [0,1)`, the BSDF's lobe choice):
+    /// the technique takes the first coordinate's interval and the coordinate is rescaled
+    /// inside it, so each technique's draws keep the samples' stratification. `None` when
+    /// nothing can draw or the BSDF technique drew no direction (a sample of value zero).
+    pub fn sample(&self, u: [f32; 2], lobe: f32) -> Option<MixtureDraw> {
+        if self.c == [0.0; 4] {
+            return None;
+        }
+        let (technique, ux) = pick_technique(u[0] as f64, &self.c);
+        let u = DVec2::new(ux, u[1] as f64);
+        let res = self.env.resolution();
+        let (direction, square, texel) = match technique {
+            0 | 1 => {
+                let p = self.product?;
+                let s = match self.guided {
+                    Some(g) if technique == 1 => g.sample_point(p, self.env, u),
+                    _ => p.sample_point(self.env, u),
+                };
+                (s.direction, s.square, s.texel)
+            }
+            _ => {
+                let dir = if technique == 2 {
+                    self.sp
+                        .material
+                        .sample(self.sp.normal, self.sp.wo, lobe, u.as_vec2())?
+                } else {
+                    self.env.sample(u)?.0
+                };
+                let square = sphere_to_square(dir);
+                (dir, square.as_dvec2(), texel_of_square(square, res))
+            }
+        };
+        let (pdf, product_pdf) = self.densities(direction, texel);
+        (pdf > 0.0).then_some(MixtureDraw {
+            direction,
+            square,
+            texel,
+            pdf,
+            product_pdf,
+        })
+    }
+
+    /// The mixture's solid-angle density of drawing `dir` (sr⁻¹).
+    pub fn pdf(&self, dir: Vec3) -> f64 {
+        self.densities(dir, texel_of(dir, self.env.resolution())).0
+    }
+
+    /// `(mixture, product)` densities at `dir`, the map's densities read at `texel`.
+    fn densities(&self, dir: Vec3, texel: UVec2) -> (f64, f64) {
+        let c = &self.c;
+        let (product, guided) = match self.product {
+            Some(p) => {
+                let pp = p.texel_pdf(self.env, texel);
+                let pg = self
+                    .guided
+                    .map_or(0.0, |g| pp * g.ratio(p.cell_of(self.env, texel)));
+                (pp, pg)
+            }
+            None => (0.0, 0.0),
+        };
+        let bsdf = if c[2] > 0.0 {
+            self.sp.material.pdf(self.sp.normal, self.sp.wo, dir)
+        } else {
+            0.0
+        };
+        let env = if c[3] > 0.0 {
+            self.env.texel_pdf(texel)
+        } else {
+            0.0
+        };
+        let mixture = c[0] * product + c[1] * guided + c[2] * bsdf + c[3] * env;
+        (if mixture.is_nan() { 0.0 } else { mixture }, product)
+    }
+}
+
+/// What [`Lighting::estimate_mixture`] drew for the environment, for the control variate.
+#[derive(Clone, Copy, Debug)]
+pub struct MixtureSample {
+    /// The point of the equal-area square of the drawn direction (for a product draw,
+    /// the point it was mapped from).
+    pub square: DVec2,
+    /// `p_product(ω) / p_mixture(ω)`: the control variate's `g / p_mixture` is its
+    /// `g / p_product` times this.
+    pub product_ratio: f64,
+    /// Whether the shadow ray found the map (`None`: no ray was needed, `f cos L = 0`).
+    pub visible: Option<bool>,
+}
+
+/// `[0,1)²` as doubles.
+#[inline]
+fn unit_pair(u: [f32; 2]) -> DVec2 {
+    DVec2::new(u[0] as f64, u[1] as f64)
+}
+
+/// The technique whose interval of `[0, 1)` (lengths `c`, in order) holds `u`, and `u`
+/// rescaled to `[0, 1)` inside it. A `u` past the last interval by rounding takes the last
+/// technique with a share.
+#[inline]
+fn pick_technique(u: f64, c: &[f64; 4]) -> (usize, f64) {
+    const BELOW_ONE: f64 = 1.0 - f64::EPSILON;
+    let mut start = 0.0;
+    let mut last = 0;
+    for (t, &ct) in c.iter().enumerate() {
+        if ct <= 0.0 {
+            continue;
+        }
+        if u < start + ct {
+            return (t, ((u - start) / ct).clamp(0.0, BELOW_ONE));
+        }
+        start += ct;
+        last = t;
+    }
+    (last, BELOW_ONE)
 }
 
 /// Power heuristic with exponent 2 for a sample of density `a` against `b`.
@@ -297,7 +670,7 @@ impl Lighting<'_> {
         &self,
         sp: &ShadingPoint,
         method: Method,
-        rng: &SampleRng,
+        rng: &impl Sampler,
         counters: &mut DirectCounters,
         bvh: &mut TraversalCounters,
     ) -> Vec3 {
@@ -314,7 +687,7 @@ impl Lighting<'_> {
 
         // Environment by its own distribution.
         if use_lights {
-            let u = DVec2::new(rng.get(dims::ENV) as f64, rng.get(dims::ENV + 1) as f64);
+            let u = unit_pair(rng.get2(dims::ENV));
             if let Some((dir, pdf)) = self.env.sample(u) {
                 let radiance = self.env.eval(dir);
                 total += self.light_term(sp, dir, radiance, pdf, f32::INFINITY, mis, counters, bvh);
@@ -324,8 +697,11 @@ impl Lighting<'_> {
 
         // BSDF sampling: what the sampled ray finds is the radiance.
         if use_bsdf {
-            let u = Vec2::new(rng.get(dims::BSDF + 1), rng.get(dims::BSDF + 2));
-            if let Some(wi) = sp.material.sample(sp.normal, sp.wo, rng.get(dims::BSDF), u) {
+            let u = Vec2::from_array(rng.get2(dims::BSDF));
+            if let Some(wi) = sp
+                .material
+                .sample(sp.normal, sp.wo, rng.get(dims::BSDF_LOBE), u)
+            {
                 total += self.bsdf_term(sp, wi, mis, counters, bvh);
             }
         }
@@ -353,7 +729,7 @@ impl Lighting<'_> {
         &self,
         sp: &ShadingPoint,
         product: Option<&ProductDistribution>,
-        rng: &SampleRng,
+        rng: &impl Sampler,
         counters: &mut DirectCounters,
         bvh: &mut TraversalCounters,
     ) -> (Vec3, Option<(ProductSample, Option<bool>)>) {
@@ -361,8 +737,7 @@ impl Lighting<'_> {
         let Some(product) = product else {
             return (total, None);
         };
-        let u = DVec2::new(rng.get(dims::ENV) as f64, rng.get(dims::ENV + 1) as f64);
-        let s = product.sample_point(self.env, u);
+        let s = product.sample_point(self.env, unit_pair(rng.get2(dims::ENV)));
         let cos = sp.normal.dot(s.direction);
         if cos <= 0.0 {
             return (total, Some((s, None)));
@@ -383,20 +758,67 @@ impl Lighting<'_> {
         (total, Some((s, Some(visible))))
     }
 
+    /// The environment by the one-sample mixture of `techniques` (module docs) around a
+    /// `product` built for this point or for another point of the same pixel (and its
+    /// `guided` form), and each area light by one light sample. Returns the estimate and
+    /// what was drawn for the map (`None` when nothing could be drawn: a black map and no
+    /// BSDF share, or the BSDF technique drew no direction — a sample of value zero either
+    /// way).
+    #[allow(clippy::too_many_arguments)]
+    pub fn estimate_mixture(
+        &self,
+        sp: &ShadingPoint,
+        product: Option<&ProductDistribution>,
+        guided: Option<&GuidedProduct>,
+        techniques: &Techniques,
+        rng: &impl Sampler,
+        counters: &mut DirectCounters,
+        bvh: &mut TraversalCounters,
+    ) -> (Vec3, Option<MixtureSample>) {
+        let mut total = self.area_terms(sp, rng, false, counters, bvh);
+        let mixture = Mixture::new(self.env, sp, product, guided, techniques);
+        let Some(d) = mixture.sample(rng.get2(dims::ENV), rng.get(dims::BSDF_LOBE)) else {
+            return (total, None);
+        };
+        let mut drawn = MixtureSample {
+            square: d.square,
+            product_ratio: d.product_pdf / d.pdf,
+            visible: None,
+        };
+        let cos = sp.normal.dot(d.direction);
+        if cos <= 0.0 {
+            return (total, Some(drawn));
+        }
+        let f = sp.material.eval(sp.normal, sp.wo, d.direction);
+        let l = self.env.texel(d.texel);
+        if f == Vec3::ZERO || l == Vec3::ZERO {
+            return (total, Some(drawn));
+        }
+        counters.shadow_rays += 1;
+        let visible = !self
+            .scene
+            .occluded1(sp.origin, d.direction, f32::INFINITY, bvh);
+        if visible {
+            total += f * l * cos * (1.0 / d.pdf) as f32;
+        }
+        drawn.visible = Some(visible);
+        (total, Some(drawn))
+    }
+
     /// One light sample of every area light (with the MIS weight against BSDF sampling
     /// when `mis`).
     fn area_terms(
         &self,
         sp: &ShadingPoint,
-        rng: &SampleRng,
+        rng: &impl Sampler,
         mis: bool,
         counters: &mut DirectCounters,
         bvh: &mut TraversalCounters,
     ) -> Vec3 {
         let mut total = Vec3::ZERO;
         for (k, light) in self.scene.area_lights().iter().enumerate() {
-            let d = dims::AREA + 3 * k as u64;
-            let u = Vec2::new(rng.get(d + 1), rng.get(d + 2));
+            let d = dims::AREA + 4 * k as u64;
+            let u = Vec2::from_array(rng.get2(d + 2));
             if let Some(s) = light.sample(sp.origin, rng.get(d), u) {
                 let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
                 total +=
@@ -480,6 +902,7 @@ mod tests {
     use super::*;
     use crate::lights::procedural::sky;
     use crate::sampling::chi2::{chi2_sphere, Chi2Params};
+    use crate::sampling::octahedral::square_to_sphere;
     use crate::sampling::octahedral::texel_solid_angle;
 
     fn test_sky(resolution: u32) -> EnvMap {
@@ -580,6 +1003,167 @@ mod tests {
             .map(|i| p.texel_pdf(&tiny, UVec2::new(i % 4, i / 4)) * texel_solid_angle(4))
             .sum();
         assert!((total - 1.0).abs() < 1e-9);
+    }
+
+    fn point(normal: Vec3, wo: Vec3, material: Material) -> ShadingPoint {
+        ShadingPoint {
+            origin: Vec3::ZERO,
+            normal,
+            wo,
+            material,
+        }
+    }
+
+    /// A visibility estimate per level-5 cell: the cells whose centre lies on the sun's
+    /// side of a plane see, the others do not (a record that calls half the sky occluded).
+    fn half_visible() -> Vec<f32> {
+        (0..1024u32)
+            .map(|c| {
+                let t = crate::sampling::octahedral::morton_decode(c);
+                let d = square_to_sphere((t.as_vec2() + 0.5) / 32.0);
+                if d.dot(Vec3::new(0.4, 0.6, -0.5)) > 0.2 {
+                    1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn mixture_samples_follow_the_mixture_pdf() {
+        // The product is built at one point and the mixture used at another (a jittered
+        // sample's hit), for every combination of techniques.
+        let env = test_sky(64);
+        let materials = [
+            Material::lambert([0.8; 3]).unwrap(),
+            Material::phong([0.2; 3], [0.7; 3], 30.0).unwrap(),
+        ];
+        let weights = [
+            Techniques::PRODUCT,
+            Techniques::CONTROL_VARIATE,
+            Techniques::new(0.0, 1.0, 0.0, 0.0),
+            Techniques::new(0.0, 0.0, 1.0, 1.0),
+            Techniques::new(0.2, 0.2, 0.3, 0.3),
+        ];
+        let [(n0, wo0), (n1, wo1), _] = frames();
+        for m in materials {
+            let product = ProductDistribution::new(&env, &m, n0, wo0, 5).unwrap();
+            let guided = product.guided(half_visible()).unwrap();
+            let sp = point(n1, wo1, m);
+            for t in weights {
+                let mix = Mixture::new(&env, &sp, Some(&product), Some(&guided), &t);
+                let samples = (0..300_000).map(|i| {
+                    let r = SampleRng::new(23, i, 0);
+                    mix.sample(r.get2(0), r.get(2)).map(|d| {
+                        assert!((d.pdf - mix.pdf(d.direction)).abs() <= 1e-9 * d.pdf);
+                        d.direction
+                    })
+                });
+                // The BSDF's density varies inside a bin: integrate it on a fine sub-grid.
+                let params = Chi2Params::with_resolution(64).with_subdivisions(8);
+                let outcome = chi2_sphere(samples, |d| mix.pdf(d), &params);
+                assert!(outcome.passed, "{m:?} {t:?}: {outcome:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_mixture_estimates_the_unoccluded_integral_without_bias() {
+        // E[f L cos / p] over the mixture equals ∫ f L cos dω (dense quadrature over the
+        // map's texels), for a product built at another point and records that call most
+        // of the sky occluded, and for weights without a product.
+        let env = test_sky(64);
+        let m = Material::phong([0.3; 3], [0.5; 3], 20.0).unwrap();
+        let [(n0, wo0), (n1, wo1), _] = frames();
+        let product = ProductDistribution::new(&env, &m, n0, wo0, 5).unwrap();
+        let guided = product.guided(half_visible()).unwrap();
+        let sp = point(n1, wo1, m);
+        let res = 512u32;
+        let omega = texel_solid_angle(res);
+        let mut exact = 0.0f64;
+        for y in 0..res {
+            for x in 0..res {
+                let d = square_to_sphere((Vec2::new(x as f32, y as f32) + 0.5) / res as f32);
+                let cos = n1.dot(d).max(0.0) as f64;
+                exact += (m.eval(n1, wo1, d) * env.eval(d)).x as f64 * cos * omega;
+            }
+        }
+        for t in [
+            Techniques::CONTROL_VARIATE,
+            Techniques::new(0.0, 0.0, 1.0, 1.0),
+        ] {
+            let mix = Mixture::new(&env, &sp, Some(&product), Some(&guided), &t);
+            let n = 400_000u64;
+            let (mut sum, mut sum2) = (0.0f64, 0.0f64);
+            for i in 0..n {
+                let r = SampleRng::new(29, i, 0);
+                if let Some(d) = mix.sample(r.get2(0), r.get(2)) {
+                    let cos = n1.dot(d.direction).max(0.0) as f64;
+                    let f = m.eval(n1, wo1, d.direction).x as f64;
+                    let v = f * env.texel(d.texel).x as f64 * cos / d.pdf;
+                    sum += v;
+                    sum2 += v * v;
+                }
+            }
+            let mean = sum / n as f64;
+            let se = ((sum2 / n as f64 - mean * mean) / (n - 1) as f64).sqrt();
+            // The quadrature's own error (texels at 4x the map's resolution) is far smaller.
+            assert!(
+                (mean - exact).abs() < 4.0 * se,
+                "{t:?}: {mean} vs {exact} (SE {se})"
+            );
+        }
+    }
+
+    #[test]
+    fn guided_sampling_prefers_what_the_records_see() {
+        let env = test_sky(64);
+        let m = Material::lambert([0.8; 3]).unwrap();
+        let (n, wo) = frames()[0];
+        let product = ProductDistribution::new(&env, &m, n, wo, 5).unwrap();
+        let vis = half_visible();
+        let guided = product.guided(vis.clone()).unwrap();
+        for i in 0..10_000 {
+            let s = guided.sample_point(&product, &env, uniform(i));
+            assert_eq!(vis[product.cell_of(&env, s.texel)], 1.0);
+            let ratio = guided.ratio(product.cell_of(&env, s.texel));
+            assert!((s.pdf - product.texel_pdf(&env, s.texel) * ratio).abs() <= 1e-12 * s.pdf);
+        }
+        // Records that see nothing guide nothing.
+        assert!(product.guided(vec![0.0; 1024]).is_none());
+    }
+
+    #[test]
+    fn techniques_are_picked_by_interval_and_rescaled() {
+        let c = [0.5, 0.0, 0.25, 0.25];
+        assert_eq!(pick_technique(0.0, &c), (0, 0.0));
+        assert_eq!(pick_technique(0.25, &c), (0, 0.5));
+        assert_eq!(pick_technique(0.5, &c), (2, 0.0));
+        assert_eq!(pick_technique(0.875, &c), (3, 0.5));
+        // Past the end by rounding: the last technique with a share.
+        let (t, u) = pick_technique(1.0, &[0.3, 0.0, 0.7, 0.0]);
+        assert!(t == 2 && u < 1.0);
+        // The guided share falls to the product without records; weights are checked.
+        let p = Techniques::CONTROL_VARIATE.probabilities(true, false, true);
+        assert_eq!(p, Techniques::PRODUCT.probabilities(true, false, true));
+        assert_eq!(
+            Techniques::PRODUCT.probabilities(false, false, false),
+            [0.0, 0.0, 1.0, 0.0]
+        );
+        assert!(Techniques::PRODUCT.validate(true).is_ok());
+        assert!(Techniques::PRODUCT_ONLY.validate(false).is_ok());
+        assert!(Techniques::PRODUCT_ONLY.validate(true).is_err());
+        assert!(Techniques::new(-1.0, 0.0, 1.0, 0.0)
+            .validate(false)
+            .is_err());
+        assert!(Techniques::new(f32::NAN, 0.0, 1.0, 0.0)
+            .validate(false)
+            .is_err());
+        assert!(Techniques::new(0.0, 0.0, 0.0, 0.0).validate(false).is_err());
+        let w = Techniques::CONTROL_VARIATE.without_product();
+        assert_eq!((w.product, w.guided), (0.0, 0.0));
+        assert!((w.bsdf + w.env - 1.0).abs() < 1e-6);
     }
 
     #[test]

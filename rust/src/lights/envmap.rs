@@ -584,9 +584,15 @@ impl EnvMap {
         (t.y * self.resolution + t.x) as usize
     }
 
+    /// Radiance of texel `texel`.
+    #[inline]
+    pub fn texel(&self, texel: UVec2) -> Vec3 {
+        Vec3::from(self.texels[(texel.y * self.resolution + texel.x) as usize])
+    }
+
     /// Solid-angle pdf (sr⁻¹) of [`Self::sample`] for the texel `cell`.
     #[inline]
-    fn texel_pdf(&self, cell: UVec2) -> f64 {
+    pub fn texel_pdf(&self, cell: UVec2) -> f64 {
         match &self.distribution {
             Some(d) => d.probability(cell) / texel_omega(self.resolution),
             None => 0.0,

@@ -14,7 +14,7 @@ use super::convert::{
 use super::envmap::PyEnvMap;
 use super::scene::PyScene;
 use crate::estimators::control_variate::AlphaRule;
-use crate::estimators::direct::Method;
+use crate::estimators::direct::{Method, Techniques};
 use crate::render::{render as render_core, RenderParams, MAX_SPP};
 
 /// `alpha`: a number, or "estimate" (neighbour pooling with `radius`).
@@ -40,13 +40,40 @@ fn alpha_arg(alpha: Option<&Bound<'_, PyAny>>, radius: u32) -> PyResult<AlphaRul
     Ok(AlphaRule::Fixed(f64_arg(alpha, "alpha")?))
 }
 
+/// `technique_weights`: a dict of weights by technique name ("product", "guided", "bsdf",
+/// "env"; missing ones are 0), or None for the method's default.
+fn techniques_arg(weights: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Techniques>> {
+    const NAMES: [&str; 4] = ["product", "guided", "bsdf", "env"];
+    let Some(weights) = weights.filter(|w| !w.is_none()) else {
+        return Ok(None);
+    };
+    let dict = weights.cast::<PyDict>().map_err(|_| {
+        PyTypeError::new_err(format!(
+            "technique_weights: expected a dict of weights by technique {NAMES:?} or None"
+        ))
+    })?;
+    let mut w = [0.0f32; 4];
+    for (key, value) in dict.iter() {
+        let key: String = key
+            .extract()
+            .map_err(|_| PyTypeError::new_err("technique_weights: keys must be technique names"))?;
+        let k = NAMES.iter().position(|n| *n == key).ok_or_else(|| {
+            PyValueError::new_err(format!(
+                "technique_weights: unknown technique {key:?}; expected one of {NAMES:?}"
+            ))
+        })?;
+        w[k] = f64_arg(&value, "technique_weights")? as f32;
+    }
+    Ok(Some(Techniques::new(w[0], w[1], w[2], w[3])))
+}
+
 /// Renders direct illumination; returns a dict with `image` and `variance` (H, W, 3)
 /// float32, `alpha` (H, W, 3) float32 for method "cv" (else None) and `stats` (a dict).
 /// `callback(done, planned)` (pixel samples), if given, is called about every 0.1 s and
 /// after every pass with the GIL held; a falsy return or an exception stops the render
 /// (the exception is then raised).
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp, method, seed=None, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=false, alpha=None, alpha_radius=None, insert_missing=false))]
+#[pyo3(signature = (scene, envmap, camera, spp, method, seed=None, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=None, insert_missing=false, technique_weights=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -65,6 +92,7 @@ pub fn render<'py>(
     alpha: Option<&Bound<'py, PyAny>>,
     alpha_radius: Option<&Bound<'py, PyAny>>,
     insert_missing: bool,
+    technique_weights: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let method = Method::from_name(method).ok_or_else(|| {
         let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
@@ -81,9 +109,11 @@ pub fn render<'py>(
         },
         product_level: product_level_arg(product_level)?,
         jitter,
+        techniques: techniques_arg(technique_weights)?,
         alpha: alpha_arg(alpha, radius)?,
         insert_missing,
     };
+    params.validate().py()?;
     let threads = threads_arg(threads)?;
     let (scene, cam) = (scene.inner.clone(), camera.inner);
     let cache = cache.map(|c| c.inner.clone());
@@ -126,6 +156,15 @@ pub fn render<'py>(
     stats.set_item("passes", s.passes)?;
     stats.set_item("complete", s.complete)?;
     stats.set_item("jitter", params.jitter)?;
+    let t = params.techniques();
+    let weights = PyDict::new(py);
+    for (name, w) in ["product", "guided", "bsdf", "env"]
+        .iter()
+        .zip(t.to_array())
+    {
+        weights.set_item(name, w)?;
+    }
+    stats.set_item("technique_weights", weights)?;
     stats.set_item("samples", s.samples)?;
     stats.set_item("primary_rays", s.primary_rays)?;
     stats.set_item("shadow_rays", s.shadow_rays)?;
@@ -156,6 +195,7 @@ pub fn render<'py>(
         stats.set_item("records_per_point", s.records_used as f64 / points)?;
         stats.set_item("shared_lookups", s.shared_lookups)?;
         stats.set_item("reused_integrals", s.reused_integrals)?;
+        stats.set_item("unmatched_samples", s.unmatched_samples)?;
         stats.set_item("record_misses", s.record_misses)?;
         stats.set_item("record_uses", s.record_uses)?;
         stats.set_item(

@@ -1,4 +1,5 @@
-//! Sampling: the counter-based random number generator, the equal-area octahedral
+//! Sampling: the counter-based random number generator, the renderer's per-pixel
+//! Owen-scrambled Sobol samples, the equal-area octahedral
 //! parameterization of the sphere, hierarchical 2D distributions over it, and the
 //! chi-square test every sampler is checked with, and the direction pattern of visibility
 //! records.
@@ -8,3 +9,4 @@ pub mod distribution;
 pub mod octahedral;
 pub mod pattern;
 pub mod rng;
+pub mod sobol;

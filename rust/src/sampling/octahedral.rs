@@ -93,7 +93,13 @@ pub fn sphere_to_square(d: Vec3) -> Vec2 {
 /// The texel of a `res x res` grid that contains direction `d` (`res >= 1`).
 #[inline]
 pub fn texel_of(d: Vec3, res: u32) -> UVec2 {
-    let p = sphere_to_square(d) * res as f32;
+    texel_of_square(sphere_to_square(d), res)
+}
+
+/// The texel of a `res x res` grid containing point `p` of the square (clamped to it).
+#[inline]
+pub fn texel_of_square(p: Vec2, res: u32) -> UVec2 {
+    let p = p * res as f32;
     let max = res - 1;
     UVec2::new(
         (p.x.max(0.0) as u32).min(max),

@@ -35,6 +35,27 @@ pub fn to_unit_f64(bits: u64) -> f64 {
     (bits >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
+/// A source of the random numbers of one pixel sample, by dimension: the estimators draw
+/// through it, so the renderer may give them quasi-random samples
+/// ([`super::sobol::PixelSampler`]) and tests independent ones ([`SampleRng`]).
+pub trait Sampler {
+    /// Uniform in `[0, 1)` for dimension `d`.
+    fn get(&self, d: u64) -> f32;
+
+    /// Two consecutive dimensions `d, d + 1` as a 2D point in `[0, 1)^2`.
+    #[inline]
+    fn get2(&self, d: u64) -> [f32; 2] {
+        [self.get(d), self.get(d + 1)]
+    }
+}
+
+impl Sampler for SampleRng {
+    #[inline(always)]
+    fn get(&self, d: u64) -> f32 {
+        SampleRng::get(self, d)
+    }
+}
+
 /// The random stream of one sample of one pixel: `get(d)` is the value of dimension `d`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SampleRng {
