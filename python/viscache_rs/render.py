@@ -2,9 +2,9 @@
 
 ``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
 time_budget=None, envmap=None, product_level="auto", cache=None, preset="medium", jitter=True,
-alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None)`` renders ``setup.scene`` lit by
-``setup.envmap`` (or ``envmap``) and the scene's area lights, through ``camera`` (default:
-the setup's). Methods:
+alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None)`` renders
+``setup.scene`` lit by ``setup.envmap`` (or ``envmap``) and the scene's area lights, through
+``camera`` (default: the setup's). Methods:
 
 - ``"env"``: light sampling (the map's own distribution, one point per area light);
 - ``"bsdf"``: BSDF sampling (what the sampled ray finds);
