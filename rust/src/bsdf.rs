@@ -457,47 +457,62 @@ impl CellCones {
             half_angle: Vec::with_capacity(cells),
             cell_solid_angle: (4.0 * std::f64::consts::PI / cells as f64) as f32,
         };
-        for code in 0..cells as u32 {
-            let cell = morton_decode(code);
-            let x0 = cell.x as f64 / res as f64;
-            let y0 = cell.y as f64 / res as f64;
-            let side = 1.0 / res as f64;
-            let centre = square_to_sphere(Vec2::new(
-                (x0 + 0.5 * side) as f32,
-                (y0 + 0.5 * side) as f32,
-            ))
-            .as_dvec3()
-            .normalize();
-            let mut max_angle = 0.0f64;
-            let mut max_gap = 0.0f64;
-            // Walk the border counter-clockwise, 4k points; remember the largest gap.
-            let mut prev: Option<DVec3> = None;
-            let mut first: Option<DVec3> = None;
-            for i in 0..4 * k {
-                let (edge, j) = (i / k, (i % k) as f64 / k as f64);
-                let (px, py) = match edge {
-                    0 => (j, 0.0),
-                    1 => (1.0, j),
-                    2 => (1.0 - j, 1.0),
-                    _ => (0.0, 1.0 - j),
-                };
-                let d =
+        // Cells in parallel (level 6 walks a million border points). Per cell the border
+        // point farthest from the centre, and the widest gap between neighbours, are found
+        // by their dot products; only those two angles take the accurate atan2 form.
+        use rayon::prelude::*;
+        let cones: Vec<(DVec3, f64)> = (0..cells as u32)
+            .into_par_iter()
+            .map(|code| {
+                let cell = morton_decode(code);
+                let x0 = cell.x as f64 / res as f64;
+                let y0 = cell.y as f64 / res as f64;
+                let side = 1.0 / res as f64;
+                let centre = square_to_sphere(Vec2::new(
+                    (x0 + 0.5 * side) as f32,
+                    (y0 + 0.5 * side) as f32,
+                ))
+                .as_dvec3()
+                .normalize();
+                let border = |i: u32| {
+                    let (edge, j) = (i / k, (i % k) as f64 / k as f64);
+                    let (px, py) = match edge {
+                        0 => (j, 0.0),
+                        1 => (1.0, j),
+                        2 => (1.0 - j, 1.0),
+                        _ => (0.0, 1.0 - j),
+                    };
                     square_to_sphere(Vec2::new((x0 + px * side) as f32, (y0 + py * side) as f32))
                         .as_dvec3()
-                        .normalize();
-                max_angle = max_angle.max(angle_between(centre, d));
-                if let Some(p) = prev {
-                    max_gap = max_gap.max(angle_between(p, d));
+                        .normalize()
+                };
+                // Walk the border counter-clockwise, 4k points.
+                let first = border(0);
+                let (mut far, mut far_dot) = (first, centre.dot(first));
+                let (mut gap, mut gap_dot) = ((first, first), 1.0f64);
+                let mut prev = first;
+                for i in 1..=4 * k {
+                    let d = if i == 4 * k { first } else { border(i) };
+                    let to_centre = centre.dot(d);
+                    if to_centre < far_dot {
+                        (far, far_dot) = (d, to_centre);
+                    }
+                    let to_prev = prev.dot(d);
+                    if to_prev < gap_dot {
+                        (gap, gap_dot) = ((prev, d), to_prev);
+                    }
+                    prev = d;
                 }
-                first.get_or_insert(d);
-                prev = Some(d);
-            }
-            if let (Some(p), Some(f)) = (prev, first) {
-                max_gap = max_gap.max(angle_between(p, f));
-            }
-            // A border point between two samples lies within half the gap of one of them;
-            // 1e-5 rad more covers the f32 rounding of the map and of the per-cell maths.
-            let a = (max_angle + 0.5 * max_gap + 1e-5).min(std::f64::consts::PI);
+                let max_angle = angle_between(centre, far);
+                let max_gap = angle_between(gap.0, gap.1);
+                // A border point between two samples lies within half the gap of one of
+                // them; 1e-5 rad more covers the f32 rounding of the map and of the
+                // per-cell maths (and the dot products' choice of the extreme points).
+                let a = (max_angle + 0.5 * max_gap + 1e-5).min(std::f64::consts::PI);
+                (centre, a)
+            })
+            .collect();
+        for (centre, a) in cones {
             let c = centre.as_vec3();
             t.cx.push(c.x);
             t.cy.push(c.y);

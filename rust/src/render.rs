@@ -29,14 +29,15 @@
 //! is a third of what the control variate adds per pixel.
 //!
 //! ## Passes, progress and budgets
-//! Without a time budget the render is one pass of `spp` samples per pixel. With one, the
-//! first pass takes one sample per pixel; from its timing the renderer models a pass as a
-//! fixed cost (the anchors) plus a cost per sample, and sizes the next pass to spend about
-//! half of the budget that is left, the one after that nearly all of it, and stops when
-//! not even one more sample per pixel fits. Anchors are redone each pass (they are not
-//! kept: a product distribution is kilobytes). Progress is reported from the calling
-//! thread while the workers run, in pixel samples; a `false` from it stops the pass
-//! (pixels not started keep the samples they had, `stats.complete` says so).
+//! Without a time budget the render is one pass of `spp` samples per pixel. With one, a
+//! first probe pass takes one sample in every fourth band of pixels; from its timing the
+//! renderer models a pass as a cost per pixel (its anchor) plus a cost per sample, and the
+//! next pass brings every pixel to the most samples that fit 97% of the budget left; a
+//! top-up pass follows when one more sample per pixel still fits ([`PassSchedule`]).
+//! Anchors are redone each pass (they are not kept: a product distribution is kilobytes).
+//! Progress is reported from the calling thread while the workers run, in pixel samples;
+//! a `false` from it stops the pass (pixels not started keep the samples they had,
+//! `stats.complete` says so).
 //!
 //! ## Samples
 //! Sample `s` of pixel `i` draws every random number from `(seed, i, s, dimension)`
@@ -54,6 +55,7 @@
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::Vec3;
@@ -247,6 +249,9 @@ pub struct RenderStats {
     /// ... and its `J` too: the same material, shading normal and (a BSDF whose product
     /// ignores the view) so the same product distribution.
     pub reused_integrals: u64,
+    /// Anchors whose product distribution was the previous pixel's (the same material
+    /// and normal, a product that ignores the view).
+    pub reused_products: u64,
     /// Jittered samples whose hit was not their anchor's surface (another object, or a
     /// normal turned beyond the material's product tolerance): they were shaded without
     /// the anchor's product and control variate.
@@ -286,6 +291,9 @@ struct BandWork {
     lookup_ns: u64,
     control_ns: u64,
     shading_ns: u64,
+    /// Pixels shaded in this pass (each prepares its anchor) and samples taken.
+    anchored_pixels: u64,
+    samples: u64,
     /// CPU time of the anchors (all of [`Shader::prepare`]) and of the samples.
     anchor_ns: u64,
     sample_ns: u64,
@@ -301,6 +309,11 @@ struct BandWork {
     /// The last lookup of this band, which the next pixel may share (see
     /// [`Shader::shared_lookup`]).
     last_lookup: Option<SharedLookup>,
+    /// The last product distribution of this band that ignores the view, with its
+    /// material and normal: a pixel with the same key has the same product.
+    last_product: Option<((Material, Vec3), Arc<ProductDistribution>)>,
+    /// Anchors that took the previous pixel's product.
+    reused_products: u64,
     /// Lookups answered by a neighbour's.
     shared_lookups: u64,
     /// ... whose `J` was the neighbour's too (the same product distribution).
@@ -308,7 +321,7 @@ struct BandWork {
 }
 
 /// A lookup, the point it was made for, and the interpolant made of it there.
-#[derive(Clone, Copy)]
+#[derive(Clone)]
 struct SharedLookup {
     pixel: usize,
     position: Vec3,
@@ -320,6 +333,8 @@ struct SharedLookup {
     /// with the same key has the same product, so `interpolant`'s `J` holds there too.
     product_key: Option<(Material, Vec3)>,
     interpolant: Interpolant,
+    /// The guided product made of the interpolant and that product.
+    guided: Option<Arc<GuidedProduct>>,
 }
 
 impl BandWork {
@@ -341,6 +356,7 @@ impl BandWork {
         self.records_used += o.records_used;
         self.shared_lookups += o.shared_lookups;
         self.reused_integrals += o.reused_integrals;
+        self.reused_products += o.reused_products;
         for (id, (m, u)) in o.verdicts {
             let e = self.verdicts.entry(id).or_default();
             e.0 += m;
@@ -368,9 +384,9 @@ struct SurfacePoint {
     /// per-channel scale.
     ratios: [f64; 3],
     emitted: Vec3,
-    product: Option<ProductDistribution>,
+    product: Option<Arc<ProductDistribution>>,
     /// The product guided by the records' visibility (method "cv", records found).
-    guided: Option<GuidedProduct>,
+    guided: Option<Arc<GuidedProduct>>,
     interpolant: Interpolant,
 }
 
@@ -465,9 +481,21 @@ impl Shader<'_> {
         let normal = sp.normal;
         let emitted = self.lighting.scene.emitted(&hit, sp.wo);
         let mut product = None;
+        // A product that ignores the view is the previous pixel's when the material and
+        // normal are (flat diffuse surfaces: most pixels of most scenes).
+        let product_key = (!sp.material.product_depends_on_wo()).then_some((sp.material, normal));
         if self.uses_product() {
             let start = Instant::now();
-            product = self.lighting.product(&sp);
+            product = match (&work.last_product, product_key) {
+                (Some((key, p)), Some(k)) if *key == k => {
+                    work.reused_products += 1;
+                    Some(p.clone())
+                }
+                _ => self.lighting.product(&sp).map(Arc::new),
+            };
+            if let (Some(k), Some(p)) = (product_key, &product) {
+                work.last_product = Some((k, p.clone()));
+            }
             work.product_ns += elapsed_ns(start);
         }
         let mut interpolant = Interpolant::EMPTY;
@@ -477,7 +505,7 @@ impl Shader<'_> {
             let footprint = self.camera.footprint(dir, hit.t, normal);
             let d_max = cache.params().d_max_scale * footprint;
             let shared = self.shared_lookup(pixel, hit.position, normal, d_max, work);
-            let lookup = match shared {
+            let lookup = match &shared {
                 Some(shared) => {
                     work.shared_lookups += 1;
                     shared.lookup
@@ -486,20 +514,27 @@ impl Shader<'_> {
             };
             let looked = Instant::now();
             work.lookup_ns += (looked - start).as_nanos() as u64;
-            interpolant = match product.as_ref() {
-                Some(p) if !lookup.neighbours().is_empty() => {
-                    // The neighbour's J holds when its product was this point's too.
-                    let key = Some((sp.material, sp.normal));
-                    match shared.filter(|s| s.product_key == key) {
-                        Some(s) => {
-                            work.reused_integrals += 1;
-                            s.interpolant
-                        }
-                        None => {
-                            let tables = ControlTables::new(p, chroma, state.store().m());
-                            Interpolant::new(state, &lookup, Some((&tables, p, self.lighting.env)))
-                        }
+            // The neighbour's J (and guided product) hold when its product was this
+            // point's too.
+            let same_product = shared.as_ref().filter(|s| {
+                product.is_some() && product_key.is_some() && s.product_key == product_key
+            });
+            interpolant = match (product.as_deref(), same_product) {
+                (Some(_), Some(s)) if !lookup.neighbours().is_empty() => {
+                    work.reused_integrals += 1;
+                    guided = s.guided.clone();
+                    s.interpolant
+                }
+                (Some(p), _) if !lookup.neighbours().is_empty() => {
+                    let tables = ControlTables::new(p, chroma, state.store().m());
+                    let interpolant =
+                        Interpolant::new(state, &lookup, Some((&tables, p, self.lighting.env)));
+                    if self.techniques.guided > 0.0 {
+                        guided = p
+                            .guided(interpolant.cell_visibility(state, p.level()))
+                            .map(Arc::new);
                     }
+                    interpolant
                 }
                 _ => Interpolant::new(state, &lookup, None),
             };
@@ -510,15 +545,10 @@ impl Shader<'_> {
                     normal,
                     d_max,
                     lookup,
-                    product_key: (product.is_some() && !sp.material.product_depends_on_wo())
-                        .then_some((sp.material, sp.normal)),
+                    product_key: product.as_ref().and(product_key),
                     interpolant,
+                    guided: guided.clone(),
                 });
-            }
-            if let Some(p) = product.as_ref().filter(|_| !interpolant.is_empty()) {
-                if self.techniques.guided > 0.0 {
-                    guided = p.guided(interpolant.cell_visibility(state, p.level()));
-                }
             }
             work.control_ns += elapsed_ns(looked);
             work.cache_points += 1;
@@ -562,7 +592,7 @@ impl Shader<'_> {
         (odd && last.pixel + 1 == pixel
             && last.normal.dot(normal) >= COS_5_DEG
             && last.position.distance(position) <= 0.25 * d_max.min(last.d_max))
-        .then_some(*last)
+        .then(|| last.clone())
     }
 
     /// One sample at `sp` (the anchor's point, or the sample's own hit with `anchor` its
@@ -594,7 +624,7 @@ impl Shader<'_> {
         // The anchor's product where it describes the hit; BSDF and map sampling elsewhere.
         let (product, guided, techniques) = match anchor {
             Some(a) if matched && a.product.is_some() => {
-                (a.product.as_ref(), a.guided.as_ref(), self.techniques)
+                (a.product.as_deref(), a.guided.as_deref(), self.techniques)
             }
             _ => (None, None, self.techniques.without_product()),
         };
@@ -750,7 +780,6 @@ pub fn render(
     let start = Instant::now();
     let mut sums = vec![CvSums::default(); pixels];
     let mut total = BandWork::default();
-    let mut spp_done = 0u32;
     let mut passes = 0u32;
     let mut complete = true;
     let planned = params.spp as u64 * pixels as u64;
@@ -760,19 +789,37 @@ pub fn render(
     with_threads(threads, || {
         let _ = scene.bvh();
     })?;
+    // The per-level cone tables of B~ are built once per process; build them before the
+    // passes so the first pass's timing models what the others cost.
+    if matches!(params.method, Method::Product | Method::ControlVariate) {
+        with_threads(threads, || {
+            for object in &scene.mesh().objects {
+                crate::bsdf::CellCones::get(params.product_level.for_material(&object.material));
+            }
+        })?;
+    }
     let mut schedule = PassSchedule::default();
-    while spp_done < params.spp {
-        let pass_len = match params.time_budget {
-            None => params.spp,
+    let mut taken = 0u64;
+    loop {
+        // Each pass brings the pixels it covers up to `target` samples.
+        let (target, probe) = match params.time_budget {
+            None if passes == 0 => (params.spp, false),
+            None => break,
+            Some(_) if passes == 0 => (1, true),
             Some(budget) => {
                 let left = budget - start.elapsed().as_secs_f64();
-                match schedule.next_pass(left, spp_done) {
-                    Some(n) => n.min(params.spp - spp_done),
+                let min = sums.iter().map(|s| s.n).min().unwrap_or(0);
+                if min >= params.spp {
+                    break;
+                }
+                match schedule.next_target(left, pixels as u64, taken, min) {
+                    Some(t) => (t.min(params.spp), false),
+                    // Every pixel gets a sample, whatever the budget.
+                    None if min == 0 => (1, false),
                     None => break,
                 }
             }
         };
-        let range = spp_done..spp_done + pass_len;
         let pass_start = Instant::now();
         let guard = cache.map(|c| c.read());
         let shader = Shader {
@@ -790,14 +837,22 @@ pub fn render(
                     .enumerate()
                     .map(|(band, band_sums)| {
                         let mut work = BandWork::default();
-                        if cancel.load(Ordering::Relaxed) {
+                        if cancel.load(Ordering::Relaxed)
+                            || (probe && band % PassSchedule::PROBE_STRIDE != 0)
+                        {
                             return work;
                         }
                         let first = band * BAND_ROWS * width;
+                        let mut band_samples = 0u64;
                         for (i, acc) in band_sums.iter_mut().enumerate() {
-                            shader.shade_pixel(first + i, range.clone(), acc, &mut work);
+                            if acc.n < target {
+                                band_samples += (target - acc.n) as u64;
+                                work.anchored_pixels += 1;
+                                shader.shade_pixel(first + i, acc.n..target, acc, &mut work);
+                            }
                         }
-                        done.fetch_add(band_sums.len() as u64 * pass_len as u64, Ordering::Relaxed);
+                        work.samples += band_samples;
+                        done.fetch_add(band_samples, Ordering::Relaxed);
                         work
                     })
                     .collect::<Vec<BandWork>>()
@@ -811,24 +866,23 @@ pub fn render(
             },
         )?;
         drop(guard);
-        let (anchor_ns, sample_ns) = work
-            .iter()
-            .fold((0, 0), |(a, b), w| (a + w.anchor_ns, b + w.sample_ns));
+        let mut pass = PassWork::default();
+        for w in &work {
+            pass.anchored_pixels += w.anchored_pixels;
+            pass.samples += w.samples;
+            pass.anchor_ns += w.anchor_ns;
+            pass.sample_ns += w.sample_ns;
+        }
         for w in work {
             total.merge(w);
         }
         passes += 1;
-        schedule.record(
-            pass_start.elapsed().as_secs_f64(),
-            pass_len,
-            anchor_ns,
-            sample_ns,
-        );
+        taken += pass.samples;
+        schedule.record(pass_start.elapsed().as_secs_f64(), pass);
         if cancel.load(Ordering::Relaxed) {
             complete = false;
             break;
         }
-        spp_done += pass_len;
         let keep_going = progress(done.load(Ordering::Relaxed), planned);
         let over_budget = params
             .time_budget
@@ -874,6 +928,7 @@ pub fn render(
         records_used: total.records_used,
         shared_lookups: total.shared_lookups,
         reused_integrals: total.reused_integrals,
+        reused_products: total.reused_products,
         unmatched_samples: total.unmatched_samples,
         record_misses: total.verdicts.values().map(|v| v.0 as u64).sum(),
         record_uses: total.verdicts.values().map(|v| v.1 as u64).sum(),
@@ -913,51 +968,58 @@ pub fn render(
     })
 }
 
-/// Sizes the passes of a budgeted render from the timing of the passes so far: a pass
-/// costs a fixed part (its anchors) plus a part per sample per pixel, both scaled from
-/// CPU to wall-clock seconds by what the passes took.
+/// What one pass did, for [`PassSchedule`].
 #[derive(Clone, Copy, Debug, Default)]
-struct PassSchedule {
-    passes: u32,
-    wall: f64,
+struct PassWork {
+    anchored_pixels: u64,
     samples: u64,
     anchor_ns: u64,
     sample_ns: u64,
 }
 
-impl PassSchedule {
-    /// Share of the budget left that the second pass aims to spend; later passes aim at
-    /// [`Self::LATER_SHARE`]. Half leaves room to correct a model made from one sample.
-    const SECOND_SHARE: f64 = 0.5;
-    const LATER_SHARE: f64 = 0.97;
+/// Sizes the passes of a budgeted render. The first pass is a probe: one sample in the
+/// pixels of every [`Self::PROBE_STRIDE`]-th band. From it (and any later pass) the cost of
+/// a pass is modelled as wall-clock seconds per anchored pixel plus seconds per sample (the
+/// CPU time of the two, scaled to the wall clock the passes took), and the next pass brings
+/// every pixel to the most samples that fit [`Self::SHARE`] of the budget left. A pass
+/// recomputes its pixels' anchors, so few passes waste least: usually the probe, one main
+/// pass, and a top-up pass when a whole sample per pixel still fits.
+#[derive(Clone, Copy, Debug, Default)]
+struct PassSchedule {
+    passes: u32,
+    wall: f64,
+    work: PassWork,
+}
 
-    fn record(&mut self, wall: f64, samples: u32, anchor_ns: u64, sample_ns: u64) {
+impl PassSchedule {
+    /// The probe pass covers one band in this many.
+    const PROBE_STRIDE: usize = 4;
+    /// Share of the budget left that a pass aims to spend (the rest absorbs the model's
+    /// error).
+    const SHARE: f64 = 0.97;
+
+    fn record(&mut self, wall: f64, pass: PassWork) {
         self.passes += 1;
         self.wall += wall;
-        self.samples += samples as u64;
-        self.anchor_ns += anchor_ns;
-        self.sample_ns += sample_ns;
+        self.work.anchored_pixels += pass.anchored_pixels;
+        self.work.samples += pass.samples;
+        self.work.anchor_ns += pass.anchor_ns;
+        self.work.sample_ns += pass.sample_ns;
     }
 
-    /// Samples per pixel of the next pass with `left` seconds of budget, or `None` when
-    /// not even one fits (never before the first pass).
-    fn next_pass(&self, left: f64, done: u32) -> Option<u32> {
-        if self.passes == 0 || done == 0 {
-            return Some(1);
-        }
-        let cpu = (self.anchor_ns + self.sample_ns).max(1) as f64;
-        let per_pass = self.wall * self.anchor_ns as f64 / cpu / self.passes as f64;
-        let per_sample = self.wall * self.sample_ns as f64 / cpu / self.samples.max(1) as f64;
-        if left < per_pass + per_sample {
-            return None;
-        }
-        let share = if self.passes == 1 {
-            Self::SECOND_SHARE
-        } else {
-            Self::LATER_SHARE
-        };
-        let n = ((left * share - per_pass) / per_sample.max(1e-12)).floor();
-        Some(n.clamp(1.0, MAX_SPP as f64) as u32)
+    /// The sample count per pixel the next pass should bring every one of `pixels` pixels
+    /// to, with `left` seconds of budget, `taken` samples already taken and every pixel
+    /// at `min` or more; `None` when not even one more sample per pixel fits.
+    fn next_target(&self, left: f64, pixels: u64, taken: u64, min: u32) -> Option<u32> {
+        let w = &self.work;
+        let cpu = (w.anchor_ns + w.sample_ns).max(1) as f64;
+        let per_pixel = self.wall * w.anchor_ns as f64 / cpu / w.anchored_pixels.max(1) as f64;
+        let per_sample = self.wall * w.sample_ns as f64 / cpu / w.samples.max(1) as f64;
+        let spend = left * Self::SHARE - per_pixel * pixels as f64;
+        // Samples that fit, on top of those taken, spread over every pixel.
+        let total = taken as f64 + spend / per_sample.max(1e-12);
+        let target = (total / pixels.max(1) as f64).floor();
+        (target > min as f64).then(|| target.min(MAX_SPP as f64) as u32)
     }
 }
 

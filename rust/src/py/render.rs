@@ -176,6 +176,7 @@ pub fn render<'py>(
     stats.set_item("lookup_seconds", s.stages.lookup)?;
     stats.set_item("control_seconds", s.stages.control)?;
     stats.set_item("shading_seconds", s.stages.shading)?;
+    stats.set_item("reused_products", s.reused_products)?;
     stats.set_item(
         "direct_seconds",
         s.stages.product + s.stages.lookup + s.stages.control + s.stages.shading,
