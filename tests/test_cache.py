@@ -231,7 +231,7 @@ def test_build_is_identical_for_one_and_two_threads(cornell):
 
 def test_build_report_and_stats(cornell):
     cam = cornell.camera.with_resolution(64, 48)
-    c = vc.VisibilityCache(cornell.scene, n_startup=100)
+    c = vc.VisibilityCache(cornell.scene, preset="medium", n_startup=100)
     r = c.build(cam, progress=True)
     assert r["pixels"] == 64 * 48 and r["records"] == len(c)
     assert r["records"] == r["bootstrap_records"] + r["refined_records"]
@@ -435,6 +435,7 @@ def test_a_full_cache_traces_no_more_records():
     assert len(cache) == 20
     r = cache.resolution
     assert report["shadow_rays"] <= 20 * r * r
+    assert report["incoherence"] is not None  # the default preset checks coherence first
     assert cache.stats()["refused_full"] > 0
 
 
@@ -448,3 +449,29 @@ def test_nearest_hits_can_be_skipped_and_is_checked():
     assert np.isinf(cache.records()["nearest_hit_distance"]).all()
     with pytest.raises(TypeError, match="nearest_hits"):
         vc.VisibilityCache(setup.scene, nearest_hits="no")
+
+
+def test_auto_preset_skips_incoherent_visibility_and_keeps_its_flag(tmp_path):
+    # The default preset ("auto"): 64^2 records without nearest hits, and a check that
+    # records a quarter of d_max apart agree. Dense grass fails it (the build stops after
+    # the check's records); the garage passes and builds.
+    garden = vc.scenes.load("garden", detail=0.3)
+    cam = garden.camera.with_resolution(64, 48)
+    cache = vc.VisibilityCache(garden.scene)
+    assert cache.resolution == 64 and cache.params["check_coherence"]
+    assert not cache.params["nearest_hits"]
+    report = cache.build(cam, progress=False)
+    assert report["incoherent"] and report["incoherence"] > 0.2
+    assert len(cache) == report["bootstrap_records"] <= 128 and report["refined_records"] == 0
+    garage = vc.scenes.load("garage", detail=0.3)
+    cam = garage.camera.with_resolution(64, 48)
+    cache = vc.VisibilityCache(garage.scene)
+    report = cache.build(cam, progress=False)
+    assert not report["incoherent"] and report["incoherence"] < 0.2
+    assert report["refined_records"] > 0
+    cache.save(tmp_path / "auto.vc")
+    loaded = vc.VisibilityCache.load(tmp_path / "auto.vc", garage.scene)
+    assert loaded.params == cache.params
+    # Other presets skip the check.
+    medium = vc.VisibilityCache(garage.scene, preset="medium")
+    assert medium.build(cam, progress=False)["incoherence"] is None

@@ -14,8 +14,8 @@ occlusion ``A`` = eq. 12 / pi: the cosine-weighted visible fraction of the hemis
   ``cache`` may be an existing :class:`VisibilityCache` of ``setup.scene`` (its records are
   reused and kept);
   otherwise a new one is made with ``VisibilityCache(setup.scene, **cache_overrides)``
-  (``resolution``, ``preset`` and the cache's parameter names). Defaults (3, 40, 0.45)
-  were tuned on ``garage``; see ``estimators/ambient.rs``.
+  (``resolution``, ``preset`` (default "medium") and the cache's parameter names).
+  Defaults (3, 40, 0.45) were tuned on ``garage``; see ``estimators/ambient.rs``.
 - With ``reference_rays=N``: ray traced, N stratified cosine-weighted rays per point
   (unbiased).
 
@@ -64,7 +64,9 @@ def render_ao(
     """Ambient occlusion of a setup; see the module docstring."""
     camera = setup.camera if camera is None else camera
     if reference_rays is None and cache is None:
-        cache = _core.VisibilityCache(setup.scene, **cache_overrides)
+        # AO reads each record's nearest-hit distance R_i, which the default "auto" preset
+        # (tuned for the control variate) skips: AO's own defaults are "medium"'s.
+        cache = _core.VisibilityCache(setup.scene, **{"preset": "medium", **cache_overrides})
     elif cache_overrides:
         raise TypeError(
             f"cache_overrides: {sorted(cache_overrides)} apply only when a new cache is made "

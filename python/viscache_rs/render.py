@@ -1,7 +1,7 @@
 """The renderer: direct illumination from the environment map and area lights.
 
 ``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
-time_budget=None, envmap=None, product_level="auto", cache=None, preset="medium", jitter=True,
+time_budget=None, envmap=None, product_level="auto", cache=None, preset="auto", jitter=True,
 alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None)`` renders
 ``setup.scene`` lit by ``setup.envmap`` (or ``envmap``) and the scene's area lights, through
 ``camera`` (default: the setup's). Methods:
@@ -14,8 +14,9 @@ alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None)`` rende
   ``"auto"`` (default) 32^2 for diffuse surfaces and 64^2 for narrow glossy lobes;
 - ``"cv"``: product sampling with the visibility cache's ``L B~ V~`` as a control variate
   (CAM08 eq. 2-3): ``cache=`` a built :class:`VisibilityCache`, or None to build one for
-  the view with ``preset`` (its cost is in ``stats["cache_seconds"]``). ``alpha`` is a
-  number in [0, 2] (CAM08 uses 1) or ``"estimate"``: per pixel, Cov(Z, W) / Var(W) pooled
+  the view with ``preset`` (default "auto"; its cost is in ``stats["cache_seconds"]``, and
+  under a ``time_budget`` it spends at most a quarter of the budget, the render the rest).
+  ``alpha`` is a number in [0, 2] (CAM08 uses 1) or ``"estimate"``: per pixel, Cov(Z, W) / Var(W) pooled
   over the other pixels of a ``(2 alpha_radius + 1)^2`` window, which keeps the estimate
   unbiased (``res.alpha`` holds it). The records' misses go back to the cache (CAM08 sec.
   5.3); ``insert_missing=True`` then gives records to the points that found none.
@@ -47,6 +48,8 @@ from tqdm.auto import tqdm
 from . import _core
 
 _UNBOUNDED_SPP = 1 << 20
+# Share of a time budget that method "cv" without a cache may spend building one.
+CACHE_BUDGET_SHARE = 0.25
 
 
 @dataclass
@@ -78,7 +81,7 @@ def render(
     envmap=None,
     product_level: int | str = "auto",
     cache=None,
-    preset: str = "medium",
+    preset: str = "auto",
     jitter: bool = True,
     alpha: float | str = 1.0,
     alpha_radius: int = 4,
@@ -92,13 +95,20 @@ def render(
         spp = _UNBOUNDED_SPP if time_budget is not None else 16
     cache_stats: dict[str, Any] = {}
     if method == "cv" and cache is None:
-        # The control variate never reads R_i: skip its closest-hit rays.
+        # The control variate never reads R_i: skip its closest-hit rays. Under a time
+        # budget the build may spend a quarter of it and the render has what is left.
         cache = _core.VisibilityCache(setup.scene, preset=preset, nearest_hits=False)
         t = time.perf_counter()
-        report = cache.build(camera, seed=seed, threads=threads, progress=progress)
-        cache_stats = {"cache_seconds": time.perf_counter() - t,
+        report = cache.build(camera, seed=seed, threads=threads, progress=progress,
+                             time_budget=None if time_budget is None
+                             else CACHE_BUDGET_SHARE * time_budget)
+        built = time.perf_counter() - t
+        cache_stats = {"cache_seconds": built,
                        "cache_records": report["records"],
-                       "cache_shadow_rays": report["shadow_rays"]}
+                       "cache_shadow_rays": report["shadow_rays"],
+                       "cache_incoherent": report["incoherent"]}
+        if time_budget is not None:
+            time_budget = max(time_budget - built, 1e-3)
     elif cache is not None and method != "cv":
         raise ValueError(f"cache: only method 'cv' uses a cache, got method {method!r}")
     pixels = camera.width * camera.height

@@ -58,6 +58,11 @@ fn apply_overrides(p: &mut CacheParams, overrides: &Bound<'_, PyDict>) -> PyResu
                     .extract::<bool>()
                     .map_err(|_| PyTypeError::new_err("nearest_hits: must be a bool"))?
             }
+            "check_coherence" => {
+                p.check_coherence = value
+                    .extract::<bool>()
+                    .map_err(|_| PyTypeError::new_err("check_coherence: must be a bool"))?
+            }
             "pattern_seed" => {
                 p.pattern_seed = seed_arg(&value).map_err(|_| {
                     PyValueError::new_err("pattern_seed: must be an integer in [0, 2^64)")
@@ -73,7 +78,7 @@ fn apply_overrides(p: &mut CacheParams, overrides: &Bound<'_, PyDict>) -> PyResu
     Ok(())
 }
 
-const PARAM_NAMES: [&str; 14] = [
+const PARAM_NAMES: [&str; 15] = [
     "n_startup",
     "d_max_scale",
     "theta_max_deg",
@@ -88,6 +93,7 @@ const PARAM_NAMES: [&str; 14] = [
     "max_records",
     "pattern_seed",
     "nearest_hits",
+    "check_coherence",
 ];
 
 fn params_dict<'py>(py: Python<'py>, p: &CacheParams) -> PyResult<Bound<'py, PyDict>> {
@@ -107,6 +113,7 @@ fn params_dict<'py>(py: Python<'py>, p: &CacheParams) -> PyResult<Bound<'py, PyD
     d.set_item("max_records", p.max_records)?;
     d.set_item("pattern_seed", p.pattern_seed)?;
     d.set_item("nearest_hits", p.nearest_hits)?;
+    d.set_item("check_coherence", p.check_coherence)?;
     Ok(d)
 }
 
@@ -125,11 +132,12 @@ impl PyVisibilityCache {
 
 #[pymethods]
 impl PyVisibilityCache {
-    /// `VisibilityCache(scene, resolution=32, preset="medium", **overrides)`: an empty cache
-    /// of `resolution x resolution` records. Overrides take the parameter names of
-    /// `params` (CAM08 Table 1 plus m, n, λ, k, ε_max, F, max_records).
+    /// `VisibilityCache(scene, resolution=None, preset="auto", **overrides)`: an empty cache
+    /// of `resolution x resolution` records (None: the preset's, 64 for "auto", 32 for the
+    /// others). Overrides take the parameter names of `params` (CAM08 Table 1 plus m, n,
+    /// λ, k, ε_max, F, max_records, nearest_hits, check_coherence).
     #[new]
-    #[pyo3(signature = (scene, resolution=None, preset="medium", **overrides))]
+    #[pyo3(signature = (scene, resolution=None, preset="auto", **overrides))]
     fn new(
         scene: Py<PyScene>,
         resolution: Option<&Bound<'_, PyAny>>,
@@ -280,6 +288,8 @@ impl PyVisibilityCache {
         d.set_item("shadow_rays_per_pixel", r.shadow_rays_per_pixel)?;
         d.set_item("seconds", r.seconds)?;
         d.set_item("complete", r.complete)?;
+        d.set_item("incoherence", r.incoherence)?;
+        d.set_item("incoherent", r.incoherent)?;
         Ok(d)
     }
 

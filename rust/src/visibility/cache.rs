@@ -66,7 +66,10 @@ use std::time::Instant;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::params::{normal_angle, raw_weight, CacheParams, MAX_KEEP_COUNT, MAX_SEARCH_COUNT};
+use super::params::{
+    normal_angle, raw_weight, CacheParams, COHERENCE_PAIRS, INCOHERENCE_LIMIT, MAX_KEEP_COUNT,
+    MAX_SEARCH_COUNT,
+};
 use super::record::{Record, RecordHeader, RecordRays, RecordStore, VisibilityView};
 use crate::camera::{Camera, GBuffer};
 use crate::error::{Error, Result};
@@ -189,6 +192,12 @@ pub struct BuildReport {
     pub seconds: f64,
     /// False when the time budget or the progress callback stopped the pass early.
     pub complete: bool,
+    /// The coherence check's mean Jaccard distance between the visible sets of its pairs
+    /// of records ([`CacheParams::check_coherence`]; `None` when it did not run).
+    pub incoherence: Option<f32>,
+    /// Whether the check found visibility too incoherent for records and stopped the build
+    /// after it.
+    pub incoherent: bool,
 }
 
 /// What [`VisibilityCache::end_frame`] removed.
@@ -1233,8 +1242,17 @@ impl VisibilityCache {
                 report.median_footprint =
                     Some(*footprints.select_nth_unstable_by(mid, f32::total_cmp).1);
             }
-            if self.is_empty() {
-                report.bootstrap_records = self.bootstrap(scene, camera, seed)?;
+            if self.is_empty() && self.params.check_coherence {
+                let (incoherence, inserted) = self.coherence_check(scene, camera, &gbuffer)?;
+                report.incoherence = incoherence;
+                report.bootstrap_records += inserted;
+                if incoherence.is_some_and(|d| d > INCOHERENCE_LIMIT) {
+                    report.incoherent = true;
+                    return Ok(());
+                }
+            }
+            if self.len() == report.bootstrap_records {
+                report.bootstrap_records += self.bootstrap(scene, camera, seed)?;
             }
             let levels = coarse_to_fine_levels(camera.width, camera.height);
             let total = report.covered_pixels;
@@ -1311,6 +1329,67 @@ impl VisibilityCache {
             inserted += state.push(&self.params, &record)?.is_some() as usize;
         }
         Ok(inserted)
+    }
+
+    /// [`CacheParams::check_coherence`]: records at [`COHERENCE_PAIRS`] pixels on a grid over
+    /// the image and at their partners a quarter of `d_max` to the side (both surface
+    /// hits); returns the mean Jaccard distance `|A ⊕ B| / |A ∪ B|` of the pairs' visible
+    /// sets (`None` without pairs) and how many of the records were inserted. The pairs
+    /// are fixed by the image, so the check is deterministic.
+    fn coherence_check(
+        &self,
+        scene: &Scene,
+        camera: &Camera,
+        g: &GBuffer,
+    ) -> Result<(Option<f32>, usize)> {
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let step = ((self.params.d_max_scale / 4.0).round() as usize).max(1);
+        let side = (COHERENCE_PAIRS as f64).sqrt().ceil() as usize;
+        let mut pairs = Vec::new();
+        for gy in 0..side {
+            for gx in 0..side {
+                let x = (2 * gx + 1) * w / (2 * side);
+                let y = (2 * gy + 1) * h / (2 * side);
+                let x2 = if x + step < w {
+                    x + step
+                } else {
+                    x.saturating_sub(step)
+                };
+                let (a, b) = (y * w + x, y * w + x2);
+                if a != b && g.object[a] >= 0 && g.object[b] >= 0 {
+                    pairs.push((a, b));
+                }
+            }
+        }
+        // Within the cache's room: a full cache traces nothing it would refuse.
+        pairs.truncate((self.params.max_records as usize).saturating_sub(self.len()) / 2);
+        if pairs.is_empty() {
+            return Ok((None, 0));
+        }
+        let point = |i: usize| (Vec3::from(g.position[i]), Vec3::from(g.normal[i]));
+        let traced: Vec<[(Record, RecordRays); 2]> = pairs
+            .par_iter()
+            .map(|&(a, b)| {
+                let (pa, na) = point(a);
+                let (pb, nb) = point(b);
+                Ok([self.trace(scene, pa, na)?, self.trace(scene, pb, nb)?])
+            })
+            .collect::<Result<_>>()?;
+        let mut distance = 0.0f64;
+        for [(a, _), (b, _)] in &traced {
+            let (a, b) = (a.bits.view(), b.bits.view());
+            let union = (a.popcount() + b.popcount() + a.xor_popcount(&b)) / 2;
+            if union > 0 {
+                distance += a.xor_popcount(&b) as f64 / union as f64;
+            }
+        }
+        let mut state = self.write();
+        let mut inserted = 0;
+        for (record, rays) in traced.iter().flatten() {
+            count_rays(&mut state.counters, *rays);
+            inserted += state.push(&self.params, record)?.is_some() as usize;
+        }
+        Ok((Some((distance / traced.len() as f64) as f32), inserted))
     }
 
     /// Pixels in the next build wave: a quarter of the records (so a wave rarely asks twice

@@ -5,7 +5,7 @@
 //! |---|---|
 //! | 8 | magic `b"VISCACHE"` |
 //! | 4 | format version (`u32`, 2) |
-//! | 60 | parameters: `M`, `n_startup` (`u32`); `d_max_scale`, `theta_max_deg`, `lambda_falloff` (`f32`); `m_search`, `n_keep` (`u32`); `w_min`, `delta_max`, `epsilon_max` (`f32`); `evict_worst`, `unused_frames`, `max_records` (`u32`); `pattern_seed` (`u64`); flags (`u32`: bit 0 `nearest_hits`) |
+//! | 60 | parameters: `M`, `n_startup` (`u32`); `d_max_scale`, `theta_max_deg`, `lambda_falloff` (`f32`); `m_search`, `n_keep` (`u32`); `w_min`, `delta_max`, `epsilon_max` (`f32`); `evict_worst`, `unused_frames`, `max_records` (`u32`); `pattern_seed` (`u64`); flags (`u32`: bit 0 `nearest_hits`, bit 1 `check_coherence`) |
 //! | 4 | current frame (`u32`) |
 //! | 8 | record count `N` (`u64`) |
 //! | 36 N | record headers: position `3 x f32`, normal `2 x u16`, `R_i` `f32`, misses, uses, last frame `u32`, `A` `u16`, reserved `u16` |
@@ -63,7 +63,13 @@ impl VisibilityCache {
         f32s(&mut out, &[p.w_min, p.delta_max, p.epsilon_max]);
         u32s(&mut out, &[p.evict_worst, p.unused_frames, p.max_records]);
         out.extend(p.pattern_seed.to_le_bytes());
-        u32s(&mut out, &[p.nearest_hits as u32, state.frame]);
+        u32s(
+            &mut out,
+            &[
+                p.nearest_hits as u32 | (p.check_coherence as u32) << 1,
+                state.frame,
+            ],
+        );
         out.extend((n as u64).to_le_bytes());
         for i in 0..n {
             let h = state.store.header(i);
@@ -121,10 +127,11 @@ impl VisibilityCache {
             p.pattern_seed = r.u64()?;
             if version >= 2 {
                 let flags = r.u32()?;
-                if flags > 1 {
+                if flags > 3 {
                     return None;
                 }
-                p.nearest_hits = flags == 1;
+                p.nearest_hits = flags & 1 == 1;
+                p.check_coherence = flags & 2 == 2;
             }
             let frame = r.u32()?;
             let n = r.u64()?;
