@@ -17,9 +17,10 @@ alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None)`` rende
   the view with ``preset`` (default "auto"; its cost is in ``stats["cache_seconds"]``, and
   under a ``time_budget`` it spends at most a quarter of the budget, the render the rest).
   ``alpha`` is a number in [0, 2] (CAM08 uses 1) or ``"estimate"``: per pixel,
-  Cov(Z, W) / Var(W) pooled over the other pixels of a ``(2 alpha_radius + 1)^2`` window, which keeps the estimate
-  unbiased (``res.alpha`` holds it). The records' misses go back to the cache (CAM08 sec.
-  5.3); ``insert_missing=True`` then gives records to the points that found none.
+  Cov(Z, W) / Var(W) pooled over the other pixels of a ``(2 alpha_radius + 1)^2`` window,
+  which keeps the estimate unbiased (``res.alpha`` holds it). The records' misses go back
+  to the cache (CAM08 sec. 5.3); ``insert_missing=True`` then gives records to the points
+  that found none.
 
 All are unbiased estimators of the same image. Every pixel's per-point work (the product
 distribution, the cache lookup, J) is done once, at its *anchor*, the first hit through its
