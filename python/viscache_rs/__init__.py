@@ -5,7 +5,7 @@ caches visibility (``VisibilityCache``); this package re-exports it and adds bui
 environment maps, I/O and the ``viscache`` command line.
 """
 
-from . import analysis, envmaps, octahedral, scenes, testing
+from . import analysis, envmaps, metrics, mitsuba, octahedral, scenes, testing
 from ._core import (
     Camera,
     EnvMap,
@@ -32,6 +32,8 @@ __all__ = [
     "__version__",
     "analysis",
     "envmaps",
+    "metrics",
+    "mitsuba",
     "octahedral",
     "preview",
     "render",

@@ -10,8 +10,8 @@ use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    as_rows, f64_arg, finite_rows, image_array, rows3_array, rows3_f32, rows3_i64, seed_arg,
-    threads_arg, vec3_arg, IntoPyResult,
+    as_rows, f64_arg, finite_rows, image_array, int_arg, rows3_array, rows3_f32, rows3_i64,
+    seed_arg, threads_arg, vec3_arg, IntoPyResult,
 };
 use super::material::PyMaterial;
 use crate::bsdf::Material;
@@ -169,6 +169,17 @@ impl PyScene {
     /// Object ids of the area lights, in the order they were added.
     fn area_lights(&self) -> Vec<u32> {
         self.inner.area_lights().iter().map(|l| l.object).collect()
+    }
+
+    /// The radiance (W/(m² sr), RGB) object `obj` emits on the side of its triangles'
+    /// winding normal: an area light's, `(0, 0, 0)` for any other object.
+    fn emission(&self, obj: &Bound<'_, PyAny>) -> PyResult<(f32, f32, f32)> {
+        let n = self.inner.mesh().objects.len();
+        let obj = int_arg(obj, "obj", 0, n as i128 - 1)? as u32;
+        Ok(self
+            .inner
+            .emitter(obj)
+            .map_or((0.0, 0.0, 0.0), |l| l.radiance().into()))
     }
 
     /// Loads a Wavefront OBJ file (triangulated; one object per OBJ object/group).

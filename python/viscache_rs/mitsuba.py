@@ -1,0 +1,232 @@
+"""Setups as Mitsuba 3 scenes, to render the same image with the renderer a user would
+otherwise pick (``pip install mitsuba``; the peer benchmark ``benches/peer_mitsuba.py`` and
+the cross-validation test use it).
+
+``to_mitsuba(setup, camera=None, envmap=None, spp=8, equirect_width=4096)`` returns a dict for
+``mitsuba.load_dict``; ``load(setup, ...)`` loads it. The conversion keeps what our renderer
+computes:
+
+- one mesh per object, without vertex normals (both shade with geometric normals);
+- Lambert as ``twosided`` ``diffuse``; the normalised Phong BRDF
+  (``f = kd / pi + ks (e + 2) / (2 pi) cos^e alpha``) as the ``viscache_phong`` plugin
+  registered here, in ``twosided`` (our shading normal faces the viewer, as ``twosided``
+  does); its sampling is ours: the lobe chosen by its luminance share, cosine-weighted
+  diffuse directions, ``cos^e`` about the mirror direction;
+- the environment map as ``envmap`` from ``EnvMap.to_equirect(w, w / 2)`` (Mitsuba's lat-long
+  convention is ours: ``u = atan2(x, -z) / 2 pi``, ``v = acos(y) / pi``, +y up), seen by the
+  camera;
+- area lights as ``area`` emitters on their triangles (one-sided, on the side of the winding
+  normal, in both renderers) with a black BSDF;
+- the pinhole camera as ``perspective`` with ``fov_axis="y"``, an ``hdrfilm`` of its size
+  with a ``box`` filter, and the ``direct`` integrator (one emitter and one BSDF sample per
+  pixel sample, MIS) with the ``independent`` sampler.
+
+Mitsuba needs a variant chosen before ``to_mitsuba`` is called (``mitsuba.set_variant``):
+``scalar_rgb`` works anywhere; ``llvm_ad_rgb`` (fast) needs LLVM (Debian's ``libllvm19``).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from typing import Any
+
+import numpy as np
+
+from .metrics import LUMINANCE
+
+__all__ = ["PHONG_PLUGIN", "load", "render", "to_mitsuba"]
+
+#: Name of the normalised Phong BSDF plugin registered by :func:`to_mitsuba`.
+PHONG_PLUGIN = "viscache_phong"
+
+_registered: set[str] = set()
+
+
+def _mi():
+    try:
+        import mitsuba as mi
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            "viscache_rs.mitsuba needs Mitsuba 3: pip install mitsuba "
+            "(or the 'experiments' extra)"
+        ) from e
+    if mi.variant() is None:
+        raise RuntimeError(
+            "choose a Mitsuba variant first, e.g. mitsuba.set_variant('scalar_rgb') or "
+            "'llvm_ad_rgb'"
+        )
+    return mi
+
+
+def _register_phong(mi) -> None:
+    """Registers the normalised Phong BSDF for the current variant (once per variant)."""
+    if mi.variant() in _registered:
+        return
+    import drjit as dr
+
+    class NormalisedPhong(mi.BSDF):
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            self.kd = mi.Color3f(props["kd"])
+            self.ks = mi.Color3f(props["ks"])
+            self.e = float(props["exponent"])
+            self.ps = float(props["specular_probability"])
+            self.m_components = [mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide,
+                                 mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide]
+            self.m_flags = self.m_components[0] | self.m_components[1]
+
+        def _lobe_cos(self, wi, wo):
+            # cos alpha between the light direction and the mirror of the view direction.
+            mirror = mi.Vector3f(-wi.x, -wi.y, wi.z)
+            return dr.dot(mirror, wo)
+
+        def _eval_pdf(self, wi, wo, active):
+            cos_i = mi.Frame3f.cos_theta(wi)
+            cos_o = mi.Frame3f.cos_theta(wo)
+            valid = active & (cos_i > 0) & (cos_o > 0)
+            c = dr.maximum(self._lobe_cos(wi, wo), 0.0)
+            lobe = dr.power(c, self.e)
+            f = self.kd * dr.inv_pi + self.ks * ((self.e + 2.0) * dr.inv_two_pi * lobe)
+            value = dr.select(valid, f * cos_o, 0.0)
+            pdf = (1.0 - self.ps) * cos_o * dr.inv_pi + self.ps * (
+                (self.e + 1.0) * dr.inv_two_pi * lobe)
+            return value, dr.select(valid, pdf, 0.0)
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            wi = si.wi
+            specular = sample1 < self.ps
+            diffuse_dir = mi.warp.square_to_cosine_hemisphere(sample2)
+            cos_a = dr.power(sample2.x, 1.0 / (self.e + 1.0))
+            sin_a = dr.safe_sqrt(1.0 - cos_a * cos_a)
+            phi = dr.two_pi * sample2.y
+            local = mi.Vector3f(sin_a * dr.cos(phi), sin_a * dr.sin(phi), cos_a)
+            mirror = mi.Vector3f(-wi.x, -wi.y, wi.z)
+            lobe_dir = mi.Frame3f(mirror).to_world(local)
+            wo = dr.select(specular, lobe_dir, diffuse_dir)
+            value, pdf = self._eval_pdf(wi, wo, active)
+            bs = mi.BSDFSample3f()
+            bs.wo = wo
+            bs.pdf = pdf
+            bs.eta = 1.0
+            bs.sampled_component = dr.select(specular, mi.UInt32(1), mi.UInt32(0))
+            bs.sampled_type = dr.select(
+                specular, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                mi.UInt32(+mi.BSDFFlags.DiffuseReflection))
+            ok = active & (pdf > 0)
+            return bs, dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
+
+        def eval(self, ctx, si, wo, active=True):
+            return self._eval_pdf(si.wi, wo, active)[0]
+
+        def pdf(self, ctx, si, wo, active=True):
+            return self._eval_pdf(si.wi, wo, active)[1]
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return self._eval_pdf(si.wi, wo, active)
+
+        def traverse(self, callback):
+            pass
+
+        def to_string(self):
+            return f"NormalisedPhong[e={self.e}]"
+
+    mi.register_bsdf(PHONG_PLUGIN, lambda props: NormalisedPhong(props))
+    _registered.add(mi.variant())
+
+
+def _bsdf(material) -> dict[str, Any]:
+    p = material.params()
+    if material.kind == "lambert":
+        inner = {"type": "diffuse",
+                 "reflectance": {"type": "rgb", "value": [float(c) for c in p["albedo"]]}}
+    else:
+        kd = np.asarray(p["kd"], float)
+        ks = np.asarray(p["ks"], float)
+        d, s = float(kd @ LUMINANCE), float(ks @ LUMINANCE)
+        inner = {"type": PHONG_PLUGIN, "kd": [float(c) for c in kd],
+                 "ks": [float(c) for c in ks], "exponent": float(p["exponent"]),
+                 "specular_probability": s / (d + s) if d + s > 0 else 0.0}
+    return {"type": "twosided", "bsdf": inner}
+
+
+def to_mitsuba(setup, camera=None, envmap=None, spp: int = 8, equirect_width: int = 4096,
+               folder: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+    """A ``mitsuba.load_dict`` dict of ``setup`` seen by ``camera`` (default: the setup's)
+    under ``envmap`` (default: the setup's); see the module docstring. The objects are
+    written as PLY files into ``folder`` (default: a new temporary folder), which must exist
+    until the dict is loaded; :func:`load` does this and removes them."""
+    mi = _mi()
+    if equirect_width < 2 or equirect_width % 2:
+        raise ValueError(f"equirect_width: must be an even number >= 2, got {equirect_width}")
+    _register_phong(mi)
+    camera = setup.camera if camera is None else camera
+    envmap = setup.envmap if envmap is None else envmap
+    folder = tempfile.mkdtemp(prefix="viscache_mitsuba_") if folder is None else folder
+    scene = setup.scene
+    eye = np.asarray(camera.eye, float)
+    d: dict[str, Any] = {
+        "type": "scene",
+        "integrator": {"type": "direct"},
+        "sensor": {
+            "type": "perspective",
+            "fov": float(camera.fov_deg),
+            "fov_axis": "y",
+            "to_world": mi.ScalarTransform4f().look_at(
+                origin=eye.tolist(), target=(eye + np.asarray(camera.forward)).tolist(),
+                up=list(camera.up)),
+            "film": {"type": "hdrfilm", "width": camera.width, "height": camera.height,
+                     "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+            "sampler": {"type": "independent", "sample_count": int(spp)},
+        },
+    }
+    if not envmap.is_black:
+        rgb = np.ascontiguousarray(envmap.to_equirect(equirect_width, equirect_width // 2),
+                                   dtype=np.float32)
+        d["environment"] = {"type": "envmap", "bitmap": mi.Bitmap(rgb)}
+    tris = scene.triangles()
+    ids = scene.object_ids()
+    lights = set(scene.area_lights())
+    for k in range(scene.num_objects):
+        t = tris[ids == k]
+        if len(t) == 0:
+            continue
+        path = os.path.join(folder, f"object{k}.ply")
+        _write_ply(mi, t, path, f"object{k}")
+        entry: dict[str, Any] = {"type": "ply", "filename": path, "face_normals": True}
+        if k in lights:
+            entry["bsdf"] = {"type": "diffuse",
+                             "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
+            entry["emitter"] = {"type": "area", "radiance": {
+                "type": "rgb", "value": [float(c) for c in scene.emission(k)]}}
+        else:
+            entry["bsdf"] = _bsdf(scene.material(k))
+        d[f"object{k}"] = entry
+    return d
+
+
+def _write_ply(mi, triangles: np.ndarray, path: str, name: str) -> None:
+    vertices = np.ascontiguousarray(triangles.reshape(-1, 3), dtype=np.float32)
+    faces = np.arange(len(vertices), dtype=np.uint32).reshape(-1, 3)
+    mesh = mi.Mesh(name, vertex_count=len(vertices), face_count=len(faces),
+                   has_vertex_normals=False, has_vertex_texcoords=False)
+    params = mi.traverse(mesh)
+    # The buffers' own types: flat arrays in every variant (mi.Float is a scalar in the
+    # scalar ones).
+    params["vertex_positions"] = type(params["vertex_positions"])(vertices.ravel())
+    params["faces"] = type(params["faces"])(faces.ravel())
+    params.update()
+    mesh.write_ply(path)
+
+
+def load(setup, camera=None, envmap=None, spp: int = 8, equirect_width: int = 4096):
+    """The Mitsuba scene of :func:`to_mitsuba` (its files removed once loaded)."""
+    mi = _mi()
+    with tempfile.TemporaryDirectory(prefix="viscache_mitsuba_") as folder:
+        return mi.load_dict(to_mitsuba(setup, camera, envmap, spp, equirect_width, folder))
+
+
+def render(mi_scene, spp: int, seed: int = 0) -> np.ndarray:
+    """Renders a loaded Mitsuba scene with ``spp`` samples per pixel, (H, W, 3) float64."""
+    mi = _mi()
+    return np.array(mi.render(mi_scene, spp=int(spp), seed=int(seed)), dtype=np.float64)
