@@ -827,8 +827,7 @@ pub fn render(
                             workers,
                             pixels as u64,
                             taken,
-                            (plan / 2).min(params.spp),
-                            params.spp,
+                            (plan / 2).min(params.spp)..=params.spp,
                         )),
                     ),
                     // Every pixel gets a sample, whatever the budget.
@@ -1090,16 +1089,15 @@ impl PassSchedule {
         workers: usize,
         pixels: u64,
         taken: u64,
-        min_target: u32,
-        max_target: u32,
+        targets: std::ops::RangeInclusive<u32>,
     ) -> BandBudget {
         let w = &self.work;
         BandBudget {
             start,
             budget,
             parallelism: workers.max(1) as f64,
-            min_target: min_target.max(1),
-            max_target,
+            min_target: (*targets.start()).max(1),
+            max_target: *targets.end(),
             pixels_left: AtomicU64::new(pixels),
             samples_left: AtomicU64::new(taken),
             anchor_ns: AtomicU64::new(w.anchor_ns),
