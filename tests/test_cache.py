@@ -200,7 +200,7 @@ def test_insertion_concentrates_records_near_contact_shadows(open_box, cornell):
     area_near, area_far = area[near_px].sum(), area[~near_px].sum()
     counts = {}
     for label, delta_max in (("visibility", 0.015), ("geometry", 1.0)):
-        cache = vc.VisibilityCache(open_box, n_startup=50, delta_max=delta_max)
+        cache = vc.VisibilityCache(open_box, preset="medium", n_startup=50, delta_max=delta_max)
         assert cache.build(cam, progress=False)["complete"]
         pos = cache.records()["position"]
         d = dist(pos[np.abs(pos[:, 1]) < 1e-3])
@@ -389,7 +389,7 @@ def test_animated_scene_keeps_far_records_and_replaces_changed_ones():
         setup.at_frame(f)
         boxes.append(setup.moving_bounds())
     setup.at_frame(0)
-    cache = vc.VisibilityCache(setup.scene, n_startup=200)
+    cache = vc.VisibilityCache(setup.scene, preset="medium", n_startup=200)
     cache.build(cam, progress=False)
     start = cache.records()["position"].copy()
     far = _distance_to_boxes(start, boxes) > 1.0
@@ -462,7 +462,7 @@ def test_auto_preset_skips_incoherent_visibility_and_keeps_its_flag(tmp_path):
     assert not cache.params["nearest_hits"]
     report = cache.build(cam, progress=False)
     assert report["incoherent"] and report["incoherence"] > 0.2
-    assert len(cache) == report["bootstrap_records"] <= 128 and report["refined_records"] == 0
+    assert len(cache) == 0 and report["shadow_rays"] > 0  # the check's 16x16 maps only
     garage = vc.scenes.load("garage", detail=0.3)
     cam = garage.camera.with_resolution(64, 48)
     cache = vc.VisibilityCache(garage.scene)

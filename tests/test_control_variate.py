@@ -35,7 +35,7 @@ def open_cornell():
     camera = base.camera.with_resolution(40, 30)
     env = vc.scenes.load("garage", detail=0.1).envmap
     setup = vc.Setup(scene, camera, env, name="open-cornell")
-    cache = vc.VisibilityCache(scene)
+    cache = vc.VisibilityCache(scene, preset="medium")
     cache.build(camera, seed=0, progress=False)
     return setup, cache
 

@@ -67,8 +67,8 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::params::{
-    normal_angle, raw_weight, CacheParams, COHERENCE_PAIRS, INCOHERENCE_LIMIT, MAX_KEEP_COUNT,
-    MAX_SEARCH_COUNT,
+    normal_angle, raw_weight, CacheParams, COHERENCE_LOG2_RESOLUTION, COHERENCE_PAIRS,
+    INCOHERENCE_LIMIT, MAX_KEEP_COUNT, MAX_SEARCH_COUNT,
 };
 use super::record::{Record, RecordHeader, RecordRays, RecordStore, VisibilityView};
 use crate::camera::{Camera, GBuffer};
@@ -1243,16 +1243,16 @@ impl VisibilityCache {
                     Some(*footprints.select_nth_unstable_by(mid, f32::total_cmp).1);
             }
             if self.is_empty() && self.params.check_coherence {
-                let (incoherence, inserted) = self.coherence_check(scene, camera, &gbuffer)?;
+                let (incoherence, rays) = self.coherence_check(scene, camera, &gbuffer)?;
+                count_rays(&mut self.write().counters, rays);
                 report.incoherence = incoherence;
-                report.bootstrap_records += inserted;
                 if incoherence.is_some_and(|d| d > INCOHERENCE_LIMIT) {
                     report.incoherent = true;
                     return Ok(());
                 }
             }
-            if self.len() == report.bootstrap_records {
-                report.bootstrap_records += self.bootstrap(scene, camera, seed)?;
+            if self.is_empty() {
+                report.bootstrap_records = self.bootstrap(scene, camera, seed)?;
             }
             let levels = coarse_to_fine_levels(camera.width, camera.height);
             let total = report.covered_pixels;
@@ -1331,17 +1331,18 @@ impl VisibilityCache {
         Ok(inserted)
     }
 
-    /// [`CacheParams::check_coherence`]: records at [`COHERENCE_PAIRS`] pixels on a grid over
-    /// the image and at their partners a quarter of `d_max` to the side (both surface
-    /// hits); returns the mean Jaccard distance `|A ⊕ B| / |A ∪ B|` of the pairs' visible
-    /// sets (`None` without pairs) and how many of the records were inserted. The pairs
-    /// are fixed by the image, so the check is deterministic.
+    /// [`CacheParams::check_coherence`]: visibility maps of [`COHERENCE_LOG2_RESOLUTION`]
+    /// (16 x 16 directions, a sixteenth of a 64² record's rays; not inserted) at
+    /// [`COHERENCE_PAIRS`] pixels on a grid over the image and at their partners a quarter
+    /// of `d_max` to the side (both surface hits); returns the mean Jaccard distance
+    /// `|A ⊕ B| / |A ∪ B|` of the pairs' visible sets (`None` without pairs) and the rays
+    /// traced. The pairs are fixed by the image, so the check is deterministic.
     fn coherence_check(
         &self,
         scene: &Scene,
         camera: &Camera,
         g: &GBuffer,
-    ) -> Result<(Option<f32>, usize)> {
+    ) -> Result<(Option<f32>, RecordRays)> {
         let (w, h) = (camera.width as usize, camera.height as usize);
         let step = ((self.params.d_max_scale / 4.0).round() as usize).max(1);
         let side = (COHERENCE_PAIRS as f64).sqrt().ceil() as usize;
@@ -1361,35 +1362,29 @@ impl VisibilityCache {
                 }
             }
         }
-        // Within the cache's room: a full cache traces nothing it would refuse.
-        pairs.truncate((self.params.max_records as usize).saturating_sub(self.len()) / 2);
         if pairs.is_empty() {
-            return Ok((None, 0));
+            return Ok((None, RecordRays::default()));
         }
-        let point = |i: usize| (Vec3::from(g.position[i]), Vec3::from(g.normal[i]));
+        let pattern = default_pattern(COHERENCE_LOG2_RESOLUTION)?;
+        let map = |i: usize| {
+            let (p, n) = (Vec3::from(g.position[i]), Vec3::from(g.normal[i]));
+            Record::trace_with(scene, p, n, pattern, 0, false)
+        };
         let traced: Vec<[(Record, RecordRays); 2]> = pairs
             .par_iter()
-            .map(|&(a, b)| {
-                let (pa, na) = point(a);
-                let (pb, nb) = point(b);
-                Ok([self.trace(scene, pa, na)?, self.trace(scene, pb, nb)?])
-            })
+            .map(|&(a, b)| Ok([map(a)?, map(b)?]))
             .collect::<Result<_>>()?;
         let mut distance = 0.0f64;
-        for [(a, _), (b, _)] in &traced {
+        let mut rays = RecordRays::default();
+        for [(a, ra), (b, rb)] in &traced {
             let (a, b) = (a.bits.view(), b.bits.view());
             let union = (a.popcount() + b.popcount() + a.xor_popcount(&b)) / 2;
             if union > 0 {
                 distance += a.xor_popcount(&b) as f64 / union as f64;
             }
+            rays.shadow += ra.shadow + rb.shadow;
         }
-        let mut state = self.write();
-        let mut inserted = 0;
-        for (record, rays) in traced.iter().flatten() {
-            count_rays(&mut state.counters, *rays);
-            inserted += state.push(&self.params, record)?.is_some() as usize;
-        }
-        Ok((Some((distance / traced.len() as f64) as f32), inserted))
+        Ok((Some((distance / traced.len() as f64) as f32), rays))
     }
 
     /// Pixels in the next build wave: a quarter of the records (so a wave rarely asks twice

@@ -82,11 +82,11 @@ pub struct CacheParams {
     /// (`R_i` is then `inf`, which that criterion ignores).
     pub nearest_hits: bool,
     /// Whether an empty cache's build first checks that visibility is coherent at the scale
-    /// records are spaced at: it traces records at pairs of pixels a quarter of `d_max`
-    /// apart, and when their visible sets differ on average by more than
-    /// [`INCOHERENCE_LIMIT`] (Jaccard distance), the records could not predict the
-    /// points between them, so the build inserts no more than those pairs (the control
-    /// variate then samples as plain product sampling, for the cost of the check).
+    /// records are spaced at: it traces 16 x 16 visibility maps at pairs of pixels a
+    /// quarter of `d_max` apart, and when their visible sets differ on average by more than
+    /// [`INCOHERENCE_LIMIT`] (Jaccard distance), records could not predict the points
+    /// between them, so the build inserts none (the control variate then samples as plain
+    /// product sampling, for the check's few rays).
     pub check_coherence: bool,
 }
 
@@ -96,6 +96,9 @@ pub const INCOHERENCE_LIMIT: f32 = 0.2;
 
 /// Pixel pairs the coherence check traces.
 pub const COHERENCE_PAIRS: usize = 64;
+
+/// `M` of the coherence check's visibility maps (16 x 16 directions).
+pub const COHERENCE_LOG2_RESOLUTION: u32 = 4;
 
 impl CacheParams {
     /// Simple scenes: few, large occluders. Sparse records, tolerant thresholds.
