@@ -1,18 +1,38 @@
-"""Built-in procedural scenes, generated in Rust from a seed.
+"""Built-in procedural scenes, generated in Rust from a seed, and the benchmark suite.
 
-=========  =================================================================================
-name       purpose
-=========  =================================================================================
-cornell    closed Cornell box with two blocks (~1k triangles): known-answer tests.
-garage     building with a deep overhang, openings, ground and car-sized boxes; the camera
-           looks into the shadowed part, where most of the bright sky is occluded.
-garden     ground covered by thin grass blades (~400k triangles) and a few tulips:
-           near-random visibility, the hard case for visibility reuse.
-dynamics   a few objects on a large plane: little occlusion.
-hairball   a dense tangle of thin tubes (~1.5M triangles) over a plane: complex geometry.
-=========  =================================================================================
+==========  ===========  =======  ===========================================================
+name        triangles    blocked  purpose
+==========  ===========  =======  ===========================================================
+cornell         1,262     0.87    closed Cornell box with two blocks, lit by its ceiling
+                                  light: known-answer tests.
+garage         11,636     0.78    building with a deep overhang, openings, ground and cars;
+                                  the camera looks into the shadow, where most of the bright
+                                  sky is occluded.
+garden        402,332     0.83    ground covered by thin grass blades and a few tulips:
+                                  near-random visibility, the hard case for reuse.
+dynamics        6,768     0.01    a few objects on a large plane: little occlusion.
+hairball    1,499,272     0.00    a dense tangle of thin tubes over a large plane.
+instances     210,904     0.43    400 randomly rotated spheres, cylinders and boxes over a
+                                  40 m ground.
+strands       241,800     0.47    a stand of long, thin, leaning reeds (long thin triangles).
+room           16,708     0.95    a closed room seen from inside, lit through its windows.
+panels         64,010     0.61    four huge slanted panels (two triangles each) over small
+                                  pebbles.
+scales         29,152     0.12    a 1 km ground, far towers, and centimetre parts 0.5 m from
+                                  the camera.
+blob          330,880     0.31    one dense, closed, bumpy mesh on a ground.
+meshes         66,214     0.23    the six real meshes of ``../shared/models`` (teapot, spot,
+                                  cow, fandisk, rocker arm, homer), each 1.5 m, on a 20 m
+                                  ground (only where the models are found; see
+                                  :func:`meshes`).
+==========  ===========  =======  ===========================================================
 
-Triangle counts are at ``detail=1``; ``detail`` in (0, 16] scales them roughly linearly.
+Triangles are at ``detail=1``; ``detail`` in (0, 16] scales them roughly linearly.
+"Blocked" is the fraction of shadow rays from points on the ground (the floor in ``room``,
+the box's floor in ``cornell``) in uniform directions of the hemisphere that hit
+something (``vc.testing.ground_hemisphere_rays``, 200,000 rays): together the scenes span
+almost open to almost closed. :func:`names` lists the procedural scenes, :func:`suite_names`
+the whole benchmark suite available here.
 
 Animated variants (``animated_names()``; ``load("dynamics", animated=True)``): the
 ``dynamics`` sphere rolls 2 m toward the open ground and back every 60 frames.
@@ -20,11 +40,20 @@ Animated variants (``animated_names()``; ``load("dynamics", animated=True)``): t
 object id and ``setup.moving_bounds()`` its bounds at the current frame.
 """
 
+import gzip
+import io
+import os
+from pathlib import Path
+
 import numpy as np
 
 from ._core import Scene, Setup, animated_scene_names, load_scene, scene_names
 
-__all__ = ["Setup", "animated_names", "load", "names", "without"]
+__all__ = ["MODEL_NAMES", "Setup", "animated_names", "load", "meshes", "models_dir", "names",
+           "suite_names", "without"]
+
+#: The real meshes of ``../shared/models`` that :func:`meshes` arranges, in order.
+MODEL_NAMES = ("teapot", "spot", "cow", "fandisk", "rocker-arm", "homer")
 
 
 def names() -> list[str]:
@@ -37,8 +66,97 @@ def animated_names() -> list[str]:
     return list(animated_scene_names())
 
 
+def suite_names() -> list[str]:
+    """The benchmark suite on this machine: every procedural scene, then ``"meshes"`` when
+    the real meshes are found (:func:`models_dir`)."""
+    return names() + (["meshes"] if models_dir(required=False) is not None else [])
+
+
+def models_dir(path=None, required: bool = True) -> Path | None:
+    """The folder of the real meshes: ``path`` if given, else ``$VISCACHE_MODELS``, else
+    ``../shared/models`` from the current directory or from the package's source tree.
+    A folder counts when it holds ``teapot.obj.gz``. Raises FileNotFoundError naming every
+    place looked at (or returns None when ``required`` is False)."""
+    candidates = [Path(path)] if path is not None else []
+    if path is None:
+        if os.environ.get("VISCACHE_MODELS"):
+            candidates.append(Path(os.environ["VISCACHE_MODELS"]))
+        candidates.append(Path.cwd() / ".." / "shared" / "models")
+        candidates.append(Path(__file__).resolve().parents[3] / "shared" / "models")
+    for c in candidates:
+        if (c / "teapot.obj.gz").is_file():
+            return c
+    if required:
+        raise FileNotFoundError(
+            "models_dir: the real meshes (teapot.obj.gz, ...) are not in "
+            + ", ".join(str(c) for c in candidates)
+            + "; pass models_dir= or set VISCACHE_MODELS")
+    return None
+
+
+def meshes(models_dir_path=None, seed: int = 0) -> Setup:
+    """The six real meshes of :data:`MODEL_NAMES` on a ground: each scaled so its largest
+    side is 1.5 m, standing on the ground (its lowest point at y = 0) on a ring of radius
+    2.2 m around (0, 0, -1), turned by a random yaw (``seed``); the ground is 20 x 20 m (40 x
+    40 cells). The camera looks down at the ring from (0, 2.4, 4.6); the environment is the
+    daylight of the procedural scenes (sun at azimuth 120 deg, elevation 40 deg). Models are
+    read with trimesh from the gzipped OBJ files of :func:`models_dir`."""
+    import trimesh
+
+    folder = models_dir(models_dir_path)
+    scene = Scene()
+    n = 40
+    ax = np.linspace(-10.0, 10.0, n + 1, dtype=np.float32)
+    gx, gz = np.meshgrid(ax, ax)
+    verts = np.stack([gx.ravel(), np.zeros(gx.size, np.float32), gz.ravel()], axis=1)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
+                            np.stack([a, c, d], -1).reshape(-1, 3)])
+    scene.add_mesh(verts, faces, material=_lambert((0.55, 0.55, 0.5)), name="ground")
+    albedos = [(0.7, 0.7, 0.72), (0.8, 0.6, 0.4), (0.45, 0.3, 0.2), (0.3, 0.45, 0.7),
+               (0.6, 0.6, 0.55), (0.85, 0.75, 0.2)]
+    rng = np.random.default_rng(seed)
+    for k, name in enumerate(MODEL_NAMES):
+        data = gzip.open(folder / f"{name}.obj.gz").read()
+        mesh = trimesh.load(io.BytesIO(data), file_type="obj", force="mesh")
+        v = np.asarray(mesh.vertices, np.float64)
+        v = (v - v.mean(axis=0)) * (1.5 / np.ptp(v, axis=0).max())
+        yaw = rng.uniform(0, 2 * np.pi)
+        rot = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+        v = v @ rot.T
+        angle = 2 * np.pi * k / len(MODEL_NAMES)
+        v += np.array([2.2 * np.sin(angle), -v[:, 1].min(), 2.2 * np.cos(angle) - 1.0])
+        material = (_phong(albedos[k]) if name in ("teapot", "fandisk", "rocker-arm")
+                    else _lambert(albedos[k]))
+        scene.add_mesh(v.astype(np.float32), np.asarray(mesh.faces, np.int64),
+                       material=material, name=name)
+    from ._core import Camera
+    from .envmaps import sky
+
+    camera = Camera.look_at((0.0, 2.4, 4.6), (0.0, 0.4, -1.0), fov_deg=50.0, width=256,
+                            height=192)
+    el, az = np.radians(40.0), np.radians(120.0)
+    env = sky(sun_dir=(np.cos(el) * np.sin(az), np.sin(el), -np.cos(el) * np.cos(az)))
+    return Setup(scene, camera, env, name="meshes")
+
+
+def _lambert(albedo):
+    from ._core import Material
+
+    return Material.lambert(albedo)
+
+
+def _phong(albedo):
+    from ._core import Material
+
+    kd = tuple(0.6 * c for c in albedo)
+    return Material.phong(kd, (0.3, 0.3, 0.3), 50.0)
+
+
 def load(name: str, detail: float = 1.0, seed: int = 0, animated: bool = False) -> Setup:
-    """Builds the built-in scene ``name``.
+    """Builds the built-in scene ``name`` (``"meshes"``: :func:`meshes`, whose triangles
+    ``detail`` does not change).
 
     Returns a :class:`Setup` with ``.scene``, ``.camera`` (256x192 by default; use
     ``setup.camera.with_resolution(w, h)`` for other sizes) and ``.envmap``, the scene's
@@ -50,6 +168,8 @@ def load(name: str, detail: float = 1.0, seed: int = 0, animated: bool = False) 
     names raise ValueError naming ``animated``): at frame 0 it is the same scene; move it
     with ``setup.at_frame(i)``.
     """
+    if name == "meshes" and not animated:
+        return meshes(seed=seed)
     return load_scene(name, detail=detail, seed=seed, animated=animated)
 
 

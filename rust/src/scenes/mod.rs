@@ -8,13 +8,26 @@
 //! `seed` drives every random choice through the counter-based generator of
 //! [`crate::sampling::rng`], so a seed gives bit-identical geometry on any thread count.
 //!
-//! | name       | triangles at detail 1 | random | what it is for | environment map |
-//! |------------|-----------------------|--------|----------------|-----------------|
-//! | `cornell`  | 1,262                 | no     | closed room, area light, smooth visibility | constant white (unseen: the box is closed) |
-//! | `garage`   | 11,636                | no     | deep overhang: the sky is mostly occluded | bright windows, mostly hidden by the roof |
-//! | `garden`   | 402,332               | yes    | dense grass: near-random visibility | sky and sun |
-//! | `dynamics` | 6,768                 | no     | objects on a plane, little occlusion | sky and sun |
-//! | `hairball` | 1,499,272             | yes    | dense tangle of thin tubes | sky and sun |
+//! | name        | triangles at detail 1 | random | blocked | what it is for | environment map |
+//! |-------------|----------------------:|--------|--------:|----------------|-----------------|
+//! | `cornell`   | 1,262                 | no     | 0.87 | closed room, area light, smooth visibility | constant white (unseen: the box is closed) |
+//! | `garage`    | 11,636                | no     | 0.78 | deep overhang: the sky is mostly occluded | bright windows, mostly hidden by the roof |
+//! | `garden`    | 402,332               | yes    | 0.83 | dense grass: near-random visibility | sky and sun |
+//! | `dynamics`  | 6,768                 | no     | 0.01 | objects on a plane, little occlusion | sky and sun |
+//! | `hairball`  | 1,499,272             | yes    | 0.00 | dense tangle of thin tubes | sky and sun |
+//! | `instances` | 210,904               | yes    | 0.43 | 400 randomly rotated solids on a 40 m ground | sky and sun |
+//! | `strands`   | 241,800               | yes    | 0.47 | long thin triangles: a stand of reeds | sky and sun |
+//! | `room`      | 16,708                | no     | 0.95 | closed room lit through its windows | sky and sun |
+//! | `panels`    | 64,010                | yes    | 0.61 | huge triangles spanning the scene over small detail | sky and sun |
+//! | `scales`    | 29,152                | yes    | 0.12 | 1 km ground beside centimetre parts | sky and sun |
+//! | `blob`      | 330,880               | yes    | 0.31 | one dense closed mesh | sky and sun |
+//!
+//! "Blocked" is the fraction of shadow rays from the ground (`room`: its floor; `cornell`:
+//! the box's floor) in uniform hemisphere directions that hit something
+//! ([`crate::testing::ground_hemisphere_rays`], 200,000 rays): the first five scenes are
+//! the papers' experiments, the last six the benchmark suite's stress cases (with the real
+//! meshes that Python's `vc.scenes.meshes` arranges), and together they span almost open to
+//! almost closed.
 //!
 //! Each module's `//!` gives the exact layout, sizes and camera.
 //!
@@ -23,12 +36,18 @@
 //! Frame 0 of an animated setup is its static setup, triangle for triangle.
 
 pub mod animation;
+pub mod blob;
 pub mod cornell;
 pub mod dynamics;
 pub mod garage;
 pub mod garden;
 pub mod hairball;
+pub mod instances;
+pub mod panels;
+pub mod room;
+pub mod scales;
 pub mod shapes;
+pub mod strands;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -100,8 +119,21 @@ pub fn daylight(azimuth_deg: f32, elevation_deg: f32) -> Result<EnvMap> {
     )
 }
 
-/// Names of the built-in setups, in a fixed order.
-pub const NAMES: [&str; 5] = ["cornell", "garage", "garden", "dynamics", "hairball"];
+/// Names of the built-in setups, in a fixed order: the five of the papers' experiments,
+/// then the benchmark suite's stress scenes.
+pub const NAMES: [&str; 11] = [
+    "cornell",
+    "garage",
+    "garden",
+    "dynamics",
+    "hairball",
+    "instances",
+    "strands",
+    "room",
+    "panels",
+    "scales",
+    "blob",
+];
 
 /// Names of the built-in setups that have an animated variant ([`load_animated`]).
 pub const ANIMATED_NAMES: [&str; 1] = ["dynamics"];
@@ -129,6 +161,12 @@ pub fn load(name: &str, detail: f32, seed: u64) -> Result<Setup> {
         "garden" => garden::build(detail, seed),
         "dynamics" => dynamics::build(detail, seed),
         "hairball" => hairball::build(detail, seed),
+        "instances" => instances::build(detail, seed),
+        "strands" => strands::build(detail, seed),
+        "room" => room::build(detail, seed),
+        "panels" => panels::build(detail, seed),
+        "scales" => scales::build(detail, seed),
+        "blob" => blob::build(detail, seed),
         _ => Err(Error::invalid(
             "name",
             format!(
@@ -352,7 +390,7 @@ mod tests {
     #[test]
     fn every_name_loads() {
         for n in NAMES {
-            let d = if matches!(n, "garden" | "hairball") {
+            let d = if matches!(n, "garden" | "hairball" | "strands" | "blob" | "instances") {
                 0.01
             } else {
                 0.25
