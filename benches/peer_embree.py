@@ -14,6 +14,10 @@ The three are timed in turn within each repeat (ours, Embree fast, Embree robust
 drift of the machine's speed hits all three alike; each repeat gives a ratio, and the
 median ratio over the repeats is reported with its least and greatest.
 
+Without ``--scenes`` every scene of the benchmark suite runs (``vc.scenes.suite_names()``,
+the real meshes included when found), and the worst scene is printed beside the geometric
+mean of each workload's ratios, with the builder the default build chose per scene.
+
     python benches/peer_embree.py [--scenes garden cornell] [--repeats 5]
 """
 
@@ -60,13 +64,14 @@ def run(scene_name: str, repeats: int) -> dict:
     setup = vc.scenes.load(scene_name)
     scene = setup.scene
     build_s = scene.build(threads=2)
+    builder = scene.bvh_stats()["quality"]
     tris = scene.triangles()
     workloads = {
         "incoherent": vc.testing.ground_hemisphere_rays(scene, 1 << 20, seed=1),
         "bundles": vc.testing.record_bundle_rays(scene, 1000, 32, seed=1),
     }
     result = {"scene": scene_name, "triangles": int(scene.num_triangles),
-              "our_build_s": build_s, "workloads": {}}
+              "our_build_s": build_s, "builder": builder, "workloads": {}}
     pool = ThreadPoolExecutor(2)
     embree = {}
     for robust in (False, True):
@@ -103,11 +108,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    ap.add_argument("--scenes", nargs="+", default=["garden", "cornell"])
+    ap.add_argument("--scenes", nargs="+", default=None)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--json", default="results/peer_embree.json")
     args = ap.parse_args()
-    results = [run(s, args.repeats) for s in args.scenes]
+    results = [run(s, args.repeats) for s in (args.scenes or vc.scenes.suite_names())]
     print("ratios: median over the repeats [least, greatest]")
     print(f"{'scene':<9}{'workload':<12}{'rays':>9}{'occl.':>7}{'ours Mr/s':>11}"
           f"{'x fast':>20}{'x robust':>20}{'agree fast':>12}{'agree rob.':>12}")
@@ -122,6 +127,15 @@ def main() -> None:
                   f"{w['ours_rays_per_s'] / 1e6:>11.2f}{ratio(w, 'fast'):>20}"
                   f"{ratio(w, 'robust'):>20}{w['agreement_fast']:>12.5f}"
                   f"{w['agreement_robust']:>12.5f}")
+    print(f"\n{'workload':<12}{'geomean x fast':>16}{'worst x fast':>26}{'least agreement':>17}")
+    for name in results[0]["workloads"]:
+        ratios = {r["scene"]: r["workloads"][name]["ratio_vs_embree_fast"] for r in results}
+        s = vc.metrics.worst_and_mean(ratios, higher_is_worse=False)
+        agree = min(r["workloads"][name]["agreement_fast"] for r in results)
+        print(f"{name:<12}{s['geomean']:>16.2f}{s['worst']:>18} ({s['worst_value']:.2f})"
+              f"{agree:>17.5f}")
+    print("builders: " + ", ".join(f"{r['scene']} {r['builder']} ({r['our_build_s']:.2f} s)"
+                                    for r in results))
     path = Path(args.json)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(results, indent=2))

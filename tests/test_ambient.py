@@ -121,7 +121,9 @@ def brute_cache_ao(cache, gb, sigma_scale, min_radius_scale):
         if g.sum() > 0:
             out[i] = (g * ao[ok]).sum() / g.sum()
         r = np.maximum(radius[ok], min_radius_scale * f)
-        factor = np.where(np.isfinite(r), np.maximum(1 - dd / r, 0), 1.0)
+        # Nothing is covered at or beyond R_i, also when R_i = 0 (a record in a corner).
+        with np.errstate(divide="ignore", invalid="ignore"):
+            factor = np.where(np.isfinite(r), np.where(dd < r, 1 - dd / r, 0.0), 1.0)
         cover[i] = (w_g * w_hat * factor).max()
     return out, cover, ambiguous
 

@@ -453,7 +453,7 @@ impl Shader<'_> {
             hit.normal
         };
         let sp = ShadingPoint {
-            origin: scene.offset_point(hit.position, normal),
+            origin: scene.offset_hit(&hit, normal),
             normal,
             wo,
             material: scene.mesh().objects[hit.obj as usize].material,

@@ -201,10 +201,14 @@ pub fn coverage(state: &CacheState, nearest: &Nearest, r_min: f32) -> f32 {
                 .header(c.id as usize)
                 .nearest_hit_distance
                 .max(r_min);
-            let factor = if r.is_finite() {
-                (1.0 - c.distance / r).max(0.0)
-            } else {
+            // A record covers nothing at or beyond its radius, even when the radius is 0
+            // (a record in a corner) and the point its own.
+            let factor = if !r.is_finite() {
                 1.0
+            } else if c.distance < r {
+                1.0 - c.distance / r
+            } else {
+                0.0
             };
             c.weight * factor
         })

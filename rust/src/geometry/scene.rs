@@ -630,16 +630,39 @@ impl Scene {
             .fetch_add(c.triangles, Ordering::Relaxed);
     }
 
-    /// Offset for spawning rays off a surface at `p`: grows with the scene's size and with
-    /// `|p|`, so that it clears the intersection's rounding error at any scene scale.
+    /// Offset for spawning rays off a surface at `p` when its triangle is not known: 64
+    /// ulps of `|p|`, plus 2 ulps of the scene's size and distance from the origin, so it
+    /// clears the rounding of a hit point interpolated on any triangle of the scene (whose
+    /// vertices are at most that far out) at any scene scale. A scene of mixed scales (a
+    /// kilometre of ground beside centimetre parts) then offsets by a few parts in 1e7 of
+    /// its size; [`Self::hit_epsilon`], which knows the triangle, offsets by less.
     pub fn ray_epsilon(&self, p: Vec3) -> f32 {
         let b = self.bounds();
-        (b.extent() + b.max_abs().max(p.abs().max_element())) * 2f32.powi(-17)
+        (p.abs().max_element() + (b.extent() + b.max_abs()) * 2f32.powi(-5)) * 2f32.powi(-17)
     }
 
     /// Moves `p` off the surface along `n` (which should face the side rays leave toward).
     pub fn offset_point(&self, p: Vec3, n: Vec3) -> Vec3 {
         p + n * self.ray_epsilon(p)
+    }
+
+    /// Offset for spawning rays off `hit`: 64 ulps of the largest coordinate of its
+    /// triangle's vertices, which bounds the rounding of its interpolated position whatever
+    /// the rest of the scene's scale.
+    pub fn hit_epsilon(&self, hit: &SurfaceHit) -> f32 {
+        let tri = &self.mesh.triangles[hit.prim as usize];
+        let m = tri[0]
+            .abs()
+            .max(tri[1].abs())
+            .max(tri[2].abs())
+            .max(hit.position.abs())
+            .max_element();
+        m * 2f32.powi(-17)
+    }
+
+    /// Moves `hit`'s position off its surface along `n` by [`Self::hit_epsilon`].
+    pub fn offset_hit(&self, hit: &SurfaceHit, n: Vec3) -> Vec3 {
+        hit.position + n * self.hit_epsilon(hit)
     }
 
     /// Shadow query for one ray; counts it if counting is on. `direction` must be non-zero.

@@ -99,6 +99,29 @@ mod tests {
     use crate::scenes::testing::{check_basic, check_seeds};
 
     #[test]
+    fn ray_offsets_stay_below_the_parts_size() {
+        // The shadow-ray offset at a hit on the board is a few micrometres (64 ulps of the
+        // hit triangle's coordinates), and the point-only offset a fraction of a
+        // millimetre: both far below the 5 mm of the lowest parts (the scene-size offset
+        // this replaced was 11 mm, and lit the parts' contact shadows).
+        use crate::geometry::TraversalCounters;
+        let s = build(0.25, 1).unwrap();
+        let c = &s.camera;
+        let d = c.direction(c.width as f32 * 0.5, c.height as f32 * 0.8);
+        let hit = s
+            .scene
+            .intersect1(c.eye, d, f32::INFINITY, &mut TraversalCounters::default())
+            .unwrap();
+        assert!(hit.position.length() < 0.5, "{}", hit.position);
+        assert!(
+            s.scene.hit_epsilon(&hit) < 1e-5,
+            "{}",
+            s.scene.hit_epsilon(&hit)
+        );
+        assert!(s.scene.ray_epsilon(hit.position) < 5e-4);
+    }
+
+    #[test]
     fn builds_deterministically() {
         let s = build(0.25, 1).unwrap();
         check_basic(&s, "scales", 9_000..=10_000);
