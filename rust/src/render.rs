@@ -31,13 +31,13 @@
 //! ## Passes, progress and budgets
 //! Without a time budget the render is one pass of `spp` samples per pixel. With one, a
 //! first probe pass takes four samples in every eighth band of pixels; from its timing the
-//! renderer models a pixel's cost as its anchor plus a cost per sample. In the main pass
-//! each band, as it starts, takes the samples per pixel that spread 97% of the budget left
-//! over the pixels not yet started, with the costs measured so far ([`BandBudget`]), so the
-//! pass ends at the budget; another pass follows only when a whole sample per pixel still
-//! fits ([`PassSchedule`]). Anchors are redone each pass (they are not kept: a product
-//! distribution is kilobytes), hence so few passes. Pixels may end with a few samples more
-//! or less than others; `stats.spp` is the least.
+//! renderer models a pixel's cost as its anchor plus a cost per sample (the probe's bands
+//! are spread over the image, so costs that differ between sky and geometry average out),
+//! and the main pass brings every pixel to the most samples that fit 95% of the budget
+//! left; another pass follows only when a whole sample per pixel still fits
+//! ([`PassSchedule`]). Anchors are redone each pass (they are not kept: a product
+//! distribution is kilobytes), hence so few passes. Every pixel ends with the same number
+//! of samples but the probe's, which may have up to four more.
 //! Progress is reported from the calling thread while the workers run, in pixel samples;
 //! a `false` from it stops the pass (pixels not started keep the samples they had,
 //! `stats.complete` says so).
@@ -802,15 +802,13 @@ pub fn render(
         })?;
     }
     let mut schedule = PassSchedule::default();
-    let workers = with_threads(threads, rayon::current_num_threads)?;
     let mut taken = 0u64;
     loop {
-        // Each pass brings the pixels it covers up to `target` samples; a budgeted pass
-        // after the probe lets each band choose its own target as it starts.
-        let (target, probe, bands_budget) = match params.time_budget {
-            None if passes == 0 => (params.spp, false, None),
+        // Each pass brings the pixels it covers up to `target` samples.
+        let (target, probe) = match params.time_budget {
+            None if passes == 0 => (params.spp, false),
             None => break,
-            Some(_) if passes == 0 => (PassSchedule::PROBE_SPP.min(params.spp), true, None),
+            Some(_) if passes == 0 => (PassSchedule::PROBE_SPP.min(params.spp), true),
             Some(budget) => {
                 let left = budget - start.elapsed().as_secs_f64();
                 let min = sums.iter().map(|s| s.n).min().unwrap_or(0);
@@ -818,20 +816,9 @@ pub fn render(
                     break;
                 }
                 match schedule.next_target(left, pixels as u64, taken, min) {
-                    Some(plan) => (
-                        params.spp,
-                        false,
-                        Some(schedule.band_budget(
-                            start,
-                            budget,
-                            workers,
-                            pixels as u64,
-                            taken,
-                            (plan / 2).min(params.spp)..=params.spp,
-                        )),
-                    ),
+                    Some(t) => (t.min(params.spp), false),
                     // Every pixel gets a sample, whatever the budget.
-                    None if min == 0 => (1, false, None),
+                    None if min == 0 => (1, false),
                     None => break,
                 }
             }
@@ -859,10 +846,6 @@ pub fn render(
                             return work;
                         }
                         let first = band * BAND_ROWS * width;
-                        let target = match &bands_budget {
-                            Some(b) => b.band_target(band_sums),
-                            None => target,
-                        };
                         let mut band_samples = 0u64;
                         for (i, acc) in band_sums.iter_mut().enumerate() {
                             if acc.n < target {
@@ -872,9 +855,6 @@ pub fn render(
                             }
                         }
                         work.samples += band_samples;
-                        if let Some(b) = &bands_budget {
-                            b.record(&work);
-                        }
                         done.fetch_add(band_samples, Ordering::Relaxed);
                         work
                     })
@@ -1005,8 +985,8 @@ struct PassWork {
 /// pass) the cost of a pass is modelled as wall-clock seconds per anchored pixel plus
 /// seconds per sample (the CPU time of the two, scaled to the wall clock the passes took);
 /// a further pass runs when one more sample per pixel fits [`Self::SHARE`] of the budget
-/// left, its bands sized by a [`BandBudget`]. A pass recomputes its pixels' anchors, so few
-/// passes waste least: usually the probe and one main pass.
+/// left. A pass recomputes its pixels' anchors, so few passes waste least: usually the
+/// probe and one main pass.
 #[derive(Clone, Copy, Debug, Default)]
 struct PassSchedule {
     passes: u32,
@@ -1014,99 +994,7 @@ struct PassSchedule {
     work: PassWork,
 }
 
-/// The samples per pixel of each band of a budgeted pass, chosen as the band starts: the
-/// target that spreads the budget left evenly over the pixels not yet started, from the
-/// costs per anchored pixel and per sample measured so far (the passes before, then the
-/// finished bands of this one) and the parallelism the passes reached. Bands finishing
-/// early or late move the targets of the bands after them, so the pass ends close to the
-/// budget without another pass (which would redo every anchor).
-struct BandBudget {
-    start: Instant,
-    budget: f64,
-    /// Threads the work spreads over (the pool's workers; a busier machine shows up as less
-    /// time left for the later bands, which the damping of [`Self::SHARE`] absorbs).
-    parallelism: f64,
-    /// The least target of a band: half the uniform target planned at the pass's start,
-    /// so a machine slower than measured overruns the budget a little instead of leaving
-    /// the last bands with a sample or two.
-    min_target: u32,
-    max_target: u32,
-    /// Pixels of bands not started, and the samples they already hold.
-    pixels_left: AtomicU64,
-    samples_left: AtomicU64,
-    /// Measured CPU nanoseconds, anchored pixels and samples.
-    anchor_ns: AtomicU64,
-    anchored: AtomicU64,
-    sample_ns: AtomicU64,
-    samples: AtomicU64,
-}
-
-impl BandBudget {
-    /// Share of the budget left (spread over the pixels not started) that a band's target
-    /// plans with. Less than 1, so a cost model that is a little low (measured on a few
-    /// bands) leaves the last bands less but never nothing: each band takes 90% of its
-    /// fair share, and the bands after it find a little more left (the last ones take up
-    /// to about 1.4 times the first ones' samples, 3% of the budget stays unspent).
-    const SHARE: f64 = 0.9;
-
-    /// The target of a band about to start with `band` (its pixels' sums).
-    fn band_target(&self, band: &[CvSums]) -> u32 {
-        let px = band.len() as u64;
-        let have: u64 = band.iter().map(|s| s.n as u64).sum();
-        let remaining = self.pixels_left.fetch_sub(px, Ordering::Relaxed).max(px) as f64;
-        let held = self.samples_left.fetch_sub(have, Ordering::Relaxed) as f64;
-        let a = self.anchor_ns.load(Ordering::Relaxed) as f64
-            / self.anchored.load(Ordering::Relaxed).max(1) as f64;
-        let b = self.sample_ns.load(Ordering::Relaxed) as f64
-            / self.samples.load(Ordering::Relaxed).max(1) as f64;
-        let left = (self.budget - self.start.elapsed().as_secs_f64()) * Self::SHARE;
-        // CPU nanoseconds the pixels left may spend, less their anchors, in samples.
-        let cpu = left.max(0.0) * 1e9 * self.parallelism - remaining * a;
-        let floor = self.min_target.max(1);
-        if cpu <= 0.0 {
-            return floor;
-        }
-        let target = ((cpu / b.max(1.0) + held) / remaining).floor();
-        (target as u32).clamp(floor, self.max_target.max(floor))
-    }
-
-    /// Adds a finished band's costs to the model.
-    fn record(&self, work: &BandWork) {
-        self.anchor_ns.fetch_add(work.anchor_ns, Ordering::Relaxed);
-        self.anchored
-            .fetch_add(work.anchored_pixels, Ordering::Relaxed);
-        self.sample_ns.fetch_add(work.sample_ns, Ordering::Relaxed);
-        self.samples.fetch_add(work.samples, Ordering::Relaxed);
-    }
-}
-
 impl PassSchedule {
-    /// A [`BandBudget`] for the next pass, seeded with the costs measured so far.
-    fn band_budget(
-        &self,
-        start: Instant,
-        budget: f64,
-        workers: usize,
-        pixels: u64,
-        taken: u64,
-        targets: std::ops::RangeInclusive<u32>,
-    ) -> BandBudget {
-        let w = &self.work;
-        BandBudget {
-            start,
-            budget,
-            parallelism: workers.max(1) as f64,
-            min_target: (*targets.start()).max(1),
-            max_target: *targets.end(),
-            pixels_left: AtomicU64::new(pixels),
-            samples_left: AtomicU64::new(taken),
-            anchor_ns: AtomicU64::new(w.anchor_ns),
-            anchored: AtomicU64::new(w.anchored_pixels),
-            sample_ns: AtomicU64::new(w.sample_ns),
-            samples: AtomicU64::new(w.samples),
-        }
-    }
-
     /// The probe pass covers one band in this many, with this many samples per pixel (the
     /// first sample after an anchor costs half as much again as the later ones: a probe
     /// of one sample would overestimate them).
@@ -1114,7 +1002,7 @@ impl PassSchedule {
     const PROBE_SPP: u32 = 4;
     /// Share of the budget left that a pass aims to spend (the rest absorbs the model's
     /// error).
-    const SHARE: f64 = 0.97;
+    const SHARE: f64 = 0.95;
 
     fn record(&mut self, wall: f64, pass: PassWork) {
         self.passes += 1;
