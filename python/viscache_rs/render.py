@@ -11,7 +11,7 @@ alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None)`` rende
 - ``"mis"``: both, with the power heuristic;
 - ``"product"``: product importance sampling of map x BSDF (CAM08 sec. 5.5); area lights
   by light sampling. The product's cells are 32^2 (``product_level=5``), or with
-  ``"auto"`` (default) 32^2 for diffuse surfaces and 64^2 for narrow glossy lobes;
+  ``"auto"`` (default) 32^2, 64^2 only for Phong lobes of exponent above about 650;
 - ``"cv"``: product sampling with the visibility cache's ``L B~ V~`` as a control variate
   (CAM08 eq. 2-3): ``cache=`` a built :class:`VisibilityCache`, or None to build one for
   the view with ``preset`` (default "auto"; its cost is in ``stats["cache_seconds"]``, and

@@ -624,7 +624,7 @@ pub enum ProductLevel {
     /// The same level, `1..=8`, at every shading point.
     Fixed(u32),
     /// Each material's [`Material::product_level_hint`]: 32² cells for diffuse surfaces,
-    /// 64² for narrow glossy lobes.
+    /// 64² for Phong lobes narrower than half a 32² cell (exponents above about 650).
     PerMaterial,
 }
 
