@@ -25,28 +25,42 @@ const SOBOL_DOMAIN: u64 = 0x50b0_1d15_ea5e_0001;
 
 /// The quasi-random stream of one sample of one pixel: `get(d)` is dimension `d`, and the
 /// dimensions `4k..4k+4` of a pixel's samples form one scrambled 4D Sobol sequence.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PixelSampler {
     /// Scramble of the pixel and block.
     key: u64,
     /// Index within the block of `2^16`.
     index: u32,
+    /// Set 0, which every sample reads (twice: the pixel jitter and the environment).
+    first: [f32; 4],
 }
 
 impl PixelSampler {
     /// Sample `sample` of pixel `pixel` under `seed`.
     pub fn new(seed: u64, pixel: u64, sample: u64) -> Self {
+        let key = hash4(seed, pixel, sample >> 16, SOBOL_DOMAIN);
+        let index = (sample & 0xffff) as u32;
         Self {
-            key: hash4(seed, pixel, sample >> 16, SOBOL_DOMAIN),
-            index: (sample & 0xffff) as u32,
+            key,
+            index,
+            first: Self::set(key, index, 0),
         }
     }
 
     /// Dimensions `4 set .. 4 set + 4`.
     #[inline]
     pub fn get4(&self, set: u64) -> [f32; 4] {
-        let seed = mix64(self.key ^ set.wrapping_mul(0x9e37_79b9_7f4a_7c15)) as u32;
-        sobol_burley::sample_4d(self.index, 0, seed)
+        if set == 0 {
+            self.first
+        } else {
+            Self::set(self.key, self.index, set)
+        }
+    }
+
+    #[inline]
+    fn set(key: u64, index: u32, set: u64) -> [f32; 4] {
+        let seed = mix64(key ^ set.wrapping_mul(0x9e37_79b9_7f4a_7c15)) as u32;
+        sobol_burley::sample_4d(index, 0, seed)
     }
 }
 
