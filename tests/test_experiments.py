@@ -95,7 +95,7 @@ def _tiny_tradeoff(quick):
     from viscache_rs.experiments import tradeoff
 
     return {"scenes": ["garage"], "width": 24, "height": 18, "reference_spp": 64,
-            "spp": [2, 8], "configs": [tradeoff.CV_CONFIGS[0], tradeoff.CV_CONFIGS[3]]}
+            "spp": [2, 8], "configs": [tradeoff.CV_CONFIGS[2], tradeoff.CV_CONFIGS[5]]}
 
 
 def test_tradeoff_experiment_smoke(tmp_path, monkeypatch):
@@ -103,7 +103,10 @@ def test_tradeoff_experiment_smoke(tmp_path, monkeypatch):
     from viscache_rs.experiments import tradeoff
 
     monkeypatch.setattr(tradeoff, "settings", _tiny_tradeoff)
-    assert "MSE against seconds" in tradeoff.DESCRIPTION.splitlines()[0]
+    assert "relMSE on RGB against seconds" in tradeoff.DESCRIPTION.splitlines()[0]
+    # The default cache is a point of every plot, beside the presets.
+    assert [c[0] for c in tradeoff.CV_CONFIGS[:2]] == ["cv auto a=1", "cv auto a=est"]
+    assert tradeoff.CV_CONFIGS[2][0] == "cv a=1 low" and tradeoff.CV_CONFIGS[5][0] == "cv a=est low"
     experiments.run("tradeoff", quick=True, out=tmp_path, seed=2, threads=2, progress=False)
     data = json.loads((tmp_path / "tradeoff" / "results.json").read_text())
     rows = data["garage/rows"]
@@ -112,6 +115,7 @@ def test_tradeoff_experiment_smoke(tmp_path, monkeypatch):
     for r in rows:
         for key in ("render_seconds", "total_seconds", "mse_raw", "variance"):
             assert np.isfinite(r[key]) and r[key] > 0, key
+        assert len(r["mse_rgb"]) == 3
         assert r["total_seconds"] == pytest.approx(r["render_seconds"] + r["cache_seconds"])
         assert (r["cache_seconds"] > 0) == (r["config"] != "product")
         assert (r["records"] > 0) == (r["config"] != "product")

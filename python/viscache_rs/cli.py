@@ -19,14 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from . import scenes
+from . import metrics, scenes
 from .io import to_srgb8, write_png
 
-LUM = np.array([0.2126, 0.7152, 0.0722])
 
-
-def _mean_variance(res) -> float:
-    return float((res.variance @ LUM**2).mean())
+def _ratios(res, base) -> str:
+    rgb, mean = metrics.variance_ratio(res.variance, base.variance)
+    return f"{rgb[0]:.3f} / {rgb[1]:.3f} / {rgb[2]:.3f} (mean {mean:.3f})"
 
 
 def demo(args: argparse.Namespace) -> int:
@@ -46,45 +45,32 @@ def demo(args: argparse.Namespace) -> int:
     cache = VisibilityCache(scene, resolution=args.resolution, preset=args.preset,
                             nearest_hits=False)
     b = cache.build(setup.camera, seed=args.seed, threads=args.threads, progress=not quiet)
-    print(f"visibility cache: {b['records']:,} records of {args.resolution}x{args.resolution} "
-          f"({cache.memory_bytes() / 1e6:.2f} MB), {b['shadow_rays_per_pixel']:.1f} shadow rays "
-          f"per pixel, built in {b['seconds']:.2f} s")
+    print(f"visibility cache: {b['records']:,} records of {cache.resolution}x"
+          f"{cache.resolution} ({cache.memory_bytes() / 1e6:.2f} MB), "
+          f"{b['shadow_rays_per_pixel']:.1f} shadow rays per pixel, built in "
+          f"{b['seconds']:.2f} s")
     alpha = args.alpha if args.alpha == "estimate" else float(args.alpha)
     cv = render(setup, spp=args.spp, method="cv", cache=cache, alpha=alpha, seed=args.seed,
                 threads=args.threads, progress=not quiet)
     cv_total = cv.stats["seconds"] + b["seconds"]
-    # Product sampling's time is about a + b * spp (per-pixel setup plus samples): fit it
-    # on two runs, then give it the spp that takes as long as the cache build plus cv.
     same = render(setup, spp=args.spp, method="product", seed=args.seed + 3,
                   threads=args.threads, progress=False)
-    probe = render(setup, spp=max(1, args.spp // 4), method="product", seed=args.seed + 1,
-                   threads=args.threads, progress=False)
-    b_spp = (same.stats["seconds"] - probe.stats["seconds"]) / max(
-        same.stats["spp"] - probe.stats["spp"], 1)
-    # Tiny images time too fast to fit: never less than a tenth of the mean cost per sample.
-    b_spp = max(b_spp, 0.1 * same.stats["seconds"] / same.stats["spp"])
-    a_fixed = same.stats["seconds"] - b_spp * same.stats["spp"]
-    spp_equal = int(np.clip(round((cv_total - a_fixed) / b_spp), 2, 64 * args.spp))
-    prod = render(setup, spp=spp_equal, method="product", seed=args.seed + 2,
+    # Product sampling given the time of the cache build and the cv render together.
+    prod = render(setup, method="product", time_budget=cv_total, seed=args.seed + 2,
                   threads=args.threads, progress=not quiet)
-    rows = [
-        ("product", same.stats["spp"], same.stats["seconds"], _mean_variance(same)),
-        ("product (equal time)", prod.stats["spp"], prod.stats["seconds"], _mean_variance(prod)),
-        ("cv (render only)", cv.stats["spp"], cv.stats["seconds"], _mean_variance(cv)),
-        ("cv (with cache build)", cv.stats["spp"], cv_total, _mean_variance(cv)),
-    ]
-    print(f"\n{'method':<24}{'spp':>6}{'seconds':>10}{'variance':>12}{'ratio':>8}")
-    for name, spp, sec, var in rows:
-        base = _mean_variance(same) if "equal" not in name and "build" not in name \
-            else _mean_variance(prod)
-        print(f"{name:<24}{spp:>6}{sec:>10.3f}{var:>12.4g}{var / base:>8.3f}")
-    print(f"\nequal samples ({args.spp} spp): variance ratio cv/product "
-          f"{_mean_variance(cv) / _mean_variance(same):.3f}, time overhead "
+    print(f"\n{'method':<24}{'spp':>6}{'seconds':>10}")
+    for name, res, sec in (("product", same, same.stats["seconds"]),
+                           ("product (equal time)", prod, prod.stats["seconds"]),
+                           ("cv (render only)", cv, cv.stats["seconds"]),
+                           ("cv (with cache build)", cv, cv_total)):
+        print(f"{name:<24}{res.stats['spp']:>6}{sec:>10.3f}")
+    print(f"\nequal samples ({args.spp} spp): variance ratio cv/product R/G/B "
+          f"{_ratios(cv, same)}, time overhead "
           f"{100 * (cv.stats['seconds'] / same.stats['seconds'] - 1):.0f}% (render only)")
     print(f"equal time ({cv_total:.2f} s with the cache build): variance ratio cv/product "
-          f"{_mean_variance(cv) / _mean_variance(prod):.3f}")
+          f"R/G/B {_ratios(cv, prod)}")
     out = Path(args.out)
-    exposure = 0.18 / max(float(np.median(prod.image @ LUM)), 1e-6)
+    exposure = 0.18 / max(float(np.median(prod.image @ metrics.LUMINANCE)), 1e-6)
     gap = np.ones_like(prod.image[:, :8])
     side = write_png(out / f"{args.scene}_product_vs_cv.png",
                      to_srgb8(np.concatenate([prod.image, gap, cv.image], axis=1), exposure))
@@ -125,8 +111,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--height", type=int, default=384)
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--spp", type=int, default=16, help="samples per pixel of the cv render")
-    p.add_argument("--resolution", type=int, default=64, help="record resolution (2..128)")
-    p.add_argument("--preset", default="medium", choices=["low", "medium", "high"])
+    p.add_argument("--resolution", type=int, default=None,
+                   help="record resolution (2..128; default: the preset's, 64 for auto)")
+    p.add_argument("--preset", default="auto", choices=["auto", "low", "medium", "high"])
     p.add_argument("--alpha", default="estimate",
                    help="control-variate alpha: a number in [0, 2] or 'estimate'")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

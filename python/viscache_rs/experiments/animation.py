@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from .. import scenes
+from .. import metrics, scenes
 from .._core import VisibilityCache
 from ..render import render
 from ._context import pyplot
@@ -29,15 +29,11 @@ with the control variate (method "cv", alpha = 1) in two ways, at the same spp a
 
 Product importance sampling (no cache) at the same spp is the baseline. Per frame it records
 the cache's records, inserted and evicted records, the cache's shadow rays per pixel
-(build plus validation), render and cache seconds, and the mean per-pixel variance of the
-luminance, sum_c w_c^2 var_c with Rec. 709 weights w, of each image, and its ratio to
-product's. Quick: 8 frames (every 4th, 0..28), 128x96, 8 spp; full: 60 frames, 320x240,
-16 spp.
+(build plus validation), render and cache seconds, and the mean over pixels and RGB
+channels of the per-pixel variance of each image, and its ratio to product's per channel
+(``vc.metrics.variance_ratio``) and on average. Quick: 8 frames (every 4th, 0..28),
+128x96, 8 spp; full: 60 frames, 320x240, 16 spp.
 """
-
-#: Rec. 709 luminance weights; per-channel variances are weighted by their squares.
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-
 
 def settings(quick: bool) -> dict:
     """Problem size; tests monkeypatch this to shrink the run."""
@@ -48,14 +44,14 @@ def settings(quick: bool) -> dict:
             "preset": "medium", "resolution": 32, "validate_rays": 16}
 
 
-def luminance_variance(res) -> float:
-    """Mean over pixels of sum_c w_c^2 var_c (the variance of the mean, per pixel)."""
-    return float((np.asarray(res.variance, dtype=np.float64) @ LUMINANCE**2).mean())
+def rgb_variance(res) -> float:
+    """Mean over pixels and RGB channels of the variance of the mean."""
+    return float(np.mean(np.asarray(res.variance, dtype=np.float64)))
 
 
 def auto_exposure(rgb: np.ndarray) -> float:
     """Exposure that maps the image's median luminance to 0.18 (1 for a black image)."""
-    median = float(np.median(np.asarray(rgb, dtype=np.float64) @ LUMINANCE))
+    median = float(np.median(np.asarray(rgb, dtype=np.float64) @ metrics.LUMINANCE))
     return 0.18 / median if median > 0 else 1.0
 
 
@@ -96,7 +92,8 @@ def run(ctx) -> None:
         row["reuse_rays_per_pixel"] = (report["shadow_rays"] + check["rays"]) / pixels
         res = render(setup, cam, spp=spp, method="cv", cache=reuse, seed=seed, **kw, **fixed)
         row["reuse_render_seconds"] = res.stats["seconds"]
-        row["reuse_variance"] = luminance_variance(res)
+        row["reuse_variance"] = rgb_variance(res)
+        reuse_var = res.variance
         row["reuse_miss_rate"] = res.stats["miss_rate"]
         if i == 0:
             first = res.image
@@ -111,14 +108,17 @@ def run(ctx) -> None:
         row["fresh_rays_per_pixel"] = report["shadow_rays"] / pixels
         res = render(setup, cam, spp=spp, method="cv", cache=fresh, seed=seed, **kw, **fixed)
         row["fresh_render_seconds"] = res.stats["seconds"]
-        row["fresh_variance"] = luminance_variance(res)
+        row["fresh_variance"] = rgb_variance(res)
+        fresh_var = res.variance
         del fresh
 
         res = render(setup, cam, spp=spp, method="product", seed=seed, **kw, **fixed)
         row["product_render_seconds"] = res.stats["seconds"]
-        row["product_variance"] = luminance_variance(res)
-        row["reuse_ratio"] = row["reuse_variance"] / row["product_variance"]
-        row["fresh_ratio"] = row["fresh_variance"] / row["product_variance"]
+        row["product_variance"] = rgb_variance(res)
+        rgb, row["reuse_ratio"] = metrics.variance_ratio(reuse_var, res.variance)
+        row["reuse_ratio_rgb"] = rgb.tolist()
+        rgb, row["fresh_ratio"] = metrics.variance_ratio(fresh_var, res.variance)
+        row["fresh_ratio_rgb"] = rgb.tolist()
         rows.append(row)
 
     ctx.record("frames", rows)
@@ -142,8 +142,9 @@ def run(ctx) -> None:
              f"{s['frames'][0]}..{s['frames'][-1]} ({len(rows)}), cache preset "
              f"{s['preset']!r} at {s['resolution']}^2; validation with "
              f"{s['validate_rays']} rays per record before each end_frame. Variance: mean "
-             "per-pixel variance of the luminance (sum_c w_c^2 var_c); ratio: to product "
-             "sampling at the same spp and seed. Cache rays per pixel: shadow rays of the "
+             "per-pixel variance over pixels and RGB channels; ratio: to product sampling at "
+             "the same spp and seed, the mean of the three channels' ratios (per channel in "
+             "results.json). Cache rays per pixel: shadow rays of the "
              "build (reuse: refill plus validation) over the pixels.")
     ctx.table(
         "Per frame",

@@ -2,42 +2,42 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from .. import scenes
+from .. import metrics, scenes
 from .._core import VisibilityCache
 from ..render import render
 from ._context import pyplot
 
 DESCRIPTION = """\
-MSE against seconds for product, cv (α = 1), cv (α estimated) and the three presets \
-(low/medium/high), with efficiency 1/(MSE·s); the plot users look at to pick a setting.
+relMSE on RGB against seconds for product, cv (α = 1 and estimated) with the default \
+"auto" cache and the presets (low/medium/high), with efficiency 1/(relMSE·s); the plot \
+users look at to pick a setting.
 
 Per scene (garage and dynamics; garden too in full mode) a reference image is rendered by
 product importance sampling with many samples per pixel and another seed (quick: 2048 spp
-at 96x72; full: 4096 spp at 256x192). Configurations: product; cv with alpha = 1 and with
-alpha estimated, each over a cache built with the low, medium and high preset at record
-resolution 32; and cv alpha = 1 over a medium cache at resolution 64. Each cache is built
-once per scene (alpha = 1 and alpha estimated share it) and reused across the spp ladder
-(quick: 4, 16, 64; full: 4 to 256), as a user would; its build seconds are reported
-separately and added in the "total" columns.
+at 96x72; full: 4096 spp at 256x192). Configurations: product; cv with the default cache
+(preset "auto": 64^2 records and the coherence check) with alpha = 1 and estimated; cv
+with alpha = 1 and estimated over caches built with the low, medium and high preset at
+record resolution 32; and cv alpha = 1 over a medium cache at resolution 64. Each cache is
+built once per scene (alpha = 1 and alpha estimated share it) and reused across the spp
+ladder (quick: 4, 16, 64; full: 4 to 256), as a user would; its build seconds are reported
+separately and added in the "total" columns. Renders use the renderer's defaults
+(antialiased, jittered samples).
 
-The error is the luminance-weighted MSE, mean over pixels of sum_c w_c^2 (img_c - ref_c)^2
-with Rec. 709 weights w, minus the reference's own share, mean of sum_c w_c^2 ref.var_c
-(both images are unbiased and independent, so what is left estimates the image's
-variance); the mean per-pixel variance the renderer reports, the same weighting, is given
-as a check. Efficiency is 1 / (MSE * seconds), for the render alone and with the build.
-Seconds are wall-clock on a shared machine: compare within one run.
+The error is relMSE on RGB (``vc.metrics.relmse``): the mean over pixels and channels of
+(img - ref)^2 / (ref^2 + 1e-2), minus the reference's own share, var_ref / (ref^2 + 1e-2)
+(both images are unbiased and independent, so what is left estimates the image's error).
+The mean per-pixel variance share the renderer reports is given beside it (it is an upper
+bound for stratified samples). Efficiency is 1 / (relMSE * seconds), for the render alone
+and with the build. Seconds are wall-clock on a shared machine: compare within one run.
 """
 
-#: Rec. 709 luminance weights; per-channel errors are weighted by their squares.
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-WEIGHTS = LUMINANCE**2
-
-#: (label, preset, record resolution, alpha) of every cv configuration.
+#: (label, preset, record resolution, alpha) of every cv configuration; resolution None is
+#: the preset's own.
 CV_CONFIGS = [
+    ("cv auto a=1", "auto", None, 1.0),
+    ("cv auto a=est", "auto", None, "estimate"),
     ("cv a=1 low", "low", 32, 1.0),
     ("cv a=1 medium", "medium", 32, 1.0),
     ("cv a=1 high", "high", 32, 1.0),
@@ -58,13 +58,11 @@ def settings(quick: bool) -> dict:
             "configs": CV_CONFIGS}
 
 
-def weighted(a: np.ndarray) -> float:
-    """Mean over pixels of sum_c w_c^2 a_c."""
-    return float((np.asarray(a, dtype=np.float64) @ WEIGHTS).mean())
-
-
-def _efficiency(mse: float, seconds: float) -> float:
-    return 1.0 / (mse * seconds) if mse > 0 and seconds > 0 else math.nan
+def variance_share(variance: np.ndarray, ref: np.ndarray) -> float:
+    """Mean over pixels and channels of variance / (ref^2 + 1e-2): an image's own estimate
+    of its relMSE."""
+    return float(np.mean(np.asarray(variance, np.float64)
+                         / (ref * ref + metrics.DENOMINATOR_FLOOR)))
 
 
 def run(ctx) -> None:
@@ -80,26 +78,29 @@ def run(ctx) -> None:
         ref = render(setup, cam, spp=s["reference_spp"], method="product",
                      seed=ctx.seed + 104729, **kw)
         ref_image = np.asarray(ref.image, dtype=np.float64)
-        ref_var = weighted(ref.variance)
+        ref_variance = np.asarray(ref.variance, dtype=np.float64)
+        ref_var = variance_share(ref_variance, ref_image)
         ctx.record(f"{name}/reference", {"spp": s["reference_spp"],
                                          "seconds": ref.stats["seconds"],
                                          "variance": ref_var})
 
         def measure(label, method, build_seconds, cache=None, alpha=1.0, records=0,
-                    _setup=setup, _cam=cam, _ref=ref_image, _ref_var=ref_var):
+                    _setup=setup, _cam=cam, _ref=ref_image, _ref_variance=ref_variance):
             out = []
             for spp in ladder:
                 extra = {"cache": cache, "alpha": alpha} if method == "cv" else {}
                 res = render(_setup, _cam, spp=spp, method=method, seed=ctx.seed, **extra, **kw)
-                raw = weighted((np.asarray(res.image, dtype=np.float64) - _ref) ** 2)
-                mse = raw - _ref_var
+                raw = metrics.relmse(res.image, _ref)
+                mse = metrics.relmse(res.image, _ref, _ref_variance)
+                per_channel = metrics.relmse_per_channel(res.image, _ref, _ref_variance)
                 sec = res.stats["seconds"]
                 total = sec + build_seconds
                 out.append({"config": label, "spp": spp, "render_seconds": sec,
                             "cache_seconds": build_seconds, "total_seconds": total,
-                            "mse_raw": raw, "mse": mse, "variance": weighted(res.variance),
-                            "efficiency": _efficiency(mse, sec),
-                            "efficiency_total": _efficiency(mse, total),
+                            "mse_raw": raw, "mse": mse, "mse_rgb": per_channel.tolist(),
+                            "variance": variance_share(res.variance, _ref),
+                            "efficiency": metrics.efficiency(mse, sec),
+                            "efficiency_total": metrics.efficiency(mse, total),
                             "records": records})
             return out
 
@@ -136,33 +137,36 @@ def run(ctx) -> None:
         ctx.record(f"{name}/summary", summary[name])
 
         ctx.note(f"### {name}\n\n{cam.width}x{cam.height}; reference: product, "
-                 f"{s['reference_spp']} spp, {ref.stats['seconds']:.3g} s, its own mean "
-                 f"luminance-weighted variance {ref_var:.4g} (subtracted from every MSE).")
+                 f"{s['reference_spp']} spp, {ref.stats['seconds']:.3g} s, its own "
+                 f"variance share {ref_var:.4g} (subtracted from every relMSE).")
         ctx.table(
             f"{name}: error against time",
-            ["config", "spp", "records", "render s", "cache s", "total s", "MSE",
-             "MSE (raw)", "reported var", "eff 1/(MSE s)", "eff (total)"],
+            ["config", "spp", "records", "render s", "cache s", "total s", "relMSE",
+             "relMSE R/G/B", "relMSE (raw)", "reported var", "eff 1/(relMSE s)",
+             "eff (total)"],
             [[r["config"], r["spp"], r["records"], r["render_seconds"], r["cache_seconds"],
-              r["total_seconds"], r["mse"], r["mse_raw"], r["variance"], r["efficiency"],
-              r["efficiency_total"]] for r in rows],
+              r["total_seconds"], r["mse"], " / ".join(f"{v:.3g}" for v in r["mse_rgb"]),
+              r["mse_raw"], r["variance"], r["efficiency"], r["efficiency_total"]]
+             for r in rows],
         )
         ctx.table(
             f"{name}: at {ladder[-1]} spp, relative to product",
-            ["config", "MSE / product's", "efficiency gain", "efficiency gain (total)"],
+            ["config", "relMSE / product's", "efficiency gain", "efficiency gain (total)"],
             [[c, v["mse_ratio_to_product"], v["efficiency_gain"], v["efficiency_gain_total"]]
              for c, v in summary[name].items()],
         )
 
         fig, (a0, a1, b) = plt.subplots(1, 3, figsize=(17, 4.8))
         for c, rs in by_config.items():
-            style = "k-o" if c == "product" else ("--s" if "a=est" in c else "-o")
+            style = ("k-o" if c == "product" else "r-*" if c.startswith("cv auto")
+                     else ("--s" if "a=est" in c else "-o"))
             m = [max(r["mse"], 1e-300) for r in rs]
             a0.loglog([r["render_seconds"] for r in rs], m, style, label=c, ms=4)
             a1.loglog([r["total_seconds"] for r in rs], m, style, label=c, ms=4)
         for ax, what in ((a0, "render"), (a1, "render + cache build")):
             ax.set_xlabel(f"seconds ({what})")
-            ax.set_ylabel("MSE (luminance-weighted)")
-            ax.set_title(f"{name}: MSE against {what} time")
+            ax.set_ylabel("relMSE (RGB)")
+            ax.set_title(f"{name}: relMSE against {what} time")
             ax.legend(fontsize=7)
         labels = list(top)
         x = np.arange(len(labels))
@@ -170,7 +174,7 @@ def run(ctx) -> None:
         b.bar(x + 0.2, [top[c]["efficiency_total"] for c in labels], 0.4,
               label="with cache build")
         b.set_xticks(x, labels, rotation=35, ha="right", fontsize=8)
-        b.set_ylabel("efficiency 1/(MSE s)")
+        b.set_ylabel("efficiency 1/(relMSE s)")
         b.set_title(f"{name}: efficiency at {ladder[-1]} spp")
         b.legend(fontsize=8)
         fig.tight_layout()
