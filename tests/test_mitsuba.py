@@ -63,3 +63,53 @@ def test_phong_plugin_equals_our_brdf_and_env_orientation():
         a, b = ours.mean(axis=(axis, 2)), theirs.mean(axis=(axis, 2))
         assert np.corrcoef(a, b)[0, 1] > 0.98
         assert np.allclose(a, b, rtol=0.08, atol=0.02 * b.max())
+
+
+def test_phong_plugin_evaluates_and_samples_our_brdf():
+    # In the local frame (normal +z), Mitsuba's wi is our wo (toward the viewer) and its
+    # wo our wi (toward the light). eval is f cos, pdf our sampling density.
+    vc.mitsuba._register_phong(mi)
+    rng = np.random.default_rng(7)
+    for kd, ks, e in (((0.3, 0.2, 0.1), (0.5, 0.5, 0.5), 30.0), ((0.0,) * 3, (0.9,) * 3, 400.0),
+                      ((0.6,) * 3, (0.1,) * 3, 2.0)):
+        ours = vc.Material.phong(kd, ks, e)
+        d, s = float(np.dot(kd, vc.metrics.LUMINANCE)), float(np.dot(ks, vc.metrics.LUMINANCE))
+        bsdf = mi.load_dict({"type": vc.mitsuba.PHONG_PLUGIN, "kd": list(kd), "ks": list(ks),
+                             "exponent": e, "specular_probability": s / (d + s)})
+        ctx = mi.BSDFContext()
+        n = np.array([[0.0, 0.0, 1.0]])
+        for _ in range(60):
+            view, light = rng.normal(size=(2, 3))
+            view[2], light[2] = abs(view[2]) + 0.05, abs(light[2]) + 0.05
+            view, light = view / np.linalg.norm(view), light / np.linalg.norm(light)
+            if rng.uniform() < 0.5:  # near the mirror direction, where the lobe lives
+                light = np.array([-view[0], -view[1], view[2]]) + 0.05 * rng.normal(size=3)
+                light[2] = abs(light[2]) + 1e-3
+                light /= np.linalg.norm(light)
+            si = mi.SurfaceInteraction3f()
+            si.wi = mi.Vector3f(*view)
+            si.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
+            value, pdf = bsdf.eval_pdf(ctx, si, mi.Vector3f(*light))
+            f = ours.eval(n, view[None], light[None])[0] * light[2]
+            p = ours.pdf(n, view[None], light[None])[0]
+            # Mitsuba computes in float32, we in float64 where the lobe needs it.
+            np.testing.assert_allclose(np.array(value, float).ravel(), f, rtol=1e-4 * e,
+                                       atol=1e-6)
+            assert float(pdf) == pytest.approx(p, rel=1e-4 * e, abs=1e-6)
+        # Samples land where the pdf is positive and weigh f cos / pdf.
+        for _ in range(40):
+            view = rng.normal(size=3)
+            view[2] = abs(view[2]) + 0.05
+            view /= np.linalg.norm(view)
+            si = mi.SurfaceInteraction3f()
+            si.wi = mi.Vector3f(*view)
+            si.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
+            bs, weight = bsdf.sample(ctx, si, float(rng.uniform()),
+                                     mi.Point2f(*rng.uniform(size=2)))
+            if float(bs.pdf) > 0:
+                wo = np.array(bs.wo, float).ravel()
+                value, pdf = bsdf.eval_pdf(ctx, si, bs.wo)
+                np.testing.assert_allclose(np.array(weight, float).ravel(),
+                                           np.array(value, float).ravel() / float(pdf),
+                                           rtol=1e-5)
+                assert wo[2] > 0
