@@ -105,6 +105,7 @@ class Scene:
         self, vertices: ArrayLike, radiance: ArrayLike, name: str | None = None
     ) -> int: ...
     def area_lights(self) -> list[int]: ...
+    def emission(self, obj: int) -> tuple[float, float, float]: ...
     def counters(self) -> dict[str, int]: ...
     def reset_counters(self) -> None: ...
     counting: bool
@@ -181,8 +182,8 @@ class VisibilityCache:
     def __init__(
         self,
         scene: Scene,
-        resolution: int | None = 32,
-        preset: str = "medium",
+        resolution: int | None = None,
+        preset: str = "auto",
         **overrides: Any,
     ) -> None: ...
     @property
@@ -254,10 +255,11 @@ def render(
     product_level: int | str | None = None,
     callback: Any = None,
     cache: VisibilityCache | None = None,
-    jitter: bool = False,
+    jitter: bool = True,
     alpha: float | str | None = None,
     alpha_radius: int | None = None,
     insert_missing: bool = False,
+    technique_weights: dict[str, float] | None = None,
 ) -> dict[str, Any]: ...
 def render_ao(
     scene: Scene,
