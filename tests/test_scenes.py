@@ -95,3 +95,17 @@ def test_suite_spans_open_to_closed_and_lists_the_meshes_when_present(tmp_path):
     assert setup.scene.object_names() == ["ground", *vc.scenes.MODEL_NAMES]
     lo, hi = setup.scene.bounds
     assert lo[1] == pytest.approx(0.0, abs=1e-4) and hi[1] <= 1.5 + 1e-3
+
+
+def test_read_obj_fans_polygons_and_names_bad_lines():
+    import io
+
+    v, f = vc.scenes.read_obj(io.BytesIO(
+        b"# a quad and a triangle\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n"
+        b"vn 0 0 1\nf 1//1 2//1 4//1 3//1\nf -1 -2 -3\n"))
+    assert v.shape == (4, 3)
+    np.testing.assert_array_equal(f, [[0, 1, 3], [0, 3, 2], [3, 2, 1]])
+    with pytest.raises(ValueError, match="line 2"):
+        vc.scenes.read_obj(io.BytesIO(b"v 0 0 0\nv 1 x 0\n"))
+    with pytest.raises(ValueError, match="vertex"):
+        vc.scenes.read_obj(io.BytesIO(b"v 0 0 0\nf 1 2 3\n"))

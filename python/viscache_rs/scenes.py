@@ -50,7 +50,7 @@ import numpy as np
 from ._core import Scene, Setup, animated_scene_names, load_scene, scene_names
 
 __all__ = ["MODEL_NAMES", "Setup", "animated_names", "load", "meshes", "models_dir", "names",
-           "suite_names", "without"]
+           "read_obj", "suite_names", "without"]
 
 #: The real meshes of ``../shared/models`` that :func:`meshes` arranges, in order.
 MODEL_NAMES = ("teapot", "spot", "cow", "fandisk", "rocker-arm", "homer")
@@ -100,9 +100,7 @@ def meshes(models_dir_path=None, seed: int = 0) -> Setup:
     2.2 m around (0, 0, -1), turned by a random yaw (``seed``); the ground is 20 x 20 m (40 x
     40 cells). The camera looks down at the ring from (0, 2.4, 4.6); the environment is the
     daylight of the procedural scenes (sun at azimuth 120 deg, elevation 40 deg). Models are
-    read with trimesh from the gzipped OBJ files of :func:`models_dir`."""
-    import trimesh
-
+    read from the gzipped OBJ files of :func:`models_dir` (vertices and faces only)."""
     folder = models_dir(models_dir_path)
     scene = Scene()
     n = 40
@@ -118,9 +116,8 @@ def meshes(models_dir_path=None, seed: int = 0) -> Setup:
                (0.6, 0.6, 0.55), (0.85, 0.75, 0.2)]
     rng = np.random.default_rng(seed)
     for k, name in enumerate(MODEL_NAMES):
-        data = gzip.open(folder / f"{name}.obj.gz").read()
-        mesh = trimesh.load(io.BytesIO(data), file_type="obj", force="mesh")
-        v = np.asarray(mesh.vertices, np.float64)
+        vertices, faces = read_obj(gzip.open(folder / f"{name}.obj.gz"))
+        v = vertices.astype(np.float64)
         v = (v - v.mean(axis=0)) * (1.5 / np.ptp(v, axis=0).max())
         yaw = rng.uniform(0, 2 * np.pi)
         rot = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
@@ -129,8 +126,7 @@ def meshes(models_dir_path=None, seed: int = 0) -> Setup:
         v += np.array([2.2 * np.sin(angle), -v[:, 1].min(), 2.2 * np.cos(angle) - 1.0])
         material = (_phong(albedos[k]) if name in ("teapot", "fandisk", "rocker-arm")
                     else _lambert(albedos[k]))
-        scene.add_mesh(v.astype(np.float32), np.asarray(mesh.faces, np.int64),
-                       material=material, name=name)
+        scene.add_mesh(v.astype(np.float32), faces, material=material, name=name)
     from ._core import Camera
     from .envmaps import sky
 
@@ -139,6 +135,32 @@ def meshes(models_dir_path=None, seed: int = 0) -> Setup:
     el, az = np.radians(40.0), np.radians(120.0)
     env = sky(sun_dir=(np.cos(el) * np.sin(az), np.sin(el), -np.cos(el) * np.cos(az)))
     return Setup(scene, camera, env, name="meshes")
+
+
+def read_obj(stream) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (N, 3) and triangles (M, 3) of a Wavefront OBJ stream (bytes or text): ``v``
+    and ``f`` lines only, polygons fanned into triangles, ``v/vt/vn`` and negative indices
+    understood. Raises ValueError naming the line of anything malformed."""
+    vertices, faces = [], []
+    for number, raw in enumerate(io.TextIOWrapper(stream, encoding="utf-8", errors="replace")
+                                 if not isinstance(stream, io.TextIOBase) else stream, 1):
+        parts = raw.split()
+        if not parts:
+            continue
+        try:
+            if parts[0] == "v":
+                vertices.append([float(x) for x in parts[1:4]])
+            elif parts[0] == "f":
+                idx = [int(p.split("/")[0]) for p in parts[1:]]
+                idx = [i - 1 if i > 0 else len(vertices) + i for i in idx]
+                faces.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
+        except (ValueError, IndexError) as e:
+            raise ValueError(f"stream: malformed OBJ line {number}: {raw.strip()!r}") from e
+    v = np.asarray(vertices, np.float64).reshape(-1, 3)
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        raise ValueError("stream: a face refers to a vertex that does not exist")
+    return v, f
 
 
 def _lambert(albedo):
