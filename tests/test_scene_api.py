@@ -98,15 +98,25 @@ def test_build_presets_give_the_same_answers(cornell):
     rng = np.random.default_rng(0)
     o = rng.uniform(0.5, 5.0, (5000, 3)).astype(np.float32)
     d = rng.normal(size=(5000, 3)).astype(np.float32)
-    answers = []
-    for q in ["sah", "fastest", "fast", "medium", "slow"]:
+    answers, costs = [], {}
+    for q in ["sah", "fastest", "fast", "medium", "slow", "auto"]:
         s = vc.Scene()
         s.add_mesh(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))
         assert s.build(quality=q, threads=2) >= 0.0
-        assert s.bvh_stats()["quality"] == q
+        stats = s.bvh_stats()
+        assert stats["requested"] == q
+        costs[stats["quality"]] = stats["sah_cost"]
+        if q != "auto":
+            assert stats["quality"] == q
         answers.append(s.intersect(o, d)["t"])
     for a in answers[1:]:
         np.testing.assert_array_equal(a, answers[0])
+    # "auto" keeps the "slow" PLOC tree where it does 5% less work on sample rays.
+    work = stats["auto_costs"]
+    assert set(work) == {"sah", "slow"} and min(work.values()) > 1.0
+    assert stats["quality"] == ("slow" if work["sah"] > 1.05 * work["slow"] else "sah")
+    assert stats["sah_cost"] == costs[stats["quality"]]
+    assert all(c >= 1.0 for c in costs.values())
     with pytest.raises(ValueError, match="^quality"):
         vc.Scene().build(quality="best")
 

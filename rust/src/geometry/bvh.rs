@@ -34,14 +34,24 @@ use super::watertight::{lanes, WatertightPacket};
 use super::watertight::{Triangle4, TriangleHit, WatertightRay};
 use crate::error::{Error, Result};
 
-/// Build presets: our binned SAH builder ([`BuildQuality::Sah`], the default) or one of
-/// obvhs's PLOC presets ([`BvhBuildParams`], leaves capped at [`MAX_LEAF`] triangles).
+/// Build presets: our binned SAH builder ([`BuildQuality::Sah`]), one of obvhs's PLOC
+/// presets ([`BvhBuildParams`], leaves capped at [`MAX_LEAF`] triangles), or the choice
+/// between the two by measured cost ([`BuildQuality::Auto`], the default).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum BuildQuality {
-    /// Top-down binned SAH whose cost counts four-triangle blocks ([`super::binned_sah`]):
-    /// the default. Fewer node visits and block tests per ray than any PLOC preset below
-    /// on the built-in scenes, at about the build time of `Medium` (benches/README.md).
+    /// The default: builds the [`BuildQuality::Sah`] and the [`AUTO_ALTERNATIVE`] tree and
+    /// keeps the one that does less work on [`AUTO_PROBE_RAYS`] sample shadow rays (the
+    /// PLOC tree only when it saves more than [`AUTO_MARGIN`]); meshes of more than
+    /// [`AUTO_MAX_TRIANGLES`] get the SAH tree alone. Neither builder wins on every scene:
+    /// the binned SAH on the built-ins, PLOC (with its spatial pre-splits) on mixed scales
+    /// and on small meshes over a large ground (benches/README.md). The SAH cost of the
+    /// two trees ([`Bvh::sah_cost`]) did not tell them apart on the benchmark suite (equal
+    /// on `meshes`, where PLOC traces 1.7x faster); the traversal work of sample rays does.
     #[default]
+    Auto,
+    /// Top-down binned SAH whose cost counts four-triangle blocks ([`super::binned_sah`]).
+    /// Fewer node visits and block tests per ray than any PLOC preset below on the
+    /// built-in scenes, at about the build time of `Medium` (benches/README.md).
     Sah,
     /// PLOC with search radius 1, no reinsertion; fastest build, slowest traversal.
     Fastest,
@@ -56,7 +66,8 @@ pub enum BuildQuality {
 
 impl BuildQuality {
     /// All presets: the default, then obvhs's, fastest build first.
-    pub const ALL: [BuildQuality; 7] = [
+    pub const ALL: [BuildQuality; 8] = [
+        BuildQuality::Auto,
         BuildQuality::Sah,
         BuildQuality::Fastest,
         BuildQuality::VeryFast,
@@ -80,7 +91,7 @@ impl BuildQuality {
 
     const fn obvhs_preset(self) -> Option<BvhBuildParams> {
         Some(match self {
-            BuildQuality::Sah => return None,
+            BuildQuality::Auto | BuildQuality::Sah => return None,
             BuildQuality::Fastest => BvhBuildParams::fastest_build(),
             BuildQuality::VeryFast => BvhBuildParams::very_fast_build(),
             BuildQuality::Fast => BvhBuildParams::fast_build(),
@@ -90,7 +101,8 @@ impl BuildQuality {
         })
     }
 
-    /// Builds the binary tree of this preset over `triangles` (local frame).
+    /// Builds the binary tree of this preset over `triangles` (local frame); `Auto` is
+    /// resolved by [`Bvh::build_grouped`] before this and builds the SAH tree here.
     fn build_bvh2(self, triangles: &[Triangle]) -> Bvh2 {
         match self.params() {
             Some(p) => build_bvh2_from_tris(triangles, p, &mut Duration::default()),
@@ -101,6 +113,7 @@ impl BuildQuality {
     /// Snake-case name as used by the Python API (`"fast"`, `"very_slow"`, ...).
     pub const fn name(self) -> &'static str {
         match self {
+            BuildQuality::Auto => "auto",
             BuildQuality::Sah => "sah",
             BuildQuality::Fastest => "fastest",
             BuildQuality::VeryFast => "very_fast",
@@ -125,6 +138,26 @@ impl BuildQuality {
             })
     }
 }
+
+/// The PLOC preset [`BuildQuality::Auto`] weighs against the binned SAH tree.
+pub const AUTO_ALTERNATIVE: BuildQuality = BuildQuality::Slow;
+
+/// Shadow rays [`BuildQuality::Auto`] traces in both trees to compare them.
+pub const AUTO_PROBE_RAYS: usize = 4096;
+
+/// [`BuildQuality::Auto`] keeps the PLOC tree only when the SAH tree's probe work is more
+/// than this many times its own: where the two are within 5%, the probe's node and block
+/// counts do not predict which traces faster (`blob`, `instances`, `panels` on the suite).
+pub const AUTO_MARGIN: f64 = 1.05;
+
+/// Meshes larger than this get the SAH tree without a comparison: the PLOC preset builds
+/// several times slower (4 s for `hairball`'s 1.6M triangles on two cores, against a
+/// 1 s budget for a million).
+pub const AUTO_MAX_TRIANGLES: usize = 1 << 18;
+
+/// Cost of visiting an eight-wide node relative to one four-triangle block test, in
+/// [`Bvh::sah_cost`]: both are one SIMD test of similar latency.
+pub const NODE_COST: f32 = 1.0;
 
 /// Largest leaf the builder makes: one four-lane block of [`Triangle4`].
 pub const MAX_LEAF: u32 = super::bvh8::MAX_LEAF_TRIANGLES;
@@ -211,7 +244,15 @@ pub struct Bvh {
     triangle_ids: Vec<u32>,
     to_local: f32,
     to_world: f32,
+    /// The builder that made this tree (never `Auto`).
     quality: BuildQuality,
+    /// The preset asked for (`Auto` when this tree won the comparison).
+    requested: BuildQuality,
+    /// [`Bvh8::sah_cost`] of the tree with [`NODE_COST`].
+    sah_cost: f32,
+    /// Probe work per ray of the SAH and the PLOC tree when [`BuildQuality::Auto`]
+    /// compared them.
+    auto_costs: Option<[f64; 2]>,
     build_time: Duration,
     /// Parent links: the refit climbs them, and shadow-ray hints widen to a parent.
     parents: Parents,
@@ -302,6 +343,49 @@ fn join_bvh2(a: Bvh2, b: Bvh2) -> Bvh2 {
     }
 }
 
+/// `n` shadow rays like a renderer's: origins uniform by area over `mesh`'s triangles, on
+/// the side facing up (+y, the scenes' up axis: the side a camera and the sky mostly see;
+/// vertical triangles on their winding side), lifted off the surface by a millionth of the
+/// scene's size, directions uniform over that side's hemisphere. A fixed function of the
+/// mesh. Of the samplings tried on the suite (by area or by triangle, either side or the
+/// upper one), this one's work ratios came closest to the measured speed ratios.
+fn probe_rays(mesh: &Mesh, n: usize) -> Vec<(Vec3A, Vec3A)> {
+    use crate::sampling::rng::SampleRng;
+    use crate::testing::{to_world, uniform_hemisphere};
+    let mut total = 0.0f64;
+    let cdf: Vec<f64> = mesh
+        .triangles
+        .iter()
+        .map(|t| {
+            total += 0.5 * triangle_cross(t).length() as f64;
+            total
+        })
+        .collect();
+    if !(total > 0.0) {
+        return Vec::new();
+    }
+    let lift = 1e-6 * mesh.bounds().extent();
+    (0..n as u64)
+        .map(|k| {
+            let rng = SampleRng::new(0x5eed_b0c5, k, 0);
+            let pick = rng.get(0) as f64 * total;
+            let i = cdf.partition_point(|&c| c <= pick).min(cdf.len() - 1);
+            let [a, b, c] = mesh.triangles[i];
+            let [u, v] = rng.get2(1);
+            let (u, v) = if u + v > 1.0 {
+                (1.0 - u, 1.0 - v)
+            } else {
+                (u, v)
+            };
+            let normal = triangle_cross(&mesh.triangles[i]).normalize_or_zero();
+            let normal = if normal.y < 0.0 { -normal } else { normal };
+            let p = a + (b - a) * u + (c - a) * v + normal * lift;
+            let d = to_world(uniform_hemisphere(rng.get2(4)), normal);
+            (Vec3A::from(p), Vec3A::from(d))
+        })
+        .collect()
+}
+
 impl Bvh {
     /// Builds over every triangle of `mesh` with non-zero area, in parallel on the current
     /// rayon pool. Degenerate triangles are left out: they can never be hit.
@@ -321,6 +405,28 @@ impl Bvh {
         groups: &[std::ops::Range<usize>],
     ) -> Self {
         let start = Instant::now();
+        if quality == BuildQuality::Auto {
+            let mut kept = if mesh.triangles.len() > AUTO_MAX_TRIANGLES {
+                Self::build_grouped(mesh, BuildQuality::Sah, groups)
+            } else {
+                let (sah, alternative) = rayon::join(
+                    || Self::build_grouped(mesh, BuildQuality::Sah, groups),
+                    || Self::build_grouped(mesh, AUTO_ALTERNATIVE, groups),
+                );
+                let rays = probe_rays(mesh, AUTO_PROBE_RAYS);
+                let costs = [sah.probe_work(&rays), alternative.probe_work(&rays)];
+                let mut kept = if costs[0] > AUTO_MARGIN * costs[1] {
+                    alternative
+                } else {
+                    sah
+                };
+                kept.auto_costs = Some(costs);
+                kept
+            };
+            kept.requested = BuildQuality::Auto;
+            kept.build_time = start.elapsed();
+            return kept;
+        }
         let non_degenerate = |&i: &u32| triangle_cross(&mesh.triangles[i as usize]) != Vec3::ZERO;
         // Kept triangles, the ungrouped first, then group after group.
         let grouped = |i: u32| groups.iter().any(|g| g.contains(&(i as usize)));
@@ -388,12 +494,15 @@ impl Bvh {
             .collect();
         Bvh {
             parents: tree.parents(),
+            sah_cost: tree.sah_cost(NODE_COST),
             tree,
             blocks,
             triangle_ids,
             to_local,
             to_world: 1.0 / to_local,
             quality,
+            requested: quality,
+            auto_costs: None,
             build_time: start.elapsed(),
             refit_blocks: None,
             mesh_triangles: mesh.triangles.len(),
@@ -478,9 +587,37 @@ impl Bvh {
         true
     }
 
-    /// The preset it was built with.
+    /// The builder that made the tree: [`BuildQuality::Auto`]'s choice, or the preset asked
+    /// for.
     pub fn quality(&self) -> BuildQuality {
         self.quality
+    }
+
+    /// The preset asked for ([`BuildQuality::Auto`] when the tree won a comparison).
+    pub fn requested_quality(&self) -> BuildQuality {
+        self.requested
+    }
+
+    /// Node visits plus block tests (a quarter of the triangle tests) per probe ray of the
+    /// SAH and the PLOC tree, when [`BuildQuality::Auto`] compared them.
+    pub fn auto_costs(&self) -> Option<[f64; 2]> {
+        self.auto_costs
+    }
+
+    /// Node visits plus block tests per ray of `rays` (origin, direction; unbounded).
+    fn probe_work(&self, rays: &[(Vec3A, Vec3A)]) -> f64 {
+        let mut c = TraversalCounters::default();
+        for &(o, d) in rays {
+            self.occluded::<true>(o, d, f32::INFINITY, &mut c);
+        }
+        (c.nodes as f64 + c.triangles as f64 / 4.0) / rays.len().max(1) as f64
+    }
+
+    /// Expected block tests (and node visits at [`NODE_COST`]) of a ray crossing the
+    /// scene's box, by the surface area heuristic ([`Bvh8::sah_cost`]). Refits leave it
+    /// as built.
+    pub fn sah_cost(&self) -> f32 {
+        self.sah_cost
     }
 
     /// Wall time of [`Bvh::build`].
@@ -1572,6 +1709,65 @@ mod tests {
             .unwrap();
         assert_eq!(h.triangle, 1);
         assert!((h.t - 1.0).abs() < 1e-6);
+    }
+
+    /// `Auto` keeps the PLOC tree only where it does 5% less probe work, says which and
+    /// why, and answers as both do; an empty mesh builds too.
+    #[test]
+    fn auto_keeps_the_cheaper_tree() {
+        use crate::sampling::rng::{hash4, to_unit_f32};
+        let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 23));
+        let mut soup = Mesh::new();
+        // Long thin slivers in random directions: trees from the two builders differ.
+        let v: Vec<[f32; 3]> = (0..3000u64)
+            .map(|i| {
+                let s = if i % 3 == 1 { 4.0 } else { 0.1 };
+                let c = i / 3;
+                [
+                    unit(1, c) * 8.0 + unit(4, i) * s,
+                    unit(2, c) * 8.0 + unit(5, i) * 0.1,
+                    unit(3, c) * 8.0 + unit(6, i) * 0.1,
+                ]
+            })
+            .collect();
+        let faces: Vec<[i64; 3]> = (0..1000).map(|k| [3 * k, 3 * k + 1, 3 * k + 2]).collect();
+        soup.add_indexed(&v, &faces, Material::DEFAULT, None)
+            .unwrap();
+        let sah = Bvh::build(&soup, BuildQuality::Sah);
+        let ploc = Bvh::build(&soup, AUTO_ALTERNATIVE);
+        let auto = Bvh::build(&soup, BuildQuality::Auto);
+        assert_ne!(sah.sah_cost(), ploc.sah_cost());
+        let [s, p] = auto.auto_costs().expect("compared");
+        let rays = probe_rays(&soup, AUTO_PROBE_RAYS);
+        assert_eq!([s, p], [sah.probe_work(&rays), ploc.probe_work(&rays)]);
+        assert!(s > 1.0 && p > 1.0, "{s} {p}");
+        let chosen = if s > AUTO_MARGIN * p {
+            AUTO_ALTERNATIVE
+        } else {
+            BuildQuality::Sah
+        };
+        assert_eq!(auto.quality(), chosen);
+        let kept = if chosen == BuildQuality::Sah {
+            &sah
+        } else {
+            &ploc
+        };
+        assert_eq!(auto.sah_cost(), kept.sah_cost());
+        assert_eq!(sah.auto_costs(), None);
+        assert_eq!(auto.requested_quality(), BuildQuality::Auto);
+        assert_eq!(sah.requested_quality(), BuildQuality::Sah);
+        assert!(sah.sah_cost() > 1.0 && ploc.sah_cost() > 1.0);
+        let mut c = TraversalCounters::default();
+        for k in 0..2000u64 {
+            let o = vec3a(unit(7, k), unit(8, k), unit(9, k)) * 10.0 - 1.0;
+            let d = vec3a(unit(10, k), unit(11, k), unit(12, k)) - 0.5;
+            let a = auto.intersect::<false>(o, d, f32::INFINITY, &mut c);
+            let b = sah.intersect::<false>(o, d, f32::INFINITY, &mut c);
+            assert_eq!(a.map(|h| (h.t, h.triangle)), b.map(|h| (h.t, h.triangle)));
+        }
+        let empty = Bvh::build(&Mesh::new(), BuildQuality::Auto);
+        assert_eq!(empty.sah_cost(), 0.0);
+        assert!(!empty.occluded::<false>(vec3a(0.0, 0.0, 1.0), vec3a(0.0, 0.0, -1.0), 1.0, &mut c));
     }
 
     /// A packet prepares each lane exactly as the single-ray traversal prepares that ray:
