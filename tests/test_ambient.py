@@ -218,8 +218,8 @@ def test_empty_scene_and_bad_input_name_the_argument(wall_setup):
     ]:
         with pytest.raises(exc, match=f"^{name}"):
             vc.render_ao(s, progress=False, **kwargs)
-    other = vc.VisibilityCache(floor_and_wall())
-    with pytest.raises(ValueError, match="^cache"):
+    other = vc.VisibilityCache(floor_and_wall(wall_x=2.0))
+    with pytest.raises(ValueError, match="^cache: was built for another scene"):
         vc.render_ao(s, cache=other, progress=False)
     assert len(other) == 0
     with pytest.raises(TypeError, match="^cache_overrides"):

@@ -103,6 +103,7 @@ def test_a_bad_cache_adds_variance_never_bias(garage, alpha):
     roofless = vc.scenes.without(setup, ("roof",)).scene
     wrong = vc.VisibilityCache(roofless)
     wrong.build(setup.camera, seed=0, progress=False)
+    wrong.bind(setup.scene)  # on purpose: another geometry's records
     product = _render(setup, "product", 256, seed=41)
     cv = _render(setup, "cv", 256, seed=42, cache=wrong, alpha=alpha)
     _assert_agree(cv, product, 0.4, f"roofless records alpha={alpha}")
@@ -117,9 +118,13 @@ def test_records_of_another_scene_keep_it_unbiased(open_cornell):
     # points find none (plain product sampling there).
     setup = vc.scenes.load("garage", detail=0.3)
     setup.camera = setup.camera.with_resolution(40, 30)
-    _, cache = open_cornell
-    product = _render(setup, "product", 128, seed=51)
-    cv = _render(setup, "cv", 128, seed=52, cache=cache, alpha=1.0)
+    own, cache = open_cornell
+    cache.bind(setup.scene)  # on purpose: another scene's records
+    try:
+        product = _render(setup, "product", 128, seed=51)
+        cv = _render(setup, "cv", 128, seed=52, cache=cache, alpha=1.0)
+    finally:
+        cache.bind(own.scene)
     _assert_agree(cv, product, 0.4, "cornell records in the garage")
 
 

@@ -2,13 +2,45 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import struct
+import tempfile
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["to_srgb8", "write_exr", "write_png"]
+__all__ = ["atomic_path", "to_srgb8", "write_bytes", "write_exr", "write_png"]
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yields a temporary path beside ``path`` to write; on leaving without an exception it
+    is flushed and renamed over ``path`` in one step, otherwise removed. A process killed
+    while writing leaves the previous ``path`` whole. Creates missing parent folders."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(temp)
+        with open(temp, "rb+") as f:
+            os.fsync(f.fileno())
+        os.replace(temp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temp)
+        raise
+
+
+def write_bytes(path: str | Path, data: bytes) -> Path:
+    """Writes ``data`` to ``path`` atomically (:func:`atomic_path`) and returns the path."""
+    path = Path(path)
+    with atomic_path(path) as temp:
+        temp.write_bytes(data)
+    return path
 
 
 def to_srgb8(linear: np.ndarray, exposure: float = 1.0) -> np.ndarray:
@@ -33,15 +65,12 @@ def write_png(path: str | Path, rgb8: np.ndarray) -> Path:
     header = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
     png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 6))
     png += chunk(b"IEND", b"")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(png)
-    return path
+    return write_bytes(path, png)
 
 
 def write_exr(path: str | Path, image: np.ndarray) -> Path:
-    """Writes an (H, W, 3) array of linear radiance as a float32 RGB OpenEXR file (lossless)
-    and returns the path."""
+    """Writes an (H, W, 3) array of linear radiance as a float32 RGB OpenEXR file (lossless,
+    atomically: a killed process leaves the previous file) and returns the path."""
     from ._core import write_exr as _write_exr
 
     path = Path(path)

@@ -47,19 +47,21 @@ pub fn write_exr_rgb(
             (r, g, b)
         }),
     );
-    Image::from_layer(layer)
-        .write()
-        .to_file(path)
-        .map_err(|e| match e {
-            exr::error::Error::Io(source) => Error::Io {
-                path: path.to_path_buf(),
-                source,
-            },
-            other => Error::Io {
-                path: path.to_path_buf(),
-                source: std::io::Error::other(other.to_string()),
-            },
-        })
+    crate::files::write_atomically(path, |temp| {
+        Image::from_layer(layer)
+            .write()
+            .to_file(temp)
+            .map_err(|e| match e {
+                exr::error::Error::Io(source) => Error::Io {
+                    path: path.to_path_buf(),
+                    source,
+                },
+                other => Error::Io {
+                    path: path.to_path_buf(),
+                    source: std::io::Error::other(other.to_string()),
+                },
+            })
+    })
 }
 
 #[cfg(test)]

@@ -14,6 +14,7 @@ pub mod bsdf;
 pub mod camera;
 pub mod error;
 pub mod estimators;
+pub mod files;
 pub mod geometry;
 pub mod image;
 pub mod lights;

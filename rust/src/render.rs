@@ -770,6 +770,9 @@ pub fn render(
     } else {
         None
     };
+    if let Some(c) = cache {
+        c.bind_scene(scene)?;
+    }
     // The product needs cells of level >= 1; a 1 x 1 map is the same map at 2 x 2.
     let env = &*env.at_least(2)?;
     let chroma = cv.then(|| MapChroma::new(env));
@@ -848,6 +851,10 @@ pub fn render(
                         let first = band * BAND_ROWS * width;
                         let mut band_samples = 0u64;
                         for (i, acc) in band_sums.iter_mut().enumerate() {
+                            // A band of many samples takes seconds; stop within a pixel.
+                            if cancel.load(Ordering::Relaxed) {
+                                break;
+                            }
                             if acc.n < target {
                                 band_samples += (target - acc.n) as u64;
                                 work.anchored_pixels += 1;

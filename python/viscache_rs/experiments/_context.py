@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ..io import to_srgb8, write_exr, write_png
+from ..io import atomic_path, to_srgb8, write_bytes, write_exr, write_png
 
 
 def _jsonable(value: Any) -> Any:
@@ -93,16 +93,17 @@ class ExperimentContext:
         import matplotlib.pyplot as plt
 
         path = self.out / f"{name}.png"
-        fig.savefig(path, dpi=120, bbox_inches="tight")
+        with atomic_path(path) as temp:
+            fig.savefig(temp, dpi=120, bbox_inches="tight", format="png")
         plt.close(fig)
         return path
 
     def finish(self) -> None:
         """Writes results.json and results.md."""
         self.results["seconds"] = time.perf_counter() - self._start
-        (self.out / "results.json").write_text(json.dumps(self.results, indent=2) + "\n")
+        write_bytes(self.out / "results.json", (json.dumps(self.results, indent=2) + "\n").encode())
         head = f"# {self.name}{' (quick)' if self.quick else ''}\n\n"
-        (self.out / "results.md").write_text(head + "\n".join(self._tables))
+        write_bytes(self.out / "results.md", (head + "\n".join(self._tables)).encode())
 
 
 def pyplot():

@@ -77,9 +77,14 @@ pub const DEFAULT_SIGMA_SCALE: f32 = 3.0;
 pub const DEFAULT_MIN_RADIUS_SCALE: f32 = 40.0;
 /// Default `w_min` of §6.1's criterion (see [`DEFAULT_SIGMA_SCALE`]).
 pub const DEFAULT_AO_W_MIN: f32 = 0.45;
-/// Points per step of the reference render (progress and the time budget are checked
-/// between steps; results do not depend on it).
-const REFERENCE_STEP: usize = 4096;
+/// Rays per step of the reference render: progress, Ctrl-C and the time budget are checked
+/// between steps (about 0.1 s of work on two cores), and results do not depend on it.
+const REFERENCE_STEP_RAYS: usize = 1 << 19;
+
+/// Points per step of the reference render at `rays` rays per point.
+fn reference_step_points(rays: u32) -> usize {
+    (REFERENCE_STEP_RAYS / rays.max(1) as usize).clamp(8, 4096)
+}
 
 /// Parameters of cache AO on top of the cache's own.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -361,7 +366,7 @@ pub fn render_reference_ao(
         let covered: Vec<usize> = (0..g.object.len()).filter(|&i| g.object[i] >= 0).collect();
         image.stats.covered_pixels = covered.len();
         let mut done = 0;
-        for step in covered.chunks(REFERENCE_STEP) {
+        for step in covered.chunks(reference_step_points(rays)) {
             let values = scene.map_rays(step.len(), None, |k, c| {
                 let i = step[k];
                 reference_ao_at(
@@ -412,6 +417,7 @@ pub fn render_cache_ao(
 ) -> Result<AoImage> {
     ao.validate()?;
     check_scene_and_budget(scene, time_budget)?;
+    cache.bind_scene(scene)?;
     let start = Instant::now();
     let before = cache.counters();
     let params = *cache.params();

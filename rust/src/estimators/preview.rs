@@ -45,6 +45,9 @@ pub struct LightingPreview {
     height: u32,
     /// Per pixel: the hit, or the primary ray's direction where it escaped.
     points: Vec<std::result::Result<PreviewPoint, Vec3>>,
+    /// [`Scene::geometry_fingerprint`] of the scene the points were traced in: caches
+    /// of other scenes are refused.
+    scene: u64,
 }
 
 impl LightingPreview {
@@ -82,6 +85,7 @@ impl LightingPreview {
             width: camera.width,
             height: camera.height,
             points,
+            scene: scene.geometry_fingerprint(),
         })
     }
 
@@ -101,6 +105,7 @@ impl LightingPreview {
         threads: Option<usize>,
     ) -> Result<Vec<[f32; 3]>> {
         product_level.validate()?;
+        cache.bind_fingerprint(self.scene)?;
         let env = &*env.at_least(2)?;
         let chroma = MapChroma::new(env);
         let state = cache.read();

@@ -435,6 +435,8 @@ pub struct Scene {
     still_bounds: Bounds,
     quality: BuildQuality,
     bvh: OnceLock<Bvh>,
+    /// [`Scene::geometry_fingerprint`], computed on first use.
+    fingerprint: OnceLock<u64>,
     counting: AtomicBool,
     counters: AtomicCounters,
     /// Objects moved by [`Scene::set_object_transform`]: rest-pose triangles and the
@@ -468,6 +470,7 @@ impl Clone for Scene {
             still_bounds: self.still_bounds,
             quality: self.quality,
             bvh: OnceLock::new(),
+            fingerprint: self.fingerprint.clone(),
             counting: AtomicBool::new(self.counting_enabled()),
             counters: AtomicCounters::default(),
             posed: self.posed.clone(),
@@ -494,6 +497,7 @@ impl Scene {
             lights: Vec::new(),
             quality: BuildQuality::default(),
             bvh: OnceLock::new(),
+            fingerprint: OnceLock::new(),
             counting: AtomicBool::new(true),
             counters: AtomicCounters::default(),
             posed: BTreeMap::new(),
@@ -543,6 +547,36 @@ impl Scene {
         self.bounds = self.mesh.bounds();
         self.still_bounds = self.bounds_of_still_objects();
         self.bvh = OnceLock::new();
+        self.fingerprint = OnceLock::new();
+    }
+
+    /// A 64-bit digest of the scene's geometry at rest: every object's triangle count and
+    /// vertices as added, before any [`Scene::set_object_transform`] (so an animated scene
+    /// keeps its fingerprint from frame to frame). Visibility caches record the scene they
+    /// were built for by it and refuse another. Computed once per change of geometry.
+    pub fn geometry_fingerprint(&self) -> u64 {
+        *self.fingerprint.get_or_init(|| {
+            // FxHash-style mixing of 64-bit words, then the splitmix64 finaliser: not
+            // cryptographic, but any edit of a vertex or a count changes it.
+            let mut h = 0u64;
+            let mut word = |w: u64| h = (h.rotate_left(5) ^ w).wrapping_mul(0x517c_c1b7_2722_0a95);
+            word(self.mesh.objects.len() as u64);
+            for i in 0..self.mesh.objects.len() {
+                let triangles = match self.posed.get(&(i as u32)) {
+                    Some(p) => &p.rest[..],
+                    None => self.triangles_of(i),
+                };
+                word(triangles.len() as u64);
+                for v in triangles.iter().flatten() {
+                    word(v.x.to_bits() as u64 | (v.y.to_bits() as u64) << 32);
+                    word(v.z.to_bits() as u64);
+                }
+            }
+            let mut z = h ^ (h >> 30);
+            z = z.wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            z ^ (z >> 31)
+        })
     }
 
     /// The triangles of object `i` (which must exist).

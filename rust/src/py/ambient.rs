@@ -8,9 +8,8 @@ use pyo3::types::PyDict;
 
 use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
-use super::convert::{
-    f64_arg, image_array, int_arg, seed_arg, threads_arg, IntoPyResult, PyProgress,
-};
+use super::convert::{f64_arg, image_array, int_arg, seed_arg, threads_arg, IntoPyResult};
+use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
 use crate::estimators::ambient::{
     render_cache_ao, render_reference_ao, AoParams, AoStats, MAX_AO_RAYS,
@@ -60,14 +59,8 @@ pub fn render_ao<'py>(
     }
     ao.validate().py()?;
     let cache = match (&cache, rays) {
-        (Some(c), None) => {
-            if !c.borrow().scene.bind(py).is(&scene) {
-                return Err(PyValueError::new_err(
-                    "cache: was made for another scene (its records would not match)",
-                ));
-            }
-            Some(c.borrow().inner.clone())
-        }
+        // The core refuses a cache of other geometry (`VisibilityCache::bind_scene`).
+        (Some(c), None) => Some(c.borrow().bound(py)?),
         (None, None) => {
             return Err(PyValueError::new_err(
                 "cache: pass a VisibilityCache, or reference_rays= to ray trace",
@@ -78,25 +71,25 @@ pub fn render_ao<'py>(
     let core_scene = scene.borrow().inner.clone();
     let cam = camera.inner;
     let mut reporter = PyProgress::new(callback);
+    let stop = reporter.stop_flag();
     let mut progress = |done: usize, total: usize| reporter.report(done as u64, total as u64);
-    let out = py
-        .detach(|| match (&cache, rays) {
-            (_, Some(n)) => {
-                render_reference_ao(&core_scene, &cam, n, seed, threads, budget, &mut progress)
-            }
-            (Some(c), None) => render_cache_ao(
-                &core_scene,
-                &cam,
-                c,
-                &ao,
-                seed,
-                threads,
-                budget,
-                &mut progress,
-            ),
-            (None, None) => unreachable!("checked above"),
-        })
-        .py()?;
+    let out = detach_interruptible(py, &stop, || match (&cache, rays) {
+        (_, Some(n)) => {
+            render_reference_ao(&core_scene, &cam, n, seed, threads, budget, &mut progress)
+        }
+        (Some(c), None) => render_cache_ao(
+            &core_scene,
+            &cam,
+            c,
+            &ao,
+            seed,
+            threads,
+            budget,
+            &mut progress,
+        ),
+        (None, None) => unreachable!("checked above"),
+    })?
+    .py()?;
     reporter.finish()?;
     let d = PyDict::new(py);
     let (h, w) = (out.height as usize, out.width as usize);

@@ -12,8 +12,9 @@ use pyo3::types::PyDict;
 
 use super::convert::{
     f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, rows_array, seed_arg, threads_arg,
-    IntoPyResult, PyProgress,
+    IntoPyResult,
 };
+use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
 use crate::sampling::octahedral::morton_encode;
 use crate::visibility::correlation::{
@@ -189,8 +190,11 @@ pub fn visibility_maps(
         .collect();
     let scene = scene.inner.clone();
     let mut reporter = PyProgress::new(callback);
+    let stop = reporter.stop_flag();
     let mut progress = |done: usize, total: usize| reporter.report(done as u64, total as u64);
-    let out = py.detach(|| VisibilityMaps::trace(&scene, &p, &n, m, threads, &mut progress));
+    let out = detach_interruptible(py, &stop, || {
+        VisibilityMaps::trace(&scene, &p, &n, m, threads, &mut progress)
+    })?;
     reporter.finish()?;
     Ok(PyVisibilityMaps { inner: out.py()? })
 }

@@ -15,6 +15,7 @@ use super::convert::{
     f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, seed_arg, threads_arg,
     unit_directions, vec3_arg, IntoPyResult,
 };
+use super::interrupt::{detach_interruptible, StopFlag};
 use super::scene::PyScene;
 use crate::sampling::octahedral::{morton_decode, morton_encode};
 use crate::visibility::cache::{Lookup, VisibilityCache};
@@ -118,6 +119,17 @@ fn params_dict<'py>(py: Python<'py>, p: &CacheParams) -> PyResult<Bound<'py, PyD
 }
 
 impl PyVisibilityCache {
+    /// The core cache, bound to the geometry of the scene it was made with if nothing bound
+    /// it before (`VisibilityCache::bind_scene`): a cache passed to a call on another scene
+    /// is then refused by the core even before its first build.
+    pub fn bound(&self, py: Python<'_>) -> PyResult<Arc<VisibilityCache>> {
+        if self.inner.scene_fingerprint().is_none() {
+            let scene = self.scene.borrow(py).inner.clone();
+            self.inner.bind_scene(&scene).py()?;
+        }
+        Ok(self.inner.clone())
+    }
+
     fn record_id(&self, id: &Bound<'_, PyAny>) -> PyResult<usize> {
         let len = self.inner.len();
         let i = int_arg(id, "id", 0, i64::MAX as i128)? as usize;
@@ -156,6 +168,14 @@ impl PyVisibilityCache {
             scene,
             default_radius: None,
         })
+    }
+
+    /// Lets this cache serve `scene` although its records were traced in another geometry
+    /// (calls with a scene whose geometry differs from the cache's are refused otherwise):
+    /// for studying stale or foreign records on purpose. The records are unchanged.
+    fn bind(&self, py: Python<'_>, scene: PyRef<'_, PyScene>) {
+        let scene = scene.inner.clone();
+        py.detach(|| self.inner.rebind_scene(&scene));
     }
 
     /// Records per side, `2^M`.
@@ -245,15 +265,18 @@ impl PyVisibilityCache {
             None
         };
         let mut failure: Option<PyErr> = None;
+        let stop = StopFlag::default();
         let mut callback = |done: usize, total: usize| -> bool {
+            if stop.is_set() || failure.is_some() {
+                return false;
+            }
             let Some(bar) = &bar else { return true };
             Python::attach(|py| {
                 let step = || -> PyResult<()> {
                     let b = bar.bind(py);
                     b.setattr("total", total)?;
                     b.setattr("n", done)?;
-                    b.call_method0("refresh")?;
-                    py.check_signals()
+                    b.call_method0("refresh").map(drop)
                 };
                 match step() {
                     Ok(()) => true,
@@ -265,14 +288,16 @@ impl PyVisibilityCache {
             })
         };
         let inner = self.inner.clone();
-        let out = py.detach(|| inner.build(&scene, &cam, seed, threads, budget, &mut callback));
+        let out = detach_interruptible(py, &stop, || {
+            inner.build(&scene, &cam, seed, threads, budget, &mut callback)
+        });
         if let Some(bar) = &bar {
             bar.bind(py).call_method0("close")?;
         }
         if let Some(e) = failure {
             return Err(e);
         }
-        let r = out.py()?;
+        let r = out?.py()?;
         if let Some(f) = r.median_footprint {
             self.default_radius = Some(self.inner.params().d_max_scale * f);
         }
@@ -547,10 +572,19 @@ impl PyVisibilityCache {
     }
 
     /// Reads a cache written by `save`, attached to `scene`. A truncated or corrupted file
-    /// raises ValueError naming the file.
+    /// raises ValueError naming the file; so does a cache built for another scene (files
+    /// record the scene's geometry fingerprint; older files without one are accepted).
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf, scene: Py<PyScene>) -> PyResult<Self> {
         let cache = py.detach(|| VisibilityCache::load(&path)).py()?;
+        let core_scene = scene.borrow(py).inner.clone();
+        if let Err(e) = cache.bind_scene(&core_scene) {
+            return Err(PyValueError::new_err(format!(
+                "scene: the cache in {} {}",
+                path.display(),
+                e.to_string().trim_start_matches("cache: ")
+            )));
+        }
         Ok(Self {
             inner: Arc::new(cache),
             scene,

@@ -374,47 +374,6 @@ pub fn product_level_arg(
     ))
 }
 
-/// Forwards the core's `progress(done, total)` reports to an optional Python
-/// `callback(done, total)`, taking the GIL for each call. A falsy return stops the core's
-/// work; an exception does too and is kept for [`Self::finish`] to raise, and no further
-/// call is made after it.
-pub struct PyProgress {
-    callback: Option<Py<PyAny>>,
-    failure: Option<PyErr>,
-}
-
-impl PyProgress {
-    /// A reporter calling `callback` (none: every report says "go on").
-    pub fn new(callback: Option<Py<PyAny>>) -> Self {
-        Self {
-            callback,
-            failure: None,
-        }
-    }
-
-    /// One report; `false` asks the core to stop.
-    pub fn report(&mut self, done: u64, total: u64) -> bool {
-        let Some(cb) = &self.callback else {
-            return true;
-        };
-        if self.failure.is_some() {
-            return false;
-        }
-        Python::attach(|py| match cb.call1(py, (done, total)) {
-            Ok(r) => r.is_truthy(py).unwrap_or(true),
-            Err(e) => {
-                self.failure = Some(e);
-                false
-            }
-        })
-    }
-
-    /// The callback's exception, if it raised one.
-    pub fn finish(self) -> PyResult<()> {
-        self.failure.map_or(Ok(()), Err)
-    }
-}
-
 /// `log2` of a resolution argument that must be a power of two in 2..=128 (records and
 /// visibility maps).
 pub fn log2_resolution(obj: &Bound<'_, PyAny>) -> PyResult<u32> {

@@ -8,6 +8,7 @@ mod camera;
 mod convert;
 mod envmap;
 mod image;
+mod interrupt;
 mod material;
 mod octahedral;
 mod preview;

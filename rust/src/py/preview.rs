@@ -56,7 +56,7 @@ impl PyLightingPreview {
     ) -> PyResult<Bound<'py, PyAny>> {
         let level = product_level_arg(product_level)?;
         let threads = threads_arg(threads)?;
-        let cache = cache.inner.clone();
+        let cache = cache.bound(py)?;
         let env = &envmap.inner;
         let image = py
             .detach(|| self.inner.render(&cache, env, level, threads))

@@ -9,9 +9,9 @@ use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
 use super::convert::{
     f64_arg, image_array, int_arg, product_level_arg, seed_arg, threads_arg, IntoPyResult,
-    PyProgress,
 };
 use super::envmap::PyEnvMap;
+use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
 use crate::estimators::control_variate::AlphaRule;
 use crate::estimators::direct::{Method, Techniques};
@@ -116,23 +116,23 @@ pub fn render<'py>(
     params.validate().py()?;
     let threads = threads_arg(threads)?;
     let (scene, cam) = (scene.inner.clone(), camera.inner);
-    let cache = cache.map(|c| c.inner.clone());
+    let cache = cache.map(|c| c.bound(py)).transpose()?;
     let env: Py<PyEnvMap> = envmap.unbind();
     let mut reporter = PyProgress::new(callback);
+    let stop = reporter.stop_flag();
     let mut progress = |done: u64, planned: u64| reporter.report(done, planned);
-    let out = py
-        .detach(|| {
-            render_core(
-                &scene,
-                &env.get().inner,
-                &cam,
-                &params,
-                cache.as_deref(),
-                threads,
-                &mut progress,
-            )
-        })
-        .py()?;
+    let out = detach_interruptible(py, &stop, || {
+        render_core(
+            &scene,
+            &env.get().inner,
+            &cam,
+            &params,
+            cache.as_deref(),
+            threads,
+            &mut progress,
+        )
+    })?
+    .py()?;
     reporter.finish()?;
     let (w, h) = (out.width as usize, out.height as usize);
     let d = PyDict::new(py);

@@ -230,6 +230,9 @@ pub struct CacheState {
     chained: usize,
     frame: u32,
     counters: CacheCounters,
+    /// [`Scene::geometry_fingerprint`] of the scene the records were traced in (`None`
+    /// until the cache is first used with a scene; see [`VisibilityCache::bind_scene`]).
+    scene: Option<u64>,
 }
 
 impl CacheState {
@@ -243,7 +246,13 @@ impl CacheState {
             chained: 0,
             frame: 0,
             counters: CacheCounters::default(),
+            scene: None,
         })
+    }
+
+    /// The fingerprint of the scene the cache is bound to, if any.
+    pub fn scene_fingerprint(&self) -> Option<u64> {
+        self.scene
     }
 
     /// The records.
@@ -946,6 +955,54 @@ impl VisibilityCache {
         state.len() * (std::mem::size_of::<Site>() + 4) + state.tree.memory_bytes()
     }
 
+    /// Binds the cache to `scene`, or checks that it is the scene the cache is bound to.
+    /// Records hold the visibility of one geometry: used in another scene they would
+    /// shade it with the first one's shadows, silently. An unbound cache binds to the first
+    /// scene it is used with; a bound one refuses a scene of another
+    /// [`Scene::geometry_fingerprint`] with an error naming `cache`, and stays as it was.
+    /// The same geometry in another [`Scene`] value is the same scene, and moving objects
+    /// of the bound scene (animation) keeps the binding.
+    pub fn bind_scene(&self, scene: &Scene) -> Result<()> {
+        self.bind_fingerprint(scene.geometry_fingerprint())
+    }
+
+    /// [`Self::bind_scene`] for a scene known by its fingerprint `f`.
+    pub fn bind_fingerprint(&self, f: u64) -> Result<()> {
+        let check = |state: &CacheState| match state.scene {
+            Some(bound) if bound != f => Err(Error::invalid(
+                "cache",
+                format!(
+                    "was built for another scene (geometry fingerprint {bound:016x}, this \
+                     scene's is {f:016x}); build a cache for this scene"
+                ),
+            )),
+            _ => Ok(()),
+        };
+        {
+            let state = self.read();
+            check(&state)?;
+            if state.scene == Some(f) {
+                return Ok(());
+            }
+        }
+        let mut state = self.write();
+        check(&state)?;
+        state.scene = Some(f);
+        Ok(())
+    }
+
+    /// Binds the cache to `scene` whatever it was bound to: for using records of another
+    /// geometry on purpose (a stale or foreign cache in a study of robustness). The
+    /// records stay as they are.
+    pub fn rebind_scene(&self, scene: &Scene) {
+        self.write().scene = Some(scene.geometry_fingerprint());
+    }
+
+    /// The fingerprint of the scene the cache is bound to ([`Self::bind_scene`]), if any.
+    pub fn scene_fingerprint(&self) -> Option<u64> {
+        self.read().scene
+    }
+
     /// Totals since creation.
     pub fn counters(&self) -> CacheCounters {
         let mut c = self.read().counters;
@@ -1007,6 +1064,7 @@ impl VisibilityCache {
     /// Traces and inserts a record unconditionally; returns its id (`None` at
     /// `max_records`).
     pub fn insert(&self, scene: &Scene, position: Vec3, normal: Vec3) -> Result<Option<u32>> {
+        self.bind_scene(scene)?;
         let (record, rays) = self.trace(scene, position, normal)?;
         let mut state = self.write();
         count_rays(&mut state.counters, rays);
@@ -1221,6 +1279,7 @@ impl VisibilityCache {
         progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
     ) -> Result<BuildReport> {
         check_scene_and_budget(scene, time_budget)?;
+        self.bind_scene(scene)?;
         let start = Instant::now();
         let before = self.counters();
         let mut report = BuildReport {
@@ -1421,6 +1480,7 @@ impl VisibilityCache {
     /// returns how many were inserted. This is the one-pass mode's insertion: a render
     /// collects the points that found no record and hands them over afterwards.
     pub fn refine_points(&self, scene: &Scene, points: &[(Vec3, Vec3, f32)]) -> Result<usize> {
+        self.bind_scene(scene)?;
         let mut fresh = (0..points.len() as u32).peekable();
         let mut deferred: Vec<u32> = Vec::new();
         let mut inserted = 0;

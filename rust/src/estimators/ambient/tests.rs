@@ -460,7 +460,7 @@ fn stopping_early_reports_incomplete_and_no_records_give_nan() {
     let reference = render_reference_ao(&scene, &cam, 4, 0, None, None, &mut stop).unwrap();
     assert_eq!(
         reference.stats.complete,
-        reference.stats.covered_pixels <= REFERENCE_STEP
+        reference.stats.covered_pixels <= reference_step_points(4)
     );
     // No records within reach: the cache has nothing to say.
     let empty = VisibilityCache::new(CacheParams::MEDIUM).unwrap();

@@ -1,12 +1,14 @@
-//! The cache's file format, version 2 (all little-endian; version 1, without the flags
-//! word, is still read, with `nearest_hits` on):
+//! The cache's file format, version 3 (all little-endian). Versions 1 (without the flags
+//! word; read with `nearest_hits` on) and 2 (without the scene fingerprint; read unbound)
+//! are still read:
 //!
 //! | bytes | field |
 //! |---|---|
 //! | 8 | magic `b"VISCACHE"` |
-//! | 4 | format version (`u32`, 2) |
-//! | 60 | parameters: `M`, `n_startup` (`u32`); `d_max_scale`, `theta_max_deg`, `lambda_falloff` (`f32`); `m_search`, `n_keep` (`u32`); `w_min`, `delta_max`, `epsilon_max` (`f32`); `evict_worst`, `unused_frames`, `max_records` (`u32`); `pattern_seed` (`u64`); flags (`u32`: bit 0 `nearest_hits`, bit 1 `check_coherence`) |
+//! | 4 | format version (`u32`, 3) |
+//! | 60 | parameters: `M`, `n_startup` (`u32`); `d_max_scale`, `theta_max_deg`, `lambda_falloff` (`f32`); `m_search`, `n_keep` (`u32`); `w_min`, `delta_max`, `epsilon_max` (`f32`); `evict_worst`, `unused_frames`, `max_records` (`u32`); `pattern_seed` (`u64`); flags (`u32`: bit 0 `nearest_hits`, bit 1 `check_coherence`, bit 2 bound to a scene) |
 //! | 4 | current frame (`u32`) |
+//! | 8 | geometry fingerprint of the scene the cache is bound to (`u64`; 0 when unbound) |
 //! | 8 | record count `N` (`u64`) |
 //! | 36 N | record headers: position `3 x f32`, normal `2 x u16`, `R_i` `f32`, misses, uses, last frame `u32`, `A` `u16`, reserved `u16` |
 //! | 8 N W | map words (`u64`; `W = words_per_map(M)`: bits then hierarchy codes) |
@@ -28,7 +30,7 @@ use crate::visibility::record::{words_per_map, RecordHeader};
 
 const MAGIC: &[u8; 8] = b"VISCACHE";
 /// Version this build writes and reads.
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
 const HEADER_BYTES: usize = 36;
 
 /// FNV-1a 64 of `bytes`: the file's trailing checksum.
@@ -42,7 +44,7 @@ pub(super) fn checksum(bytes: &[u8]) -> u64 {
 }
 
 impl VisibilityCache {
-    /// The cache as bytes of the version-2 format (module docs).
+    /// The cache as bytes of the version-3 format (module docs).
     pub fn to_bytes(&self) -> Vec<u8> {
         let p = &self.params;
         let state = self.read();
@@ -66,10 +68,13 @@ impl VisibilityCache {
         u32s(
             &mut out,
             &[
-                p.nearest_hits as u32 | (p.check_coherence as u32) << 1,
+                p.nearest_hits as u32
+                    | (p.check_coherence as u32) << 1
+                    | (state.scene.is_some() as u32) << 2,
                 state.frame,
             ],
         );
+        out.extend(state.scene.unwrap_or(0).to_le_bytes());
         out.extend((n as u64).to_le_bytes());
         for i in 0..n {
             let h = state.store.header(i);
@@ -109,7 +114,8 @@ impl VisibilityCache {
                 "format version {version}, this build reads {FORMAT_VERSION}"
             )));
         }
-        let mut fixed = || -> Option<(CacheParams, u32, u64)> {
+        let mut bound = false;
+        let mut fixed = || -> Option<(CacheParams, u32, u64, Option<u64>)> {
             let mut p = CacheParams::MEDIUM;
             p.log2_resolution = r.u32()?;
             p.n_startup = r.u32()?;
@@ -127,17 +133,20 @@ impl VisibilityCache {
             p.pattern_seed = r.u64()?;
             if version >= 2 {
                 let flags = r.u32()?;
-                if flags > 3 {
+                if flags > 7 || (version < 3 && flags > 3) {
                     return None;
                 }
                 p.nearest_hits = flags & 1 == 1;
                 p.check_coherence = flags & 2 == 2;
+                bound = flags & 4 == 4;
             }
             let frame = r.u32()?;
+            let scene = if version >= 3 { Some(r.u64()?) } else { None };
             let n = r.u64()?;
-            Some((p, frame, n))
+            Some((p, frame, n, scene))
         };
-        let (params, frame, n) = fixed().ok_or_else(too_short)?;
+        let (params, frame, n, scene) = fixed().ok_or_else(too_short)?;
+        let scene = scene.filter(|_| bound);
         params
             .validate()
             .map_err(|e| bad(format!("bad parameters: {e}")))?;
@@ -161,6 +170,7 @@ impl VisibilityCache {
         let cache = VisibilityCache::new(params)?;
         let mut state = CacheState::new(params.log2_resolution)?;
         state.frame = frame;
+        state.scene = scene;
         let mut map = vec![0u64; words];
         for i in 0..n {
             let mut h = Reader {
@@ -192,12 +202,10 @@ impl VisibilityCache {
         Ok(cache)
     }
 
-    /// Writes the cache to `path` (version-2 format, module docs).
+    /// Writes the cache to `path` (version-3 format, module docs), whole or not at all
+    /// ([`crate::files::write_atomically`]).
     pub fn save(&self, path: &Path) -> Result<()> {
-        std::fs::write(path, self.to_bytes()).map_err(|source| Error::Io {
-            path: path.to_path_buf(),
-            source,
-        })
+        crate::files::write_bytes_atomically(path, &self.to_bytes())
     }
 
     /// Reads a cache written by [`Self::save`].

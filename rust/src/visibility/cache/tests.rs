@@ -711,15 +711,85 @@ fn records_without_nearest_hits_have_the_same_bits_and_version_one_files_load() 
             .params()
             .nearest_hits
     );
+    // Version 3 keeps the scene the cache was built for.
+    let fingerprint = setup.scene.geometry_fingerprint();
+    assert_eq!(without.scene_fingerprint(), Some(fingerprint));
+    let again = VisibilityCache::from_bytes(&bytes, Path::new("v3")).unwrap();
+    assert_eq!(again.scene_fingerprint(), Some(fingerprint));
+    // Older streams: version 2 has no fingerprint (loads unbound), version 1 no flags word
+    // either (loads with nearest hits on).
     let flags_at = 8 + 4 + 60;
-    let mut v1 = bytes[..flags_at].to_vec();
-    v1.extend_from_slice(&bytes[flags_at + 4..bytes.len() - 8]);
-    v1[8..12].copy_from_slice(&1u32.to_le_bytes());
-    let sum = io::checksum(&v1);
-    v1.extend(sum.to_le_bytes());
-    let old = VisibilityCache::from_bytes(&v1, Path::new("v1")).unwrap();
-    assert!(old.params().nearest_hits);
-    assert_eq!(old.len(), without.len());
+    let frame_at = flags_at + 4;
+    let records_at = frame_at + 4 + 8;
+    let older = |version: u32, flags: bool| {
+        let mut v = bytes[..flags_at].to_vec();
+        if flags {
+            v.extend((bytes[flags_at] as u32 & 3).to_le_bytes());
+        }
+        v.extend_from_slice(&bytes[frame_at..frame_at + 4]);
+        v.extend_from_slice(&bytes[records_at..bytes.len() - 8]);
+        v[8..12].copy_from_slice(&version.to_le_bytes());
+        let sum = io::checksum(&v);
+        v.extend(sum.to_le_bytes());
+        VisibilityCache::from_bytes(&v, Path::new("old")).unwrap()
+    };
+    let v2 = older(2, true);
+    assert!(!v2.params().nearest_hits);
+    assert_eq!((v2.len(), v2.scene_fingerprint()), (without.len(), None));
+    let v1 = older(1, false);
+    assert!(v1.params().nearest_hits);
+    assert_eq!((v1.len(), v1.scene_fingerprint()), (without.len(), None));
+    // An unbound cache with records binds to the first scene it is used with.
+    v2.bind_scene(&setup.scene).unwrap();
+    assert_eq!(v2.scene_fingerprint(), Some(fingerprint));
+}
+
+/// A cache bound to a scene (by its first build) refuses a scene of other geometry, says
+/// so, and stays as it was; so does an empty one bound explicitly.
+#[test]
+fn caches_refuse_other_scenes() {
+    let garage = scenes::load("garage", 0.3, 0).unwrap();
+    let cornell = scenes::load("cornell", 0.3, 0).unwrap();
+    let cam = garage.camera.with_resolution(16, 12).unwrap();
+    let c = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
+    assert_eq!(c.scene_fingerprint(), None);
+    c.build(&garage.scene, &cam, 0, Some(1), None, &mut |_, _| true)
+        .unwrap();
+    let n = c.len();
+    assert!(n > 0);
+    let e = c.bind_scene(&cornell.scene).unwrap_err();
+    assert!(
+        e.to_string()
+            .starts_with("cache: was built for another scene"),
+        "{e}"
+    );
+    let cam_c = cornell.camera.with_resolution(16, 12).unwrap();
+    assert!(c
+        .build(&cornell.scene, &cam_c, 0, Some(1), None, &mut |_, _| true)
+        .is_err());
+    assert_eq!(c.len(), n);
+    assert_eq!(
+        c.scene_fingerprint(),
+        Some(garage.scene.geometry_fingerprint())
+    );
+    let empty = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
+    empty.bind_scene(&cornell.scene).unwrap();
+    assert!(empty.bind_scene(&garage.scene).is_err());
+    assert!(empty.bind_scene(&cornell.scene).is_ok());
+    assert_ne!(
+        garage.scene.geometry_fingerprint(),
+        scenes::load("garage", 0.5, 0)
+            .unwrap()
+            .scene
+            .geometry_fingerprint()
+    );
+    assert_eq!(
+        garage.scene.geometry_fingerprint(),
+        scenes::load("garage", 0.3, 0)
+            .unwrap()
+            .scene
+            .geometry_fingerprint()
+    );
 }
 
 /// The weights of the m nearest come out the same bit for bit whichever vector form scores

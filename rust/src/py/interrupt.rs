@@ -1,0 +1,117 @@
+//! Ctrl-C during long calls. Python runs signal handlers only on its main thread, between
+//! bytecodes; a call that released the GIL and waits for the core's worker threads never
+//! gives it the chance. [`detach_interruptible`] therefore runs the core's work on a scoped
+//! thread while the calling thread checks for signals every [`POLL`], and tells the work to
+//! stop through a flag that its progress reports read ([`PyProgress`]).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{channel, RecvTimeoutError};
+use std::sync::Arc;
+use std::time::Duration;
+
+use pyo3::prelude::*;
+
+/// How often the calling thread checks for signals while the work runs.
+pub const POLL: Duration = Duration::from_millis(20);
+
+/// Set when a signal handler raised: the work should stop at its next progress report.
+#[derive(Clone, Debug, Default)]
+pub struct StopFlag(Arc<AtomicBool>);
+
+impl StopFlag {
+    /// True once a stop was asked for.
+    pub fn is_set(&self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
+
+    fn set(&self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
+/// Runs `work` with the GIL released, on a scoped thread, while this thread runs Python's
+/// signal handlers every [`POLL`]. When one raises (`KeyboardInterrupt` for Ctrl-C), `stop`
+/// is set, the work is awaited (it stops at its next progress report) and its result is
+/// dropped: the handler's exception is returned instead. The work must leave the objects it
+/// changed usable when it stops early (the core's long calls stop between waves or passes).
+pub fn detach_interruptible<R: Send>(
+    py: Python<'_>,
+    stop: &StopFlag,
+    work: impl FnOnce() -> R + Send,
+) -> PyResult<R> {
+    let mut raised: Option<PyErr> = None;
+    let out = py.detach(|| {
+        std::thread::scope(|scope| {
+            let (finished, wait) = channel::<()>();
+            let handle = scope.spawn(move || {
+                let out = work();
+                let _ = finished.send(());
+                out
+            });
+            while let Err(RecvTimeoutError::Timeout) = wait.recv_timeout(POLL) {
+                if raised.is_none() {
+                    if let Err(e) = Python::attach(|py| py.check_signals()) {
+                        raised = Some(e);
+                        stop.set();
+                    }
+                }
+            }
+            handle
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+        })
+    });
+    match raised {
+        Some(e) => Err(e),
+        None => Ok(out),
+    }
+}
+
+/// Forwards the core's `progress(done, total)` reports to an optional Python
+/// `callback(done, total)`, taking the GIL for each call. A falsy return stops the core's
+/// work; an exception does too and is kept for [`Self::finish`] to raise, and no further
+/// call is made after it. Every report also says "stop" once [`Self::stop_flag`] is set
+/// (by [`detach_interruptible`] on Ctrl-C).
+pub struct PyProgress {
+    callback: Option<Py<PyAny>>,
+    failure: Option<PyErr>,
+    stop: StopFlag,
+}
+
+impl PyProgress {
+    /// A reporter calling `callback` (none: every report says "go on" until a stop).
+    pub fn new(callback: Option<Py<PyAny>>) -> Self {
+        Self {
+            callback,
+            failure: None,
+            stop: StopFlag::default(),
+        }
+    }
+
+    /// The flag that makes every later report say "stop".
+    pub fn stop_flag(&self) -> StopFlag {
+        self.stop.clone()
+    }
+
+    /// One report; `false` asks the core to stop.
+    pub fn report(&mut self, done: u64, total: u64) -> bool {
+        if self.stop.is_set() || self.failure.is_some() {
+            return false;
+        }
+        let Some(cb) = &self.callback else {
+            return true;
+        };
+        Python::attach(|py| match cb.call1(py, (done, total)) {
+            Ok(r) => r.is_truthy(py).unwrap_or(true),
+            Err(e) => {
+                self.failure = Some(e);
+                false
+            }
+        })
+    }
+
+    /// The callback's exception, if it raised one.
+    pub fn finish(self) -> PyResult<()> {
+        self.failure.map_or(Ok(()), Err)
+    }
+}

@@ -1,0 +1,183 @@
+"""What a user running long jobs counts on: Ctrl-C stops every long call and leaves its
+objects usable, caches refuse scenes they were not built for, saves are atomic.
+
+Ctrl-C cases run in a subprocess that is sent SIGINT; the time from the signal to the
+KeyboardInterrupt is measured by the parent (the target is 0.5 s; the assertion allows 3 s
+so that a loaded CI machine cannot make it fail by chance)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+import viscache_rs as vc
+
+INTERRUPT_LIMIT_S = 3.0
+
+CHILD = textwrap.dedent(
+    """
+    import sys, time
+    import viscache_rs as vc
+    s = vc.scenes.load("garage")
+    cam = s.camera.with_resolution(320, 240)
+    cache = vc.VisibilityCache(s.scene, preset="medium")
+    calls = {{
+        "render": lambda: vc.render(s, cam, spp=100000, method="product", progress=False),
+        "render_cv": lambda: vc.render(s, cam, spp=100000, method="cv", cache=cache,
+                                       progress=False),
+        "cache_build": lambda: vc.VisibilityCache(s.scene, preset="medium",
+                                                  resolution=128).build(
+            cam.with_resolution(1280, 960), progress=False),
+        "render_ao": lambda: vc.render_ao(s, cam.with_resolution(640, 480),
+                                          reference_rays=65536, progress=False),
+    }}
+    if "{which}" == "render_cv":
+        cache.build(cam.with_resolution(40, 30), progress=False)
+    print("ready", flush=True)
+    try:
+        calls["{which}"]()
+        print("finished", flush=True)
+    except KeyboardInterrupt:
+        print("interrupted", flush=True)
+    # The objects still work.
+    small = cam.with_resolution(16, 12)
+    r = vc.render(s, small, spp=2, method="product", progress=False)
+    assert r.image.shape == (12, 16, 3)
+    cache.build(small, progress=False)
+    r = vc.render(s, small, spp=2, method="cv", cache=cache, progress=False)
+    assert r.image.shape == (12, 16, 3)
+    print("usable", flush=True)
+    """
+)
+
+
+@pytest.mark.parametrize("which", ["render", "render_cv", "cache_build", "render_ao"])
+def test_ctrl_c_stops_long_calls_without_a_progress_bar(which):
+    child = subprocess.Popen(
+        [sys.executable, "-c", CHILD.format(which=which)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert child.stdout.readline().strip() == "ready"
+        time.sleep(1.0)  # well inside the call
+        sent = time.perf_counter()
+        child.send_signal(signal.SIGINT)
+        line = child.stdout.readline().strip()
+        waited = time.perf_counter() - sent
+        assert line == "interrupted", child.stderr.read()
+        print(f"{which}: KeyboardInterrupt {waited:.3f} s after SIGINT")
+        assert waited < INTERRUPT_LIMIT_S, f"{which}: {waited:.2f} s after SIGINT"
+        assert child.stdout.readline().strip() == "usable", child.stderr.read()
+        assert child.wait(timeout=60) == 0
+    finally:
+        child.kill()
+        child.wait()
+
+
+@pytest.fixture(scope="module")
+def two_scenes():
+    a = vc.scenes.load("cornell")
+    b = vc.scenes.load("garage")
+    return a, b
+
+
+def test_a_cache_refuses_another_scene(two_scenes, tmp_path):
+    a, b = two_scenes
+    cam = a.camera.with_resolution(24, 18)
+    cache = vc.VisibilityCache(a.scene, preset="medium")
+    cache.build(cam, progress=False)
+    assert len(cache) > 0
+    with pytest.raises(ValueError, match="^cache: was built for another scene"):
+        vc.render(b, b.camera.with_resolution(24, 18), spp=1, method="cv", cache=cache,
+                  progress=False)
+    with pytest.raises(ValueError, match="^cache: was built for another scene"):
+        vc.render_ao(b, b.camera.with_resolution(24, 18), cache=cache, progress=False)
+    preview = vc.LightingPreview(b.scene, b.camera.with_resolution(24, 18))
+    with pytest.raises(ValueError, match="^cache: was built for another scene"):
+        preview.render(cache, b.envmap)
+    # The refused calls changed nothing: the cache still serves its own scene.
+    n = len(cache)
+    r = vc.render(a, cam, spp=1, method="cv", cache=cache, progress=False)
+    assert np.isfinite(r.image).all() and len(cache) == n
+    path = tmp_path / "cornell.vcache"
+    cache.save(path)
+    with pytest.raises(ValueError, match="^scene: the cache in .*cornell.vcache was built for"):
+        vc.VisibilityCache.load(path, b.scene)
+    again = vc.VisibilityCache.load(path, a.scene)
+    assert len(again) == n
+
+
+def test_the_fingerprint_follows_geometry_not_objects_or_poses():
+    tri_v = np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], np.float32)
+    tri_f = np.array([[0, 1, 2]])
+    cam = vc.Camera.look_at((0, 0, 3), (0, 0, 0), width=8, height=6)
+    env = vc.EnvMap.constant(1.0)
+
+    def scene(*offsets):
+        s = vc.Scene()
+        for o in offsets:
+            s.add_mesh(tri_v + np.float32(o), tri_f)
+        return s
+
+    own = scene(0)
+    cache = vc.VisibilityCache(own, preset="medium")
+    cache.insert([0.0, -0.2, 0.0], [0, 0, 1])
+    # The same geometry in another Scene object is the same scene.
+    twin = vc.Setup(scene(0), cam, env)
+    assert vc.render(twin, spp=1, method="cv", cache=cache, progress=False).image.shape == (6, 8, 3)
+    # One more triangle, or one vertex moved, is another scene.
+    for other in (scene(0, 5), scene(1e-3)):
+        with pytest.raises(ValueError, match="^cache: was built for another scene"):
+            vc.render(vc.Setup(other, cam, env), spp=1, method="cv", cache=cache,
+                      progress=False)
+    # Moving an object (animation) keeps the binding.
+    anim = vc.scenes.load("dynamics", animated=True)
+    small = anim.camera.with_resolution(16, 12)
+    moving = vc.VisibilityCache(anim.scene, preset="medium")
+    moving.build(small, progress=False)
+    anim.at_frame(7)
+    assert np.isfinite(vc.render(anim, small, spp=1, method="cv", cache=moving,
+                                 progress=False).image).all()
+
+
+def test_saves_are_atomic_when_killed(tmp_path):
+    """A process killed at random moments while saving a cache over an existing one leaves
+    a file that loads (the old cache or the new one), 50 times."""
+    code = textwrap.dedent(
+        f"""
+        import sys
+        import viscache_rs as vc
+        s = vc.scenes.load("cornell")
+        cache = vc.VisibilityCache(s.scene, preset="medium", resolution=64)
+        cache.build(s.camera.with_resolution(64, 48), progress=False)
+        print("ready", flush=True)
+        while True:
+            cache.save({str(tmp_path / "c.vcache")!r})
+        """
+    )
+    setup = vc.scenes.load("cornell")
+    rng = np.random.default_rng(5)
+    for attempt in range(50):
+        child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                                 text=True)
+        try:
+            assert child.stdout.readline().strip() == "ready"
+            time.sleep(float(rng.uniform(0.0, 0.05)))
+            os.kill(child.pid, signal.SIGKILL)
+        finally:
+            child.wait()
+        path = tmp_path / "c.vcache"
+        if path.exists():
+            vc.VisibilityCache.load(path, setup.scene)
+        else:
+            assert attempt == 0 or not any(tmp_path.iterdir())
+    loaded = vc.VisibilityCache.load(tmp_path / "c.vcache", setup.scene)
+    assert len(loaded) > 0
