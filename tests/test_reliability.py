@@ -181,3 +181,54 @@ def test_saves_are_atomic_when_killed(tmp_path):
             assert attempt == 0 or not any(tmp_path.iterdir())
     loaded = vc.VisibilityCache.load(tmp_path / "c.vcache", setup.scene)
     assert len(loaded) > 0
+
+
+def test_objects_are_shared_across_threads():
+    """Editing a scene, building a cache or moving an animated setup while another thread
+    renders with them neither fails nor changes the running render: it works on the scene
+    as it was when it started."""
+    import threading
+
+    anim = vc.scenes.load("dynamics", animated=True)
+    cam = anim.camera.with_resolution(96, 72)
+    cache = vc.VisibilityCache(anim.scene, preset="medium")
+    cache.build(cam.with_resolution(24, 18), progress=False)
+    still = vc.render(anim, cam, spp=64, method="cv", cache=cache, seed=3, progress=False)
+    results, errors = [], []
+
+    def render():
+        try:
+            results.append(vc.render(anim, cam, spp=64, method="cv", cache=cache, seed=3,
+                                     progress=False))
+        except Exception as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    worker = threading.Thread(target=render)
+    worker.start()
+    anim.scene.build(quality="sah")
+    cache.build(cam.with_resolution(32, 24), progress=False)
+    anim.at_frame(5)
+    anim.scene.add_mesh(np.array([[50, 0, 50], [51, 0, 50], [50, 1, 50]], np.float32),
+                        np.array([[0, 1, 2]]))
+    worker.join()
+    assert not errors, errors
+    assert np.isfinite(results[0].image).all()
+    # The records the build added while it ran may have served it; the geometry did not
+    # change under it (a moved sphere would shift the image's mean by far more).
+    assert abs(results[0].image.mean() / still.image.mean() - 1) < 0.05
+
+
+def test_radiance_that_would_overflow_is_refused():
+    for bad in (3.4e38, 1e30, float("inf")):
+        with pytest.raises(ValueError, match="^value: must be finite and in"):
+            vc.EnvMap.constant(bad)
+    s = vc.Scene()
+    with pytest.raises(ValueError, match="^radiance: must be finite and in"):
+        s.add_area_light([[0, 0, 0], [1, 0, 0], [0, 1, 0]], (1e20, 0, 0))
+    assert s.num_objects == 0
+    # The largest accepted radiance renders finite values and variances.
+    env = vc.EnvMap.constant(1e15, resolution=8)
+    setup = vc.scenes.load("cornell")
+    r = vc.render(vc.Setup(setup.scene, setup.camera.with_resolution(16, 12), env), spp=4,
+                  method="product", progress=False)
+    assert np.isfinite(r.image).all() and np.isfinite(r.variance).all()

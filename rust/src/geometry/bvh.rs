@@ -361,7 +361,7 @@ fn probe_rays(mesh: &Mesh, n: usize) -> Vec<(Vec3A, Vec3A)> {
             total
         })
         .collect();
-    if !(total > 0.0) {
+    if total.is_nan() || total <= 0.0 {
         return Vec::new();
     }
     let lift = 1e-6 * mesh.bounds().extent();

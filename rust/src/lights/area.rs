@@ -49,10 +49,10 @@ impl AreaLight {
     /// indices match the object's) but never sampled; a light of zero total area, or a
     /// negative, NaN or infinite radiance, is an error.
     pub fn new(object: u32, triangles: Vec<[Vec3; 3]>, radiance: [f32; 3]) -> Result<Self> {
-        if radiance.iter().any(|c| !c.is_finite() || *c < 0.0) {
+        if !super::valid_radiance(radiance) {
             return Err(Error::invalid(
                 "radiance",
-                format!("each channel must be finite and >= 0, got {radiance:?}"),
+                super::radiance_problem(radiance),
             ));
         }
         let mut cumulative_area = Vec::with_capacity(triangles.len());

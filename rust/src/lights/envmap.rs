@@ -231,11 +231,10 @@ pub fn check_resolution(resolution: u32, name: &str) -> Result<()> {
     }
 }
 
-/// The first texel (row-major index) with a NaN, infinite or negative channel.
+/// The first texel (row-major index) with a channel that is NaN, infinite, negative or
+/// above [`super::MAX_RADIANCE`].
 fn first_bad(values: &[[f32; 3]]) -> Option<usize> {
-    values
-        .iter()
-        .position(|t| t.iter().any(|c| !(c.is_finite() && *c >= 0.0)))
+    values.iter().position(|&t| !super::valid_radiance(t))
 }
 
 /// The four pixels around lat-long point `st` of a `width x height` image and their
@@ -301,7 +300,7 @@ impl EnvMap {
             return Err(Error::invalid(
                 "texels",
                 format!(
-                    "texel at (x={}, y={}) is {:?}; radiance must be finite and >= 0",
+                    "texel at (x={}, y={}) is {:?}; radiance must be finite and in [0, 1e15]",
                     i % r,
                     i / r,
                     texels[i]
@@ -333,7 +332,7 @@ impl EnvMap {
         if first_bad(&[radiance]).is_some() {
             return Err(Error::invalid(
                 "radiance",
-                format!("must be finite and >= 0, got {radiance:?}"),
+                super::radiance_problem(radiance),
             ));
         }
         let n = resolution as usize * resolution as usize;
@@ -378,7 +377,7 @@ impl EnvMap {
             return Err(Error::invalid(
                 "rgb",
                 format!(
-                    "pixel at (x={}, y={}) is {:?}; radiance must be finite and >= 0",
+                    "pixel at (x={}, y={}) is {:?}; radiance must be finite and in [0, 1e15]",
                     i % width,
                     i / width,
                     rgb[i]

@@ -26,13 +26,10 @@ pub fn direction(azimuth_deg: f32, elevation_deg: f32) -> Vec3 {
 }
 
 fn check_rgb(v: [f32; 3], name: &str) -> Result<()> {
-    if v.iter().all(|c| c.is_finite() && *c >= 0.0) {
+    if super::valid_radiance(v) {
         Ok(())
     } else {
-        Err(Error::invalid(
-            name,
-            format!("must be finite and >= 0, got {v:?}"),
-        ))
+        Err(Error::invalid(name, super::radiance_problem(v)))
     }
 }
 

@@ -68,7 +68,7 @@ pub fn render_ao<'py>(
         }
         (_, Some(_)) => None,
     };
-    let core_scene = scene.borrow().inner.clone();
+    let core_scene = scene.borrow().get();
     let cam = camera.inner;
     let mut reporter = PyProgress::new(callback);
     let stop = reporter.stop_flag();

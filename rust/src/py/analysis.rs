@@ -188,7 +188,7 @@ pub fn visibility_maps(
         .iter()
         .map(|r| glam::Vec3::from_array(*r))
         .collect();
-    let scene = scene.inner.clone();
+    let scene = scene.get();
     let mut reporter = PyProgress::new(callback);
     let stop = reporter.stop_flag();
     let mut progress = |done: usize, total: usize| reporter.report(done as u64, total as u64);

@@ -31,7 +31,7 @@ pub struct PyVisibilityCache {
     #[pyo3(get)]
     pub(super) scene: Py<PyScene>,
     /// `k` times the median footprint of the last build's G-buffer, world units.
-    default_radius: Option<f32>,
+    default_radius: std::sync::Mutex<Option<f32>>,
 }
 
 /// Applies keyword overrides to `p`, naming unknown or out-of-range ones.
@@ -124,7 +124,7 @@ impl PyVisibilityCache {
     /// is then refused by the core even before its first build.
     pub fn bound(&self, py: Python<'_>) -> PyResult<Arc<VisibilityCache>> {
         if self.inner.scene_fingerprint().is_none() {
-            let scene = self.scene.borrow(py).inner.clone();
+            let scene = self.scene.borrow(py).get();
             self.inner.bind_scene(&scene).py()?;
         }
         Ok(self.inner.clone())
@@ -166,7 +166,7 @@ impl PyVisibilityCache {
         Ok(Self {
             inner: Arc::new(VisibilityCache::new(p).py()?),
             scene,
-            default_radius: None,
+            default_radius: std::sync::Mutex::new(None),
         })
     }
 
@@ -174,7 +174,7 @@ impl PyVisibilityCache {
     /// (calls with a scene whose geometry differs from the cache's are refused otherwise):
     /// for studying stale or foreign records on purpose. The records are unchanged.
     fn bind(&self, py: Python<'_>, scene: PyRef<'_, PyScene>) {
-        let scene = scene.inner.clone();
+        let scene = scene.get();
         py.detach(|| self.inner.rebind_scene(&scene));
     }
 
@@ -200,7 +200,10 @@ impl PyVisibilityCache {
     /// median pixel footprint of the last build (None before a build).
     #[getter]
     fn default_radius(&self) -> Option<f32> {
-        self.default_radius
+        *self
+            .default_radius
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
     }
 
     fn __len__(&self) -> usize {
@@ -238,7 +241,7 @@ impl PyVisibilityCache {
     /// nearest_rays, shadow_rays_per_pixel (CAM08 Table 2's last row), seconds, complete.
     #[pyo3(signature = (camera, seed=None, threads=None, progress=true, time_budget=None))]
     fn build<'py>(
-        &mut self,
+        &self,
         py: Python<'py>,
         camera: PyRef<'py, PyCamera>,
         seed: Option<&Bound<'py, PyAny>>,
@@ -253,7 +256,7 @@ impl PyVisibilityCache {
             _ => None,
         };
         let cam = camera.inner;
-        let scene = self.scene.borrow(py).inner.clone();
+        let scene = self.scene.borrow(py).get();
         let bar: Option<Py<PyAny>> = if progress {
             let tqdm = py.import("tqdm.auto")?.getattr("tqdm")?;
             let kw = PyDict::new(py);
@@ -299,7 +302,10 @@ impl PyVisibilityCache {
         }
         let r = out?.py()?;
         if let Some(f) = r.median_footprint {
-            self.default_radius = Some(self.inner.params().d_max_scale * f);
+            *self
+                .default_radius
+                .lock()
+                .unwrap_or_else(|e| e.into_inner()) = Some(self.inner.params().d_max_scale * f);
         }
         let d = PyDict::new(py);
         d.set_item("records", r.records)?;
@@ -328,7 +334,7 @@ impl PyVisibilityCache {
     ) -> PyResult<Option<u32>> {
         let p = vec3_arg(point, "point")?;
         let n = vec3_arg(normal, "normal")?;
-        let scene = self.scene.borrow(py).inner.clone();
+        let scene = self.scene.borrow(py).get();
         let inner = self.inner.clone();
         py.detach(|| inner.insert(&scene, p.into(), n.into())).py()
     }
@@ -517,7 +523,7 @@ impl PyVisibilityCache {
         let k = k as u32;
         let seed = seed.map_or(Ok(0), seed_arg)?;
         let threads = threads_arg(threads)?;
-        let scene = self.scene.borrow(py).inner.clone();
+        let scene = self.scene.borrow(py).get();
         let inner = self.inner.clone();
         let (rays, misses) = py
             .detach(|| inner.validate(&scene, k, seed, threads))
@@ -577,7 +583,7 @@ impl PyVisibilityCache {
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf, scene: Py<PyScene>) -> PyResult<Self> {
         let cache = py.detach(|| VisibilityCache::load(&path)).py()?;
-        let core_scene = scene.borrow(py).inner.clone();
+        let core_scene = scene.borrow(py).get();
         if let Err(e) = cache.bind_scene(&core_scene) {
             return Err(PyValueError::new_err(format!(
                 "scene: the cache in {} {}",
@@ -588,7 +594,7 @@ impl PyVisibilityCache {
         Ok(Self {
             inner: Arc::new(cache),
             scene,
-            default_radius: None,
+            default_radius: std::sync::Mutex::new(None),
         })
     }
 }
@@ -633,7 +639,11 @@ impl PyVisibilityCache {
                 "footprints",
                 self.inner.params().d_max_scale as f64,
             ),
-            (None, None) => match self.default_radius {
+            (None, None) => match *self
+                .default_radius
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+            {
                 Some(r) => Ok(vec![r; n]),
                 None => Err(PyValueError::new_err(
                     "radius: pass radius= or footprints= (no build has set a default radius)",

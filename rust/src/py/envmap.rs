@@ -50,9 +50,10 @@ fn rgb_arg(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f32; 3]> {
     } else {
         vec3_arg(obj, name)?
     };
-    if v.iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
+    if !crate::lights::valid_radiance(v) {
         return Err(PyValueError::new_err(format!(
-            "{name}: must be finite and >= 0, got {v:?}"
+            "{name}: {}",
+            crate::lights::radiance_problem(v)
         )));
     }
     Ok(v)
@@ -198,7 +199,7 @@ impl PyEnvMap {
         Ok(Self { inner })
     }
 
-    /// A uniform map of `value` (a number or an RGB triple, finite and >= 0).
+    /// A uniform map of `value` (a number or an RGB triple, finite, in [0, 1e15]).
     #[staticmethod]
     #[pyo3(signature = (value, resolution=None))]
     fn constant(value: &Bound<'_, PyAny>, resolution: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {

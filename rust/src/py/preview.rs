@@ -30,7 +30,7 @@ impl PyLightingPreview {
         threads: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let threads = threads_arg(threads)?;
-        let (scene, cam) = (scene.inner.clone(), camera.inner);
+        let (scene, cam) = (scene.get(), camera.inner);
         let inner = py
             .detach(|| LightingPreview::new(&scene, &cam, threads))
             .py()?;

@@ -115,7 +115,7 @@ pub fn render<'py>(
     };
     params.validate().py()?;
     let threads = threads_arg(threads)?;
-    let (scene, cam) = (scene.inner.clone(), camera.inner);
+    let (scene, cam) = (scene.get(), camera.inner);
     let cache = cache.map(|c| c.bound(py)).transpose()?;
     let env: Py<PyEnvMap> = envmap.unbind();
     let mut reporter = PyProgress::new(callback);

@@ -1,7 +1,7 @@
 //! `vc.Scene`: geometry input, ray queries, counters and the G-buffer.
 
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, RwLock};
 
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
 use pyo3::exceptions::{PyTypeError, PyValueError};
@@ -21,10 +21,13 @@ use crate::geometry::{BuildQuality, Mesh, RayBatch, Scene, TMax};
 /// Triangles grouped into objects, with a BVH built on first query.
 ///
 /// Mutating methods copy the geometry first when it is shared (for example with a cache
-/// built over it), so objects that hold the scene keep seeing the geometry they were given.
+/// built over it, or a render still running in another thread), so objects and calls that
+/// hold the scene keep seeing the geometry they were given. Safe to share across threads:
+/// calls that run without the GIL work on the scene as it was when they started, and an
+/// edit waits only for another edit.
 #[pyclass(name = "Scene", module = "viscache_rs._core")]
 pub struct PyScene {
-    pub inner: Arc<Scene>,
+    inner: RwLock<Arc<Scene>>,
 }
 
 /// The upper ends of the ray segments: None (unbounded), a number, or one per ray.
@@ -66,8 +69,21 @@ fn tmax_arg<'py>(obj: Option<&Bound<'py, PyAny>>, n: usize) -> PyResult<TMaxArg<
 impl PyScene {
     pub fn new_from(scene: Scene) -> Self {
         Self {
-            inner: Arc::new(scene),
+            inner: RwLock::new(Arc::new(scene)),
         }
+    }
+
+    /// The scene as it is now. Calls that release the GIL work on this snapshot: edits from
+    /// other threads meanwhile copy the scene rather than change it under them.
+    pub fn get(&self) -> Arc<Scene> {
+        self.inner.read().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Runs `f` on the scene, copying it first if a snapshot of it is in use. Edits from
+    /// other threads wait for this one.
+    pub fn edit<R>(&self, f: impl FnOnce(&mut Scene) -> R) -> R {
+        let mut guard = self.inner.write().unwrap_or_else(|e| e.into_inner());
+        f(Arc::make_mut(&mut guard))
     }
 
     fn with_rays<R: Send>(
@@ -101,8 +117,8 @@ impl PyScene {
             directions: d,
             tmax: t,
         };
-        let scene = &*self.inner;
-        py.detach(|| f(scene, &batch)).py()
+        let scene = self.get();
+        py.detach(|| f(&scene, &batch)).py()
     }
 }
 
@@ -120,7 +136,7 @@ impl PyScene {
     /// material: a Material (default: light grey Lambert); name: str.
     #[pyo3(signature = (vertices, faces, material=None, name=None))]
     fn add_mesh(
-        &mut self,
+        &self,
         py: Python<'_>,
         vertices: &Bound<'_, PyAny>,
         faces: &Bound<'_, PyAny>,
@@ -131,16 +147,19 @@ impl PyScene {
         let f = rows3_i64(faces, "faces")?;
         let (v, f) = (v.rows()?, as_rows(&f)?);
         let material = material.map_or(Material::DEFAULT, |m| m.inner);
-        let name = name.unwrap_or_else(|| format!("object{}", self.inner.num_objects()));
+        let name = name.unwrap_or_else(|| format!("object{}", self.get().num_objects()));
         // Validate against a scratch mesh first, so a failure leaves the scene untouched and
         // a shared scene is only copied when the mesh is good.
         let mut part = Mesh::new();
         py.detach(|| part.add_indexed(v, f, material, Some(name)))
             .py()?;
-        let scene = Arc::make_mut(&mut self.inner);
-        let first = scene.num_objects() as u32;
-        scene.append(&part);
-        Ok(first)
+        Ok(py.detach(|| {
+            self.edit(|scene| {
+                let first = scene.num_objects() as u32;
+                scene.append(&part);
+                first
+            })
+        }))
     }
 
     /// Adds a one-sided area light: a triangle (3 vertices) or a quad (4, in order around
@@ -149,7 +168,7 @@ impl PyScene {
     /// occludes like any other object. Returns its object id.
     #[pyo3(signature = (vertices, radiance, name=None))]
     fn add_area_light(
-        &mut self,
+        &self,
         vertices: &Bound<'_, PyAny>,
         radiance: &Bound<'_, PyAny>,
         name: Option<String>,
@@ -161,23 +180,21 @@ impl PyScene {
         Scene::new()
             .add_area_light(&v, radiance, name.clone())
             .py()?;
-        Arc::make_mut(&mut self.inner)
-            .add_area_light(&v, radiance, name)
-            .py()
+        self.edit(|s| s.add_area_light(&v, radiance, name)).py()
     }
 
     /// Object ids of the area lights, in the order they were added.
     fn area_lights(&self) -> Vec<u32> {
-        self.inner.area_lights().iter().map(|l| l.object).collect()
+        self.get().area_lights().iter().map(|l| l.object).collect()
     }
 
     /// The radiance (W/(m² sr), RGB) object `obj` emits on the side of its triangles'
     /// winding normal: an area light's, `(0, 0, 0)` for any other object.
     fn emission(&self, obj: &Bound<'_, PyAny>) -> PyResult<(f32, f32, f32)> {
-        let n = self.inner.mesh().objects.len();
+        let scene = self.get();
+        let n = scene.mesh().objects.len();
         let obj = int_arg(obj, "obj", 0, n as i128 - 1)? as u32;
-        Ok(self
-            .inner
+        Ok(scene
             .emitter(obj)
             .map_or((0.0, 0.0, 0.0), |l| l.radiance().into()))
     }
@@ -202,7 +219,7 @@ impl PyScene {
                 "mesh: expected a trimesh.Trimesh or trimesh.Scene",
             ));
         };
-        let mut scene = Self::py_new();
+        let scene = Self::py_new();
         for part in parts {
             if !part.hasattr("faces")? {
                 continue; // paths and point clouds carry no triangles
@@ -225,39 +242,39 @@ impl PyScene {
     /// Number of triangles (degenerate ones included).
     #[getter]
     fn num_triangles(&self) -> usize {
-        self.inner.num_triangles()
+        self.get().num_triangles()
     }
 
     /// Number of objects.
     #[getter]
     fn num_objects(&self) -> usize {
-        self.inner.num_objects()
+        self.get().num_objects()
     }
 
     /// (2, 3) float32 array [min, max]; an empty scene gives [+inf, -inf].
     #[getter]
     fn bounds<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let b = self.inner.bounds();
+        let b = self.get().bounds();
         rows3_array(py, vec![b.min.into(), b.max.into()])
     }
 
     /// (M, 3, 3) float32 array of triangle vertices.
     fn triangles<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let flat: Vec<f32> = self
-            .inner
+        let scene = self.get();
+        let flat: Vec<f32> = scene
             .mesh()
             .triangles
             .iter()
             .flat_map(|t| t.iter().flat_map(|v| v.to_array()))
             .collect();
-        let m = self.inner.num_triangles();
+        let m = scene.num_triangles();
         Ok(PyArray1::from_vec(py, flat).reshape([m, 3, 3])?.into_any())
     }
 
     /// (M,) int32 array: the object id of each triangle.
     fn object_ids<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
         let ids: Vec<i32> = self
-            .inner
+            .get()
             .mesh()
             .object_ids
             .iter()
@@ -268,7 +285,7 @@ impl PyScene {
 
     /// Names of the objects, indexed by object id.
     fn object_names(&self) -> Vec<String> {
-        self.inner
+        self.get()
             .mesh()
             .objects
             .iter()
@@ -278,7 +295,7 @@ impl PyScene {
 
     /// Material of object `obj`.
     fn material(&self, obj: usize) -> PyResult<PyMaterial> {
-        self.inner
+        self.get()
             .mesh()
             .objects
             .get(obj)
@@ -286,7 +303,7 @@ impl PyScene {
             .ok_or_else(|| {
                 PyValueError::new_err(format!(
                     "obj: no object {obj} (the scene has {})",
-                    self.inner.num_objects()
+                    self.get().num_objects()
                 ))
             })
     }
@@ -299,16 +316,17 @@ impl PyScene {
     /// "slow", "very_slow". Returns the build time in seconds.
     #[pyo3(signature = (quality="auto", threads=None))]
     fn build(
-        &mut self,
+        &self,
         py: Python<'_>,
         quality: &str,
         threads: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<f64> {
         let q = BuildQuality::parse(quality).py()?;
         let threads = threads_arg(threads)?;
-        let scene = Arc::make_mut(&mut self.inner);
         py.detach(|| {
-            crate::parallel::with_threads(threads, || scene.build(q).build_time().as_secs_f64())
+            self.edit(|scene| {
+                crate::parallel::with_threads(threads, || scene.build(q).build_time().as_secs_f64())
+            })
         })
         .py()
     }
@@ -319,7 +337,7 @@ impl PyScene {
     /// tests per sample shadow ray of each tree "auto" compared, else None), nodes, bytes,
     /// build seconds.
     fn bvh_stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let scene = &*self.inner;
+        let scene = self.get();
         let bvh = py.detach(|| scene.bvh());
         let d = PyDict::new(py);
         d.set_item("quality", bvh.quality().name())?;
@@ -405,7 +423,7 @@ impl PyScene {
         let out = p
             .iter()
             .zip(n)
-            .map(|(p, n)| self.inner.offset_point((*p).into(), (*n).into()).into())
+            .map(|(p, n)| self.get().offset_point((*p).into(), (*n).into()).into())
             .collect();
         rows3_array(py, out)
     }
@@ -413,7 +431,7 @@ impl PyScene {
     /// Traversal counters since the last reset: rays, nodes (BVH nodes whose children were
     /// tested) and triangles (ray/triangle tests). Exact, summed over threads.
     fn counters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let c = self.inner.counters();
+        let c = self.get().counters();
         let d = PyDict::new(py);
         d.set_item("rays", c.rays)?;
         d.set_item("nodes", c.nodes)?;
@@ -423,18 +441,18 @@ impl PyScene {
 
     /// Sets all counters to zero.
     fn reset_counters(&self) {
-        self.inner.reset_counters();
+        self.get().reset_counters();
     }
 
     /// Whether queries update the counters (default True).
     #[getter]
     fn get_counting(&self) -> bool {
-        self.inner.counting_enabled()
+        self.get().counting_enabled()
     }
 
     #[setter]
     fn set_counting(&self, on: bool) {
-        self.inner.set_counting(on);
+        self.get().set_counting(on);
     }
 
     /// First hits of one primary ray per pixel, as a dict of (H, W, ...) arrays: position,
@@ -454,7 +472,8 @@ impl PyScene {
         let seed = seed.map_or(Ok(0), seed_arg)?;
         let threads = threads_arg(threads)?;
         let cam = camera.inner;
-        let scene = &*self.inner;
+        let scene = self.get();
+        let scene = &*scene;
         let g = py
             .detach(|| GBuffer::render(scene, &cam, seed, jitter, threads))
             .py()?;
@@ -478,14 +497,14 @@ impl PyScene {
     }
 
     fn __len__(&self) -> usize {
-        self.inner.num_triangles()
+        self.get().num_triangles()
     }
 
     pub fn __repr__(&self) -> String {
         format!(
             "Scene(num_triangles={}, num_objects={})",
-            self.inner.num_triangles(),
-            self.inner.num_objects()
+            self.get().num_triangles(),
+            self.get().num_objects()
         )
     }
 }

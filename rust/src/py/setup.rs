@@ -1,8 +1,6 @@
 //! Built-in setups: `vc.scenes.load(name)` returns a `Setup` with `scene`, `camera` and
 //! `envmap`; animated ones (`animated=True`) move an object with `setup.at_frame(i)`.
 
-use std::sync::Arc;
-
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
@@ -66,18 +64,16 @@ impl PySetup {
         match self.animation {
             None => animation::static_frame(&self.name, frame).py()?,
             Some(anim) => {
-                let mut scene = self.scene.try_borrow_mut(py).map_err(|_| {
-                    PyValueError::new_err("scene: is in use elsewhere and cannot be moved now")
-                })?;
-                let n = scene.inner.num_objects();
+                let scene_ref = self.scene.borrow(py);
+                let scene: &PyScene = &scene_ref;
+                let n = scene.get().num_objects();
                 if anim.object as usize >= n {
                     return Err(PyValueError::new_err(format!(
                         "scene: has {n} objects, no moving object {} (was setup.scene replaced?)",
                         anim.object
                     )));
                 }
-                let s = Arc::make_mut(&mut scene.inner);
-                py.detach(|| anim.apply(s, frame)).py()?;
+                py.detach(|| scene.edit(|s| anim.apply(s, frame))).py()?;
             }
         }
         self.frame = frame;
@@ -114,7 +110,7 @@ impl PySetup {
         let Some(anim) = self.animation else {
             return Ok(None);
         };
-        let b = anim.bounds(&self.scene.borrow(py).inner).py()?;
+        let b = anim.bounds(&self.scene.borrow(py).get()).py()?;
         rows3_array(py, vec![b.min.into(), b.max.into()]).map(Some)
     }
 

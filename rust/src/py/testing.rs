@@ -23,7 +23,7 @@ pub fn ground_hemisphere_rays<'py>(
 ) -> PyResult<RayArrays<'py>> {
     let n = int_arg(n, "n", 0, 1 << 28)? as usize;
     let seed = seed.map_or(Ok(0), seed_arg)?;
-    let s = scene.inner.clone();
+    let s = scene.get();
     let (o, d) = py.detach(|| crate::testing::ground_hemisphere_rays(&s, n, seed));
     Ok((rows3_array(py, o)?, rows3_array(py, d)?))
 }
@@ -41,7 +41,7 @@ pub fn record_bundle_rays<'py>(
     let points = int_arg(points, "points", 0, 1 << 20)? as usize;
     let side = side.map_or(Ok(32), |s| int_arg(s, "side", 1, 256))? as usize;
     let seed = seed.map_or(Ok(0), seed_arg)?;
-    let s = scene.inner.clone();
+    let s = scene.get();
     let (o, d) = py.detach(|| crate::testing::record_bundle_rays(&s, points, side, seed));
     Ok((rows3_array(py, o)?, rows3_array(py, d)?))
 }
