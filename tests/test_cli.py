@@ -30,3 +30,28 @@ def test_png_writer_roundtrip(tmp_path):
     idat = data[data.index(b"IDAT") + 4:data.index(b"IEND") - 8]
     raw = np.frombuffer(zlib.decompress(idat), dtype=np.uint8).reshape(2, 1 + 9)
     np.testing.assert_array_equal(raw[:, 1:].reshape(2, 3, 3), img)
+
+
+def test_experiments_without_matplotlib_name_the_extra(tmp_path):
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "sys.modules['matplotlib'] = None  # as if not installed\n"
+        "from viscache_rs import cli\n"
+        f"sys.exit(cli.main(['experiment', 'ao', '--quick', '--out', {str(tmp_path)!r}]))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 2, out.stderr
+    assert "pip install 'viscache_rs[experiments]'" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_experiment_list_gives_whole_first_sentences(capsys):
+    assert cli.main(["experiment", "--list"]) == 0
+    out = capsys.readouterr().out
+    entries = [e for e in out.split("\n") if e and not e.startswith(" ")]
+    assert len(entries) >= 5
+    for entry in out.replace("\n" + " " * 16, " ").splitlines():
+        assert entry.rstrip().endswith((".", ")")), entry

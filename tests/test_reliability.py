@@ -232,3 +232,44 @@ def test_radiance_that_would_overflow_is_refused():
     r = vc.render(vc.Setup(setup.scene, setup.camera.with_resolution(16, 12), env), spp=4,
                   method="product", progress=False)
     assert np.isfinite(r.image).all() and np.isfinite(r.variance).all()
+
+
+def test_out_of_memory_is_a_memory_error():
+    """Under an address-space limit, calls whose buffers do not fit raise MemoryError naming
+    the camera, and the process goes on (before: an abort in the middle of the call)."""
+    code = textwrap.dedent(
+        """
+        import resource
+        import viscache_rs as vc
+        s = vc.scenes.load("cornell")
+        vc.render(s, s.camera.with_resolution(8, 6), spp=1, method="product", progress=False)
+        size = next(int(l.split()[1]) * 1024 for l in open("/proc/self/status")
+                    if l.startswith("VmSize"))
+        limit = size + (1 << 30)
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+        big = s.camera.with_resolution(4096, 4096)  # 5 GiB of buffers
+        calls = {
+            "render": lambda: vc.render(s, big, spp=1, method="product", progress=False),
+            "gbuffer": lambda: s.scene.gbuffer(big),
+            "cache_build": lambda: vc.VisibilityCache(s.scene).build(big, progress=False),
+            "render_ao": lambda: vc.render_ao(s, big, reference_rays=1, progress=False),
+        }
+        for name, call in calls.items():
+            try:
+                call()
+                print(name, "no error")
+            except MemoryError as e:
+                assert str(e).startswith("camera: needs"), e
+                print(name, "MemoryError")
+        r = vc.render(s, s.camera.with_resolution(16, 12), spp=2, method="product",
+                      progress=False)
+        print("usable", r.image.shape)
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[:4] == ["render MemoryError", "gbuffer MemoryError",
+                         "cache_build MemoryError", "render_ao MemoryError"], out.stdout
+    assert lines[4] == "usable (12, 16, 3)"

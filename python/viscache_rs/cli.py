@@ -13,7 +13,9 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -91,8 +93,18 @@ def experiment(args: argparse.Namespace) -> int:
 
     if args.list or args.name is None:
         for name in experiments.names():
-            print(f"{name:<16}{experiments.describe(name).strip().splitlines()[0]}")
+            text = " ".join(experiments.describe(name).split())
+            first = re.split(r"(?<=[a-z0-9)]\.)\s+(?=[A-Z])", text, maxsplit=1)[0]
+            print(textwrap.fill(first, width=88, initial_indent=f"{name:<16}",
+                                subsequent_indent=" " * 16))
         return 0 if args.list else 2
+    try:
+        import matplotlib  # noqa: F401 - only whether it is there
+    except ImportError:
+        print("viscache experiment: the experiments plot with matplotlib, which is not "
+              "installed; install the extra with: pip install 'viscache_rs[experiments]'",
+              file=sys.stderr)
+        return 2
     ctx = experiments.run(args.name, quick=args.quick, out=args.out, seed=args.seed,
                           threads=args.threads, progress=not args.quiet)
     print(f"wrote {ctx.out}/ in {ctx.results['seconds']:.1f} s")

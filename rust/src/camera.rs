@@ -119,6 +119,17 @@ impl Camera {
         self.width as usize * self.height as usize
     }
 
+    /// Fails with [`crate::Error::OutOfMemory`] (naming `camera`) when the per-pixel
+    /// buffers of a render at this resolution ([`crate::error::BYTES_PER_PIXEL`] each)
+    /// cannot be allocated now.
+    pub fn check_buffers(&self) -> crate::Result<()> {
+        crate::error::check_memory(
+            self.num_pixels()
+                .saturating_mul(crate::error::BYTES_PER_PIXEL),
+            "camera",
+        )
+    }
+
     fn tan_half_fov(&self) -> f32 {
         (self.fov_y_deg.to_radians() * 0.5).tan()
     }
@@ -224,6 +235,7 @@ impl GBuffer {
         jitter: bool,
         threads: Option<usize>,
     ) -> Result<Self> {
+        camera.check_buffers()?;
         let samples = scene.map_rays(camera.num_pixels(), threads, |i, c| {
             let (o, d) = camera.primary_ray(i, seed, jitter);
             match scene.intersect1(o, d, f32::INFINITY, c) {

@@ -1,5 +1,6 @@
-//! The one error type of the core. Bindings turn `InvalidArgument` into `ValueError` and
-//! `Io`/`Parse` into `OSError`/`ValueError`, always naming what was wrong.
+//! The one error type of the core. Bindings turn `InvalidArgument` into `ValueError`,
+//! `Io`/`Parse` into `OSError`/`ValueError` and `OutOfMemory` into `MemoryError`, always
+//! naming what was wrong.
 
 use std::path::PathBuf;
 
@@ -20,6 +21,12 @@ pub enum Error {
     /// A file was read but its contents are malformed.
     #[error("{}: {reason}", path.display())]
     Parse { path: PathBuf, reason: String },
+    /// The buffers a call needs for `what` (e.g. a camera's pixels) could not be allocated.
+    #[error(
+        "{what}: needs {:.1} GiB of buffers, which could not be allocated (use a smaller size)",
+        *bytes as f64 / (1u64 << 30) as f64
+    )]
+    OutOfMemory { what: String, bytes: usize },
 }
 
 impl Error {
@@ -31,6 +38,25 @@ impl Error {
         }
     }
 }
+
+/// Fails with [`Error::OutOfMemory`] when `bytes` cannot be allocated now. Calls whose
+/// buffers grow with their input (pixels, rays) check their total before starting, so that
+/// running out of memory (or of address space under `RLIMIT_AS`) is an error the caller can
+/// handle instead of an abort in the middle of the work. The probe is a fallible allocation
+/// of that size, freed at once, never touched (so it costs no memory).
+pub fn check_memory(bytes: usize, what: &str) -> Result<()> {
+    let mut probe: Vec<u8> = Vec::new();
+    probe
+        .try_reserve_exact(bytes)
+        .map_err(|_| Error::OutOfMemory {
+            what: what.into(),
+            bytes,
+        })
+}
+
+/// Bytes per pixel a call's buffers take at most: the G-buffer and its per-ray staging
+/// (about 120 B), per-pixel sums of a render (128 B) and its RGB outputs (36 B), rounded up.
+pub const BYTES_PER_PIXEL: usize = 320;
 
 /// Result with the core's [`Error`].
 pub type Result<T> = std::result::Result<T, Error>;

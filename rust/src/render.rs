@@ -759,6 +759,7 @@ pub fn render(
     progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
 ) -> Result<Rendered> {
     params.validate()?;
+    camera.check_buffers()?;
     let cv = params.method == Method::ControlVariate;
     let cache = if cv {
         Some(cache.ok_or_else(|| {

@@ -108,7 +108,11 @@ class ExperimentContext:
 
 def pyplot():
     """matplotlib's pyplot on the Agg backend (no display needed)."""
-    import matplotlib
+    try:
+        import matplotlib
+    except ImportError as e:
+        raise ImportError("the experiments plot with matplotlib: install the extra with "
+                          "pip install 'viscache_rs[experiments]'") from e
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

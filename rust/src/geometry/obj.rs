@@ -35,14 +35,51 @@ fn material_from_mtl(m: &tobj::Material) -> Material {
     }
 }
 
-/// Loads an OBJ file. A missing file, a malformed file or a face that indexes a missing
-/// vertex is an error naming the path.
+/// What tobj does not check: the text is UTF-8, and every face has at least three
+/// vertices (tobj turns `f 1 2` into a degenerate triangle). The error gives the line.
+fn check_text(path: &Path, bytes: &[u8]) -> Result<()> {
+    let bad = |reason: String| Error::Parse {
+        path: path.to_owned(),
+        reason,
+    };
+    let text = std::str::from_utf8(bytes).map_err(|e| {
+        let line = 1 + bytes[..e.valid_up_to()]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count();
+        bad(format!("line {line}: not UTF-8 text (an OBJ file is text)"))
+    })?;
+    for (i, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        if words.next() == Some("f") {
+            let n = words.take_while(|w| !w.starts_with('#')).count();
+            if n < 3 {
+                return Err(bad(format!(
+                    "line {}: a face needs at least 3 vertices, got {n}",
+                    i + 1
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Loads an OBJ file. A missing file, a directory, text that is not UTF-8, a face of fewer
+/// than three vertices, a malformed file or a face that indexes a missing vertex is an
+/// error naming the path (and the line where we know it).
 pub fn load_obj(path: &Path) -> Result<Mesh> {
-    // Open it ourselves first: tobj reports every open failure the same way.
-    std::fs::metadata(path).map_err(|source| Error::Io {
+    // Read it ourselves first: tobj reports every open failure the same way.
+    let io = |source: std::io::Error| Error::Io {
         path: path.to_owned(),
         source,
-    })?;
+    };
+    if std::fs::metadata(path).map_err(io)?.is_dir() {
+        return Err(io(std::io::Error::new(
+            std::io::ErrorKind::IsADirectory,
+            "is a directory, not an OBJ file",
+        )));
+    }
+    check_text(path, &std::fs::read(path).map_err(io)?)?;
     let options = tobj::LoadOptions {
         triangulate: true,
         single_index: true,
@@ -120,5 +157,23 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("garbage.obj"));
+        let p = write(
+            "edge.obj",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 # an edge\n",
+        );
+        let e = load_obj(&p).unwrap_err().to_string();
+        assert!(
+            e.ends_with("line 5: a face needs at least 3 vertices, got 2"),
+            "{e}"
+        );
+        let p = write("latin1.obj", "v 0 0 0\n");
+        std::fs::write(&p, b"v 0 0 0\no caf\xe9\n").unwrap();
+        let e = load_obj(&p).unwrap_err().to_string();
+        assert!(
+            e.ends_with("line 2: not UTF-8 text (an OBJ file is text)"),
+            "{e}"
+        );
+        let e = load_obj(p.parent().unwrap()).unwrap_err().to_string();
+        assert!(e.contains("is a directory"), "{e}");
     }
 }

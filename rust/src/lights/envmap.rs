@@ -836,6 +836,25 @@ impl EnvMap {
                 ),
             ));
         }
+        let channels: Vec<String> = header
+            .channels
+            .list
+            .iter()
+            .map(|c| c.name.to_string())
+            .collect();
+        let has = |want: &str| {
+            channels.iter().any(|c| {
+                c.rsplit('.')
+                    .next()
+                    .is_some_and(|n| n.eq_ignore_ascii_case(want))
+            })
+        };
+        if !(has("R") && has("G") && has("B")) {
+            return Err(parse_error(
+                path,
+                format!("has channels {channels:?}; an environment map needs R, G and B"),
+            ));
+        }
         let read = std::panic::catch_unwind(|| {
             read()
                 .no_deep_data()
@@ -1454,6 +1473,23 @@ mod tests {
             assert!(matches!(e, Error::Parse { .. }), "cut {cut}: {e:?}");
             assert!(e.to_string().contains("truncated.exr"), "{e}");
         }
+        // A valid file without colour channels.
+        let gray = temp("gray.exr");
+        {
+            use exr::prelude::*;
+            let channels = SpecificChannels::build()
+                .with_channel("Y")
+                .with_pixel_fn(|_: Vec2<usize>| (0.5f32,));
+            Image::from_channels((8, 4), channels)
+                .write()
+                .to_file(&gray)
+                .unwrap();
+        }
+        let e = EnvMap::from_exr(&gray).unwrap_err().to_string();
+        assert!(
+            e.contains("gray.exr") && e.ends_with("an environment map needs R, G and B"),
+            "{e}"
+        );
         let e = EnvMap::constant([1.0; 3], 4)
             .unwrap()
             .to_exr(temp("no_such_dir").join("x.exr"), ExrLayout::Octahedral)
