@@ -273,3 +273,63 @@ def test_out_of_memory_is_a_memory_error():
     assert lines[:4] == ["render MemoryError", "gbuffer MemoryError",
                          "cache_build MemoryError", "render_ao MemoryError"], out.stdout
     assert lines[4] == "usable (12, 16, 3)"
+
+
+def _mutations(data: bytes, count: int, seed: int):
+    """``count`` damaged copies of ``data``: cut short, bytes flipped, garbage inserted,
+    a block duplicated, a header field zeroed or maxed out."""
+    rng = np.random.default_rng(seed)
+    n = len(data)
+    for k in range(count):
+        b = bytearray(data)
+        kind = k % 5
+        if kind == 0:
+            b = b[: int(rng.integers(0, n))]
+        elif kind == 1:
+            for _ in range(int(rng.integers(1, 9))):
+                b[int(rng.integers(0, n))] ^= 1 << int(rng.integers(0, 8))
+        elif kind == 2:
+            at = int(rng.integers(0, n))
+            b[at:at] = rng.integers(0, 256, int(rng.integers(1, 64)), dtype=np.uint8).tobytes()
+        elif kind == 3:
+            at, size = int(rng.integers(0, n)), int(rng.integers(1, 256))
+            b[at:at] = b[at:at + size]
+        else:
+            at = int(rng.integers(0, min(n, 128)))
+            b[at:at + 4] = (b"\x00" * 4) if rng.random() < 0.5 else (b"\xff" * 4)
+        yield bytes(b)
+
+
+def test_damaged_files_give_clean_errors(tmp_path):
+    """Dozens of damaged OBJ, EXR and cache files: each loads or raises ValueError/OSError
+    naming the file; nothing panics."""
+    setup = vc.scenes.load("cornell")
+    obj = "".join(f"v {x} {y} {z}\n" for x, y, z in [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
+    obj += "o quad\nf 1 2 3 4\nvn 0 0 1\nvt 0 0\nf 1/1/1 3/1/1 4/1/1\n"
+    exr = tmp_path / "good.exr"
+    vc.EnvMap.constant((0.5, 1.0, 2.0), resolution=16).to_exr(exr)
+    cache = vc.VisibilityCache(setup.scene, preset="medium", resolution=8)
+    cache.build(setup.camera.with_resolution(16, 12), progress=False)
+    cache.save(tmp_path / "good.vcache")
+    readers = {
+        "obj": (obj.encode(), vc.Scene.from_obj),
+        "exr": (exr.read_bytes(), vc.EnvMap.from_exr),
+        "vcache": ((tmp_path / "good.vcache").read_bytes(),
+                   lambda p: vc.VisibilityCache.load(p, setup.scene)),
+    }
+    refused, changed = {}, {}
+    for ext, (good, read) in readers.items():
+        refused[ext] = changed[ext] = 0
+        for k, bad in enumerate(_mutations(good, 40, seed=len(ext))):
+            changed[ext] += bad != good
+            path = tmp_path / f"bad{k}.{ext}"
+            path.write_bytes(bad)
+            try:
+                read(path)
+            except (ValueError, OSError) as e:
+                assert path.name in str(e), f"{ext} {k}: {e}"
+                refused[ext] += 1
+    # Cache files carry a checksum: every change is refused. OBJ and EXR damage may leave
+    # a file that still parses (a changed digit, a damaged pixel).
+    assert refused["vcache"] == changed["vcache"] > 35
+    assert refused["obj"] > 20 and refused["exr"] > 20, refused

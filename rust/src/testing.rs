@@ -187,6 +187,49 @@ pub fn synthetic_record(
     }
 }
 
+/// Damaged copy number `k` of `bytes` for fuzzing file readers: cut short, bits flipped,
+/// random bytes inserted, a block duplicated, or a 4-byte field near the start zeroed or
+/// set to all ones. A pure function of `(bytes, k, seed)`.
+pub fn damaged(bytes: &[u8], k: u64, seed: u64) -> Vec<u8> {
+    let rng = SampleRng::new(seed, k, 7);
+    let mut d = 0;
+    let mut below = |n: usize| {
+        d += 1;
+        ((rng.get(d) as f64 * n as f64) as usize).min(n.saturating_sub(1))
+    };
+    let mut b = bytes.to_vec();
+    let n = b.len().max(1);
+    match k % 5 {
+        0 => b.truncate(below(n)),
+        1 => {
+            for _ in 0..1 + below(8) {
+                let at = below(n);
+                if let Some(x) = b.get_mut(at) {
+                    *x ^= 1 << below(8);
+                }
+            }
+        }
+        2 => {
+            let at = below(n).min(b.len());
+            let junk: Vec<u8> = (0..1 + below(64)).map(|_| below(256) as u8).collect();
+            b.splice(at..at, junk);
+        }
+        3 => {
+            let at = below(n).min(b.len());
+            let end = (at + 1 + below(256)).min(b.len());
+            let block = b[at..end].to_vec();
+            b.splice(at..at, block);
+        }
+        _ => {
+            let at = below(n.min(128)).min(b.len());
+            let end = (at + 4).min(b.len());
+            let value = if below(2) == 0 { 0 } else { 0xff };
+            b[at..end].iter_mut().for_each(|x| *x = value);
+        }
+    }
+    b
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

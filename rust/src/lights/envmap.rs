@@ -1451,6 +1451,25 @@ mod tests {
         );
     }
 
+    /// Bounded fuzzing: 300 damaged EXR files read or fail with an error naming the file;
+    /// none panics.
+    #[test]
+    fn damaged_exr_files_never_panic() {
+        let good = temp("fuzz_good.exr");
+        sunny(8, 5.0).to_exr(&good, ExrLayout::Octahedral).unwrap();
+        let bytes = std::fs::read(&good).unwrap();
+        let mut refused = 0;
+        for k in 0..300 {
+            let p = temp("fuzz.exr");
+            std::fs::write(&p, crate::testing::damaged(&bytes, k, 3)).unwrap();
+            if let Err(e) = EnvMap::from_exr(&p) {
+                assert!(e.to_string().contains("fuzz.exr"), "{e}");
+                refused += 1;
+            }
+        }
+        assert!(refused > 60, "{refused}");
+    }
+
     #[test]
     fn missing_and_corrupt_exr_files_name_the_path() {
         let missing = temp("does_not_exist.exr");
