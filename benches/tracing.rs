@@ -34,6 +34,7 @@ fn build(c: &mut Criterion) {
         ("1M", mesh_with("hairball", 1.0, 1_000_000)),
     ] {
         for q in [
+            BuildQuality::Auto,
             BuildQuality::Sah,
             BuildQuality::Fastest,
             BuildQuality::Fast,

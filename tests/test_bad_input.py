@@ -151,3 +151,46 @@ def test_fuzz_queries(origins, directions, tmax, threads):
             continue
         n = np.asarray(origins).shape[0]
         assert len(out) == n if query == s.occluded else len(out["t"]) == n
+
+
+NUMBERISH = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**70), 2**70),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=3),
+    st.lists(st.integers(-3, 3), max_size=3),
+)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    s = vc.scenes.load("cornell", detail=0.3)
+    s.camera = s.camera.with_resolution(6, 4)
+    return s
+
+
+@settings(max_examples=150, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(spp=NUMBERISH, seed=NUMBERISH, threads=NUMBERISH, time_budget=NUMBERISH,
+       product_level=NUMBERISH, size=st.tuples(NUMBERISH, NUMBERISH))
+def test_fuzz_render_arguments(tiny, spp, seed, threads, time_budget, product_level, size):
+    """Any value for the numeric arguments of a render and a camera size renders or raises
+    ValueError/TypeError (MemoryError for sizes too large to allocate) naming the argument;
+    nothing else escapes, nothing panics."""
+    try:
+        cam = tiny.camera.with_resolution(*size)
+    except ALLOWED as e:
+        assert str(e).split(":")[0] in ("width", "height"), e
+        cam = tiny.camera
+    names = ("spp", "seed", "threads", "time_budget", "product_level", "camera")
+    if isinstance(spp, int) and spp > 8:
+        spp = 8  # keep valid renders quick
+    try:
+        r = vc._core.render(tiny.scene, tiny.envmap, cam, spp, "product", seed=seed,
+                            threads=threads, time_budget=time_budget,
+                            product_level=product_level)
+    except (*ALLOWED, MemoryError) as e:
+        assert str(e).split(":")[0] in names, e
+        return
+    assert np.isfinite(r["image"]).all()

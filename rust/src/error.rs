@@ -27,6 +27,10 @@ pub enum Error {
         *bytes as f64 / (1u64 << 30) as f64
     )]
     OutOfMemory { what: String, bytes: usize },
+    /// Work stopped at the caller's request (e.g. [`crate::visibility::VisibilityCache::request_stop`]),
+    /// leaving its objects as they were before the unfinished step.
+    #[error("{what}: interrupted")]
+    Interrupted { what: String },
 }
 
 impl Error {

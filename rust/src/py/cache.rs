@@ -15,7 +15,7 @@ use super::convert::{
     f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, seed_arg, threads_arg,
     unit_directions, vec3_arg, IntoPyResult,
 };
-use super::interrupt::{detach_interruptible, StopFlag};
+use super::interrupt::{detach_interruptible_with, StopFlag};
 use super::scene::PyScene;
 use crate::sampling::octahedral::{morton_decode, morton_encode};
 use crate::visibility::cache::{Lookup, VisibilityCache};
@@ -291,7 +291,7 @@ impl PyVisibilityCache {
             })
         };
         let inner = self.inner.clone();
-        let out = detach_interruptible(py, &stop, || {
+        let out = detach_interruptible_with(py, &stop, &|| inner.request_stop(), || {
             inner.build(&scene, &cam, seed, threads, budget, &mut callback)
         });
         if let Some(bar) = &bar {

@@ -20,6 +20,7 @@ pub fn to_py(e: Error) -> PyErr {
         Error::Io { .. } => PyOSError::new_err(e.to_string()),
         Error::InvalidArgument { .. } | Error::Parse { .. } => PyValueError::new_err(e.to_string()),
         Error::OutOfMemory { .. } => pyo3::exceptions::PyMemoryError::new_err(e.to_string()),
+        Error::Interrupted { .. } => pyo3::exceptions::PyKeyboardInterrupt::new_err(e.to_string()),
     }
 }
 

@@ -39,6 +39,17 @@ pub fn detach_interruptible<R: Send>(
     stop: &StopFlag,
     work: impl FnOnce() -> R + Send,
 ) -> PyResult<R> {
+    detach_interruptible_with(py, stop, &|| {}, work)
+}
+
+/// [`detach_interruptible`] that also calls `on_stop` when a signal handler raises: for work
+/// that can stop sooner than at its next progress report.
+pub fn detach_interruptible_with<R: Send>(
+    py: Python<'_>,
+    stop: &StopFlag,
+    on_stop: &(dyn Fn() + Sync),
+    work: impl FnOnce() -> R + Send,
+) -> PyResult<R> {
     let mut raised: Option<PyErr> = None;
     let out = py.detach(|| {
         std::thread::scope(|scope| {
@@ -53,6 +64,7 @@ pub fn detach_interruptible<R: Send>(
                     if let Err(e) = Python::attach(|py| py.check_signals()) {
                         raised = Some(e);
                         stop.set();
+                        on_stop();
                     }
                 }
             }

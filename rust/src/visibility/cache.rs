@@ -59,7 +59,7 @@
 //! whose miss rate over the frame exceeds `ε_max` (or the `k` worst), and those unused for
 //! `F` frames, then starts the next frame with fresh counters.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::Instant;
 
@@ -875,6 +875,8 @@ pub struct VisibilityCache {
     pattern: Vec<Vec3>,
     state: RwLock<CacheState>,
     lookups: AtomicU64,
+    /// Set by [`VisibilityCache::request_stop`]; cleared when a build starts.
+    stop: AtomicBool,
 }
 
 impl Clone for VisibilityCache {
@@ -884,6 +886,7 @@ impl Clone for VisibilityCache {
             pattern: self.pattern.clone(),
             state: RwLock::new(self.read().clone()),
             lookups: AtomicU64::new(self.lookups.load(Ordering::Relaxed)),
+            stop: AtomicBool::new(false),
         }
     }
 }
@@ -903,6 +906,7 @@ impl VisibilityCache {
             pattern,
             state: RwLock::new(CacheState::new(m)?),
             lookups: AtomicU64::new(0),
+            stop: AtomicBool::new(false),
         })
     }
 
@@ -996,6 +1000,13 @@ impl VisibilityCache {
     /// records stay as they are.
     pub fn rebind_scene(&self, scene: &Scene) {
         self.write().scene = Some(scene.geometry_fingerprint());
+    }
+
+    /// Asks a running [`Self::build`] (from another thread) to stop within one record's
+    /// rays: the wave being traced is dropped, the build returns [`Error::Interrupted`]
+    /// and the cache keeps the records of the waves before. A later build clears it.
+    pub fn request_stop(&self) {
+        self.stop.store(true, Ordering::Relaxed);
     }
 
     /// The fingerprint of the scene the cache is bound to ([`Self::bind_scene`]), if any.
@@ -1280,6 +1291,7 @@ impl VisibilityCache {
     ) -> Result<BuildReport> {
         check_scene_and_budget(scene, time_budget)?;
         self.bind_scene(scene)?;
+        self.stop.store(false, Ordering::Relaxed);
         let start = Instant::now();
         let before = self.counters();
         let mut report = BuildReport {
@@ -1377,6 +1389,11 @@ impl VisibilityCache {
                 } else {
                     hit.normal
                 };
+                if self.stop.load(Ordering::Relaxed) {
+                    return Some(Err(Error::Interrupted {
+                        what: "cache build".into(),
+                    }));
+                }
                 Some(self.trace(scene, hit.position, normal))
             })
             .map(|r| r.transpose())
@@ -1529,6 +1546,11 @@ impl VisibilityCache {
         let traced: Vec<(Record, RecordRays)> = requests
             .par_iter()
             .map(|&i| {
+                if self.stop.load(Ordering::Relaxed) {
+                    return Err(Error::Interrupted {
+                        what: "cache build".into(),
+                    });
+                }
                 let (x, n, _) = query(i);
                 self.trace(scene, x, n)
             })

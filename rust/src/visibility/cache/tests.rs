@@ -976,3 +976,31 @@ fn damaged_cache_streams_are_refused_without_panics() {
     }
     assert!(changed > 3800, "{changed}");
 }
+
+/// A stop requested during a build drops the wave being traced, returns `Interrupted`
+/// and keeps the records of the waves before; the next build runs to the end.
+#[test]
+fn request_stop_interrupts_a_build_between_records() {
+    let setup = scenes::load("garage", 0.3, 0).unwrap();
+    let cam = setup.camera.with_resolution(64, 48).unwrap();
+    let c = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
+    let mut waves = 0;
+    let mut after_two = 0;
+    let r = c.build(&setup.scene, &cam, 0, Some(2), None, &mut |_, _| {
+        waves += 1;
+        if waves == 2 {
+            after_two = c.len();
+            c.request_stop();
+        }
+        true
+    });
+    let e = r.unwrap_err();
+    assert!(matches!(e, Error::Interrupted { .. }), "{e}");
+    assert_eq!(waves, 2);
+    assert!(after_two > 0);
+    assert_eq!(c.len(), after_two);
+    let done = c
+        .build(&setup.scene, &cam, 0, Some(2), None, &mut |_, _| true)
+        .unwrap();
+    assert!(done.complete && c.len() > after_two);
+}
