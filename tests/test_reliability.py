@@ -22,8 +22,9 @@ INTERRUPT_LIMIT_S = 3.0
 
 CHILD = textwrap.dedent(
     """
-    import sys, time
+    import sys, tempfile, time
     import viscache_rs as vc
+    from viscache_rs import experiments
     s = vc.scenes.load("garage")
     cam = s.camera.with_resolution(320, 240)
     cache = vc.VisibilityCache(s.scene, preset="medium")
@@ -36,6 +37,8 @@ CHILD = textwrap.dedent(
             cam.with_resolution(1280, 960), progress=False),
         "render_ao": lambda: vc.render_ao(s, cam.with_resolution(640, 480),
                                           reference_rays=65536, progress=False),
+        "experiment": lambda: experiments.run("tradeoff", out=tempfile.mkdtemp(),
+                                              progress=False),
     }}
     if "{which}" == "render_cv":
         cache.build(cam.with_resolution(40, 30), progress=False)
@@ -57,7 +60,8 @@ CHILD = textwrap.dedent(
 )
 
 
-@pytest.mark.parametrize("which", ["render", "render_cv", "cache_build", "render_ao"])
+@pytest.mark.parametrize("which", ["render", "render_cv", "cache_build", "render_ao",
+                                   "experiment"])
 def test_ctrl_c_stops_long_calls_without_a_progress_bar(which):
     child = subprocess.Popen(
         [sys.executable, "-c", CHILD.format(which=which)],
