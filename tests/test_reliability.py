@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import numpy as np
@@ -22,7 +23,10 @@ INTERRUPT_LIMIT_S = 3.0
 
 CHILD = textwrap.dedent(
     """
-    import sys, tempfile, time
+    import signal, sys, tempfile, time
+    # A shell starts background jobs with SIGINT ignored, and Python then installs no
+    # handler; a user's terminal has one. Make sure this child has it too.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     import viscache_rs as vc
     from viscache_rs import experiments
     s = vc.scenes.load("garage")
@@ -69,6 +73,9 @@ def test_ctrl_c_stops_long_calls_without_a_progress_bar(which):
         stderr=subprocess.PIPE,
         text=True,
     )
+    # Whatever happens, the child does not outlive the test.
+    watchdog = threading.Timer(120.0, child.kill)
+    watchdog.start()
     try:
         assert child.stdout.readline().strip() == "ready"
         time.sleep(1.0)  # well inside the call
@@ -82,6 +89,7 @@ def test_ctrl_c_stops_long_calls_without_a_progress_bar(which):
         assert child.stdout.readline().strip() == "usable", child.stderr.read()
         assert child.wait(timeout=60) == 0
     finally:
+        watchdog.cancel()
         child.kill()
         child.wait()
 
@@ -191,7 +199,6 @@ def test_objects_are_shared_across_threads():
     """Editing a scene, building a cache or moving an animated setup while another thread
     renders with them neither fails nor changes the running render: it works on the scene
     as it was when it started."""
-    import threading
 
     anim = vc.scenes.load("dynamics", animated=True)
     cam = anim.camera.with_resolution(96, 72)
