@@ -49,6 +49,30 @@ pub fn with_threads<R: Send>(threads: Option<usize>, f: impl FnOnce() -> R + Sen
     Ok(pool.install(f))
 }
 
+/// Runs `work` on a scoped thread while the calling thread calls `poll` every `interval`
+/// until the work returns; its result is returned (a panic in it is resumed here). For
+/// callers that must stay responsive while the work runs: progress reports, signal checks.
+pub fn run_polling<R: Send>(
+    work: impl FnOnce() -> R + Send,
+    interval: std::time::Duration,
+    poll: &mut dyn FnMut(),
+) -> R {
+    std::thread::scope(|scope| {
+        let (finished, wait) = std::sync::mpsc::channel::<()>();
+        let handle = scope.spawn(move || {
+            let out = work();
+            let _ = finished.send(());
+            out
+        });
+        while let Err(std::sync::mpsc::RecvTimeoutError::Timeout) = wait.recv_timeout(interval) {
+            poll();
+        }
+        handle
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1049,23 +1049,14 @@ fn run_with_progress<R: Send>(
     work: impl FnOnce() -> R + Send,
     poll: &mut dyn FnMut() -> bool,
 ) -> Result<R> {
-    std::thread::scope(|scope| {
-        let (finished, wait) = std::sync::mpsc::channel::<()>();
-        let handle = scope.spawn(move || {
-            let out = with_threads(threads, work);
-            let _ = finished.send(());
-            out
-        });
-        let mut polling = true;
-        while let Err(std::sync::mpsc::RecvTimeoutError::Timeout) =
-            wait.recv_timeout(PROGRESS_INTERVAL)
-        {
+    let mut polling = true;
+    crate::parallel::run_polling(
+        || with_threads(threads, work),
+        PROGRESS_INTERVAL,
+        &mut || {
             if polling {
                 polling = poll();
             }
-        }
-        handle
-            .join()
-            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
-    })
+        },
+    )
 }

@@ -15,7 +15,7 @@ use super::convert::{
     f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, seed_arg, threads_arg,
     unit_directions, vec3_arg, IntoPyResult,
 };
-use super::interrupt::{detach_interruptible_with, StopFlag};
+use super::interrupt::{detach_interruptible_with, PyProgress, Report};
 use super::scene::PyScene;
 use crate::sampling::octahedral::{morton_decode, morton_encode};
 use crate::visibility::cache::{Lookup, VisibilityCache};
@@ -267,29 +267,18 @@ impl PyVisibilityCache {
         } else {
             None
         };
-        let mut failure: Option<PyErr> = None;
-        let stop = StopFlag::default();
-        let mut callback = |done: usize, total: usize| -> bool {
-            if stop.is_set() || failure.is_some() {
-                return false;
-            }
-            let Some(bar) = &bar else { return true };
-            Python::attach(|py| {
-                let step = || -> PyResult<()> {
-                    let b = bar.bind(py);
-                    b.setattr("total", total)?;
-                    b.setattr("n", done)?;
-                    b.call_method0("refresh").map(drop)
-                };
-                match step() {
-                    Ok(()) => true,
-                    Err(e) => {
-                        failure = Some(e);
-                        false
-                    }
-                }
+        let mut reporter = PyProgress::with(bar.as_ref().map(|bar| -> Report {
+            let bar = bar.clone_ref(py);
+            Box::new(move |py, done, total| {
+                let b = bar.bind(py);
+                b.setattr("total", total)?;
+                b.setattr("n", done)?;
+                b.call_method0("refresh")?;
+                Ok(true)
             })
-        };
+        }));
+        let stop = reporter.stop_flag();
+        let mut callback = |done: usize, total: usize| reporter.report(done as u64, total as u64);
         let inner = self.inner.clone();
         let out = detach_interruptible_with(py, &stop, &|| inner.request_stop(), || {
             inner.build(&scene, &cam, seed, threads, budget, &mut callback)
@@ -297,9 +286,7 @@ impl PyVisibilityCache {
         if let Some(bar) = &bar {
             bar.bind(py).call_method0("close")?;
         }
-        if let Some(e) = failure {
-            return Err(e);
-        }
+        reporter.finish()?;
         let r = out?.py()?;
         if let Some(f) = r.median_footprint {
             *self
@@ -582,15 +569,10 @@ impl PyVisibilityCache {
     /// record the scene's geometry fingerprint; older files without one are accepted).
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf, scene: Py<PyScene>) -> PyResult<Self> {
-        let cache = py.detach(|| VisibilityCache::load(&path)).py()?;
         let core_scene = scene.borrow(py).get();
-        if let Err(e) = cache.bind_scene(&core_scene) {
-            return Err(PyValueError::new_err(format!(
-                "scene: the cache in {} {}",
-                path.display(),
-                e.to_string().trim_start_matches("cache: ")
-            )));
-        }
+        let cache = py
+            .detach(|| VisibilityCache::load_for(&path, &core_scene))
+            .py()?;
         Ok(Self {
             inner: Arc::new(cache),
             scene,

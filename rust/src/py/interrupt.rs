@@ -5,7 +5,6 @@
 //! stop through a flag that its progress reports read ([`PyProgress`]).
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{channel, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -52,25 +51,14 @@ pub fn detach_interruptible_with<R: Send>(
 ) -> PyResult<R> {
     let mut raised: Option<PyErr> = None;
     let out = py.detach(|| {
-        std::thread::scope(|scope| {
-            let (finished, wait) = channel::<()>();
-            let handle = scope.spawn(move || {
-                let out = work();
-                let _ = finished.send(());
-                out
-            });
-            while let Err(RecvTimeoutError::Timeout) = wait.recv_timeout(POLL) {
-                if raised.is_none() {
-                    if let Err(e) = Python::attach(|py| py.check_signals()) {
-                        raised = Some(e);
-                        stop.set();
-                        on_stop();
-                    }
+        crate::parallel::run_polling(work, POLL, &mut || {
+            if raised.is_none() {
+                if let Err(e) = Python::attach(|py| py.check_signals()) {
+                    raised = Some(e);
+                    stop.set();
+                    on_stop();
                 }
             }
-            handle
-                .join()
-                .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
         })
     });
     match raised {
@@ -79,13 +67,16 @@ pub fn detach_interruptible_with<R: Send>(
     }
 }
 
+/// What a [`PyProgress`] does with a report, with the GIL held: `Ok(false)` stops the work.
+pub type Report = Box<dyn FnMut(Python<'_>, u64, u64) -> PyResult<bool> + Send>;
+
 /// Forwards the core's `progress(done, total)` reports to an optional Python
-/// `callback(done, total)`, taking the GIL for each call. A falsy return stops the core's
-/// work; an exception does too and is kept for [`Self::finish`] to raise, and no further
-/// call is made after it. Every report also says "stop" once [`Self::stop_flag`] is set
-/// (by [`detach_interruptible`] on Ctrl-C).
+/// `callback(done, total)` (or any [`Report`]), taking the GIL for each call. A falsy
+/// return stops the core's work; an exception does too and is kept for [`Self::finish`] to
+/// raise, and no further call is made after it. Every report also says "stop" once
+/// [`Self::stop_flag`] is set (by [`detach_interruptible`] on Ctrl-C).
 pub struct PyProgress {
-    callback: Option<Py<PyAny>>,
+    report: Option<Report>,
     failure: Option<PyErr>,
     stop: StopFlag,
 }
@@ -93,8 +84,17 @@ pub struct PyProgress {
 impl PyProgress {
     /// A reporter calling `callback` (none: every report says "go on" until a stop).
     pub fn new(callback: Option<Py<PyAny>>) -> Self {
+        Self::with(callback.map(|cb| -> Report {
+            Box::new(move |py, done, total| {
+                Ok(cb.call1(py, (done, total))?.is_truthy(py).unwrap_or(true))
+            })
+        }))
+    }
+
+    /// A reporter running `report` (none: every report says "go on" until a stop).
+    pub fn with(report: Option<Report>) -> Self {
         Self {
-            callback,
+            report,
             failure: None,
             stop: StopFlag::default(),
         }
@@ -110,11 +110,11 @@ impl PyProgress {
         if self.stop.is_set() || self.failure.is_some() {
             return false;
         }
-        let Some(cb) = &self.callback else {
+        let Some(report) = &mut self.report else {
             return true;
         };
-        Python::attach(|py| match cb.call1(py, (done, total)) {
-            Ok(r) => r.is_truthy(py).unwrap_or(true),
+        Python::attach(|py| match report(py, done, total) {
+            Ok(go_on) => go_on,
             Err(e) => {
                 self.failure = Some(e);
                 false

@@ -973,13 +973,7 @@ impl VisibilityCache {
     /// [`Self::bind_scene`] for a scene known by its fingerprint `f`.
     pub fn bind_fingerprint(&self, f: u64) -> Result<()> {
         let check = |state: &CacheState| match state.scene {
-            Some(bound) if bound != f => Err(Error::invalid(
-                "cache",
-                format!(
-                    "was built for another scene (geometry fingerprint {bound:016x}, this \
-                     scene's is {f:016x}); build a cache for this scene"
-                ),
-            )),
+            Some(bound) if bound != f => Err(Error::invalid("cache", other_scene(bound, f))),
             _ => Ok(()),
         };
         {
@@ -1574,6 +1568,14 @@ impl VisibilityCache {
             .fetch_add(requests.len() as u64, Ordering::Relaxed);
         Ok((inserted, discarded, deferred))
     }
+}
+
+/// Why a cache bound to geometry `bound` refuses a scene of fingerprint `f`.
+pub(crate) fn other_scene(bound: u64, f: u64) -> String {
+    format!(
+        "was built for another scene (geometry fingerprint {bound:016x}, this scene's is \
+         {f:016x}); build a cache for this scene"
+    )
 }
 
 /// Splits a wave's points that want a record into requests, traced now, and points deferred

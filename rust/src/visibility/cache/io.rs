@@ -25,6 +25,7 @@ use glam::Vec3;
 
 use super::{CacheState, VisibilityCache};
 use crate::error::{Error, Result};
+use crate::geometry::Scene;
 use crate::visibility::params::CacheParams;
 use crate::visibility::record::{words_per_map, RecordHeader};
 
@@ -206,6 +207,25 @@ impl VisibilityCache {
     /// ([`crate::files::write_atomically`]).
     pub fn save(&self, path: &Path) -> Result<()> {
         crate::files::write_bytes_atomically(path, &self.to_bytes())
+    }
+
+    /// Reads a cache written by [`Self::save`] and binds it to `scene`
+    /// ([`Self::bind_scene`]): a cache of other geometry is an error naming `scene` and the
+    /// file.
+    pub fn load_for(path: &Path, scene: &Scene) -> Result<Self> {
+        let cache = Self::load(path)?;
+        let f = scene.geometry_fingerprint();
+        match cache.scene_fingerprint() {
+            Some(bound) if bound != f => Err(Error::invalid(
+                "scene",
+                format!(
+                    "the cache in {} {}",
+                    path.display(),
+                    super::other_scene(bound, f)
+                ),
+            )),
+            _ => cache.bind_fingerprint(f).map(|()| cache),
+        }
     }
 
     /// Reads a cache written by [`Self::save`].
