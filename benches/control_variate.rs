@@ -57,7 +57,7 @@ fn control_variate(c: &mut Criterion) {
             .iter()
             .map(|(_, x, n, d)| state.lookup(params, *x, *n, *d))
             .collect();
-        let mut tables = ControlTables::default();
+        let mut tables = ControlTables::new(&prepared[0].0, &chroma, m);
         group.bench_function(format!("tables/{r}x{r}"), |b| {
             let mut k = 0;
             b.iter(|| {

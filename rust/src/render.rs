@@ -641,7 +641,9 @@ impl Shader<'_> {
             &mut work.bvh,
         );
         let z = emitted + l;
-        let (Some(a), Some((state, _)), true) = (anchor, self.cache, matched) else {
+        let (Some(a), Some((state, _)), Some(chroma), true) =
+            (anchor, self.cache, self.chroma, matched)
+        else {
             return (z, [0.0; 3]);
         };
         let interp = &a.interpolant;
@@ -652,7 +654,7 @@ impl Shader<'_> {
         let g_over_p = match drawn {
             None => [0.0; 3],
             Some(d) => {
-                let g = control_sample(state, interp, d.square);
+                let g = control_sample(state, interp, chroma, d.square);
                 if let Some(visible) = d.visible {
                     for (k, v) in verdicts.iter_mut().enumerate().take(interp.ids().len()) {
                         let predicted = g.visible_mask >> k & 1 == 1;

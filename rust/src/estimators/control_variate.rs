@@ -3,18 +3,22 @@
 //! Product importance sampling draws `ω` with `p(ω) = L(ω) B~(ω) / L_ns` (CAM08 eq. 3, `L`
 //! the map's luminance) and estimates `∫ L B V dω` by `L B V / p`. With the cache's
 //! interpolated visibility `Ṽ = Σ β_i V_i` (a lookup's records and weights), the control
-//! variate of channel `c` is `g_c(ω) = κ_c L(ω) B~(ω) Ṽ(ω)` with the point's chroma `κ_c`
-//! (the RGB over luminance of the map's 8 x 8 regions, weighted by the product's luminance
-//! over them: about `∫ L_c B~ dω / ∫ L B~ dω`, for 64 multiply-adds); its integral is
-//! `J_c = κ_c Σ β_i J_i`, and eq. 2 becomes
+//! variate of channel `c` is `g_c(ω) = κ_c(ω) L(ω) B~(ω) Ṽ(ω)` with `κ_c(ω)` the colour of
+//! the map's *region* holding `ω` (RGB over luminance of `∫ L_c` over the region; the
+//! regions are the quadtree nodes one record word covers, 64 of them for 64² records, see
+//! [`region_level`]). Its integral is `J_c = Σ_r κ_c(r) Σ_i β_i J_{i,r}`, and eq. 2 becomes
 //!
-//! `⟨L_o⟩ = (1/N) Σ [L B V / p − α g / p] + α J`, with `g_c / p = κ_c (∫ L B~ dω) Ṽ(ω)`,
+//! `⟨L_o⟩ = (1/N) Σ [L B V / p − α g / p] + α J`, with `g_c / p = κ_c(ω) (∫ L B~ dω) Ṽ(ω)`,
 //!
 //! unbiased for any `α` and `κ` that do not depend on the samples they multiply. Using the
-//! luminance `L B~` the sampler already holds (instead of `L_c B~` per channel) makes `J`
-//! read the product's own pyramid; where the map's colour is uniform over what a point
-//! sees the two are identical, and on the built-in scenes the variance was the same to
-//! three digits (garage 128 x 96: 0.277 vs 0.276 of product sampling's).
+//! luminance `L B~` the sampler already holds times a colour per region (instead of
+//! `L_c B~` per channel) makes `J` read the product's own pyramid, and costs the walk three
+//! multiply-adds per word. One colour per *point* (what this module used before) is exact
+//! only where the map's colour is uniform over what a point sees: under a yellow sun in a
+//! blue sky it leaves the blue channel a residual `(L_b − κ_b L) B V / p` that no visibility
+//! can cancel, and on `dynamics` the blue variance came out 1.3x plain product sampling's
+//! (0.6x with a grey map). Per region, the sun's region takes the sun's colour and the sky's
+//! the sky's.
 //!
 //! ## Exactness of `J`
 //! `L` is piecewise constant over the map's texels, `B~` over the product's cells and every
@@ -84,8 +88,9 @@ impl AlphaRule {
 }
 
 /// The colour of an environment map's regions: per quadtree node of levels
-/// `0..=min(CHROMA_LEVEL, depth)`, `∫ L_c dω` over its luminance (0 where black). Built
-/// once per map; a point's `κ` weights the finest of these levels by its product.
+/// `0..=min(MAX_REGION_LEVEL, depth)`, `∫ L_c dω` over its luminance (0 where black). Built
+/// once per map; the control variate scales `L B~ Ṽ` by the colour of the region each
+/// direction lies in (module docs).
 #[derive(Clone, Debug)]
 pub struct MapChroma {
     /// The map's quadtree depth (`log2` of its resolution).
@@ -94,8 +99,20 @@ pub struct MapChroma {
     chroma: Vec<Vec<[f64; 3]>>,
 }
 
-/// Level of the regions whose colours make a point's `κ` (8 x 8 regions).
-pub const CHROMA_LEVEL: u32 = 3;
+/// Finest level of regions a [`MapChroma`] keeps (`4^6` regions; the words of 512² records).
+pub const MAX_REGION_LEVEL: u32 = 6;
+
+/// The level of the regions whose colours scale the control variate for records of
+/// `2^record_m` texels a side, a product of cells at `product_level` and a map of `depth`:
+/// the records' words (each word then lies in one region, so the walks of `J` weight a
+/// word's integral by one colour), no finer than the product's cells (whose pyramid holds
+/// each region's integral) nor the map's texels.
+pub fn region_level(record_m: u32, product_level: u32, depth: u32) -> u32 {
+    word_level(record_m)
+        .min(product_level)
+        .min(depth)
+        .min(MAX_REGION_LEVEL)
+}
 
 impl MapChroma {
     /// The region colours of `env`.
@@ -107,11 +124,11 @@ impl MapChroma {
             let (x, y) = (i as u32 % res, i as u32 / res);
             sums[morton_encode(x, y) as usize] = t.map(f64::from);
         }
-        // Sum up to level CHROMA_LEVEL, then keep that level and the coarser ones.
+        // Sum up to level MAX_REGION_LEVEL, then keep that level and the coarser ones.
         let mut levels = Vec::new();
         let mut level = depth;
         loop {
-            if level <= CHROMA_LEVEL {
+            if level <= MAX_REGION_LEVEL {
                 levels.push(sums.clone());
             }
             if level == 0 {
@@ -143,7 +160,7 @@ impl MapChroma {
         Self { depth, chroma }
     }
 
-    /// RGB over luminance per node of `level <= min(CHROMA_LEVEL, depth)`.
+    /// RGB over luminance per node of `level <= min(MAX_REGION_LEVEL, depth)`.
     pub fn chroma(&self, level: u32) -> &[[f64; 3]] {
         &self.chroma[level as usize]
     }
@@ -155,72 +172,78 @@ impl MapChroma {
 }
 
 /// What the control variate needs of one shading point besides its product distribution:
-/// the unoccluded integral `∫ L_c B~ dω` per channel and its luminance, which turn the
-/// luminance integral `J_lum` into the channels' `J_c = κ_c J_lum` (module docs). Refilled
-/// per point by [`Self::fill`]; no allocation.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct ControlTables {
+/// the region level and colours, and the unoccluded integrals (module docs). Refilled per
+/// point by [`Self::fill`]; no allocation.
+#[derive(Clone, Copy, Debug)]
+pub struct ControlTables<'c> {
     /// Level of the records' grid.
     record_m: u32,
-    /// `κ_c ∫ L B~ dω` over the sphere, per channel.
+    /// Level of the colour regions ([`region_level`]).
+    region_level: u32,
+    /// RGB over luminance of each region (Morton order).
+    colours: &'c [[f64; 3]],
+    /// `∫ L B~ dω` over the sphere (luminance).
+    unoccluded_luminance: f64,
+    /// `Σ_r κ_c(r) ∫_r L B~ dω` over the sphere, per channel.
     unoccluded: [f64; 3],
-    /// `κ_c`: the point's chroma (module docs; 0 when nothing is lit).
-    kappa: [f64; 3],
     /// Solid angle of one texel of the map (sr): the product pyramid's weights times it are
     /// integrals.
     texel_omega: f64,
 }
 
-impl ControlTables {
+impl<'c> ControlTables<'c> {
     /// The tables of `product` under the map whose region colours are `chroma`, for records of
     /// `2^record_m` texels a side.
-    pub fn new(product: &ProductDistribution, chroma: &MapChroma, record_m: u32) -> Self {
-        let mut t = Self::default();
+    pub fn new(product: &ProductDistribution, chroma: &'c MapChroma, record_m: u32) -> Self {
+        let mut t = Self {
+            record_m,
+            region_level: 0,
+            colours: chroma.chroma(0),
+            unoccluded_luminance: 0.0,
+            unoccluded: [0.0; 3],
+            texel_omega: 0.0,
+        };
         t.fill(product, chroma, record_m);
         t
     }
 
     /// Refills the tables for another point (see [`Self::new`]).
-    pub fn fill(&mut self, product: &ProductDistribution, chroma: &MapChroma, record_m: u32) {
+    pub fn fill(&mut self, product: &ProductDistribution, chroma: &'c MapChroma, record_m: u32) {
         self.record_m = record_m;
         self.texel_omega = texel_solid_angle(1 << chroma.depth());
-        // κ: the chroma of the map's 8 x 8 regions, weighted by the product's luminance over
-        // them. Any per-point constant keeps the estimator unbiased; this one matches the
-        // colour the point sees to within the regions' spread, for 64 multiply-adds.
-        let level = CHROMA_LEVEL.min(product.level()).min(chroma.depth());
-        let weights = product.pyramid().level(level);
-        let mut kappa = [0.0f64; 3];
-        let mut total = 0.0f64;
-        for (&w, c) in weights.iter().zip(chroma.chroma(level)) {
-            total += w;
-            kappa = [
-                kappa[0] + w * c[0],
-                kappa[1] + w * c[1],
-                kappa[2] + w * c[2],
-            ];
+        self.region_level = region_level(record_m, product.level(), chroma.depth());
+        self.colours = chroma.chroma(self.region_level);
+        // Each region's `Σ L B~` is a node of the product's pyramid (regions are no finer
+        // than its cells).
+        let weights = product.pyramid().level(self.region_level);
+        let mut sum = [0.0f64; 3];
+        for (&w, c) in weights.iter().zip(self.colours) {
+            sum = std::array::from_fn(|k| sum[k] + w * c[k]);
         }
-        let lum = product.normalization() * self.texel_omega;
-        self.kappa = if total > 0.0 {
-            kappa.map(|k| k / total)
-        } else {
-            [0.0; 3]
-        };
-        self.unoccluded = self.kappa.map(|k| k * lum);
+        self.unoccluded_luminance = product.normalization() * self.texel_omega;
+        self.unoccluded = sum.map(|s| s * self.texel_omega);
     }
 
-    /// `κ_c ∫ L B~ dω` over the whole sphere, per channel (`J` of a record that sees
-    /// everything).
+    /// `Σ_r κ_c(r) ∫_r L B~ dω` over the whole sphere, per channel (`J` of a record that
+    /// sees everything).
     pub fn total(&self) -> [f64; 3] {
         self.unoccluded
     }
 
-    /// The channels' scale `κ_c` (luminance 1 wherever anything is lit).
-    pub fn kappa(&self) -> [f64; 3] {
-        self.kappa
+    /// `∫ L B~ dω` over the whole sphere (luminance): `g_c / p = κ_c(ω)` times this times
+    /// `Ṽ(ω)` for a product sample.
+    pub fn total_luminance(&self) -> f64 {
+        self.unoccluded_luminance
     }
 
-    /// `J_i = ∫ κ L_lum B~ V_i dω` of one record (CAM08 §5.5): a walk of its 2-bit hierarchy
-    /// that skips empty nodes and takes full ones whole from the product's own pyramid; a
+    /// Level of the colour regions ([`region_level`]).
+    pub fn region_level(&self) -> u32 {
+        self.region_level
+    }
+
+    /// `J_i = ∫ κ(ω) L_lum B~ V_i dω` of one record (CAM08 §5.5): a walk of its 2-bit
+    /// hierarchy that skips empty nodes and takes full ones whole from the product's own
+    /// pyramid (descending to the colour regions where a full node spans several); a
     /// partial node of one word adds its visible texels' weights. `bits` must have the
     /// tables' record resolution, `product` be the point's and `env` its map.
     pub fn record_integral(
@@ -235,14 +258,19 @@ impl ControlTables {
         };
         let nodes = LuminanceNodes { product, dist };
         let m = self.record_m;
+        let r = self.region_level;
         let words = bits.bit_words();
         let (mut buf, mut scratch) = ([0.0f64; 64], [0.0f64; 64]);
         let mut visible_texels =
             |word: usize, x: u64| word_sum(x, nodes.word_weights(m, word, &mut buf), &mut scratch);
-        let mut sum = 0.0f64;
+        let mut sum = [0.0f64; 3];
+        let mut add = |region: u32, value: f64| {
+            let c = self.colours[region as usize];
+            sum = std::array::from_fn(|k| sum[k] + c[k] * value);
+        };
         if m < 3 {
-            // One word holds the whole map.
-            sum = visible_texels(0, words[0]);
+            // One word holds the whole map (and one region, level 0).
+            add(0, visible_texels(0, words[0]));
         } else {
             let word_level = word_level(m);
             let mut stack = [(0u32, 0u32); 1 + 3 * 8];
@@ -252,11 +280,15 @@ impl ControlTables {
                 let (level, node) = stack[len];
                 match bits.coverage(level, node) {
                     Coverage::Empty => {}
-                    Coverage::Full => sum += nodes.node(level, node),
-                    Coverage::Partial if level == word_level => {
-                        sum += visible_texels(node as usize, words[node as usize])
+                    Coverage::Full if level >= r => {
+                        add(node >> (2 * (level - r)), nodes.node(level, node))
                     }
-                    Coverage::Partial => {
+                    Coverage::Partial if level == word_level => add(
+                        node >> (2 * (level - r)),
+                        visible_texels(node as usize, words[node as usize]),
+                    ),
+                    // Partial, or full over several regions.
+                    _ => {
                         for k in (0..4).rev() {
                             stack[len] = (level + 1, 4 * node + k);
                             len += 1;
@@ -265,12 +297,11 @@ impl ControlTables {
                 }
             }
         }
-        let lum = sum * self.texel_omega;
-        self.kappa.map(|k| k * lum)
+        sum.map(|s| s * self.texel_omega)
     }
 }
 
-impl ControlTables {
+impl ControlTables<'_> {
     /// `J = Σ β_i J_i` of several records at once (the same value as summing
     /// [`Self::record_integral`]s). The records of one lookup agree on most of the sphere,
     /// so they are walked together one 64-texel word at a time: each distinct word is
@@ -292,25 +323,30 @@ impl ControlTables {
         let nodes = LuminanceNodes { product, dist };
         let m = self.record_m;
         let words = first.bit_words().len();
+        // Words per region: a word's colour is `colours[w >> shift]`.
+        let shift = 2 * (word_level(m) - self.region_level);
+        let regions = (self.colours, shift);
         let sum = {
             #[cfg(target_arch = "x86_64")]
             {
                 use crate::simd::{level, SimdLevel};
                 match level() {
                     // SAFETY (both): the CPU has the features, detected by `crate::simd`.
-                    SimdLevel::Avx512 => unsafe { nodes.interpolated_avx512(m, words, maps, beta) },
-                    SimdLevel::Avx2 => unsafe { nodes.interpolated_avx2(m, words, maps, beta) },
-                    _ => nodes.interpolated(m, words, maps, beta, word_sum_portable),
+                    SimdLevel::Avx512 => unsafe {
+                        nodes.interpolated_avx512(m, words, maps, beta, regions)
+                    },
+                    SimdLevel::Avx2 => unsafe {
+                        nodes.interpolated_avx2(m, words, maps, beta, regions)
+                    },
+                    _ => nodes.interpolated(m, words, maps, beta, regions, word_sum_portable),
                 }
             }
             #[cfg(not(target_arch = "x86_64"))]
-            nodes.interpolated(m, words, maps, beta, word_sum_portable)
+            nodes.interpolated(m, words, maps, beta, regions, word_sum_portable)
         };
-        let lum = sum * self.texel_omega;
-        self.kappa.map(|k| k * lum)
+        sum.map(|s| s * self.texel_omega)
     }
 }
-
 /// `Σ L_lum B~` (the map's sampling weights times `B~`) over quadtree nodes of any level:
 /// the product's pyramid down to its cells, then `B~` of the cell times the map's own
 /// luminance pyramid (split evenly below its texels).
@@ -367,10 +403,11 @@ impl LuminanceNodes<'_> {
         WordWeights::Given(buf)
     }
 
-    /// `Σ_w Σ_x β_x ∫_x` over the words `w` of `maps` (level `m`, `words` each) and each
-    /// distinct non-zero word `x` among them, `β_x` the summed `β` of the maps holding it:
-    /// full words are one node of the pyramid, partial ones `sum` over their texels'
-    /// weights. Inlined into one function per kernel.
+    /// `Σ_w κ(w) Σ_x β_x ∫_x` over the words `w` of `maps` (level `m`, `words` each) and
+    /// each distinct non-zero word `x` among them, `β_x` the summed `β` of the maps holding
+    /// it, `κ(w) = colours[w >> shift]` the colour of the word's region: full words are one
+    /// node of the pyramid, partial ones `sum` over their texels' weights. Inlined into one
+    /// function per kernel.
     #[inline(always)]
     fn interpolated(
         &self,
@@ -378,9 +415,10 @@ impl LuminanceNodes<'_> {
         words: usize,
         maps: &[VisibilityView],
         beta: &[f32],
+        (colours, shift): (&[[f64; 3]], u32),
         sum: impl Fn(u64, WordWeights, &mut [f64; 64]) -> f64,
-    ) -> f64 {
-        let mut total = 0.0f64;
+    ) -> [f64; 3] {
+        let mut total = [0.0f64; 3];
         let mut seen = [(0u64, 0.0f64); MAX_KEPT];
         let (mut buf, mut scratch) = ([0.0f64; 64], [0.0f64; 64]);
         let bits: [&[u64]; MAX_KEPT] =
@@ -401,14 +439,20 @@ impl LuminanceNodes<'_> {
                     }
                 }
             }
+            if distinct == 0 {
+                continue;
+            }
+            let mut word_total = 0.0f64;
             for &(x, b) in &seen[..distinct] {
                 let integral = if x == u64::MAX && m >= 3 {
                     self.node(m - 3, w as u32)
                 } else {
                     sum(x, self.word_weights(m, w, &mut buf), &mut scratch)
                 };
-                total += b * integral;
+                word_total += b * integral;
             }
+            let c = colours[w >> shift];
+            total = std::array::from_fn(|k| total[k] + c[k] * word_total);
         }
         total
     }
@@ -422,8 +466,11 @@ impl LuminanceNodes<'_> {
         words: usize,
         maps: &[VisibilityView],
         beta: &[f32],
-    ) -> f64 {
-        self.interpolated(m, words, maps, beta, |x, w, buf| word_sum_avx512(x, w, buf))
+        regions: (&[[f64; 3]], u32),
+    ) -> [f64; 3] {
+        self.interpolated(m, words, maps, beta, regions, |x, w, buf| {
+            word_sum_avx512(x, w, buf)
+        })
     }
 
     /// [`Self::interpolated`] with the AVX2 kernel.
@@ -435,8 +482,11 @@ impl LuminanceNodes<'_> {
         words: usize,
         maps: &[VisibilityView],
         beta: &[f32],
-    ) -> f64 {
-        self.interpolated(m, words, maps, beta, |x, w, buf| word_sum_avx2(x, w, buf))
+        regions: (&[[f64; 3]], u32),
+    ) -> [f64; 3] {
+        self.interpolated(m, words, maps, beta, regions, |x, w, buf| {
+            word_sum_avx2(x, w, buf)
+        })
     }
 }
 
@@ -450,8 +500,11 @@ pub struct Interpolant {
     beta: [f32; MAX_KEPT],
     /// `J = Σ β_i J_i` per channel (0 without records).
     pub j: [f64; 3],
-    /// `∫ L_c B~ dω` unoccluded: `g/p = unoccluded · Ṽ` for every product sample.
-    pub unoccluded: [f64; 3],
+    /// `∫ L B~ dω` unoccluded (luminance): `g_c/p = κ_c(ω) · unoccluded · Ṽ(ω)` for
+    /// every product sample.
+    pub unoccluded: f64,
+    /// Level of the colour regions `κ` is read at ([`region_level`]).
+    pub region_level: u32,
 }
 
 /// Most records an interpolant keeps (the cache's `n_keep` cap).
@@ -464,7 +517,8 @@ impl Interpolant {
         ids: [0; MAX_KEPT],
         beta: [0.0; MAX_KEPT],
         j: [0.0; 3],
-        unoccluded: [0.0; 3],
+        unoccluded: 0.0,
+        region_level: 0,
     };
 
     /// The interpolant of `lookup`, with `J = Σ β_i J_i` integrated against `tables` for
@@ -482,7 +536,8 @@ impl Interpolant {
             out.len += 1;
         }
         if let Some((tables, product, env)) = tables {
-            out.unoccluded = tables.total();
+            out.unoccluded = tables.total_luminance();
+            out.region_level = tables.region_level();
             let store = state.store();
             let maps: [VisibilityView; MAX_KEPT] =
                 std::array::from_fn(|i| store.bits(out.ids[i.min(out.len.max(1) - 1)] as usize));
@@ -704,23 +759,29 @@ pub fn neighbour_alphas(
 /// the plain term `L B V / p` is the renderer's; this is `g/p` and the records' verdicts.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ControlSample {
-    /// `g / p = κ L_lum B~ Ṽ / p = (∫ L B~ dω) Ṽ` per channel.
+    /// `g / p = κ(ω) L_lum B~ Ṽ / p = κ(ω) (∫ L B~ dω) Ṽ` per channel.
     pub value: [f64; 3],
     /// Bit `i` set when kept record `i` sees the sampled direction.
     pub visible_mask: u32,
 }
 
 /// `g/p` for a product sample at square point `square`: the product's pdf is
-/// `L_lum B~ / ∫ L_lum B~`, so `g/p` is the unoccluded integral times `Ṽ` there.
+/// `L_lum B~ / ∫ L_lum B~`, so `g/p` is the unoccluded integral times `Ṽ` there, in the
+/// colour of the region of `chroma` (the map the interpolant's `J` was integrated under)
+/// that holds the point.
 #[inline]
 pub fn control_sample(
     state: &CacheState,
     interpolant: &Interpolant,
+    chroma: &MapChroma,
     square: DVec2,
 ) -> ControlSample {
     let (v, mask) = interpolant.eval(state, square);
+    let level = interpolant.region_level;
+    let colour = chroma.chroma(level)[record_texel_code(square, level) as usize];
+    let scale = interpolant.unoccluded * v;
     ControlSample {
-        value: interpolant.unoccluded.map(|c| c * v),
+        value: colour.map(|c| c * scale),
         visible_mask: mask,
     }
 }
@@ -766,35 +827,40 @@ mod tests {
         .unwrap()
     }
 
-    /// `(∫ L_c B~ dω, ∫ L_lum B~ dω, ∫ L_lum B~ V dω)` as plain sums over the finest grid
-    /// of the three (texels of equal solid angle), independent of pyramids and hierarchies.
+    /// `(∫ κ L_lum B~ dω, ∫ L_lum B~ dω, ∫ κ L_lum B~ V dω)` as plain sums over the finest
+    /// grid of the three (texels of equal solid angle), `κ` the colour of each texel's
+    /// region of level `regions` under `chroma`, independent of pyramids and hierarchies.
     fn brute_force(
         env: &EnvMap,
+        chroma: &MapChroma,
+        regions: u32,
         product: &ProductDistribution,
         bits: &VisibilityBits,
-    ) -> ([f64; 3], f64, f64) {
+    ) -> ([f64; 3], f64, [f64; 3]) {
         let e = env.resolution().trailing_zeros();
         let (p, m) = (product.level(), bits.m());
         let f = e.max(p).max(m);
         let side = 1u32 << f;
         let omega = texel_solid_angle(side);
-        let (mut rgb, mut lum, mut j) = ([0.0f64; 3], 0.0, 0.0);
+        let (mut total, mut lum, mut j) = ([0.0f64; 3], 0.0, [0.0f64; 3]);
         for code in 0..side * side {
             let t = morton_decode(code);
             let env_texel = UVec2::new(t.x >> (f - e), t.y >> (f - e));
             let l = env.texels()[(env_texel.y * env.resolution() + env_texel.x) as usize];
             let cell = morton_encode(t.x >> (f - p), t.y >> (f - p));
             let b = product.bsdf_cells()[cell as usize] as f64 * omega;
-            let y = crate::lights::envmap::luminance(l);
+            let y = crate::lights::envmap::luminance(l) * b;
+            let kappa = chroma.chroma(regions)[(code >> (2 * (f - regions))) as usize];
+            let visible = bits.get(morton_encode(t.x >> (f - m), t.y >> (f - m)) as usize);
             for c in 0..3 {
-                rgb[c] += l[c] as f64 * b;
+                total[c] += kappa[c] * y;
+                if visible {
+                    j[c] += kappa[c] * y;
+                }
             }
-            lum += y * b;
-            if bits.get(morton_encode(t.x >> (f - m), t.y >> (f - m)) as usize) {
-                j += y * b;
-            }
+            lum += y;
         }
-        (rgb, lum, j)
+        (total, lum, j)
     }
 
     fn close(a: [f64; 3], b: [f64; 3], rel: f64) -> bool {
@@ -829,20 +895,11 @@ mod tests {
                 for seed in 0..4u64 {
                     let bits = random_bits(m, 100 * k as u64 + 10 * i as u64 + seed);
                     let j = tables.record_integral(bits.view(), &product, &env);
-                    let (rgb, lum, j_lum) = brute_force(&env, &product, &bits);
-                    // κ is the chroma of 8 x 8 regions weighted by the product: luminance
-                    // 1, near the exact colour ratio of the lit integral.
-                    let kappa = tables.kappa();
-                    let y: f64 = kappa
-                        .iter()
-                        .zip(crate::lights::envmap::LUMINANCE)
-                        .map(|(a, b)| a * b)
-                        .sum();
-                    assert!((y - 1.0).abs() < 1e-9, "{kappa:?}");
-                    let exact = rgb.map(|c| c / lum);
-                    assert!(close(kappa, exact, 0.2), "{kappa:?} vs {exact:?}");
-                    assert!(close(tables.total(), kappa.map(|c| c * lum), 1e-9));
-                    let expect = kappa.map(|c| c * j_lum);
+                    let r = tables.region_level();
+                    assert_eq!(r, region_level(m, level, res.trailing_zeros()));
+                    let (total, lum, expect) = brute_force(&env, &chroma, r, &product, &bits);
+                    assert!(close(tables.total(), total, 1e-9));
+                    assert!((tables.total_luminance() / lum - 1.0).abs() < 1e-9);
                     assert!(
                         close(j, expect, 1e-9),
                         "M={m} P={level} res={res}: {j:?} vs {expect:?}"
@@ -881,7 +938,8 @@ mod tests {
                     [0.0; 3]
                 );
                 // The whole-sphere integral of L B~ is L_ns in RGB: its luminance is the
-                // product's normalisation times a texel's solid angle.
+                // product's normalisation times a texel's solid angle, and the regions'
+                // colours keep it (each has luminance 1).
                 let lum: f64 = tables
                     .total()
                     .iter()
@@ -890,8 +948,33 @@ mod tests {
                     .sum();
                 let l_ns = product.normalization() * texel_solid_angle(res);
                 assert!((lum / l_ns - 1.0).abs() < 1e-9, "{lum} vs {l_ns}");
+                assert!((tables.total_luminance() / l_ns - 1.0).abs() < 1e-9);
+                // In RGB the total is the exact ∫ L_c B~ when the regions are no coarser
+                // than the cells' colours vary: here, within 20% of it.
+                let exact = exact_rgb(&env, &product);
+                assert!(close(tables.total(), exact, 0.2), "{exact:?}");
             }
         }
+    }
+
+    /// `∫ L_c B~ dω` per channel over the product's cells and the map's texels.
+    fn exact_rgb(env: &EnvMap, product: &ProductDistribution) -> [f64; 3] {
+        let e = env.resolution().trailing_zeros();
+        let p = product.level();
+        let f = e.max(p);
+        let side = 1u32 << f;
+        let omega = texel_solid_angle(side);
+        let mut rgb = [0.0f64; 3];
+        for code in 0..side * side {
+            let t = morton_decode(code);
+            let l = env.texels()[((t.y >> (f - e)) * env.resolution() + (t.x >> (f - e))) as usize];
+            let cell = morton_encode(t.x >> (f - p), t.y >> (f - p));
+            let b = product.bsdf_cells()[cell as usize] as f64 * omega;
+            for c in 0..3 {
+                rgb[c] += l[c] as f64 * b;
+            }
+        }
+        rgb
     }
 
     #[test]
@@ -904,7 +987,7 @@ mod tests {
             let total = env.total_power();
             let y: f64 = total.iter().zip(LUMINANCE).map(|(a, b)| a * b).sum();
             assert!(close(c.chroma(0)[0], total.map(|t| t / y), 1e-12));
-            for level in 0..=CHROMA_LEVEL.min(c.depth()) {
+            for level in 0..=MAX_REGION_LEVEL.min(c.depth()) {
                 assert_eq!(c.chroma(level).len(), 1 << (2 * level));
                 for rgb in c.chroma(level) {
                     let y: f64 = rgb.iter().zip(LUMINANCE).map(|(a, b)| a * b).sum();
@@ -1004,7 +1087,7 @@ mod tests {
         for i in 0..300_000u64 {
             let rng = SampleRng::new(5, i, 0);
             let value = match mixture.sample(rng.get2(0), rng.get(2)) {
-                Some(d) => control_sample(&state, &interp, d.square)
+                Some(d) => control_sample(&state, &interp, &chroma, d.square)
                     .value
                     .map(|v| v * d.product_pdf / d.pdf),
                 None => [0.0; 3],
@@ -1044,7 +1127,7 @@ mod tests {
                 let rng = SampleRng::new(3, i, 0);
                 let u = DVec2::new(rng.get(0) as f64, rng.get(1) as f64);
                 let s = product.sample_point(&env, u);
-                let g = control_sample(&state, &interp, s.square);
+                let g = control_sample(&state, &interp, &chroma, s.square);
                 sums.add(Vec3::ZERO, g.value);
             }
             let (mean, var) = sums.estimate([-1.0; 3]);
