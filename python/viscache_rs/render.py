@@ -1,8 +1,10 @@
-"""The renderer: direct illumination from the environment map and area lights.
+"""The renderer: direct illumination from the environment map and area lights, and
+indirect light by path tracing.
 
 ``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
 time_budget=None, envmap=None, product_level="auto", cache=None, preset="auto", jitter=True,
-alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None)`` renders
+alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None, bounces=None,
+direct=True)`` renders
 ``setup.scene`` lit by ``setup.envmap`` (or ``envmap``) and the scene's area lights, through
 ``camera`` (default: the setup's). Methods:
 
@@ -20,7 +22,13 @@ alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None)`` rende
   Cov(Z, W) / Var(W) pooled over the other pixels of a ``(2 alpha_radius + 1)^2`` window,
   which keeps the estimate unbiased (``res.alpha`` holds it). The records' misses go back
   to the cache (CAM08 sec. 5.3); ``insert_missing=True`` then gives records to the points
-  that found none.
+  that found none;
+- ``"path"``: the unbiased reference with indirect light: ``"mis"`` at the first hit plus
+  ``bounces`` (default 1) bounces of a path that samples the BSDF and estimates direct
+  light by MIS at every vertex it reaches; Russian roulette from the second bounce.
+  ``direct=False`` keeps only the indirect part (no emitters or map seen by the camera, no
+  direct light at the first hit): what irradiance caching and VF approximate. Any other
+  method takes ``bounces`` too (default 0), its own estimator then shading the first hit.
 
 All are unbiased estimators of the same image. Every pixel's per-point work (the product
 distribution, the cache lookup, J) is done once, at its *anchor*, the first hit through its
@@ -88,6 +96,8 @@ def render(
     alpha_radius: int = 4,
     insert_missing: bool = False,
     technique_weights: dict[str, float] | None = None,
+    bounces: int | None = None,
+    direct: bool = True,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     camera = setup.camera if camera is None else camera
@@ -139,6 +149,8 @@ def render(
             alpha_radius=alpha_radius,
             insert_missing=insert_missing,
             technique_weights=technique_weights,
+            bounces=bounces,
+            direct=direct,
         )
     finally:
         if bar is not None:

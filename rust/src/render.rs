@@ -1,6 +1,7 @@
 //! The renderer: direct illumination from an environment map and area lights by any
 //! [`Method`] of [`crate::estimators::direct`], including the visibility cache's control
-//! variate ([`crate::estimators::control_variate`]).
+//! variate ([`crate::estimators::control_variate`]), and optionally indirect light by
+//! path tracing ([`crate::estimators::indirect`]).
 //!
 //! ## Anchors and samples
 //! Every pixel has an *anchor*, the first hit through its centre (the G-buffer's point,
@@ -27,6 +28,13 @@
 //! column shares its left neighbour's cache lookup when the two anchors nearly coincide
 //! ([`Shader::shared_lookup`]): any `Ṽ` keeps the control variate unbiased, and the lookup
 //! is a third of what the control variate adds per pixel.
+//!
+//! ## Indirect light
+//! With [`RenderParams::bounces`] `k > 0` every sample adds `k` bounces of a path from its
+//! hit ([`crate::estimators::indirect`]) to whatever the method estimates there; the path
+//! reads dimensions above the direct estimate's, so the direct part of each sample is
+//! the same number with or without bounces. Without [`RenderParams::direct`] the sample
+//! is the path's part alone (the map and emitters the camera sees count as direct).
 //!
 //! ## Passes, progress and budgets
 //! Without a time budget the render is one pass of `spp` samples per pixel. With one, a
@@ -75,6 +83,7 @@ use crate::estimators::direct::{
     DirectCounters, GuidedProduct, Lighting, Method, ProductDistribution, ProductLevel,
     ShadingPoint, Techniques,
 };
+use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParams, MAX_BOUNCES};
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
@@ -117,6 +126,12 @@ pub struct RenderParams {
     /// points that found none (§5.2's criteria re-checked, in pixel order), so the next
     /// render of the view finds them.
     pub insert_missing: bool,
+    /// Bounces of indirect light added to every sample by path tracing
+    /// ([`crate::estimators::indirect`]), `0..=MAX_BOUNCES`; 0: direct light only.
+    pub bounces: u32,
+    /// Whether the image holds direct light (what the camera sees of emitters and the map,
+    /// and light reflected once); `false` keeps only the indirect part (`bounces >= 1`).
+    pub direct: bool,
 }
 
 impl RenderParams {
@@ -132,6 +147,8 @@ impl RenderParams {
         techniques: None,
         alpha: AlphaRule::PAPER,
         insert_missing: false,
+        bounces: 0,
+        direct: true,
     };
 
     /// The defaults with another method and sample count.
@@ -149,6 +166,15 @@ impl RenderParams {
         self.jitter = false;
         self.techniques = Some(Techniques::PRODUCT_ONLY);
         self
+    }
+
+    /// The unbiased reference with indirect light: light and BSDF sampling (MIS) at every
+    /// vertex and `bounces` bounces ([`crate::estimators::indirect`]).
+    pub const fn path(bounces: u32, spp: u32) -> Self {
+        Self {
+            bounces,
+            ..Self::with(Method::Mis, spp)
+        }
     }
 
     /// The mixture's weights: the given ones or the method's default.
@@ -172,6 +198,18 @@ impl RenderParams {
                     format!("must be a positive number of seconds, got {b}"),
                 ));
             }
+        }
+        if self.bounces > MAX_BOUNCES {
+            return Err(Error::invalid(
+                "bounces",
+                format!("must lie in [0, {MAX_BOUNCES}], got {}", self.bounces),
+            ));
+        }
+        if !self.direct && self.bounces == 0 {
+            return Err(Error::invalid(
+                "direct",
+                "False leaves nothing to render without bounces: set bounces >= 1",
+            ));
         }
         self.product_level.validate()?;
         self.techniques().validate(self.jitter)?;
@@ -214,8 +252,10 @@ pub struct StageSeconds {
     /// `J`: the control variate's integral (prefix sums and hierarchy traversals).
     pub control: f64,
     /// The samples: their jittered primary rays, sampling and shading, BSDF evaluation,
-    /// shadow and BSDF rays, `Ṽ`.
+    /// shadow and BSDF rays, `Ṽ` (indirect paths included).
     pub shading: f64,
+    /// Of `shading`, the indirect paths ([`RenderParams::bounces`]).
+    pub indirect: f64,
 }
 
 /// Figures of one render.
@@ -237,6 +277,8 @@ pub struct RenderStats {
     pub shadow_rays: u64,
     /// BSDF rays traced.
     pub bsdf_rays: u64,
+    /// Bounce rays of indirect paths traced.
+    pub bounce_rays: u64,
     /// All rays per wall-clock second.
     pub rays_per_second: f64,
     /// Per-stage CPU seconds.
@@ -294,6 +336,7 @@ struct BandWork {
     lookup_ns: u64,
     control_ns: u64,
     shading_ns: u64,
+    indirect_ns: u64,
     /// Pixels shaded in this pass (each prepares its anchor) and samples taken.
     anchored_pixels: u64,
     samples: u64,
@@ -344,6 +387,7 @@ impl BandWork {
     fn merge(&mut self, o: BandWork) {
         self.direct.shadow_rays += o.direct.shadow_rays;
         self.direct.bsdf_rays += o.direct.bsdf_rays;
+        self.direct.bounce_rays += o.direct.bounce_rays;
         self.bvh += o.bvh;
         self.primary_rays += o.primary_rays;
         self.primary_ns += o.primary_ns;
@@ -351,6 +395,7 @@ impl BandWork {
         self.lookup_ns += o.lookup_ns;
         self.control_ns += o.control_ns;
         self.shading_ns += o.shading_ns;
+        self.indirect_ns += o.indirect_ns;
         self.anchor_ns += o.anchor_ns;
         self.sample_ns += o.sample_ns;
         self.unmatched_samples += o.unmatched_samples;
@@ -446,18 +491,7 @@ impl Shader<'_> {
         let Some(hit) = hit else {
             return (dir, None);
         };
-        let wo = -dir;
-        let normal = if hit.normal.dot(wo) < 0.0 {
-            -hit.normal
-        } else {
-            hit.normal
-        };
-        let sp = ShadingPoint {
-            origin: scene.offset_hit(&hit, normal),
-            normal,
-            wo,
-            material: scene.mesh().objects[hit.obj as usize].material,
-        };
+        let sp = shading_point_at(scene, &hit, -dir);
         (dir, Some((hit, sp)))
     }
 
@@ -614,6 +648,10 @@ impl Shader<'_> {
         work: &mut BandWork,
         verdicts: &mut [(u32, u32)],
     ) -> (Vec3, [f64; 3]) {
+        let indirect = self.indirect(sp, rng, work);
+        if !self.params.direct {
+            return (indirect, [0.0; 3]);
+        }
         if !self.uses_product() {
             let l = self.lighting.estimate(
                 sp,
@@ -622,7 +660,7 @@ impl Shader<'_> {
                 &mut work.direct,
                 &mut work.bvh,
             );
-            return (emitted + l, [0.0; 3]);
+            return (emitted + l + indirect, [0.0; 3]);
         }
         // The anchor's product where it describes the hit; BSDF and map sampling elsewhere.
         let (product, guided, techniques) = match anchor {
@@ -640,7 +678,7 @@ impl Shader<'_> {
             &mut work.direct,
             &mut work.bvh,
         );
-        let z = emitted + l;
+        let z = emitted + l + indirect;
         let (Some(a), Some((state, _)), Some(chroma), true) =
             (anchor, self.cache, self.chroma, matched)
         else {
@@ -669,6 +707,34 @@ impl Shader<'_> {
         (z, w)
     }
 
+    /// The light of [`RenderParams::bounces`] bounces at `sp` (zero without), on the
+    /// dimensions above the direct estimate's ([`crate::estimators::indirect`]).
+    fn indirect(&self, sp: &ShadingPoint, rng: &PixelSampler, work: &mut BandWork) -> Vec3 {
+        if self.params.bounces == 0 {
+            return Vec3::ZERO;
+        }
+        let start = Instant::now();
+        let l = estimate_indirect(
+            &self.lighting,
+            sp,
+            &PathParams::new(self.params.bounces),
+            rng,
+            &mut work.direct,
+            &mut work.bvh,
+        );
+        work.indirect_ns += elapsed_ns(start);
+        l
+    }
+
+    /// What the camera sees of the map through a pixel: direct light.
+    fn background(&self, radiance: Vec3) -> Vec3 {
+        if self.params.direct {
+            radiance
+        } else {
+            Vec3::ZERO
+        }
+    }
+
     /// Samples `samples` of one pixel, accumulated into `acc`.
     fn shade_pixel(
         &self,
@@ -692,7 +758,7 @@ impl Shader<'_> {
             let rng = PixelSampler::new(seed, pixel as u64, s as u64);
             let (z, w) = if self.params.jitter {
                 match self.trace_sample(pixel, &rng, work) {
-                    SampleHit::Miss(l) => (l, [0.0; 3]),
+                    SampleHit::Miss(l) => (self.background(l), [0.0; 3]),
                     SampleHit::Surface {
                         sp,
                         object,
@@ -715,7 +781,7 @@ impl Shader<'_> {
                 }
             } else {
                 match anchor.as_ref().expect("fixed points have an anchor") {
-                    Point::Miss(l) => (*l, [0.0; 3]),
+                    Point::Miss(l) => (self.background(*l), [0.0; 3]),
                     Point::Surface(p) => {
                         self.sample(Some(p), &p.sp, p.emitted, true, &rng, work, &mut verdicts)
                     }
@@ -929,12 +995,14 @@ pub fn render(
         primary_rays: total.primary_rays,
         shadow_rays: total.direct.shadow_rays,
         bsdf_rays: total.direct.bsdf_rays,
+        bounce_rays: total.direct.bounce_rays,
         stages: StageSeconds {
             primary: total.primary_ns as f64 * 1e-9,
             product: total.product_ns as f64 * 1e-9,
             lookup: total.lookup_ns as f64 * 1e-9,
             control: total.control_ns as f64 * 1e-9,
             shading: total.shading_ns as f64 * 1e-9,
+            indirect: total.indirect_ns as f64 * 1e-9,
         },
         cache_points: total.cache_points,
         points_without_records: total.points_without_records,
@@ -969,7 +1037,7 @@ pub fn render(
         }
     }
     stats.seconds = start.elapsed().as_secs_f64();
-    let rays = stats.primary_rays + stats.shadow_rays + stats.bsdf_rays;
+    let rays = stats.primary_rays + stats.shadow_rays + stats.bsdf_rays + stats.bounce_rays;
     stats.rays_per_second = rays as f64 / stats.seconds.max(1e-9);
     Ok(Rendered {
         width: camera.width,

@@ -240,6 +240,9 @@ pub struct DirectCounters {
     pub shadow_rays: u64,
     /// BSDF rays traced (closest-hit queries).
     pub bsdf_rays: u64,
+    /// Bounce rays of indirect paths (closest-hit queries,
+    /// [`super::indirect::estimate_indirect`]).
+    pub bounce_rays: u64,
 }
 
 /// The product distribution of one shading point (CAM08 §5.5).

@@ -15,7 +15,11 @@ use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
 use crate::estimators::control_variate::AlphaRule;
 use crate::estimators::direct::{Method, Techniques};
+use crate::estimators::indirect::MAX_BOUNCES;
 use crate::render::{render as render_core, RenderParams, MAX_SPP};
+
+/// The method name of the path-traced reference (direct light by MIS plus `bounces`).
+const PATH: &str = "path";
 
 /// `alpha`: a number, or "estimate" (neighbour pooling with `radius`).
 fn alpha_arg(alpha: Option<&Bound<'_, PyAny>>, radius: u32) -> PyResult<AlphaRule> {
@@ -73,7 +77,7 @@ fn techniques_arg(weights: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Techniq
 /// after every pass with the GIL held; a falsy return or an exception stops the render
 /// (the exception is then raised).
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp, method, seed=None, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=None, insert_missing=false, technique_weights=None))]
+#[pyo3(signature = (scene, envmap, camera, spp, method, seed=None, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=None, insert_missing=false, technique_weights=None, bounces=None, direct=true))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -93,11 +97,24 @@ pub fn render<'py>(
     alpha_radius: Option<&Bound<'py, PyAny>>,
     insert_missing: bool,
     technique_weights: Option<&Bound<'py, PyAny>>,
+    bounces: Option<&Bound<'py, PyAny>>,
+    direct: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let method = Method::from_name(method).ok_or_else(|| {
-        let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
-        PyValueError::new_err(format!("method: expected one of {names:?}, got {method:?}"))
-    })?;
+    // "path": the unbiased reference with indirect light, MIS at every vertex.
+    let path = method == PATH;
+    let method = if path {
+        Method::Mis
+    } else {
+        Method::from_name(method).ok_or_else(|| {
+            let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).chain([PATH]).collect();
+            PyValueError::new_err(format!("method: expected one of {names:?}, got {method:?}"))
+        })?
+    };
+    let min_bounces = if path { 1 } else { 0 };
+    let bounces = match bounces {
+        Some(b) if !b.is_none() => int_arg(b, "bounces", min_bounces, MAX_BOUNCES as i128)? as u32,
+        _ => min_bounces as u32,
+    };
     let radius = alpha_radius.map_or(Ok(4), |r| int_arg(r, "alpha_radius", 1, 64))? as u32;
     let params = RenderParams {
         spp: int_arg(spp, "spp", 1, MAX_SPP as i128)? as u32,
@@ -112,6 +129,8 @@ pub fn render<'py>(
         techniques: techniques_arg(technique_weights)?,
         alpha: alpha_arg(alpha, radius)?,
         insert_missing,
+        bounces,
+        direct,
     };
     params.validate().py()?;
     let threads = threads_arg(threads)?;
@@ -150,7 +169,9 @@ pub fn render<'py>(
     }
     let s = &out.stats;
     let stats = PyDict::new(py);
-    stats.set_item("method", method.name())?;
+    stats.set_item("method", if path { PATH } else { method.name() })?;
+    stats.set_item("bounces", params.bounces)?;
+    stats.set_item("direct", params.direct)?;
     stats.set_item("seconds", s.seconds)?;
     stats.set_item("spp", s.spp)?;
     stats.set_item("passes", s.passes)?;
@@ -169,6 +190,7 @@ pub fn render<'py>(
     stats.set_item("primary_rays", s.primary_rays)?;
     stats.set_item("shadow_rays", s.shadow_rays)?;
     stats.set_item("bsdf_rays", s.bsdf_rays)?;
+    stats.set_item("bounce_rays", s.bounce_rays)?;
     stats.set_item("rays_per_second", s.rays_per_second)?;
     stats.set_item("samples_per_second", s.samples as f64 / s.seconds.max(1e-9))?;
     stats.set_item("primary_seconds", s.stages.primary)?;
@@ -176,6 +198,7 @@ pub fn render<'py>(
     stats.set_item("lookup_seconds", s.stages.lookup)?;
     stats.set_item("control_seconds", s.stages.control)?;
     stats.set_item("shading_seconds", s.stages.shading)?;
+    stats.set_item("indirect_seconds", s.stages.indirect)?;
     stats.set_item("reused_products", s.reused_products)?;
     stats.set_item(
         "direct_seconds",

@@ -183,6 +183,22 @@ impl PyScene {
         self.edit(|s| s.add_area_light(&v, radiance, name)).py()
     }
 
+    /// Makes object `obj` emit `radiance` (W/(m² sr), RGB) on the side of its triangles'
+    /// winding normal, keeping its material (a lamp modelled as geometry, or the walls
+    /// of a furnace). Fails, leaving the scene unchanged, if it already emits.
+    #[pyo3(signature = (obj, radiance))]
+    fn set_emitter(&self, obj: &Bound<'_, PyAny>, radiance: &Bound<'_, PyAny>) -> PyResult<()> {
+        let n = self.get().mesh().objects.len();
+        let obj = int_arg(obj, "obj", 0, n as i128 - 1)? as u32;
+        let radiance = vec3_arg(radiance, "radiance")?;
+        if self.get().emitter(obj).is_some() {
+            return Err(PyValueError::new_err(format!(
+                "obj: object {obj} already emits"
+            )));
+        }
+        self.edit(|s| s.set_emitter(obj, radiance)).py()
+    }
+
     /// Object ids of the area lights, in the order they were added.
     fn area_lights(&self) -> Vec<u32> {
         self.get().area_lights().iter().map(|l| l.object).collect()
