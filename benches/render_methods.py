@@ -16,7 +16,6 @@ import numpy as np
 import viscache_rs as vc
 
 METHODS = ["env", "bsdf", "mis", "product"]
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 def glossy_mask(setup) -> np.ndarray:
@@ -44,7 +43,7 @@ def main() -> None:
         vc.render(setup, spp=1, method="mis", threads=args.threads, progress=False)  # warm-up
         for method in METHODS:
             r = vc.render(setup, spp=args.spp, method=method, threads=args.threads, progress=False)
-            var = r.variance @ LUMINANCE**2
+            var = vc.metrics.luminance_variance(r.variance)
             row = {
                 "scene": name,
                 "method": method,

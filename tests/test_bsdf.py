@@ -4,6 +4,7 @@ and bad input."""
 import numpy as np
 import pytest
 import viscache_rs as vc
+from viscache_rs.metrics import luminance
 
 RNG = np.random.default_rng(7)
 N0 = np.array([0.3, 0.8, -0.5]) / np.linalg.norm([0.3, 0.8, -0.5])
@@ -113,7 +114,7 @@ def test_product_cells_conservative_and_row_major(m):
         assert b.shape == (res, res) and b.dtype == np.float32
         assert np.all(b >= 0) and np.all(np.isfinite(b))
         f = m.eval(rep(n, len(pts)), rep(wo, len(pts)), pts)
-        g = (f @ [0.2126, 0.7152, 0.0722]) * np.maximum(pts @ n, 0)
+        g = luminance(f) * np.maximum(pts @ n, 0)
         g = g.reshape(res, res, sub * sub)
         positive = (g > 0).any(2)
         assert np.all(b[positive] > 0), np.argwhere(positive & (b == 0))

@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 import viscache_rs as vc
 from conftest import bonferroni_z
-
-LUM = np.array([0.2126, 0.7152, 0.0722])
+from viscache_rs.metrics import luminance, luminance_variance
 
 
 @pytest.fixture(scope="module")
@@ -56,8 +55,8 @@ def _assert_agree(a, b, min_coverage, label):
     assert clt.mean() >= min_coverage, f"{label}: only {clt.mean():.3f} of pixels compared"
     bad = clt & (np.abs(diff) > z * se)
     assert bad.sum() == 0, f"{label}: {bad.sum()} pixel channels beyond {z:.2f} SE"
-    mean_diff = (diff @ LUM).mean()
-    mean_se = math.sqrt(((a.variance + b.variance) @ LUM**2).sum()) / n_pix
+    mean_diff = luminance(diff).mean()
+    mean_se = math.sqrt(luminance_variance(a.variance + b.variance).sum()) / n_pix
     assert abs(mean_diff / mean_se) < 4, f"{label}: image means {mean_diff / mean_se:.2f} SE apart"
 
 
@@ -78,7 +77,8 @@ def test_cv_agrees_with_product(request, which, alpha):
     _assert_agree(cv, product, 0.45, f"{which} alpha={alpha}")
     # The cache was used, and it helped.
     assert cv.stats["records_per_point"] > 1.0
-    assert (cv.variance @ LUM**2).mean() < 0.8 * (product.variance @ LUM**2).mean()
+    assert (luminance_variance(cv.variance).mean()
+            < 0.8 * luminance_variance(product.variance).mean())
 
 
 def test_cv_agrees_with_product_in_the_closed_cornell_box():
@@ -153,7 +153,7 @@ def test_all_visible_records_neither_help_nor_hurt():
     cv = _render(setup, "cv", 64, seed=61, cache=cache, **FIXED)
     assert cv.stats["miss_rate"] < 0.01
     assert np.allclose(cv.image, product.image, rtol=0.05)
-    ratio = (cv.variance @ LUM**2).mean() / (product.variance @ LUM**2).mean()
+    ratio = luminance_variance(cv.variance).mean() / luminance_variance(product.variance).mean()
     assert 0.9 < ratio < 1.1, ratio
     independent = _render(setup, "cv", 64, seed=62, cache=cache, **FIXED)
     _assert_agree(independent, product, 0.9, "open plane")
@@ -283,7 +283,7 @@ def test_preview_is_j_and_traces_no_rays(garage):
     assert (c == 0).all()
     # J approximates the rendered image (CAM08 Fig. 11: blotchy but right on average).
     ref = _render(setup, "product", 64, seed=9)
-    assert abs((a @ LUM).mean() / (ref.image @ LUM).mean() - 1) < 0.15
+    assert abs(luminance(a).mean() / luminance(ref.image).mean() - 1) < 0.15
     assert np.array_equal(vc.preview(setup, cache), a)
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics, scenes
-from .io import to_srgb8, write_png
+from .io import auto_exposure, to_srgb8, write_png
 
 
 def _ratios(res, base) -> str:
@@ -72,7 +72,7 @@ def demo(args: argparse.Namespace) -> int:
     print(f"equal time ({cv_total:.2f} s with the cache build): variance ratio cv/product "
           f"R/G/B {_ratios(cv, prod)}")
     out = Path(args.out)
-    exposure = 0.18 / max(float(np.median(prod.image @ metrics.LUMINANCE)), 1e-6)
+    exposure = auto_exposure(prod.image)
     gap = np.ones_like(prod.image[:, :8])
     side = write_png(out / f"{args.scene}_product_vs_cv.png",
                      to_srgb8(np.concatenate([prod.image, gap, cv.image], axis=1), exposure))

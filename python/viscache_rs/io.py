@@ -12,7 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_path", "to_srgb8", "write_bytes", "write_exr", "write_png"]
+from .metrics import luminance
+
+__all__ = ["atomic_path", "auto_exposure", "to_srgb8", "write_bytes", "write_exr", "write_png"]
 
 
 @contextlib.contextmanager
@@ -41,6 +43,14 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
     with atomic_path(path) as temp:
         temp.write_bytes(data)
     return path
+
+
+def auto_exposure(linear: np.ndarray, key: float = 0.18) -> float:
+    """Exposure for :func:`to_srgb8` that maps the image's median Rec. 709 luminance to
+    ``key`` (photography's middle grey); 1 when the median is not positive (a mostly black
+    image), so such an image is shown as it is rather than blown out."""
+    median = float(np.median(luminance(linear)))
+    return key / median if median > 0 else 1.0
 
 
 def to_srgb8(linear: np.ndarray, exposure: float = 1.0) -> np.ndarray:

@@ -10,6 +10,14 @@ tests use these).
 - :func:`variance_ratio`: per-channel ratio of mean per-pixel variances (an estimator
   against a baseline at equal samples) and their mean.
 - :func:`worst_and_mean`: a suite's worst scene beside its geometric mean.
+- :func:`mean_variance`: the mean over pixels and channels of a per-pixel variance (an
+  image's own noise figure at equal samples); :func:`relative_variance`: the same divided
+  by ``ref^2 + 1e-2`` per pixel, the image's own estimate of its relMSE.
+- :func:`scalar_errors`: RMSE, RMSE / mean, max error and bias of a one-channel image
+  (ambient occlusion) against a reference.
+- :data:`LUMINANCE`, :func:`luminance`, :func:`luminance_variance`: Rec. 709 luminance of
+  linear RGB and the variance of a luminance estimate (exposure, whole-image checks in
+  tests; never an error figure, which would weight blue down).
 
 Pixels where the reference is NaN (no surface in an AO image, say) are left out of every
 mean; a NaN in the image where the reference is finite is an error.
@@ -26,13 +34,19 @@ __all__ = [
     "DENOMINATOR_FLOOR",
     "LUMINANCE",
     "efficiency",
+    "luminance",
+    "luminance_variance",
+    "mean_variance",
+    "relative_variance",
     "relmse",
     "relmse_per_channel",
+    "scalar_errors",
     "variance_ratio",
     "worst_and_mean",
 ]
 
-#: Rec. 709 luminance weights of linear RGB (the one copy in Python).
+#: Rec. 709 luminance weights of linear RGB (the one copy in Python; the Rust core's is
+#: ``lights::envmap::LUMINANCE``, the same three numbers).
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 #: The ``1e-2`` in ``(x - ref)^2 / (ref^2 + 1e-2)``: keeps black pixels from dominating.
@@ -114,3 +128,62 @@ def worst_and_mean(values: Mapping[str, float], higher_is_worse: bool = True
     geomean = math.exp(sum(math.log(v) for _, v in items) / len(items))
     return {"worst": worst[0], "worst_value": worst[1], "geomean": geomean,
             "count": len(items)}
+
+
+def luminance(rgb) -> np.ndarray:
+    """Rec. 709 luminance of linear RGB: an (..., 3) array -> (...), in float64."""
+    return np.asarray(rgb, dtype=np.float64) @ LUMINANCE
+
+
+def luminance_variance(variance) -> np.ndarray:
+    """Variance of the luminance of a pixel from its per-channel variances (..., 3) ->
+    (...): ``sum_c w_c^2 var_c`` with the :data:`LUMINANCE` weights ``w``, in float64.
+    It treats the channels' errors as independent; one sample drives all three, so their
+    errors are positively correlated and the true variance is up to
+    ``(sum_c w_c sqrt(var_c))^2``: a standard error from this is on the small side (a
+    test that uses it is stricter, never looser)."""
+    return np.asarray(variance, dtype=np.float64) @ (LUMINANCE * LUMINANCE)
+
+
+def mean_variance(variance) -> float:
+    """Mean over pixels and channels of a per-pixel variance (of the mean), accumulated in
+    float64; non-finite entries (fewer than two samples, no surface) are left out, NaN when
+    none is finite. Every channel counts the same."""
+    v = np.asarray(variance, dtype=np.float64)
+    keep = np.isfinite(v)
+    return float(np.mean(v[keep])) if keep.any() else math.nan
+
+
+def relative_variance(variance, reference) -> float:
+    """Mean over pixels and channels of ``variance / (ref^2 + 1e-2)``: an image's own
+    estimate of its relMSE against ``reference`` (the expected relMSE of an unbiased image
+    with this per-pixel variance of the mean), and the share :func:`relmse` subtracts for a
+    reference's own variance. Pixels where the reference is NaN are left out."""
+    v = np.asarray(variance, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    if v.shape != ref.shape:
+        raise ValueError(f"variance: shape {v.shape} differs from the reference's {ref.shape}")
+    keep = np.isfinite(ref)
+    share = v / (ref * ref + DENOMINATOR_FLOOR)
+    return float(np.mean(share[keep])) if keep.any() else math.nan
+
+
+def scalar_errors(image, reference) -> dict[str, float]:
+    """Errors of a one-channel image (ambient occlusion in [0, 1]) against a reference,
+    over the pixels where both are finite (no surface: NaN in both): ``rmse``,
+    ``relative_rmse`` (RMSE / the reference's mean), ``max_error`` (largest ``|error|``),
+    ``bias`` (mean error), ``mean_ao`` (the reference's mean) and ``pixels`` (how many
+    were compared). A scalar image has no channel to hide, so RMSE is the figure here; RGB
+    images use :func:`relmse`."""
+    x = np.asarray(image)
+    ref = np.asarray(reference)
+    if x.shape != ref.shape:
+        raise ValueError(f"image: shape {x.shape} differs from the reference's {ref.shape}")
+    m = np.isfinite(x) & np.isfinite(ref)
+    if not m.any():
+        raise ValueError("image: no pixel where both the image and the reference are finite")
+    e = x[m].astype(np.float64) - ref[m]
+    mean = float(ref[m].mean())
+    rmse = float(np.sqrt(np.mean(e * e)))
+    return {"rmse": rmse, "relative_rmse": rmse / mean, "max_error": float(np.abs(e).max()),
+            "bias": float(e.mean()), "mean_ao": mean, "pixels": int(m.sum())}

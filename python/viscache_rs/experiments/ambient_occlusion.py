@@ -6,7 +6,8 @@ without its ceiling and light (closed, every point would see A = 0), cache AO
 (``vc.render_ao`` with its defaults) is compared with a ray-traced reference of 1024
 stratified cosine-weighted rays per shading point at the same points (pixel centres):
 rays per point (record shadow + closest-hit rays for R_i, per covered pixel), the factor
-fewer rays, seconds and speed-up, RMSE (also relative to the mean A), max error, records.
+fewer rays, seconds and speed-up, RMSE (also relative to the mean A), max error, records
+(``vc.metrics.scalar_errors``).
 A second reference with another seed measures the reference's own noise (its RMSE against
 the first, divided by sqrt 2). A sweep over w_min shows the rays/error trade; the paper's
 unclamped R_i criterion (min_radius_scale = 0) is one more row. Target: >= 50x fewer rays
@@ -39,16 +40,6 @@ def open_cornell():
                              name="cornell-open")
 
 
-def errors(image: np.ndarray, reference: np.ndarray) -> dict:
-    """RMSE, RMSE/mean, max |error| and bias over pixels where both have a value."""
-    m = np.isfinite(image) & np.isfinite(reference)
-    e = image[m].astype(np.float64) - reference[m]
-    mean = float(reference[m].mean())
-    rmse = float(np.sqrt(np.mean(e * e)))
-    return {"rmse": rmse, "relative_rmse": rmse / mean, "max_error": float(np.abs(e).max()),
-            "bias": float(e.mean()), "mean_ao": mean, "pixels": int(m.sum())}
-
-
 def run(ctx: ExperimentContext) -> None:
     w, h = (128, 96) if ctx.quick else (256, 192)
     w_mins = [0.35, 0.45, 0.55] if ctx.quick else [0.3, 0.35, 0.4, 0.45, 0.5, 0.55]
@@ -62,9 +53,9 @@ def run(ctx: ExperimentContext) -> None:
         ref = vc.render_ao(setup, cam, reference_rays=REFERENCE_RAYS, **common)
         ref2 = vc.render_ao(setup, cam, reference_rays=REFERENCE_RAYS,
                             **{**common, "seed": ctx.seed + 1})
-        noise = errors(ref2.image, ref.image)["rmse"] / np.sqrt(2)
+        noise = vc.metrics.scalar_errors(ref2.image, ref.image)["rmse"] / np.sqrt(2)
         cache = vc.render_ao(setup, cam, **common)
-        err = errors(cache.image, ref.image)
+        err = vc.metrics.scalar_errors(cache.image, ref.image)
         s, rs = cache.stats, ref.stats
         factor = REFERENCE_RAYS / s["rays_per_point"]
         speedup = rs["seconds"] / s["seconds"]
@@ -106,7 +97,7 @@ def run(ctx: ExperimentContext) -> None:
         variants.append(("unclamped R_i (r=0)", {"min_radius_scale": 0.0}))
         for label, kw in variants:
             v = vc.render_ao(setup, cam, **common, **kw)
-            e = errors(v.image, ref.image)
+            e = vc.metrics.scalar_errors(v.image, ref.image)
             vs = v.stats
             sweep_rows.append([name, label, f"{vs['rays_per_point']:.2f}",
                                f"{REFERENCE_RAYS / vs['rays_per_point']:.1f}x", vs["records"],

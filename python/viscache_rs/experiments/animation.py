@@ -8,6 +8,7 @@ import numpy as np
 
 from .. import metrics, scenes
 from .._core import VisibilityCache
+from ..io import auto_exposure
 from ..render import render
 from ._context import pyplot
 
@@ -30,9 +31,9 @@ with the control variate (method "cv", alpha = 1) in two ways, at the same spp a
 Product importance sampling (no cache) at the same spp is the baseline. Per frame it records
 the cache's records, inserted and evicted records, the cache's shadow rays per pixel
 (build plus validation), render and cache seconds, and the mean over pixels and RGB
-channels of the per-pixel variance of each image, and its ratio to product's per channel
-(``vc.metrics.variance_ratio``) and on average. Quick: 8 frames (every 4th, 0..28),
-128x96, 8 spp; full: 60 frames, 320x240, 16 spp.
+channels of the per-pixel variance of each image (``vc.metrics.mean_variance``), and its
+ratio to product's per channel (``vc.metrics.variance_ratio``) and on average. Quick: 8
+frames (every 4th, 0..28), 128x96, 8 spp; full: 60 frames, 320x240, 16 spp.
 """
 
 def settings(quick: bool) -> dict:
@@ -42,17 +43,6 @@ def settings(quick: bool) -> dict:
                 "preset": "medium", "resolution": 32, "validate_rays": 16}
     return {"frames": list(range(60)), "width": 320, "height": 240, "spp": 16,
             "preset": "medium", "resolution": 32, "validate_rays": 16}
-
-
-def rgb_variance(res) -> float:
-    """Mean over pixels and RGB channels of the variance of the mean."""
-    return float(np.mean(np.asarray(res.variance, dtype=np.float64)))
-
-
-def auto_exposure(rgb: np.ndarray) -> float:
-    """Exposure that maps the image's median luminance to 0.18 (1 for a black image)."""
-    median = float(np.median(np.asarray(rgb, dtype=np.float64) @ metrics.LUMINANCE))
-    return 0.18 / median if median > 0 else 1.0
 
 
 def run(ctx) -> None:
@@ -92,7 +82,7 @@ def run(ctx) -> None:
         row["reuse_rays_per_pixel"] = (report["shadow_rays"] + check["rays"]) / pixels
         res = render(setup, cam, spp=spp, method="cv", cache=reuse, seed=seed, **kw, **fixed)
         row["reuse_render_seconds"] = res.stats["seconds"]
-        row["reuse_variance"] = rgb_variance(res)
+        row["reuse_variance"] = metrics.mean_variance(res.variance)
         reuse_var = res.variance
         row["reuse_miss_rate"] = res.stats["miss_rate"]
         if i == 0:
@@ -108,13 +98,13 @@ def run(ctx) -> None:
         row["fresh_rays_per_pixel"] = report["shadow_rays"] / pixels
         res = render(setup, cam, spp=spp, method="cv", cache=fresh, seed=seed, **kw, **fixed)
         row["fresh_render_seconds"] = res.stats["seconds"]
-        row["fresh_variance"] = rgb_variance(res)
+        row["fresh_variance"] = metrics.mean_variance(res.variance)
         fresh_var = res.variance
         del fresh
 
         res = render(setup, cam, spp=spp, method="product", seed=seed, **kw, **fixed)
         row["product_render_seconds"] = res.stats["seconds"]
-        row["product_variance"] = rgb_variance(res)
+        row["product_variance"] = metrics.mean_variance(res.variance)
         rgb, row["reuse_ratio"] = metrics.variance_ratio(reuse_var, res.variance)
         row["reuse_ratio_rgb"] = rgb.tolist()
         rgb, row["fresh_ratio"] = metrics.variance_ratio(fresh_var, res.variance)

@@ -58,13 +58,6 @@ def settings(quick: bool) -> dict:
             "configs": CV_CONFIGS}
 
 
-def variance_share(variance: np.ndarray, ref: np.ndarray) -> float:
-    """Mean over pixels and channels of variance / (ref^2 + 1e-2): an image's own estimate
-    of its relMSE."""
-    return float(np.mean(np.asarray(variance, np.float64)
-                         / (ref * ref + metrics.DENOMINATOR_FLOOR)))
-
-
 def run(ctx) -> None:
     s = settings(ctx.quick)
     ctx.record("settings", {**s, "configs": [list(c) for c in s["configs"]]})
@@ -79,7 +72,7 @@ def run(ctx) -> None:
                      seed=ctx.seed + 104729, **kw)
         ref_image = np.asarray(ref.image, dtype=np.float64)
         ref_variance = np.asarray(ref.variance, dtype=np.float64)
-        ref_var = variance_share(ref_variance, ref_image)
+        ref_var = metrics.relative_variance(ref_variance, ref_image)
         ctx.record(f"{name}/reference", {"spp": s["reference_spp"],
                                          "seconds": ref.stats["seconds"],
                                          "variance": ref_var})
@@ -98,7 +91,7 @@ def run(ctx) -> None:
                 out.append({"config": label, "spp": spp, "render_seconds": sec,
                             "cache_seconds": build_seconds, "total_seconds": total,
                             "mse_raw": raw, "mse": mse, "mse_rgb": per_channel.tolist(),
-                            "variance": variance_share(res.variance, _ref),
+                            "variance": metrics.relative_variance(res.variance, _ref),
                             "efficiency": metrics.efficiency(mse, sec),
                             "efficiency_total": metrics.efficiency(mse, total),
                             "records": records})

@@ -66,11 +66,6 @@ def settings(quick: bool) -> dict:
             "scenes": ["garage", "dynamics", "garden"], "equal_time_spp": 30}
 
 
-def mean_variance(res) -> float:
-    """Mean over pixels and RGB channels of the variance of the mean."""
-    return float(np.mean(res.variance))
-
-
 def channel_ratios(res, base) -> tuple[list[float], float]:
     """Per-channel variance ratios of ``res`` to ``base`` and their mean."""
     ratios, mean = metrics.variance_ratio(res.variance, base.variance)
@@ -111,7 +106,7 @@ def run(ctx: ExperimentContext) -> None:
                     runs[k].append(render(setup, **kw, **common))
             seconds = {k: min(r.stats["seconds"] for r in v) for k, v in runs.items()}
             prod, cv1, cve = runs["product"][0], runs["cv"][0], runs["cv_est"][0]
-            vp = mean_variance(prod)
+            vp = metrics.mean_variance(prod.variance)
             t_p = seconds["product"]
             row = {"spp": spp, "time_product": t_p, "var_product": vp}
             for key, r in (("cv", cv1), ("cv_est", cve)):
@@ -122,7 +117,7 @@ def run(ctx: ExperimentContext) -> None:
                     f"overhead_{key}_s": t - t_p,
                     f"overhead_{key}_pct": 100 * (t - t_p) / t_p,
                     f"overhead_{key}_with_build_pct": 100 * (t + build["seconds"] - t_p) / t_p,
-                    f"var_{key}": mean_variance(r),
+                    f"var_{key}": metrics.mean_variance(r.variance),
                     f"ratio_{key}": mean_ratio,
                     f"ratio_rgb_{key}": per_channel,
                     f"lookup_s_{key}": r.stats["lookup_seconds"],
@@ -170,7 +165,7 @@ def _equal_time(ctx, setup, cache, rows, cv_spp, build_seconds) -> None:
                 **CAM08_POINTS)
     t_cv = cv.stats["seconds"]
     out = {"cv_spp": cv_spp, "cv_seconds": t_cv, "cache_build_seconds": build_seconds}
-    table = [["cv (alpha est.)", cv_spp, t_cv, mean_variance(cv), "1 / 1 / 1"]]
+    table = [["cv (alpha est.)", cv_spp, t_cv, metrics.mean_variance(cv.variance), "1 / 1 / 1"]]
     images = {}
     for label, budget in (("render", t_cv), ("with_build", t_cv + build_seconds)):
         # At least two samples, so the variance of the mean is defined.
@@ -181,7 +176,8 @@ def _equal_time(ctx, setup, cache, rows, cv_spp, build_seconds) -> None:
         out[label] = {"product_spp": product_spp, "product_seconds": prod.stats["seconds"],
                       "variance_ratio": ratio, "variance_ratio_rgb": per_channel}
         table.append([f"product, equal time ({label.replace('_', ' ')})", product_spp,
-                      prod.stats["seconds"], mean_variance(prod), _rgb(per_channel)])
+                      prod.stats["seconds"], metrics.mean_variance(prod.variance),
+                      _rgb(per_channel)])
         images[label] = prod.image
     ctx.record("equal_time", out)
     ctx.table("Fig. 13: equal time on garage",
