@@ -12,8 +12,8 @@ use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, seed_arg, threads_arg,
-    unit_directions, vec3_arg, IntoPyResult,
+    f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, or_default, seed_arg, seed_or_zero,
+    threads_arg, unit_directions, vec3_arg, IntoPyResult,
 };
 use super::interrupt::{detach_interruptible_with, PyProgress, Report};
 use super::scene::PyScene;
@@ -239,17 +239,16 @@ impl PyVisibilityCache {
     /// that spends `time_budget` seconds. Returns a dict: records, bootstrap_records,
     /// refined_records, discarded_records, pixels, covered_pixels, shadow_rays,
     /// nearest_rays, shadow_rays_per_pixel (CAM08 Table 2's last row), seconds, complete.
-    #[pyo3(signature = (camera, seed=None, threads=None, progress=true, time_budget=None))]
+    #[pyo3(signature = (camera, seed=0, threads=None, progress=true, time_budget=None))]
     fn build<'py>(
         &self,
         py: Python<'py>,
         camera: PyRef<'py, PyCamera>,
-        seed: Option<&Bound<'py, PyAny>>,
+        #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         threads: Option<&Bound<'py, PyAny>>,
         progress: bool,
         time_budget: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let seed = seed.map_or(Ok(0), seed_arg)?;
         let threads = threads_arg(threads)?;
         let budget = match time_budget {
             Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
@@ -498,17 +497,15 @@ impl PyVisibilityCache {
     /// record and the frame) in the scene as it is now and records the disagreements as
     /// misses, as an estimator's samples would (§5.3); call after `setup.at_frame(i)` and
     /// before `end_frame()`. Returns a dict: rays, misses.
-    #[pyo3(signature = (rays_per_record=None, seed=None, threads=None))]
+    #[pyo3(signature = (rays_per_record=16, seed=0, threads=None))]
     fn validate<'py>(
         &self,
         py: Python<'py>,
-        rays_per_record: Option<&Bound<'py, PyAny>>,
-        seed: Option<&Bound<'py, PyAny>>,
+        #[pyo3(from_py_with = rays_per_record_arg)] rays_per_record: u32,
+        #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let k = rays_per_record.map_or(Ok(16), |r| int_arg(r, "rays_per_record", 1, 1 << 14))?;
-        let k = k as u32;
-        let seed = seed.map_or(Ok(0), seed_arg)?;
+        let k = rays_per_record;
         let threads = threads_arg(threads)?;
         let scene = self.scene.borrow(py).get();
         let inner = self.inner.clone();
@@ -633,6 +630,13 @@ impl PyVisibilityCache {
             },
         }
     }
+}
+
+/// Extractor of `rays_per_record=16`.
+fn rays_per_record_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, 16, |o| {
+        Ok(int_arg(o, "rays_per_record", 1, 1 << 14)? as u32)
+    })
 }
 
 /// A 1-D array of counts (non-negative integers below 2^32).

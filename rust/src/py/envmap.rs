@@ -10,7 +10,8 @@ use pyo3::types::{PyDict, PySequence};
 use rayon::prelude::*;
 
 use super::convert::{
-    f64_arg, image3_f32, int_arg, rows2_f64, rows3_array, rows3_f32, vec3_arg, IntoPyResult,
+    f64_arg, image3_f32, int_arg, or_default, rows2_f64, rows3_array, rows3_f32, vec3_arg,
+    IntoPyResult,
 };
 use crate::lights::envmap::{ExrLayout, MAX_EQUIRECT_SIDE, MAX_RESOLUTION};
 use crate::lights::procedural::{self, Window};
@@ -28,16 +29,20 @@ pub struct PyEnvMap {
 }
 
 /// A resolution argument: an integer in `[1, 4096]` that is a power of two.
-fn resolution_arg(obj: Option<&Bound<'_, PyAny>>) -> PyResult<u32> {
-    match obj {
-        None => Ok(DEFAULT_RESOLUTION),
-        Some(o) => {
-            let r = int_arg(o, "resolution", 1, MAX_RESOLUTION as i128)? as u32;
-            crate::lights::envmap::check_resolution(r, "resolution").py()?;
-            Ok(r)
-        }
-    }
+fn resolution_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    let r = int_arg(obj, "resolution", 1, MAX_RESOLUTION as i128)? as u32;
+    crate::lights::envmap::check_resolution(r, "resolution").py()?;
+    Ok(r)
 }
+
+/// Extractor of `resolution=256` ([`DEFAULT_RESOLUTION`], the literal in the signatures).
+fn resolution_or_default(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, DEFAULT_RESOLUTION, resolution_arg)
+}
+const _: () = assert!(
+    DEFAULT_RESOLUTION == 256,
+    "update the signatures' resolution=256"
+);
 
 /// An RGB argument: a number (grey) or three numbers.
 fn rgb_arg(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f32; 3]> {
@@ -142,20 +147,21 @@ impl PyEnvMap {
     /// looks toward -z, W/4 toward +x, W/2 toward +z) onto a `resolution`² octahedral map,
     /// preserving its total power.
     #[staticmethod]
-    #[pyo3(signature = (rgb, resolution=None))]
+    #[pyo3(signature = (rgb, resolution=256))]
     fn from_equirect(
         py: Python<'_>,
         rgb: &Bound<'_, PyAny>,
-        resolution: Option<&Bound<'_, PyAny>>,
+        #[pyo3(from_py_with = resolution_or_default)] resolution: u32,
     ) -> PyResult<Self> {
         let (pixels, h, w) = image3_f32(rgb, "rgb")?;
-        let r = resolution_arg(resolution)?;
         if w > MAX_EQUIRECT_SIDE || h > MAX_EQUIRECT_SIDE {
             return Err(PyValueError::new_err(format!(
                 "rgb: sides must be at most {MAX_EQUIRECT_SIDE}, got {h} x {w}"
             )));
         }
-        let inner = py.detach(|| EnvMap::from_equirect(&pixels, w, h, r)).py()?;
+        let inner = py
+            .detach(|| EnvMap::from_equirect(&pixels, w, h, resolution))
+            .py()?;
         Ok(Self { inner })
     }
 
@@ -192,7 +198,7 @@ impl PyEnvMap {
         resolution: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let r = match resolution {
-            Some(o) if !o.is_none() => Some(resolution_arg(Some(o))?),
+            Some(o) if !o.is_none() => Some(resolution_arg(o)?),
             _ => None,
         };
         let inner = py.detach(|| EnvMap::read_exr(&path, r)).py()?;
@@ -201,18 +207,20 @@ impl PyEnvMap {
 
     /// A uniform map of `value` (a number or an RGB triple, finite, in [0, 1e15]).
     #[staticmethod]
-    #[pyo3(signature = (value, resolution=None))]
-    fn constant(value: &Bound<'_, PyAny>, resolution: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+    #[pyo3(signature = (value, resolution=256))]
+    fn constant(
+        value: &Bound<'_, PyAny>,
+        #[pyo3(from_py_with = resolution_or_default)] resolution: u32,
+    ) -> PyResult<Self> {
         let v = rgb_arg(value, "value")?;
-        let r = resolution_arg(resolution)?;
         Ok(Self {
-            inner: EnvMap::constant(v, r).py()?,
+            inner: EnvMap::constant(v, resolution).py()?,
         })
     }
 
     /// A gradient sky with a disc sun (see `viscache_rs.envmaps.sky`).
     #[staticmethod]
-    #[pyo3(signature = (sun_dir, sun_radiance, sun_angle, zenith, horizon, resolution=None))]
+    #[pyo3(signature = (sun_dir, sun_radiance, sun_angle, zenith, horizon, resolution=256))]
     fn sky(
         py: Python<'_>,
         sun_dir: &Bound<'_, PyAny>,
@@ -220,7 +228,7 @@ impl PyEnvMap {
         sun_angle: &Bound<'_, PyAny>,
         zenith: &Bound<'_, PyAny>,
         horizon: &Bound<'_, PyAny>,
-        resolution: Option<&Bound<'_, PyAny>>,
+        #[pyo3(from_py_with = resolution_or_default)] resolution: u32,
     ) -> PyResult<Self> {
         let sun = Vec3::from(vec3_arg(sun_dir, "sun_dir")?);
         if sun.length() == 0.0 {
@@ -230,9 +238,8 @@ impl PyEnvMap {
         let angle = f64_arg(sun_angle, "sun_angle")? as f32;
         let z = rgb_arg(zenith, "zenith")?;
         let h = rgb_arg(horizon, "horizon")?;
-        let r = resolution_arg(resolution)?;
         let inner = py
-            .detach(|| procedural::sky(sun, sun_rgb, angle, z, h, r))
+            .detach(|| procedural::sky(sun, sun_rgb, angle, z, h, resolution))
             .py()?;
         Ok(Self { inner })
     }
@@ -240,12 +247,12 @@ impl PyEnvMap {
     /// Bright rectangles of directions on a dim background (see
     /// `viscache_rs.envmaps.windows`).
     #[staticmethod]
-    #[pyo3(signature = (windows, background, resolution=None))]
+    #[pyo3(signature = (windows, background, resolution=256))]
     fn windows(
         py: Python<'_>,
         windows: &Bound<'_, PyAny>,
         background: &Bound<'_, PyAny>,
-        resolution: Option<&Bound<'_, PyAny>>,
+        #[pyo3(from_py_with = resolution_or_default)] resolution: u32,
     ) -> PyResult<Self> {
         let seq = windows
             .cast::<PySequence>()
@@ -254,8 +261,9 @@ impl PyEnvMap {
             .map(|i| window_arg(&seq.get_item(i)?, i))
             .collect::<PyResult<_>>()?;
         let bg = rgb_arg(background, "background")?;
-        let r = resolution_arg(resolution)?;
-        let inner = py.detach(|| procedural::windows(&list, bg, r)).py()?;
+        let inner = py
+            .detach(|| procedural::windows(&list, bg, resolution))
+            .py()?;
         Ok(Self { inner })
     }
 

@@ -6,7 +6,8 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use super::convert::{
-    f64_arg, image_array, int_arg, rows3_array, rows3_f32, unit_directions, vec3_arg, IntoPyResult,
+    f64_arg, image_array, int_arg, or_default, rows3_array, rows3_f32, unit_directions, vec3_arg,
+    IntoPyResult,
 };
 use crate::bsdf::{Material, MAX_CELL_LEVEL};
 use crate::sampling::octahedral::morton_encode;
@@ -53,6 +54,13 @@ fn same_len(name: &str, got: usize, want: usize) -> PyResult<()> {
 }
 
 /// A surface material: `Material.lambert(albedo)` or `Material.phong(kd, ks, exponent)`.
+/// Extractor of `level=5` (B~ over 32 x 32 cells, the renderer's product level).
+fn level_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, 5, |o| {
+        Ok(int_arg(o, "level", 1, MAX_CELL_LEVEL as i128)? as u32)
+    })
+}
+
 #[pyclass(
     name = "Material",
     module = "viscache_rs._core",
@@ -171,21 +179,17 @@ impl PyMaterial {
 
     /// B~ for one shading point: the conservative per-cell approximation of
     /// luminance(f_r) cos θi (1/sr) over the 2^level x 2^level octahedral grid, as a
-    /// float32 array indexed [y, x] (row-major texels). level in 1..=8 (None: 5).
-    #[pyo3(signature = (normal, wo, level=None))]
+    /// float32 array indexed [y, x] (row-major texels). level in 1..=8.
+    #[pyo3(signature = (normal, wo, level=5))]
     fn product_cells<'py>(
         &self,
         py: Python<'py>,
         normal: &Bound<'py, PyAny>,
         wo: &Bound<'py, PyAny>,
-        level: Option<&Bound<'py, PyAny>>,
+        #[pyo3(from_py_with = level_arg)] level: u32,
     ) -> PyResult<Bound<'py, PyAny>> {
         let n = unit(Vec3::from(vec3_arg(normal, "normal")?), "normal")?;
         let o = unit(Vec3::from(vec3_arg(wo, "wo")?), "wo")?;
-        let level = match level.filter(|l| !l.is_none()) {
-            Some(l) => int_arg(l, "level", 1, MAX_CELL_LEVEL as i128)? as u32,
-            None => 5,
-        };
         let m = self.inner;
         let res = 1usize << level;
         let grid = py.detach(|| {
