@@ -24,9 +24,15 @@ Everything is deterministic for any thread count.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from tqdm.auto import tqdm
 
 from ._core import analysis as _analysis
+
+if TYPE_CHECKING:
+    # The class lives in the native submodule, which the stubs type as a namespace.
+    from ._core import _VisibilityMaps
 
 VisibilityMaps = _analysis.VisibilityMaps
 sample_pairs = _analysis.sample_pairs
@@ -42,7 +48,7 @@ def visibility_maps(
     resolution: int = 32,
     threads: int | None = None,
     progress: bool = False,
-) -> VisibilityMaps:
+) -> _VisibilityMaps:
     """Traces the ``resolution x resolution`` visibility map at each of the (N, 3)
     ``points`` with (N, 3) ``normals`` (normalised; rays leave on their side). With
     ``progress``, shows a progress bar over the points."""
