@@ -2,10 +2,11 @@
 
 from collections.abc import Callable
 from os import PathLike
-from typing import Any, final
+from typing import Any, Self, final
 
 import numpy as np
 import numpy.typing as npt
+from typing_extensions import disjoint_base
 
 __all__ = [
     "__version__",
@@ -201,9 +202,10 @@ class Setup:
     def period(self) -> int | None: ...
     def moving_bounds(self) -> npt.NDArray[np.float32] | None: ...
 
-@final
+@disjoint_base
 class VisibilityCache:
-    """World-space visibility records over a scene (CAM08 sec. 5)."""
+    """World-space visibility records over a scene (CAM08 sec. 5). Subclassed by
+    ``viscache_rs.VisibilityCache``, which adds the progress bar to ``build``."""
 
     def __new__(
         cls,
@@ -230,8 +232,9 @@ class VisibilityCache:
         camera: Camera,
         seed: int | None = 0,
         threads: int | None = None,
-        progress: bool = True,
+        *,
         time_budget: float | None = None,
+        callback: Callable[[int, int], Any] | None = None,
     ) -> dict[str, Any]: ...
     def insert(self, point: _ArrayLike, normal: _ArrayLike) -> int | None: ...
     def lookup(
@@ -254,8 +257,8 @@ class VisibilityCache:
     def end_frame(self) -> dict[str, int]: ...
     def stats(self) -> dict[str, Any]: ...
     def save(self, path: str | PathLike[str]) -> None: ...
-    @staticmethod
-    def load(path: str | PathLike[str], scene: Scene) -> VisibilityCache: ...
+    @classmethod
+    def load(cls, path: str | PathLike[str], scene: Scene) -> Self: ...
 
 @final
 class LightingPreview:

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from .. import metrics, scenes
-from .._core import VisibilityCache
+from ..cache import VisibilityCache
 from ..render import render
 from ._context import pyplot
 

@@ -50,7 +50,7 @@ CACHE: dict[str, dict[str, Any]] = {
 
 def make_cache(name: str, scene, pixels: int):
     """The cache of ``CACHE[name]`` for an image of ``pixels`` pixels."""
-    from .._core import VisibilityCache
+    from ..cache import VisibilityCache
 
     cfg = dict(CACHE[name])
     share = cfg.pop("records_per_pixel", None)
