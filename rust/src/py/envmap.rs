@@ -2,12 +2,11 @@
 
 use std::path::PathBuf;
 
-use glam::{DVec2, Vec3};
-use numpy::{PyArray1, PyArrayMethods};
+use glam::Vec3;
+use numpy::PyArray1;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PySequence};
-use rayon::prelude::*;
 
 use super::convert::{
     f64_arg, image3_f32, int_arg, or_default, rows2_f64, rows3_array, rows3_f32, vec3_arg,
@@ -15,7 +14,7 @@ use super::convert::{
 };
 use crate::lights::envmap::{ExrLayout, MAX_EQUIRECT_SIDE, MAX_RESOLUTION};
 use crate::lights::procedural::{self, Window};
-use crate::lights::EnvMap;
+use crate::lights::{envmap_rows, EnvMap};
 
 /// Default octahedral resolution of maps built from images and procedures.
 const DEFAULT_RESOLUTION: u32 = 256;
@@ -327,12 +326,9 @@ impl PyEnvMap {
     /// Radiance (N, 3) float32 arriving from directions `dirs` (N, 3).
     fn eval<'py>(&self, py: Python<'py>, dirs: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
         let d = dirs_arg(dirs)?;
-        let out: Vec<[f32; 3]> = py.detach(|| {
-            d.par_iter()
-                .with_min_len(4096)
-                .map(|&v| self.inner.eval(v).to_array())
-                .collect()
-        });
+        let mut out = vec![[0.0f32; 3]; d.len()];
+        py.detach(|| envmap_rows::eval_rows(&self.inner, &d, &mut out))
+            .py()?;
         rows3_array(py, out)
     }
 
@@ -340,12 +336,9 @@ impl PyEnvMap {
     /// black map.
     fn pdf<'py>(&self, py: Python<'py>, dirs: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
         let d = dirs_arg(dirs)?;
-        let out: Vec<f64> = py.detach(|| {
-            d.par_iter()
-                .with_min_len(4096)
-                .map(|&v| self.inner.pdf(v))
-                .collect()
-        });
+        let mut out = vec![0.0f64; d.len()];
+        py.detach(|| envmap_rows::pdf_rows(&self.inner, &d, &mut out))
+            .py()?;
         Ok(PyArray1::from_vec(py, out).into_any())
     }
 
@@ -362,30 +355,13 @@ impl PyEnvMap {
             .map_err(|e| PyValueError::new_err(e.to_string()))?
             .as_chunks::<2>()
             .0;
-        if let Some(i) = rows
-            .iter()
-            .position(|r| !r.iter().all(|c| (0.0..1.0).contains(c)))
-        {
-            return Err(PyValueError::new_err(format!(
-                "u: row {i} is {:?}; values must lie in [0, 1)",
-                rows[i]
-            )));
-        }
+        let (mut dirs, mut pdf) = (vec![[0.0f32; 3]; rows.len()], vec![0.0f64; rows.len()]);
+        py.detach(|| envmap_rows::sample_rows(&self.inner, rows, &mut dirs, &mut pdf))
+            .py()?;
+        // Refused after the core's check of u, so that a bad u is still reported first.
         if self.inner.is_black() {
             return Err(black_error());
         }
-        let out: Vec<(Vec3, f64)> = py.detach(|| {
-            rows.par_iter()
-                .with_min_len(4096)
-                .map(|r| {
-                    self.inner
-                        .sample(DVec2::new(r[0], r[1]))
-                        .unwrap_or((Vec3::Y, 0.0))
-                })
-                .collect()
-        });
-        let dirs = out.iter().map(|(d, _)| d.to_array()).collect();
-        let pdf = out.iter().map(|(_, p)| *p).collect();
         Ok((
             rows3_array(py, dirs)?,
             PyArray1::from_vec(py, pdf).into_any(),
@@ -403,17 +379,10 @@ impl PyEnvMap {
         if self.inner.is_black() {
             return Err(black_error());
         }
-        let out: Vec<f64> = py.detach(|| {
-            d.par_iter()
-                .with_min_len(4096)
-                .flat_map_iter(|&v| {
-                    let u = self.inner.invert(v).unwrap_or(DVec2::NAN);
-                    [u.x, u.y]
-                })
-                .collect()
-        });
-        let n = d.len();
-        Ok(PyArray1::from_vec(py, out).reshape([n, 2])?.into_any())
+        let mut out = vec![[0.0f64; 2]; d.len()];
+        py.detach(|| envmap_rows::invert_rows(&self.inner, &d, &mut out))
+            .py()?;
+        super::convert::rows_array(py, out)
     }
 
     /// ∫ L dω over the sphere per channel, as (r, g, b).
