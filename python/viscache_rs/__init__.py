@@ -1,8 +1,9 @@
 """viscache_rs: Monte Carlo direct illumination that exploits visibility correlation.
 
 The Rust core (``viscache_rs._core``) traces rays, samples lights and BSDFs, renders and
-caches visibility (``VisibilityCache``); this package re-exports it and adds built-in scenes,
-environment maps, I/O and the ``viscache`` command line.
+caches visibility (``VisibilityCache``); this package re-exports it, draws the progress bars
+the core reports to, and adds built-in scenes, environment maps, I/O and the ``viscache``
+command line.
 """
 
 from . import analysis, envmaps, metrics, mitsuba, octahedral, scenes, testing
@@ -13,10 +14,10 @@ from ._core import (
     Material,
     Scene,
     Setup,
-    VisibilityCache,
     __version__,
 )
 from .ambient import AOResult, render_ao
+from .cache import VisibilityCache
 from .render import RenderResult, preview, render
 
 __all__ = [

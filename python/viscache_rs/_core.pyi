@@ -2,42 +2,65 @@
 
 from collections.abc import Callable
 from os import PathLike
-from typing import Any
+from typing import Any, Self, final
 
 import numpy as np
 import numpy.typing as npt
+from typing_extensions import disjoint_base
+
+__all__ = [
+    "__version__",
+    "Scene",
+    "Camera",
+    "Material",
+    "Setup",
+    "EnvMap",
+    "VisibilityCache",
+    "LightingPreview",
+    "render",
+    "render_ao",
+    "write_exr",
+    "scene_names",
+    "load_scene",
+    "animated_scene_names",
+    "testing",
+    "octahedral",
+    "analysis",
+]
 
 __version__: str
 
-ArrayLike = npt.ArrayLike
+_ArrayLike = npt.ArrayLike
 
+@final
 class Material:
     @staticmethod
-    def lambert(albedo: ArrayLike) -> Material: ...
+    def lambert(albedo: _ArrayLike) -> Material: ...
     @staticmethod
-    def phong(kd: ArrayLike, ks: ArrayLike, exponent: float) -> Material: ...
+    def phong(kd: _ArrayLike, ks: _ArrayLike, exponent: float) -> Material: ...
     @property
     def kind(self) -> str: ...
     def params(self) -> dict[str, Any]: ...
     def eval(
-        self, normals: ArrayLike, wo: ArrayLike, wi: ArrayLike
+        self, normals: _ArrayLike, wo: _ArrayLike, wi: _ArrayLike
     ) -> npt.NDArray[np.float32]: ...
     def sample(
-        self, normals: ArrayLike, wo: ArrayLike, u: ArrayLike
+        self, normals: _ArrayLike, wo: _ArrayLike, u: _ArrayLike
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]]: ...
     def pdf(
-        self, normals: ArrayLike, wo: ArrayLike, wi: ArrayLike
+        self, normals: _ArrayLike, wo: _ArrayLike, wi: _ArrayLike
     ) -> npt.NDArray[np.float64]: ...
     def product_cells(
-        self, normal: ArrayLike, wo: ArrayLike, level: int | None = 5
+        self, normal: _ArrayLike, wo: _ArrayLike, level: int | None = 5
     ) -> npt.NDArray[np.float32]: ...
 
+@final
 class Camera:
     @staticmethod
     def look_at(
-        eye: ArrayLike,
-        target: ArrayLike,
-        up: ArrayLike | None = (0, 1, 0),
+        eye: _ArrayLike,
+        target: _ArrayLike,
+        up: _ArrayLike | None = (0, 1, 0),
         fov_deg: float | None = 45.0,
         width: int | None = 256,
         height: int | None = 192,
@@ -61,12 +84,13 @@ class Camera:
         self, seed: int | None = 0, jitter: bool = True
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]: ...
 
+@final
 class Scene:
     def __init__(self) -> None: ...
     def add_mesh(
         self,
-        vertices: ArrayLike,
-        faces: ArrayLike,
+        vertices: _ArrayLike,
+        faces: _ArrayLike,
         material: Material | None = None,
         name: str | None = None,
     ) -> int: ...
@@ -88,23 +112,23 @@ class Scene:
     def bvh_stats(self) -> dict[str, Any]: ...
     def occluded(
         self,
-        origins: ArrayLike,
-        directions: ArrayLike,
-        tmax: float | ArrayLike | None = None,
+        origins: _ArrayLike,
+        directions: _ArrayLike,
+        tmax: float | _ArrayLike | None = None,
         threads: int | None = None,
     ) -> npt.NDArray[np.bool_]: ...
     def intersect(
         self,
-        origins: ArrayLike,
-        directions: ArrayLike,
-        tmax: float | ArrayLike | None = None,
+        origins: _ArrayLike,
+        directions: _ArrayLike,
+        tmax: float | _ArrayLike | None = None,
         threads: int | None = None,
     ) -> dict[str, npt.NDArray[Any]]: ...
-    def offset_points(self, points: ArrayLike, normals: ArrayLike) -> npt.NDArray[np.float32]: ...
+    def offset_points(self, points: _ArrayLike, normals: _ArrayLike) -> npt.NDArray[np.float32]: ...
     def add_area_light(
-        self, vertices: ArrayLike, radiance: ArrayLike, name: str | None = None
+        self, vertices: _ArrayLike, radiance: _ArrayLike, name: str | None = None
     ) -> int: ...
-    def set_emitter(self, obj: int, radiance: ArrayLike) -> None: ...
+    def set_emitter(self, obj: int, radiance: _ArrayLike) -> None: ...
     def area_lights(self) -> list[int]: ...
     def emission(self, obj: int) -> tuple[float, float, float]: ...
     def counters(self) -> dict[str, int]: ...
@@ -119,27 +143,28 @@ class Scene:
     ) -> dict[str, npt.NDArray[Any]]: ...
     def __len__(self) -> int: ...
 
+@final
 class EnvMap:
     @staticmethod
-    def from_equirect(rgb: ArrayLike, resolution: int = 256) -> EnvMap: ...
+    def from_equirect(rgb: _ArrayLike, resolution: int = 256) -> EnvMap: ...
     @staticmethod
-    def from_octahedral(rgb: ArrayLike) -> EnvMap: ...
+    def from_octahedral(rgb: _ArrayLike) -> EnvMap: ...
     @staticmethod
     def from_exr(path: str | PathLike[str], resolution: int | None = None) -> EnvMap: ...
     @staticmethod
-    def constant(value: float | ArrayLike, resolution: int = 256) -> EnvMap: ...
+    def constant(value: float | _ArrayLike, resolution: int = 256) -> EnvMap: ...
     @staticmethod
     def sky(
-        sun_dir: ArrayLike,
-        sun_radiance: float | ArrayLike,
+        sun_dir: _ArrayLike,
+        sun_radiance: float | _ArrayLike,
         sun_angle: float,
-        zenith: float | ArrayLike,
-        horizon: float | ArrayLike,
+        zenith: float | _ArrayLike,
+        horizon: float | _ArrayLike,
         resolution: int = 256,
     ) -> EnvMap: ...
     @staticmethod
     def windows(
-        windows: list[Any], background: float | ArrayLike, resolution: int = 256
+        windows: list[Any], background: float | _ArrayLike, resolution: int = 256
     ) -> EnvMap: ...
     def to_exr(self, path: str | PathLike[str], layout: str = "octahedral") -> None: ...
     def to_equirect(self, width: int, height: int) -> npt.NDArray[np.float32]: ...
@@ -149,18 +174,19 @@ class EnvMap:
     @property
     def is_black(self) -> bool: ...
     def texels(self) -> npt.NDArray[np.float32]: ...
-    def eval(self, dirs: ArrayLike) -> npt.NDArray[np.float32]: ...
-    def pdf(self, dirs: ArrayLike) -> npt.NDArray[np.float64]: ...
+    def eval(self, dirs: _ArrayLike) -> npt.NDArray[np.float32]: ...
+    def pdf(self, dirs: _ArrayLike) -> npt.NDArray[np.float64]: ...
     def sample(
-        self, u: ArrayLike
+        self, u: _ArrayLike
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float64]]: ...
-    def invert(self, dirs: ArrayLike) -> npt.NDArray[np.float64]: ...
+    def invert(self, dirs: _ArrayLike) -> npt.NDArray[np.float64]: ...
     def total_power(self) -> tuple[float, float, float]: ...
 
+@final
 class Setup:
-    def __init__(
-        self, scene: Scene, camera: Camera, envmap: EnvMap, name: str | None = None
-    ) -> None: ...
+    def __new__(
+        cls, scene: Scene, camera: Camera, envmap: EnvMap, name: str | None = None
+    ) -> Setup: ...
     @property
     def name(self) -> str: ...
     scene: Scene
@@ -177,16 +203,18 @@ class Setup:
     def period(self) -> int | None: ...
     def moving_bounds(self) -> npt.NDArray[np.float32] | None: ...
 
+@disjoint_base
 class VisibilityCache:
-    """World-space visibility records over a scene (CAM08 sec. 5)."""
+    """World-space visibility records over a scene (CAM08 sec. 5). Subclassed by
+    ``viscache_rs.VisibilityCache``, which adds the progress bar to ``build``."""
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         scene: Scene,
         resolution: int | None = None,
         preset: str = "auto",
         **overrides: Any,
-    ) -> None: ...
+    ) -> VisibilityCache: ...
     @property
     def scene(self) -> Scene: ...
     @property
@@ -205,16 +233,17 @@ class VisibilityCache:
         camera: Camera,
         seed: int | None = 0,
         threads: int | None = None,
-        progress: bool = True,
+        *,
         time_budget: float | None = None,
+        callback: Callable[[int, int], Any] | None = None,
     ) -> dict[str, Any]: ...
-    def insert(self, point: ArrayLike, normal: ArrayLike) -> int | None: ...
+    def insert(self, point: _ArrayLike, normal: _ArrayLike) -> int | None: ...
     def lookup(
         self,
-        points: ArrayLike,
-        normals: ArrayLike,
-        radius: float | ArrayLike | None = None,
-        footprints: ArrayLike | None = None,
+        points: _ArrayLike,
+        normals: _ArrayLike,
+        radius: float | _ArrayLike | None = None,
+        footprints: _ArrayLike | None = None,
         interpolate: bool = False,
         threads: int | None = None,
     ) -> dict[str, npt.NDArray[Any]]: ...
@@ -222,18 +251,21 @@ class VisibilityCache:
     def record_hierarchy(self, id: int) -> list[npt.NDArray[np.uint8]]: ...
     def memory_bytes(self) -> int: ...
     def records(self) -> dict[str, npt.NDArray[Any]]: ...
-    def record_misses(self, ids: ArrayLike, misses: ArrayLike, uses: ArrayLike) -> None: ...
+    def record_misses(self, ids: _ArrayLike, misses: _ArrayLike, uses: _ArrayLike) -> None: ...
     def validate(
         self, rays_per_record: int | None = 16, seed: int | None = 0, threads: int | None = None
     ) -> dict[str, int]: ...
     def end_frame(self) -> dict[str, int]: ...
     def stats(self) -> dict[str, Any]: ...
     def save(self, path: str | PathLike[str]) -> None: ...
-    @staticmethod
-    def load(path: str | PathLike[str], scene: Scene) -> VisibilityCache: ...
+    @classmethod
+    def load(cls, path: str | PathLike[str], scene: Scene) -> Self: ...
 
+@final
 class LightingPreview:
-    def __init__(self, scene: Scene, camera: Camera, threads: int | None = None) -> None: ...
+    def __new__(
+        cls, scene: Scene, camera: Camera, threads: int | None = None
+    ) -> LightingPreview: ...
     @property
     def size(self) -> tuple[int, int]: ...
     def render(
@@ -244,14 +276,14 @@ class LightingPreview:
         threads: int | None = None,
     ) -> npt.NDArray[np.float32]: ...
 
-def write_exr(path: str | PathLike[str], image: ArrayLike) -> None: ...
+def write_exr(path: str | PathLike[str], image: _ArrayLike) -> None: ...
 def render(
     scene: Scene,
     envmap: EnvMap,
     camera: Camera,
     spp: int,
     method: str,
-    seed: int | None = None,
+    seed: int | None = 0,
     threads: int | None = None,
     time_budget: float | None = None,
     product_level: int | str | None = None,
@@ -259,7 +291,7 @@ def render(
     cache: VisibilityCache | None = None,
     jitter: bool = True,
     alpha: float | str | None = None,
-    alpha_radius: int | None = None,
+    alpha_radius: int | None = 4,
     insert_missing: bool = False,
     technique_weights: dict[str, float] | None = None,
     bounces: int | None = None,
@@ -270,7 +302,7 @@ def render_ao(
     camera: Camera,
     cache: VisibilityCache | None = None,
     reference_rays: int | None = None,
-    seed: int | None = None,
+    seed: int | None = 0,
     threads: int | None = None,
     time_budget: float | None = None,
     sigma_scale: float | None = None,
@@ -287,28 +319,29 @@ def load_scene(
 ) -> Setup: ...
 def animated_scene_names() -> list[str]: ...
 
-# Submodules of the native module, typed as namespaces.
+# Submodules of the native module, typed as namespaces (stubtest does not compare these;
+# tests/test_signatures.py does).
 class _OctahedralModule:
     @staticmethod
-    def sphere_to_square(dirs: ArrayLike) -> npt.NDArray[np.float32]: ...
+    def sphere_to_square(dirs: _ArrayLike) -> npt.NDArray[np.float32]: ...
     @staticmethod
-    def square_to_sphere(uv: ArrayLike) -> npt.NDArray[np.float32]: ...
+    def square_to_sphere(uv: _ArrayLike) -> npt.NDArray[np.float32]: ...
     @staticmethod
-    def texel_of(dirs: ArrayLike, res: int) -> npt.NDArray[np.int64]: ...
+    def texel_of(dirs: _ArrayLike, res: int) -> npt.NDArray[np.int64]: ...
 
 class _TestingModule:
     @staticmethod
     def ground_hemisphere_rays(
-        scene: Scene, n: int, seed: int | None = None
+        scene: Scene, n: int, seed: int | None = 0
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]: ...
     @staticmethod
     def record_bundle_rays(
-        scene: Scene, points: int, side: int | None = None, seed: int | None = None
+        scene: Scene, points: int, side: int | None = 32, seed: int | None = 0
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]: ...
 
     @staticmethod
     def chi2_sphere(
-        dirs: ArrayLike,
+        dirs: _ArrayLike,
         pdf: Any,
         resolution: int | None = 32,
         subdivisions: int | None = 8,
@@ -316,7 +349,7 @@ class _TestingModule:
         significance: float | None = 0.01,
     ) -> dict[str, Any]: ...
 
-class VisibilityMaps:
+class _VisibilityMaps:
     """Visibility maps of many surface points (CAM08 eq. 7), from analysis.visibility_maps."""
 
     def __len__(self) -> int: ...
@@ -327,41 +360,41 @@ class VisibilityMaps:
     @property
     def normals(self) -> npt.NDArray[np.float32]: ...
     def visible_fraction(self) -> npt.NDArray[np.float64]: ...
-    def bits(self, indices: ArrayLike | None = None) -> npt.NDArray[np.bool_]: ...
+    def bits(self, indices: _ArrayLike | None = None) -> npt.NDArray[np.bool_]: ...
 
 class _AnalysisModule:
-    VisibilityMaps: type[VisibilityMaps]
+    VisibilityMaps: type[_VisibilityMaps]
     @staticmethod
     def visibility_maps(
         scene: Scene,
-        points: ArrayLike,
-        normals: ArrayLike,
+        points: _ArrayLike,
+        normals: _ArrayLike,
         resolution: int | None = 32,
         threads: int | None = None,
         callback: Callable[[int, int], Any] | None = None,
-    ) -> VisibilityMaps: ...
+    ) -> _VisibilityMaps: ...
     @staticmethod
     def sample_pairs(
-        maps: VisibilityMaps,
+        maps: _VisibilityMaps,
         neighbours: int | None = 16,
         far: int | None = 16,
-        far_range: ArrayLike | None = None,
+        far_range: _ArrayLike | None = None,
         seed: int | None = 0,
         threads: int | None = None,
     ) -> npt.NDArray[np.uint32]: ...
     @staticmethod
-    def pair_correlations(maps: VisibilityMaps, pairs: ArrayLike) -> dict[str, Any]: ...
+    def pair_correlations(maps: _VisibilityMaps, pairs: _ArrayLike) -> dict[str, Any]: ...
     @staticmethod
     def correlation_bins(
-        maps: VisibilityMaps,
-        distance_edges: ArrayLike,
-        theta_edges: ArrayLike,
-        pairs: ArrayLike | None = None,
+        maps: _VisibilityMaps,
+        distance_edges: _ArrayLike,
+        theta_edges: _ArrayLike,
+        pairs: _ArrayLike | None = None,
         threads: int | None = None,
     ) -> dict[str, Any]: ...
     @staticmethod
     def local_correlation(
-        maps: VisibilityMaps, d_max: float, theta_max_deg: float, threads: int | None = None
+        maps: _VisibilityMaps, d_max: float, theta_max_deg: float, threads: int | None = None
     ) -> dict[str, Any]: ...
 
 octahedral: _OctahedralModule

@@ -30,9 +30,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from . import _core
+from ._progress import progress_bar
+from .cache import VisibilityCache
 
 
 @dataclass
@@ -66,7 +67,7 @@ def render_ao(
     if reference_rays is None and cache is None:
         # AO reads each record's nearest-hit distance R_i, which the default "auto" preset
         # (tuned for the control variate) skips: AO's own defaults are "medium"'s.
-        cache = _core.VisibilityCache(setup.scene, **{"preset": "medium", **cache_overrides})
+        cache = VisibilityCache(setup.scene, **{"preset": "medium", **cache_overrides})
     elif cache_overrides:
         raise TypeError(
             f"cache_overrides: {sorted(cache_overrides)} apply only when a new cache is made "
@@ -77,16 +78,7 @@ def render_ao(
     if cache is not None and not isinstance(cache, _core.VisibilityCache):
         raise TypeError(f"cache: expected a VisibilityCache, got {type(cache).__name__}")
     desc = "AO reference" if reference_rays is not None else "AO cache"
-    bar = tqdm(desc=desc, unit="px", leave=False) if progress else None
-    try:
-        callback = None
-        if bar is not None:
-
-            def callback(done: int, total: int) -> bool:
-                bar.total = total
-                bar.update(done - bar.n)
-                return True
-
+    with progress_bar(progress, desc, "px") as callback:
         out = _core.render_ao(
             setup.scene,
             camera,
@@ -100,9 +92,6 @@ def render_ao(
             w_min=w_min,
             callback=callback,
         )
-    finally:
-        if bar is not None:
-            bar.close()
     return AOResult(out["image"], out["stats"], cache)
 
 

@@ -24,9 +24,14 @@ Everything is deterministic for any thread count.
 
 from __future__ import annotations
 
-from tqdm.auto import tqdm
+from typing import TYPE_CHECKING
 
 from ._core import analysis as _analysis
+from ._progress import progress_bar
+
+if TYPE_CHECKING:
+    # The class lives in the native submodule, which the stubs type as a namespace.
+    from ._core import _VisibilityMaps
 
 VisibilityMaps = _analysis.VisibilityMaps
 sample_pairs = _analysis.sample_pairs
@@ -42,18 +47,11 @@ def visibility_maps(
     resolution: int = 32,
     threads: int | None = None,
     progress: bool = False,
-) -> VisibilityMaps:
+) -> _VisibilityMaps:
     """Traces the ``resolution x resolution`` visibility map at each of the (N, 3)
     ``points`` with (N, 3) ``normals`` (normalised; rays leave on their side). With
     ``progress``, shows a progress bar over the points."""
-    if not progress:
-        return _analysis.visibility_maps(scene, points, normals, resolution=resolution,
-                                         threads=threads)
-    with tqdm(total=len(points), desc="visibility maps", unit="pt", leave=False) as bar:
-        def callback(done: int, total: int) -> bool:
-            bar.update(done - bar.n)
-            return True
-
+    with progress_bar(progress, "visibility maps", "pt", total=len(points)) as callback:
         return _analysis.visibility_maps(scene, points, normals, resolution=resolution,
                                          threads=threads, callback=callback)
 

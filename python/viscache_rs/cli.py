@@ -32,7 +32,7 @@ def _ratios(res, base) -> str:
 
 def demo(args: argparse.Namespace) -> int:
     """Equal-time product sampling against the cache's control variate (CAM08 Fig. 13)."""
-    from ._core import VisibilityCache
+    from .cache import VisibilityCache
     from .render import render
 
     t = time.perf_counter()

@@ -138,7 +138,7 @@ def _register_phong(mi) -> None:
 def _bsdf(material) -> dict[str, Any]:
     p = material.params()
     if material.kind == "lambert":
-        inner = {"type": "diffuse",
+        inner: dict[str, Any] = {"type": "diffuse",
                  "reflectance": {"type": "rgb", "value": [float(c) for c in p["albedo"]]}}
     else:
         kd = np.asarray(p["kd"], float)

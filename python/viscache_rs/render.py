@@ -52,9 +52,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from . import _core
+from ._progress import progress_bar
+from .cache import VisibilityCache
 
 _UNBOUNDED_SPP = 1 << 20
 # Share of a time budget that method "cv" without a cache may spend building one.
@@ -108,7 +109,7 @@ def render(
     if method == "cv" and cache is None:
         # The control variate never reads R_i: skip its closest-hit rays. Under a time
         # budget the build may spend a quarter of it and the render has what is left.
-        cache = _core.VisibilityCache(setup.scene, preset=preset, nearest_hits=False)
+        cache = VisibilityCache(setup.scene, preset=preset, nearest_hits=False)
         t = time.perf_counter()
         report = cache.build(camera, seed=seed, threads=threads, progress=progress,
                              time_budget=None if time_budget is None
@@ -122,16 +123,10 @@ def render(
             time_budget = max(time_budget - built, 1e-3)
     elif cache is not None and method != "cv":
         raise ValueError(f"cache: only method 'cv' uses a cache, got method {method!r}")
-    pixels = camera.width * camera.height
-    bar = _progress_bar(progress, spp, time_budget, method)
-    try:
-        callback = None
-        if bar is not None:
-
-            def callback(done: int, planned: int) -> bool:
-                bar.update(done / pixels - bar.n)
-                return True
-
+    # The bar counts samples per pixel; without a cap (a time budget alone) its total is unknown.
+    total = None if time_budget is not None and spp >= _UNBOUNDED_SPP else spp
+    with progress_bar(progress, f"render ({method})", "spp", total=total,
+                      per_unit=camera.width * camera.height) as callback:
         out = _core.render(
             setup.scene,
             envmap,
@@ -152,9 +147,6 @@ def render(
             bounces=bounces,
             direct=direct,
         )
-    finally:
-        if bar is not None:
-            bar.close()
     stats = out["stats"]
     stats.update(cache_stats)
     return RenderResult(out["image"], out["variance"], stats, out["alpha"])
@@ -170,13 +162,6 @@ def preview(setup, cache, envmap=None, camera=None, product_level: int | str = "
     envmap = setup.envmap if envmap is None else envmap
     view = _core.LightingPreview(setup.scene, camera, threads=threads)
     return view.render(cache, envmap, product_level=product_level, threads=threads)
-
-
-def _progress_bar(progress: bool, spp: int, time_budget: float | None, method: str):
-    if not progress:
-        return None
-    total = None if time_budget is not None and spp >= _UNBOUNDED_SPP else spp
-    return tqdm(total=total, desc=f"render ({method})", unit="spp", leave=False)
 
 
 __all__ = ["RenderResult", "preview", "render"]

@@ -102,6 +102,7 @@ def meshes(models_dir_path=None, seed: int = 0) -> Setup:
     daylight of the procedural scenes (sun at azimuth 120 deg, elevation 40 deg). Models are
     read from the gzipped OBJ files of :func:`models_dir` (vertices and faces only)."""
     folder = models_dir(models_dir_path)
+    assert folder is not None  # required=True raises instead
     scene = Scene()
     n = 40
     ax = np.linspace(-10.0, 10.0, n + 1, dtype=np.float32)
@@ -141,7 +142,8 @@ def read_obj(stream) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (N, 3) and triangles (M, 3) of a Wavefront OBJ stream (bytes or text): ``v``
     and ``f`` lines only, polygons fanned into triangles, ``v/vt/vn`` and negative indices
     understood. Raises ValueError naming the line of anything malformed."""
-    vertices, faces = [], []
+    vertices: list[list[float]] = []
+    faces: list[list[int]] = []
     for number, raw in enumerate(io.TextIOWrapper(stream, encoding="utf-8", errors="replace")
                                  if not isinstance(stream, io.TextIOBase) else stream, 1):
         parts = raw.split()

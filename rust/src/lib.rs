@@ -11,6 +11,7 @@
 //! estimators consume them.
 
 pub mod bsdf;
+pub mod bsdf_rows;
 pub mod camera;
 pub mod error;
 pub mod estimators;

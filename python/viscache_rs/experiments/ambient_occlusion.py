@@ -21,6 +21,8 @@ matplotlib figure of the three, and ``tradeoff.png`` (RMSE/mean against rays per
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 import viscache_rs as vc
@@ -43,7 +45,7 @@ def open_cornell():
 def run(ctx: ExperimentContext) -> None:
     w, h = (128, 96) if ctx.quick else (256, 192)
     w_mins = [0.35, 0.45, 0.55] if ctx.quick else [0.3, 0.35, 0.4, 0.45, 0.5, 0.55]
-    common = dict(seed=ctx.seed, threads=ctx.threads, progress=ctx.progress)
+    common: dict[str, Any] = dict(seed=ctx.seed, threads=ctx.threads, progress=ctx.progress)
     rows, sweep_rows = [], []
     plt = pyplot()
     trade_fig, trade_ax = plt.subplots(figsize=(5, 3.5))
@@ -92,8 +94,9 @@ def run(ctx: ExperimentContext) -> None:
         ctx.figure(f"{name}_ao", fig)
 
         # The rays/error trade over w_min, and the paper's unclamped R_i.
-        pts = []
-        variants = [(f"w_min={wm}", {"w_min": wm}) for wm in w_mins]
+        pts: list[tuple[float, float]] = []
+        variants: list[tuple[str, dict[str, Any]]] = [
+            (f"w_min={wm}", {"w_min": wm}) for wm in w_mins]
         variants.append(("unclamped R_i (r=0)", {"min_radius_scale": 0.0}))
         for label, kw in variants:
             v = vc.render_ao(setup, cam, **common, **kw)
@@ -105,8 +108,8 @@ def run(ctx: ExperimentContext) -> None:
             ctx.record(f"{name}_sweep_{label}", {"stats": vs, "errors": e})
             if "w_min" in kw:
                 pts.append((vs["rays_per_point"], 100 * e["relative_rmse"]))
-        pts = np.array(pts)
-        trade_ax.plot(pts[:, 0], pts[:, 1], "o-", label=name)
+        trade = np.array(pts)
+        trade_ax.plot(trade[:, 0], trade[:, 1], "o-", label=name)
 
     ctx.table(f"Cache AO vs ray-traced AO ({w}x{h}, defaults)",
               ["scene", "rays/point", "fewer rays", "shadow rays/point", "records",

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
 from .. import metrics, scenes
-from .._core import VisibilityCache
+from ..cache import VisibilityCache
 from ..io import auto_exposure
 from ..render import render
 from ._context import pyplot
@@ -52,8 +53,8 @@ def run(ctx) -> None:
     pixels = cam.width * cam.height
     spp = s["spp"]
     # CAM08's setting: every sample at the pixel's centre hit, plain product sampling.
-    kw = {"threads": ctx.threads, "progress": ctx.progress}
-    fixed = {"jitter": False, "technique_weights": {"product": 1}}
+    kw: dict[str, Any] = {"threads": ctx.threads, "progress": ctx.progress}
+    fixed: dict[str, Any] = {"jitter": False, "technique_weights": {"product": 1}}
     cache_kw = {"resolution": s["resolution"], "preset": s["preset"], "nearest_hits": False}
     ctx.record("settings", s)
 
@@ -169,6 +170,7 @@ def run(ctx) -> None:
     fig.suptitle(f"Animated dynamics, {cam.width}x{cam.height}, {spp} spp")
     fig.tight_layout()
     ctx.figure("animation", fig)
+    assert first is not None and last is not None  # every run renders frames
     exposure = auto_exposure(first)
     ctx.image(f"frame{s['frames'][0]:03d}_reuse", first, exposure)
     ctx.image(f"frame{s['frames'][-1]:03d}_reuse", last, exposure)

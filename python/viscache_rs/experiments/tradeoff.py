@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import metrics, scenes
-from .._core import VisibilityCache
+from ..cache import VisibilityCache
 from ..render import render
 from ._context import pyplot
 

@@ -19,6 +19,8 @@ spp; the full mode 640x480 at 10/30/100/300.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from .. import metrics, scenes
@@ -31,14 +33,14 @@ DESCRIPTION = __doc__
 REPEATS = 2
 # The paper's setting: every sample at the first hit through the pixel's centre, the
 # environment by plain product sampling (the tables compare estimators at fixed points).
-CAM08_POINTS = {"jitter": False, "technique_weights": {"product": 1}}
+CAM08_POINTS: dict[str, Any] = {"jitter": False, "technique_weights": {"product": 1}}
 
 #: Cache settings per scene. Record resolutions: 64^2 for garage and dynamics (CAM08 Table 2
 #: used 32^2 for garage; 64^2 halves the variance left on its glossy cars), 32^2 for garden.
 #: Garden's grass changes visibility from pixel to pixel, so §5.2 would ask for a record at
 #: nearly every pixel; it gets the ``low`` preset capped at 2% of the pixels (CAM08: 17,100
 #: records at 1600x1200, 0.9%). The control variate never reads R_i, so no cache traces it.
-CACHE = {
+CACHE: dict[str, dict[str, Any]] = {
     "garage": {"resolution": 64, "preset": "medium", "nearest_hits": False},
     "dynamics": {"resolution": 64, "preset": "medium", "nearest_hits": False},
     "garden": {"resolution": 32, "preset": "low", "records_per_pixel": 0.02,
@@ -48,7 +50,7 @@ CACHE = {
 
 def make_cache(name: str, scene, pixels: int):
     """The cache of ``CACHE[name]`` for an image of ``pixels`` pixels."""
-    from .._core import VisibilityCache
+    from ..cache import VisibilityCache
 
     cfg = dict(CACHE[name])
     share = cfg.pop("records_per_pixel", None)
@@ -100,7 +102,7 @@ def run(ctx: ExperimentContext) -> None:
                 "cv": dict(method="cv", cache=cache, alpha=1.0),
                 "cv_est": dict(method="cv", cache=cache, alpha="estimate"),
             }
-            runs = {k: [] for k in methods}
+            runs: dict[str, list[Any]] = {k: [] for k in methods}
             for _ in range(REPEATS):
                 for k, kw in methods.items():
                     runs[k].append(render(setup, **kw, **common))

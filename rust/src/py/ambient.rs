@@ -8,7 +8,7 @@ use pyo3::types::PyDict;
 
 use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
-use super::convert::{f64_arg, image_array, int_arg, seed_arg, threads_arg, IntoPyResult};
+use super::convert::{f64_arg, image_array, int_arg, seed_or_zero, threads_arg, IntoPyResult};
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
 use crate::estimators::ambient::{
@@ -19,9 +19,11 @@ use crate::estimators::ambient::{
 /// shading point; otherwise from `cache` (grown for the view by §6.1's criterion). Returns a
 /// dict with `image` (H, W) float32 (NaN where nothing was hit or nothing computed) and
 /// `stats`. `callback(done, total)` is called with the GIL held after every wave; a falsy
-/// return or an exception stops the work (the exception is then raised).
+/// return or an exception stops the work (the exception is then raised). None stands for
+/// the core's defaults: `sigma_scale`, `min_radius_scale` and `w_min` those of `AoParams`
+/// (3, 40, 0.45), `threads` every core, `time_budget` none.
 #[pyfunction]
-#[pyo3(signature = (scene, camera, cache=None, reference_rays=None, seed=None, threads=None, time_budget=None, sigma_scale=None, min_radius_scale=None, w_min=None, callback=None))]
+#[pyo3(signature = (scene, camera, cache=None, reference_rays=None, seed=0, threads=None, time_budget=None, sigma_scale=None, min_radius_scale=None, w_min=None, callback=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render_ao<'py>(
     py: Python<'py>,
@@ -29,7 +31,7 @@ pub fn render_ao<'py>(
     camera: PyRef<'py, PyCamera>,
     cache: Option<Bound<'py, PyVisibilityCache>>,
     reference_rays: Option<&Bound<'py, PyAny>>,
-    seed: Option<&Bound<'py, PyAny>>,
+    #[pyo3(from_py_with = seed_or_zero)] seed: u64,
     threads: Option<&Bound<'py, PyAny>>,
     time_budget: Option<&Bound<'py, PyAny>>,
     sigma_scale: Option<&Bound<'py, PyAny>>,
@@ -42,7 +44,6 @@ pub fn render_ao<'py>(
         .map(|r| int_arg(&r, "reference_rays", 1, MAX_AO_RAYS as i128))
         .transpose()?
         .map(|r| r as u32);
-    let seed = some(seed).map_or(Ok(0), |s| seed_arg(&s))?;
     let threads = threads_arg(threads)?;
     let budget = some(time_budget)
         .map(|b| f64_arg(&b, "time_budget"))

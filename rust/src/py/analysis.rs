@@ -11,8 +11,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use super::convert::{
-    f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, rows_array, seed_arg, threads_arg,
-    IntoPyResult,
+    f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, or_default, rows_array,
+    seed_or_zero, threads_arg, IntoPyResult,
 };
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
@@ -160,23 +160,43 @@ fn pairs_arg(obj: &Bound<'_, PyAny>, n: usize) -> PyResult<Vec<[u32; 2]>> {
         .collect()
 }
 
+/// Extractor of `resolution=32`: its `log2`.
+fn log2_resolution_or_5(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, 5, log2_resolution)
+}
+
+/// Extractor of `neighbours=16`.
+fn neighbours_arg(obj: &Bound<'_, PyAny>) -> PyResult<usize> {
+    or_default(obj, 16, |o| partners(o, "neighbours"))
+}
+
+/// Extractor of `far=16`.
+fn far_arg(obj: &Bound<'_, PyAny>) -> PyResult<usize> {
+    or_default(obj, 16, |o| partners(o, "far"))
+}
+
+/// A count of partners per point, in `[0, MAX_PARTNERS]`.
+fn partners(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<usize> {
+    Ok(int_arg(obj, name, 0, MAX_PARTNERS as i128)? as usize)
+}
+
 /// Traces the visibility map of every point (CAM08 eq. 7): `R x R` directions of the
 /// record pattern over the whole sphere, the lower hemisphere occluded, exactly as
 /// `VisibilityCache` records are traced. Deterministic for any `threads`.
 /// `callback(done, total)`, if given, is called after every 1024 points with the GIL held;
 /// a falsy return stops the trace (ValueError naming `progress`), an exception is raised.
 #[pyfunction]
-#[pyo3(signature = (scene, points, normals, resolution=None, threads=None, callback=None))]
+#[pyo3(signature = (scene, points, normals, resolution=32, threads=None, callback=None))]
 pub fn visibility_maps(
     py: Python<'_>,
     scene: PyRef<'_, PyScene>,
     points: &Bound<'_, PyAny>,
     normals: &Bound<'_, PyAny>,
-    resolution: Option<&Bound<'_, PyAny>>,
+    // log2 of the resolution, from the extractor.
+    #[pyo3(from_py_with = log2_resolution_or_5)] resolution: u32,
     threads: Option<&Bound<'_, PyAny>>,
     callback: Option<Py<PyAny>>,
 ) -> PyResult<PyVisibilityMaps> {
-    let m = resolution.map_or(Ok(5), log2_resolution)?;
     let threads = threads_arg(threads)?;
     let p: Vec<glam::Vec3> = finite_rows::<3>(points, "points")?
         .into_iter()
@@ -193,7 +213,7 @@ pub fn visibility_maps(
     let stop = reporter.stop_flag();
     let mut progress = |done: usize, total: usize| reporter.report(done as u64, total as u64);
     let out = detach_interruptible(py, &stop, || {
-        VisibilityMaps::trace(&scene, &p, &n, m, threads, &mut progress)
+        VisibilityMaps::trace(&scene, &p, &n, resolution, threads, &mut progress)
     })?;
     reporter.finish()?;
     Ok(PyVisibilityMaps { inner: out.py()? })
@@ -207,24 +227,18 @@ pub fn visibility_maps(
 /// `(seed, i, draw)`; draws that find no point give no pair. Returns (P, 2) uint32
 /// `(i, j)`, `i != j`. Deterministic for any `threads`.
 #[pyfunction]
-#[pyo3(signature = (maps, neighbours=None, far=None, far_range=None, seed=None, threads=None))]
+#[pyo3(signature = (maps, neighbours=16, far=16, far_range=None, seed=0, threads=None))]
 pub fn sample_pairs<'py>(
     py: Python<'py>,
     maps: PyRef<'py, PyVisibilityMaps>,
-    neighbours: Option<&Bound<'py, PyAny>>,
-    far: Option<&Bound<'py, PyAny>>,
+    #[pyo3(from_py_with = neighbours_arg)] neighbours: usize,
+    #[pyo3(from_py_with = far_arg)] far: usize,
     far_range: Option<&Bound<'py, PyAny>>,
-    seed: Option<&Bound<'py, PyAny>>,
+    #[pyo3(from_py_with = seed_or_zero)] seed: u64,
     threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let m = &maps.inner;
     let p = m.points();
-    let count = |obj: Option<&Bound<'py, PyAny>>, name: &str| -> PyResult<usize> {
-        obj.map_or(Ok(16), |o| int_arg(o, name, 0, MAX_PARTNERS as i128))
-            .map(|v| v as usize)
-    };
-    let neighbours = count(neighbours, "neighbours")?;
-    let far = count(far, "far")?;
     let (far_min, far_max) = match far_range {
         Some(r) if !r.is_none() => {
             let v = f64_vector(r, "far_range")?;
@@ -250,7 +264,7 @@ pub fn sample_pairs<'py>(
         far,
         far_min,
         far_max,
-        seed: seed.map_or(Ok(0), seed_arg)?,
+        seed,
     };
     let threads = threads_arg(threads)?;
     let pairs = py.detach(|| pairs_core(m, &s, threads)).py()?;

@@ -8,14 +8,14 @@ use std::sync::Arc;
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyType};
 
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, seed_arg, threads_arg,
-    unit_directions, vec3_arg, IntoPyResult,
+    f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, or_default, seed_arg, seed_or_zero,
+    threads_arg, unit_directions, vec3_arg, IntoPyResult,
 };
-use super::interrupt::{detach_interruptible_with, PyProgress, Report};
+use super::interrupt::{detach_interruptible_with, PyProgress};
 use super::scene::PyScene;
 use crate::sampling::octahedral::{morton_decode, morton_encode};
 use crate::visibility::cache::{Lookup, VisibilityCache};
@@ -24,7 +24,8 @@ use crate::visibility::record::bytes_per_record;
 
 /// A world-space cache of visibility records over a scene (CAM08 §5). See the module
 /// docs of `viscache_rs` and `VisibilityCache.build`.
-#[pyclass(name = "VisibilityCache", module = "viscache_rs._core")]
+// `subclass`: `viscache_rs.VisibilityCache` adds the progress bar in Python.
+#[pyclass(name = "VisibilityCache", module = "viscache_rs._core", subclass)]
 pub struct PyVisibilityCache {
     pub(crate) inner: Arc<VisibilityCache>,
     /// The scene records are traced in (read at each call, so edits are seen).
@@ -235,21 +236,22 @@ impl PyVisibilityCache {
 
     /// Builds the cache for `camera`'s view (bootstrap of `n_startup` records when empty,
     /// then a pass over the G-buffer applying both insertion criteria). Deterministic for
-    /// any `threads`. Shows a progress bar unless `progress=False`; stops after the wave
-    /// that spends `time_budget` seconds. Returns a dict: records, bootstrap_records,
+    /// any `threads`. Stops after the wave that spends `time_budget` seconds (None: no
+    /// budget). `callback(done, total)` (pixels), if given, is called with the GIL held
+    /// after every wave; a falsy return or an exception stops the build (the exception is
+    /// then raised). Returns a dict: records, bootstrap_records,
     /// refined_records, discarded_records, pixels, covered_pixels, shadow_rays,
     /// nearest_rays, shadow_rays_per_pixel (CAM08 Table 2's last row), seconds, complete.
-    #[pyo3(signature = (camera, seed=None, threads=None, progress=true, time_budget=None))]
+    #[pyo3(signature = (camera, seed=0, threads=None, *, time_budget=None, callback=None))]
     fn build<'py>(
         &self,
         py: Python<'py>,
         camera: PyRef<'py, PyCamera>,
-        seed: Option<&Bound<'py, PyAny>>,
+        #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         threads: Option<&Bound<'py, PyAny>>,
-        progress: bool,
         time_budget: Option<&Bound<'py, PyAny>>,
+        callback: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let seed = seed.map_or(Ok(0), seed_arg)?;
         let threads = threads_arg(threads)?;
         let budget = match time_budget {
             Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
@@ -257,35 +259,13 @@ impl PyVisibilityCache {
         };
         let cam = camera.inner;
         let scene = self.scene.borrow(py).get();
-        let bar: Option<Py<PyAny>> = if progress {
-            let tqdm = py.import("tqdm.auto")?.getattr("tqdm")?;
-            let kw = PyDict::new(py);
-            kw.set_item("desc", "cache build")?;
-            kw.set_item("unit", "px")?;
-            kw.set_item("leave", false)?;
-            Some(tqdm.call((), Some(&kw))?.unbind())
-        } else {
-            None
-        };
-        let mut reporter = PyProgress::with(bar.as_ref().map(|bar| -> Report {
-            let bar = bar.clone_ref(py);
-            Box::new(move |py, done, total| {
-                let b = bar.bind(py);
-                b.setattr("total", total)?;
-                b.setattr("n", done)?;
-                b.call_method0("refresh")?;
-                Ok(true)
-            })
-        }));
+        let mut reporter = PyProgress::new(callback);
         let stop = reporter.stop_flag();
         let mut callback = |done: usize, total: usize| reporter.report(done as u64, total as u64);
         let inner = self.inner.clone();
         let out = detach_interruptible_with(py, &stop, &|| inner.request_stop(), || {
             inner.build(&scene, &cam, seed, threads, budget, &mut callback)
         });
-        if let Some(bar) = &bar {
-            bar.bind(py).call_method0("close")?;
-        }
         reporter.finish()?;
         let r = out?.py()?;
         if let Some(f) = r.median_footprint {
@@ -498,17 +478,15 @@ impl PyVisibilityCache {
     /// record and the frame) in the scene as it is now and records the disagreements as
     /// misses, as an estimator's samples would (§5.3); call after `setup.at_frame(i)` and
     /// before `end_frame()`. Returns a dict: rays, misses.
-    #[pyo3(signature = (rays_per_record=None, seed=None, threads=None))]
+    #[pyo3(signature = (rays_per_record=16, seed=0, threads=None))]
     fn validate<'py>(
         &self,
         py: Python<'py>,
-        rays_per_record: Option<&Bound<'py, PyAny>>,
-        seed: Option<&Bound<'py, PyAny>>,
+        #[pyo3(from_py_with = rays_per_record_arg)] rays_per_record: u32,
+        #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let k = rays_per_record.map_or(Ok(16), |r| int_arg(r, "rays_per_record", 1, 1 << 14))?;
-        let k = k as u32;
-        let seed = seed.map_or(Ok(0), seed_arg)?;
+        let k = rays_per_record;
         let threads = threads_arg(threads)?;
         let scene = self.scene.borrow(py).get();
         let inner = self.inner.clone();
@@ -567,17 +545,25 @@ impl PyVisibilityCache {
     /// Reads a cache written by `save`, attached to `scene`. A truncated or corrupted file
     /// raises ValueError naming the file; so does a cache built for another scene (files
     /// record the scene's geometry fingerprint; older files without one are accepted).
-    #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf, scene: Py<PyScene>) -> PyResult<Self> {
+    /// Returns an instance of the class it is called on (`viscache_rs.VisibilityCache`).
+    #[classmethod]
+    fn load<'py>(
+        cls: &Bound<'py, PyType>,
+        path: PathBuf,
+        scene: Py<PyScene>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let py = cls.py();
         let core_scene = scene.borrow(py).get();
         let cache = py
             .detach(|| VisibilityCache::load_for(&path, &core_scene))
             .py()?;
-        Ok(Self {
-            inner: Arc::new(cache),
-            scene,
-            default_radius: std::sync::Mutex::new(None),
-        })
+        // PyO3 makes instances of a Python subclass only through `cls(...)`: make an empty
+        // cache of the smallest resolution and give it the loaded one.
+        let kw = PyDict::new(py);
+        kw.set_item("resolution", 2)?;
+        let obj = cls.call((scene,), Some(&kw))?;
+        obj.cast::<Self>()?.borrow_mut().inner = Arc::new(cache);
+        Ok(obj)
     }
 }
 
@@ -633,6 +619,13 @@ impl PyVisibilityCache {
             },
         }
     }
+}
+
+/// Extractor of `rays_per_record=16`.
+fn rays_per_record_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, 16, |o| {
+        Ok(int_arg(o, "rays_per_record", 1, 1 << 14)? as u32)
+    })
 }
 
 /// A 1-D array of counts (non-negative integers below 2^32).

@@ -3,7 +3,9 @@
 use glam::Vec3;
 use pyo3::prelude::*;
 
-use super::convert::{f64_arg, int_arg, rows3_array, seed_arg, vec3_arg, IntoPyResult};
+use super::convert::{
+    f64_arg, int_arg, or_default, rows3_array, seed_or_zero, vec3_arg, IntoPyResult,
+};
 use crate::camera::{Camera, MAX_RESOLUTION};
 
 /// A pinhole camera. The field of view spans the vertical axis (image height); images are
@@ -18,34 +20,51 @@ fn resolution(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<u32> {
     Ok(int_arg(obj, name, 1, MAX_RESOLUTION as i128)? as u32)
 }
 
+/// Extractor of `up=(0, 1, 0)`.
+fn up_arg(obj: &Bound<'_, PyAny>) -> PyResult<[f32; 3]> {
+    or_default(obj, [0.0, 1.0, 0.0], |o| vec3_arg(o, "up"))
+}
+
+/// Extractor of `fov_deg=45.0`.
+fn fov_arg(obj: &Bound<'_, PyAny>) -> PyResult<f32> {
+    or_default(obj, 45.0, |o| Ok(f64_arg(o, "fov_deg")? as f32))
+}
+
+/// Extractor of `width=256`.
+fn width_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, 256, |o| resolution(o, "width"))
+}
+
+/// Extractor of `height=192`.
+fn height_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, 192, |o| resolution(o, "height"))
+}
+
 #[pymethods]
 impl PyCamera {
     /// Camera at `eye` looking at `target`; `up` fixes the roll; `fov_deg` is the vertical
     /// field of view in degrees, in (0, 180).
+    // The text signature is spelt out: the generated one cannot show a tuple default.
     #[staticmethod]
-    #[pyo3(signature = (eye, target, up=None, fov_deg=None, width=None, height=None))]
+    #[pyo3(
+        signature = (eye, target, up=[0.0, 1.0, 0.0], fov_deg=45.0, width=256, height=192),
+        text_signature = "(eye, target, up=(0, 1, 0), fov_deg=45.0, width=256, height=192)"
+    )]
     fn look_at(
         eye: &Bound<'_, PyAny>,
         target: &Bound<'_, PyAny>,
-        up: Option<&Bound<'_, PyAny>>,
-        fov_deg: Option<&Bound<'_, PyAny>>,
-        width: Option<&Bound<'_, PyAny>>,
-        height: Option<&Bound<'_, PyAny>>,
+        #[pyo3(from_py_with = up_arg)] up: [f32; 3],
+        #[pyo3(from_py_with = fov_arg)] fov_deg: f32,
+        #[pyo3(from_py_with = width_arg)] width: u32,
+        #[pyo3(from_py_with = height_arg)] height: u32,
     ) -> PyResult<Self> {
-        let up = match up {
-            Some(u) => vec3_arg(u, "up")?,
-            None => [0.0, 1.0, 0.0],
-        };
-        let fov = fov_deg.map_or(Ok(45.0), |f| f64_arg(f, "fov_deg"))? as f32;
-        let w = width.map_or(Ok(256), |w| resolution(w, "width"))?;
-        let h = height.map_or(Ok(192), |h| resolution(h, "height"))?;
         let cam = Camera::look_at(
             vec3_arg(eye, "eye")?.into(),
             vec3_arg(target, "target")?.into(),
             Vec3::from(up),
-            fov,
-            w,
-            h,
+            fov_deg,
+            width,
+            height,
         )
         .py()?;
         Ok(Self { inner: cam })
@@ -105,14 +124,13 @@ impl PyCamera {
 
     /// Primary rays, one per pixel in row-major order: (origins, directions) as (H*W, 3)
     /// arrays, jittered from (seed, pixel) like `Scene.gbuffer`, or through pixel centres.
-    #[pyo3(signature = (seed=None, jitter=true))]
+    #[pyo3(signature = (seed=0, jitter=true))]
     fn rays<'py>(
         &self,
         py: Python<'py>,
-        seed: Option<&Bound<'py, PyAny>>,
+        #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         jitter: bool,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-        let seed = seed.map_or(Ok(0), seed_arg)?;
         let c = self.inner;
         let n = c.num_pixels();
         let dirs: Vec<[f32; 3]> = (0..n)

@@ -259,6 +259,27 @@ pub fn seed_arg(obj: &Bound<'_, PyAny>) -> PyResult<u64> {
     Ok(int_arg(obj, "seed", 0, u64::MAX as i128)? as u64)
 }
 
+/// `read(obj)`, or `default` for None. For the `#[pyo3(from_py_with = ...)]` extractors of
+/// arguments whose signature states their default: None passed explicitly (as wrappers
+/// forwarding their own None do) still means that default, as it did when the signature
+/// said None. The extractor's `default` must equal the signature's literal.
+pub fn or_default<'py, T>(
+    obj: &Bound<'py, PyAny>,
+    default: T,
+    read: impl FnOnce(&Bound<'py, PyAny>) -> PyResult<T>,
+) -> PyResult<T> {
+    if obj.is_none() {
+        Ok(default)
+    } else {
+        read(obj)
+    }
+}
+
+/// Extractor of `seed=0`: a seed in `[0, 2^64)`, None for 0.
+pub fn seed_or_zero(obj: &Bound<'_, PyAny>) -> PyResult<u64> {
+    or_default(obj, 0, seed_arg)
+}
+
 fn type_name(obj: &Bound<'_, PyAny>) -> String {
     obj.get_type()
         .name()

@@ -2,19 +2,19 @@
 
 use std::path::PathBuf;
 
-use glam::{DVec2, Vec3};
-use numpy::{PyArray1, PyArrayMethods};
+use glam::Vec3;
+use numpy::PyArray1;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PySequence};
-use rayon::prelude::*;
 
 use super::convert::{
-    f64_arg, image3_f32, int_arg, rows2_f64, rows3_array, rows3_f32, vec3_arg, IntoPyResult,
+    f64_arg, image3_f32, int_arg, or_default, rows2_f64, rows3_array, rows3_f32, vec3_arg,
+    IntoPyResult,
 };
 use crate::lights::envmap::{ExrLayout, MAX_EQUIRECT_SIDE, MAX_RESOLUTION};
 use crate::lights::procedural::{self, Window};
-use crate::lights::EnvMap;
+use crate::lights::{envmap_rows, EnvMap};
 
 /// Default octahedral resolution of maps built from images and procedures.
 const DEFAULT_RESOLUTION: u32 = 256;
@@ -28,16 +28,20 @@ pub struct PyEnvMap {
 }
 
 /// A resolution argument: an integer in `[1, 4096]` that is a power of two.
-fn resolution_arg(obj: Option<&Bound<'_, PyAny>>) -> PyResult<u32> {
-    match obj {
-        None => Ok(DEFAULT_RESOLUTION),
-        Some(o) => {
-            let r = int_arg(o, "resolution", 1, MAX_RESOLUTION as i128)? as u32;
-            crate::lights::envmap::check_resolution(r, "resolution").py()?;
-            Ok(r)
-        }
-    }
+fn resolution_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    let r = int_arg(obj, "resolution", 1, MAX_RESOLUTION as i128)? as u32;
+    crate::lights::envmap::check_resolution(r, "resolution").py()?;
+    Ok(r)
 }
+
+/// Extractor of `resolution=256` ([`DEFAULT_RESOLUTION`], the literal in the signatures).
+fn resolution_or_default(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, DEFAULT_RESOLUTION, resolution_arg)
+}
+const _: () = assert!(
+    DEFAULT_RESOLUTION == 256,
+    "update the signatures' resolution=256"
+);
 
 /// An RGB argument: a number (grey) or three numbers.
 fn rgb_arg(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f32; 3]> {
@@ -142,20 +146,21 @@ impl PyEnvMap {
     /// looks toward -z, W/4 toward +x, W/2 toward +z) onto a `resolution`² octahedral map,
     /// preserving its total power.
     #[staticmethod]
-    #[pyo3(signature = (rgb, resolution=None))]
+    #[pyo3(signature = (rgb, resolution=256))]
     fn from_equirect(
         py: Python<'_>,
         rgb: &Bound<'_, PyAny>,
-        resolution: Option<&Bound<'_, PyAny>>,
+        #[pyo3(from_py_with = resolution_or_default)] resolution: u32,
     ) -> PyResult<Self> {
         let (pixels, h, w) = image3_f32(rgb, "rgb")?;
-        let r = resolution_arg(resolution)?;
         if w > MAX_EQUIRECT_SIDE || h > MAX_EQUIRECT_SIDE {
             return Err(PyValueError::new_err(format!(
                 "rgb: sides must be at most {MAX_EQUIRECT_SIDE}, got {h} x {w}"
             )));
         }
-        let inner = py.detach(|| EnvMap::from_equirect(&pixels, w, h, r)).py()?;
+        let inner = py
+            .detach(|| EnvMap::from_equirect(&pixels, w, h, resolution))
+            .py()?;
         Ok(Self { inner })
     }
 
@@ -192,7 +197,7 @@ impl PyEnvMap {
         resolution: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let r = match resolution {
-            Some(o) if !o.is_none() => Some(resolution_arg(Some(o))?),
+            Some(o) if !o.is_none() => Some(resolution_arg(o)?),
             _ => None,
         };
         let inner = py.detach(|| EnvMap::read_exr(&path, r)).py()?;
@@ -201,18 +206,20 @@ impl PyEnvMap {
 
     /// A uniform map of `value` (a number or an RGB triple, finite, in [0, 1e15]).
     #[staticmethod]
-    #[pyo3(signature = (value, resolution=None))]
-    fn constant(value: &Bound<'_, PyAny>, resolution: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+    #[pyo3(signature = (value, resolution=256))]
+    fn constant(
+        value: &Bound<'_, PyAny>,
+        #[pyo3(from_py_with = resolution_or_default)] resolution: u32,
+    ) -> PyResult<Self> {
         let v = rgb_arg(value, "value")?;
-        let r = resolution_arg(resolution)?;
         Ok(Self {
-            inner: EnvMap::constant(v, r).py()?,
+            inner: EnvMap::constant(v, resolution).py()?,
         })
     }
 
     /// A gradient sky with a disc sun (see `viscache_rs.envmaps.sky`).
     #[staticmethod]
-    #[pyo3(signature = (sun_dir, sun_radiance, sun_angle, zenith, horizon, resolution=None))]
+    #[pyo3(signature = (sun_dir, sun_radiance, sun_angle, zenith, horizon, resolution=256))]
     fn sky(
         py: Python<'_>,
         sun_dir: &Bound<'_, PyAny>,
@@ -220,7 +227,7 @@ impl PyEnvMap {
         sun_angle: &Bound<'_, PyAny>,
         zenith: &Bound<'_, PyAny>,
         horizon: &Bound<'_, PyAny>,
-        resolution: Option<&Bound<'_, PyAny>>,
+        #[pyo3(from_py_with = resolution_or_default)] resolution: u32,
     ) -> PyResult<Self> {
         let sun = Vec3::from(vec3_arg(sun_dir, "sun_dir")?);
         if sun.length() == 0.0 {
@@ -230,9 +237,8 @@ impl PyEnvMap {
         let angle = f64_arg(sun_angle, "sun_angle")? as f32;
         let z = rgb_arg(zenith, "zenith")?;
         let h = rgb_arg(horizon, "horizon")?;
-        let r = resolution_arg(resolution)?;
         let inner = py
-            .detach(|| procedural::sky(sun, sun_rgb, angle, z, h, r))
+            .detach(|| procedural::sky(sun, sun_rgb, angle, z, h, resolution))
             .py()?;
         Ok(Self { inner })
     }
@@ -240,12 +246,12 @@ impl PyEnvMap {
     /// Bright rectangles of directions on a dim background (see
     /// `viscache_rs.envmaps.windows`).
     #[staticmethod]
-    #[pyo3(signature = (windows, background, resolution=None))]
+    #[pyo3(signature = (windows, background, resolution=256))]
     fn windows(
         py: Python<'_>,
         windows: &Bound<'_, PyAny>,
         background: &Bound<'_, PyAny>,
-        resolution: Option<&Bound<'_, PyAny>>,
+        #[pyo3(from_py_with = resolution_or_default)] resolution: u32,
     ) -> PyResult<Self> {
         let seq = windows
             .cast::<PySequence>()
@@ -254,8 +260,9 @@ impl PyEnvMap {
             .map(|i| window_arg(&seq.get_item(i)?, i))
             .collect::<PyResult<_>>()?;
         let bg = rgb_arg(background, "background")?;
-        let r = resolution_arg(resolution)?;
-        let inner = py.detach(|| procedural::windows(&list, bg, r)).py()?;
+        let inner = py
+            .detach(|| procedural::windows(&list, bg, resolution))
+            .py()?;
         Ok(Self { inner })
     }
 
@@ -319,12 +326,9 @@ impl PyEnvMap {
     /// Radiance (N, 3) float32 arriving from directions `dirs` (N, 3).
     fn eval<'py>(&self, py: Python<'py>, dirs: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
         let d = dirs_arg(dirs)?;
-        let out: Vec<[f32; 3]> = py.detach(|| {
-            d.par_iter()
-                .with_min_len(4096)
-                .map(|&v| self.inner.eval(v).to_array())
-                .collect()
-        });
+        let mut out = vec![[0.0f32; 3]; d.len()];
+        py.detach(|| envmap_rows::eval_rows(&self.inner, &d, &mut out))
+            .py()?;
         rows3_array(py, out)
     }
 
@@ -332,12 +336,9 @@ impl PyEnvMap {
     /// black map.
     fn pdf<'py>(&self, py: Python<'py>, dirs: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
         let d = dirs_arg(dirs)?;
-        let out: Vec<f64> = py.detach(|| {
-            d.par_iter()
-                .with_min_len(4096)
-                .map(|&v| self.inner.pdf(v))
-                .collect()
-        });
+        let mut out = vec![0.0f64; d.len()];
+        py.detach(|| envmap_rows::pdf_rows(&self.inner, &d, &mut out))
+            .py()?;
         Ok(PyArray1::from_vec(py, out).into_any())
     }
 
@@ -354,30 +355,13 @@ impl PyEnvMap {
             .map_err(|e| PyValueError::new_err(e.to_string()))?
             .as_chunks::<2>()
             .0;
-        if let Some(i) = rows
-            .iter()
-            .position(|r| !r.iter().all(|c| (0.0..1.0).contains(c)))
-        {
-            return Err(PyValueError::new_err(format!(
-                "u: row {i} is {:?}; values must lie in [0, 1)",
-                rows[i]
-            )));
-        }
+        let (mut dirs, mut pdf) = (vec![[0.0f32; 3]; rows.len()], vec![0.0f64; rows.len()]);
+        py.detach(|| envmap_rows::sample_rows(&self.inner, rows, &mut dirs, &mut pdf))
+            .py()?;
+        // Refused after the core's check of u, so that a bad u is still reported first.
         if self.inner.is_black() {
             return Err(black_error());
         }
-        let out: Vec<(Vec3, f64)> = py.detach(|| {
-            rows.par_iter()
-                .with_min_len(4096)
-                .map(|r| {
-                    self.inner
-                        .sample(DVec2::new(r[0], r[1]))
-                        .unwrap_or((Vec3::Y, 0.0))
-                })
-                .collect()
-        });
-        let dirs = out.iter().map(|(d, _)| d.to_array()).collect();
-        let pdf = out.iter().map(|(_, p)| *p).collect();
         Ok((
             rows3_array(py, dirs)?,
             PyArray1::from_vec(py, pdf).into_any(),
@@ -395,17 +379,10 @@ impl PyEnvMap {
         if self.inner.is_black() {
             return Err(black_error());
         }
-        let out: Vec<f64> = py.detach(|| {
-            d.par_iter()
-                .with_min_len(4096)
-                .flat_map_iter(|&v| {
-                    let u = self.inner.invert(v).unwrap_or(DVec2::NAN);
-                    [u.x, u.y]
-                })
-                .collect()
-        });
-        let n = d.len();
-        Ok(PyArray1::from_vec(py, out).reshape([n, 2])?.into_any())
+        let mut out = vec![[0.0f64; 2]; d.len()];
+        py.detach(|| envmap_rows::invert_rows(&self.inner, &d, &mut out))
+            .py()?;
+        super::convert::rows_array(py, out)
     }
 
     /// ∫ L dω over the sphere per channel, as (r, g, b).

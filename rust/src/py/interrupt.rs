@@ -68,7 +68,7 @@ pub fn detach_interruptible_with<R: Send>(
 }
 
 /// What a [`PyProgress`] does with a report, with the GIL held: `Ok(false)` stops the work.
-pub type Report = Box<dyn FnMut(Python<'_>, u64, u64) -> PyResult<bool> + Send>;
+type Report = Box<dyn FnMut(Python<'_>, u64, u64) -> PyResult<bool> + Send>;
 
 /// Forwards the core's `progress(done, total)` reports to an optional Python
 /// `callback(done, total)` (or any [`Report`]), taking the GIL for each call. A falsy
@@ -92,7 +92,7 @@ impl PyProgress {
     }
 
     /// A reporter running `report` (none: every report says "go on" until a stop).
-    pub fn with(report: Option<Report>) -> Self {
+    fn with(report: Option<Report>) -> Self {
         Self {
             report,
             failure: None,

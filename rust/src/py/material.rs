@@ -1,14 +1,16 @@
 //! `vc.Material`.
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use super::convert::{
-    f64_arg, image_array, int_arg, rows3_array, rows3_f32, unit_directions, vec3_arg, IntoPyResult,
+    f64_arg, image_array, int_arg, or_default, rows3_array, rows3_f32, unit_directions, vec3_arg,
+    IntoPyResult,
 };
 use crate::bsdf::{Material, MAX_CELL_LEVEL};
+use crate::bsdf_rows;
 use crate::sampling::octahedral::morton_encode;
 
 fn unit(v: Vec3, name: &str) -> PyResult<Vec3> {
@@ -26,7 +28,7 @@ fn unit(v: Vec3, name: &str) -> PyResult<Vec3> {
     Ok(v / l)
 }
 
-/// Rows of normals, wo and wi of one batch, normalised, of equal length.
+/// Rows of normals, wo and wi of one batch, normalised (the core checks their lengths).
 type ShadingRows = (Vec<Vec3>, Vec<Vec3>, Vec<Vec3>);
 
 fn shading_rows(
@@ -37,22 +39,17 @@ fn shading_rows(
     let n = unit_directions(normals, "normals")?;
     let o = unit_directions(wo, "wo")?;
     let i = unit_directions(wi, "wi")?;
-    same_len("wo", o.len(), n.len())?;
-    same_len("wi", i.len(), n.len())?;
     Ok((n, o, i))
 }
 
-fn same_len(name: &str, got: usize, want: usize) -> PyResult<()> {
-    if got == want {
-        Ok(())
-    } else {
-        Err(PyValueError::new_err(format!(
-            "{name}: expected {want} rows like normals, got {got}"
-        )))
-    }
+/// A surface material: `Material.lambert(albedo)` or `Material.phong(kd, ks, exponent)`.
+/// Extractor of `level=5` (B~ over 32 x 32 cells, the renderer's product level).
+fn level_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, 5, |o| {
+        Ok(int_arg(o, "level", 1, MAX_CELL_LEVEL as i128)? as u32)
+    })
 }
 
-/// A surface material: `Material.lambert(albedo)` or `Material.phong(kd, ks, exponent)`.
 #[pyclass(
     name = "Material",
     module = "viscache_rs._core",
@@ -98,12 +95,9 @@ impl PyMaterial {
         wi: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyAny>> {
         let (n, o, i) = shading_rows(normals, wo, wi)?;
-        let m = self.inner;
-        let out: Vec<[f32; 3]> = py.detach(|| {
-            (0..n.len())
-                .map(|k| m.eval(n[k], o[k], i[k]).to_array())
-                .collect()
-        });
+        let mut out = vec![[0.0f32; 3]; n.len()];
+        py.detach(|| bsdf_rows::eval_rows(&self.inner, &n, &o, &i, &mut out))
+            .py()?;
         rows3_array(py, out)
     }
 
@@ -121,34 +115,11 @@ impl PyMaterial {
             unit_directions(normals, "normals")?,
             unit_directions(wo, "wo")?,
         );
-        same_len("wo", o.len(), n.len())?;
         let u = rows3_f32(u, "u")?;
         let u = u.rows()?;
-        same_len("u", u.len(), n.len())?;
-        if let Some(bad) = u
-            .iter()
-            .position(|r| r.iter().any(|x| !(0.0..=1.0).contains(x)))
-        {
-            return Err(PyValueError::new_err(format!(
-                "u[{bad}]: must lie in [0, 1], got {:?}",
-                u[bad]
-            )));
-        }
-        // Keep u < 1 so the samplers see [0, 1).
-        let below_one = |x: f32| x.min(1.0 - f32::EPSILON / 2.0);
-        let m = self.inner;
-        let (wi, valid): (Vec<[f32; 3]>, Vec<bool>) = py.detach(|| {
-            (0..n.len())
-                .map(|k| {
-                    let r = u[k];
-                    let d = Vec2::new(below_one(r[1]), below_one(r[2]));
-                    match m.sample(n[k], o[k], below_one(r[0]), d) {
-                        Some(w) => (w.to_array(), true),
-                        None => ([0.0; 3], false),
-                    }
-                })
-                .unzip()
-        });
+        let (mut wi, mut valid) = (vec![[0.0f32; 3]; n.len()], vec![false; n.len()]);
+        py.detach(|| bsdf_rows::sample_rows(&self.inner, &n, &o, u, &mut wi, &mut valid))
+            .py()?;
         Ok((
             rows3_array(py, wi)?,
             PyArray1::from_vec(py, valid).into_any(),
@@ -164,28 +135,25 @@ impl PyMaterial {
         wi: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyAny>> {
         let (n, o, i) = shading_rows(normals, wo, wi)?;
-        let m = self.inner;
-        let out: Vec<f64> = py.detach(|| (0..n.len()).map(|k| m.pdf(n[k], o[k], i[k])).collect());
+        let mut out = vec![0.0f64; n.len()];
+        py.detach(|| bsdf_rows::pdf_rows(&self.inner, &n, &o, &i, &mut out))
+            .py()?;
         Ok(PyArray1::from_vec(py, out).into_any())
     }
 
     /// B~ for one shading point: the conservative per-cell approximation of
     /// luminance(f_r) cos θi (1/sr) over the 2^level x 2^level octahedral grid, as a
-    /// float32 array indexed [y, x] (row-major texels). level in 1..=8 (None: 5).
-    #[pyo3(signature = (normal, wo, level=None))]
+    /// float32 array indexed [y, x] (row-major texels). level in 1..=8.
+    #[pyo3(signature = (normal, wo, level=5))]
     fn product_cells<'py>(
         &self,
         py: Python<'py>,
         normal: &Bound<'py, PyAny>,
         wo: &Bound<'py, PyAny>,
-        level: Option<&Bound<'py, PyAny>>,
+        #[pyo3(from_py_with = level_arg)] level: u32,
     ) -> PyResult<Bound<'py, PyAny>> {
         let n = unit(Vec3::from(vec3_arg(normal, "normal")?), "normal")?;
         let o = unit(Vec3::from(vec3_arg(wo, "wo")?), "wo")?;
-        let level = match level.filter(|l| !l.is_none()) {
-            Some(l) => int_arg(l, "level", 1, MAX_CELL_LEVEL as i128)? as u32,
-            None => 5,
-        };
         let m = self.inner;
         let res = 1usize << level;
         let grid = py.detach(|| {

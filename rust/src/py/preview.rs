@@ -44,7 +44,7 @@ impl PyLightingPreview {
     }
 
     /// `J` per pixel as an (H, W, 3) float32 image under `envmap` with `cache`'s records;
-    /// traces no rays.
+    /// traces no rays. `product_level` None is "auto" (per material).
     #[pyo3(signature = (cache, envmap, product_level=None, threads=None))]
     fn render<'py>(
         &self,

@@ -8,7 +8,8 @@ use pyo3::types::{PyDict, PyString};
 use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, image_array, int_arg, product_level_arg, seed_arg, threads_arg, IntoPyResult,
+    f64_arg, image_array, int_arg, or_default, product_level_arg, seed_or_zero, threads_arg,
+    IntoPyResult,
 };
 use super::envmap::PyEnvMap;
 use super::interrupt::{detach_interruptible, PyProgress};
@@ -44,6 +45,11 @@ fn alpha_arg(alpha: Option<&Bound<'_, PyAny>>, radius: u32) -> PyResult<AlphaRul
     Ok(AlphaRule::Fixed(f64_arg(alpha, "alpha")?))
 }
 
+/// Extractor of `alpha_radius=4`.
+fn alpha_radius_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, 4, |o| Ok(int_arg(o, "alpha_radius", 1, 64)? as u32))
+}
+
 /// `technique_weights`: a dict of weights by technique name ("product", "guided", "bsdf",
 /// "env"; missing ones are 0), or None for the method's default.
 fn techniques_arg(weights: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Techniques>> {
@@ -75,9 +81,11 @@ fn techniques_arg(weights: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Techniq
 /// float32, `alpha` (H, W, 3) float32 for method "cv" (else None) and `stats` (a dict).
 /// `callback(done, planned)` (pixel samples), if given, is called about every 0.1 s and
 /// after every pass with the GIL held; a falsy return or an exception stops the render
-/// (the exception is then raised).
+/// (the exception is then raised). None stands for the core's defaults: `threads` every
+/// core, `time_budget` none, `product_level` "auto" (per material), `alpha` 1.0 (CAM08's),
+/// `technique_weights` the method's own, `bounces` 1 for method "path" and 0 otherwise.
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp, method, seed=None, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=None, insert_missing=false, technique_weights=None, bounces=None, direct=true))]
+#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -86,7 +94,7 @@ pub fn render<'py>(
     camera: PyRef<'py, PyCamera>,
     spp: &Bound<'py, PyAny>,
     method: &str,
-    seed: Option<&Bound<'py, PyAny>>,
+    #[pyo3(from_py_with = seed_or_zero)] seed: u64,
     threads: Option<&Bound<'py, PyAny>>,
     time_budget: Option<&Bound<'py, PyAny>>,
     product_level: Option<&Bound<'py, PyAny>>,
@@ -94,7 +102,7 @@ pub fn render<'py>(
     cache: Option<PyRef<'py, PyVisibilityCache>>,
     jitter: bool,
     alpha: Option<&Bound<'py, PyAny>>,
-    alpha_radius: Option<&Bound<'py, PyAny>>,
+    #[pyo3(from_py_with = alpha_radius_arg)] alpha_radius: u32,
     insert_missing: bool,
     technique_weights: Option<&Bound<'py, PyAny>>,
     bounces: Option<&Bound<'py, PyAny>>,
@@ -115,11 +123,10 @@ pub fn render<'py>(
         Some(b) if !b.is_none() => int_arg(b, "bounces", min_bounces, MAX_BOUNCES as i128)? as u32,
         _ => min_bounces as u32,
     };
-    let radius = alpha_radius.map_or(Ok(4), |r| int_arg(r, "alpha_radius", 1, 64))? as u32;
     let params = RenderParams {
         spp: int_arg(spp, "spp", 1, MAX_SPP as i128)? as u32,
         method,
-        seed: seed.map_or(Ok(0), seed_arg)?,
+        seed,
         time_budget: match time_budget {
             Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
             _ => None,
@@ -127,7 +134,7 @@ pub fn render<'py>(
         product_level: product_level_arg(product_level)?,
         jitter,
         techniques: techniques_arg(technique_weights)?,
-        alpha: alpha_arg(alpha, radius)?,
+        alpha: alpha_arg(alpha, alpha_radius)?,
         insert_missing,
         bounces,
         direct,

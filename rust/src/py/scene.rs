@@ -11,7 +11,7 @@ use pyo3::types::PyDict;
 use super::camera::PyCamera;
 use super::convert::{
     as_rows, f64_arg, finite_rows, image_array, int_arg, rows3_array, rows3_f32, rows3_i64,
-    seed_arg, threads_arg, vec3_arg, IntoPyResult,
+    seed_or_zero, threads_arg, vec3_arg, IntoPyResult,
 };
 use super::material::PyMaterial;
 use crate::bsdf::Material;
@@ -476,16 +476,15 @@ impl PyScene {
     /// (distance from the eye, inf on miss) and footprint (square root of the pixel's area
     /// projected onto the hit's tangent plane, world units). With jitter the ray passes
     /// through a point drawn from (seed, pixel); without, through the pixel centre.
-    #[pyo3(signature = (camera, seed=None, jitter=true, threads=None))]
+    #[pyo3(signature = (camera, seed=0, jitter=true, threads=None))]
     fn gbuffer<'py>(
         &self,
         py: Python<'py>,
         camera: PyRef<'py, PyCamera>,
-        seed: Option<&Bound<'py, PyAny>>,
+        #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         jitter: bool,
         threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let seed = seed.map_or(Ok(0), seed_arg)?;
         let threads = threads_arg(threads)?;
         let cam = camera.inner;
         let scene = self.get();

@@ -5,7 +5,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use super::camera::PyCamera;
-use super::convert::{f64_arg, int_arg, rows3_array, seed_arg, IntoPyResult};
+use super::convert::{f64_arg, int_arg, or_default, rows3_array, seed_or_zero, IntoPyResult};
 use super::envmap::PyEnvMap;
 use super::scene::PyScene;
 use crate::scenes::{self, animation, Animation};
@@ -141,19 +141,22 @@ pub fn animated_scene_names() -> Vec<&'static str> {
     scenes::ANIMATED_NAMES.to_vec()
 }
 
+/// Extractor of `detail=1.0`.
+fn detail_arg(obj: &Bound<'_, PyAny>) -> PyResult<f32> {
+    or_default(obj, 1.0, |o| Ok(f64_arg(o, "detail")? as f32))
+}
+
 /// Builds a built-in scene. `detail` in (0, 16] scales its triangle count; `seed` drives
 /// every random choice of the generator; `animated` selects the animated variant.
 #[pyfunction]
-#[pyo3(signature = (name, detail=None, seed=None, animated=false))]
+#[pyo3(signature = (name, detail=1.0, seed=0, animated=false))]
 pub fn load_scene(
     py: Python<'_>,
     name: &str,
-    detail: Option<&Bound<'_, PyAny>>,
-    seed: Option<&Bound<'_, PyAny>>,
+    #[pyo3(from_py_with = detail_arg)] detail: f32,
+    #[pyo3(from_py_with = seed_or_zero)] seed: u64,
     animated: bool,
 ) -> PyResult<PySetup> {
-    let detail = detail.map_or(Ok(1.0), |d| f64_arg(d, "detail"))? as f32;
-    let seed = seed.map_or(Ok(0), seed_arg)?;
     let setup = py
         .detach(|| {
             if animated {

@@ -5,7 +5,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use super::convert::{
-    f64_arg, f64_vector, int_arg, nan_or_unit_rows, rows3_array, rows_array, seed_arg,
+    f64_arg, f64_vector, int_arg, nan_or_unit_rows, or_default, rows3_array, rows_array,
+    seed_or_zero,
 };
 use super::scene::PyScene;
 use crate::sampling::chi2::{chi2_binned, integration_directions, integration_weight, Chi2Params};
@@ -14,33 +15,35 @@ type RayArrays<'py> = (Bound<'py, PyAny>, Bound<'py, PyAny>);
 
 /// (origins, directions) of `n` incoherent shadow rays from the ground over its hemisphere.
 #[pyfunction]
-#[pyo3(signature = (scene, n, seed=None))]
+#[pyo3(signature = (scene, n, seed=0))]
 pub fn ground_hemisphere_rays<'py>(
     py: Python<'py>,
     scene: PyRef<'py, PyScene>,
     n: &Bound<'py, PyAny>,
-    seed: Option<&Bound<'py, PyAny>>,
+    #[pyo3(from_py_with = seed_or_zero)] seed: u64,
 ) -> PyResult<RayArrays<'py>> {
     let n = int_arg(n, "n", 0, 1 << 28)? as usize;
-    let seed = seed.map_or(Ok(0), seed_arg)?;
     let s = scene.get();
     let (o, d) = py.detach(|| crate::testing::ground_hemisphere_rays(&s, n, seed));
     Ok((rows3_array(py, o)?, rows3_array(py, d)?))
 }
 
+/// Extractor of `side=32`.
+fn side_arg(obj: &Bound<'_, PyAny>) -> PyResult<usize> {
+    or_default(obj, 32, |o| Ok(int_arg(o, "side", 1, 256)? as usize))
+}
+
 /// (origins, directions) of `points` record bundles of `side * side` rays each.
 #[pyfunction]
-#[pyo3(signature = (scene, points, side=None, seed=None))]
+#[pyo3(signature = (scene, points, side=32, seed=0))]
 pub fn record_bundle_rays<'py>(
     py: Python<'py>,
     scene: PyRef<'py, PyScene>,
     points: &Bound<'py, PyAny>,
-    side: Option<&Bound<'py, PyAny>>,
-    seed: Option<&Bound<'py, PyAny>>,
+    #[pyo3(from_py_with = side_arg)] side: usize,
+    #[pyo3(from_py_with = seed_or_zero)] seed: u64,
 ) -> PyResult<RayArrays<'py>> {
     let points = int_arg(points, "points", 0, 1 << 20)? as usize;
-    let side = side.map_or(Ok(32), |s| int_arg(s, "side", 1, 256))? as usize;
-    let seed = seed.map_or(Ok(0), seed_arg)?;
     let s = scene.get();
     let (o, d) = py.detach(|| crate::testing::record_bundle_rays(&s, points, side, seed));
     Ok((rows3_array(py, o)?, rows3_array(py, d)?))
@@ -66,34 +69,52 @@ fn call_pdf(py: Python<'_>, pdf: &Bound<'_, PyAny>, dirs: Vec<[f32; 3]>) -> PyRe
     Ok(values)
 }
 
+// Extractors of `chi2_sphere`'s arguments; the signature's literals are Chi2Params::DEFAULT.
+const _: () = {
+    let d = Chi2Params::DEFAULT;
+    assert!(d.resolution == 32 && d.subdivisions == 8);
+    assert!(d.min_expected == 5.0 && d.significance == 0.01);
+};
+
+fn chi2_resolution(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, Chi2Params::DEFAULT.resolution, |o| {
+        Ok(int_arg(o, "resolution", 1, 1024)? as u32)
+    })
+}
+
+fn chi2_subdivisions(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, Chi2Params::DEFAULT.subdivisions, |o| {
+        Ok(int_arg(o, "subdivisions", 1, 64)? as u32)
+    })
+}
+
+fn chi2_min_expected(obj: &Bound<'_, PyAny>) -> PyResult<f64> {
+    or_default(obj, Chi2Params::DEFAULT.min_expected, |o| {
+        f64_arg(o, "min_expected")
+    })
+}
+
+fn chi2_significance(obj: &Bound<'_, PyAny>) -> PyResult<f64> {
+    or_default(obj, Chi2Params::DEFAULT.significance, |o| {
+        f64_arg(o, "significance")
+    })
+}
+
 /// Pearson's chi-square test of sampled directions against their solid-angle pdf over the
 /// equal-area octahedral bins ([`crate::sampling::chi2`]). `dirs` is `(N, 3)`, one row per
 /// attempt, NaN rows for attempts the sampler rejected; `pdf(d)` maps an `(M, 3)` float32
 /// array of unit directions to `(M,)` densities and is called twice (bins, samples).
 #[pyfunction]
-#[pyo3(signature = (dirs, pdf, resolution=None, subdivisions=None, min_expected=None, significance=None))]
+#[pyo3(signature = (dirs, pdf, resolution=32, subdivisions=8, min_expected=5.0, significance=0.01))]
 pub fn chi2_sphere<'py>(
     py: Python<'py>,
     dirs: &Bound<'py, PyAny>,
     pdf: &Bound<'py, PyAny>,
-    resolution: Option<&Bound<'py, PyAny>>,
-    subdivisions: Option<&Bound<'py, PyAny>>,
-    min_expected: Option<&Bound<'py, PyAny>>,
-    significance: Option<&Bound<'py, PyAny>>,
+    #[pyo3(from_py_with = chi2_resolution)] resolution: u32,
+    #[pyo3(from_py_with = chi2_subdivisions)] subdivisions: u32,
+    #[pyo3(from_py_with = chi2_min_expected)] min_expected: f64,
+    #[pyo3(from_py_with = chi2_significance)] significance: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let defaults = Chi2Params::DEFAULT;
-    let resolution = match resolution {
-        Some(r) => int_arg(r, "resolution", 1, 1024)? as u32,
-        None => defaults.resolution,
-    };
-    let subdivisions = match subdivisions {
-        Some(s) => int_arg(s, "subdivisions", 1, 64)? as u32,
-        None => defaults.subdivisions,
-    };
-    let min_expected =
-        min_expected.map_or(Ok(defaults.min_expected), |m| f64_arg(m, "min_expected"))?;
-    let significance =
-        significance.map_or(Ok(defaults.significance), |a| f64_arg(a, "significance"))?;
     if !(min_expected > 0.0 && min_expected.is_finite()) {
         return Err(PyValueError::new_err(format!(
             "min_expected: must be positive, got {min_expected}"

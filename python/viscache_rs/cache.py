@@ -1,0 +1,45 @@
+"""``VisibilityCache``: the native visibility cache (``viscache_rs._core.VisibilityCache``,
+CAM08 sec. 5) with a progress bar on ``build``. Everything else is the native class's."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from . import _core
+from ._progress import Callback as _Callback
+from ._progress import progress_bar
+
+
+class VisibilityCache(_core.VisibilityCache):
+    """World-space visibility records over a scene (CAM08 sec. 5): see the native class.
+    ``VisibilityCache(scene, resolution=None, preset="auto", **overrides)``."""
+
+    __slots__ = ()
+
+    def build(
+        self,
+        camera: _core.Camera,
+        seed: int | None = 0,
+        threads: int | None = None,
+        progress: bool = True,
+        time_budget: float | None = None,
+        *,
+        callback: _Callback | None = None,
+    ) -> dict[str, Any]:
+        """Builds the cache for ``camera``'s view (bootstrap of ``n_startup`` records when
+        empty, then a pass over the G-buffer applying both insertion criteria).
+        Deterministic for any ``threads``. Shows a progress bar unless ``progress=False``;
+        stops after the wave that spends ``time_budget`` seconds. Returns a dict: records,
+        bootstrap_records, refined_records, discarded_records, pixels, covered_pixels,
+        shadow_rays, nearest_rays, shadow_rays_per_pixel (CAM08 Table 2's last row),
+        seconds, complete, incoherence, incoherent. A ``callback(done, total)`` (pixels)
+        replaces the bar: a falsy return or an exception stops the build."""
+        if callback is not None:
+            return super().build(camera, seed=seed, threads=threads, time_budget=time_budget,
+                                 callback=callback)
+        with progress_bar(progress, "cache build", "px") as bar:
+            return super().build(camera, seed=seed, threads=threads, time_budget=time_budget,
+                                 callback=bar)
+
+
+__all__ = ["VisibilityCache"]
