@@ -15,8 +15,9 @@ use crate::error::{Error, Result};
 use crate::geometry::binned_sah::{self, BinnedSahParams};
 use crate::geometry::bvh8::Bvh8;
 use crate::geometry::huge_pages::advise_huge_pages;
-use crate::geometry::mesh::{triangle_cross, Mesh};
+use crate::geometry::mesh::Mesh;
 use crate::geometry::watertight::Triangle4;
+use crate::math::triangle_cross;
 
 /// Build presets: our binned SAH builder ([`BuildQuality::Sah`]), one of obvhs's PLOC
 /// presets ([`BvhBuildParams`], leaves capped at [`MAX_LEAF`] triangles), or the choice

@@ -17,10 +17,11 @@ use std::sync::OnceLock;
 use glam::Vec3;
 
 use super::bvh::{BuildQuality, Bvh, TraversalCounters};
-use super::mesh::{triangle_cross, Bounds, Mesh};
+use super::mesh::{Bounds, Mesh};
 use crate::bsdf::Material;
 use crate::error::Result;
 use crate::lights::area::AreaLight;
+use crate::math::triangle_cross;
 
 mod batch;
 mod emitters;
