@@ -21,6 +21,7 @@
 use glam::{DVec3, Vec2, Vec3};
 
 use crate::error::{Error, Result};
+use crate::math::LUMINANCE_F32;
 use crate::sampling::rng::SampleRng;
 
 mod cells;
@@ -279,13 +280,11 @@ impl Material {
     }
 }
 
-/// Rec. 709 luminance weights of linear RGB.
-pub const LUMINANCE: [f32; 3] = [0.2126, 0.7152, 0.0722];
-
 /// Rec. 709 luminance of a linear RGB triple.
 #[inline]
 pub fn luminance(c: [f32; 3]) -> f32 {
-    LUMINANCE[0] * c[0] + LUMINANCE[1] * c[1] + LUMINANCE[2] * c[2]
+    let w = LUMINANCE_F32;
+    w[0] * c[0] + w[1] * c[1] + w[2] * c[2]
 }
 
 /// `x > 0`, false for NaN.

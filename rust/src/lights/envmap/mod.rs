@@ -52,14 +52,12 @@ mod exr;
 #[cfg(test)]
 mod tests;
 
+pub use crate::math::LUMINANCE;
 pub use equirect::{dir_to_latlong, latlong_to_dir, MAX_EQUIRECT_SIDE};
 pub use exr::{ExrLayout, EXR_LAYOUT_ATTRIBUTE};
 
 /// Largest supported side of the octahedral texture (`4096² ≈ 16.8M` texels).
 pub const MAX_RESOLUTION: u32 = 4096;
-
-/// Rec.709 / sRGB luminance weights of linear R, G, B.
-pub const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
 
 /// Largest `f64` below one: points inside a texel stay in `[0, 1)`.
 const ONE_MINUS_EPSILON: f64 = 1.0 - f64::EPSILON / 2.0;
