@@ -28,9 +28,8 @@
 //! `I² / E[(g/p)²]`, 1 = perfect): B~ matches the best piecewise-constant pdf (exact cell
 //! means) for Lambert (0.987) and Phong e ≤ 100 (within 0.01); for e = 1000 it reaches
 //! 0.34-0.70 against 0.41-0.78, for e = 1e4 0.05-0.27 against 0.09-0.46 (a 32² grid cannot
-//! resolve such lobes; plain centre values are biased there, efficiency 0). Cost
-//! (`benches/bsdf.rs`, one loaded 2-core machine): 2-3.5 µs Lambert, 6-13 µs Phong e = 100,
-//! ~8 µs e = 1e4 per shading point.
+//! resolve such lobes; plain centre values are biased there, efficiency 0). Cost: see
+//! `benches/bsdf.rs`.
 
 use glam::{DVec3, Vec2, Vec3};
 use std::sync::OnceLock;

@@ -2,7 +2,7 @@
 //! binned SAH tree or one of obvhs's PLOC trees), and its conservative SIMD ray/box test.
 //!
 //! Why not obvhs's CWBVH: its 8-bit quantised nodes are designed for GPUs; on the CPU every
-//! visit converts 48 bytes to floats, and we measured its traversal at 0.2-0.3x Embree's
+//! visit converts 48 bytes to floats, and we measured its traversal far below Embree's
 //! speed on our scenes (benches/README.md). Nodes in structure-of-arrays layout test all
 //! their children at once: eight lanes per plane, one AVX register or two SSE ones (as
 //! Embree's BVH8). Eight children rather than four halve the tree's depth, and so the
@@ -183,7 +183,7 @@ impl Node8 {
     /// [`Self::intersect`] in one AVX register per plane.
     /// Not itself compiled for AVX2 but always inlined, so that it inlines into traversals
     /// that are: a `#[target_feature]` function would be left as a call (LLVM declined to
-    /// inline it, and the call cost a quarter of a shadow ray's time).
+    /// inline it, and the call cost a large share of a shadow ray's time).
     ///
     /// # Safety
     /// The CPU must have AVX2, and the caller should be compiled with it.
@@ -265,7 +265,7 @@ impl Node8 {
 /// A form of [`Node8::intersect`] (the forms differ in instructions, not in answers), as a
 /// type whose test is always inlined into the traversal. Traversals took closures before,
 /// and the Python module's build (other code, other inlining choices) left the closure as
-/// a call at every node: a third of the shadow rays' time.
+/// a call at every node, a large share of the shadow rays' time.
 pub trait BoxTest: Copy {
     fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32);
 }
@@ -353,7 +353,7 @@ impl Bvh8 {
 
     /// Asks for the cache lines of node `i`, in trees too large for the L2 cache, where a
     /// traversal waits on memory: a node pushed on the stack then arrives while its
-    /// siblings are searched (garden's 400k triangles: 1.25x on incoherent shadow rays).
+    /// siblings are searched (measured on garden's 400k triangles, incoherent shadow rays).
     /// Small trees stay cached, and there the request would be pure overhead.
     #[inline(always)]
     pub fn prefetch(&self, i: u32) {
@@ -663,7 +663,7 @@ pub trait TraversalStack<T: Copy> {
 /// depth-first search never holds more than `N` entries (seven per level below the root
 /// and eight at the deepest: `7 depth + 1`). Without [`Stack`]'s spill path the traversal
 /// loop makes no call, so the compiler keeps the ray in registers instead of reloading
-/// it from memory at every node (cornell's shadow rays: about 10% faster). A push beyond
+/// it from memory at every node (measured on cornell's shadow rays). A push beyond
 /// `N` panics rather than spills.
 pub struct BoundedStack<T: Copy, const N: usize> {
     buf: [MaybeUninit<T>; N],

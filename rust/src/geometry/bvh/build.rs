@@ -31,7 +31,7 @@ pub enum BuildQuality {
     /// the binned SAH on the built-ins, PLOC (with its spatial pre-splits) on mixed scales
     /// and on small meshes over a large ground (benches/README.md). The SAH cost of the
     /// two trees ([`Bvh::sah_cost`]) did not tell them apart on the benchmark suite (equal
-    /// on `meshes`, where PLOC traces 1.7x faster); the traversal work of sample rays does.
+    /// on `meshes`, where PLOC traces faster); the traversal work of sample rays does.
     #[default]
     Auto,
     /// Top-down binned SAH whose cost counts four-triangle blocks ([`super::binned_sah`]).
@@ -136,8 +136,7 @@ pub const AUTO_PROBE_RAYS: usize = 4096;
 pub const AUTO_MARGIN: f64 = 1.05;
 
 /// Meshes larger than this get the SAH tree without a comparison: the PLOC preset builds
-/// several times slower (4 s for `hairball`'s 1.6M triangles on two cores, against a
-/// 1 s budget for a million).
+/// several times slower, beyond the budget of a second for a million triangles.
 pub const AUTO_MAX_TRIANGLES: usize = 1 << 18;
 
 /// Cost of visiting an eight-wide node relative to one four-triangle block test, in
@@ -158,8 +157,8 @@ pub(super) struct RefitBlocks {
 /// How a built BVH follows geometry that moved (see [`super::Scene::set_object_transform`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum BvhUpdate {
-    /// Keep the tree's topology and recompute the boxes above the moved triangles: about
-    /// 50 times faster than a rebuild for the animated `dynamics` sphere. With the object
+    /// Keep the tree's topology and recompute the boxes above the moved triangles: much
+    /// faster than a rebuild (benches/README.md). With the object
     /// in a subtree of its own (as the scene builds moved objects) the refit tree traces
     /// as fast as a rebuilt one (benches/README.md).
     #[default]

@@ -133,7 +133,7 @@ pub struct Bvh {
 /// Local rays take `s · direction` instead of the unit direction: the scaling is exact, so
 /// the box and triangle tests' relative rounding bounds hold as for any direction, and it
 /// keeps every length in range as normalising did, without normalising's square root and
-/// division (a third of cornell's per-ray setup time, on the critical path of each ray).
+/// division (a large share of the per-ray setup time, on the critical path of each ray).
 /// The biased exponent is clamped to `[1, 253]` so that both powers are normal floats; a
 /// subnormal `largest` then scales to below 1, which is harmless.
 #[inline(always)]

@@ -162,8 +162,8 @@ impl Bvh {
                 // In trees larger than L2, a subtree that one lane reaches is searched
                 // by that lane's single ray: its eight-child box test is exact, where the
                 // packet's interval test keeps children no lane hits (four in ten of
-                // them), and a third of garden's packet node visits are by one lane
-                // (its bundles about 1.03x; on cornell's small tree 0.95x, so not there).
+                // them), and many of garden's packet node visits are by one lane (it
+                // gains there, and loses on cornell's small tree, so not there).
                 Child::Node(node) if large && lanes.count_ones() == 1 => {
                     let l = lanes.trailing_zeros() as usize % PACKET;
                     let r = self.local_ray(rays.origin, rays.directions[l], rays.tmax[l]);
@@ -242,8 +242,7 @@ impl Bvh {
 /// A packet's rays as given, for the lanes that continue alone, and their single
 /// watertight rays, each prepared when its lane first tests a leaf alone and kept for the
 /// packet's later leaves (extracting a lane's ray from the packet's registers at every
-/// leaf cost about as much as the triangle test itself; garden's bundles test 2.4 lanes
-/// per leaf, 36 leaves per packet).
+/// leaf cost about as much as the triangle test itself).
 #[cfg(target_arch = "x86_64")]
 pub(super) struct LaneRays<'a> {
     /// The packet's rays as given (one origin).

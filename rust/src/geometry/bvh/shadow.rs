@@ -93,7 +93,7 @@ impl Bvh {
     /// 32 vector registers instead of 16, so that the ray's origin, inverse and segment
     /// stay in registers across the leaf tests instead of being reloaded at every node,
     /// and the box test of [`Node8::intersect_avx512`]; the ray's setup is compiled for it
-    /// too (cornell's shadow rays: 1.07x).
+    /// too (measured on cornell's shadow rays).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,avx512f,avx512vl")]
     #[inline]
@@ -172,7 +172,7 @@ impl Bvh {
     /// Asks for the memory of child reference `r` of node `n` (a node or a leaf block) in
     /// trees larger than L2, for the traversals that push it on their stack when `keep`.
     /// Without branches on `keep` or on whether `r` is a leaf, which the traversals cannot
-    /// predict (with [`TraversalStack::push_if`]: garden's bundles 1.1x): a child not kept
+    /// predict (with [`TraversalStack::push_if`], measured on garden's bundles): a child not kept
     /// asks for `n`'s own lines, which are cached.
     #[inline(always)]
     pub(super) fn request_child(&self, n: &Node8, r: u32, keep: bool) {
@@ -213,7 +213,7 @@ impl Bvh {
     /// with its node (`(child reference, node)` entries; nodes carry [`NO_NODE`]) instead of
     /// being tested at once, so that its triangles load while the node's other children
     /// are handled. In trees larger than L2, testing at once had left the traversal waiting
-    /// on the block's first load (a quarter of garden's bundle time in a profile).
+    /// on the block's first load (a large share of garden's bundle time in a profile).
     #[inline(always)]
     pub(super) fn occluder_walk<const COUNT: bool, S: TraversalStack<(u32, u32)>>(
         &self,

@@ -31,8 +31,8 @@ const SPATIAL_ORDER_NODES: f64 = 6.0;
 
 /// Whether `directions` (non-zero) lie within 45° of their sum (their mean direction when
 /// they have one length, as record bundles' unit directions do). Squared, so that no
-/// direction is normalised (the normalisations were a third of the batch driver's time on
-/// record bundles): `d · m >= cos 45° |d| |m|` as `(d · m)² >= ½ |d|² |m|²` with
+/// direction is normalised (the normalisations were a large share of the batch driver's
+/// time on record bundles): `d · m >= cos 45° |d| |m|` as `(d · m)² >= ½ |d|² |m|²` with
 /// `d · m > 0`. It only chooses how rays are traced, never what they answer.
 fn coherent(directions: &[Vec3A]) -> bool {
     let sum = directions.iter().sum::<Vec3A>();
@@ -282,7 +282,7 @@ impl Scene {
     /// Large batches of scattered rays in trees larger than a core's L2 cache, whose rays
     /// visit many nodes (judged on every 256th ray), are traced in the Morton order of their
     /// origins and answered in the given order: consecutive rays then reuse the same
-    /// nodes and triangles from cache (garden's incoherent shadow rays about 2x). The order
+    /// nodes and triangles from cache (measured on garden's incoherent shadow rays). The order
     /// depends only on the rays, so answers and counters are the same for any thread
     /// count; the sample that decides is not counted.
     pub fn occluded(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
@@ -300,7 +300,7 @@ impl Scene {
 
     /// [`Scene::occluded`] on rays of checked lengths, traced in the order given. Each
     /// chunk validates its rays before tracing them, while they are in cache (a separate
-    /// pass over the batch cost 3% of cornell's incoherent shadow rays on two threads);
+    /// pass over the batch cost measurable time on cornell's incoherent shadow rays);
     /// counters are added only when every ray is valid.
     fn occluded_as_given(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
         let counting = self.counting_enabled();
