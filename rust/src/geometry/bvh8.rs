@@ -18,6 +18,8 @@ use std::mem::MaybeUninit;
 use glam::{Vec3A, Vec4};
 use obvhs::bvh2::Bvh2;
 
+use crate::simd::{Level, SimdLevel};
+
 /// Child reference bit marking a leaf: bits 0..27 its triangle block, bits 27..31 the
 /// number of triangles in the block.
 const LEAF: u32 = 1 << 31;
@@ -281,29 +283,6 @@ impl BoxTest for PortableBoxTest {
     }
 }
 
-/// [`Node8::intersect_avx2`]; made only on CPUs with AVX2, for code compiled with it.
-#[cfg(target_arch = "x86_64")]
-#[derive(Clone, Copy, Debug)]
-pub struct Avx2BoxTest(());
-
-#[cfg(target_arch = "x86_64")]
-impl Avx2BoxTest {
-    /// # Safety
-    /// The CPU must have AVX2.
-    pub unsafe fn new() -> Self {
-        Self(())
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-impl BoxTest for Avx2BoxTest {
-    #[inline(always)]
-    fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
-        // SAFETY: the CPU has AVX2 (the contract of `new`, the only way to make one).
-        unsafe { n.intersect_avx2(r, tmax) }
-    }
-}
-
 /// [`Node8::intersect_avx512`]; made only on CPUs with AVX-512 F and VL, for code compiled
 /// with them.
 #[cfg(target_arch = "x86_64")]
@@ -325,6 +304,28 @@ impl BoxTest for Avx512BoxTest {
     fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
         // SAFETY: the CPU has AVX-512 F and VL (the contract of `new`).
         unsafe { n.intersect_avx512(r, tmax) }
+    }
+}
+
+/// The box test of instruction set `L`: [`Node8::intersect`], [`Node8::intersect_avx2`]
+/// or [`Node8::intersect_avx512`], chosen when the code is compiled, for kernels generic
+/// over the instruction set ([`crate::simd::Kernel`]).
+#[derive(Clone, Copy, Debug)]
+pub struct LevelBoxTest<L: Level>(pub L);
+
+impl<L: Level> BoxTest for LevelBoxTest<L> {
+    #[inline(always)]
+    fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        match L::LEVEL {
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here AVX-512 F and VL.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => unsafe { n.intersect_avx512(r, tmax) },
+            // SAFETY: as above, AVX2.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx2 => unsafe { n.intersect_avx2(r, tmax) },
+            _ => n.intersect(r, tmax),
+        }
     }
 }
 
@@ -894,7 +895,7 @@ mod tests {
                 let (t2, mask2) = unsafe { with_avx2(&n, &r, tmax) };
                 assert_eq!(mask, mask2, "case {case}");
                 assert_eq!(t.map(f32::to_bits), t2.map(f32::to_bits), "case {case}");
-                if crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+                if crate::simd::has(crate::simd::SimdLevel::Avx512) {
                     #[target_feature(enable = "avx2,avx512f,avx512vl")]
                     fn with_avx512(n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
                         // SAFETY: compiled for AVX-512 VL, only called on CPUs that have it.

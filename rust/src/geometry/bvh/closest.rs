@@ -4,11 +4,10 @@ use glam::Vec3A;
 
 use super::{Bvh, Hit, LocalRay, TraversalCounters, STACK};
 use crate::geometry::bvh8::{
-    decode, BoxTest, Child, PortableBoxTest, Stack, TraversalStack, WIDTH,
+    decode, BoundedStack, BoxTest, Child, LevelBoxTest, Stack, TraversalStack, WIDTH,
 };
-#[cfg(target_arch = "x86_64")]
-use crate::geometry::bvh8::{Avx2BoxTest, Avx512BoxTest, BoundedStack};
 use crate::geometry::watertight::TriangleHit;
+use crate::simd::{Kernel, Level, SimdLevel};
 
 impl Bvh {
     /// Closest hit on `origin + t direction` with `t` in `[0, tmax)`, if any.
@@ -26,67 +25,30 @@ impl Bvh {
         if self.blocks.is_empty() {
             return None;
         }
-        #[cfg(target_arch = "x86_64")]
-        match crate::simd::level() {
-            // SAFETY: the CPU has AVX-512 F and VL.
-            crate::simd::SimdLevel::Avx512 => unsafe {
-                return self.closest_hit_avx512::<COUNT>(origin, direction, tmax, counters);
-            },
-            // SAFETY: the CPU has AVX2.
-            crate::simd::SimdLevel::Avx2 => unsafe {
-                return self.closest_hit_avx2::<COUNT>(origin, direction, tmax, counters);
-            },
-            _ => {}
-        }
-        let r = self.local_ray(origin, direction, tmax);
-        self.closest_hit::<COUNT, Stack<_, STACK>>(&r, counters, PortableBoxTest)
+        crate::simd::dispatch(ClosestRay::<COUNT> {
+            bvh: self,
+            origin,
+            direction,
+            tmax,
+            counters,
+        })
     }
 
-    /// [`Self::intersect`] on a non-empty tree (the ray not yet counted) with AVX2 box
-    /// tests.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    pub(super) fn closest_hit_avx2<const COUNT: bool>(
-        &self,
-        origin: Vec3A,
-        direction: Vec3A,
-        tmax: f32,
-        counters: &mut TraversalCounters,
-    ) -> Option<Hit> {
-        // SAFETY: the CPU has AVX2 (this function's contract).
-        let box_test = unsafe { Avx2BoxTest::new() };
-        self.closest_hit_vector::<COUNT>(origin, direction, tmax, counters, box_test)
-    }
-
-    /// [`Self::closest_hit_avx2`] with 32 vector registers (see [`Self::hinted_avx512`]).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,avx512f,avx512vl")]
-    pub(super) fn closest_hit_avx512<const COUNT: bool>(
-        &self,
-        origin: Vec3A,
-        direction: Vec3A,
-        tmax: f32,
-        counters: &mut TraversalCounters,
-    ) -> Option<Hit> {
-        // SAFETY: the CPU has AVX-512 F and VL (this function's contract).
-        let box_test = unsafe { Avx512BoxTest::new() };
-        self.closest_hit_vector::<COUNT>(origin, direction, tmax, counters, box_test)
-    }
-
-    /// The body of [`Self::closest_hit_avx2`] and [`Self::closest_hit_avx512`], with their
-    /// `box_test`.
-    #[cfg(target_arch = "x86_64")]
+    /// [`Self::intersect`] on a non-empty tree (the ray not yet counted) with the box tests
+    /// of instruction set `level`, for code compiled for it ([`Kernel`]); the vector forms
+    /// take the fixed stack where the tree allows it.
     #[inline(always)]
-    pub(super) fn closest_hit_vector<const COUNT: bool>(
+    fn closest_hit_at<const COUNT: bool, L: Level>(
         &self,
         origin: Vec3A,
         direction: Vec3A,
         tmax: f32,
         counters: &mut TraversalCounters,
-        box_test: impl BoxTest,
+        level: L,
     ) -> Option<Hit> {
         let r = self.local_ray(origin, direction, tmax);
-        if self.stack_is_bounded() {
+        let box_test = LevelBoxTest(level);
+        if L::LEVEL >= SimdLevel::Avx2 && self.stack_is_bounded() {
             self.closest_hit::<COUNT, BoundedStack<_, STACK>>(&r, counters, box_test)
         } else {
             self.closest_hit::<COUNT, Stack<_, STACK>>(&r, counters, box_test)
@@ -178,5 +140,31 @@ impl Bvh {
             u: h.u,
             v: h.v,
         })
+    }
+}
+
+/// [`Bvh::intersect`] on a non-empty tree, as a [`Kernel`] compiled once per instruction
+/// set.
+pub(super) struct ClosestRay<'a, const COUNT: bool> {
+    pub(super) bvh: &'a Bvh,
+    pub(super) origin: Vec3A,
+    pub(super) direction: Vec3A,
+    pub(super) tmax: f32,
+    pub(super) counters: &'a mut TraversalCounters,
+}
+
+impl<const COUNT: bool> Kernel for ClosestRay<'_, COUNT> {
+    type Output = Option<Hit>;
+
+    #[inline(always)]
+    fn run<L: Level>(self, level: L) -> Option<Hit> {
+        let ClosestRay {
+            bvh,
+            origin,
+            direction,
+            tmax,
+            counters,
+        } = self;
+        bvh.closest_hit_at::<COUNT, L>(origin, direction, tmax, counters, level)
     }
 }

@@ -50,7 +50,7 @@ impl Bvh {
         #[cfg(target_arch = "x86_64")]
         if !directions.is_empty()
             && !self.blocks.is_empty()
-            && crate::simd::level() == crate::simd::SimdLevel::Avx512
+            && crate::simd::has(crate::simd::SimdLevel::Avx512)
         {
             if COUNT {
                 counters.rays += directions.len() as u64;

@@ -5,11 +5,10 @@ use glam::Vec3A;
 
 use super::{Bvh, LocalRay, OccluderHint, TraversalCounters, NO_NODE, STACK};
 use crate::geometry::bvh8::{
-    decode, is_leaf, leaf_block, prefetch_lines, BoundedStack, BoxTest, Child, Node8,
-    PortableBoxTest, Stack, TraversalStack,
+    decode, is_leaf, leaf_block, prefetch_lines, BoundedStack, BoxTest, Child, LevelBoxTest, Node8,
+    Stack, TraversalStack,
 };
-#[cfg(target_arch = "x86_64")]
-use crate::geometry::bvh8::{Avx2BoxTest, Avx512BoxTest};
+use crate::simd::{Kernel, Level, SimdLevel};
 
 impl Bvh {
     /// True when a triangle lies on the segment `origin + t direction`, `t` in `[0, tmax)`.
@@ -41,89 +40,37 @@ impl Bvh {
         hint: &mut OccluderHint,
         counters: &mut TraversalCounters,
     ) -> bool {
-        #[cfg(target_arch = "x86_64")]
-        match crate::simd::level() {
-            // SAFETY: the CPU has AVX-512 F and VL.
-            crate::simd::SimdLevel::Avx512 => unsafe {
-                return self.hinted_avx512::<COUNT>(origin, direction, tmax, hint, counters);
-            },
-            // SAFETY: the CPU has AVX2.
-            crate::simd::SimdLevel::Avx2 => unsafe {
-                return self.hinted_avx2::<COUNT>(origin, direction, tmax, hint, counters);
-            },
-            _ => {}
-        }
-        self.hinted_portable::<COUNT>(origin, direction, tmax, hint, counters)
+        crate::simd::dispatch(HintedRay::<COUNT> {
+            bvh: self,
+            origin,
+            direction,
+            tmax,
+            hint,
+            counters,
+        })
     }
 
-    /// [`Self::occluded_hinted`] with the portable box tests, whatever the CPU (tests hold
-    /// the vector forms to it).
-    pub(crate) fn hinted_portable<const COUNT: bool>(
-        &self,
-        origin: Vec3A,
-        direction: Vec3A,
-        tmax: f32,
-        hint: &mut OccluderHint,
-        counters: &mut TraversalCounters,
-    ) -> bool {
-        type Spilling = Stack<(u32, u32), STACK>;
-        let box_test = PortableBoxTest;
-        self.hinted_search::<COUNT, Spilling>(origin, direction, tmax, hint, counters, box_test)
-    }
-
-    /// [`Self::occluded_hinted`] with AVX2 box tests. Batch drivers compiled for AVX2 call
-    /// it directly, so that it is inlined into their loop.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    #[inline]
-    pub(crate) fn hinted_avx2<const COUNT: bool>(
-        &self,
-        origin: Vec3A,
-        direction: Vec3A,
-        tmax: f32,
-        hint: &mut OccluderHint,
-        counters: &mut TraversalCounters,
-    ) -> bool {
-        // SAFETY: the CPU has AVX2 (this function's contract).
-        let box_test = unsafe { Avx2BoxTest::new() };
-        self.hinted_vector::<COUNT>(origin, direction, tmax, hint, counters, box_test)
-    }
-
-    /// [`Self::hinted_avx2`] compiled for AVX-512 VL: the same arithmetic in 256 bits, but
-    /// 32 vector registers instead of 16, so that the ray's origin, inverse and segment
-    /// stay in registers across the leaf tests instead of being reloaded at every node,
-    /// and the box test of [`Node8::intersect_avx512`]; the ray's setup is compiled for it
-    /// too (measured on cornell's shadow rays).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,avx512f,avx512vl")]
-    #[inline]
-    pub(crate) fn hinted_avx512<const COUNT: bool>(
-        &self,
-        origin: Vec3A,
-        direction: Vec3A,
-        tmax: f32,
-        hint: &mut OccluderHint,
-        counters: &mut TraversalCounters,
-    ) -> bool {
-        // SAFETY: the CPU has AVX-512 F and VL (this function's contract).
-        let box_test = unsafe { Avx512BoxTest::new() };
-        self.hinted_vector::<COUNT>(origin, direction, tmax, hint, counters, box_test)
-    }
-
-    /// The body of [`Self::hinted_avx2`] and [`Self::hinted_avx512`], inlined into each so
-    /// that it is compiled for its instruction set, with its `box_test`.
-    #[cfg(target_arch = "x86_64")]
+    /// [`Self::occluded_hinted`] with the box tests of instruction set `level`, for code
+    /// compiled for it ([`Kernel`]): batch drivers call it from their own kernel, so that
+    /// it is inlined into their loop. Under AVX-512 the same arithmetic runs in 256 bits
+    /// with 32 vector registers instead of 16, so that the ray's origin, inverse and segment
+    /// stay in registers across the leaf tests instead of being reloaded at every node, and
+    /// with the box test of [`Node8::intersect_avx512`]; the ray's setup is compiled for it
+    /// too. The vector forms take the fixed stack where the tree allows it.
+    ///
+    /// [`Node8::intersect_avx512`]: crate::geometry::bvh8::Node8::intersect_avx512
     #[inline(always)]
-    fn hinted_vector<const COUNT: bool>(
+    pub(crate) fn occluded_hinted_at<const COUNT: bool, L: Level>(
         &self,
         origin: Vec3A,
         direction: Vec3A,
         tmax: f32,
         hint: &mut OccluderHint,
         counters: &mut TraversalCounters,
-        box_test: impl BoxTest,
+        level: L,
     ) -> bool {
-        if self.stack_is_bounded() {
+        let box_test = LevelBoxTest(level);
+        if L::LEVEL >= SimdLevel::Avx2 && self.stack_is_bounded() {
             type Bounded = BoundedStack<(u32, u32), STACK>;
             self.hinted_search::<COUNT, Bounded>(origin, direction, tmax, hint, counters, box_test)
         } else {
@@ -267,5 +214,32 @@ impl Bvh {
             counters.triangles += tests;
         }
         occluder
+    }
+}
+
+/// [`Bvh::occluded_hinted`] as a [`Kernel`], compiled once per instruction set.
+pub(super) struct HintedRay<'a, const COUNT: bool> {
+    pub(super) bvh: &'a Bvh,
+    pub(super) origin: Vec3A,
+    pub(super) direction: Vec3A,
+    pub(super) tmax: f32,
+    pub(super) hint: &'a mut OccluderHint,
+    pub(super) counters: &'a mut TraversalCounters,
+}
+
+impl<const COUNT: bool> Kernel for HintedRay<'_, COUNT> {
+    type Output = bool;
+
+    #[inline(always)]
+    fn run<L: Level>(self, level: L) -> bool {
+        let HintedRay {
+            bvh,
+            origin,
+            direction,
+            tmax,
+            hint,
+            counters,
+        } = self;
+        bvh.occluded_hinted_at::<COUNT, L>(origin, direction, tmax, hint, counters, level)
     }
 }

@@ -1,6 +1,8 @@
 use super::build::{local_scale, probe_rays};
+use super::closest::ClosestRay;
 #[cfg(target_arch = "x86_64")]
 use super::packet::Packet;
+use super::shadow::HintedRay;
 use super::*;
 use crate::bsdf::Material;
 use crate::geometry::bvh8::{PortableBoxTest, Stack, WIDTH};
@@ -184,7 +186,7 @@ fn auto_keeps_the_cheaper_tree() {
 #[test]
 fn packets_prepare_each_lane_as_a_single_ray() {
     use crate::sampling::rng::{hash4, to_unit_f32};
-    if crate::simd::level() != crate::simd::SimdLevel::Avx512 {
+    if !crate::simd::has(crate::simd::SimdLevel::Avx512) {
         return;
     }
     let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 33));
@@ -264,7 +266,7 @@ fn packets_prepare_each_lane_as_a_single_ray() {
 #[test]
 fn packet_interval_test_keeps_every_child_a_lane_touches() {
     use crate::sampling::rng::{hash4, to_unit_f32};
-    if crate::simd::level() != crate::simd::SimdLevel::Avx512 {
+    if !crate::simd::has(crate::simd::SimdLevel::Avx512) {
         return;
     }
     let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 21));
@@ -433,8 +435,7 @@ fn packets_answer_as_single_rays() {
 fn vector_and_portable_traversals_agree() {
     use crate::sampling::rng::{hash4, to_unit_f32};
     use crate::simd::SimdLevel;
-    let level = crate::simd::level();
-    if level < SimdLevel::Avx2 {
+    if !crate::simd::has(SimdLevel::Avx2) {
         return;
     }
     let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 33));
@@ -485,7 +486,15 @@ fn vector_and_portable_traversals_agree() {
             }
             let mut c = TraversalCounters::default();
             let mut hint = OccluderHint::NONE;
-            let portable = bvh.hinted_portable::<true>(o, d, tmax, &mut hint, &mut c);
+            let ray = HintedRay::<true> {
+                bvh: &bvh,
+                origin: o,
+                direction: d,
+                tmax,
+                hint: &mut hint,
+                counters: &mut c,
+            };
+            let portable = crate::simd::run_at(SimdLevel::Portable, ray).expect("any CPU");
             let mut ch = TraversalCounters::default();
             let r = bvh.local_ray(o, d, tmax);
             let closest = bvh.closest_hit::<true, Stack<_, STACK>>(&r, &mut ch, PortableBoxTest);
@@ -493,25 +502,29 @@ fn vector_and_portable_traversals_agree() {
                 h.map(|h| (h.t.to_bits(), h.triangle, h.u.to_bits(), h.v.to_bits()))
             };
             for simd in [SimdLevel::Avx2, SimdLevel::Avx512] {
-                if simd > level {
+                if !crate::simd::has(simd) {
                     continue;
                 }
                 let (mut c2, mut ch2) =
                     (TraversalCounters::default(), TraversalCounters::default());
                 let mut hint2 = OccluderHint::NONE;
-                // SAFETY: the CPU has `simd`.
-                let (vector, vector_closest) = unsafe {
-                    match simd {
-                        SimdLevel::Avx2 => (
-                            bvh.hinted_avx2::<true>(o, d, tmax, &mut hint2, &mut c2),
-                            bvh.closest_hit_avx2::<true>(o, d, tmax, &mut ch2),
-                        ),
-                        _ => (
-                            bvh.hinted_avx512::<true>(o, d, tmax, &mut hint2, &mut c2),
-                            bvh.closest_hit_avx512::<true>(o, d, tmax, &mut ch2),
-                        ),
-                    }
+                let ray = HintedRay::<true> {
+                    bvh: &bvh,
+                    origin: o,
+                    direction: d,
+                    tmax,
+                    hint: &mut hint2,
+                    counters: &mut c2,
                 };
+                let vector = crate::simd::run_at(simd, ray).expect("the CPU has it");
+                let ray = ClosestRay::<true> {
+                    bvh: &bvh,
+                    origin: o,
+                    direction: d,
+                    tmax,
+                    counters: &mut ch2,
+                };
+                let vector_closest = crate::simd::run_at(simd, ray).expect("the CPU has it");
                 assert_eq!(
                     (portable, hint, c),
                     (vector, hint2, c2),

@@ -10,6 +10,7 @@ use super::{RayBatch, Scene, TMax};
 use crate::error::Result;
 use crate::geometry::bvh::{Bvh, OccluderHint, TraversalCounters, PACKET};
 use crate::parallel::with_threads;
+use crate::simd::{Kernel, Level};
 
 /// Rays traced per parallel work item; fixed so results never depend on the thread count.
 pub(super) const CHUNK: usize = 1024;
@@ -94,7 +95,9 @@ fn occluded_chunk_counting(
     }
 }
 
-/// [`Scene::occluded`] on rays `base..base + out.len()`.
+/// [`Scene::occluded`] on rays `base..base + out.len()`, compiled for this CPU's
+/// instruction set with the single-ray traversal inlined into its loop (one call and one
+/// instruction-set dispatch less per ray).
 fn occluded_chunk<const COUNT: bool>(
     bvh: &Bvh,
     rays: &RayBatch,
@@ -102,63 +105,53 @@ fn occluded_chunk<const COUNT: bool>(
     out: &mut [bool],
     counters: &mut TraversalCounters,
 ) {
-    #[cfg(target_arch = "x86_64")]
-    match crate::simd::level() {
-        // SAFETY: the CPU has AVX-512 F and VL.
-        crate::simd::SimdLevel::Avx512 => unsafe {
-            return occluded_chunk_avx512::<COUNT>(bvh, rays, base, out, counters);
-        },
-        // SAFETY: the CPU has AVX2.
-        crate::simd::SimdLevel::Avx2 => unsafe {
-            return occluded_chunk_avx2::<COUNT>(bvh, rays, base, out, counters);
-        },
-        _ => {}
+    crate::simd::dispatch(OccludedChunk::<COUNT> {
+        bvh,
+        rays,
+        base,
+        out,
+        counters,
+    });
+}
+
+/// [`occluded_chunk`] as a [`Kernel`], compiled once per instruction set.
+pub(super) struct OccludedChunk<'a, const COUNT: bool> {
+    pub(super) bvh: &'a Bvh,
+    pub(super) rays: &'a RayBatch<'a>,
+    pub(super) base: usize,
+    pub(super) out: &'a mut [bool],
+    pub(super) counters: &'a mut TraversalCounters,
+}
+
+impl<const COUNT: bool> Kernel for OccludedChunk<'_, COUNT> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<L: Level>(self, level: L) {
+        let OccludedChunk {
+            bvh,
+            rays,
+            base,
+            out,
+            counters,
+        } = self;
+        // No closure for the single-ray traversal: a closure takes the target features of
+        // the function that defines it, which here has none, and one left as a call would
+        // run the portable target's code.
+        occluded_chunk_with::<COUNT, L>(bvh, rays, base, out, counters, level);
     }
-    let trace = |o, d, t, hint: &mut _, c: &mut _| bvh.occluded_hinted::<COUNT>(o, d, t, hint, c);
-    occluded_chunk_with::<COUNT>(bvh, rays, base, out, counters, trace);
 }
 
-/// [`occluded_chunk`] compiled for AVX2, with the single-ray traversal inlined into its
-/// loop (one call and one instruction-set dispatch less per ray).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-pub(super) fn occluded_chunk_avx2<const COUNT: bool>(
-    bvh: &Bvh,
-    rays: &RayBatch,
-    base: usize,
-    out: &mut [bool],
-    counters: &mut TraversalCounters,
-) {
-    // Defined here to be compiled for AVX2 (closures take their function's features).
-    let trace = |o, d, t, hint: &mut _, c: &mut _| bvh.hinted_avx2::<COUNT>(o, d, t, hint, c);
-    occluded_chunk_with::<COUNT>(bvh, rays, base, out, counters, trace);
-}
-
-/// [`occluded_chunk_avx2`] for AVX-512 VL.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f,avx512vl")]
-pub(super) fn occluded_chunk_avx512<const COUNT: bool>(
-    bvh: &Bvh,
-    rays: &RayBatch,
-    base: usize,
-    out: &mut [bool],
-    counters: &mut TraversalCounters,
-) {
-    // As in `occluded_chunk_avx2`.
-    let trace = |o, d, t, hint: &mut _, c: &mut _| bvh.hinted_avx512::<COUNT>(o, d, t, hint, c);
-    occluded_chunk_with::<COUNT>(bvh, rays, base, out, counters, trace);
-}
-
-/// The loop of [`occluded_chunk`], tracing single rays with `trace` (a form of
-/// [`Bvh::occluded_hinted`]).
+/// The loop of [`occluded_chunk`], tracing single rays with the box tests of instruction
+/// set `level` ([`Bvh::occluded_hinted_at`]).
 #[inline(always)]
-pub(super) fn occluded_chunk_with<const COUNT: bool>(
+fn occluded_chunk_with<const COUNT: bool, L: Level>(
     bvh: &Bvh,
     rays: &RayBatch,
     base: usize,
     out: &mut [bool],
     counters: &mut TraversalCounters,
-    trace: impl Fn(Vec3A, Vec3A, f32, &mut OccluderHint, &mut TraversalCounters) -> bool,
+    level: L,
 ) {
     let origins = &rays.origins[base..base + out.len()];
     // Origins compared bit for bit (-0.0 and 0.0 would round apart), each read once.
@@ -194,7 +187,8 @@ pub(super) fn occluded_chunk_with<const COUNT: bool>(
         } else {
             // One by one: a run too short or too wide for a packet.
             for (l, slot) in out[k..k + run].iter_mut().enumerate() {
-                *slot = trace(o, direction(l), rays.tmax_of(i + l), &mut hint, counters);
+                let (d, t) = (direction(l), rays.tmax_of(i + l));
+                *slot = bvh.occluded_hinted_at::<COUNT, L>(o, d, t, &mut hint, counters, level);
             }
         }
         // The hint carries over to the next run only when it shares the origin.

@@ -1,8 +1,7 @@
-use super::schedule::{bundle_order, occluded_chunk_with, TraceOrder, CHUNK, SPATIAL_ORDER_MIN};
-#[cfg(target_arch = "x86_64")]
-use super::schedule::{occluded_chunk_avx2, occluded_chunk_avx512};
+use super::schedule::{bundle_order, OccludedChunk, TraceOrder, CHUNK, SPATIAL_ORDER_MIN};
 use super::*;
 use crate::geometry::bvh::BvhUpdate;
+use crate::simd::SimdLevel;
 use glam::Affine3A;
 
 fn unit_quad() -> Scene {
@@ -312,26 +311,32 @@ fn runs_of_any_length_answer_as_single_rays() {
         (out, c)
     };
     let portable = chunk(&|out, c| {
-        let trace =
-            |o, d, t, hint: &mut _, c: &mut _| bvh.hinted_portable::<true>(o, d, t, hint, c);
-        occluded_chunk_with::<true>(bvh, &rays, 0, out, c, trace)
+        let kernel = OccludedChunk::<true> {
+            bvh,
+            rays: &rays,
+            base: 0,
+            out,
+            counters: c,
+        };
+        crate::simd::run_at(SimdLevel::Portable, kernel).expect("any CPU")
     });
     assert_eq!(portable.0, one);
-    #[cfg(target_arch = "x86_64")]
-    {
-        use crate::simd::SimdLevel;
-        if crate::simd::level() >= SimdLevel::Avx2 {
-            // SAFETY: the CPU has AVX2.
-            let avx2 =
-                chunk(&|out, c| unsafe { occluded_chunk_avx2::<true>(bvh, &rays, 0, out, c) });
-            assert_eq!(avx2, portable);
-        }
-        if crate::simd::level() >= SimdLevel::Avx512 {
-            // SAFETY: the CPU has AVX-512 F and VL.
-            let avx512 =
-                chunk(&|out, c| unsafe { occluded_chunk_avx512::<true>(bvh, &rays, 0, out, c) });
-            assert_eq!(avx512, portable);
-        }
+    for simd in [SimdLevel::Avx2, SimdLevel::Avx512] {
+        let vector = chunk(&|out, c| {
+            let kernel = OccludedChunk::<true> {
+                bvh,
+                rays: &rays,
+                base: 0,
+                out,
+                counters: c,
+            };
+            // Nothing to compare on CPUs without `simd`.
+            if crate::simd::run_at(simd, kernel).is_none() {
+                out.copy_from_slice(&portable.0);
+                *c = portable.1;
+            }
+        });
+        assert_eq!(vector, portable, "{simd:?}");
     }
 }
 
