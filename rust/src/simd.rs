@@ -1,6 +1,8 @@
 //! Which vector instructions this CPU has, detected once per process, for the few kernels
 //! that carry hand-vectorised forms (xor-popcount of records, masked sums of the control
-//! variate). Every kernel also has a portable form that gives the same answer bit for bit.
+//! variate, the BVH's box tests). Every kernel also has a portable form that gives the same
+//! answer bit for bit. Kernels written once, generic over the instruction set
+//! ([`Kernel`]), are compiled for each by [`dispatch`].
 
 /// The vector instruction sets a kernel may choose between, weakest first. Each level
 /// includes everything below it.
@@ -46,6 +48,121 @@ pub fn level() -> SimdLevel {
 #[inline]
 pub fn is_avx512() -> bool {
     LEVEL.load(std::sync::atomic::Ordering::Relaxed) == SimdLevel::Avx512 as u8
+}
+
+/// Whether this CPU has `at` (and so every level below it).
+#[inline]
+pub fn has(at: SimdLevel) -> bool {
+    level() >= at
+}
+
+mod sealed {
+    /// Keeps [`super::Level`] to the types of this module: a value of one is a proof.
+    pub trait Sealed {}
+}
+
+/// An instruction set as a type, for code generic over it: a value of one exists only on
+/// a CPU that has [`Level::LEVEL`], so generic code may use that set's instructions
+/// (unsafe intrinsics whose safety is the value's existence). [`dispatch`] and [`run_at`]
+/// make the values.
+pub trait Level: Copy + sealed::Sealed {
+    /// The instruction set this type stands for.
+    const LEVEL: SimdLevel;
+}
+
+/// [`SimdLevel::Portable`] as a [`Level`]: any CPU.
+#[derive(Clone, Copy, Debug)]
+pub struct Portable;
+
+impl sealed::Sealed for Portable {}
+impl Level for Portable {
+    const LEVEL: SimdLevel = SimdLevel::Portable;
+}
+
+/// [`SimdLevel::Avx2`] as a [`Level`]: made only on CPUs with AVX2, for code compiled
+/// with it.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, Debug)]
+pub struct Avx2(());
+
+#[cfg(target_arch = "x86_64")]
+impl sealed::Sealed for Avx2 {}
+#[cfg(target_arch = "x86_64")]
+impl Level for Avx2 {
+    const LEVEL: SimdLevel = SimdLevel::Avx2;
+}
+
+/// [`SimdLevel::Avx512`] as a [`Level`]: made only on CPUs with AVX-512 F, VL and
+/// VPOPCNTDQ, for code compiled with F and VL.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, Debug)]
+pub struct Avx512(());
+
+#[cfg(target_arch = "x86_64")]
+impl sealed::Sealed for Avx512 {}
+#[cfg(target_arch = "x86_64")]
+impl Level for Avx512 {
+    const LEVEL: SimdLevel = SimdLevel::Avx512;
+}
+
+/// A computation with one body generic over the instruction set, compiled by [`dispatch`]
+/// once per [`Level`], each time inside a function compiled for that set. `run`, and what
+/// it calls on the hot path, must be `#[inline(always)]` functions, not closures: a
+/// function left as a call is compiled for the portable target, without the set's
+/// instructions, and a closure takes the (absent) target features of the generic function
+/// that defines it.
+pub trait Kernel {
+    /// What the computation returns.
+    type Output;
+    /// The body, at instruction set `L` (`level` is the proof that the CPU has it).
+    fn run<L: Level>(self, level: L) -> Self::Output;
+}
+
+/// Runs `kernel` compiled for this CPU's best instruction set among AVX-512, AVX2 and the
+/// portable one (a CPU with `popcnt` alone runs the portable body).
+#[inline(always)]
+pub fn dispatch<K: Kernel>(kernel: K) -> K::Output {
+    #[cfg(target_arch = "x86_64")]
+    match level() {
+        // SAFETY: the CPU has AVX-512 F and VL.
+        SimdLevel::Avx512 => return unsafe { run_avx512(kernel) },
+        // SAFETY: the CPU has AVX2.
+        SimdLevel::Avx2 => return unsafe { run_avx2(kernel) },
+        _ => {}
+    }
+    kernel.run(Portable)
+}
+
+/// Runs `kernel` compiled for `at` (for [`SimdLevel::Popcnt`], the portable body) when this
+/// CPU has it, else None: tests hold each instruction set's form to the portable one.
+pub fn run_at<K: Kernel>(at: SimdLevel, kernel: K) -> Option<K::Output> {
+    if !has(at) {
+        return None;
+    }
+    #[cfg(target_arch = "x86_64")]
+    match at {
+        // SAFETY: the CPU has AVX-512 F and VL (checked above).
+        SimdLevel::Avx512 => return Some(unsafe { run_avx512(kernel) }),
+        // SAFETY: the CPU has AVX2 (checked above).
+        SimdLevel::Avx2 => return Some(unsafe { run_avx2(kernel) }),
+        _ => {}
+    }
+    Some(kernel.run(Portable))
+}
+
+/// [`Kernel::run`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn run_avx2<K: Kernel>(kernel: K) -> K::Output {
+    kernel.run(Avx2(()))
+}
+
+/// [`Kernel::run`] compiled for AVX-512 F and VL: the 256-bit code of AVX2 with 32 vector
+/// registers and mask registers.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f,avx512vl")]
+fn run_avx512<K: Kernel>(kernel: K) -> K::Output {
+    kernel.run(Avx512(()))
 }
 
 #[cfg(target_arch = "x86_64")]

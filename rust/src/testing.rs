@@ -6,8 +6,8 @@ use std::f32::consts::TAU;
 
 use glam::Vec3;
 
-use crate::geometry::mesh::triangle_cross;
 use crate::geometry::Scene;
+use crate::math::triangle_cross;
 use crate::sampling::rng::SampleRng;
 
 /// A unit vector uniform on the hemisphere around +z for `u` in [0,1)^2 (z = u0).

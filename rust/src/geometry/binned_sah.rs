@@ -6,8 +6,8 @@
 //! into leaves, so it groups triangles into blocks by proximity rather than by cost. Our
 //! traversal tests a whole block at once and eight child boxes at once; what it pays for is
 //! the number of blocks and nodes a ray reaches, which is exactly what this builder's cost
-//! counts. On the built-in scenes it gives trees that trace shadow rays 1.2-2x faster than
-//! obvhs's `medium` preset at a similar build time (benches/README.md).
+//! counts. On the built-in scenes it gives trees that trace shadow rays faster than obvhs's
+//! `medium` preset at a similar build time (benches/README.md).
 //!
 //! The output is an obvhs [`Bvh2`] (binary, leaves of at most [`MAX_LEAF`] triangles), which
 //! [`super::bvh8::Bvh8::from_bvh2`] collapses into the eight-wide tree as for PLOC trees.

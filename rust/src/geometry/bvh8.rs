@@ -2,7 +2,7 @@
 //! binned SAH tree or one of obvhs's PLOC trees), and its conservative SIMD ray/box test.
 //!
 //! Why not obvhs's CWBVH: its 8-bit quantised nodes are designed for GPUs; on the CPU every
-//! visit converts 48 bytes to floats, and we measured its traversal at 0.2-0.3x Embree's
+//! visit converts 48 bytes to floats, and we measured its traversal far below Embree's
 //! speed on our scenes (benches/README.md). Nodes in structure-of-arrays layout test all
 //! their children at once: eight lanes per plane, one AVX register or two SSE ones (as
 //! Embree's BVH8). Eight children rather than four halve the tree's depth, and so the
@@ -17,6 +17,8 @@ use std::mem::MaybeUninit;
 
 use glam::{Vec3A, Vec4};
 use obvhs::bvh2::Bvh2;
+
+use crate::simd::{Level, SimdLevel};
 
 /// Child reference bit marking a leaf: bits 0..27 its triangle block, bits 27..31 the
 /// number of triangles in the block.
@@ -183,7 +185,7 @@ impl Node8 {
     /// [`Self::intersect`] in one AVX register per plane.
     /// Not itself compiled for AVX2 but always inlined, so that it inlines into traversals
     /// that are: a `#[target_feature]` function would be left as a call (LLVM declined to
-    /// inline it, and the call cost a quarter of a shadow ray's time).
+    /// inline it, and the call cost a large share of a shadow ray's time).
     ///
     /// # Safety
     /// The CPU must have AVX2, and the caller should be compiled with it.
@@ -265,7 +267,7 @@ impl Node8 {
 /// A form of [`Node8::intersect`] (the forms differ in instructions, not in answers), as a
 /// type whose test is always inlined into the traversal. Traversals took closures before,
 /// and the Python module's build (other code, other inlining choices) left the closure as
-/// a call at every node: a third of the shadow rays' time.
+/// a call at every node, a large share of the shadow rays' time.
 pub trait BoxTest: Copy {
     fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32);
 }
@@ -278,29 +280,6 @@ impl BoxTest for PortableBoxTest {
     #[inline(always)]
     fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
         n.intersect(r, tmax)
-    }
-}
-
-/// [`Node8::intersect_avx2`]; made only on CPUs with AVX2, for code compiled with it.
-#[cfg(target_arch = "x86_64")]
-#[derive(Clone, Copy, Debug)]
-pub struct Avx2BoxTest(());
-
-#[cfg(target_arch = "x86_64")]
-impl Avx2BoxTest {
-    /// # Safety
-    /// The CPU must have AVX2.
-    pub unsafe fn new() -> Self {
-        Self(())
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-impl BoxTest for Avx2BoxTest {
-    #[inline(always)]
-    fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
-        // SAFETY: the CPU has AVX2 (the contract of `new`, the only way to make one).
-        unsafe { n.intersect_avx2(r, tmax) }
     }
 }
 
@@ -325,6 +304,28 @@ impl BoxTest for Avx512BoxTest {
     fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
         // SAFETY: the CPU has AVX-512 F and VL (the contract of `new`).
         unsafe { n.intersect_avx512(r, tmax) }
+    }
+}
+
+/// The box test of instruction set `L`: [`Node8::intersect`], [`Node8::intersect_avx2`]
+/// or [`Node8::intersect_avx512`], chosen when the code is compiled, for kernels generic
+/// over the instruction set ([`crate::simd::Kernel`]).
+#[derive(Clone, Copy, Debug)]
+pub struct LevelBoxTest<L: Level>(pub L);
+
+impl<L: Level> BoxTest for LevelBoxTest<L> {
+    #[inline(always)]
+    fn test(self, n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        match L::LEVEL {
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here AVX-512 F and VL.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => unsafe { n.intersect_avx512(r, tmax) },
+            // SAFETY: as above, AVX2.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx2 => unsafe { n.intersect_avx2(r, tmax) },
+            _ => n.intersect(r, tmax),
+        }
     }
 }
 
@@ -353,7 +354,7 @@ impl Bvh8 {
 
     /// Asks for the cache lines of node `i`, in trees too large for the L2 cache, where a
     /// traversal waits on memory: a node pushed on the stack then arrives while its
-    /// siblings are searched (garden's 400k triangles: 1.25x on incoherent shadow rays).
+    /// siblings are searched (measured on garden's 400k triangles, incoherent shadow rays).
     /// Small trees stay cached, and there the request would be pure overhead.
     #[inline(always)]
     pub fn prefetch(&self, i: u32) {
@@ -663,7 +664,7 @@ pub trait TraversalStack<T: Copy> {
 /// depth-first search never holds more than `N` entries (seven per level below the root
 /// and eight at the deepest: `7 depth + 1`). Without [`Stack`]'s spill path the traversal
 /// loop makes no call, so the compiler keeps the ray in registers instead of reloading
-/// it from memory at every node (cornell's shadow rays: about 10% faster). A push beyond
+/// it from memory at every node (measured on cornell's shadow rays). A push beyond
 /// `N` panics rather than spills.
 pub struct BoundedStack<T: Copy, const N: usize> {
     buf: [MaybeUninit<T>; N],
@@ -894,7 +895,7 @@ mod tests {
                 let (t2, mask2) = unsafe { with_avx2(&n, &r, tmax) };
                 assert_eq!(mask, mask2, "case {case}");
                 assert_eq!(t.map(f32::to_bits), t2.map(f32::to_bits), "case {case}");
-                if crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+                if crate::simd::has(crate::simd::SimdLevel::Avx512) {
                     #[target_feature(enable = "avx2,avx512f,avx512vl")]
                     fn with_avx512(n: &Node8, r: &BoxRay, tmax: f32) -> ([f32; WIDTH], u32) {
                         // SAFETY: compiled for AVX-512 VL, only called on CPUs that have it.

@@ -203,12 +203,6 @@ impl Mesh {
     }
 }
 
-/// Unnormalised geometric normal `(v1 - v0) x (v2 - v0)`; zero for degenerate triangles.
-#[inline]
-pub fn triangle_cross(t: &[Vec3; 3]) -> Vec3 {
-    (t[1] - t[0]).cross(t[2] - t[0])
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

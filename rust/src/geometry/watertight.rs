@@ -423,7 +423,7 @@ mod tests {
     fn packet_test_decides_every_pair_as_the_single_ray_test() {
         use crate::sampling::rng::{hash4, to_unit_f32};
         use std::arch::x86_64::_mm512_loadu_ps;
-        if crate::simd::level() != crate::simd::SimdLevel::Avx512 {
+        if !crate::simd::has(crate::simd::SimdLevel::Avx512) {
             return;
         }
         let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 21));

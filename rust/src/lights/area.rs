@@ -11,7 +11,7 @@
 use glam::{Vec2, Vec3};
 
 use crate::error::{Error, Result};
-use crate::geometry::mesh::triangle_cross;
+use crate::math::triangle_cross;
 
 /// A sample of an area light from a shading point.
 #[derive(Clone, Copy, Debug, PartialEq)]

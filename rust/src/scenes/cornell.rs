@@ -125,8 +125,8 @@ pub fn envmap() -> Result<EnvMap> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::mesh::triangle_cross;
     use crate::geometry::TraversalCounters;
+    use crate::math::triangle_cross;
     use crate::scenes::shapes::sphere_dir;
     use crate::scenes::testing::*;
 

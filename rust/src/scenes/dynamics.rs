@@ -328,7 +328,7 @@ mod tests {
         let mut c = crate::geometry::TraversalCounters::default();
         mesh.triangles[first..first + o.num_triangles as usize]
             .iter()
-            .filter(|t| crate::geometry::mesh::triangle_cross(t).normalize().y > 0.9)
+            .filter(|t| crate::math::triangle_cross(t).normalize().y > 0.9)
             .filter(|t| {
                 let p = s.scene.offset_point((t[0] + t[1] + t[2]) / 3.0, Vec3::Y);
                 let h = s.scene.intersect1(p, sun, f32::INFINITY, &mut c);

@@ -206,7 +206,7 @@ mod tests {
         }
         assert_eq!(t.len(), 2000 * BLADE_TRIANGLES);
         for tri in &t {
-            assert!(crate::geometry::mesh::triangle_cross(tri).length() > 0.0);
+            assert!(crate::math::triangle_cross(tri).length() > 0.0);
             for v in tri {
                 assert!(v.x.abs() <= 2.7 && v.z.abs() <= 2.7 && (0.0..0.31).contains(&v.y));
             }

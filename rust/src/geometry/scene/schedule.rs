@@ -1,0 +1,467 @@
+//! How a batch of shadow rays is traced: fixed chunks (answers never depend on the thread
+//! count), runs from one origin as packets, and large batches in an order of nearby
+//! origins.
+
+use glam::{Vec3, Vec3A};
+use obvhs::ploc::morton::morton_encode_u64;
+use rayon::prelude::*;
+
+use super::{RayBatch, Scene, TMax};
+use crate::error::Result;
+use crate::geometry::bvh::{Bvh, OccluderHint, TraversalCounters, PACKET};
+use crate::parallel::with_threads;
+use crate::simd::{Kernel, Level};
+
+/// Rays traced per parallel work item; fixed so results never depend on the thread count.
+pub(super) const CHUNK: usize = 1024;
+
+/// Shortest run of rays from one origin that [`Scene::occluded`] traces as a packet.
+pub const MIN_PACKET: usize = 4;
+
+/// Square of the least cosine between a packet's directions and their mean for
+/// [`Scene::occluded`] to trace them together (45°): wider packets share few nodes, and
+/// their rays go faster one by one.
+const PACKET_COSINE_SQUARED: f32 = 0.5;
+
+/// Smallest batch that [`Scene::occluded`] reorders by origin.
+pub(super) const SPATIAL_ORDER_MIN: usize = 1 << 16;
+
+/// Least mean number of node visits per ray, over a sample of a batch, for
+/// [`Scene::occluded`] to reorder it by origin.
+const SPATIAL_ORDER_NODES: f64 = 6.0;
+
+/// Whether `directions` (non-zero) lie within 45° of their sum (their mean direction when
+/// they have one length, as record bundles' unit directions do). Squared, so that no
+/// direction is normalised (the normalisations were a large share of the batch driver's
+/// time on record bundles): `d · m >= cos 45° |d| |m|` as `(d · m)² >= ½ |d|² |m|²` with
+/// `d · m > 0`. It only chooses how rays are traced, never what they answer.
+fn coherent(directions: &[Vec3A]) -> bool {
+    let sum = directions.iter().sum::<Vec3A>();
+    let sum_sq = sum.length_squared();
+    sum_sq > 0.0
+        && directions.iter().all(|d| {
+            let along = d.dot(sum);
+            along > 0.0 && along * along >= PACKET_COSINE_SQUARED * d.length_squared() * sum_sq
+        })
+}
+
+/// How [`Scene::occluded`] traces a batch (see [`Scene::spatial_order`]).
+#[derive(Debug, PartialEq)]
+pub(super) enum TraceOrder {
+    /// In the order given.
+    Given,
+    /// Ray after ray in this order (a permutation of the batch).
+    Rays(Vec<u32>),
+    /// Run after run of rays from one origin (ranges of the batch), in this order.
+    Runs(Vec<std::ops::Range<u32>>),
+}
+
+/// The runs of consecutive rays from one origin (compared bit for bit) in the order of
+/// `key` of their origins (ties in the given order); None when the runs are in that order
+/// already.
+pub(super) fn bundle_order(
+    origins: &[[f32; 3]],
+    key: impl Fn(&[f32; 3]) -> u64,
+) -> Option<Vec<std::ops::Range<u32>>> {
+    let bits = |o: &[f32; 3]| o.map(f32::to_bits);
+    let mut runs: Vec<(u64, u32, u32)> = Vec::new();
+    let mut start = 0;
+    for i in 1..=origins.len() {
+        if i == origins.len() || bits(&origins[i]) != bits(&origins[start]) {
+            runs.push((key(&origins[start]), start as u32, i as u32));
+            start = i;
+        }
+    }
+    if runs.is_sorted() {
+        return None;
+    }
+    runs.sort_unstable();
+    Some(runs.into_iter().map(|(_, s, e)| s..e).collect())
+}
+
+/// [`occluded_chunk`] with counters on or off.
+fn occluded_chunk_counting(
+    counting: bool,
+    bvh: &Bvh,
+    rays: &RayBatch,
+    base: usize,
+    out: &mut [bool],
+    counters: &mut TraversalCounters,
+) {
+    if counting {
+        occluded_chunk::<true>(bvh, rays, base, out, counters);
+    } else {
+        occluded_chunk::<false>(bvh, rays, base, out, counters);
+    }
+}
+
+/// [`Scene::occluded`] on rays `base..base + out.len()`, compiled for this CPU's
+/// instruction set with the single-ray traversal inlined into its loop (one call and one
+/// instruction-set dispatch less per ray).
+fn occluded_chunk<const COUNT: bool>(
+    bvh: &Bvh,
+    rays: &RayBatch,
+    base: usize,
+    out: &mut [bool],
+    counters: &mut TraversalCounters,
+) {
+    crate::simd::dispatch(OccludedChunk::<COUNT> {
+        bvh,
+        rays,
+        base,
+        out,
+        counters,
+    });
+}
+
+/// [`occluded_chunk`] as a [`Kernel`], compiled once per instruction set.
+pub(super) struct OccludedChunk<'a, const COUNT: bool> {
+    pub(super) bvh: &'a Bvh,
+    pub(super) rays: &'a RayBatch<'a>,
+    pub(super) base: usize,
+    pub(super) out: &'a mut [bool],
+    pub(super) counters: &'a mut TraversalCounters,
+}
+
+impl<const COUNT: bool> Kernel for OccludedChunk<'_, COUNT> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<L: Level>(self, level: L) {
+        let OccludedChunk {
+            bvh,
+            rays,
+            base,
+            out,
+            counters,
+        } = self;
+        // No closure for the single-ray traversal: a closure takes the target features of
+        // the function that defines it, which here has none, and one left as a call would
+        // run the portable target's code.
+        occluded_chunk_with::<COUNT, L>(bvh, rays, base, out, counters, level);
+    }
+}
+
+/// The loop of [`occluded_chunk`], tracing single rays with the box tests of instruction
+/// set `level` ([`Bvh::occluded_hinted_at`]).
+#[inline(always)]
+fn occluded_chunk_with<const COUNT: bool, L: Level>(
+    bvh: &Bvh,
+    rays: &RayBatch,
+    base: usize,
+    out: &mut [bool],
+    counters: &mut TraversalCounters,
+    level: L,
+) {
+    let origins = &rays.origins[base..base + out.len()];
+    // Origins compared bit for bit (-0.0 and 0.0 would round apart), each read once.
+    let bits = |k: usize| origins.get(k).map(|o| o.map(f32::to_bits));
+    let mut hint = OccluderHint::NONE;
+    let (mut k, mut next) = (0, bits(0));
+    while let Some(origin) = next {
+        let i = base + k;
+        // A run of rays from one origin (up to a packet).
+        let mut run = 1;
+        next = bits(k + 1);
+        while run < PACKET && next == Some(origin) {
+            run += 1;
+            next = bits(k + run);
+        }
+        let o = Vec3A::from(origins[k]);
+        let direction = |l: usize| Vec3A::from(rays.directions[i + l]);
+        let packet = (run >= MIN_PACKET)
+            .then(|| std::array::from_fn::<_, PACKET, _>(|l| direction(l.min(run - 1))))
+            .filter(|directions| coherent(&directions[..run]));
+        if let Some(directions) = packet {
+            let tmax: [f32; PACKET] = std::array::from_fn(|l| rays.tmax_of(i + l.min(run - 1)));
+            let occluded = bvh.occluded_packet::<COUNT>(
+                o,
+                &directions[..run],
+                &tmax[..run],
+                &mut hint,
+                counters,
+            );
+            for (l, slot) in out[k..k + run].iter_mut().enumerate() {
+                *slot = occluded >> l & 1 != 0;
+            }
+        } else {
+            // One by one: a run too short or too wide for a packet.
+            for (l, slot) in out[k..k + run].iter_mut().enumerate() {
+                let (d, t) = (direction(l), rays.tmax_of(i + l));
+                *slot = bvh.occluded_hinted_at::<COUNT, L>(o, d, t, &mut hint, counters, level);
+            }
+        }
+        // The hint carries over to the next run only when it shares the origin.
+        if next != Some(origin) {
+            hint = OccluderHint::NONE;
+        }
+        k += run;
+    }
+}
+
+impl Scene {
+    /// Runs `per_ray` over `n` rays in fixed chunks on `threads` workers, collecting the
+    /// results in order and adding the chunks' counters to the scene's.
+    pub fn map_rays<T: Send + Copy + Default>(
+        &self,
+        n: usize,
+        threads: Option<usize>,
+        per_ray: impl Fn(usize, &mut TraversalCounters) -> T + Sync,
+    ) -> Result<Vec<T>> {
+        self.map_chunks(n, threads, |base, chunk, counters| {
+            for (k, slot) in chunk.iter_mut().enumerate() {
+                *slot = per_ray(base + k, counters);
+            }
+        })
+    }
+
+    /// Fills the results of `n` rays chunk by chunk on `threads` workers: `per_chunk(base,
+    /// out, counters)` answers rays `base..base + out.len()`. Chunks are fixed, so results
+    /// never depend on the thread count; their counters are added to the scene's.
+    pub fn map_chunks<T: Send + Copy + Default>(
+        &self,
+        n: usize,
+        threads: Option<usize>,
+        per_chunk: impl Fn(usize, &mut [T], &mut TraversalCounters) + Sync,
+    ) -> Result<Vec<T>> {
+        let all = |base, out: &mut [T], c: &mut _| -> std::result::Result<(), ()> {
+            per_chunk(base, out, c);
+            Ok(())
+        };
+        Ok(self.try_map_chunks(n, threads, all)?.unwrap_or_default())
+    }
+
+    /// [`Self::map_chunks`] whose chunks may refuse their rays: `per_chunk` returns the
+    /// reason, and the least reason over the refusing chunks (whichever threads ran them)
+    /// is returned instead of the results. Counters are added only when no chunk refused.
+    pub(super) fn try_map_chunks<T: Send + Copy + Default, E: Ord + Send>(
+        &self,
+        n: usize,
+        threads: Option<usize>,
+        per_chunk: impl Fn(usize, &mut [T], &mut TraversalCounters) -> std::result::Result<(), E> + Sync,
+    ) -> Result<std::result::Result<Vec<T>, E>> {
+        with_threads(threads, || {
+            self.bvh();
+            let mut out = vec![T::default(); n];
+            let (counters, refused) = out
+                .par_chunks_mut(CHUNK)
+                .enumerate()
+                .map(|(c, chunk)| {
+                    let mut counters = TraversalCounters::default();
+                    let refused = per_chunk(c * CHUNK, chunk, &mut counters).err();
+                    (counters, refused)
+                })
+                .reduce(
+                    || (TraversalCounters::default(), None),
+                    |(mut a, ra), (b, rb)| {
+                        a += b;
+                        (a, ra.into_iter().chain(rb).min())
+                    },
+                );
+            match refused {
+                Some(reason) => Err(reason),
+                None => {
+                    self.add_counters(counters);
+                    Ok(out)
+                }
+            }
+        })
+    }
+
+    /// Shadow queries: `true` where something lies on the segment. Runs of at least
+    /// [`MIN_PACKET`] consecutive rays from one origin (record bundles) are traced in
+    /// packets ([`Bvh::occluded_packet`]); other rays one by one, first trying the previous
+    /// ray's occluder when it shared their origin. The answers are the same either way.
+    ///
+    /// Large batches of scattered rays in trees larger than a core's L2 cache, whose rays
+    /// visit many nodes (judged on every 256th ray), are traced in the Morton order of their
+    /// origins and answered in the given order: consecutive rays then reuse the same
+    /// nodes and triangles from cache (measured on garden's incoherent shadow rays). The order
+    /// depends only on the rays, so answers and counters are the same for any thread
+    /// count; the sample that decides is not counted.
+    pub fn occluded(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
+        rays.validate_shape()?;
+        if self.may_reorder(rays) {
+            rays.validate()?;
+            match with_threads(threads, || self.spatial_order(rays))? {
+                TraceOrder::Rays(order) => return self.occluded_in_order(rays, &order, threads),
+                TraceOrder::Runs(runs) => return self.occluded_by_runs(rays, &runs, threads),
+                TraceOrder::Given => {}
+            }
+        }
+        self.occluded_as_given(rays, threads)
+    }
+
+    /// [`Scene::occluded`] on rays of checked lengths, traced in the order given. Each
+    /// chunk validates its rays before tracing them, while they are in cache (a separate
+    /// pass over the batch cost measurable time on cornell's incoherent shadow rays);
+    /// counters are added only when every ray is valid.
+    fn occluded_as_given(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
+        let counting = self.counting_enabled();
+        self.try_map_chunks(rays.len(), threads, |base, out, counters| {
+            if let Some(bad) = rays.first_bad(base..base + out.len()) {
+                return Err(bad);
+            }
+            let bvh = self.bvh();
+            occluded_chunk_counting(counting, bvh, rays, base, out, counters);
+            Ok(())
+        })?
+        .map_err(|bad| rays.error_at(bad))
+    }
+
+    /// Whether [`Self::spatial_order`] may reorder `rays`: a large batch in a tree larger
+    /// than L2.
+    fn may_reorder(&self, rays: &RayBatch) -> bool {
+        rays.len() >= SPATIAL_ORDER_MIN && self.bvh().outgrows_l2()
+    }
+
+    /// An order of the rays (valid ones) in which consecutive ones start near each other
+    /// (Morton order of their origins; ties in the given order), for large trees and large
+    /// batches whose rays visit many nodes; [`TraceOrder::Given`] where tracing in the
+    /// given order is as good. Runs of rays from one origin (record bundles) are coherent
+    /// already and stay whole: the runs are ordered by their origins instead, so that
+    /// consecutive bundles start near each other and share the nodes and blades they read;
+    /// runs already in that order are left as given.
+    pub(super) fn spatial_order(&self, rays: &RayBatch) -> TraceOrder {
+        let n = rays.len();
+        let bvh = self.bvh();
+        if !self.may_reorder(rays) {
+            return TraceOrder::Given;
+        }
+        let repeated = rays
+            .origins
+            .windows(2)
+            .step_by(61)
+            .filter(|w| w[0] == w[1])
+            .count();
+        let bundles = repeated * 2 > n.div_ceil(61);
+        // Rays that leave the tree after a node or two (a small object under an open sky)
+        // gain nothing: trace a sample of every 256th ray and reorder only when rays visit
+        // many nodes, as they do in dense geometry that waits on memory.
+        let sample = (0..n)
+            .into_par_iter()
+            .step_by(256)
+            .map(|i| {
+                let mut c = TraversalCounters::default();
+                bvh.occluded::<true>(
+                    Vec3A::from(rays.origins[i]),
+                    Vec3A::from(rays.directions[i]),
+                    rays.tmax_of(i),
+                    &mut c,
+                );
+                c
+            })
+            .reduce(TraversalCounters::default, |mut a, b| {
+                a += b;
+                a
+            });
+        if (sample.nodes as f64) < SPATIAL_ORDER_NODES * sample.rays as f64 {
+            return TraceOrder::Given;
+        }
+        let b = self.bounds();
+        let top = (1 << 21) as f32 - 1.0;
+        let scale = Vec3::splat(top) / (b.max - b.min).max(Vec3::splat(1e-30));
+        let key = |o: &[f32; 3]| {
+            let q = ((Vec3::from(*o) - b.min) * scale).clamp(Vec3::ZERO, Vec3::splat(top));
+            morton_encode_u64(q.x as u32, q.y as u32, q.z as u32)
+        };
+        if bundles {
+            return bundle_order(rays.origins, key).map_or(TraceOrder::Given, TraceOrder::Runs);
+        }
+        let mut keyed: Vec<(u64, u32)> = rays
+            .origins
+            .par_iter()
+            .enumerate()
+            .map(|(i, o)| (key(o), i as u32))
+            .collect();
+        keyed.par_sort_unstable();
+        TraceOrder::Rays(keyed.into_iter().map(|(_, i)| i).collect())
+    }
+
+    /// [`Scene::occluded`] on valid rays traced run after run in the order of `runs`
+    /// (ranges of the batch that together cover it once) and answered in the given order.
+    /// The runs are read where they lie, not copied into a reordered batch (the copy cost
+    /// as much as the order gained on garden's bundles). Work items are consecutive runs
+    /// of at least [`CHUNK`] rays together, fixed by the runs alone, so answers and
+    /// counters are the same for any thread count.
+    fn occluded_by_runs(
+        &self,
+        rays: &RayBatch,
+        runs: &[std::ops::Range<u32>],
+        threads: Option<usize>,
+    ) -> Result<Vec<bool>> {
+        let mut items = Vec::new();
+        let (mut first, mut size) = (0, 0);
+        for (k, run) in runs.iter().enumerate() {
+            size += run.len();
+            if size >= CHUNK || k + 1 == runs.len() {
+                items.push(first..k + 1);
+                (first, size) = (k + 1, 0);
+            }
+        }
+        let counting = self.counting_enabled();
+        let bvh = self.bvh();
+        with_threads(threads, || {
+            let traced: Vec<(Vec<bool>, TraversalCounters)> = items
+                .par_iter()
+                .map(|item| {
+                    let runs = &runs[item.clone()];
+                    let mut out = vec![false; runs.iter().map(|r| r.len()).sum()];
+                    let mut counters = TraversalCounters::default();
+                    let mut k = 0;
+                    for run in runs {
+                        let (base, slots) = (run.start as usize, &mut out[k..k + run.len()]);
+                        occluded_chunk_counting(counting, bvh, rays, base, slots, &mut counters);
+                        k += run.len();
+                    }
+                    (out, counters)
+                })
+                .collect();
+            let mut out = vec![false; rays.len()];
+            let mut counters = TraversalCounters::default();
+            for (item, (answers, c)) in items.into_iter().zip(traced) {
+                counters += c;
+                let mut k = 0;
+                for run in &runs[item] {
+                    let r = run.start as usize..run.end as usize;
+                    out[r].copy_from_slice(&answers[k..k + run.len()]);
+                    k += run.len();
+                }
+            }
+            self.add_counters(counters);
+            out
+        })
+    }
+
+    /// [`Scene::occluded`] traced in `order` (a permutation of the rays), answered in the
+    /// given order.
+    fn occluded_in_order(
+        &self,
+        rays: &RayBatch,
+        order: &[u32],
+        threads: Option<usize>,
+    ) -> Result<Vec<bool>> {
+        let origins: Vec<[f32; 3]> = order.iter().map(|&i| rays.origins[i as usize]).collect();
+        let directions: Vec<[f32; 3]> =
+            order.iter().map(|&i| rays.directions[i as usize]).collect();
+        let per_ray: Vec<f32>;
+        let tmax = match rays.tmax {
+            TMax::Scalar(t) => TMax::Scalar(t),
+            TMax::PerRay(t) => {
+                per_ray = order.iter().map(|&i| t[i as usize]).collect();
+                TMax::PerRay(&per_ray)
+            }
+        };
+        let sorted = RayBatch {
+            origins: &origins,
+            directions: &directions,
+            tmax,
+        };
+        let answers = self.occluded_as_given(&sorted, threads)?;
+        let mut out = vec![false; rays.len()];
+        for (&i, a) in order.iter().zip(answers) {
+            out[i as usize] = a;
+        }
+        Ok(out)
+    }
+}
