@@ -11,7 +11,6 @@
 //! estimators consume them.
 
 pub mod bsdf;
-pub mod bsdf_rows;
 pub mod camera;
 pub mod error;
 pub mod estimators;

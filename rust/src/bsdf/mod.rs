@@ -25,6 +25,7 @@ use crate::math::LUMINANCE_F32;
 use crate::sampling::rng::SampleRng;
 
 mod cells;
+pub mod rows;
 #[cfg(test)]
 mod tests;
 

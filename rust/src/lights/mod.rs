@@ -1,10 +1,9 @@
 //! Light sources: the octahedral HDR environment map ([`envmap`], over batches of rows in
-//! [`envmap_rows`]), the procedural maps the built-in scenes use ([`procedural`]) and area
+//! [`envmap::rows`]), the procedural maps the built-in scenes use ([`procedural`]) and area
 //! lights made of triangles ([`area`]).
 
 pub mod area;
 pub mod envmap;
-pub mod envmap_rows;
 pub mod procedural;
 
 pub use area::AreaLight;

@@ -12,9 +12,10 @@ use super::convert::{
     f64_arg, image3_f32, int_arg, or_default, rows2_f64, rows3_array, rows3_f32, vec3_arg,
     IntoPyResult,
 };
+use crate::lights::envmap::rows as envmap_rows;
 use crate::lights::envmap::{ExrLayout, MAX_EQUIRECT_SIDE, MAX_RESOLUTION};
 use crate::lights::procedural::{self, Window};
-use crate::lights::{envmap_rows, EnvMap};
+use crate::lights::EnvMap;
 
 /// Default octahedral resolution of maps built from images and procedures.
 const DEFAULT_RESOLUTION: u32 = 256;

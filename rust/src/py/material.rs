@@ -9,8 +9,8 @@ use super::convert::{
     f64_arg, image_array, int_arg, or_default, rows3_array, rows3_f32, unit_directions, vec3_arg,
     IntoPyResult,
 };
+use crate::bsdf::rows as bsdf_rows;
 use crate::bsdf::{Material, MAX_CELL_LEVEL};
-use crate::bsdf_rows;
 use crate::sampling::octahedral::morton_encode;
 
 fn unit(v: Vec3, name: &str) -> PyResult<Vec3> {

@@ -34,7 +34,7 @@ pub enum BuildQuality {
     /// on `meshes`, where PLOC traces faster); the traversal work of sample rays does.
     #[default]
     Auto,
-    /// Top-down binned SAH whose cost counts four-triangle blocks ([`super::binned_sah`]).
+    /// Top-down binned SAH whose cost counts four-triangle blocks ([`crate::geometry::binned_sah`]).
     /// Fewer node visits and block tests per ray than any PLOC preset below on the
     /// built-in scenes, at about the build time of `Medium` (benches/README.md).
     Sah,
@@ -154,7 +154,7 @@ pub(super) struct RefitBlocks {
     in_tree: Vec<bool>,
 }
 
-/// How a built BVH follows geometry that moved (see [`super::Scene::set_object_transform`]).
+/// How a built BVH follows geometry that moved (see [`crate::geometry::Scene::set_object_transform`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum BvhUpdate {
     /// Keep the tree's topology and recompute the boxes above the moved triangles: much

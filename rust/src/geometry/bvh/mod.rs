@@ -58,7 +58,7 @@ impl std::ops::AddAssign for TraversalCounters {
 }
 
 /// Closest hit of one ray: ray parameter `t` (world units of the given direction), the
-/// triangle index into [`Mesh::triangles`], and barycentrics of the second and third vertex.
+/// triangle index into [`crate::geometry::Mesh::triangles`], and barycentrics of the second and third vertex.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hit {
     pub t: f32,

@@ -49,6 +49,7 @@ use crate::sampling::octahedral::{sphere_to_square, square_to_sphere, texel_of};
 
 mod equirect;
 mod exr;
+pub mod rows;
 #[cfg(test)]
 mod tests;
 
