@@ -19,32 +19,16 @@
 //! disagreement — records near occluders see different things, so the cache refines there).
 //!
 //! ## Index
-//! A bucket kd-tree of our own (module `site_tree`) over *distinct* positions, holding each
-//! record's position, decoded normal and id inline in its leaf, 32 to a leaf, so that a
-//! range query reads the records it finds in sequence. kiddo 5's mutable tree holds bare
-//! ids, and fetching each found record's site from an id-indexed array was one cache miss
-//! per record (records lie in insertion order, scattered in space). On the cache bench at
-//! 100k records the tree alone looked up 1.1–1.5x faster than kiddo's at random and 1.1x
-//! in pixel order; with its leaves scanned sixteen records at a time (AVX-512 masks and
-//! compression) and the steps after it, lookups are 3–3.8x and 1.5–1.8x faster
-//! (benches/README.md). Leaves split at the median of their widest coordinate, so records
-//! on a floor (one height for all) split as well as any. Records that share a position
-//! exactly (a user inserting many normals at one point) hang off the first in a chain, so
-//! no leaf fills with points no split can separate. Removal happens only in
-//! [`VisibilityCache::end_frame`], which compacts the store and rebuilds the tree balanced
-//! — the paper's "occasionally rebalance". Record ids are therefore dense and stable
-//! between two `end_frame` calls.
-//!
-//! Chained records are read from the `Site` array (position, decoded normal, chain link).
-//! Lookups in pixel order go through a [`LookupScratch`] (module `gather`):
-//! one range query of twice the radius, centred ahead along the walk, serves the lookups
-//! whose balls it covers. Each lookup filters the gathered records by distance and normal
-//! sixteen at a time (AVX-512 masks and compression where the CPU has them), with the
-//! answer of a range query at its point bit for bit, and takes its `m` nearest by one
-//! integer key (squared distance, then id). A wide gathering prefetches the maps of its records,
-//! which the lookups it serves compare for `δ̄`. Lookups made without a scratch of their
-//! own ([`CacheState::lookup`] as builds make them, [`CacheState::lookup_records`] as the
-//! renderer and the preview make them) use their thread's.
+//! The records live in the crate's one spatial index ([`crate::spatial::SpatialIndex`]:
+//! a bucket kd-tree over distinct positions, chains for shared ones, gathering through a
+//! [`LookupScratch`] and SIMD scoring of the `m` nearest); the [`RecordStore`] is its
+//! payload, and a wide gathering prefetches the maps of its records, which the lookups it
+//! serves compare for `δ̄`. Removal happens only in [`VisibilityCache::end_frame`], which
+//! compacts the store and rebuilds the tree balanced — the paper's "occasionally
+//! rebalance". Record ids are therefore dense and stable between two `end_frame` calls.
+//! Lookups made without a scratch of their own ([`CacheState::lookup`] as builds make
+//! them, [`CacheState::lookup_records`] as the renderer and the preview make them) use
+//! their thread's.
 //!
 //! ## Concurrency
 //! One `RwLock` (as in the paper): lookups read in parallel, an insertion writes alone and
@@ -67,8 +51,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::params::{
-    normal_angle, raw_weight, CacheParams, COHERENCE_LOG2_RESOLUTION, COHERENCE_PAIRS,
-    INCOHERENCE_LIMIT, MAX_KEEP_COUNT, MAX_SEARCH_COUNT,
+    CacheParams, COHERENCE_LOG2_RESOLUTION, COHERENCE_PAIRS, INCOHERENCE_LIMIT, MAX_KEEP_COUNT,
 };
 use super::record::{Record, RecordHeader, RecordRays, RecordStore, VisibilityView};
 use crate::camera::{Camera, GBuffer};
@@ -79,19 +62,15 @@ use crate::sampling::octahedral::morton_decode;
 use crate::sampling::pattern::{default_pattern, record_pattern, DEFAULT_LLOYD_ITERATIONS};
 use crate::sampling::rng::SampleRng;
 
-mod gather;
 mod io;
 pub mod nearest;
-mod site_tree;
 
-pub use gather::LookupScratch;
-use gather::{candidate_key, key_d2, key_id};
-use site_tree::SiteTree;
+pub(crate) use crate::spatial::with_thread_scratch;
+pub use crate::spatial::LookupScratch;
+use crate::spatial::{Hits, Records, SpatialIndex};
 #[cfg(test)]
 pub(crate) mod tests;
 
-/// End of a chain of records sharing one position.
-const NO_RECORD: u32 = u32::MAX;
 /// Most pixels looked up per build wave.
 pub const BUILD_WAVE: usize = 4096;
 /// Fewest pixels per build wave (fewer would leave threads idle).
@@ -213,21 +192,36 @@ pub struct EvictionReport {
     pub remaining: usize,
 }
 
+/// The visibility records as the spatial index reads them: position and decoded normal
+/// from the header, `R_i` as the validity radius, the map as the payload a wide gathering
+/// prefetches (the lookups it serves compare the kept records' maps for `δ̄`).
+impl Records for RecordStore {
+    fn len(&self) -> usize {
+        RecordStore::len(self)
+    }
+
+    fn site(&self, id: usize) -> (Vec3, Vec3) {
+        let header = self.header(id);
+        (header.position(), header.normal())
+    }
+
+    fn radius(&self, id: usize) -> f32 {
+        self.header(id).nearest_hit_distance
+    }
+
+    #[inline(always)]
+    fn prefetch(&self, id: usize) {
+        for line in self.bits(id).bit_words().chunks(8) {
+            crate::spatial::prefetch(&line[0]);
+        }
+    }
+}
+
 /// The lock-protected part: records, their index and the frame.
 #[derive(Clone, Debug)]
 pub struct CacheState {
-    store: RecordStore,
-    tree: SiteTree,
-    /// Each record's position, decoded normal and chain link, by id: what the tree takes
-    /// on insertion and rebuilds, and what lookups read of chained records (the tree
-    /// holds only the first record at each position).
-    sites: Vec<Site>,
-    /// Changes with every insertion and re-index (see [`LookupScratch`]).
-    generation: u64,
-    /// Last record of each chain, indexed by its head (only valid for heads).
-    chain_tail: Vec<u32>,
-    /// Records that are not the first at their position (in a chain, not in the tree).
-    chained: usize,
+    /// The records in the spatial index.
+    index: SpatialIndex<RecordStore>,
     frame: u32,
     counters: CacheCounters,
     /// [`Scene::geometry_fingerprint`] of the scene the records were traced in (`None`
@@ -238,12 +232,7 @@ pub struct CacheState {
 impl CacheState {
     fn new(m: u32) -> Result<Self> {
         Ok(Self {
-            store: RecordStore::new(m)?,
-            tree: SiteTree::default(),
-            sites: Vec::new(),
-            generation: next_generation(),
-            chain_tail: Vec::new(),
-            chained: 0,
+            index: SpatialIndex::new(RecordStore::new(m)?),
             frame: 0,
             counters: CacheCounters::default(),
             scene: None,
@@ -257,17 +246,17 @@ impl CacheState {
 
     /// The records.
     pub fn store(&self) -> &RecordStore {
-        &self.store
+        self.index.records()
     }
 
     /// Number of records.
     pub fn len(&self) -> usize {
-        self.store.len()
+        self.index.records().len()
     }
 
     /// True without records.
     pub fn is_empty(&self) -> bool {
-        self.store.is_empty()
+        self.index.records().is_empty()
     }
 
     /// The current frame (starts at 0, advanced by `end_frame`).
@@ -337,12 +326,10 @@ impl CacheState {
         };
         out
     }
-
     /// The `m_search` nearest records (ties by id) among those within `d_max` of `x` whose
     /// normals differ from the unit `n` by `θ_i < θ_max`, in no particular order, with
-    /// their eq. 9 weights. Shared positions are expanded. Both [`Self::lookup`] (§5.1) and
-    /// [`Self::nearest`] (§6.1) start from this set. An empty cache or a non-positive or
-    /// non-finite `d_max` finds nothing.
+    /// their eq. 9 weights ([`SpatialIndex::m_nearest`]). Both [`Self::lookup`] (§5.1) and
+    /// [`Self::nearest`] (§6.1) start from this set.
     pub(crate) fn m_nearest<'b>(
         &self,
         params: &CacheParams,
@@ -351,137 +338,8 @@ impl CacheState {
         d_max: f32,
         scratch: &'b mut LookupScratch,
     ) -> &'b Hits {
-        scratch.hits.len = 0;
-        if self.store.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
-            return &scratch.hits;
-        }
-        let m = params.m_search as usize;
-        let theta_max = params.theta_max();
-        let cos_max = theta_max.cos();
-        self.gather(x, d_max, scratch);
-        let LookupScratch {
-            sites: gathered,
-            passed,
-            candidates,
-            hits,
-            ..
-        } = scratch;
-        // θ_i < θ_max (strict, as in §5.1). Only cosines within 1e-3 of θ_max's need the
-        // angle to decide; the filter drops those clearly out, and θ is computed for the m
-        // kept alone.
-        let (loose, tight) = (cos_max - 1e-3, cos_max + 1e-3);
-        gathered.filter(x, n, d_max * d_max, loose, passed);
-        candidates.clear();
-        for (j, (&k, &d2)) in passed.index.iter().zip(&passed.d2).enumerate() {
-            if passed.cos[j] <= tight {
-                let theta = normal_angle(passed.sin[j], passed.cos[j]);
-                if theta.partial_cmp(&theta_max) != Some(std::cmp::Ordering::Less) {
-                    continue;
-                }
-            }
-            candidates.push(candidate_key(d2, gathered.id(k as usize)), j as u32);
-        }
-        let mut i = 0;
-        candidates.for_each_least(m, |key, j| {
-            let j = j as usize;
-            hits.key[i] = key;
-            hits.d2[i] = key_d2(key);
-            hits.cos[i] = passed.cos[j];
-            hits.sin[i] = passed.sin[j];
-            hits.along[i] = passed.along[j];
-            i += 1;
-        });
-        hits.len = i;
-        hits.score(params, d_max);
-        hits
-    }
-
-    /// Leaves in `scratch.sites` the records that may lie within `d_max` of `x`: those it
-    /// holds when its gathered ball covers this one, else a new gathering (one kd-tree range
-    /// query) of radius `LookupScratch::REACH · d_max` around `x` or just ahead of it, or
-    /// of radius `d_max` around `x` when lookups come scattered.
-    fn gather(&self, x: Vec3, d_max: f32, scratch: &mut LookupScratch) {
-        // A margin of 1e-5 keeps rounding of the distances on the safe side: a record
-        // within d_max of x is within (|x − anchor| + d_max)(1 + 1e-6) of the anchor.
-        let covered = scratch.generation == self.generation
-            && (x - scratch.anchor).length() + d_max <= scratch.reach * (1.0 - 1e-5);
-        let previous = std::mem::replace(&mut scratch.previous, x);
-        if covered {
-            scratch.served += 1;
-        } else {
-            // Gather wide while that pays (the last gathering served another lookup); in
-            // scattered order a wide ball costs four times the records for nothing, so
-            // gather exactly, and try wide again after a while, less often each time a
-            // try serves nothing more.
-            let coherent = scratch.served > 1;
-            let (first, most) = LookupScratch::WIDE_RETRY;
-            scratch.wide_interval = if coherent || scratch.wide_interval == 0 {
-                first
-            } else if scratch.wide {
-                (2 * scratch.wide_interval).min(most)
-            } else {
-                scratch.wide_interval
-            };
-            let wide = coherent || scratch.until_wide == 0;
-            scratch.until_wide = if wide {
-                scratch.wide_interval
-            } else {
-                scratch.until_wide - 1
-            };
-            scratch.wide = wide;
-            scratch.gathers = scratch.gathers.wrapping_add(1);
-            let reach = if wide { LookupScratch::REACH } else { 1.0 } * d_max;
-            // Lookups in pixel order walk on: a wide ball centred ahead of `x`, along the
-            // last step, serves twice the lookups of one centred on it (those behind are
-            // done). It must still cover this lookup's ball, or it is centred on `x`.
-            let step = x - previous;
-            let step_length = step.length();
-            let mut anchor = x;
-            if wide && step_length > 0.0 && step_length < d_max {
-                let ahead = x + step * ((LookupScratch::REACH - 1.0) * 0.9 * d_max / step_length);
-                if (x - ahead).length() + d_max <= reach * (1.0 - 1e-5) {
-                    anchor = ahead;
-                }
-            }
-            scratch.served = 1;
-            scratch.generation = self.generation;
-            scratch.anchor = anchor;
-            scratch.reach = reach;
-            scratch.sites.clear();
-            self.tree.within(
-                anchor,
-                reach * reach,
-                &mut scratch.query,
-                &mut scratch.sites,
-            );
-            if self.chained > 0 {
-                for k in 0..scratch.sites.len() {
-                    let mut id = self.sites[scratch.sites.id(k) as usize].next;
-                    while id != NO_RECORD {
-                        let site = &self.sites[id as usize];
-                        scratch.sites.push((site.position, site.normal, id));
-                        id = site.next;
-                    }
-                }
-            }
-            scratch.sites.seal();
-            // The lookups served from a wide gathering compare the maps of the records they
-            // keep (δ̄); these are among the gathered, so fetch their bits ahead while the
-            // walk is coherent. (A lookup alone needs the maps of n of them: fetching all
-            // would only crowd those out.)
-            if coherent && scratch.sites.len() <= PREFETCH_MAPS {
-                for k in 0..scratch.sites.len() {
-                    for line in self
-                        .store
-                        .bits(scratch.sites.id(k) as usize)
-                        .bit_words()
-                        .chunks(8)
-                    {
-                        prefetch(&line[0]);
-                    }
-                }
-            }
-        }
+        self.index
+            .m_nearest(&params.weighting(), x, n, d_max, scratch)
     }
 
     /// `δ̄` of §5.2: mean eq. 11 difference over the pairs of `kept`.
@@ -491,24 +349,24 @@ impl CacheState {
         }
         let mut sum = 0u64;
         for (i, a) in kept.iter().enumerate() {
-            let va = self.store.bits(a.id as usize);
+            let va = self.index.records().bits(a.id as usize);
             for b in &kept[i + 1..] {
-                sum += va.xor_popcount(&self.store.bits(b.id as usize)) as u64;
+                sum += va.xor_popcount(&self.index.records().bits(b.id as usize)) as u64;
             }
         }
         let pairs = (kept.len() * (kept.len() - 1) / 2) as f64;
-        let texels = (1u64 << (2 * self.store.m())) as f64;
+        let texels = (1u64 << (2 * self.index.records().m())) as f64;
         (sum as f64 / (pairs * texels)) as f32
     }
 
     /// `Ṽ = Σ β_i V_i` of a lookup as `R x R` floats in texel layout (row `y`, column `x`
     /// of the equal-area square; row-major).
     pub fn interpolate(&self, lookup: &Lookup, out: &mut [f32]) {
-        let r = 1usize << self.store.m();
+        let r = 1usize << self.index.records().m();
         debug_assert_eq!(out.len(), r * r);
         out.fill(0.0);
         for k in lookup.neighbours() {
-            let bits = self.store.bits(k.id as usize);
+            let bits = self.index.records().bits(k.id as usize);
             for_each_set_bit(bits, |z| {
                 let t = morton_decode(z as u32);
                 out[t.y as usize * r + t.x as usize] += k.beta;
@@ -540,320 +398,13 @@ impl CacheState {
         params: &CacheParams,
         push: impl FnOnce(&mut RecordStore) -> Result<usize>,
     ) -> Result<Option<u32>> {
-        if self.store.len() >= params.max_records as usize {
+        if self.index.len() >= params.max_records as usize {
             self.counters.refused_full += 1;
             return Ok(None);
         }
-        let id = push(&mut self.store)? as u32;
-        self.sites.push(Site::of(self.store.header(id as usize)));
-        self.generation = next_generation();
-        self.chain_tail.push(id);
-        self.index(id);
+        let id = self.index.admit(push)?;
         self.counters.inserted += 1;
         Ok(Some(id))
-    }
-
-    /// Puts record `id` (the newest) into the tree, or at the end of the chain of a record
-    /// with the same position.
-    fn index(&mut self, id: u32) {
-        let site = self.sites[id as usize];
-        if let Some(head) = self.tree.insert((site.position, site.normal, id)) {
-            self.chain(head, id);
-        }
-    }
-
-    /// Appends record `id` to the chain of `head`, the first record at its position.
-    fn chain(&mut self, head: u32, id: u32) {
-        let tail = self.chain_tail[head as usize] as usize;
-        self.sites[tail].next = id;
-        self.chain_tail[head as usize] = id;
-        self.chained += 1;
-    }
-
-    /// Rebuilds tree and chains from the store: the first record at each position (in id
-    /// order) goes into a balanced tree, the others into its chain.
-    fn reindex(&mut self) {
-        let n = self.store.len();
-        self.sites = (0..n).map(|i| Site::of(self.store.header(i))).collect();
-        self.generation = next_generation();
-        self.chain_tail = (0..n as u32).collect();
-        self.chained = 0;
-        let mut heads: Vec<u32> = Vec::with_capacity(n);
-        // Position -> first record there, in id order.
-        let mut first = std::collections::HashMap::with_capacity(n);
-        for id in 0..n as u32 {
-            // `+ 0.0` makes −0 and 0 one key, as they are one position to the tree.
-            let key = (self.sites[id as usize].position + 0.0)
-                .to_array()
-                .map(f32::to_bits);
-            match first.entry(key) {
-                std::collections::hash_map::Entry::Vacant(v) => {
-                    v.insert(id);
-                    heads.push(id);
-                }
-                std::collections::hash_map::Entry::Occupied(o) => self.chain(*o.get(), id),
-            }
-        }
-        let entries = heads
-            .iter()
-            .map(|&id| {
-                let site = &self.sites[id as usize];
-                (site.position, site.normal, id)
-            })
-            .collect();
-        self.tree = SiteTree::build(entries);
-    }
-}
-
-thread_local! {
-    /// The scratch of lookups made without one: its buffers are kept between calls, and
-    /// a thread's consecutive lookups still share gatherings when they are close.
-    static THREAD_SCRATCH: std::cell::RefCell<LookupScratch> = Default::default();
-}
-
-/// Runs `f` with this thread's [`LookupScratch`] (a fresh one if it is in use).
-pub(crate) fn with_thread_scratch<R>(f: impl FnOnce(&mut LookupScratch) -> R) -> R {
-    THREAD_SCRATCH.with(|cell| match cell.try_borrow_mut() {
-        Ok(mut scratch) => f(&mut scratch),
-        Err(_) => f(&mut LookupScratch::default()),
-    })
-}
-
-/// Source of [`CacheState`] generations: every state change takes the next number, so no
-/// two states (clones included) that differ share one. 0 is never drawn (fresh scratches).
-static GENERATIONS: AtomicU64 = AtomicU64::new(1);
-
-fn next_generation() -> u64 {
-    GENERATIONS.fetch_add(1, Ordering::Relaxed)
-}
-
-/// A record as the index reads it.
-#[derive(Clone, Copy, Debug)]
-struct Site {
-    position: Vec3,
-    /// Decoded unit normal (the store keeps it quantised; decoding costs a sine and a
-    /// cosine, which lookups would otherwise pay per chained candidate).
-    normal: Vec3,
-    /// The next record with this exact position, or `NO_RECORD`. Only the first record at
-    /// a position is in the tree.
-    next: u32,
-}
-
-impl Site {
-    fn of(header: &RecordHeader) -> Self {
-        Site {
-            position: header.position(),
-            normal: header.normal(),
-            next: NO_RECORD,
-        }
-    }
-}
-
-/// The m nearest records of a query (no order) and what §5.1 scores them by, as structure
-/// of arrays: [`Self::score`] runs one SIMD lane per record.
-#[derive(Clone, Debug)]
-pub(crate) struct Hits {
-    /// Records held.
-    pub(crate) len: usize,
-    /// [`candidate_key`]s: squared distance, then record id, as one integer.
-    key: [u64; HIT_LANES],
-    /// Squared distance `|p_i − x|²` (the range query's summation order), `sin θ_i` as `|n × n_i|`,
-    /// `cos θ_i` and `n · (p_i − x)`: the inputs of [`Self::score`].
-    d2: [f32; HIT_LANES],
-    sin: [f32; HIT_LANES],
-    cos: [f32; HIT_LANES],
-    along: [f32; HIT_LANES],
-    /// Distance `d_i` (world units), `θ_i` (radians), `w_g` (Fig. 7) and the eq. 9 weight
-    /// `w_i = w_g · ŵ(d_i, θ_i)`, filled by [`Self::score`].
-    pub(crate) distance: [f32; HIT_LANES],
-    pub(crate) theta: [f32; HIT_LANES],
-    pub(crate) geometric: [f32; HIT_LANES],
-    pub(crate) weight: [f32; HIT_LANES],
-}
-
-/// Lanes of [`Hits`]: `m <= MAX_SEARCH_COUNT`, scored 16 at a time.
-const HIT_LANES: usize = MAX_SEARCH_COUNT as usize;
-
-impl Default for Hits {
-    fn default() -> Self {
-        // Lanes past `len` keep finite values: scoring runs over whole groups of 16.
-        Self {
-            len: 0,
-            key: [0; HIT_LANES],
-            d2: [1.0; HIT_LANES],
-            sin: [0.0; HIT_LANES],
-            cos: [1.0; HIT_LANES],
-            along: [0.0; HIT_LANES],
-            distance: [0.0; HIT_LANES],
-            theta: [0.0; HIT_LANES],
-            geometric: [0.0; HIT_LANES],
-            weight: [0.0; HIT_LANES],
-        }
-    }
-}
-
-impl Hits {
-    /// Record id of hit `i`.
-    pub(crate) fn id(&self, i: usize) -> u32 {
-        key_id(self.key[i])
-    }
-
-    /// The `keep` heaviest records held, heaviest first, into `order` (indices), and how
-    /// many there are: ties go to the nearer record, then the lower id, so the choice is
-    /// deterministic. Weights of 0 carry nothing and are left out. Also the greatest
-    /// weight (+0 when none is positive).
-    fn heaviest(&self, keep: usize, order: &mut [usize; MAX_KEEP_COUNT as usize]) -> (usize, f32) {
-        #[cfg(target_arch = "x86_64")]
-        if self.len <= 16 && crate::simd::level() == crate::simd::SimdLevel::Avx512 {
-            // SAFETY: the CPU has AVX-512 F, detected by `crate::simd`.
-            return unsafe { self.heaviest_avx512(keep, order) };
-        }
-        self.heaviest_portable(keep, order)
-    }
-
-    /// [`Self::heaviest`] by one integer per record: the weight's bits (w >= 0 orders as
-    /// its bits), then the complement of the nearer-first candidate key. Insertion into
-    /// the few kept beats sorting all m.
-    fn heaviest_portable(
-        &self,
-        keep: usize,
-        order: &mut [usize; MAX_KEEP_COUNT as usize],
-    ) -> (usize, f32) {
-        let mut keys = [0u128; MAX_KEEP_COUNT as usize];
-        let mut len = 0;
-        for i in 0..self.len {
-            let w = self.weight[i];
-            // Weights are in [0, 1]; zero and NaN carry nothing.
-            if w <= 0.0 || w.is_nan() {
-                continue;
-            }
-            let key = ((w.to_bits() as u128) << 64) | !self.key[i] as u128;
-            if len == keep && key <= keys[keep - 1] {
-                continue;
-            }
-            let mut at = len.min(keep - 1);
-            while at > 0 && keys[at - 1] < key {
-                keys[at] = keys[at - 1];
-                order[at] = order[at - 1];
-                at -= 1;
-            }
-            keys[at] = key;
-            order[at] = i;
-            len = (len + 1).min(keep);
-        }
-        let best = if len > 0 { self.weight[order[0]] } else { 0.0 };
-        (len, best)
-    }
-
-    /// [`Self::heaviest`] for up to 16 records: `keep` rounds of a masked maximum over
-    /// the weights in one register, the record of that weight (the least candidate key
-    /// among equal ones) leaving the mask.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    fn heaviest_avx512(
-        &self,
-        keep: usize,
-        order: &mut [usize; MAX_KEEP_COUNT as usize],
-    ) -> (usize, f32) {
-        use std::arch::x86_64::*;
-        debug_assert!(self.len <= 16);
-        // SAFETY: `weight` holds at least 16 lanes.
-        let w = unsafe { _mm512_loadu_ps(self.weight.as_ptr()) };
-        let held = (1u32 << self.len).wrapping_sub(1) as u16;
-        let mut active = _mm512_mask_cmp_ps_mask::<_CMP_GT_OQ>(held, w, _mm512_setzero_ps());
-        let mut len = 0;
-        let mut best = 0.0;
-        while len < keep && active != 0 {
-            let top = _mm512_mask_reduce_max_ps(active, w);
-            if len == 0 {
-                best = top;
-            }
-            let equal = _mm512_mask_cmp_ps_mask::<_CMP_EQ_OQ>(active, w, _mm512_set1_ps(top));
-            let mut lane = equal.trailing_zeros() as usize;
-            let mut rest = equal & (equal - 1);
-            while rest != 0 {
-                let other = rest.trailing_zeros() as usize;
-                if self.key[other] < self.key[lane] {
-                    lane = other;
-                }
-                rest &= rest - 1;
-            }
-            order[len] = lane;
-            len += 1;
-            active &= !(1u16 << lane);
-        }
-        (len, best)
-    }
-
-    /// Eq. 9 with `w_g` for every record held, from `d2`, `sin`, `cos` and `along`:
-    /// `θ = atan2(sin, cos)`, `d = sqrt(d2)`, `ŵ = (w(d/d_max, θ) − w_lo)/(1 − w_lo)`
-    /// clamped to `[0, 1]`, `w_g = sqrt(1 − min(|along| / d, 1))` (1 at `d = 0`). The same
-    /// scalar operations per record as a loop would make, so every CPU gets the same bits;
-    /// with AVX2 or AVX-512 the compiler runs the branch-free body in 8 or 16 lanes (lanes
-    /// past `len` are computed and ignored; without them its cost model keeps it scalar).
-    fn score(&mut self, params: &CacheParams, d_max: f32) {
-        let w_lo = params.weight_floor();
-        let scale = 1.0 / (1.0 - w_lo);
-        let lambda = params.lambda_falloff;
-        #[cfg(target_arch = "x86_64")]
-        {
-            use crate::simd::{level, SimdLevel};
-            match level() {
-                // SAFETY (both): the CPU has the features, detected by `crate::simd`.
-                SimdLevel::Avx512 => {
-                    return unsafe { self.score_avx512(d_max, w_lo, scale, lambda) }
-                }
-                SimdLevel::Avx2 => return unsafe { self.score_avx2(d_max, w_lo, scale, lambda) },
-                _ => {}
-            }
-        }
-        self.score_lanes(d_max, w_lo, scale, lambda);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    fn score_avx512(&mut self, d_max: f32, w_lo: f32, scale: f32, lambda: f32) {
-        self.score_lanes(d_max, w_lo, scale, lambda);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn score_avx2(&mut self, d_max: f32, w_lo: f32, scale: f32, lambda: f32) {
-        self.score_lanes(d_max, w_lo, scale, lambda);
-    }
-
-    /// [`Self::score`]'s loop, inlined into each form.
-    #[inline(always)]
-    fn score_lanes(&mut self, d_max: f32, w_lo: f32, scale: f32, lambda: f32) {
-        let lanes = self.len.next_multiple_of(16).min(HIT_LANES);
-        for i in 0..lanes {
-            let theta = normal_angle(self.sin[i], self.cos[i]);
-            let d = self.d2[i].sqrt();
-            let w_hat = ((raw_weight(d / d_max, theta, lambda) - w_lo) * scale).clamp(0.0, 1.0);
-            let w_g = if d > 0.0 {
-                (1.0 - (self.along[i] / d).abs().min(1.0)).sqrt()
-            } else {
-                1.0
-            };
-            self.distance[i] = d;
-            self.theta[i] = theta;
-            self.geometric[i] = w_g;
-            self.weight[i] = w_g * w_hat;
-        }
-    }
-}
-
-/// Most gathered records whose maps [`CacheState::gather`] prefetches.
-const PREFETCH_MAPS: usize = 256;
-
-/// Asks the CPU to bring the cache line of `item` closer (no effect off x86-64).
-#[inline(always)]
-fn prefetch<T>(item: &T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: prefetching is a hint and never faults; `item` is a valid reference anyway.
-    unsafe {
-        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        _mm_prefetch::<_MM_HINT_T0>((item as *const T).cast());
     }
 }
 
@@ -947,16 +498,12 @@ impl VisibilityCache {
 
     /// Bytes the records occupy ([`super::record::bytes_per_record`] each: 172 at 32 x 32).
     pub fn memory_bytes(&self) -> usize {
-        self.read().store.memory_bytes()
+        self.read().store().memory_bytes()
     }
 
-    /// Bytes of the index on top of the records: per record its site (position, decoded
-    /// normal, chain link: 28 B) and chain tail (4 B), and the tree with its leaves (which
-    /// hold position, normal and id inline: 28 B per record, at leaf fills of one half to
-    /// whole), spare capacity included.
+    /// Bytes of the index on top of the records ([`SpatialIndex::memory_bytes`]).
     pub fn index_bytes(&self) -> usize {
-        let state = self.read();
-        state.len() * (std::mem::size_of::<Site>() + 4) + state.tree.memory_bytes()
+        self.read().index.memory_bytes()
     }
 
     /// Binds the cache to `scene`, or checks that it is the scene the cache is bound to.
@@ -1132,7 +679,7 @@ impl VisibilityCache {
         }
         let frame = state.frame;
         for k in 0..ids.len() {
-            let h = state.store.header_mut(ids[k] as usize);
+            let h = state.index.records_mut().header_mut(ids[k] as usize);
             h.misses = h.misses.saturating_add(misses[k]);
             h.uses = h.uses.saturating_add(uses[k]);
             if uses[k] > 0 {
@@ -1166,9 +713,9 @@ impl VisibilityCache {
             (0..n)
                 .into_par_iter()
                 .map(|i| {
-                    let (p, normal) = (state.sites[i].position, state.sites[i].normal);
+                    let (p, normal) = state.index.site(i);
                     let origin = scene.offset_point(p, normal);
-                    let bits = state.store.bits(i);
+                    let bits = state.store().bits(i);
                     let mut counters = Default::default();
                     let (mut uses, mut misses) = (0u32, 0u32);
                     // Draw until enough directions above the plane (bounded tries).
@@ -1221,8 +768,8 @@ impl VisibilityCache {
         let mut by_misses = vec![false; n];
         if p.evict_worst > 0 {
             let mut missed: Vec<(f64, u32)> = (0..n)
-                .filter(|&i| state.store.header(i).misses > 0)
-                .map(|i| (rate(state.store.header(i)), i as u32))
+                .filter(|&i| state.store().header(i).misses > 0)
+                .map(|i| (rate(state.store().header(i)), i as u32))
                 .collect();
             missed.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
             for &(_, i) in missed.iter().take(p.evict_worst as usize) {
@@ -1230,13 +777,13 @@ impl VisibilityCache {
             }
         } else {
             for (i, flag) in by_misses.iter_mut().enumerate() {
-                *flag = rate(state.store.header(i)) > p.epsilon_max as f64;
+                *flag = rate(state.store().header(i)) > p.epsilon_max as f64;
             }
         }
         let unused: Vec<bool> = (0..n)
             .map(|i| {
                 !by_misses[i]
-                    && frame.saturating_sub(state.store.header(i).last_frame) >= p.unused_frames
+                    && frame.saturating_sub(state.store().header(i).last_frame) >= p.unused_frames
             })
             .collect();
         let report = EvictionReport {
@@ -1247,11 +794,12 @@ impl VisibilityCache {
         };
         let removed = report.by_misses + report.unused;
         if removed > 0 {
-            state.store.retain(|i| !(by_misses[i] || unused[i]));
-            state.reindex();
+            state
+                .index
+                .rebuild(|store| store.retain(|i| !(by_misses[i] || unused[i])));
         }
         for i in 0..state.len() {
-            let h = state.store.header_mut(i);
+            let h = state.index.records_mut().header_mut(i);
             h.misses = 0;
             h.uses = 0;
         }

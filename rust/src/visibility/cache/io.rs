@@ -78,7 +78,7 @@ impl VisibilityCache {
         out.extend(state.scene.unwrap_or(0).to_le_bytes());
         out.extend((n as u64).to_le_bytes());
         for i in 0..n {
-            let h = state.store.header(i);
+            let h = state.store().header(i);
             f32s(&mut out, &h.position);
             let (normal, ao) = h.quantised();
             out.extend(normal[0].to_le_bytes());
@@ -89,7 +89,7 @@ impl VisibilityCache {
             out.extend(0u16.to_le_bytes());
         }
         for i in 0..n {
-            for w in state.store.bits(i).words() {
+            for w in state.store().bits(i).words() {
                 out.extend(w.to_le_bytes());
             }
         }
