@@ -34,6 +34,11 @@
 //! gathering prefetches the payloads of its records ([`Records::prefetch`]), which the
 //! lookups it serves may compare.
 //!
+//! ## Growing
+//! [`waves::WaveBuilder`] grows any cache deterministically in waves (look up in
+//! parallel, make the requested records in parallel, insert them in a fixed order), with
+//! the cache's insertion test and record constructor plugged in ([`waves::WaveTarget`]).
+//!
 //! Module dependencies run one way: `gathered` ← `tree`, `candidates`, `score` ←
 //! `scratch` ← `index`.
 
@@ -43,6 +48,7 @@ mod index;
 mod score;
 mod scratch;
 mod tree;
+pub mod waves;
 pub mod weight;
 
 pub use index::{prefetch, Records, SpatialIndex};

@@ -43,6 +43,7 @@
 //! whose miss rate over the frame exceeds `ε_max` (or the `k` worst), and those unused for
 //! `F` frames, then starts the next frame with fresh counters.
 
+use std::ops::{Deref, DerefMut};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::Instant;
@@ -65,16 +66,13 @@ use crate::sampling::rng::SampleRng;
 mod io;
 pub mod nearest;
 
+pub use crate::spatial::waves::{coarse_to_fine_levels, BUILD_WAVE, MIN_BUILD_WAVE};
+use crate::spatial::waves::{WaveBuilder, WaveTarget};
 pub(crate) use crate::spatial::with_thread_scratch;
 pub use crate::spatial::LookupScratch;
 use crate::spatial::{Hits, Records, SpatialIndex};
 #[cfg(test)]
 pub(crate) mod tests;
-
-/// Most pixels looked up per build wave.
-pub const BUILD_WAVE: usize = 4096;
-/// Fewest pixels per build wave (fewer would leave threads idle).
-pub const MIN_BUILD_WAVE: usize = 32;
 
 /// One record a lookup kept.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -482,7 +480,8 @@ impl VisibilityCache {
         self.state.read().unwrap_or_else(|e| e.into_inner())
     }
 
-    fn write(&self) -> RwLockWriteGuard<'_, CacheState> {
+    /// Exclusive access (for insertions).
+    pub(crate) fn write(&self) -> RwLockWriteGuard<'_, CacheState> {
         self.state.write().unwrap_or_else(|e| e.into_inner())
     }
 
@@ -867,32 +866,34 @@ impl VisibilityCache {
             if self.is_empty() {
                 report.bootstrap_records = self.bootstrap(scene, camera, seed)?;
             }
-            let levels = coarse_to_fine_levels(camera.width, camera.height);
-            let total = report.covered_pixels;
-            let mut done = 0;
-            'levels: for level in levels {
-                let mut fresh = level
-                    .into_iter()
-                    .filter(|&i| gbuffer.object[i as usize] >= 0)
-                    .peekable();
-                let mut deferred: Vec<u32> = Vec::new();
-                while fresh.peek().is_some() || !deferred.is_empty() {
-                    // Deferred pixels first, then fresh ones, in their order.
-                    let size = self.wave_size().max(deferred.len());
-                    let mut wave = std::mem::take(&mut deferred);
-                    wave.extend(fresh.by_ref().take(size - wave.len()));
-                    let (inserted, discarded, later) = self.refine_wave(scene, &gbuffer, &wave)?;
-                    report.refined_records += inserted;
-                    report.discarded_records += discarded;
-                    done += wave.len() - later.len();
-                    deferred = later;
-                    let over = time_budget.is_some_and(|b| start.elapsed().as_secs_f64() >= b);
-                    if !progress(done, total) || (over && done < total) {
-                        report.complete = done == total;
-                        break 'levels;
-                    }
-                }
-            }
+            let levels = coarse_to_fine_levels(camera.width, camera.height)
+                .into_iter()
+                .map(|level| {
+                    level
+                        .into_iter()
+                        .filter(|&i| gbuffer.object[i as usize] >= 0)
+                });
+            let k = self.params.d_max_scale;
+            let target = Refine {
+                cache: self,
+                scene,
+                query: |i: u32| {
+                    let i = i as usize;
+                    (
+                        Vec3::from(gbuffer.position[i]),
+                        Vec3::from(gbuffer.normal[i]),
+                        k * gbuffer.footprint[i],
+                    )
+                },
+            };
+            let waves = WaveBuilder::new(start, time_budget, progress).run(
+                &target,
+                levels,
+                report.covered_pixels,
+            )?;
+            report.refined_records += waves.inserted;
+            report.discarded_records += waves.discarded;
+            report.complete = waves.complete;
             Ok(())
         })??;
         let after = self.counters();
@@ -1005,116 +1006,102 @@ impl VisibilityCache {
         Ok((Some((distance / traced.len() as f64) as f32), rays))
     }
 
-    /// Pixels in the next build wave: a quarter of the records (so a wave rarely asks twice
-    /// for the same neighbourhood before either record exists), in
-    /// `MIN_BUILD_WAVE..=BUILD_WAVE`. A function of the cache alone, hence deterministic.
-    fn wave_size(&self) -> usize {
-        (self.len() / 4).clamp(MIN_BUILD_WAVE, BUILD_WAVE)
-    }
-
-    /// One build wave (see [`Self::build`]); returns (inserted, discarded, deferred pixels).
-    ///
-    /// Requests next to an earlier one of the same wave are deferred to the next wave
-    /// instead of traced ([`split_requests`]): tracing both would most likely waste one.
-    /// The first request always goes ahead, so every wave makes progress.
-    fn refine_wave(
-        &self,
-        scene: &Scene,
-        g: &GBuffer,
-        wave: &[u32],
-    ) -> Result<(usize, usize, Vec<u32>)> {
-        let k = self.params.d_max_scale;
-        self.refine_wave_with(scene, wave, |i: u32| {
-            let i = i as usize;
-            (
-                Vec3::from(g.position[i]),
-                Vec3::from(g.normal[i]),
-                k * g.footprint[i],
-            )
-        })
-    }
-
     /// Gives the points `(position, unit normal, d_max)` the records §5.2 asks for, in
     /// their order and in waves like [`Self::build`] (deterministic for any thread count);
     /// returns how many were inserted. This is the one-pass mode's insertion: a render
     /// collects the points that found no record and hands them over afterwards.
     pub fn refine_points(&self, scene: &Scene, points: &[(Vec3, Vec3, f32)]) -> Result<usize> {
         self.bind_scene(scene)?;
-        let mut fresh = (0..points.len() as u32).peekable();
-        let mut deferred: Vec<u32> = Vec::new();
-        let mut inserted = 0;
-        while fresh.peek().is_some() || !deferred.is_empty() {
-            let size = self.wave_size().max(deferred.len());
-            let mut wave = std::mem::take(&mut deferred);
-            wave.extend(fresh.by_ref().take(size - wave.len()));
-            let (added, _, later) =
-                self.refine_wave_with(scene, &wave, |i: u32| points[i as usize])?;
-            inserted += added;
-            deferred = later;
-        }
-        Ok(inserted)
+        let target = Refine {
+            cache: self,
+            scene,
+            query: |i: u32| points[i as usize],
+        };
+        let mut go_on = |_: usize, _: usize| true;
+        let waves = WaveBuilder::new(Instant::now(), None, &mut go_on).run(
+            &target,
+            std::iter::once(0..points.len() as u32),
+            points.len(),
+        )?;
+        Ok(waves.inserted)
+    }
+}
+
+/// The visibility cache as [`WaveBuilder`] grows it by §5.2's criteria, at the points
+/// `query(i) = (position, unit normal, d_max)`: records are traced (stopping at
+/// [`VisibilityCache::request_stop`]) and a full cache refuses requests before they are
+/// traced.
+struct Refine<'a, Q> {
+    cache: &'a VisibilityCache,
+    scene: &'a Scene,
+    query: Q,
+}
+
+impl<Q: Fn(u32) -> (Vec3, Vec3, f32) + Sync> WaveTarget for Refine<'_, Q> {
+    type State = CacheState;
+    type Record = (Record, RecordRays);
+
+    fn read(&self) -> impl Deref<Target = CacheState> + '_ {
+        self.cache.read()
     }
 
-    /// [`Self::refine_wave`] over points given by `query(index)`.
-    fn refine_wave_with(
-        &self,
-        scene: &Scene,
-        wave: &[u32],
-        query: impl Fn(u32) -> (Vec3, Vec3, f32) + Sync,
-    ) -> Result<(usize, usize, Vec<u32>)> {
-        let wanted: Vec<u32> = {
-            let state = self.read();
-            wave.par_iter()
-                .copied()
-                .filter(|&i| {
-                    let (x, n, d) = query(i);
-                    state
-                        .lookup(&self.params, x, n, d)
-                        .needs_record(&self.params)
-                })
-                .collect()
-        };
-        let (mut requests, mut deferred) =
-            split_requests(&wanted, self.params.theta_max().cos(), &query);
-        self.lookups.fetch_add(wave.len() as u64, Ordering::Relaxed);
+    fn write(&self) -> impl DerefMut<Target = CacheState> + '_ {
+        self.cache.write()
+    }
+
+    fn records(&self) -> usize {
+        self.cache.len()
+    }
+
+    fn point(&self, i: u32) -> (Vec3, Vec3, f32) {
+        (self.query)(i)
+    }
+
+    fn cos_max(&self) -> f32 {
+        self.cache.params.theta_max().cos()
+    }
+
+    fn wants(&self, state: &CacheState, i: u32) -> bool {
+        let (x, n, d) = (self.query)(i);
+        let params = &self.cache.params;
+        state.lookup(params, x, n, d).needs_record(params)
+    }
+
+    fn limit(&self, requests: &mut Vec<u32>, deferred: &mut Vec<u32>) {
         // A full cache refuses every record: tracing them would only waste rays.
-        let room = (self.params.max_records as usize).saturating_sub(self.len());
+        let room = (self.cache.params.max_records as usize).saturating_sub(self.cache.len());
         if room < requests.len() {
             let refused = (requests.len() - room) as u64;
-            self.write().counters.refused_full += refused;
+            self.cache.write().counters.refused_full += refused;
             requests.truncate(room);
             deferred.clear();
         }
-        let traced: Vec<(Record, RecordRays)> = requests
-            .par_iter()
-            .map(|&i| {
-                if self.stop.load(Ordering::Relaxed) {
-                    return Err(Error::Interrupted {
-                        what: "cache build".into(),
-                    });
-                }
-                let (x, n, _) = query(i);
-                self.trace(scene, x, n)
-            })
-            .collect::<Result<_>>()?;
-        let mut state = self.write();
-        let (mut inserted, mut discarded) = (0, 0);
-        for (&i, (record, rays)) in requests.iter().zip(&traced) {
-            count_rays(&mut state.counters, *rays);
-            let (x, n, d) = query(i);
-            if state
-                .lookup(&self.params, x, n, d)
-                .needs_record(&self.params)
-                && state.push(&self.params, record)?.is_some()
-            {
-                inserted += 1;
-            } else {
-                discarded += 1;
-            }
+    }
+
+    fn make(&self, i: u32) -> Result<(Record, RecordRays)> {
+        if self.cache.stop.load(Ordering::Relaxed) {
+            return Err(Error::Interrupted {
+                what: "cache build".into(),
+            });
         }
-        self.lookups
-            .fetch_add(requests.len() as u64, Ordering::Relaxed);
-        Ok((inserted, discarded, deferred))
+        let (x, n, _) = (self.query)(i);
+        self.cache.trace(self.scene, x, n)
+    }
+
+    fn insert(
+        &self,
+        state: &mut CacheState,
+        i: u32,
+        (record, rays): &(Record, RecordRays),
+    ) -> Result<bool> {
+        count_rays(&mut state.counters, *rays);
+        Ok(self.wants(state, i) && state.push(&self.cache.params, record)?.is_some())
+    }
+
+    fn looked_up(&self, count: usize) {
+        self.cache
+            .lookups
+            .fetch_add(count as u64, Ordering::Relaxed);
     }
 }
 
@@ -1124,33 +1111,6 @@ pub(crate) fn other_scene(bound: u64, f: u64) -> String {
         "was built for another scene (geometry fingerprint {bound:016x}, this scene's is \
          {f:016x}); build a cache for this scene"
     )
-}
-
-/// Splits a wave's points that want a record into requests, traced now, and points deferred
-/// to the next wave: those closer than `d_max / 2` to an earlier request whose normal is
-/// within `θ_max` (`cos_max`) of theirs, which that request's record will most likely
-/// serve. The first point is always a request. `query(i)` gives `(position, unit normal,
-/// d_max)`.
-pub(crate) fn split_requests(
-    wanted: &[u32],
-    cos_max: f32,
-    query: impl Fn(u32) -> (Vec3, Vec3, f32),
-) -> (Vec<u32>, Vec<u32>) {
-    let mut requests: Vec<u32> = Vec::with_capacity(wanted.len());
-    let mut deferred = Vec::new();
-    for &i in wanted {
-        let (x, n, d) = query(i);
-        let near = requests.iter().any(|&j| {
-            let (y, m, _) = query(j);
-            x.distance_squared(y) < 0.25 * d * d && n.dot(m) > cos_max
-        });
-        if near {
-            deferred.push(i);
-        } else {
-            requests.push(i);
-        }
-    }
-    (requests, deferred)
 }
 
 /// The arguments every pass over a camera's pixels checks: a scene with triangles and a
@@ -1173,27 +1133,4 @@ pub(crate) fn check_scene_and_budget(scene: &Scene, time_budget: Option<f64>) ->
 fn count_rays(c: &mut CacheCounters, rays: RecordRays) {
     c.shadow_rays += rays.shadow as u64;
     c.nearest_rays += rays.nearest as u64;
-}
-
-/// Pixel indices of a `w x h` image, coarse to fine, one list per level: the pixels on the
-/// grid of spacing 32, then the new ones of spacing 16, …, 1; row-major within a level.
-pub fn coarse_to_fine_levels(w: u32, h: u32) -> Vec<Vec<u32>> {
-    let mut levels = Vec::new();
-    let mut spacing = 32u32;
-    loop {
-        let mut level = Vec::new();
-        for y in (0..h).step_by(spacing as usize) {
-            for x in (0..w).step_by(spacing as usize) {
-                let coarser = 2 * spacing;
-                if spacing == 32 || x % coarser != 0 || y % coarser != 0 {
-                    level.push(y * w + x);
-                }
-            }
-        }
-        levels.push(level);
-        if spacing == 1 {
-            return levels;
-        }
-        spacing /= 2;
-    }
 }
