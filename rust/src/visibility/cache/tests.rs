@@ -6,6 +6,8 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 use super::*;
+use crate::camera::{Camera, GBuffer};
+use crate::sampling::octahedral::morton_decode;
 use crate::sampling::rng::{hash4, to_unit_f32};
 use crate::scenes;
 use crate::testing::{synthetic_record, to_world};
