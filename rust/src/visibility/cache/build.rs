@@ -168,6 +168,9 @@ impl VisibilityCache {
             report.complete = waves.complete;
             Ok(())
         })??;
+        if let Some(f) = report.median_footprint {
+            self.write().default_radius = Some(self.params.d_max_scale * f);
+        }
         let after = self.counters();
         report.records = self.len();
         report.shadow_rays = after.shadow_rays - before.shadow_rays;

@@ -129,6 +129,9 @@ pub struct CacheState {
     /// [`Scene::geometry_fingerprint`] of the scene the records were traced in (`None`
     /// until the cache is first used with a scene; see [`VisibilityCache::bind_scene`]).
     scene: Option<u64>,
+    /// `d_max_scale` times the median pixel footprint of the last build, world units: the
+    /// radius of lookups that give none (`None` before a build).
+    default_radius: Option<f32>,
 }
 
 impl CacheState {
@@ -138,6 +141,7 @@ impl CacheState {
             frame: 0,
             counters: CacheCounters::default(),
             scene: None,
+            default_radius: None,
         })
     }
 
@@ -335,6 +339,13 @@ impl VisibilityCache {
     /// The fingerprint of the scene the cache is bound to ([`Self::bind_scene`]), if any.
     pub fn scene_fingerprint(&self) -> Option<u64> {
         self.read().scene
+    }
+
+    /// The radius for lookups that give none: `d_max_scale` times the median pixel
+    /// footprint of the last [`Self::build`] that hit something, world units (`None`
+    /// before). Saved and loaded with the cache.
+    pub fn default_radius(&self) -> Option<f32> {
+        self.read().default_radius
     }
 
     /// Totals since creation.

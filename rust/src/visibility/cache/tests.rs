@@ -716,13 +716,30 @@ fn records_without_nearest_hits_have_the_same_bits_and_version_one_files_load() 
     // Version 3 keeps the scene the cache was built for.
     let fingerprint = setup.scene.geometry_fingerprint();
     assert_eq!(without.scene_fingerprint(), Some(fingerprint));
-    let again = VisibilityCache::from_bytes(&bytes, Path::new("v3")).unwrap();
+    let again = VisibilityCache::from_bytes(&bytes, Path::new("v4")).unwrap();
     assert_eq!(again.scene_fingerprint(), Some(fingerprint));
-    // Older streams: version 2 has no fingerprint (loads unbound), version 1 no flags word
-    // either (loads with nearest hits on).
+    // Version 4 keeps the default radius of the build.
+    let radius = without.default_radius();
+    assert!(radius.is_some_and(|r| r > 0.0));
+    assert_eq!(again.default_radius(), radius);
+    // Older streams: version 3 has no default radius (loads without one), version 2 no
+    // fingerprint either (loads unbound), version 1 no flags word either (loads with
+    // nearest hits on).
     let flags_at = 8 + 4 + 60;
     let frame_at = flags_at + 4;
-    let records_at = frame_at + 4 + 8;
+    let radius_at = frame_at + 4 + 8;
+    let records_at = radius_at + 4;
+    let mut v3 = bytes[..radius_at].to_vec();
+    v3.extend_from_slice(&bytes[records_at..bytes.len() - 8]);
+    v3[8..12].copy_from_slice(&3u32.to_le_bytes());
+    let sum = io::checksum(&v3);
+    v3.extend(sum.to_le_bytes());
+    let v3 = VisibilityCache::from_bytes(&v3, Path::new("v3")).unwrap();
+    assert_eq!(v3.default_radius(), None);
+    assert_eq!(
+        (v3.len(), v3.scene_fingerprint()),
+        (without.len(), Some(fingerprint))
+    );
     let older = |version: u32, flags: bool| {
         let mut v = bytes[..flags_at].to_vec();
         if flags {
@@ -744,6 +761,41 @@ fn records_without_nearest_hits_have_the_same_bits_and_version_one_files_load() 
     // An unbound cache with records binds to the first scene it is used with.
     v2.bind_scene(&setup.scene).unwrap();
     assert_eq!(v2.scene_fingerprint(), Some(fingerprint));
+}
+
+/// The default radius of a build survives saving and loading; a cache without one saves
+/// and loads without one; a stored radius that is negative or infinite is refused.
+#[test]
+fn saving_and_loading_keeps_the_default_radius() {
+    let setup = scenes::load("cornell", 0.3, 0).unwrap();
+    let cam = setup.camera.with_resolution(16, 12).unwrap();
+    let c = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
+    assert_eq!(c.default_radius(), None);
+    let empty = VisibilityCache::load_bytes_for_test(&c.to_bytes());
+    assert_eq!(empty.default_radius(), None);
+    let report = c
+        .build(&setup.scene, &cam, 0, Some(1), None, &mut |_, _| true)
+        .unwrap();
+    let expect = report.median_footprint.unwrap() * c.params().d_max_scale;
+    assert_eq!(c.default_radius(), Some(expect));
+    let dir = std::env::temp_dir().join(format!("viscache-radius-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("radius.vc");
+    c.save(&path).unwrap();
+    let back = VisibilityCache::load(&path).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(back.default_radius(), Some(expect));
+    assert!(back.to_bytes() == c.to_bytes());
+    let radius_at = 8 + 4 + 60 + 4 + 4 + 8;
+    for bad in [-1.0f32, f32::INFINITY] {
+        let mut v = c.to_bytes();
+        v.truncate(v.len() - 8);
+        v[radius_at..radius_at + 4].copy_from_slice(&bad.to_le_bytes());
+        let sum = io::checksum(&v);
+        v.extend(sum.to_le_bytes());
+        let e = VisibilityCache::from_bytes(&v, Path::new("radius.vc")).unwrap_err();
+        assert!(e.to_string().contains("default radius"), "{e}");
+    }
 }
 
 /// A cache bound to a scene (by its first build) refuses a scene of other geometry, says
