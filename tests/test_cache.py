@@ -299,6 +299,23 @@ def test_save_and_load(tmp_path, open_box):
         vc.VisibilityCache.load(tmp_path / "missing.vc", open_box)
 
 
+def test_save_and_load_keep_the_default_radius(tmp_path, cornell):
+    c = vc.VisibilityCache(cornell.scene, resolution=16)
+    path = tmp_path / "empty.vc"
+    c.save(path)
+    assert vc.VisibilityCache.load(path, cornell.scene).default_radius is None
+    c.build(cornell.camera.with_resolution(24, 18), seed=0, threads=1, progress=False)
+    assert c.default_radius is not None and c.default_radius > 0
+    path = tmp_path / "built.vc"
+    c.save(path)
+    d = vc.VisibilityCache.load(path, cornell.scene)
+    assert d.default_radius == c.default_radius
+    p = np.array([[0.0, 0.0, 0.0]])
+    n = np.array([[0.0, 1.0, 0.0]])
+    got, want = d.lookup(p, n), c.lookup(p, n)
+    np.testing.assert_array_equal(got["ids"], want["ids"])
+
+
 def test_extremes(open_box):
     empty = vc.VisibilityCache(open_box)
     look = empty.lookup([[0, 0, 0]], [[0, 1, 0]], radius=1.0)

@@ -24,6 +24,7 @@ pub mod render;
 pub mod sampling;
 pub mod scenes;
 pub mod simd;
+pub mod spatial;
 pub mod testing;
 pub mod visibility;
 

@@ -31,7 +31,7 @@
 //! RMSE 3.4% instead of 4.5% of the mean (`viscache experiment ao --quick`).
 //!
 //! The build is deterministic for any thread count, in waves like
-//! [`VisibilityCache::build`]: pixels coarse to fine ([`coarse_to_fine_levels`]); a wave looks
+//! [`VisibilityCache::build`] (the same [`WaveBuilder`], with §6.1's insertion test): pixels coarse to fine ([`coarse_to_fine_levels`]); a wave looks
 //! up in parallel, traces its requests in parallel, then inserts them in pixel order,
 //! re-checking each against the records inserted before it. Requests closer than
 //! `d_max / 2` to an earlier request of their wave (normals within `θ_max`) wait for the
@@ -46,6 +46,7 @@
 
 use glam::Vec3;
 use rayon::prelude::*;
+use std::ops::{Deref, DerefMut};
 use std::time::Instant;
 
 use crate::camera::{Camera, GBuffer};
@@ -53,12 +54,11 @@ use crate::error::{Error, Result};
 use crate::geometry::Scene;
 use crate::parallel::with_threads;
 use crate::sampling::rng::SampleRng;
+use crate::spatial::waves::{coarse_to_fine_levels, WaveBuilder, WaveTarget};
 use crate::visibility::cache::nearest::Nearest;
-use crate::visibility::cache::{
-    check_scene_and_budget, coarse_to_fine_levels, split_requests, CacheState, VisibilityCache,
-    BUILD_WAVE, MIN_BUILD_WAVE,
-};
+use crate::visibility::cache::{check_scene_and_budget, CacheState, VisibilityCache};
 use crate::visibility::params::CacheParams;
+use crate::visibility::record::{Record, RecordRays};
 
 /// Random dimensions of a reference AO ray (dimensions 0–1 belong to the pixel jitter).
 pub const DIM_AO: u64 = 2;
@@ -432,60 +432,22 @@ pub fn render_cache_ao(
                 g.footprint[i],
             )
         };
-        let wants = |state: &CacheState, i: u32| {
-            let (x, n, f) = query(i);
-            let nearest = state.nearest(&params, x, n, params.d_max_scale * f);
-            needs_ao_record(state, ao, &nearest, ao.min_radius_scale * f)
-        };
         let total = g.object.iter().filter(|&&o| o >= 0).count();
         image.stats.covered_pixels = total;
-        let cos_max = params.theta_max().cos();
-        let mut done = 0;
-        'levels: for level in coarse_to_fine_levels(camera.width, camera.height) {
-            let mut fresh = level
-                .into_iter()
-                .filter(|&i| g.object[i as usize] >= 0)
-                .peekable();
-            let mut deferred: Vec<u32> = Vec::new();
-            while fresh.peek().is_some() || !deferred.is_empty() {
-                let size = (cache.len() / 4)
-                    .clamp(MIN_BUILD_WAVE, BUILD_WAVE)
-                    .max(deferred.len());
-                let mut wave = std::mem::take(&mut deferred);
-                wave.extend(fresh.by_ref().take(size - wave.len()));
-                let wanted: Vec<u32> = {
-                    let state = cache.read();
-                    wave.par_iter()
-                        .copied()
-                        .filter(|&i| wants(&state, i))
-                        .collect()
-                };
-                let (requests, later) = split_requests(&wanted, cos_max, |i| {
-                    let (x, n, f) = query(i);
-                    (x, n, params.d_max_scale * f)
-                });
-                deferred = later;
-                let traced: Vec<_> = requests
-                    .par_iter()
-                    .map(|&i| {
-                        let (x, n, _) = query(i);
-                        cache.trace(scene, x, n)
-                    })
-                    .collect::<Result<_>>()?;
-                for (&i, (record, rays)) in requests.iter().zip(&traced) {
-                    match cache.insert_traced_if(record, *rays, |s| wants(s, i))? {
-                        Some(_) => image.stats.records_inserted += 1,
-                        None => image.stats.records_discarded += 1,
-                    }
-                }
-                done += wave.len() - deferred.len();
-                let over = time_budget.is_some_and(|b| start.elapsed().as_secs_f64() >= b);
-                if !progress(done, total) || (over && done < total) {
-                    image.stats.complete = done == total;
-                    break 'levels;
-                }
-            }
-        }
+        let levels = coarse_to_fine_levels(camera.width, camera.height)
+            .into_iter()
+            .map(|level| level.into_iter().filter(|&i| g.object[i as usize] >= 0));
+        let target = AoRefine {
+            cache,
+            scene,
+            params: &params,
+            ao,
+            query: &query,
+        };
+        let waves = WaveBuilder::new(start, time_budget, progress).run(&target, levels, total)?;
+        image.stats.records_inserted += waves.inserted;
+        image.stats.records_discarded += waves.discarded;
+        image.stats.complete = waves.complete;
         image.stats.build_seconds = start.elapsed().as_secs_f64();
         let state = cache.read();
         let values: Vec<Option<f32>> = (0..g.object.len())
@@ -515,6 +477,63 @@ pub fn render_cache_ao(
     s.rays_per_point = (s.shadow_rays + s.nearest_rays) as f64 / s.covered_pixels.max(1) as f64;
     s.seconds = start.elapsed().as_secs_f64();
     Ok(image)
+}
+
+/// The cache as [`WaveBuilder`] grows it for AO: §6.1's criterion ([`needs_ao_record`])
+/// at the points `query(i) = (position, unit normal, footprint)`.
+struct AoRefine<'a, Q> {
+    cache: &'a VisibilityCache,
+    scene: &'a Scene,
+    params: &'a CacheParams,
+    ao: &'a AoParams,
+    query: Q,
+}
+
+impl<Q: Fn(u32) -> (Vec3, Vec3, f32) + Sync> WaveTarget for AoRefine<'_, Q> {
+    type State = CacheState;
+    type Record = (Record, RecordRays);
+
+    fn read(&self) -> impl Deref<Target = CacheState> + '_ {
+        self.cache.read()
+    }
+
+    fn write(&self) -> impl DerefMut<Target = CacheState> + '_ {
+        self.cache.write()
+    }
+
+    fn records(&self) -> usize {
+        self.cache.len()
+    }
+
+    fn point(&self, i: u32) -> (Vec3, Vec3, f32) {
+        let (x, n, f) = (self.query)(i);
+        (x, n, self.params.d_max_scale * f)
+    }
+
+    fn cos_max(&self) -> f32 {
+        self.params.theta_max().cos()
+    }
+
+    fn wants(&self, state: &CacheState, i: u32) -> bool {
+        let (x, n, f) = (self.query)(i);
+        let nearest = state.nearest(self.params, x, n, self.params.d_max_scale * f);
+        needs_ao_record(state, self.ao, &nearest, self.ao.min_radius_scale * f)
+    }
+
+    fn make(&self, i: u32) -> Result<(Record, RecordRays)> {
+        let (x, n, _) = (self.query)(i);
+        self.cache.trace(self.scene, x, n)
+    }
+
+    fn insert(
+        &self,
+        state: &mut CacheState,
+        i: u32,
+        (record, rays): &(Record, RecordRays),
+    ) -> Result<bool> {
+        let id = state.insert_traced_if(self.params, record, *rays, |s| self.wants(s, i))?;
+        Ok(id.is_some())
+    }
 }
 
 #[cfg(test)]

@@ -31,8 +31,6 @@ pub struct PyVisibilityCache {
     /// The scene records are traced in (read at each call, so edits are seen).
     #[pyo3(get)]
     pub(super) scene: Py<PyScene>,
-    /// `k` times the median footprint of the last build's G-buffer, world units.
-    default_radius: std::sync::Mutex<Option<f32>>,
 }
 
 /// Applies keyword overrides to `p`, naming unknown or out-of-range ones.
@@ -167,7 +165,6 @@ impl PyVisibilityCache {
         Ok(Self {
             inner: Arc::new(VisibilityCache::new(p).py()?),
             scene,
-            default_radius: std::sync::Mutex::new(None),
         })
     }
 
@@ -198,13 +195,11 @@ impl PyVisibilityCache {
     }
 
     /// The radius `lookup` uses without `radius` or `footprints`: `d_max_scale` times the
-    /// median pixel footprint of the last build (None before a build).
+    /// median pixel footprint of the last build (None before a build; saved and loaded with
+    /// the cache).
     #[getter]
     fn default_radius(&self) -> Option<f32> {
-        *self
-            .default_radius
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
+        self.inner.default_radius()
     }
 
     fn __len__(&self) -> usize {
@@ -268,12 +263,6 @@ impl PyVisibilityCache {
         });
         reporter.finish()?;
         let r = out?.py()?;
-        if let Some(f) = r.median_footprint {
-            *self
-                .default_radius
-                .lock()
-                .unwrap_or_else(|e| e.into_inner()) = Some(self.inner.params().d_max_scale * f);
-        }
         let d = PyDict::new(py);
         d.set_item("records", r.records)?;
         d.set_item("bootstrap_records", r.bootstrap_records)?;
@@ -607,11 +596,7 @@ impl PyVisibilityCache {
                 "footprints",
                 self.inner.params().d_max_scale as f64,
             ),
-            (None, None) => match *self
-                .default_radius
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-            {
+            (None, None) => match self.inner.default_radius() {
                 Some(r) => Ok(vec![r; n]),
                 None => Err(PyValueError::new_err(
                     "radius: pass radius= or footprints= (no build has set a default radius)",

@@ -7,9 +7,10 @@
 //! popcount (eq. 11), the record's ambient occlusion (eq. 12) and its nearest hit distance
 //! `R_i` (§6.1). The directions come from [`crate::sampling::pattern`].
 //!
-//! [`cache`]: the records in a kd-tree with eq. 9 weighted lookups, §5.2's insertion
-//! criteria, a deterministic build, and eviction over frames (§5.3); [`params`]: Table 1's
-//! parameters with low / medium / high presets (§5.4).
+//! [`cache`]: the records in the crate's spatial index ([`crate::spatial`]) with eq. 9
+//! weighted lookups, §5.2's insertion criteria, a deterministic build in waves, and
+//! eviction over frames (§5.3); [`params`]: Table 1's parameters with low / medium / high
+//! presets (§5.4).
 //!
 //! [`correlation`]: CAM08 §4.1's measurement of how visibility correlates between surface
 //! points, `ρ̄(d, θ)` by distance and normal difference (Figs. 3–4).

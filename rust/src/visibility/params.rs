@@ -29,12 +29,14 @@ use crate::error::{Error, Result};
 use crate::sampling::pattern::{
     check_log2_resolution, DEFAULT_LOG2_RESOLUTION, DEFAULT_PATTERN_SEED,
 };
+pub use crate::spatial::weight::{normal_angle, raw_weight};
+use crate::spatial::{Weighting, MAX_KEEP, MAX_NEAREST};
 
 /// Largest `m` (candidates per lookup). Lookups keep candidates on the stack.
-pub const MAX_SEARCH_COUNT: u32 = 64;
+pub const MAX_SEARCH_COUNT: u32 = MAX_NEAREST as u32;
 
 /// Largest `n` (records kept per lookup; CAM08 uses 3–4).
-pub const MAX_KEEP_COUNT: u32 = 16;
+pub const MAX_KEEP_COUNT: u32 = MAX_KEEP as u32;
 
 /// Largest `max_records`: record ids are `u32` and the kd-tree indexes with `u32`.
 pub const MAX_RECORDS_LIMIT: u32 = 1 << 28;
@@ -234,52 +236,23 @@ impl CacheParams {
     pub fn weight_floor(&self) -> f32 {
         raw_weight(1.0, self.theta_max(), self.lambda_falloff)
     }
+
+    /// What the record index needs of these parameters to gather and score a lookup's
+    /// `m` nearest records.
+    pub fn weighting(&self) -> Weighting {
+        Weighting {
+            m: self.m_search as usize,
+            theta_max: self.theta_max(),
+            w_lo: self.weight_floor(),
+            lambda: self.lambda_falloff,
+        }
+    }
 }
 
 impl Default for CacheParams {
     fn default() -> Self {
         Self::MEDIUM
     }
-}
-
-/// The angle `θ = atan2(sin, cos)` in `[0, π]` between two unit normals, from
-/// `sin = |a × b| >= 0` and `cos = a · b`: accurate near 0, where `acos` of an `f32` dot
-/// product is off by up to 3e-4 rad. Evaluated without libm (a lookup takes one per
-/// candidate): octant reduction to `t = min/max` in `[0, 1]`, then
-/// `atan t = π/6 + atan((√3 t − 1)/(t + √3))` above `2 − √3`, and the Taylor series to
-/// `t⁹/9` on `|t| <= 2 − √3`, whose truncation error is below `t¹¹/11 < 5e-8` rad.
-#[inline]
-pub fn normal_angle(sin: f32, cos: f32) -> f32 {
-    use std::f32::consts::{FRAC_PI_2, FRAC_PI_6, PI};
-    const TAN_PI_12: f32 = 0.267_949_2;
-    const SQRT_3: f32 = 1.732_050_8;
-    let (y, ax) = (sin.abs(), cos.abs());
-    let steep = y > ax;
-    let (num, den) = if steep { (ax, y) } else { (y, ax) };
-    if den == 0.0 {
-        return 0.0;
-    }
-    let t = num / den;
-    let (offset, u) = if t > TAN_PI_12 {
-        (FRAC_PI_6, (SQRT_3 * t - 1.0) / (t + SQRT_3))
-    } else {
-        (0.0, t)
-    };
-    let u2 = u * u;
-    let series = u * (1.0 + u2 * (-1.0 / 3.0 + u2 * (0.2 + u2 * (-1.0 / 7.0 + u2 / 9.0))));
-    let a = offset + series;
-    let a = if steep { FRAC_PI_2 - a } else { a };
-    if cos < 0.0 {
-        PI - a
-    } else {
-        a
-    }
-}
-
-/// Eq. 9: `w(d, θ) = (1 − θ/π)(1 − x/(1 + λx))` with `x = d / d_max` in `[0, 1]`.
-#[inline]
-pub fn raw_weight(x: f32, theta: f32, lambda: f32) -> f32 {
-    (1.0 - theta * std::f32::consts::FRAC_1_PI) * (1.0 - x / (1.0 + lambda * x))
 }
 
 fn range(name: &str, what: &str, got: impl std::fmt::Display) -> Error {

@@ -1,14 +1,15 @@
-//! The cache's file format, version 3 (all little-endian). Versions 1 (without the flags
-//! word; read with `nearest_hits` on) and 2 (without the scene fingerprint; read unbound)
-//! are still read:
+//! The cache's file format, version 4 (all little-endian). Versions 1 (without the flags
+//! word; read with `nearest_hits` on), 2 (without the scene fingerprint; read unbound) and 3
+//! (without the default radius; read without one) are still read:
 //!
 //! | bytes | field |
 //! |---|---|
 //! | 8 | magic `b"VISCACHE"` |
-//! | 4 | format version (`u32`, 3) |
+//! | 4 | format version (`u32`, 4) |
 //! | 60 | parameters: `M`, `n_startup` (`u32`); `d_max_scale`, `theta_max_deg`, `lambda_falloff` (`f32`); `m_search`, `n_keep` (`u32`); `w_min`, `delta_max`, `epsilon_max` (`f32`); `evict_worst`, `unused_frames`, `max_records` (`u32`); `pattern_seed` (`u64`); flags (`u32`: bit 0 `nearest_hits`, bit 1 `check_coherence`, bit 2 bound to a scene) |
 //! | 4 | current frame (`u32`) |
 //! | 8 | geometry fingerprint of the scene the cache is bound to (`u64`; 0 when unbound) |
+//! | 4 | default lookup radius (`f32`, world units, finite and `>= 0`; NaN when unset) |
 //! | 8 | record count `N` (`u64`) |
 //! | 36 N | record headers: position `3 x f32`, normal `2 x u16`, `R_i` `f32`, misses, uses, last frame `u32`, `A` `u16`, reserved `u16` |
 //! | 8 N W | map words (`u64`; `W = words_per_map(M)`: bits then hierarchy codes) |
@@ -31,7 +32,7 @@ use crate::visibility::record::{words_per_map, RecordHeader};
 
 const MAGIC: &[u8; 8] = b"VISCACHE";
 /// Version this build writes and reads.
-pub const FORMAT_VERSION: u32 = 3;
+pub const FORMAT_VERSION: u32 = 4;
 const HEADER_BYTES: usize = 36;
 
 /// FNV-1a 64 of `bytes`: the file's trailing checksum.
@@ -45,7 +46,7 @@ pub(super) fn checksum(bytes: &[u8]) -> u64 {
 }
 
 impl VisibilityCache {
-    /// The cache as bytes of the version-3 format (module docs).
+    /// The cache as bytes of the version-4 format (module docs).
     pub fn to_bytes(&self) -> Vec<u8> {
         let p = &self.params;
         let state = self.read();
@@ -76,9 +77,10 @@ impl VisibilityCache {
             ],
         );
         out.extend(state.scene.unwrap_or(0).to_le_bytes());
+        f32s(&mut out, &[state.default_radius.unwrap_or(f32::NAN)]);
         out.extend((n as u64).to_le_bytes());
         for i in 0..n {
-            let h = state.store.header(i);
+            let h = state.store().header(i);
             f32s(&mut out, &h.position);
             let (normal, ao) = h.quantised();
             out.extend(normal[0].to_le_bytes());
@@ -89,7 +91,7 @@ impl VisibilityCache {
             out.extend(0u16.to_le_bytes());
         }
         for i in 0..n {
-            for w in state.store.bits(i).words() {
+            for w in state.store().bits(i).words() {
                 out.extend(w.to_le_bytes());
             }
         }
@@ -116,6 +118,7 @@ impl VisibilityCache {
             )));
         }
         let mut bound = false;
+        let mut radius = None;
         let mut fixed = || -> Option<(CacheParams, u32, u64, Option<u64>)> {
             let mut p = CacheParams::MEDIUM;
             p.log2_resolution = r.u32()?;
@@ -143,11 +146,21 @@ impl VisibilityCache {
             }
             let frame = r.u32()?;
             let scene = if version >= 3 { Some(r.u64()?) } else { None };
+            if version >= 4 {
+                radius = Some(r.f32()?);
+            }
             let n = r.u64()?;
             Some((p, frame, n, scene))
         };
         let (params, frame, n, scene) = fixed().ok_or_else(too_short)?;
         let scene = scene.filter(|_| bound);
+        let default_radius = match radius {
+            Some(d) if d.is_nan() => None,
+            Some(d) if !(d.is_finite() && d >= 0.0) => {
+                return Err(bad(format!("default radius {d} is not finite and >= 0")))
+            }
+            d => d,
+        };
         params
             .validate()
             .map_err(|e| bad(format!("bad parameters: {e}")))?;
@@ -172,6 +185,7 @@ impl VisibilityCache {
         let mut state = CacheState::new(params.log2_resolution)?;
         state.frame = frame;
         state.scene = scene;
+        state.default_radius = default_radius;
         let mut map = vec![0u64; words];
         for i in 0..n {
             let mut h = Reader {
@@ -203,7 +217,7 @@ impl VisibilityCache {
         Ok(cache)
     }
 
-    /// Writes the cache to `path` (version-3 format, module docs), whole or not at all
+    /// Writes the cache to `path` (version-4 format, module docs), whole or not at all
     /// ([`crate::files::write_atomically`]).
     pub fn save(&self, path: &Path) -> Result<()> {
         crate::files::write_bytes_atomically(path, &self.to_bytes())

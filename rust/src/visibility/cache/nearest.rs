@@ -105,11 +105,24 @@ impl VisibilityCache {
         rays: RecordRays,
         wanted: impl FnOnce(&CacheState) -> bool,
     ) -> Result<Option<u32>> {
-        let mut state = self.write();
-        super::count_rays(&mut state.counters, rays);
-        if !wanted(&state) {
+        self.write()
+            .insert_traced_if(&self.params, record, rays, wanted)
+    }
+}
+
+impl CacheState {
+    /// [`VisibilityCache::insert_traced_if`] under a write lock already held.
+    pub(crate) fn insert_traced_if(
+        &mut self,
+        params: &CacheParams,
+        record: &Record,
+        rays: RecordRays,
+        wanted: impl FnOnce(&CacheState) -> bool,
+    ) -> Result<Option<u32>> {
+        super::count_rays(&mut self.counters, rays);
+        if !wanted(self) {
             return Ok(None);
         }
-        state.push(&self.params, record)
+        self.push(params, record)
     }
 }

@@ -6,6 +6,8 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 use super::*;
+use crate::camera::{Camera, GBuffer};
+use crate::sampling::octahedral::morton_decode;
 use crate::sampling::rng::{hash4, to_unit_f32};
 use crate::scenes;
 use crate::testing::{synthetic_record, to_world};
@@ -714,13 +716,30 @@ fn records_without_nearest_hits_have_the_same_bits_and_version_one_files_load() 
     // Version 3 keeps the scene the cache was built for.
     let fingerprint = setup.scene.geometry_fingerprint();
     assert_eq!(without.scene_fingerprint(), Some(fingerprint));
-    let again = VisibilityCache::from_bytes(&bytes, Path::new("v3")).unwrap();
+    let again = VisibilityCache::from_bytes(&bytes, Path::new("v4")).unwrap();
     assert_eq!(again.scene_fingerprint(), Some(fingerprint));
-    // Older streams: version 2 has no fingerprint (loads unbound), version 1 no flags word
-    // either (loads with nearest hits on).
+    // Version 4 keeps the default radius of the build.
+    let radius = without.default_radius();
+    assert!(radius.is_some_and(|r| r > 0.0));
+    assert_eq!(again.default_radius(), radius);
+    // Older streams: version 3 has no default radius (loads without one), version 2 no
+    // fingerprint either (loads unbound), version 1 no flags word either (loads with
+    // nearest hits on).
     let flags_at = 8 + 4 + 60;
     let frame_at = flags_at + 4;
-    let records_at = frame_at + 4 + 8;
+    let radius_at = frame_at + 4 + 8;
+    let records_at = radius_at + 4;
+    let mut v3 = bytes[..radius_at].to_vec();
+    v3.extend_from_slice(&bytes[records_at..bytes.len() - 8]);
+    v3[8..12].copy_from_slice(&3u32.to_le_bytes());
+    let sum = io::checksum(&v3);
+    v3.extend(sum.to_le_bytes());
+    let v3 = VisibilityCache::from_bytes(&v3, Path::new("v3")).unwrap();
+    assert_eq!(v3.default_radius(), None);
+    assert_eq!(
+        (v3.len(), v3.scene_fingerprint()),
+        (without.len(), Some(fingerprint))
+    );
     let older = |version: u32, flags: bool| {
         let mut v = bytes[..flags_at].to_vec();
         if flags {
@@ -742,6 +761,41 @@ fn records_without_nearest_hits_have_the_same_bits_and_version_one_files_load() 
     // An unbound cache with records binds to the first scene it is used with.
     v2.bind_scene(&setup.scene).unwrap();
     assert_eq!(v2.scene_fingerprint(), Some(fingerprint));
+}
+
+/// The default radius of a build survives saving and loading; a cache without one saves
+/// and loads without one; a stored radius that is negative or infinite is refused.
+#[test]
+fn saving_and_loading_keeps_the_default_radius() {
+    let setup = scenes::load("cornell", 0.3, 0).unwrap();
+    let cam = setup.camera.with_resolution(16, 12).unwrap();
+    let c = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
+    assert_eq!(c.default_radius(), None);
+    let empty = VisibilityCache::load_bytes_for_test(&c.to_bytes());
+    assert_eq!(empty.default_radius(), None);
+    let report = c
+        .build(&setup.scene, &cam, 0, Some(1), None, &mut |_, _| true)
+        .unwrap();
+    let expect = report.median_footprint.unwrap() * c.params().d_max_scale;
+    assert_eq!(c.default_radius(), Some(expect));
+    let dir = std::env::temp_dir().join(format!("viscache-radius-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("radius.vc");
+    c.save(&path).unwrap();
+    let back = VisibilityCache::load(&path).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(back.default_radius(), Some(expect));
+    assert!(back.to_bytes() == c.to_bytes());
+    let radius_at = 8 + 4 + 60 + 4 + 4 + 8;
+    for bad in [-1.0f32, f32::INFINITY] {
+        let mut v = c.to_bytes();
+        v.truncate(v.len() - 8);
+        v[radius_at..radius_at + 4].copy_from_slice(&bad.to_le_bytes());
+        let sum = io::checksum(&v);
+        v.extend(sum.to_le_bytes());
+        let e = VisibilityCache::from_bytes(&v, Path::new("radius.vc")).unwrap_err();
+        assert!(e.to_string().contains("default radius"), "{e}");
+    }
 }
 
 /// A cache bound to a scene (by its first build) refuses a scene of other geometry, says
@@ -790,143 +844,6 @@ fn caches_refuse_other_scenes() {
             .scene
             .geometry_fingerprint()
     );
-}
-
-/// The weights of the m nearest come out the same bit for bit whichever vector form scores
-/// them, and equal the scalar formulas record by record.
-#[test]
-fn every_scoring_form_gives_the_scalar_weights() {
-    let params = CacheParams::MEDIUM;
-    let d_max = 0.3f32;
-    for case in 0..200u64 {
-        let mut hits = Hits {
-            len: (case % (HIT_LANES as u64 + 1)) as usize,
-            ..Hits::default()
-        };
-        for i in 0..HIT_LANES {
-            let k = case * 1000 + i as u64;
-            // Distances from 0 to past d_max, angles from 0 to θ_max, record offsets
-            // anywhere from along the normal to in the tangent plane.
-            let d = if i % 7 == 0 {
-                0.0
-            } else {
-                1.1 * d_max * unit(21, k)
-            };
-            let theta = params.theta_max() * unit(22, k);
-            hits.d2[i] = d * d;
-            hits.sin[i] = theta.sin();
-            hits.cos[i] = theta.cos();
-            hits.along[i] = d * (2.0 * unit(23, k) - 1.0);
-        }
-        let mut reference = hits.clone();
-        reference.score_lanes(
-            d_max,
-            params.weight_floor(),
-            1.0 / (1.0 - params.weight_floor()),
-            params.lambda_falloff,
-        );
-        let mut dispatched = hits.clone();
-        dispatched.score(&params, d_max);
-        let lanes = hits.len.next_multiple_of(16).min(HIT_LANES);
-        let bits = |h: &Hits| {
-            let all = [h.distance, h.theta, h.geometric, h.weight];
-            all.map(|a| a[..lanes].iter().map(|v| v.to_bits()).collect::<Vec<_>>())
-        };
-        assert_eq!(bits(&dispatched), bits(&reference), "case {case}");
-        #[cfg(target_arch = "x86_64")]
-        {
-            use std::arch::is_x86_feature_detected as has;
-            let (w_lo, lam) = (params.weight_floor(), params.lambda_falloff);
-            let scale = 1.0 / (1.0 - w_lo);
-            // SAFETY (both): the features were detected just before.
-            if has!("avx512f") {
-                let mut h = hits.clone();
-                unsafe { h.score_avx512(d_max, w_lo, scale, lam) };
-                assert_eq!(bits(&h), bits(&reference), "AVX-512, case {case}");
-            }
-            if has!("avx2") {
-                let mut h = hits.clone();
-                unsafe { h.score_avx2(d_max, w_lo, scale, lam) };
-                assert_eq!(bits(&h), bits(&reference), "AVX2, case {case}");
-            }
-        }
-        for i in 0..hits.len {
-            let d = hits.d2[i].sqrt();
-            let theta = normal_angle(hits.sin[i], hits.cos[i]);
-            let w_hat = ((raw_weight(d / d_max, theta, params.lambda_falloff)
-                - params.weight_floor())
-                / (1.0 - params.weight_floor()))
-            .clamp(0.0, 1.0);
-            let w_g = if d > 0.0 {
-                (1.0 - (hits.along[i] / d).abs().min(1.0)).sqrt()
-            } else {
-                1.0
-            };
-            assert_eq!(reference.distance[i], d);
-            assert_eq!(reference.theta[i], theta);
-            assert_eq!(reference.geometric[i], w_g);
-            assert!(
-                (reference.weight[i] - w_g * w_hat).abs() <= 1e-6,
-                "case {case}, {i}"
-            );
-        }
-    }
-}
-
-/// The n heaviest come out the same whichever form picks them, and equal a sort of all
-/// held records by weight (descending), then candidate key, with zero and NaN weights left
-/// out; ties of weight are common here (weights drawn from a few values).
-#[test]
-fn every_form_keeps_the_same_heaviest_records() {
-    let keep_max = MAX_KEEP_COUNT as usize;
-    for case in 0..400u64 {
-        let mut hits = Hits {
-            len: (case % 17) as usize,
-            ..Hits::default()
-        };
-        for i in 0..HIT_LANES {
-            let k = case * 100 + i as u64;
-            hits.weight[i] = match (unit(31, k) * 6.0) as u32 {
-                0 => 0.0,
-                1 if i % 5 == 0 => f32::NAN,
-                v => v as f32 / 8.0,
-            };
-            // Distinct keys (ids differ), some sharing a distance.
-            let d2 = (unit(32, k) * 3.0).floor() / 4.0;
-            hits.key[i] = candidate_key(d2, (unit(33, k) * 1e6) as u32 * 64 + i as u32);
-        }
-        let keep = 1 + (case as usize / 17) % keep_max;
-        let mut want: Vec<usize> = (0..hits.len).filter(|&i| hits.weight[i] > 0.0).collect();
-        want.sort_by(|&a, &b| {
-            hits.weight[b]
-                .total_cmp(&hits.weight[a])
-                .then(hits.key[a].cmp(&hits.key[b]))
-        });
-        want.truncate(keep);
-        let best = want.first().map_or(0.0, |&i| hits.weight[i]);
-        let run = |f: &dyn Fn(&mut [usize; MAX_KEEP_COUNT as usize]) -> (usize, f32)| {
-            let mut order = [usize::MAX; MAX_KEEP_COUNT as usize];
-            let (len, top) = f(&mut order);
-            (order[..len].to_vec(), top.to_bits())
-        };
-        let expected = (want.clone(), best.to_bits());
-        assert_eq!(
-            run(&|o| hits.heaviest_portable(keep, o)),
-            expected,
-            "case {case}"
-        );
-        assert_eq!(
-            run(&|o| hits.heaviest(keep, o)),
-            expected,
-            "dispatched, case {case}"
-        );
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the feature was detected just before.
-            let avx = run(&|o| unsafe { hits.heaviest_avx512(keep, o) });
-            assert_eq!(avx, expected, "AVX-512, case {case}");
-        }
-    }
 }
 
 /// A lookup for its records alone keeps the same records with the same weights and `β` bit

@@ -10,14 +10,14 @@
 //! Leaves split when full, at the median of the coordinate of widest extent (records on a
 //! floor share their height, which a split on it could not separate). Positions held are
 //! distinct: [`SiteTree::insert`] reports a record already at the exact position instead
-//! of adding another (the cache chains records sharing a position). [`SiteTree::build`] makes a balanced
+//! of adding another (the index chains records sharing a position). [`SiteTree::build`] makes a balanced
 //! tree from a whole set at once, for rebuilds after removals.
 
 use glam::Vec3;
 
 #[cfg(target_arch = "x86_64")]
-use super::gather::offsets_avx512;
-use super::gather::GatheredSites;
+use super::gathered::offsets_avx512;
+use super::gathered::{Entry, GatheredSites};
 
 /// Records per leaf.
 pub(super) const LEAF: usize = 32;
@@ -87,9 +87,6 @@ struct Stem {
     dim: u32,
     children: [u32; 2],
 }
-
-/// A record as the tree holds it: position, unit normal, id.
-pub(super) type Entry = (Vec3, Vec3, u32);
 
 /// The kd-tree (see the module docs). Positions must be finite.
 #[derive(Clone, Debug)]
