@@ -44,7 +44,9 @@ pub fn level() -> SimdLevel {
 
 /// Whether [`level`] has been detected as [`SimdLevel::Avx512`]: one load, for kernels that
 /// take a straight-line AVX-512 path before anything else (false before the first
-/// [`level`] call, which such kernels' fallbacks make).
+/// [`level`] call, which such kernels' fallbacks make). Only for checks on paths of a few
+/// nanoseconds, where [`has`]'s detection branch would cost (the xor-popcount of 32² maps,
+/// the least-by-rank choice of candidates); elsewhere use [`has`] or [`dispatch`].
 #[inline]
 pub fn is_avx512() -> bool {
     LEVEL.load(std::sync::atomic::Ordering::Relaxed) == SimdLevel::Avx512 as u8

@@ -58,6 +58,7 @@ use crate::visibility::cache::{CacheState, Lookup};
 use crate::visibility::record::{word_level, Coverage, VisibilityView};
 
 use super::direct::ProductDistribution;
+use crate::simd::{Kernel, Level, SimdLevel};
 
 mod masked_sum;
 use masked_sum::{word_sum, word_sum_portable, WordWeights};
@@ -326,27 +327,57 @@ impl ControlTables<'_> {
         // Words per region: a word's colour is `colours[w >> shift]`.
         let shift = 2 * (word_level(m) - self.region_level);
         let regions = (self.colours, shift);
-        let sum = {
-            #[cfg(target_arch = "x86_64")]
-            {
-                use crate::simd::{level, SimdLevel};
-                match level() {
-                    // SAFETY (both): the CPU has the features, detected by `crate::simd`.
-                    SimdLevel::Avx512 => unsafe {
-                        nodes.interpolated_avx512(m, words, maps, beta, regions)
-                    },
-                    SimdLevel::Avx2 => unsafe {
-                        nodes.interpolated_avx2(m, words, maps, beta, regions)
-                    },
-                    _ => nodes.interpolated(m, words, maps, beta, regions, word_sum_portable),
-                }
-            }
-            #[cfg(not(target_arch = "x86_64"))]
-            nodes.interpolated(m, words, maps, beta, regions, word_sum_portable)
-        };
+        let sum = crate::simd::dispatch(InterpolatedKernel {
+            nodes: &nodes,
+            m,
+            words,
+            maps,
+            beta,
+            regions,
+        });
         sum.map(|s| s * self.texel_omega)
     }
 }
+
+/// [`LuminanceNodes::interpolated`] as a [`Kernel`]: picks the form with the masked sums of
+/// the dispatched instruction set.
+struct InterpolatedKernel<'a, 'b> {
+    nodes: &'a LuminanceNodes<'a>,
+    m: u32,
+    words: usize,
+    maps: &'a [VisibilityView<'b>],
+    beta: &'a [f32],
+    regions: (&'a [[f64; 3]], u32),
+}
+
+impl Kernel for InterpolatedKernel<'_, '_> {
+    type Output = [f64; 3];
+
+    #[inline(always)]
+    fn run<L: Level>(self, _level: L) -> [f64; 3] {
+        let Self {
+            nodes,
+            m,
+            words,
+            maps,
+            beta,
+            regions,
+        } = self;
+        match L::LEVEL {
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here AVX-512 F.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => unsafe {
+                nodes.interpolated_avx512(m, words, maps, beta, regions)
+            },
+            // SAFETY: as above, AVX2.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx2 => unsafe { nodes.interpolated_avx2(m, words, maps, beta, regions) },
+            _ => nodes.interpolated(m, words, maps, beta, regions, word_sum_portable),
+        }
+    }
+}
+
 /// `Σ L_lum B~` (the map's sampling weights times `B~`) over quadtree nodes of any level:
 /// the product's pyramid down to its cells, then `B~` of the cell times the map's own
 /// luminance pyramid (split evenly below its texels).
@@ -457,9 +488,12 @@ impl LuminanceNodes<'_> {
         total
     }
 
-    /// [`Self::interpolated`] with the AVX-512 kernel.
+    /// [`Self::interpolated`] with the AVX-512 kernel. The per-set forms are never inlined
+    /// into the dispatcher's functions, whose feature sets differ (AVX-512 VL): each stays
+    /// compiled exactly for its own set.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
+    #[inline(never)]
     fn interpolated_avx512(
         &self,
         m: u32,
@@ -476,6 +510,7 @@ impl LuminanceNodes<'_> {
     /// [`Self::interpolated`] with the AVX2 kernel.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
+    #[inline(never)]
     fn interpolated_avx2(
         &self,
         m: u32,

@@ -161,7 +161,7 @@ mod tests {
             candidates.for_each_least(m, |key, j| got.push((key, j)));
             assert_eq!(got, expected, "case {case}: {count} candidates, m {m}");
             #[cfg(target_arch = "x86_64")]
-            if m < count && count <= 32 && crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+            if m < count && count <= 32 && crate::simd::has(crate::simd::SimdLevel::Avx512) {
                 // SAFETY: AVX-512 F detected.
                 let least = unsafe { least_by_rank_avx512(&candidates.key, m) };
                 let tied = sorted[m - 1] >> 32 == sorted[m] >> 32;
@@ -170,7 +170,7 @@ mod tests {
             }
         }
         #[cfg(target_arch = "x86_64")]
-        if crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+        if crate::simd::has(crate::simd::SimdLevel::Avx512) {
             assert!(by_rank > 100, "{by_rank} cases decided by rank");
         }
     }

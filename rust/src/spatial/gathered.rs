@@ -130,7 +130,7 @@ impl GatheredSites {
     /// decides and scores alike.
     pub(super) fn filter(&self, x: Vec3, n: Vec3, r2: f32, cos_lo: f32, out: &mut Passed) {
         #[cfg(target_arch = "x86_64")]
-        if crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+        if crate::simd::has(crate::simd::SimdLevel::Avx512) {
             // SAFETY: the CPU has AVX-512 F, detected by `crate::simd`.
             return unsafe { self.filter_avx512(x, n, r2, cos_lo, out) };
         }

@@ -4,6 +4,7 @@
 use super::candidates::key_id;
 use super::weight::{normal_angle, raw_weight, Weighting};
 use super::{MAX_KEEP, MAX_NEAREST};
+use crate::simd::{Kernel, Level, SimdLevel};
 
 /// The m nearest records of a query (no order) and what §5.1 scores them by, as structure
 /// of arrays: [`Self::score`] runs one SIMD lane per record.
@@ -25,6 +26,41 @@ pub(crate) struct Hits {
     pub(crate) theta: [f32; HIT_LANES],
     pub(crate) geometric: [f32; HIT_LANES],
     pub(crate) weight: [f32; HIT_LANES],
+}
+
+/// [`Hits::score`] as a [`Kernel`]: picks the form compiled for the dispatched instruction
+/// set (the scalar loop, vectorised by the compiler for AVX2 or AVX-512 F).
+struct ScoreKernel<'a> {
+    hits: &'a mut Hits,
+    d_max: f32,
+    w_lo: f32,
+    scale: f32,
+    lambda: f32,
+}
+
+impl Kernel for ScoreKernel<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<L: Level>(self, _level: L) {
+        let Self {
+            hits,
+            d_max,
+            w_lo,
+            scale,
+            lambda,
+        } = self;
+        match L::LEVEL {
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here AVX-512 F.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => unsafe { hits.score_avx512(d_max, w_lo, scale, lambda) },
+            // SAFETY: as above, AVX2.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx2 => unsafe { hits.score_avx2(d_max, w_lo, scale, lambda) },
+            _ => hits.score_lanes(d_max, w_lo, scale, lambda),
+        }
+    }
 }
 
 /// Lanes of [`Hits`]: `m <= MAX_NEAREST`, scored 16 at a time.
@@ -60,7 +96,7 @@ impl Hits {
     /// weight (+0 when none is positive).
     pub(crate) fn heaviest(&self, keep: usize, order: &mut [usize; MAX_KEEP]) -> (usize, f32) {
         #[cfg(target_arch = "x86_64")]
-        if self.len <= 16 && crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+        if self.len <= 16 && crate::simd::has(crate::simd::SimdLevel::Avx512) {
             // SAFETY: the CPU has AVX-512 F, detected by `crate::simd`.
             return unsafe { self.heaviest_avx512(keep, order) };
         }
@@ -143,29 +179,27 @@ impl Hits {
         let w_lo = weighting.w_lo;
         let scale = 1.0 / (1.0 - w_lo);
         let lambda = weighting.lambda;
-        #[cfg(target_arch = "x86_64")]
-        {
-            use crate::simd::{level, SimdLevel};
-            match level() {
-                // SAFETY (both): the CPU has the features, detected by `crate::simd`.
-                SimdLevel::Avx512 => {
-                    return unsafe { self.score_avx512(d_max, w_lo, scale, lambda) }
-                }
-                SimdLevel::Avx2 => return unsafe { self.score_avx2(d_max, w_lo, scale, lambda) },
-                _ => {}
-            }
-        }
-        self.score_lanes(d_max, w_lo, scale, lambda);
+        crate::simd::dispatch(ScoreKernel {
+            hits: self,
+            d_max,
+            w_lo,
+            scale,
+            lambda,
+        });
     }
 
+    // The per-set forms are never inlined into the dispatcher's functions, whose feature
+    // sets differ (AVX-512 VL): each stays compiled exactly for its own set.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
+    #[inline(never)]
     fn score_avx512(&mut self, d_max: f32, w_lo: f32, scale: f32, lambda: f32) {
         self.score_lanes(d_max, w_lo, scale, lambda);
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
+    #[inline(never)]
     fn score_avx2(&mut self, d_max: f32, w_lo: f32, scale: f32, lambda: f32) {
         self.score_lanes(d_max, w_lo, scale, lambda);
     }

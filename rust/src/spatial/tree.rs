@@ -270,7 +270,7 @@ impl Leaf {
     #[inline]
     fn append_within(&self, x: Vec3, r2: f32, out: &mut GatheredSites) {
         #[cfg(target_arch = "x86_64")]
-        if crate::simd::level() == crate::simd::SimdLevel::Avx512 {
+        if crate::simd::has(crate::simd::SimdLevel::Avx512) {
             // SAFETY: the CPU has AVX-512 F, detected by `crate::simd`.
             return unsafe { self.append_within_avx512(x, r2, out) };
         }

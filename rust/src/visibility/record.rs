@@ -219,6 +219,8 @@ fn xor_popcount(a: &[u64], b: &[u64]) -> u32 {
 }
 
 /// [`xor_popcount`] for every length and CPU (and the first call, which detects the CPU).
+/// A match on [`crate::simd::level`] rather than [`crate::simd::dispatch`]: it also
+/// chooses by length and takes the `popcnt`-only level, which `dispatch` runs portably.
 #[cfg(target_arch = "x86_64")]
 #[inline(never)]
 fn xor_popcount_dispatch(a: &[u64], b: &[u64]) -> u32 {

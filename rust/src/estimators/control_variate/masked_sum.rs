@@ -202,7 +202,10 @@ fn masked_product_sum_avx512(bits: u64, cells: &[f32], shift: u32, texels: &[f64
 }
 
 /// The sum with the best kernel this CPU has (detected once; one call per word, for
-/// callers off the hot path).
+/// callers off the hot path). A match on [`crate::simd::level`] rather than
+/// [`crate::simd::dispatch`]: the per-set sums are inlined into the interpolated kernels,
+/// so under `dispatch` they would either be compiled with AVX-512 VL too or cost a second
+/// call per word.
 pub(super) fn word_sum(bits: u64, weights: WordWeights, buf: &mut [f64; 64]) -> f64 {
     #[cfg(target_arch = "x86_64")]
     {
