@@ -108,3 +108,17 @@ def test_set_emitter_checks_and_keeps_the_scene_on_error():
     with pytest.raises(ValueError, match="radiance"):
         setup.scene.set_emitter(0, [np.nan, 1.0, 1.0])
     assert setup.scene.emission(0) == (1.0, 1.0, 1.0)
+
+
+def test_the_indirect_part_alone_skips_the_anchors_direct_work():
+    # Without direct light every method renders the same paths: the cache's records and
+    # the anchors' products would shade nothing, so they are not consulted.
+    setup = vc.scenes.load("garage")
+    cam = setup.camera.with_resolution(16, 12)
+    cache = vc.VisibilityCache(setup.scene)
+    cache.build(cam, progress=False)
+    kw = dict(camera=cam, spp=4, bounces=1, direct=False, threads=2, progress=False)
+    path = vc.render(setup, method="path", **kw)
+    cv = vc.render(setup, method="cv", cache=cache, **kw)
+    np.testing.assert_array_equal(path.image, cv.image)
+    assert cv.stats["cache_points"] == 0

@@ -11,6 +11,24 @@ use crate::error::{Error, Result};
 /// Largest accepted `threads` argument.
 pub const MAX_THREADS: usize = 1024;
 
+/// Rows per rayon task at least in the batch-of-rows functions
+/// ([`crate::bsdf::rows`], [`crate::lights::envmap::rows`]): below this a batch is not
+/// worth splitting further.
+pub const MIN_ROWS_PER_TASK: usize = 4096;
+
+/// Fails with [`Error::InvalidArgument`] naming `name` unless it has the `want` rows of
+/// `like` (what the message compares it with).
+pub fn check_rows(name: &str, got: usize, want: usize, like: &str) -> Result<()> {
+    if got == want {
+        Ok(())
+    } else {
+        Err(Error::invalid(
+            name,
+            format!("expected {want} rows like {like}, got {got}"),
+        ))
+    }
+}
+
 thread_local! {
     /// This calling thread's pools, by size. Each caller has its own, so that callers on
     /// different threads (Python threads with `threads=1`, say) run side by side instead of

@@ -465,8 +465,10 @@ fn elapsed_ns(since: Instant) -> u64 {
 }
 
 impl Shader<'_> {
+    /// Whether the anchors' product (and, for "cv", lookup and `J`) shade anything: not
+    /// when only the indirect part is rendered.
     fn uses_product(&self) -> bool {
-        matches!(self.params.method, Method::Product | Method::ControlVariate)
+        self.params.direct && matches!(self.params.method, Method::Product | Method::ControlVariate)
     }
 
     /// Whether samples need their pixel's anchor: always without jitter (they are shaded
@@ -901,7 +903,8 @@ pub fn render(
             lighting,
             camera,
             params,
-            cache: guard.as_deref().zip(cache),
+            // Without direct light the records predict nothing a sample uses.
+            cache: guard.as_deref().zip(cache).filter(|_| params.direct),
             chroma: chroma.as_ref(),
             techniques: params.techniques(),
         };

@@ -9,27 +9,13 @@ use rayon::prelude::*;
 
 use crate::bsdf::Material;
 use crate::error::{Error, Result};
-
-/// Rows per rayon task at least: below this a batch is not worth splitting further.
-const MIN_ROWS_PER_TASK: usize = 4096;
-
-/// Fails with [`Error::InvalidArgument`] naming `name` unless it has `want` rows.
-fn same_len(name: &str, got: usize, want: usize) -> Result<()> {
-    if got == want {
-        Ok(())
-    } else {
-        Err(Error::invalid(
-            name,
-            format!("expected {want} rows like normals, got {got}"),
-        ))
-    }
-}
+use crate::parallel::{check_rows, MIN_ROWS_PER_TASK};
 
 /// Checks that `wo`, `wi` and an output of `out` rows have as many rows as `normals`.
 fn check_shading(normals: &[Vec3], wo: &[Vec3], wi: &[Vec3], out: usize) -> Result<()> {
-    same_len("wo", wo.len(), normals.len())?;
-    same_len("wi", wi.len(), normals.len())?;
-    same_len("out", out, normals.len())
+    check_rows("wo", wo.len(), normals.len(), "normals")?;
+    check_rows("wi", wi.len(), normals.len(), "normals")?;
+    check_rows("out", out, normals.len(), "normals")
 }
 
 /// `out[k] = m.eval(normals[k], wo[k], wi[k])`: the BRDF in 1/sr per RGB channel, no
@@ -83,10 +69,10 @@ pub fn sample_rows(
     valid: &mut [bool],
 ) -> Result<()> {
     let n = normals.len();
-    same_len("wo", wo.len(), n)?;
-    same_len("u", u.len(), n)?;
-    same_len("wi", wi.len(), n)?;
-    same_len("valid", valid.len(), n)?;
+    check_rows("wo", wo.len(), n, "normals")?;
+    check_rows("u", u.len(), n, "normals")?;
+    check_rows("wi", wi.len(), n, "normals")?;
+    check_rows("valid", valid.len(), n, "normals")?;
     if let Some(bad) = u
         .iter()
         .position(|r| r.iter().any(|x| !(0.0..=1.0).contains(x)))

@@ -2,8 +2,9 @@
 //! lights, VF and the survey's irradiance and importance caches are measured against
 //! (survey ch. 3 and 6, `004_d2289ee9e28a0f98.txt`).
 //!
-//! From a shading point `x_0` a path samples the BSDF ([`Material::sample`]) and traces a
-//! closest-hit ray to `x_1`, then `x_2`, ... up to `bounces` vertices. Its estimate of the
+//! From a shading point `x_0` a path samples the BSDF
+//! ([`Material::sample`](crate::bsdf::Material::sample)) and traces a closest-hit ray to
+//! `x_1`, then `x_2`, ... up to `bounces` vertices. Its estimate of the
 //! light reflected at `x_0` after one or more bounces is
 //!
 //! `L_ind(x_0) ≈ Σ_{j=1..k} T_j · L_dir(x_j)`, with `T_j = Π_{i<j} f(x_i) cos θ_i / p(ω_i)`,
@@ -30,7 +31,6 @@
 
 use glam::{Vec2, Vec3};
 
-use crate::bsdf::Material;
 use crate::estimators::direct::{DirectCounters, Lighting, Method, ShadingPoint};
 use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
 use crate::sampling::rng::Sampler;
@@ -137,7 +137,7 @@ pub fn estimate_indirect(
             }
             throughput /= q;
         }
-        let Some((wi, weight)) = sample_bounce(&vertex.material, &vertex, rng, base) else {
+        let Some((wi, weight)) = sample_bounce(&vertex, rng, base) else {
             break;
         };
         throughput *= weight;
@@ -164,12 +164,8 @@ pub fn estimate_indirect(
 
 /// A BSDF-sampled direction at `sp` and its weight `f cos θ / p`; `None` where the BSDF
 /// returns no direction (below the surface).
-fn sample_bounce(
-    material: &Material,
-    sp: &ShadingPoint,
-    rng: &impl Sampler,
-    base: u64,
-) -> Option<(Vec3, Vec3)> {
+fn sample_bounce(sp: &ShadingPoint, rng: &impl Sampler, base: u64) -> Option<(Vec3, Vec3)> {
+    let material = &sp.material;
     let u = Vec2::from_array(rng.get2(base + lanes::DIRECTION));
     let wi = material.sample(sp.normal, sp.wo, rng.get(base + lanes::LOBE), u)?;
     let pdf = material.pdf(sp.normal, sp.wo, wi);

@@ -1,4 +1,5 @@
 use super::*;
+use crate::bsdf::Material;
 use crate::estimators::direct::ProductLevel;
 use crate::lights::envmap::EnvMap;
 use crate::sampling::rng::SampleRng;

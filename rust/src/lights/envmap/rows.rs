@@ -9,27 +9,13 @@ use rayon::prelude::*;
 
 use super::EnvMap;
 use crate::error::{Error, Result};
-
-/// Rows per rayon task at least: below this a batch is not worth splitting further.
-const MIN_ROWS_PER_TASK: usize = 4096;
-
-/// Fails with [`Error::InvalidArgument`] naming `name` unless it has `want` rows.
-fn same_len(name: &str, got: usize, want: usize) -> Result<()> {
-    if got == want {
-        Ok(())
-    } else {
-        Err(Error::invalid(
-            name,
-            format!("expected {want} rows like the input, got {got}"),
-        ))
-    }
-}
+use crate::parallel::{check_rows, MIN_ROWS_PER_TASK};
 
 /// `out[k] = env.eval(dirs[k])`: radiance (RGB) arriving from each direction (pointing
 /// away from the receiver; see [`EnvMap::eval`] for zero or non-finite ones). `out` must
 /// have the rows of `dirs`, else [`Error::InvalidArgument`] and `out` is untouched.
 pub fn eval_rows(env: &EnvMap, dirs: &[Vec3], out: &mut [[f32; 3]]) -> Result<()> {
-    same_len("out", out.len(), dirs.len())?;
+    check_rows("out", out.len(), dirs.len(), "the input")?;
     out.par_iter_mut()
         .with_min_len(MIN_ROWS_PER_TASK)
         .enumerate()
@@ -40,7 +26,7 @@ pub fn eval_rows(env: &EnvMap, dirs: &[Vec3], out: &mut [[f32; 3]]) -> Result<()
 /// `out[k] = env.pdf(dirs[k])`: the solid-angle density (1/sr) of [`sample_rows`]; zeros
 /// for a black map. Shapes as for [`eval_rows`].
 pub fn pdf_rows(env: &EnvMap, dirs: &[Vec3], out: &mut [f64]) -> Result<()> {
-    same_len("out", out.len(), dirs.len())?;
+    check_rows("out", out.len(), dirs.len(), "the input")?;
     out.par_iter_mut()
         .with_min_len(MIN_ROWS_PER_TASK)
         .enumerate()
@@ -59,8 +45,8 @@ pub fn sample_rows(
     dirs: &mut [[f32; 3]],
     pdf: &mut [f64],
 ) -> Result<()> {
-    same_len("dirs", dirs.len(), u.len())?;
-    same_len("pdf", pdf.len(), u.len())?;
+    check_rows("dirs", dirs.len(), u.len(), "the input")?;
+    check_rows("pdf", pdf.len(), u.len(), "the input")?;
     if let Some(i) = u
         .iter()
         .position(|r| !r.iter().all(|c| (0.0..1.0).contains(c)))
@@ -87,7 +73,7 @@ pub fn sample_rows(
 /// direction of zero density (every direction of a black map). Shapes as for
 /// [`eval_rows`].
 pub fn invert_rows(env: &EnvMap, dirs: &[Vec3], out: &mut [[f64; 2]]) -> Result<()> {
-    same_len("out", out.len(), dirs.len())?;
+    check_rows("out", out.len(), dirs.len(), "the input")?;
     out.par_iter_mut()
         .with_min_len(MIN_ROWS_PER_TASK)
         .enumerate()
