@@ -10,6 +10,7 @@ from . import analysis, envmaps, metrics, mitsuba, octahedral, scenes, testing
 from ._core import (
     Camera,
     EnvMap,
+    GBuffer,
     LightingPreview,
     Material,
     Scene,
@@ -24,6 +25,7 @@ __all__ = [
     "AOResult",
     "Camera",
     "EnvMap",
+    "GBuffer",
     "LightingPreview",
     "Material",
     "RenderResult",

@@ -1,6 +1,6 @@
 """Typed stubs of the native module viscache_rs._core."""
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from os import PathLike
 from typing import Any, Self, final
 
@@ -15,6 +15,7 @@ __all__ = [
     "Material",
     "Setup",
     "EnvMap",
+    "GBuffer",
     "VisibilityCache",
     "LightingPreview",
     "render",
@@ -140,8 +141,28 @@ class Scene:
         seed: int | None = 0,
         jitter: bool = True,
         threads: int | None = None,
-    ) -> dict[str, npt.NDArray[Any]]: ...
+    ) -> GBuffer: ...
     def __len__(self) -> int: ...
+
+@final
+class GBuffer:
+    @property
+    def camera(self) -> Camera: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
+    @property
+    def jittered(self) -> bool: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def covered_pixels(self) -> int: ...
+    def keys(self) -> list[str]: ...
+    def as_dict(self) -> dict[str, npt.NDArray[Any]]: ...
+    def __getitem__(self, key: str, /) -> npt.NDArray[Any]: ...
+    def __contains__(self, key: str, /) -> bool: ...
+    def __iter__(self) -> Iterator[str]: ...
 
 @final
 class EnvMap:
@@ -230,10 +251,11 @@ class VisibilityCache:
     def directions(self) -> npt.NDArray[np.float32]: ...
     def build(
         self,
-        camera: Camera,
+        camera: Camera | None = None,
         seed: int | None = 0,
         threads: int | None = None,
         *,
+        gbuffer: GBuffer | None = None,
         time_budget: float | None = None,
         callback: Callable[[int, int], Any] | None = None,
     ) -> dict[str, Any]: ...
@@ -264,7 +286,11 @@ class VisibilityCache:
 @final
 class LightingPreview:
     def __new__(
-        cls, scene: Scene, camera: Camera, threads: int | None = None
+        cls,
+        scene: Scene,
+        camera: Camera | None = None,
+        threads: int | None = None,
+        gbuffer: GBuffer | None = None,
     ) -> LightingPreview: ...
     @property
     def size(self) -> tuple[int, int]: ...
@@ -296,10 +322,11 @@ def render(
     technique_weights: dict[str, float] | None = None,
     bounces: int | None = None,
     direct: bool = True,
+    gbuffer: GBuffer | None = None,
 ) -> dict[str, Any]: ...
 def render_ao(
     scene: Scene,
-    camera: Camera,
+    camera: Camera | None = None,
     cache: VisibilityCache | None = None,
     reference_rays: int | None = None,
     seed: int | None = 0,
@@ -309,6 +336,7 @@ def render_ao(
     min_radius_scale: float | None = None,
     w_min: float | None = None,
     callback: Any = None,
+    gbuffer: GBuffer | None = None,
 ) -> dict[str, Any]: ...
 def scene_names() -> list[str]: ...
 def load_scene(

@@ -2,7 +2,8 @@
 
 ``render_ao(setup, camera=None, cache=None, reference_rays=None, seed=0, threads=None,
 progress=True, time_budget=None, sigma_scale=None, min_radius_scale=None, w_min=None,
-**cache_overrides)`` computes, at the first hit through every pixel centre, the ambient
+gbuffer=None, **cache_overrides)`` computes, at the first hit through every pixel centre
+(or every hit of ``gbuffer``, from ``setup.scene.gbuffer``), the ambient
 occlusion ``A`` = eq. 12 / pi: the cosine-weighted visible fraction of the hemisphere, in
 [0, 1] (1 = nothing occludes), exactly what every cache record stores.
 
@@ -60,10 +61,12 @@ def render_ao(
     sigma_scale: float | None = None,
     min_radius_scale: float | None = None,
     w_min: float | None = None,
+    gbuffer: _core.GBuffer | None = None,
     **cache_overrides,
 ) -> AOResult:
     """Ambient occlusion of a setup; see the module docstring."""
-    camera = setup.camera if camera is None else camera
+    if camera is None and gbuffer is None:
+        camera = setup.camera
     if reference_rays is None and cache is None:
         # AO reads each record's nearest-hit distance R_i, which the default "auto" preset
         # (tuned for the control variate) skips: AO's own defaults are "medium"'s.
@@ -91,6 +94,7 @@ def render_ao(
             min_radius_scale=min_radius_scale,
             w_min=w_min,
             callback=callback,
+            gbuffer=gbuffer,
         )
     return AOResult(out["image"], out["stats"], cache)
 

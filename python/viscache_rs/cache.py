@@ -18,16 +18,19 @@ class VisibilityCache(_core.VisibilityCache):
 
     def build(
         self,
-        camera: _core.Camera,
+        camera: _core.Camera | None = None,
         seed: int | None = 0,
         threads: int | None = None,
         progress: bool = True,
         time_budget: float | None = None,
         *,
+        gbuffer: _core.GBuffer | None = None,
         callback: _Callback | None = None,
     ) -> dict[str, Any]:
         """Builds the cache for ``camera``'s view (bootstrap of ``n_startup`` records when
-        empty, then a pass over the G-buffer applying both insertion criteria).
+        empty, then a pass over the G-buffer applying both insertion criteria), or at the
+        points of ``gbuffer`` (``scene.gbuffer(camera, jitter=False)``; ``render(...,
+        gbuffer=)`` with the same buffer anchors its pixels at exactly these points).
         Deterministic for any ``threads``. Shows a progress bar unless ``progress=False``;
         stops after the wave that spends ``time_budget`` seconds. Returns a dict: records,
         bootstrap_records, refined_records, discarded_records, pixels, covered_pixels,
@@ -35,11 +38,11 @@ class VisibilityCache(_core.VisibilityCache):
         seconds, complete, incoherence, incoherent. A ``callback(done, total)`` (pixels)
         replaces the bar: a falsy return or an exception stops the build."""
         if callback is not None:
-            return super().build(camera, seed=seed, threads=threads, time_budget=time_budget,
-                                 callback=callback)
+            return super().build(camera, seed=seed, threads=threads, gbuffer=gbuffer,
+                                 time_budget=time_budget, callback=callback)
         with progress_bar(progress, "cache build", "px") as bar:
-            return super().build(camera, seed=seed, threads=threads, time_budget=time_budget,
-                                 callback=bar)
+            return super().build(camera, seed=seed, threads=threads, gbuffer=gbuffer,
+                                 time_budget=time_budget, callback=bar)
 
 
 __all__ = ["VisibilityCache"]

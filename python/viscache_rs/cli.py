@@ -46,20 +46,22 @@ def demo(args: argparse.Namespace) -> int:
     quiet = args.quiet
     cache = VisibilityCache(scene, resolution=args.resolution, preset=args.preset,
                             nearest_hits=False)
-    b = cache.build(setup.camera, seed=args.seed, threads=args.threads, progress=not quiet)
+    # One G-buffer: the records' points and the renders' anchors.
+    gbuffer = scene.gbuffer(setup.camera, jitter=False, threads=args.threads)
+    b = cache.build(gbuffer=gbuffer, seed=args.seed, threads=args.threads, progress=not quiet)
     print(f"visibility cache: {b['records']:,} records of {cache.resolution}x"
           f"{cache.resolution} ({cache.memory_bytes() / 1e6:.2f} MB), "
           f"{b['shadow_rays_per_pixel']:.1f} shadow rays per pixel, built in "
           f"{b['seconds']:.2f} s")
     alpha = args.alpha if args.alpha == "estimate" else float(args.alpha)
     cv = render(setup, spp=args.spp, method="cv", cache=cache, alpha=alpha, seed=args.seed,
-                threads=args.threads, progress=not quiet)
+                threads=args.threads, progress=not quiet, gbuffer=gbuffer)
     cv_total = cv.stats["seconds"] + b["seconds"]
     same = render(setup, spp=args.spp, method="product", seed=args.seed + 3,
-                  threads=args.threads, progress=False)
+                  threads=args.threads, progress=False, gbuffer=gbuffer)
     # Product sampling given the time of the cache build and the cv render together.
     prod = render(setup, method="product", time_budget=cv_total, seed=args.seed + 2,
-                  threads=args.threads, progress=not quiet)
+                  threads=args.threads, progress=not quiet, gbuffer=gbuffer)
     print(f"\n{'method':<24}{'spp':>6}{'seconds':>10}")
     for name, res, sec in (("product", same, same.stats["seconds"]),
                            ("product (equal time)", prod, prod.stats["seconds"]),

@@ -4,7 +4,7 @@ indirect light by path tracing.
 ``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
 time_budget=None, envmap=None, product_level="auto", cache=None, preset="auto", jitter=True,
 alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None, bounces=None,
-direct=True)`` renders
+direct=True, gbuffer=None)`` renders
 ``setup.scene`` lit by ``setup.envmap`` (or ``envmap``) and the scene's area lights, through
 ``camera`` (default: the setup's). Methods:
 
@@ -40,6 +40,11 @@ distribution, BSDF sampling at the hit and the map's own distribution, with prob
 it unbiased at any hit. ``jitter=False`` shades every sample at the anchor (CAM08's fixed
 points; aliased); with ``technique_weights={"product": 1}`` that is the paper's plain product
 sampling.
+``gbuffer=`` (from ``setup.scene.gbuffer(camera, jitter=False)``) gives the anchors: the same
+buffer given to ``VisibilityCache.build(gbuffer=...)`` places the records at exactly these
+points, and no primary ray through a pixel centre is traced again (``camera`` then defaults
+to the buffer's; another camera is refused). Method "cv" without a cache traces one G-buffer
+and builds the cache and renders from it.
 ``spp`` defaults to 16; with a ``time_budget`` (seconds) the render runs passes of growing
 size until the budget is spent (at most ``spp`` samples if given) and ``stats["spp"]`` says
 how many every pixel got. The result is bit-identical for any ``threads`` at a fixed seed.
@@ -99,19 +104,30 @@ def render(
     technique_weights: dict[str, float] | None = None,
     bounces: int | None = None,
     direct: bool = True,
+    gbuffer: _core.GBuffer | None = None,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
-    camera = setup.camera if camera is None else camera
+    if gbuffer is not None and not isinstance(gbuffer, _core.GBuffer):
+        raise TypeError(f"gbuffer: expected a GBuffer (from Scene.gbuffer), got "
+                        f"{type(gbuffer).__name__}")
+    if camera is None:
+        camera = setup.camera if gbuffer is None else gbuffer.camera
     envmap = setup.envmap if envmap is None else envmap
     if spp is None:
         spp = _UNBOUNDED_SPP if time_budget is not None else 16
     cache_stats: dict[str, Any] = {}
+    traced = False
     if method == "cv" and cache is None:
         # The control variate never reads R_i: skip its closest-hit rays. Under a time
         # budget the build may spend a quarter of it and the render has what is left.
         cache = VisibilityCache(setup.scene, preset=preset, nearest_hits=False)
         t = time.perf_counter()
-        report = cache.build(camera, seed=seed, threads=threads, progress=progress,
+        # One G-buffer for the build and the render's anchors: its rays count as the
+        # render's primary rays and its time as the cache's.
+        traced = gbuffer is None
+        if traced:
+            gbuffer = setup.scene.gbuffer(camera, jitter=False, threads=threads)
+        report = cache.build(seed=seed, threads=threads, progress=progress, gbuffer=gbuffer,
                              time_budget=None if time_budget is None
                              else CACHE_BUDGET_SHARE * time_budget)
         built = time.perf_counter() - t
@@ -146,21 +162,26 @@ def render(
             technique_weights=technique_weights,
             bounces=bounces,
             direct=direct,
+            gbuffer=gbuffer,
         )
     stats = out["stats"]
+    if traced:
+        stats["primary_rays"] += camera.width * camera.height
     stats.update(cache_stats)
     return RenderResult(out["image"], out["variance"], stats, out["alpha"])
 
 
 def preview(setup, cache, envmap=None, camera=None, product_level: int | str = "auto",
-            threads: int | None = None) -> np.ndarray:
+            threads: int | None = None, gbuffer: _core.GBuffer | None = None) -> np.ndarray:
     """CAM08 sec. 6.2's lighting preview: ``J = int L B~ V~`` per pixel, an (H, W, 3) float32
-    image, from ``cache``'s records under ``envmap`` (default: the setup's). For many
-    lightings of one view, make a :class:`LightingPreview` once (it traces the primary
-    rays) and call its ``render(cache, envmap)``, which traces none."""
-    camera = setup.camera if camera is None else camera
+    image, from ``cache``'s records under ``envmap`` (default: the setup's), at the hits of
+    ``gbuffer`` if given (the buffer the cache was built from), else through ``camera``'s
+    pixel centres. For many lightings of one view, make a :class:`LightingPreview` once (it
+    keeps the hits) and call its ``render(cache, envmap)``, which traces no ray."""
+    if camera is None and gbuffer is None:
+        camera = setup.camera
     envmap = setup.envmap if envmap is None else envmap
-    view = _core.LightingPreview(setup.scene, camera, threads=threads)
+    view = _core.LightingPreview(setup.scene, camera, threads=threads, gbuffer=gbuffer)
     return view.render(cache, envmap, product_level=product_level, threads=threads)
 
 

@@ -4,9 +4,11 @@
 //! path tracing ([`crate::estimators::indirect`]).
 //!
 //! ## Anchors and samples
-//! Every pixel has an *anchor*, the first hit through its centre (the G-buffer's point,
-//! where the cache was built), and the per-point work is done there once per pixel and
-//! pass: the product distribution (B~ and the product pyramid), the cache lookup and `J`,
+//! Every pixel has an *anchor*, the first hit through its centre: the G-buffer's point,
+//! where the cache was built. The G-buffer is traced once before the passes, or handed in
+//! ([`render_from`]: the very buffer the cache was built from, so the anchors are the
+//! records' points by construction, not by equal seeds). The per-point work is done at the
+//! anchor once per pixel and pass: the product distribution (B~ and the product pyramid), the cache lookup and `J`,
 //! as in CAM08. By default (`jitter`) every sample then traces its own primary ray
 //! through a random point of the pixel (antialiasing, box filter) and shades its own hit
 //! with the anchor's work: the environment is drawn from the one-sample mixture of the
@@ -43,8 +45,8 @@
 //! are spread over the image, so costs that differ between sky and geometry average out),
 //! and the main pass brings every pixel to the most samples that fit 95% of the budget
 //! left; another pass follows only when a whole sample per pixel still fits
-//! ([`PassSchedule`]). Anchors are redone each pass (they are not kept: a product
-//! distribution is kilobytes), hence so few passes. Every pixel ends with the same number
+//! ([`PassSchedule`]). The anchors' work is redone each pass from the G-buffer's hits (it
+//! is not kept: a product distribution is kilobytes), hence so few passes. Every pixel ends with the same number
 //! of samples but the probe's, which may have up to four more.
 //! Progress is reported from the calling thread while the workers run, in pixel samples;
 //! a `false` from it stops the pass (pixels not started keep the samples they had,
@@ -73,7 +75,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::bsdf::Material;
-use crate::camera::{Camera, DIM_PIXEL_JITTER};
+use crate::camera::{Camera, GBuffer, DIM_PIXEL_JITTER};
 use crate::error::{Error, Result};
 use crate::estimators::control_variate::{
     control_sample, neighbour_alphas, AlphaRule, ControlTables, CvSums, Interpolant, MapChroma,
@@ -175,6 +177,19 @@ impl RenderParams {
             bounces,
             ..Self::with(Method::Mis, spp)
         }
+    }
+
+    /// Whether the product's cells (and, for "cv", lookup and `J`) shade anything: not
+    /// when only the indirect part is rendered.
+    pub fn uses_product(&self) -> bool {
+        self.direct && matches!(self.method, Method::Product | Method::ControlVariate)
+    }
+
+    /// Whether pixels need anchors (a G-buffer through their centres): always without
+    /// jitter (samples are shaded there), and for the product methods (their product,
+    /// lookup and `J`).
+    pub fn needs_anchors(&self) -> bool {
+        !self.jitter || self.uses_product()
     }
 
     /// The mixture's weights: the given ones or the method's default.
@@ -452,6 +467,8 @@ enum SampleHit {
 struct Shader<'a> {
     lighting: Lighting<'a>,
     camera: &'a Camera,
+    /// The pixels' anchors ([`RenderParams::needs_anchors`]).
+    anchors: Option<&'a GBuffer>,
     params: &'a RenderParams,
     /// The cache's records (read-locked for the pass) and its search-radius scale.
     cache: Option<(&'a CacheState, &'a VisibilityCache)>,
@@ -465,16 +482,8 @@ fn elapsed_ns(since: Instant) -> u64 {
 }
 
 impl Shader<'_> {
-    /// Whether the anchors' product (and, for "cv", lookup and `J`) shade anything: not
-    /// when only the indirect part is rendered.
     fn uses_product(&self) -> bool {
-        self.params.direct && matches!(self.params.method, Method::Product | Method::ControlVariate)
-    }
-
-    /// Whether samples need their pixel's anchor: always without jitter (they are shaded
-    /// there), and for the product methods (its product, lookup and `J`).
-    fn needs_anchor(&self) -> bool {
-        !self.params.jitter || self.uses_product()
+        self.params.uses_product()
     }
 
     /// Traces the primary ray through `pixel`'s point `jitter` (`[0.5, 0.5]`: the centre).
@@ -509,14 +518,13 @@ impl Shader<'_> {
         }
     }
 
-    /// Traces the primary ray through the centre of `pixel` and prepares its anchor.
-    fn prepare(&self, pixel: usize, work: &mut BandWork) -> Point {
-        let start = Instant::now();
-        let (dir, hit) = self.trace_primary(pixel, [0.5, 0.5], work);
-        work.primary_ns += elapsed_ns(start);
-        let Some((hit, sp)) = hit else {
+    /// Prepares the anchor of `pixel` at its G-buffer hit.
+    fn prepare(&self, anchors: &GBuffer, pixel: usize, work: &mut BandWork) -> Point {
+        let dir = Vec3::from(anchors.direction[pixel]);
+        let Some(hit) = anchors.surface_hit(pixel) else {
             return Point::Miss(self.lighting.env.eval(dir));
         };
+        let sp = shading_point_at(self.lighting.scene, &hit, -dir);
         let normal = sp.normal;
         let emitted = self.lighting.scene.emitted(&hit, sp.wo);
         let mut product = None;
@@ -541,8 +549,7 @@ impl Shader<'_> {
         let mut guided = None;
         if let (Some((state, cache)), Some(chroma)) = (self.cache, self.chroma) {
             let start = Instant::now();
-            let footprint = self.camera.footprint(dir, hit.t, normal);
-            let d_max = cache.params().d_max_scale * footprint;
+            let d_max = cache.params().d_max_scale * anchors.footprint[pixel];
             let shared = self.shared_lookup(pixel, hit.position, normal, d_max, work);
             let lookup = match &shared {
                 Some(shared) => {
@@ -747,7 +754,7 @@ impl Shader<'_> {
     ) {
         let seed = self.params.seed;
         let start = Instant::now();
-        let anchor = self.needs_anchor().then(|| self.prepare(pixel, work));
+        let anchor = self.anchors.map(|g| self.prepare(g, pixel, work));
         let prepared = Instant::now();
         work.anchor_ns += (prepared - start).as_nanos() as u64;
         let anchor_surface = match &anchor {
@@ -818,11 +825,56 @@ fn flush_verdicts(point: &SurfacePoint, verdicts: &mut [(u32, u32)], work: &mut 
 /// reported to the cache afterwards (`record_misses`), and with `insert_missing` the
 /// points that found no record are given one. `progress(done, planned)` (pixel samples)
 /// is called on the calling thread about every 0.1 s and after each pass; returning
-/// `false` stops. Work runs on `threads` workers (`None`: all cores).
+/// `false` stops. Work runs on `threads` workers (`None`: all cores). When the pixels
+/// need anchors ([`RenderParams::needs_anchors`]) their G-buffer is traced first, once;
+/// [`render_from`] takes one already traced.
 pub fn render(
     scene: &Scene,
     env: &EnvMap,
     camera: &Camera,
+    params: &RenderParams,
+    cache: Option<&VisibilityCache>,
+    threads: Option<usize>,
+    progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
+) -> Result<Rendered> {
+    render_with(scene, env, camera, None, params, cache, threads, progress)
+}
+
+/// [`render`] through `gbuffer`'s camera with its hits as the pixels' anchors (whatever
+/// [`RenderParams::needs_anchors`] says): the points the cache was built at
+/// ([`VisibilityCache::build_from`] with the same buffer), no primary ray traced again. A
+/// jittered buffer is accepted: the anchors are only where the per-pixel work is done,
+/// and every estimate stays unbiased (module docs); without `jitter` the samples are
+/// shaded at its hits. `gbuffer` must describe `scene` as posed now.
+pub fn render_from(
+    scene: &Scene,
+    env: &EnvMap,
+    gbuffer: &GBuffer,
+    params: &RenderParams,
+    cache: Option<&VisibilityCache>,
+    threads: Option<usize>,
+    progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
+) -> Result<Rendered> {
+    gbuffer.check(scene, None)?;
+    let camera = &gbuffer.camera;
+    render_with(
+        scene,
+        env,
+        camera,
+        Some(gbuffer),
+        params,
+        cache,
+        threads,
+        progress,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn render_with(
+    scene: &Scene,
+    env: &EnvMap,
+    camera: &Camera,
+    anchors: Option<&GBuffer>,
     params: &RenderParams,
     cache: Option<&VisibilityCache>,
     threads: Option<usize>,
@@ -875,6 +927,22 @@ pub fn render(
             }
         })?;
     }
+    // The anchors' G-buffer, traced once for every pass.
+    let traced = match anchors {
+        None if params.needs_anchors() => {
+            let started = Instant::now();
+            let (g, threads) = with_threads(threads, || {
+                let g = GBuffer::render(scene, camera, 0, false, None);
+                (g, rayon::current_num_threads())
+            })?;
+            // CPU seconds, as the other stages count them.
+            total.primary_ns += started.elapsed().as_nanos() as u64 * threads as u64;
+            total.primary_rays += pixels as u64;
+            Some(g?)
+        }
+        _ => None,
+    };
+    let anchors = anchors.or(traced.as_ref());
     let mut schedule = PassSchedule::default();
     let mut taken = 0u64;
     loop {
@@ -902,6 +970,7 @@ pub fn render(
         let shader = Shader {
             lighting,
             camera,
+            anchors,
             params,
             // Without direct light the records predict nothing a sample uses.
             cache: guard.as_deref().zip(cache).filter(|_| params.direct),

@@ -72,7 +72,9 @@ def run(ctx) -> None:
                                 threads=ctx.threads)
                  if s["validate_rays"] and len(reuse) else {"rays": 0, "misses": 0})
         evicted = reuse.end_frame()
-        report = reuse.build(cam, seed=seed, **kw)
+        # One G-buffer per frame: the records' points and every render's anchors.
+        gbuffer = setup.scene.gbuffer(cam, jitter=False, threads=ctx.threads)
+        report = reuse.build(gbuffer=gbuffer, seed=seed, **kw)
         row["reuse_cache_seconds"] = time.perf_counter() - t
         row["records"] = len(reuse)
         row["inserted"] = report["bootstrap_records"] + report["refined_records"]
@@ -81,7 +83,8 @@ def run(ctx) -> None:
         row["validate_rays"] = check["rays"]
         row["validate_misses"] = check["misses"]
         row["reuse_rays_per_pixel"] = (report["shadow_rays"] + check["rays"]) / pixels
-        res = render(setup, cam, spp=spp, method="cv", cache=reuse, seed=seed, **kw, **fixed)
+        res = render(setup, gbuffer=gbuffer, spp=spp, method="cv", cache=reuse, seed=seed, **kw,
+                     **fixed)
         row["reuse_render_seconds"] = res.stats["seconds"]
         row["reuse_variance"] = metrics.mean_variance(res.variance)
         reuse_var = res.variance
@@ -93,17 +96,19 @@ def run(ctx) -> None:
         # Fresh cache every frame.
         fresh = VisibilityCache(setup.scene, **cache_kw)
         t = time.perf_counter()
-        report = fresh.build(cam, seed=seed, **kw)
+        report = fresh.build(gbuffer=gbuffer, seed=seed, **kw)
         row["fresh_cache_seconds"] = time.perf_counter() - t
         row["fresh_records"] = len(fresh)
         row["fresh_rays_per_pixel"] = report["shadow_rays"] / pixels
-        res = render(setup, cam, spp=spp, method="cv", cache=fresh, seed=seed, **kw, **fixed)
+        res = render(setup, gbuffer=gbuffer, spp=spp, method="cv", cache=fresh, seed=seed, **kw,
+                     **fixed)
         row["fresh_render_seconds"] = res.stats["seconds"]
         row["fresh_variance"] = metrics.mean_variance(res.variance)
         fresh_var = res.variance
         del fresh
 
-        res = render(setup, cam, spp=spp, method="product", seed=seed, **kw, **fixed)
+        res = render(setup, gbuffer=gbuffer, spp=spp, method="product", seed=seed, **kw,
+                     **fixed)
         row["product_render_seconds"] = res.stats["seconds"]
         row["product_variance"] = metrics.mean_variance(res.variance)
         rgb, row["reuse_ratio"] = metrics.variance_ratio(reuse_var, res.variance)

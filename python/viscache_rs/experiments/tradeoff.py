@@ -68,7 +68,9 @@ def run(ctx) -> None:
     for name in s["scenes"]:
         setup = scenes.load(name)
         cam = setup.camera.with_resolution(s["width"], s["height"])
-        ref = render(setup, cam, spp=s["reference_spp"], method="product",
+        # One G-buffer: the records' points and every render's anchors.
+        gbuffer = setup.scene.gbuffer(cam, jitter=False, threads=ctx.threads)
+        ref = render(setup, gbuffer=gbuffer, spp=s["reference_spp"], method="product",
                      seed=ctx.seed + 104729, **kw)
         ref_image = np.asarray(ref.image, dtype=np.float64)
         ref_variance = np.asarray(ref.variance, dtype=np.float64)
@@ -78,11 +80,12 @@ def run(ctx) -> None:
                                          "variance": ref_var})
 
         def measure(label, method, build_seconds, cache=None, alpha=1.0, records=0,
-                    _setup=setup, _cam=cam, _ref=ref_image, _ref_variance=ref_variance):
+                    _setup=setup, _g=gbuffer, _ref=ref_image, _ref_variance=ref_variance):
             out = []
             for spp in ladder:
                 extra = {"cache": cache, "alpha": alpha} if method == "cv" else {}
-                res = render(_setup, _cam, spp=spp, method=method, seed=ctx.seed, **extra, **kw)
+                res = render(_setup, gbuffer=_g, spp=spp, method=method, seed=ctx.seed, **extra,
+                             **kw)
                 raw = metrics.relmse(res.image, _ref)
                 mse = metrics.relmse(res.image, _ref, _ref_variance)
                 per_channel = metrics.relmse_per_channel(res.image, _ref, _ref_variance)
@@ -104,7 +107,7 @@ def run(ctx) -> None:
             if key not in caches:
                 cache = VisibilityCache(setup.scene, resolution=resolution, preset=preset,
                                         nearest_hits=False)
-                report = cache.build(cam, seed=ctx.seed, **kw)
+                report = cache.build(gbuffer=gbuffer, seed=ctx.seed, **kw)
                 caches[key] = (cache, report["seconds"])
                 ctx.record(f"{name}/cache/{preset}/{resolution}",
                            {k: report[k] for k in ("records", "shadow_rays",

@@ -85,7 +85,9 @@ def run(ctx: ExperimentContext) -> None:
         setup.scene.build(threads=ctx.threads)
         cache = make_cache(name, setup.scene, cfg["width"] * cfg["height"])
         res = cache.resolution
-        build = cache.build(setup.camera, seed=ctx.seed, threads=ctx.threads,
+        # One G-buffer: the records' points and every render's anchors.
+        gbuffer = setup.scene.gbuffer(setup.camera, jitter=False, threads=ctx.threads)
+        build = cache.build(gbuffer=gbuffer, seed=ctx.seed, threads=ctx.threads,
                             progress=ctx.progress)
         table2.append([name, build["records"], f"{res}x{res}",
                        round(cache.memory_bytes() / max(build["records"], 1)),
@@ -93,7 +95,7 @@ def run(ctx: ExperimentContext) -> None:
         rows = []
         for spp in cfg["spp"]:
             common = dict(spp=spp, seed=ctx.seed + spp, threads=ctx.threads,
-                          progress=ctx.progress, **CAM08_POINTS)
+                          progress=ctx.progress, gbuffer=gbuffer, **CAM08_POINTS)
             # Seconds are the least of REPEATS identical renders, the methods taking turns:
             # sub-second renders on a shared machine vary by tens of percent from run to
             # run, and drift (clock, other load) then hits every method alike.

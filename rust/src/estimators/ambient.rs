@@ -360,9 +360,52 @@ pub fn render_reference_ao(
     check_rays(rays)?;
     check_scene_and_budget(scene, time_budget)?;
     let start = Instant::now();
-    let mut image = AoImage::unresolved(camera);
+    let g = with_threads(threads, || {
+        GBuffer::render(scene, camera, seed, false, None)
+    })??;
+    reference_ao_at_gbuffer(scene, &g, rays, seed, threads, start, time_budget, progress)
+}
+
+/// [`render_reference_ao`] at the hits of `gbuffer` (which must describe `scene` as posed
+/// now), through its camera.
+pub fn render_reference_ao_from(
+    scene: &Scene,
+    gbuffer: &GBuffer,
+    rays: u32,
+    seed: u64,
+    threads: Option<usize>,
+    time_budget: Option<f64>,
+    progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
+) -> Result<AoImage> {
+    check_rays(rays)?;
+    check_scene_and_budget(scene, time_budget)?;
+    gbuffer.check(scene, None)?;
+    let start = Instant::now();
+    reference_ao_at_gbuffer(
+        scene,
+        gbuffer,
+        rays,
+        seed,
+        threads,
+        start,
+        time_budget,
+        progress,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn reference_ao_at_gbuffer(
+    scene: &Scene,
+    g: &GBuffer,
+    rays: u32,
+    seed: u64,
+    threads: Option<usize>,
+    start: Instant,
+    time_budget: Option<f64>,
+    progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
+) -> Result<AoImage> {
+    let mut image = AoImage::unresolved(&g.camera);
     with_threads(threads, || -> Result<()> {
-        let g = GBuffer::render(scene, camera, seed, false, None)?;
         let covered: Vec<usize> = (0..g.object.len()).filter(|&i| g.object[i] >= 0).collect();
         image.stats.covered_pixels = covered.len();
         let mut done = 0;
@@ -419,11 +462,58 @@ pub fn render_cache_ao(
     check_scene_and_budget(scene, time_budget)?;
     cache.bind_scene(scene)?;
     let start = Instant::now();
+    let g = with_threads(threads, || {
+        GBuffer::render(scene, camera, seed, false, None)
+    })??;
+    cache_ao_at_gbuffer(scene, &g, cache, ao, threads, start, time_budget, progress)
+}
+
+/// [`render_cache_ao`] at the hits of `gbuffer` (which must describe `scene` as posed
+/// now), through its camera: with the buffer a cache was built from, the points its
+/// records were placed for.
+#[allow(clippy::too_many_arguments)]
+pub fn render_cache_ao_from(
+    scene: &Scene,
+    gbuffer: &GBuffer,
+    cache: &VisibilityCache,
+    ao: &AoParams,
+    threads: Option<usize>,
+    time_budget: Option<f64>,
+    progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
+) -> Result<AoImage> {
+    ao.validate()?;
+    check_scene_and_budget(scene, time_budget)?;
+    gbuffer.check(scene, None)?;
+    cache.bind_scene(scene)?;
+    let start = Instant::now();
+    cache_ao_at_gbuffer(
+        scene,
+        gbuffer,
+        cache,
+        ao,
+        threads,
+        start,
+        time_budget,
+        progress,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn cache_ao_at_gbuffer(
+    scene: &Scene,
+    g: &GBuffer,
+    cache: &VisibilityCache,
+    ao: &AoParams,
+    threads: Option<usize>,
+    start: Instant,
+    time_budget: Option<f64>,
+    progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
+) -> Result<AoImage> {
     let before = cache.counters();
     let params = *cache.params();
+    let camera = &g.camera;
     let mut image = AoImage::unresolved(camera);
     with_threads(threads, || -> Result<()> {
-        let g = GBuffer::render(scene, camera, seed, false, None)?;
         let query = |i: u32| {
             let i = i as usize;
             (

@@ -55,6 +55,13 @@ impl LightingPreview {
     /// where a cache built for the camera has its records).
     pub fn new(scene: &Scene, camera: &Camera, threads: Option<usize>) -> Result<Self> {
         let g = GBuffer::render(scene, camera, 0, false, threads)?;
+        Self::from_gbuffer(scene, &g)
+    }
+
+    /// The preview of `gbuffer`'s hits (which must describe `scene` as posed now): with the
+    /// buffer a cache was built from, exactly the points its records were placed for.
+    pub fn from_gbuffer(scene: &Scene, g: &GBuffer) -> Result<Self> {
+        g.check(scene, None)?;
         let objects = &scene.mesh().objects;
         let points = (0..g.object.len())
             .map(|i| {
@@ -82,8 +89,8 @@ impl LightingPreview {
             })
             .collect();
         Ok(Self {
-            width: camera.width,
-            height: camera.height,
+            width: g.width(),
+            height: g.height(),
             points,
             scene: scene.geometry_fingerprint(),
         })

@@ -9,13 +9,15 @@ use pyo3::types::PyDict;
 use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
 use super::convert::{f64_arg, image_array, int_arg, seed_or_zero, threads_arg, IntoPyResult};
+use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
 use crate::estimators::ambient::{
-    render_cache_ao, render_reference_ao, AoParams, AoStats, MAX_AO_RAYS,
+    render_cache_ao, render_cache_ao_from, render_reference_ao, render_reference_ao_from, AoParams,
+    AoStats, MAX_AO_RAYS,
 };
 
-/// AO of `scene` seen through `camera`: with `reference_rays=N`, ray traced with N rays per
+/// AO of `scene` seen through `camera` (or at the hits of `gbuffer`): with `reference_rays=N`, ray traced with N rays per
 /// shading point; otherwise from `cache` (grown for the view by §6.1's criterion). Returns a
 /// dict with `image` (H, W) float32 (NaN where nothing was hit or nothing computed) and
 /// `stats`. `callback(done, total)` is called with the GIL held after every wave; a falsy
@@ -23,12 +25,12 @@ use crate::estimators::ambient::{
 /// the core's defaults: `sigma_scale`, `min_radius_scale` and `w_min` those of `AoParams`
 /// (3, 40, 0.45), `threads` every core, `time_budget` none.
 #[pyfunction]
-#[pyo3(signature = (scene, camera, cache=None, reference_rays=None, seed=0, threads=None, time_budget=None, sigma_scale=None, min_radius_scale=None, w_min=None, callback=None))]
+#[pyo3(signature = (scene, camera=None, cache=None, reference_rays=None, seed=0, threads=None, time_budget=None, sigma_scale=None, min_radius_scale=None, w_min=None, callback=None, gbuffer=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render_ao<'py>(
     py: Python<'py>,
     scene: Bound<'py, PyScene>,
-    camera: PyRef<'py, PyCamera>,
+    camera: Option<PyRef<'py, PyCamera>>,
     cache: Option<Bound<'py, PyVisibilityCache>>,
     reference_rays: Option<&Bound<'py, PyAny>>,
     #[pyo3(from_py_with = seed_or_zero)] seed: u64,
@@ -38,7 +40,9 @@ pub fn render_ao<'py>(
     min_radius_scale: Option<&Bound<'py, PyAny>>,
     w_min: Option<&Bound<'py, PyAny>>,
     callback: Option<Py<PyAny>>,
+    gbuffer: Option<PyRef<'py, PyGBuffer>>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let view = view_arg(camera, gbuffer)?;
     let some = |o: Option<&Bound<'py, PyAny>>| o.filter(|v| !v.is_none()).cloned();
     let rays = some(reference_rays)
         .map(|r| int_arg(&r, "reference_rays", 1, MAX_AO_RAYS as i128))
@@ -70,17 +74,19 @@ pub fn render_ao<'py>(
         (_, Some(_)) => None,
     };
     let core_scene = scene.borrow().get();
-    let cam = camera.inner;
     let mut reporter = PyProgress::new(callback);
     let stop = reporter.stop_flag();
     let mut progress = |done: usize, total: usize| reporter.report(done as u64, total as u64);
-    let out = detach_interruptible(py, &stop, || match (&cache, rays) {
-        (_, Some(n)) => {
-            render_reference_ao(&core_scene, &cam, n, seed, threads, budget, &mut progress)
+    let out = detach_interruptible(py, &stop, || match (&cache, rays, &view) {
+        (_, Some(n), View::Camera(cam)) => {
+            render_reference_ao(&core_scene, cam, n, seed, threads, budget, &mut progress)
         }
-        (Some(c), None) => render_cache_ao(
+        (_, Some(n), View::GBuffer(g)) => {
+            render_reference_ao_from(&core_scene, g, n, seed, threads, budget, &mut progress)
+        }
+        (Some(c), None, View::Camera(cam)) => render_cache_ao(
             &core_scene,
-            &cam,
+            cam,
             c,
             &ao,
             seed,
@@ -88,7 +94,10 @@ pub fn render_ao<'py>(
             budget,
             &mut progress,
         ),
-        (None, None) => unreachable!("checked above"),
+        (Some(c), None, View::GBuffer(g)) => {
+            render_cache_ao_from(&core_scene, g, c, &ao, threads, budget, &mut progress)
+        }
+        (None, None, _) => unreachable!("checked above"),
     })?
     .py()?;
     reporter.finish()?;

@@ -15,6 +15,7 @@ use super::convert::{
     f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, or_default, seed_arg, seed_or_zero,
     threads_arg, unit_directions, vec3_arg, IntoPyResult,
 };
+use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::interrupt::{detach_interruptible_with, PyProgress};
 use super::scene::PyScene;
 use crate::sampling::octahedral::{morton_decode, morton_encode};
@@ -230,36 +231,41 @@ impl PyVisibilityCache {
     }
 
     /// Builds the cache for `camera`'s view (bootstrap of `n_startup` records when empty,
-    /// then a pass over the G-buffer applying both insertion criteria). Deterministic for
+    /// then a pass over the G-buffer applying both insertion criteria), or at the points of
+    /// `gbuffer` (from `Scene.gbuffer`: the same buffer given to `render` then anchors its
+    /// pixels at exactly these points, with no primary ray traced twice). Deterministic for
     /// any `threads`. Stops after the wave that spends `time_budget` seconds (None: no
     /// budget). `callback(done, total)` (pixels), if given, is called with the GIL held
     /// after every wave; a falsy return or an exception stops the build (the exception is
     /// then raised). Returns a dict: records, bootstrap_records,
     /// refined_records, discarded_records, pixels, covered_pixels, shadow_rays,
     /// nearest_rays, shadow_rays_per_pixel (CAM08 Table 2's last row), seconds, complete.
-    #[pyo3(signature = (camera, seed=0, threads=None, *, time_budget=None, callback=None))]
+    #[pyo3(signature = (camera=None, seed=0, threads=None, *, gbuffer=None, time_budget=None, callback=None))]
+    #[allow(clippy::too_many_arguments)]
     fn build<'py>(
         &self,
         py: Python<'py>,
-        camera: PyRef<'py, PyCamera>,
+        camera: Option<PyRef<'py, PyCamera>>,
         #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         threads: Option<&Bound<'py, PyAny>>,
+        gbuffer: Option<PyRef<'py, PyGBuffer>>,
         time_budget: Option<&Bound<'py, PyAny>>,
         callback: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
+        let view = view_arg(camera, gbuffer)?;
         let threads = threads_arg(threads)?;
         let budget = match time_budget {
             Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
             _ => None,
         };
-        let cam = camera.inner;
         let scene = self.scene.borrow(py).get();
         let mut reporter = PyProgress::new(callback);
         let stop = reporter.stop_flag();
         let mut callback = |done: usize, total: usize| reporter.report(done as u64, total as u64);
         let inner = self.inner.clone();
-        let out = detach_interruptible_with(py, &stop, &|| inner.request_stop(), || {
-            inner.build(&scene, &cam, seed, threads, budget, &mut callback)
+        let out = detach_interruptible_with(py, &stop, &|| inner.request_stop(), || match &view {
+            View::Camera(cam) => inner.build(&scene, cam, seed, threads, budget, &mut callback),
+            View::GBuffer(g) => inner.build_from(&scene, g, seed, threads, budget, &mut callback),
         });
         reporter.finish()?;
         let r = out?.py()?;

@@ -7,6 +7,7 @@ mod cache;
 mod camera;
 mod convert;
 mod envmap;
+mod gbuffer;
 mod image;
 mod interrupt;
 mod material;
@@ -25,6 +26,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<scene::PyScene>()?;
     m.add_class::<camera::PyCamera>()?;
+    m.add_class::<gbuffer::PyGBuffer>()?;
     m.add_class::<material::PyMaterial>()?;
     m.add_class::<setup::PySetup>()?;
     m.add_class::<envmap::PyEnvMap>()?;

@@ -7,6 +7,7 @@ use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
 use super::convert::{image_array, product_level_arg, threads_arg, IntoPyResult};
 use super::envmap::PyEnvMap;
+use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::scene::PyScene;
 use crate::estimators::preview::LightingPreview;
 
@@ -19,20 +20,26 @@ pub struct PyLightingPreview {
 
 #[pymethods]
 impl PyLightingPreview {
-    /// `LightingPreview(scene, camera, threads=None)`: traces one primary ray per pixel
-    /// centre.
+    /// `LightingPreview(scene, camera=None, threads=None, gbuffer=None)`: traces one
+    /// primary ray per pixel centre of `camera`, or keeps the hits of `gbuffer` (from
+    /// `Scene.gbuffer`; the buffer a cache was built from gives its records' points).
     #[new]
-    #[pyo3(signature = (scene, camera, threads=None))]
+    #[pyo3(signature = (scene, camera=None, threads=None, gbuffer=None))]
     fn new(
         py: Python<'_>,
         scene: PyRef<'_, PyScene>,
-        camera: PyRef<'_, PyCamera>,
+        camera: Option<PyRef<'_, PyCamera>>,
         threads: Option<&Bound<'_, PyAny>>,
+        gbuffer: Option<PyRef<'_, PyGBuffer>>,
     ) -> PyResult<Self> {
+        let view = view_arg(camera, gbuffer)?;
         let threads = threads_arg(threads)?;
-        let (scene, cam) = (scene.get(), camera.inner);
+        let scene = scene.get();
         let inner = py
-            .detach(|| LightingPreview::new(&scene, &cam, threads))
+            .detach(|| match &view {
+                View::Camera(cam) => LightingPreview::new(&scene, cam, threads),
+                View::GBuffer(g) => LightingPreview::from_gbuffer(&scene, g),
+            })
             .py()?;
         Ok(Self { inner })
     }

@@ -12,12 +12,13 @@ use super::convert::{
     IntoPyResult,
 };
 use super::envmap::PyEnvMap;
+use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
 use crate::estimators::control_variate::AlphaRule;
 use crate::estimators::direct::{Method, Techniques};
 use crate::estimators::indirect::MAX_BOUNCES;
-use crate::render::{render as render_core, RenderParams, MAX_SPP};
+use crate::render::{render as render_core, render_from, RenderParams, MAX_SPP};
 
 /// The method name of the path-traced reference (direct light by MIS plus `bounces`).
 const PATH: &str = "path";
@@ -84,8 +85,9 @@ fn techniques_arg(weights: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Techniq
 /// (the exception is then raised). None stands for the core's defaults: `threads` every
 /// core, `time_budget` none, `product_level` "auto" (per material), `alpha` 1.0 (CAM08's),
 /// `technique_weights` the method's own, `bounces` 1 for method "path" and 0 otherwise.
+/// With `gbuffer` (traced through `camera`) its hits are the pixels' anchors.
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true))]
+#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -107,7 +109,9 @@ pub fn render<'py>(
     technique_weights: Option<&Bound<'py, PyAny>>,
     bounces: Option<&Bound<'py, PyAny>>,
     direct: bool,
+    gbuffer: Option<PyRef<'py, PyGBuffer>>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let view = view_arg(Some(camera), gbuffer)?;
     // "path": the unbiased reference with indirect light, MIS at every vertex.
     let path = method == PATH;
     let method = if path {
@@ -141,22 +145,20 @@ pub fn render<'py>(
     };
     params.validate().py()?;
     let threads = threads_arg(threads)?;
-    let (scene, cam) = (scene.get(), camera.inner);
+    let scene = scene.get();
     let cache = cache.map(|c| c.bound(py)).transpose()?;
     let env: Py<PyEnvMap> = envmap.unbind();
     let mut reporter = PyProgress::new(callback);
     let stop = reporter.stop_flag();
     let mut progress = |done: u64, planned: u64| reporter.report(done, planned);
     let out = detach_interruptible(py, &stop, || {
-        render_core(
-            &scene,
-            &env.get().inner,
-            &cam,
-            &params,
-            cache.as_deref(),
-            threads,
-            &mut progress,
-        )
+        let (env, cache) = (&env.get().inner, cache.as_deref());
+        match &view {
+            View::Camera(cam) => {
+                render_core(&scene, env, cam, &params, cache, threads, &mut progress)
+            }
+            View::GBuffer(g) => render_from(&scene, env, g, &params, cache, threads, &mut progress),
+        }
     })?
     .py()?;
     reporter.finish()?;

@@ -10,9 +10,10 @@ use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    as_rows, f64_arg, finite_rows, image_array, int_arg, rows3_array, rows3_f32, rows3_i64,
-    seed_or_zero, threads_arg, vec3_arg, IntoPyResult,
+    as_rows, f64_arg, finite_rows, int_arg, rows3_array, rows3_f32, rows3_i64, seed_or_zero,
+    threads_arg, vec3_arg, IntoPyResult,
 };
+use super::gbuffer::PyGBuffer;
 use super::material::PyMaterial;
 use crate::bsdf::Material;
 use crate::camera::GBuffer;
@@ -471,20 +472,19 @@ impl PyScene {
         self.get().set_counting(on);
     }
 
-    /// First hits of one primary ray per pixel, as a dict of (H, W, ...) arrays: position,
-    /// normal (facing the camera), direction, object and prim (int32, -1 on miss), depth
-    /// (distance from the eye, inf on miss) and footprint (square root of the pixel's area
-    /// projected onto the hit's tangent plane, world units). With jitter the ray passes
-    /// through a point drawn from (seed, pixel); without, through the pixel centre.
+    /// First hits of one primary ray per pixel (a `GBuffer`, read like a dict of (H, W,
+    /// ...) arrays). With jitter the ray passes through a point drawn from (seed, pixel);
+    /// without, through the pixel centre: the points `VisibilityCache.build`, `render`,
+    /// `render_ao` and `LightingPreview` use when given it as `gbuffer=`.
     #[pyo3(signature = (camera, seed=0, jitter=true, threads=None))]
-    fn gbuffer<'py>(
+    fn gbuffer(
         &self,
-        py: Python<'py>,
-        camera: PyRef<'py, PyCamera>,
+        py: Python<'_>,
+        camera: PyRef<'_, PyCamera>,
         #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         jitter: bool,
-        threads: Option<&Bound<'py, PyAny>>,
-    ) -> PyResult<Bound<'py, PyDict>> {
+        threads: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<PyGBuffer> {
         let threads = threads_arg(threads)?;
         let cam = camera.inner;
         let scene = self.get();
@@ -492,23 +492,7 @@ impl PyScene {
         let g = py
             .detach(|| GBuffer::render(scene, &cam, seed, jitter, threads))
             .py()?;
-        let (h, w) = (g.height as usize, g.width as usize);
-        let d = PyDict::new(py);
-        let flat = |v: Vec<[f32; 3]>| v.into_flattened();
-        d.set_item(
-            "position",
-            image_array(py, flat(g.position), h, w, Some(3))?,
-        )?;
-        d.set_item("normal", image_array(py, flat(g.normal), h, w, Some(3))?)?;
-        d.set_item(
-            "direction",
-            image_array(py, flat(g.direction), h, w, Some(3))?,
-        )?;
-        d.set_item("object", image_array(py, g.object, h, w, None)?)?;
-        d.set_item("prim", image_array(py, g.prim, h, w, None)?)?;
-        d.set_item("depth", image_array(py, g.depth, h, w, None)?)?;
-        d.set_item("footprint", image_array(py, g.footprint, h, w, None)?)?;
-        Ok(d)
+        Ok(PyGBuffer { inner: Arc::new(g) })
     }
 
     fn __len__(&self) -> usize {

@@ -27,6 +27,7 @@ mod batch;
 mod emitters;
 mod motion;
 mod schedule;
+
 #[cfg(test)]
 mod tests;
 
@@ -176,26 +177,20 @@ impl Scene {
     /// were built for by it and refuse another. Computed once per change of geometry.
     pub fn geometry_fingerprint(&self) -> u64 {
         *self.fingerprint.get_or_init(|| {
-            // FxHash-style mixing of 64-bit words, then the splitmix64 finaliser: not
-            // cryptographic, but any edit of a vertex or a count changes it.
-            let mut h = 0u64;
-            let mut word = |w: u64| h = (h.rotate_left(5) ^ w).wrapping_mul(0x517c_c1b7_2722_0a95);
-            word(self.mesh.objects.len() as u64);
+            let mut h = Digest::default();
+            h.word(self.mesh.objects.len() as u64);
             for i in 0..self.mesh.objects.len() {
                 let triangles = match self.posed.get(&(i as u32)) {
                     Some(p) => &p.rest[..],
                     None => self.triangles_of(i),
                 };
-                word(triangles.len() as u64);
+                h.word(triangles.len() as u64);
                 for v in triangles.iter().flatten() {
-                    word(v.x.to_bits() as u64 | (v.y.to_bits() as u64) << 32);
-                    word(v.z.to_bits() as u64);
+                    h.word(v.x.to_bits() as u64 | (v.y.to_bits() as u64) << 32);
+                    h.word(v.z.to_bits() as u64);
                 }
             }
-            let mut z = h ^ (h >> 30);
-            z = z.wrapping_mul(0xbf58_476d_1ce4_e5b9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-            z ^ (z >> 31)
+            h.finish()
         })
     }
 
@@ -404,5 +399,24 @@ impl Scene {
             hits.normal.push(nrm.into());
         }
         Ok(hits)
+    }
+}
+
+/// FxHash-style mixing of 64-bit words, then the splitmix64 finaliser: not
+/// cryptographic, but any edit of a word changes the digest.
+#[derive(Default)]
+pub(crate) struct Digest(u64);
+
+impl Digest {
+    pub(crate) fn word(&mut self, w: u64) {
+        self.0 = (self.0.rotate_left(5) ^ w).wrapping_mul(0x517c_c1b7_2722_0a95);
+    }
+
+    pub(crate) fn finish(&self) -> u64 {
+        let h = self.0;
+        let mut z = h ^ (h >> 30);
+        z = z.wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
     }
 }

@@ -122,6 +122,23 @@ impl Scene {
         Ok(())
     }
 
+    /// A 64-bit digest of the scene as it is posed now: [`Scene::geometry_fingerprint`]
+    /// and every object's transform other than the identity. Whatever was computed from
+    /// first hits (a [`crate::camera::GBuffer`]) holds for this digest only.
+    pub fn pose_fingerprint(&self) -> u64 {
+        let mut h = super::Digest::default();
+        h.word(self.geometry_fingerprint());
+        for (object, posed) in &self.posed {
+            if posed.transform != Affine3A::IDENTITY {
+                h.word(*object as u64);
+                for v in posed.transform.to_cols_array() {
+                    h.word(v.to_bits() as u64);
+                }
+            }
+        }
+        h.finish()
+    }
+
     /// True once object `object` has been given a transform (false for unknown objects).
     pub fn is_posed(&self, object: u32) -> bool {
         self.posed.contains_key(&object)

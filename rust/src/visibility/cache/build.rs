@@ -93,6 +93,7 @@ impl VisibilityCache {
     /// in that order, re-checking each against the records inserted before it (the losers'
     /// rays are still counted; [`WaveBuilder`]). `progress(done, total)` is called after each wave with pixels done;
     /// returning false stops, as does `time_budget` (seconds, checked between waves).
+    /// The G-buffer is traced here; [`Self::build_from`] takes one already traced.
     pub fn build(
         &self,
         scene: &Scene,
@@ -103,9 +104,46 @@ impl VisibilityCache {
         progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
     ) -> Result<BuildReport> {
         check_scene_and_budget(scene, time_budget)?;
+        let start = Instant::now();
+        let gbuffer = with_threads(threads, || {
+            GBuffer::render(scene, camera, seed, false, None)
+        })??;
+        self.build_at(scene, &gbuffer, seed, threads, start, time_budget, progress)
+    }
+
+    /// [`Self::build`] at the points of `gbuffer` (which must describe `scene` as posed
+    /// now), the same ones a render from that buffer anchors its pixels at
+    /// ([`crate::render::render_from`]); the bootstrap's rays go through its camera. A
+    /// jittered buffer is accepted (records are then inserted at its hits).
+    pub fn build_from(
+        &self,
+        scene: &Scene,
+        gbuffer: &GBuffer,
+        seed: u64,
+        threads: Option<usize>,
+        time_budget: Option<f64>,
+        progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
+    ) -> Result<BuildReport> {
+        check_scene_and_budget(scene, time_budget)?;
+        gbuffer.check(scene, None)?;
+        let start = Instant::now();
+        self.build_at(scene, gbuffer, seed, threads, start, time_budget, progress)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn build_at(
+        &self,
+        scene: &Scene,
+        gbuffer: &GBuffer,
+        seed: u64,
+        threads: Option<usize>,
+        start: Instant,
+        time_budget: Option<f64>,
+        progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
+    ) -> Result<BuildReport> {
         self.bind_scene(scene)?;
         self.stop.store(false, Ordering::Relaxed);
-        let start = Instant::now();
+        let camera = &gbuffer.camera;
         let before = self.counters();
         let mut report = BuildReport {
             pixels: camera.num_pixels(),
@@ -113,7 +151,6 @@ impl VisibilityCache {
             ..BuildReport::default()
         };
         with_threads(threads, || -> Result<()> {
-            let gbuffer = GBuffer::render(scene, camera, seed, false, None)?;
             let mut footprints: Vec<f32> = gbuffer
                 .footprint
                 .iter()
@@ -127,7 +164,7 @@ impl VisibilityCache {
                     Some(*footprints.select_nth_unstable_by(mid, f32::total_cmp).1);
             }
             if self.is_empty() && self.params.check_coherence {
-                let (incoherence, rays) = self.coherence_check(scene, camera, &gbuffer)?;
+                let (incoherence, rays) = self.coherence_check(scene, gbuffer)?;
                 count_rays(&mut self.write().counters, rays);
                 report.incoherence = incoherence;
                 if incoherence.is_some_and(|d| d > INCOHERENCE_LIMIT) {
@@ -231,13 +268,8 @@ impl VisibilityCache {
     /// of `d_max` to the side (both surface hits); returns the mean Jaccard distance
     /// `|A ⊕ B| / |A ∪ B|` of the pairs' visible sets (`None` without pairs) and the rays
     /// traced. The pairs are fixed by the image, so the check is deterministic.
-    fn coherence_check(
-        &self,
-        scene: &Scene,
-        camera: &Camera,
-        g: &GBuffer,
-    ) -> Result<(Option<f32>, RecordRays)> {
-        let (w, h) = (camera.width as usize, camera.height as usize);
+    fn coherence_check(&self, scene: &Scene, g: &GBuffer) -> Result<(Option<f32>, RecordRays)> {
+        let (w, h) = (g.width() as usize, g.height() as usize);
         let step = ((self.params.d_max_scale / 4.0).round() as usize).max(1);
         let side = (COHERENCE_PAIRS as f64).sqrt().ceil() as usize;
         let mut pairs = Vec::new();

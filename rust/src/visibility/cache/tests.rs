@@ -505,6 +505,34 @@ fn builds_are_identical_for_any_thread_count() {
 }
 
 #[test]
+fn a_build_from_the_gbuffer_is_the_build_from_its_camera() {
+    let (setup, cam) = small_cornell();
+    let params = CacheParams {
+        n_startup: 100,
+        ..CacheParams::MEDIUM
+    };
+    let own = VisibilityCache::new(params).unwrap();
+    let r1 = own
+        .build(&setup.scene, &cam, 3, Some(2), None, &mut |_, _| true)
+        .unwrap();
+    let g = GBuffer::render(&setup.scene, &cam, 0, false, Some(2)).unwrap();
+    let given = VisibilityCache::new(params).unwrap();
+    let r2 = given
+        .build_from(&setup.scene, &g, 3, Some(2), None, &mut |_, _| true)
+        .unwrap();
+    assert!(own.to_bytes() == given.to_bytes(), "caches differ");
+    assert_eq!((r1.records, r1.shadow_rays), (r2.records, r2.shadow_rays));
+    // A buffer of another scene is refused before anything changes.
+    let other = scenes::load("garage", 0.5, 0).unwrap();
+    let fresh = VisibilityCache::new(params).unwrap();
+    let e = fresh
+        .build_from(&other.scene, &g, 3, Some(2), None, &mut |_, _| true)
+        .unwrap_err();
+    assert!(e.to_string().starts_with("gbuffer"), "{e}");
+    assert!(fresh.is_empty());
+}
+
+#[test]
 fn build_stops_on_request_and_reports_incomplete() {
     let (setup, cam) = small_cornell();
     let c = VisibilityCache::new(CacheParams {

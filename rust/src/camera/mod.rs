@@ -1,4 +1,4 @@
-//! Pinhole camera and the G-buffer of first hits.
+//! Pinhole camera and the G-buffer of first hits ([`GBuffer`]).
 //!
 //! Image convention: `(height, width)` arrays, row 0 at the top, pixel `(x, y)` covering
 //! `[x, x+1) x [y, y+1)` on the film; the pixel index is `y * width + x`. The field of view
@@ -8,8 +8,10 @@
 use glam::Vec3;
 
 use crate::error::{Error, Result};
-use crate::geometry::Scene;
 use crate::sampling::rng::SampleRng;
+
+mod gbuffer;
+pub use gbuffer::GBuffer;
 
 /// Largest accepted image side, in pixels.
 pub const MAX_RESOLUTION: u32 = 1 << 14;
@@ -178,107 +180,9 @@ impl Camera {
     }
 }
 
-/// First hits of one primary ray per pixel. Misses have `object = prim = -1`, NaN position
-/// and normal, and infinite depth and footprint.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct GBuffer {
-    pub width: u32,
-    pub height: u32,
-    /// Hit points, row-major.
-    pub position: Vec<[f32; 3]>,
-    /// Unit geometric normals flipped to face the camera.
-    pub normal: Vec<[f32; 3]>,
-    /// Object id of the hit.
-    pub object: Vec<i32>,
-    /// Triangle index of the hit.
-    pub prim: Vec<i32>,
-    /// Distance from the eye to the hit (world units, along the ray).
-    pub depth: Vec<f32>,
-    /// See [`Camera::footprint`] (world units).
-    pub footprint: Vec<f32>,
-    /// Unit primary-ray directions.
-    pub direction: Vec<[f32; 3]>,
-}
-
-#[derive(Clone, Copy)]
-struct GSample {
-    position: Vec3,
-    normal: Vec3,
-    object: i32,
-    prim: i32,
-    depth: f32,
-    footprint: f32,
-    direction: Vec3,
-}
-
-impl Default for GSample {
-    fn default() -> Self {
-        Self {
-            position: Vec3::NAN,
-            normal: Vec3::NAN,
-            object: -1,
-            prim: -1,
-            depth: f32::INFINITY,
-            footprint: f32::INFINITY,
-            direction: Vec3::ZERO,
-        }
-    }
-}
-
-impl GBuffer {
-    /// Traces one primary ray per pixel. With `jitter`, the ray passes through a position
-    /// drawn from `(seed, pixel, sample 0, dimensions 0-1)`; without, through the centre.
-    pub fn render(
-        scene: &Scene,
-        camera: &Camera,
-        seed: u64,
-        jitter: bool,
-        threads: Option<usize>,
-    ) -> Result<Self> {
-        camera.check_buffers()?;
-        let samples = scene.map_rays(camera.num_pixels(), threads, |i, c| {
-            let (o, d) = camera.primary_ray(i, seed, jitter);
-            match scene.intersect1(o, d, f32::INFINITY, c) {
-                None => GSample {
-                    direction: d,
-                    ..GSample::default()
-                },
-                Some(h) => {
-                    let n = if h.normal.dot(d) > 0.0 {
-                        -h.normal
-                    } else {
-                        h.normal
-                    };
-                    GSample {
-                        position: h.position,
-                        normal: n,
-                        object: h.obj as i32,
-                        prim: h.prim as i32,
-                        depth: h.t,
-                        footprint: camera.footprint(d, h.t, n),
-                        direction: d,
-                    }
-                }
-            }
-        })?;
-        Ok(Self {
-            width: camera.width,
-            height: camera.height,
-            position: samples.iter().map(|s| s.position.into()).collect(),
-            normal: samples.iter().map(|s| s.normal.into()).collect(),
-            object: samples.iter().map(|s| s.object).collect(),
-            prim: samples.iter().map(|s| s.prim).collect(),
-            depth: samples.iter().map(|s| s.depth).collect(),
-            footprint: samples.iter().map(|s| s.footprint).collect(),
-            direction: samples.iter().map(|s| s.direction.into()).collect(),
-        })
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bsdf::Material;
 
     fn cam(w: u32, h: u32) -> Camera {
         Camera::look_at(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 45.0, w, h).unwrap()
@@ -328,34 +232,5 @@ mod tests {
         );
         assert!(e(Camera::look_at(Vec3::ZERO, Vec3::X, Vec3::Y, 45.0, 0, 4)).starts_with("width"));
         assert!(e(Camera::look_at(Vec3::NAN, Vec3::X, Vec3::Y, 45.0, 4, 4)).starts_with("eye"));
-    }
-
-    #[test]
-    fn gbuffer_of_a_facing_quad() {
-        let mut s = Scene::new();
-        let v = [
-            [-10.0, -10.0, 0.0],
-            [10.0, -10.0, 0.0],
-            [10.0, 10.0, 0.0],
-            [-10.0, 10.0, 0.0],
-        ];
-        // Wound away from the camera: the G-buffer must still report a camera-facing normal.
-        s.add_indexed(&v, &[[0, 2, 1], [0, 3, 2]], Material::DEFAULT, None)
-            .unwrap();
-        let c = cam(8, 6);
-        let g = GBuffer::render(&s, &c, 1, true, Some(2)).unwrap();
-        let g1 = GBuffer::render(&s, &c, 1, true, Some(1)).unwrap();
-        assert_eq!(g, g1);
-        for i in 0..48 {
-            assert_eq!(g.object[i], 0);
-            assert_eq!(g.normal[i], [0.0, 0.0, 1.0]);
-            assert!(g.position[i][2].abs() < 1e-6);
-            // Face-on at distance ~5: footprint ~ 5 * 2 tan(22.5) / 6, larger off-centre.
-            let d = Vec3::from(g.direction[i]);
-            let expect = 5.0 / d.z.abs() * (c.pixel_solid_angle(d) / d.z.abs()).sqrt();
-            assert!((g.footprint[i] / expect - 1.0).abs() < 1e-4);
-        }
-        let centre = GBuffer::render(&s, &c, 0, false, None).unwrap();
-        assert_ne!(centre.position, g.position);
     }
 }
