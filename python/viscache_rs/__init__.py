@@ -19,6 +19,7 @@ from ._core import (
 )
 from .ambient import AOResult, render_ao
 from .cache import VisibilityCache
+from .relight import Relighter, RelightResult
 from .render import RenderResult, preview, render
 
 __all__ = [
@@ -28,6 +29,8 @@ __all__ = [
     "GBuffer",
     "LightingPreview",
     "Material",
+    "RelightResult",
+    "Relighter",
     "RenderResult",
     "Scene",
     "Setup",

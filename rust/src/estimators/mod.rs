@@ -3,6 +3,7 @@
 
 pub mod ambient;
 pub mod control_variate;
+pub mod decoupled;
 pub mod direct;
 pub mod indirect;
 pub mod preview;

@@ -13,6 +13,7 @@ mod interrupt;
 mod material;
 mod octahedral;
 mod preview;
+mod relight;
 mod render;
 mod scene;
 mod setup;
@@ -32,6 +33,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<envmap::PyEnvMap>()?;
     m.add_class::<cache::PyVisibilityCache>()?;
     m.add_class::<preview::PyLightingPreview>()?;
+    m.add_class::<relight::PyRelighter>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(ambient::render_ao, m)?)?;
     m.add_function(wrap_pyfunction!(image::write_exr, m)?)?;

@@ -200,6 +200,21 @@ impl PyScene {
         self.edit(|s| s.set_emitter(obj, radiance)).py()
     }
 
+    /// Gives the emitting object `obj` another `radiance` (W/(m² sr), RGB); its geometry
+    /// and sampling stay. Fails, leaving the scene unchanged, if it does not emit.
+    #[pyo3(signature = (obj, radiance))]
+    fn set_emission(&self, obj: &Bound<'_, PyAny>, radiance: &Bound<'_, PyAny>) -> PyResult<()> {
+        let n = self.get().mesh().objects.len();
+        let obj = int_arg(obj, "obj", 0, n as i128 - 1)? as u32;
+        let radiance = vec3_arg(radiance, "radiance")?;
+        if self.get().emitter(obj).is_none() {
+            return Err(PyValueError::new_err(format!(
+                "obj: object {obj} does not emit (see set_emitter)"
+            )));
+        }
+        self.edit(|s| s.set_emission(obj, radiance)).py()
+    }
+
     /// Object ids of the area lights, in the order they were added.
     fn area_lights(&self) -> Vec<u32> {
         self.get().area_lights().iter().map(|l| l.object).collect()
@@ -308,6 +323,17 @@ impl PyScene {
             .iter()
             .map(|o| o.name.clone())
             .collect()
+    }
+
+    /// Gives object `obj` another material (geometry, caches and G-buffers stay valid).
+    fn set_material(
+        &self,
+        obj: &Bound<'_, PyAny>,
+        material: PyRef<'_, PyMaterial>,
+    ) -> PyResult<()> {
+        let obj = int_arg(obj, "obj", 0, u32::MAX as i128)? as u32;
+        let m = material.inner;
+        self.edit(|s| s.set_material(obj, m)).py()
     }
 
     /// Material of object `obj`.

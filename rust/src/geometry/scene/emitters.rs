@@ -62,6 +62,21 @@ impl Scene {
         Ok(())
     }
 
+    /// Gives the emitting object `object` another `radiance` (its triangles, and so how
+    /// it is sampled, stay). Fails, leaving the scene unchanged, if it does not emit.
+    pub fn set_emission(&mut self, object: u32, radiance: [f32; 3]) -> Result<()> {
+        self.object(object)?;
+        let Some(i) = self.lights.iter().position(|l| l.object == object) else {
+            return Err(Error::invalid(
+                "object",
+                format!("object {object} does not emit (see set_emitter)"),
+            ));
+        };
+        let light = AreaLight::new(object, self.lights[i].triangles().to_vec(), radiance)?;
+        self.lights[i] = light;
+        Ok(())
+    }
+
     /// The scene's area lights, in the order they were added.
     pub fn area_lights(&self) -> &[AreaLight] {
         &self.lights

@@ -139,6 +139,15 @@ impl Scene {
         h.finish()
     }
 
+    /// Gives object `object` another material. Geometry, the BVH and fingerprints are
+    /// unchanged (records and G-buffers stay valid); an unknown `object` is an error
+    /// naming it.
+    pub fn set_material(&mut self, object: u32, material: crate::bsdf::Material) -> Result<()> {
+        self.object(object)?;
+        self.mesh.objects[object as usize].material = material;
+        Ok(())
+    }
+
     /// True once object `object` has been given a transform (false for unknown objects).
     pub fn is_posed(&self, object: u32) -> bool {
         self.posed.contains_key(&object)

@@ -1,0 +1,709 @@
+//! Decoupled visibility with an error bound, and relighting that reuses visibility (SBF:
+//! Schwenk, Behr & Fellner, "An Error Bound for Decoupled Visibility with Application to
+//! Relighting").
+//!
+//! Direct light from one light at a shading point is `L_o = ∫ LB V` (SBF eq. 2), with
+//! `LB = L f cos` and binary visibility `V`. SBF replaces `V` by the scalar `V̂ = E_p[V]`,
+//! the expected visibility of the samples drawn for `LB` with density `p`, so that
+//! `L_o ≈ ∫ LB · V̂` (eq. 3). The error is `Err = Cov(LB/p, V)` (eq. 4-5), bounded by
+//! `sqrt(Var(LB/p) Var(V))` (eq. 7, [`bound::error_bound`]). Once `V̂` has converged, a
+//! lighting or material edit needs only cheap `LB` samples (no rays) to estimate
+//! `⟨LB⟩ V̂`, and the bound decides per pixel how much of it to trust: the blend
+//! `(1 − t)⟨LBV⟩ + t⟨LB⟩⟨V⟩` (eq. 9) with `t` from the relative bound against the user's
+//! threshold (eq. 10-11, [`bound::blend_factor`]).
+//!
+//! ## Lights and densities
+//! Every area light is one light, sampled by area (its `p` does not depend on its
+//! radiance or on materials), and the environment map is one light sampled by the pixel's
+//! product distribution `p ∝ L B~` (CAM08 §5.5), which changes with the map and the
+//! material. Draws where `LB` is zero by geometry (below the surface's horizon, the back
+//! of a light) trace no ray and are left out of `⟨V⟩`: `V̂` is `E_p[V | LB > 0]`, which is
+//! `E_p[V]` for `V` set to that same value where `LB = 0` (where `V` does not change
+//! `∫ LB V`), so eq. 5 holds and the binary variance over-estimates `Var(V)` (the bound
+//! stays a bound). A point in the open gets `V̂ = 1` and a bound of 0.
+//!
+//! ## Where `⟨V⟩` comes from
+//! - [`VisibilitySource::Pixels`]: [`Relighter::converge_visibility`] traces `V`-samples at
+//!   every pixel's point and keeps, per pixel and light, their Welford statistics and
+//!   their bits. While a light's `p` is unchanged `⟨V⟩` is their mean; after an edit that
+//!   changes the map's `p` (another map, a rotation, another material) the stored samples
+//!   are reweighted by `p'/p` (self-normalised importance sampling; the effective sample
+//!   count `(Σw)²/Σw²` is reported), with no ray traced.
+//! - [`VisibilitySource::Cache`]: `⟨V⟩ = E_p'[Ṽ]` with `Ṽ = Σ β_i V_i` the visibility
+//!   cache's interpolated records (CAM08 eq. 9 weights), averaged over directions drawn
+//!   from `p'` (no ray traced), so the points, hence the view, may change between renders
+//!   (SBF §4.1 names world-space storage as the way to allow it).
+//!
+//! `Var(V)` is the binary variance `⟨V⟩(1 − ⟨V⟩)` in both cases.
+//!
+//! ## Determinism
+//! Every random number is a pure function of `(seed, pixel, stream, sample, dimension)`;
+//! pixels are independent and their statistics accumulate in sample order, so results
+//! are bit-identical for any thread count.
+
+pub mod bound;
+pub mod stats;
+
+use std::time::Instant;
+
+use glam::{DVec2, Vec3};
+use rayon::prelude::*;
+
+use self::bound::{blend, blend_factor, error_bound};
+use self::stats::{binary_variance, Welford};
+use super::control_variate::Interpolant;
+use super::direct::{ProductDistribution, ProductLevel, ShadingPoint};
+use super::indirect::shading_point_at;
+use crate::bsdf::Material;
+use crate::camera::GBuffer;
+use crate::error::{Error, Result};
+use crate::estimators::direct::dims;
+use crate::geometry::{Scene, TraversalCounters};
+use crate::lights::envmap::EnvMap;
+use crate::parallel::with_threads;
+use crate::sampling::octahedral::sphere_to_square;
+use crate::sampling::rng::Sampler;
+use crate::sampling::sobol::PixelSampler;
+use crate::visibility::cache::VisibilityCache;
+
+/// Most `V`-samples per pixel and light [`Relighter::converge_visibility`] keeps.
+pub const MAX_VISIBILITY_SPP: u32 = 1 << 16;
+
+/// Most `LB`- or `LBV`-samples per pixel and light of one [`Relighter::render`].
+pub const MAX_RELIGHT_SPP: u32 = 1 << 16;
+
+/// Standard errors of `⟨V⟩` added to the bound (module docs).
+pub const V_ERROR_SIGMAS: f64 = 2.0;
+
+/// Sample streams, kept apart so that `V`-, `LB`- and `LBV`-samples are independent.
+const STREAM_V: u64 = 1 << 32;
+const STREAM_LB: u64 = 2 << 32;
+const STREAM_LBV: u64 = 3 << 32;
+const STREAM_CACHE_V: u64 = 4 << 32;
+
+/// Where [`Relighter::render`] takes `⟨V⟩` from (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VisibilitySource {
+    /// `V`-samples traced at the pixels by [`Relighter::converge_visibility`].
+    Pixels,
+    /// The visibility cache's records, integrated against the current density.
+    Cache,
+}
+
+/// Parameters of [`Relighter::render`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RelightParams {
+    /// `LB`-samples per pixel and light (no rays).
+    pub lb_spp: u32,
+    /// `LBV`-samples per pixel and light (one shadow ray each); 0 leaves the unbiased part
+    /// out (`t = 1`).
+    pub lbv_spp: u32,
+    /// `Err_relThres` of SBF eq. 11: the largest relative error wanted (`≥ 0`; 0 gives
+    /// the unbiased estimator alone).
+    pub threshold: f64,
+    /// `ε` of SBF eq. 11, in `(0, 1)`: the unbiased part keeps at least this share.
+    pub epsilon: f64,
+    /// Seed of the `LB`- and `LBV`-samples.
+    pub seed: u64,
+    /// Octahedral level of the map's product cells.
+    pub product_level: ProductLevel,
+}
+
+impl RelightParams {
+    /// SBF's settings: 64 `LB`-samples, 8 `LBV`-samples, threshold 0.25, `ε = 0.1`.
+    pub const DEFAULT: Self = Self {
+        lb_spp: 64,
+        lbv_spp: 8,
+        threshold: 0.25,
+        epsilon: 0.1,
+        seed: 0,
+        product_level: ProductLevel::PerMaterial,
+    };
+
+    /// Fails with an error naming the first parameter out of range.
+    pub fn validate(&self) -> Result<()> {
+        if self.lb_spp == 0 || self.lb_spp > MAX_RELIGHT_SPP {
+            return Err(Error::invalid(
+                "lb_spp",
+                format!("must lie in [1, {MAX_RELIGHT_SPP}], got {}", self.lb_spp),
+            ));
+        }
+        if self.lbv_spp > MAX_RELIGHT_SPP {
+            return Err(Error::invalid(
+                "lbv_spp",
+                format!("must lie in [0, {MAX_RELIGHT_SPP}], got {}", self.lbv_spp),
+            ));
+        }
+        if !(self.threshold.is_finite() && self.threshold >= 0.0) {
+            return Err(Error::invalid(
+                "threshold",
+                format!("must be a finite number >= 0, got {}", self.threshold),
+            ));
+        }
+        if !(self.epsilon > 0.0 && self.epsilon < 1.0) {
+            return Err(Error::invalid(
+                "epsilon",
+                format!("must lie in (0, 1), got {}", self.epsilon),
+            ));
+        }
+        self.product_level.validate()
+    }
+}
+
+impl Default for RelightParams {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// One light of a relighter: the map, or area light `k` of the scene.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum LightId {
+    Env,
+    Area(usize),
+}
+
+/// One draw for a light at a shading point: `LB/p` per channel and what a shadow ray
+/// needs (`None`: `LB = 0` by geometry, `V = 0` without a ray).
+struct LightDraw {
+    lb_over_p: Vec3,
+    ray: Option<(Vec3, f32)>,
+    /// The direction drawn, its solid-angle density and its equal-area square point.
+    dir: Vec3,
+    pdf: f64,
+    square: DVec2,
+}
+
+/// What one pixel's light sees at render time: the lights' densities.
+struct PixelLights<'a> {
+    scene: &'a Scene,
+    env: &'a EnvMap,
+    sp: ShadingPoint,
+    product: Option<ProductDistribution>,
+}
+
+impl PixelLights<'_> {
+    fn draw(&self, light: LightId, rng: &impl Sampler) -> Option<LightDraw> {
+        let sp = &self.sp;
+        let (dir, radiance, pdf, tmax) = match light {
+            LightId::Env => {
+                let product = self.product.as_ref()?;
+                let s = product.sample_point(self.env, unit_pair(rng.get2(dims::ENV)));
+                (s.direction, self.env.texel(s.texel), s.pdf, f32::INFINITY)
+            }
+            LightId::Area(k) => {
+                let light = &self.scene.area_lights()[k];
+                let d = dims::AREA + 4 * k as u64;
+                let u = glam::Vec2::from_array(rng.get2(d + 2));
+                let s = light.sample(sp.origin, rng.get(d), u)?;
+                let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
+                (s.direction, s.radiance, s.pdf, tmax)
+            }
+        };
+        let square = sphere_to_square(dir).as_dvec2();
+        let cos = sp.normal.dot(dir);
+        let f = if cos > 0.0 && tmax > 0.0 {
+            sp.material.eval(sp.normal, sp.wo, dir)
+        } else {
+            Vec3::ZERO
+        };
+        let lb_over_p = f * radiance * cos.max(0.0) * (1.0 / pdf) as f32;
+        let ray = (lb_over_p != Vec3::ZERO).then_some((dir, tmax));
+        Some(LightDraw {
+            lb_over_p,
+            ray,
+            dir,
+            pdf,
+            square,
+        })
+    }
+
+    /// Whether the ray of `draw` reaches its light (`false` for draws with `LB = 0`).
+    fn visible(&self, draw: &LightDraw, bvh: &mut TraversalCounters) -> bool {
+        match draw.ray {
+            None => false,
+            Some((dir, tmax)) => !self.scene.occluded1(self.sp.origin, dir, tmax, bvh),
+        }
+    }
+}
+
+fn unit_pair(u: [f32; 2]) -> DVec2 {
+    DVec2::new(u[0] as f64, u[1] as f64)
+}
+
+/// `V`-statistics of one pixel and light from [`Relighter::converge_visibility`].
+#[derive(Clone, Debug, Default)]
+struct PixelVisibility {
+    v: Welford,
+    /// The samples' visibility, bit `s` for sample `s` (the map's light only: the
+    /// samples are redrawn from the stored density to reweight them).
+    bits: Vec<u64>,
+}
+
+/// The state the `V`-samples were drawn under.
+#[derive(Clone, Debug)]
+struct Converged {
+    env: EnvMap,
+    materials: Vec<Material>,
+    spp: u32,
+    seed: u64,
+    product_level: ProductLevel,
+    /// Per pixel, per light ([`Relighter::lights`] order).
+    stats: Vec<PixelVisibility>,
+}
+
+/// What [`Relighter::render`] returns: images per pixel (row-major) and per pixel and
+/// light.
+#[derive(Clone, Debug, Default)]
+pub struct Relit {
+    /// The blended estimate of direct light plus what the camera sees of emitters and
+    /// the map, RGB.
+    pub image: Vec<[f32; 3]>,
+    /// Variance of the estimate, treating `⟨V⟩` as exact: `(1 − t)² Var⟨LBV⟩ +
+    /// t² ⟨V⟩² Var⟨LB⟩` summed over lights.
+    pub variance: Vec<[f32; 3]>,
+    /// Blend factor `t` per pixel and light (`lights` values per pixel; NaN where the
+    /// pixel has no surface).
+    pub t: Vec<f32>,
+    /// Estimated relative error bound per pixel and light (worst channel; SBF eq. 10).
+    pub bound: Vec<f32>,
+    /// `⟨V⟩` per pixel and light.
+    pub visibility: Vec<f32>,
+    /// Effective sample count of `⟨V⟩` per pixel and light (the reweighted samples'
+    /// `(Σw)²/Σw²`; the sample count when not reweighted; 0 without samples).
+    pub effective_samples: Vec<f32>,
+    /// Lights per pixel in `t`, `bound`, `visibility` and `effective_samples`.
+    pub lights: usize,
+    /// Shadow rays traced (`LBV`-samples).
+    pub shadow_rays: u64,
+    /// Wall-clock seconds.
+    pub seconds: f64,
+}
+
+/// Relighting with decoupled visibility (module docs) at the hits of one G-buffer.
+#[derive(Clone, Debug)]
+pub struct Relighter {
+    gbuffer: GBuffer,
+    source: VisibilitySource,
+    converged: Option<Converged>,
+}
+
+impl Relighter {
+    /// A relighter at `gbuffer`'s hits (which must describe `scene` as posed now) taking
+    /// `⟨V⟩` from `source`.
+    pub fn new(scene: &Scene, gbuffer: GBuffer, source: VisibilitySource) -> Result<Self> {
+        gbuffer.check(scene, None)?;
+        Ok(Self {
+            gbuffer,
+            source,
+            converged: None,
+        })
+    }
+
+    /// The G-buffer it shades.
+    pub fn gbuffer(&self) -> &GBuffer {
+        &self.gbuffer
+    }
+
+    /// Where `⟨V⟩` comes from.
+    pub fn source(&self) -> VisibilitySource {
+        self.source
+    }
+
+    /// Lights of `scene`: the map, then every area light.
+    fn lights(scene: &Scene) -> Vec<LightId> {
+        std::iter::once(LightId::Env)
+            .chain((0..scene.area_lights().len()).map(LightId::Area))
+            .collect()
+    }
+
+    /// `V`-samples traced so far per pixel and light (0 before
+    /// [`Self::converge_visibility`]).
+    pub fn visibility_spp(&self) -> u32 {
+        self.converged.as_ref().map_or(0, |c| c.spp)
+    }
+
+    /// The shading point of pixel `i` with `materials` (per object), or `None` for a miss.
+    fn point(&self, scene: &Scene, materials: &[Material], i: usize) -> Option<ShadingPoint> {
+        let hit = self.gbuffer.surface_hit(i)?;
+        let mut sp = shading_point_at(scene, &hit, -Vec3::from(self.gbuffer.direction[i]));
+        sp.material = materials[hit.obj as usize];
+        Some(sp)
+    }
+
+    /// Traces `spp` `V`-samples per pixel and light under `env` and the scene's materials
+    /// now (their densities), replacing earlier ones; returns the shadow rays traced.
+    /// Needed for [`VisibilitySource::Pixels`].
+    pub fn converge_visibility(
+        &mut self,
+        scene: &Scene,
+        env: &EnvMap,
+        spp: u32,
+        seed: u64,
+        product_level: ProductLevel,
+        threads: Option<usize>,
+    ) -> Result<u64> {
+        if spp == 0 || spp > MAX_VISIBILITY_SPP {
+            return Err(Error::invalid(
+                "spp",
+                format!("must lie in [1, {MAX_VISIBILITY_SPP}], got {spp}"),
+            ));
+        }
+        product_level.validate()?;
+        self.gbuffer.check(scene, None)?;
+        let env = env.at_least(2)?.into_owned();
+        let materials: Vec<Material> = scene.mesh().objects.iter().map(|o| o.material).collect();
+        let lights = Self::lights(scene);
+        let words = (spp as usize).div_ceil(64);
+        let per_pixel: Vec<(Vec<PixelVisibility>, u64)> = with_threads(threads, || {
+            (0..self.gbuffer.len())
+                .into_par_iter()
+                .with_min_len(64)
+                .map(|i| {
+                    let mut out = vec![PixelVisibility::default(); lights.len()];
+                    let Some(sp) = self.point(scene, &materials, i) else {
+                        return (out, 0);
+                    };
+                    let at = PixelLights {
+                        scene,
+                        env: &env,
+                        product: product_of(&env, &sp, product_level),
+                        sp,
+                    };
+                    let mut bvh = TraversalCounters::default();
+                    let mut rays = 0u64;
+                    for (l, &light) in lights.iter().enumerate() {
+                        let stats = &mut out[l];
+                        if light == LightId::Env {
+                            stats.bits = vec![0; words];
+                        }
+                        for s in 0..spp {
+                            let rng = PixelSampler::new(seed, i as u64, STREAM_V + s as u64);
+                            // Draws with `LB = 0` tell nothing (module docs).
+                            let Some(d) = at.draw(light, &rng).filter(|d| d.ray.is_some()) else {
+                                continue;
+                            };
+                            rays += 1;
+                            let visible = at.visible(&d, &mut bvh);
+                            stats.v.push(visible as u8 as f64);
+                            if visible && light == LightId::Env {
+                                stats.bits[s as usize / 64] |= 1 << (s % 64);
+                            }
+                        }
+                    }
+                    (out, rays)
+                })
+                .collect()
+        })?;
+        let rays = per_pixel.iter().map(|p| p.1).sum();
+        self.converged = Some(Converged {
+            env,
+            materials,
+            spp,
+            seed,
+            product_level,
+            stats: per_pixel.into_iter().flat_map(|p| p.0).collect(),
+        });
+        Ok(rays)
+    }
+
+    /// Relights the view under `env`, the scene's area lights as they are now, and the
+    /// scene's materials with `overrides` (object id, material) applied: per pixel and
+    /// light, `LB`- and `LBV`-samples under the current densities, `⟨V⟩` from the source,
+    /// and SBF's blend (module docs). `cache` is needed for [`VisibilitySource::Cache`]
+    /// (records of this scene); [`VisibilitySource::Pixels`] needs a converged visibility.
+    pub fn render(
+        &self,
+        scene: &Scene,
+        env: &EnvMap,
+        overrides: &[(u32, Material)],
+        cache: Option<&VisibilityCache>,
+        params: &RelightParams,
+        threads: Option<usize>,
+    ) -> Result<Relit> {
+        params.validate()?;
+        self.gbuffer.check(scene, None)?;
+        let start = Instant::now();
+        let mut materials: Vec<Material> =
+            scene.mesh().objects.iter().map(|o| o.material).collect();
+        for &(object, material) in overrides {
+            let slot = materials.get_mut(object as usize).ok_or_else(|| {
+                Error::invalid(
+                    "materials",
+                    format!(
+                        "no object {object} in a scene of {} objects",
+                        scene.num_objects()
+                    ),
+                )
+            })?;
+            *slot = material;
+        }
+        let lights = Self::lights(scene);
+        let converged = match self.source {
+            VisibilitySource::Pixels => {
+                let c = self.converged.as_ref().ok_or_else(|| {
+                    Error::invalid(
+                        "visibility",
+                        "no visibility yet: call converge_visibility first",
+                    )
+                })?;
+                if c.stats.len() != self.gbuffer.len() * lights.len() {
+                    return Err(Error::invalid(
+                        "visibility",
+                        "the scene's area lights changed since converge_visibility: \
+                         converge again",
+                    ));
+                }
+                Some(c)
+            }
+            VisibilitySource::Cache => None,
+        };
+        let cache = match self.source {
+            VisibilitySource::Cache => {
+                let cache = cache.ok_or_else(|| {
+                    Error::invalid("cache", "visibility=\"cache\" needs a visibility cache")
+                })?;
+                cache.bind_scene(scene)?;
+                Some(cache)
+            }
+            VisibilitySource::Pixels => None,
+        };
+        let env = &*env.at_least(2)?;
+        // Whether the map's density is the converged one (same map, same materials).
+        let same_env_density = converged.is_some_and(|c| {
+            c.env.resolution() == env.resolution()
+                && c.env.texels() == env.texels()
+                && c.materials == materials
+                && c.product_level == params.product_level
+        });
+        let state = cache.map(|c| c.read());
+        let n_lights = lights.len();
+        let pixels: Vec<PixelResult> = with_threads(threads, || {
+            (0..self.gbuffer.len())
+                .into_par_iter()
+                .with_min_len(16)
+                .map(|i| {
+                    let dir = Vec3::from(self.gbuffer.direction[i]);
+                    let Some(sp) = self.point(scene, &materials, i) else {
+                        return PixelResult::miss(env.eval(dir), n_lights);
+                    };
+                    let hit = self.gbuffer.surface_hit(i).expect("point has a hit");
+                    let emitted = scene.emitted(&hit, sp.wo);
+                    let at = PixelLights {
+                        scene,
+                        env,
+                        product: product_of(env, &sp, params.product_level),
+                        sp,
+                    };
+                    let interpolant = match (&state, cache) {
+                        (Some(state), Some(cache)) => {
+                            let d_max = cache.params().d_max_scale * self.gbuffer.footprint[i];
+                            let lookup = state.lookup_records(
+                                cache.params(),
+                                hit.position,
+                                sp.normal,
+                                d_max,
+                            );
+                            Some(Interpolant::new(state, &lookup, None))
+                        }
+                        _ => None,
+                    };
+                    let mut out = PixelResult::miss(emitted, n_lights);
+                    let mut bvh = TraversalCounters::default();
+                    for (l, &light) in lights.iter().enumerate() {
+                        let mut lb = [Welford::default(); 3];
+                        let mut lbv = [Welford::default(); 3];
+                        for s in 0..params.lb_spp {
+                            let rng =
+                                PixelSampler::new(params.seed, i as u64, STREAM_LB + s as u64);
+                            let x = at.draw(light, &rng).map_or(Vec3::ZERO, |d| d.lb_over_p);
+                            (0..3).for_each(|c| lb[c].push(x[c] as f64));
+                        }
+                        for s in 0..params.lbv_spp {
+                            let rng =
+                                PixelSampler::new(params.seed, i as u64, STREAM_LBV + s as u64);
+                            let x = match at.draw(light, &rng) {
+                                Some(d) => {
+                                    out.shadow_rays += d.ray.is_some() as u64;
+                                    if at.visible(&d, &mut bvh) {
+                                        d.lb_over_p
+                                    } else {
+                                        Vec3::ZERO
+                                    }
+                                }
+                                None => Vec3::ZERO,
+                            };
+                            (0..3).for_each(|c| lbv[c].push(x[c] as f64));
+                        }
+                        let (v, ess) = match (converged, &interpolant, &state) {
+                            (Some(c), _, _) => {
+                                let stats = &c.stats[i * n_lights + l];
+                                if light == LightId::Env && !same_env_density {
+                                    reweighted(c, stats, &at, hit.obj, i)
+                                } else {
+                                    (stats.v.mean, stats.v.n as f64)
+                                }
+                            }
+                            (None, Some(interp), Some(state)) if !interp.is_empty() => {
+                                // E_p'[Ṽ] over draws of p' (no rays).
+                                let mut mean = Welford::default();
+                                for s in 0..params.lb_spp {
+                                    let rng = PixelSampler::new(
+                                        params.seed,
+                                        i as u64,
+                                        STREAM_CACHE_V + s as u64,
+                                    );
+                                    if let Some(d) =
+                                        at.draw(light, &rng).filter(|d| d.ray.is_some())
+                                    {
+                                        mean.push(interp.eval(state, d.square).0.min(1.0));
+                                    }
+                                }
+                                (mean.mean, mean.n as f64)
+                            }
+                            // No records here: nothing to decouple, the unbiased part alone.
+                            _ => (f64::NAN, 0.0),
+                        };
+                        // No draw with `LB > 0`: no `⟨V⟩` (nor light to decouple).
+                        let v = if ess > 0.0 { v } else { f64::NAN };
+                        let lb_mean = lb.map(|w| w.mean);
+                        // Without `⟨V⟩` (no records, no weighted sample) the unbiased part
+                        // alone; with no `LBV`-samples the decoupled part alone.
+                        let (t, rel) = if v.is_nan() {
+                            (0.0, f64::NAN)
+                        } else {
+                            let var_v = binary_variance(v);
+                            // Eq. 7 assumes the exact E_p[V]; ⟨V⟩ from `ess` samples is off
+                            // by about sqrt(Var(V)/ess), which ⟨LB⟩⟨V⟩ carries too.
+                            let v_error = V_ERROR_SIGMAS * (var_v / ess.max(1.0)).sqrt();
+                            let err = std::array::from_fn(|c| {
+                                error_bound(lb[c].variance(), var_v) + lb_mean[c].abs() * v_error
+                            });
+                            let rel = (0..3)
+                                .map(|c| {
+                                    if lb_mean[c] > 0.0 {
+                                        err[c] / lb_mean[c]
+                                    } else {
+                                        0.0
+                                    }
+                                })
+                                .fold(0.0f64, f64::max);
+                            let t = if params.lbv_spp == 0 {
+                                1.0
+                            } else {
+                                blend_factor(err, lb_mean, params.threshold, params.epsilon)
+                            };
+                            (t, rel)
+                        };
+                        let v_or_zero = if v.is_nan() { 0.0 } else { v };
+                        for c in 0..3 {
+                            let value = blend(lbv[c].mean, lb_mean[c], v_or_zero, t);
+                            out.rgb[c] += value;
+                            out.variance[c] += (1.0 - t).powi(2) * lbv[c].variance_of_mean()
+                                + (t * v_or_zero).powi(2) * lb[c].variance_of_mean();
+                        }
+                        out.t[l] = t as f32;
+                        out.bound[l] = rel as f32;
+                        out.visibility[l] = v as f32;
+                        out.effective_samples[l] = ess as f32;
+                    }
+                    out
+                })
+                .collect()
+        })?;
+        let mut relit = Relit {
+            lights: n_lights,
+            ..Relit::default()
+        };
+        for p in pixels {
+            relit.image.push(p.rgb.map(|v| v as f32));
+            relit.variance.push(p.variance.map(|v| v as f32));
+            relit.t.extend(p.t);
+            relit.bound.extend(p.bound);
+            relit.visibility.extend(p.visibility);
+            relit.effective_samples.extend(p.effective_samples);
+            relit.shadow_rays += p.shadow_rays;
+        }
+        relit.seconds = start.elapsed().as_secs_f64();
+        Ok(relit)
+    }
+}
+
+/// The product distribution of the map at `sp` (`None`: nothing to sample).
+fn product_of(env: &EnvMap, sp: &ShadingPoint, level: ProductLevel) -> Option<ProductDistribution> {
+    ProductDistribution::new(
+        env,
+        &sp.material,
+        sp.normal,
+        sp.wo,
+        level.for_material(&sp.material),
+    )
+}
+
+/// `E_p'[V]` of the map's light from the converged samples, redrawn from their density
+/// `p` (the converged map and `object`'s material then) and weighted by `p'/p`
+/// (self-normalised), and the effective sample count `(Σw)²/Σw²`. Directions `p` never
+/// drew (`p = 0 < p'`: light where the old map was black) are missed; the effective count
+/// shows how far the densities differ. `(NaN, 0)` when no sample has weight.
+fn reweighted(
+    c: &Converged,
+    stats: &PixelVisibility,
+    now: &PixelLights,
+    object: u32,
+    pixel: usize,
+) -> (f64, f64) {
+    let mut then_sp = now.sp;
+    then_sp.material = c.materials[object as usize];
+    let then = PixelLights {
+        scene: now.scene,
+        env: &c.env,
+        product: product_of(&c.env, &then_sp, c.product_level),
+        sp: then_sp,
+    };
+    let Some(p_now) = now.product.as_ref() else {
+        return (f64::NAN, 0.0);
+    };
+    let (mut sum_w, mut sum_w2, mut sum_wv) = (0.0f64, 0.0f64, 0.0f64);
+    for s in 0..c.spp {
+        let rng = PixelSampler::new(c.seed, pixel as u64, STREAM_V + s as u64);
+        let Some(d) = then.draw(LightId::Env, &rng).filter(|d| d.ray.is_some()) else {
+            continue;
+        };
+        let w = p_now.pdf(now.env, d.dir) / d.pdf;
+        let v = (stats.bits[s as usize / 64] >> (s % 64)) & 1;
+        sum_w += w;
+        sum_w2 += w * w;
+        sum_wv += w * v as f64;
+    }
+    if sum_w > 0.0 {
+        (sum_wv / sum_w, sum_w * sum_w / sum_w2)
+    } else {
+        (f64::NAN, 0.0)
+    }
+}
+
+/// One pixel of [`Relighter::render`].
+struct PixelResult {
+    rgb: [f64; 3],
+    variance: [f64; 3],
+    t: Vec<f32>,
+    bound: Vec<f32>,
+    visibility: Vec<f32>,
+    effective_samples: Vec<f32>,
+    shadow_rays: u64,
+}
+
+impl PixelResult {
+    /// A pixel showing `radiance` (the map, or an emitter) before any light is added.
+    fn miss(radiance: Vec3, lights: usize) -> Self {
+        Self {
+            rgb: radiance.as_dvec3().to_array(),
+            variance: [0.0; 3],
+            t: vec![f32::NAN; lights],
+            bound: vec![f32::NAN; lights],
+            visibility: vec![f32::NAN; lights],
+            effective_samples: vec![0.0; lights],
+            shadow_rays: 0,
+        }
+    }
+}
