@@ -160,3 +160,27 @@ def test_variance_table_experiment_smoke(tmp_path, monkeypatch):
     assert "Table 3" in md and "Table 2" in md and "Fig. 13" in md
     assert (tmp_path / "variance-table" / "variance_table.png").exists()
     assert ctx.results["experiment"] == "variance-table"
+
+
+def test_relight_experiment_smoke(tmp_path, monkeypatch):
+    from viscache_rs import experiments
+    from viscache_rs.experiments import relight
+
+    monkeypatch.setattr(relight, "SIZES", {True: (16, 12), False: (16, 12)})
+    monkeypatch.setattr(relight, "V_SPP", 32)
+    monkeypatch.setattr(relight, "REFERENCE_SPP", 64)
+    cases = list(relight._cases(quick=True))
+    assert [c[0] for c in cases][:3] == ["garage_rot45", "garage_sky", "cornell_red_green"]
+    monkeypatch.setattr(relight, "_cases", lambda quick: iter(cases[:1]))
+    experiments.run("relight", quick=True, out=tmp_path, seed=1, threads=2, progress=False)
+    data = json.loads((tmp_path / "relight" / "results.json").read_text())
+    rec = data["garage_rot45"]
+    for source in ("pixels", "cache"):
+        assert 0 <= rec[f"bound_holds_{source}_lb64"] <= 1
+        for thr in relight.THRESHOLDS:
+            row = rec[f"equal_time_{source}_{thr}"]
+            assert row["seconds"] > 0 and row["classical_spp"] >= 1 and 0 <= row["mean_t"] <= 1
+    assert 0 <= rec["camera_move_bound_holds"] <= 1
+    assert rec["overhead"]["bytes_per_pixel_and_light"] == 24 + 8
+    md = (tmp_path / "relight" / "results.md").read_text()
+    assert "Where the estimated bound holds" in md and "| garage_rot45 | cache | 0.25 |" in md

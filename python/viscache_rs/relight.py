@@ -14,7 +14,9 @@ sample) and takes ``<V>``, the expected visibility under the same density, from:
   ``p'/p`` (``res.effective_samples`` says how far the densities differ), with no ray;
 - ``visibility="cache"``: the visibility cache's interpolated records ``V~`` averaged over
   directions drawn from the current density, with no ray, so ``render(camera=...)`` may
-  move the view. ``cache`` defaults to a "medium" cache built for the view.
+  move the view. ``cache`` defaults to a "medium" cache built for the view. The map only:
+  records see an area light's own triangles as occluders, so area lights keep the
+  unbiased ``<LBV>`` (``t = 0``) in this mode.
 
 ``render(envmap=None, materials=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1,
 seed=0, camera=None, threads=None)`` returns SBF eq. 9's blend ``(1 - t) <LBV> + t <LB> <V>``
@@ -39,12 +41,15 @@ from .cache import VisibilityCache
 @dataclass
 class RelightResult:
     """``image`` and ``variance`` (H, W, 3) float32 (the variance treats ``<V>`` as exact);
-    per pixel and light (H, W, L), light 0 the map then the area lights: ``t`` (the blend
-    factor), ``bound`` (estimated relative error bound, worst channel), ``visibility``
-    (``<V>``) and ``effective_samples``; NaN where a pixel has no surface."""
+    ``error_bound`` (H, W, 3): the estimated absolute error of ``<LB><V>`` summed over
+    lights (eq. 7 plus two standard errors of ``<V>``). Per pixel and light (H, W, L),
+    light 0 the map, then the area lights: ``t`` (the blend factor), ``bound`` (estimated
+    relative error bound, worst channel), ``visibility`` (``<V>``) and
+    ``effective_samples``; NaN where a pixel has no surface or a light no ``<V>``."""
 
     image: np.ndarray
     variance: np.ndarray
+    error_bound: np.ndarray
     t: np.ndarray
     bound: np.ndarray
     visibility: np.ndarray
@@ -100,7 +105,8 @@ class Relighter:
         out = self._core.render(envmap, materials=materials, cache=self.cache, lb_spp=lb_spp,
                                 lbv_spp=lbv_spp, threshold=threshold, epsilon=epsilon,
                                 seed=seed, threads=threads)
-        return RelightResult(out["image"], out["variance"], out["t"], out["bound"],
+        return RelightResult(out["image"], out["variance"], out["error_bound"], out["t"],
+                             out["bound"],
                              out["visibility"], out["effective_samples"], out["stats"])
 
 

@@ -27,6 +27,7 @@ _MODULES = {
     "ao": "ambient_occlusion",
     "animation": "animation",
     "tradeoff": "tradeoff",
+    "relight": "relight",
 }
 
 

@@ -207,6 +207,10 @@ impl PyRelighter {
             "variance",
             image_array(py, out.variance.into_flattened(), h, w, Some(3))?,
         )?;
+        d.set_item(
+            "error_bound",
+            image_array(py, out.error_bound.into_flattened(), h, w, Some(3))?,
+        )?;
         d.set_item("t", image_array(py, out.t, h, w, Some(lights))?)?;
         d.set_item("bound", image_array(py, out.bound, h, w, Some(lights))?)?;
         d.set_item(

@@ -32,7 +32,9 @@
 //! - [`VisibilitySource::Cache`]: `⟨V⟩ = E_p'[Ṽ]` with `Ṽ = Σ β_i V_i` the visibility
 //!   cache's interpolated records (CAM08 eq. 9 weights), averaged over directions drawn
 //!   from `p'` (no ray traced), so the points, hence the view, may change between renders
-//!   (SBF §4.1 names world-space storage as the way to allow it).
+//!   (SBF §4.1 names world-space storage as the way to allow it). Only for the map: a
+//!   record's rays are unbounded, so they find an area light's own triangles and mark
+//!   its directions blocked; area lights keep the unbiased `⟨LBV⟩` in this mode.
 //!
 //! `Var(V)` is the binary variance `⟨V⟩(1 − ⟨V⟩)` in both cases.
 //!
@@ -262,6 +264,9 @@ pub struct Relit {
     /// Variance of the estimate, treating `⟨V⟩` as exact: `(1 − t)² Var⟨LBV⟩ +
     /// t² ⟨V⟩² Var⟨LB⟩` summed over lights.
     pub variance: Vec<[f32; 3]>,
+    /// The estimated absolute error of `⟨LB⟩⟨V⟩` per pixel, RGB, summed over lights (eq. 7
+    /// plus `⟨V⟩`'s uncertainty; 0 where no light has `⟨V⟩`).
+    pub error_bound: Vec<[f32; 3]>,
     /// Blend factor `t` per pixel and light (`lights` values per pixel; NaN where the
     /// pixel has no surface).
     pub t: Vec<f32>,
@@ -544,7 +549,11 @@ impl Relighter {
                                     (stats.v.mean, stats.v.n as f64)
                                 }
                             }
-                            (None, Some(interp), Some(state)) if !interp.is_empty() => {
+                            // Records see an area light's own geometry as an occluder: they
+                            // tell nothing of its visibility.
+                            (None, Some(interp), Some(state))
+                                if !interp.is_empty() && light == LightId::Env =>
+                            {
                                 // E_p'[Ṽ] over draws of p' (no rays).
                                 let mut mean = Welford::default();
                                 for s in 0..params.lb_spp {
@@ -576,9 +585,10 @@ impl Relighter {
                             // Eq. 7 assumes the exact E_p[V]; ⟨V⟩ from `ess` samples is off
                             // by about sqrt(Var(V)/ess), which ⟨LB⟩⟨V⟩ carries too.
                             let v_error = V_ERROR_SIGMAS * (var_v / ess.max(1.0)).sqrt();
-                            let err = std::array::from_fn(|c| {
+                            let err: [f64; 3] = std::array::from_fn(|c| {
                                 error_bound(lb[c].variance(), var_v) + lb_mean[c].abs() * v_error
                             });
+                            (0..3).for_each(|c| out.error_bound[c] += err[c]);
                             let rel = (0..3)
                                 .map(|c| {
                                     if lb_mean[c] > 0.0 {
@@ -618,6 +628,7 @@ impl Relighter {
         for p in pixels {
             relit.image.push(p.rgb.map(|v| v as f32));
             relit.variance.push(p.variance.map(|v| v as f32));
+            relit.error_bound.push(p.error_bound.map(|v| v as f32));
             relit.t.extend(p.t);
             relit.bound.extend(p.bound);
             relit.visibility.extend(p.visibility);
@@ -686,6 +697,7 @@ fn reweighted(
 struct PixelResult {
     rgb: [f64; 3],
     variance: [f64; 3],
+    error_bound: [f64; 3],
     t: Vec<f32>,
     bound: Vec<f32>,
     visibility: Vec<f32>,
@@ -699,6 +711,7 @@ impl PixelResult {
         Self {
             rgb: radiance.as_dvec3().to_array(),
             variance: [0.0; 3],
+            error_bound: [0.0; 3],
             t: vec![f32::NAN; lights],
             bound: vec![f32::NAN; lights],
             visibility: vec![f32::NAN; lights],
