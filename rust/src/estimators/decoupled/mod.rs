@@ -30,8 +30,9 @@
 //!   are reweighted by `p'/p` (self-normalised importance sampling; the effective sample
 //!   count `(Σw)²/Σw²` is reported), with no ray traced.
 //! - [`VisibilitySource::Cache`]: `⟨V⟩ = E_p'[Ṽ]` with `Ṽ = Σ β_i V_i` the visibility
-//!   cache's interpolated records (CAM08 eq. 9 weights), averaged over directions drawn
-//!   from `p'` (no ray traced), so the points, hence the view, may change between renders
+//!   cache's interpolated records (CAM08 eq. 9 weights), summed over the product's cells
+//!   against their probabilities (no ray traced, no draw; the within-cell density is taken
+//!   as uniform over the records' texels), so the points, hence the view, may change between renders
 //!   (SBF §4.1 names world-space storage as the way to allow it). Only for the map: a
 //!   record's rays are unbounded, so they find an area light's own triangles and mark
 //!   its directions blocked; area lights keep the unbiased `⟨LBV⟩` in this mode.
@@ -63,7 +64,6 @@ use crate::estimators::direct::dims;
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
-use crate::sampling::octahedral::sphere_to_square;
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
 use crate::visibility::cache::VisibilityCache;
@@ -81,7 +81,6 @@ pub const V_ERROR_SIGMAS: f64 = 2.0;
 const STREAM_V: u64 = 1 << 32;
 const STREAM_LB: u64 = 2 << 32;
 const STREAM_LBV: u64 = 3 << 32;
-const STREAM_CACHE_V: u64 = 4 << 32;
 
 /// Where [`Relighter::render`] takes `⟨V⟩` from (module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -170,10 +169,9 @@ enum LightId {
 struct LightDraw {
     lb_over_p: Vec3,
     ray: Option<(Vec3, f32)>,
-    /// The direction drawn, its solid-angle density and its equal-area square point.
+    /// The direction drawn and its solid-angle density.
     dir: Vec3,
     pdf: f64,
-    square: DVec2,
 }
 
 /// What one pixel's light sees at render time: the lights' densities.
@@ -202,7 +200,6 @@ impl PixelLights<'_> {
                 (s.direction, s.radiance, s.pdf, tmax)
             }
         };
-        let square = sphere_to_square(dir).as_dvec2();
         let cos = sp.normal.dot(dir);
         let f = if cos > 0.0 && tmax > 0.0 {
             sp.material.eval(sp.normal, sp.wo, dir)
@@ -216,7 +213,6 @@ impl PixelLights<'_> {
             ray,
             dir,
             pdf,
-            square,
         })
     }
 
@@ -275,7 +271,8 @@ pub struct Relit {
     /// `⟨V⟩` per pixel and light.
     pub visibility: Vec<f32>,
     /// Effective sample count of `⟨V⟩` per pixel and light (the reweighted samples'
-    /// `(Σw)²/Σw²`; the sample count when not reweighted; 0 without samples).
+    /// `(Σw)²/Σw²`; the sample count when not reweighted; infinite for the cache's exact
+    /// sum over cells; 0 without `⟨V⟩`).
     pub effective_samples: Vec<f32>,
     /// Lights per pixel in `t`, `bound`, `visibility` and `effective_samples`.
     pub lights: usize,
@@ -527,18 +524,19 @@ impl Relighter {
                         for s in 0..params.lbv_spp {
                             let rng =
                                 PixelSampler::new(params.seed, i as u64, STREAM_LBV + s as u64);
-                            let x = match at.draw(light, &rng) {
+                            let (lb_x, x) = match at.draw(light, &rng) {
                                 Some(d) => {
                                     out.shadow_rays += d.ray.is_some() as u64;
-                                    if at.visible(&d, &mut bvh) {
-                                        d.lb_over_p
-                                    } else {
-                                        Vec3::ZERO
-                                    }
+                                    let v = at.visible(&d, &mut bvh);
+                                    (d.lb_over_p, if v { d.lb_over_p } else { Vec3::ZERO })
                                 }
-                                None => Vec3::ZERO,
+                                None => (Vec3::ZERO, Vec3::ZERO),
                             };
-                            (0..3).for_each(|c| lbv[c].push(x[c] as f64));
+                            // An LBV-sample is an LB-sample of the same density too.
+                            (0..3).for_each(|c| {
+                                lbv[c].push(x[c] as f64);
+                                lb[c].push(lb_x[c] as f64);
+                            });
                         }
                         let (v, ess) = match (converged, &interpolant, &state) {
                             (Some(c), _, _) => {
@@ -554,21 +552,22 @@ impl Relighter {
                             (None, Some(interp), Some(state))
                                 if !interp.is_empty() && light == LightId::Env =>
                             {
-                                // E_p'[Ṽ] over draws of p' (no rays).
-                                let mut mean = Welford::default();
-                                for s in 0..params.lb_spp {
-                                    let rng = PixelSampler::new(
-                                        params.seed,
-                                        i as u64,
-                                        STREAM_CACHE_V + s as u64,
-                                    );
-                                    if let Some(d) =
-                                        at.draw(light, &rng).filter(|d| d.ray.is_some())
-                                    {
-                                        mean.push(interp.eval(state, d.square).0.min(1.0));
+                                // E_p'[Ṽ] over the product's cells, exactly: no draws.
+                                match &at.product {
+                                    Some(product) => {
+                                        let level = product.level();
+                                        let cells = interp.cell_visibility(state, level);
+                                        let weights = product.pyramid().level(level);
+                                        let total: f64 = weights.iter().sum();
+                                        let v: f64 = weights
+                                            .iter()
+                                            .zip(&cells)
+                                            .map(|(&w, &v)| w * v as f64)
+                                            .sum();
+                                        (v / total, f64::INFINITY)
                                     }
+                                    None => (f64::NAN, 0.0),
                                 }
-                                (mean.mean, mean.n as f64)
                             }
                             // No records here: nothing to decouple, the unbiased part alone.
                             _ => (f64::NAN, 0.0),
