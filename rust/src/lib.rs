@@ -19,6 +19,7 @@ pub mod geometry;
 pub mod image;
 pub mod lights;
 pub mod math;
+pub mod moments;
 pub mod parallel;
 pub mod render;
 pub mod sampling;

@@ -57,6 +57,8 @@ use crate::sampling::pattern::default_pattern;
 use crate::sampling::rng::{hash4, to_unit_f64};
 use crate::visibility::record::{bit_words, Record};
 
+pub use crate::moments::Moments;
+
 /// Points traced per block between two progress reports of [`VisibilityMaps::trace`].
 pub const TRACE_BLOCK: usize = 1024;
 
@@ -468,54 +470,6 @@ fn bin_of(edges: &[f64], x: f64) -> Option<usize> {
         return Some(edges.len() - 2);
     }
     Some(edges.partition_point(|e| *e <= x) - 1)
-}
-
-/// Count, mean and sum of squared deviations of a stream of values (Welford), mergeable
-/// (Chan, Golub & LeVeque 1979).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Moments {
-    /// Values seen.
-    pub count: u64,
-    /// Their mean (0 when `count == 0`).
-    pub mean: f64,
-    /// Sum of squared deviations from the mean.
-    pub m2: f64,
-}
-
-impl Moments {
-    /// Adds one value.
-    #[inline]
-    pub fn push(&mut self, x: f64) {
-        self.count += 1;
-        let delta = x - self.mean;
-        self.mean += delta / self.count as f64;
-        self.m2 += delta * (x - self.mean);
-    }
-
-    /// Adds every value `other` has seen.
-    pub fn merge(&mut self, other: &Moments) {
-        if other.count == 0 {
-            return;
-        }
-        if self.count == 0 {
-            *self = *other;
-            return;
-        }
-        let n = (self.count + other.count) as f64;
-        let delta = other.mean - self.mean;
-        self.mean += delta * other.count as f64 / n;
-        self.m2 += other.m2 + delta * delta * self.count as f64 * other.count as f64 / n;
-        self.count += other.count;
-    }
-
-    /// Population standard deviation `sqrt(m2 / count)` (NaN when empty).
-    pub fn std(&self) -> f64 {
-        if self.count == 0 {
-            f64::NAN
-        } else {
-            (self.m2 / self.count as f64).max(0.0).sqrt()
-        }
-    }
 }
 
 /// [`correlation_bins`]'s result: bins row-major by distance then angle (bin

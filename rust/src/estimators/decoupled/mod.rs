@@ -24,7 +24,7 @@
 //!
 //! ## Where `⟨V⟩` comes from
 //! - [`VisibilitySource::Pixels`]: [`Relighter::converge_visibility`] traces `V`-samples at
-//!   every pixel's point and keeps, per pixel and light, their Welford statistics and
+//!   every pixel's point and keeps, per pixel and light, their moments (Welford) and
 //!   their bits. While a light's `p` is unchanged `⟨V⟩` is their mean; after an edit that
 //!   changes the map's `p` (another map, a rotation, another material) the stored samples
 //!   are reweighted by `p'/p` (self-normalised importance sampling; the effective sample
@@ -53,7 +53,7 @@ use glam::{DVec2, Vec3};
 use rayon::prelude::*;
 
 use self::bound::{blend, blend_factor, error_bound};
-use self::stats::{binary_variance, Welford};
+use self::stats::binary_variance;
 use super::control_variate::Interpolant;
 use super::direct::{ProductDistribution, ProductLevel, ShadingPoint};
 use super::indirect::shading_point_at;
@@ -63,6 +63,7 @@ use crate::error::{Error, Result};
 use crate::estimators::direct::dims;
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
+use crate::moments::Moments;
 use crate::parallel::with_threads;
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
@@ -232,7 +233,7 @@ fn unit_pair(u: [f32; 2]) -> DVec2 {
 /// `V`-statistics of one pixel and light from [`Relighter::converge_visibility`].
 #[derive(Clone, Debug, Default)]
 struct PixelVisibility {
-    v: Welford,
+    v: Moments,
     /// The samples' visibility, bit `s` for sample `s` (the map's light only: the
     /// samples are redrawn from the stored density to reweight them).
     bits: Vec<u64>,
@@ -513,8 +514,8 @@ impl Relighter {
                     let mut out = PixelResult::miss(emitted, n_lights);
                     let mut bvh = TraversalCounters::default();
                     for (l, &light) in lights.iter().enumerate() {
-                        let mut lb = [Welford::default(); 3];
-                        let mut lbv = [Welford::default(); 3];
+                        let mut lb = [Moments::default(); 3];
+                        let mut lbv = [Moments::default(); 3];
                         for s in 0..params.lb_spp {
                             let rng =
                                 PixelSampler::new(params.seed, i as u64, STREAM_LB + s as u64);
@@ -544,7 +545,7 @@ impl Relighter {
                                 if light == LightId::Env && !same_env_density {
                                     reweighted(c, stats, &at, hit.obj, i)
                                 } else {
-                                    (stats.v.mean, stats.v.n as f64)
+                                    (stats.v.mean, stats.v.count as f64)
                                 }
                             }
                             // Records see an area light's own geometry as an occluder: they
