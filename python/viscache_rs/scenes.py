@@ -40,7 +40,7 @@ variants), a few scenes have named variants. :func:`indirect_names` lists the se
 for indirect light as ``(name, variant)`` pairs (variant None: the default setup). The
 indirect share is the image mean of ``render(setup, camera=setup.camera.with_resolution(128,
 96), method="path", bounces=3, direct=False, spp=256)`` over that with ``direct=True``
-(standard errors below 0.002; ``python benches/indirect_share.py``):
+(standard errors at most 0.0022; ``python benches/indirect_share.py``):
 
 ==========  ==================  ================================================  =======
 name        variant             what it is for                                    indirect

@@ -36,7 +36,7 @@
 //! scenes have named variants for indirect light. [`INDIRECT_NAMES`] lists the setups meant
 //! for indirect light, defaults and variants. The indirect share is the image mean of
 //! `method="path", bounces=3, direct=False` over that of `direct=True` at 128 x 96, 256 spp
-//! (standard errors below 0.002; `python benches/indirect_share.py`): the rest is direct
+//! (standard errors at most 0.0022; `python benches/indirect_share.py`): the rest is direct
 //! light, including emitters and the map seen by the camera.
 //!
 //! | scene, variant             | what changes | what it is for | indirect share |
