@@ -42,9 +42,9 @@ indirect share is the image mean of ``render(setup, camera=setup.camera.with_res
 96), method="path", bounces=3, direct=False, spp=256)`` over that with ``direct=True``
 (standard errors at most 0.0022; ``python benches/indirect_share.py``):
 
-==========  ==================  ================================================  =======
+==========  ==================  ================================================  ========
 name        variant             what it is for                                    indirect
-==========  ==================  ================================================  =======
+==========  ==================  ================================================  ========
 cornell     (default)           colour bleeding: the red and green walls tint     0.40
                                 the white floor and blocks
 cornell     glossy_floor        the floor is Phong, exponent 50 (VF's glossy      0.41
@@ -59,7 +59,7 @@ room        sunlit              the sun (azimuth 350, elevation 45 deg) falls   
                                 through the back windows; the camera, turned
                                 away from them, sees neither windows nor sun
                                 patches: indirect light dominates
-==========  ==================  ================================================  =======
+==========  ==================  ================================================  ========
 
 ``setup.variant`` names the variant (None for the default).
 
