@@ -22,7 +22,8 @@ def test_signatures_show_the_numbers_they_default_to():
     assert _defaults(_core.Camera.look_at) == {
         "up": (0, 1, 0), "fov_deg": 45.0, "width": 256, "height": 192}
     assert _defaults(_core.EnvMap.constant) == {"resolution": 256}
-    assert _defaults(_core.load_scene) == {"detail": 1.0, "seed": 0, "animated": False}
+    assert _defaults(_core.load_scene) == {"detail": 1.0, "seed": 0, "animated": False,
+                                            "variant": None}
     assert _defaults(_core.render)["seed"] == 0
     assert _defaults(_core.render)["alpha_radius"] == 4
     assert _defaults(_core.VisibilityCache.validate) == {

@@ -25,6 +25,8 @@ __all__ = [
     "scene_names",
     "load_scene",
     "animated_scene_names",
+    "scene_variants",
+    "indirect_scene_names",
     "testing",
     "octahedral",
     "analysis",
@@ -220,6 +222,8 @@ class Setup:
     @property
     def frame(self) -> int: ...
     @property
+    def variant(self) -> str | None: ...
+    @property
     def animated(self) -> bool: ...
     @property
     def moving_object(self) -> int | None: ...
@@ -378,8 +382,11 @@ def load_scene(
     detail: float | None = 1.0,
     seed: int | None = 0,
     animated: bool = False,
+    variant: str | None = None,
 ) -> Setup: ...
 def animated_scene_names() -> list[str]: ...
+def scene_variants(name: str) -> list[str]: ...
+def indirect_scene_names() -> list[tuple[str, str | None]]: ...
 
 # Submodules of the native module, typed as namespaces (stubtest does not compare these;
 # tests/test_signatures.py does).

@@ -34,6 +34,35 @@ something (``vc.testing.ground_hemisphere_rays``, 200,000 rays): together the sc
 almost open to almost closed. :func:`names` lists the procedural scenes, :func:`suite_names`
 the whole benchmark suite available here.
 
+Variants for indirect light (``variants(name)``; ``load(name, variant=...)``): beside the
+scenes above, which stay exactly as they are (``names()`` and ``suite_names()`` do not list
+variants), a few scenes have named variants. :func:`indirect_names` lists the setups meant
+for indirect light as ``(name, variant)`` pairs (variant None: the default setup). The
+indirect share is the image mean of ``render(setup, camera=setup.camera.with_resolution(128,
+96), method="path", bounces=3, direct=False, spp=256)`` over that with ``direct=True``
+(standard errors at most 0.0022; ``python benches/indirect_share.py``):
+
+==========  ==================  ================================================  ========
+name        variant             what it is for                                    indirect
+==========  ==================  ================================================  ========
+cornell     (default)           colour bleeding: the red and green walls tint     0.40
+                                the white floor and blocks
+cornell     glossy_floor        the floor is Phong, exponent 50 (VF's glossy      0.41
+                                Cornell box, ``N_s = 50``); all else as default
+cornell     semiglossy_floor    the floor is Phong, exponent 10 (``N_s = 10``)    0.41
+garage      (default)           windows map, no sun: the walls are lit directly   0.30
+garage      sun                 a low sun (azimuth 180, elevation 15 deg) under   0.29
+                                the roof's edge lights a floor patch inside;
+                                walls and roof underside get only its bounce
+                                and the sky
+room        sunlit              the sun (azimuth 350, elevation 45 deg) falls     0.70
+                                through the back windows; the camera, turned
+                                away from them, sees neither windows nor sun
+                                patches: indirect light dominates
+==========  ==================  ================================================  ========
+
+``setup.variant`` names the variant (None for the default).
+
 Animated variants (``animated_names()``; ``load("dynamics", animated=True)``): the
 ``dynamics`` sphere rolls 2 m toward the open ground and back every 60 frames.
 ``setup.at_frame(i)`` moves it (frame 0 is the static scene), ``setup.moving_object`` is its
@@ -47,10 +76,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ._core import Scene, Setup, animated_scene_names, load_scene, scene_names
+from ._core import (
+    Scene,
+    Setup,
+    animated_scene_names,
+    indirect_scene_names,
+    load_scene,
+    scene_names,
+    scene_variants,
+)
 
-__all__ = ["MODEL_NAMES", "Setup", "animated_names", "load", "meshes", "models_dir", "names",
-           "read_obj", "suite_names", "without"]
+__all__ = ["MODEL_NAMES", "Setup", "animated_names", "indirect_names", "load", "meshes",
+           "models_dir", "names", "read_obj", "suite_names", "variants", "without"]
 
 #: The real meshes of ``../shared/models`` that :func:`meshes` arranges, in order.
 MODEL_NAMES = ("teapot", "spot", "cow", "fandisk", "rocker-arm", "homer")
@@ -64,6 +101,21 @@ def names() -> list[str]:
 def animated_names() -> list[str]:
     """Names of the built-in scenes that have an animated variant."""
     return list(animated_scene_names())
+
+
+def variants(name: str) -> list[str]:
+    """Names of the variants of the built-in scene ``name`` for ``load(name, variant=...)``
+    (possibly none; ``"meshes"`` has none). An unknown name raises ValueError."""
+    if name == "meshes":
+        return []
+    return list(scene_variants(name))
+
+
+def indirect_names() -> list[tuple[str, str | None]]:
+    """The setups for indirect light, as ``(name, variant)`` pairs for
+    ``load(name, variant=variant)`` (variant None: the default setup); see the module's
+    table."""
+    return list(indirect_scene_names())
 
 
 def suite_names() -> list[str]:
@@ -178,7 +230,8 @@ def _phong(albedo):
     return Material.phong(kd, (0.3, 0.3, 0.3), 50.0)
 
 
-def load(name: str, detail: float = 1.0, seed: int = 0, animated: bool = False) -> Setup:
+def load(name: str, detail: float = 1.0, seed: int = 0, animated: bool = False,
+         variant: str | None = None) -> Setup:
     """Builds the built-in scene ``name`` (``"meshes"``: :func:`meshes`, whose triangles
     ``detail`` does not change).
 
@@ -191,10 +244,16 @@ def load(name: str, detail: float = 1.0, seed: int = 0, animated: bool = False) 
     ``animated=True`` gives the animated variant (only for :func:`animated_names`; other
     names raise ValueError naming ``animated``): at frame 0 it is the same scene; move it
     with ``setup.at_frame(i)``.
+
+    ``variant`` names one of :func:`variants` (``name``): the variants for indirect light of
+    the module's table. Unknown variants raise ValueError naming ``variant`` and listing the
+    scene's variants; so does a variant with ``animated=True``.
     """
     if name == "meshes" and not animated:
+        if variant is not None:
+            raise ValueError(f"variant: scene 'meshes' has no variants, got {variant!r}")
         return meshes(seed=seed)
-    return load_scene(name, detail=detail, seed=seed, animated=animated)
+    return load_scene(name, detail=detail, seed=seed, animated=animated, variant=variant)
 
 
 def without(setup: Setup, drop, name: str | None = None) -> Setup:

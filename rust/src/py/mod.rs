@@ -40,6 +40,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(setup::scene_names, m)?)?;
     m.add_function(wrap_pyfunction!(setup::load_scene, m)?)?;
     m.add_function(wrap_pyfunction!(setup::animated_scene_names, m)?)?;
+    m.add_function(wrap_pyfunction!(setup::scene_variants, m)?)?;
+    m.add_function(wrap_pyfunction!(setup::indirect_scene_names, m)?)?;
     let testing = PyModule::new(m.py(), "testing")?;
     testing.add_function(wrap_pyfunction!(testing::ground_hemisphere_rays, &testing)?)?;
     testing.add_function(wrap_pyfunction!(testing::record_bundle_rays, &testing)?)?;

@@ -31,6 +31,9 @@ pub struct PySetup {
     pub animation: Option<Animation>,
     /// The frame the scene is at.
     pub frame: u64,
+    /// The built-in scene's variant (`vc.scenes.load(name, variant=...)`), None for the
+    /// default.
+    pub variant: Option<String>,
 }
 
 #[pymethods]
@@ -50,6 +53,7 @@ impl PySetup {
             envmap,
             animation: None,
             frame: 0,
+            variant: None,
         }
     }
 
@@ -86,6 +90,13 @@ impl PySetup {
         self.frame
     }
 
+    /// The built-in scene's variant (`vc.scenes.variants(name)`), or None for a default
+    /// setup and for user setups.
+    #[getter]
+    fn variant(&self) -> Option<String> {
+        self.variant.clone()
+    }
+
     /// True for animated setups (`vc.scenes.load(name, animated=True)`).
     #[getter]
     fn animated(&self) -> bool {
@@ -119,8 +130,12 @@ impl PySetup {
             Some(_) => format!(", frame={}", self.frame),
             None => String::new(),
         };
+        let variant = match &self.variant {
+            Some(v) => format!(", variant={v:?}"),
+            None => String::new(),
+        };
         format!(
-            "Setup(name={:?}, scene={}, camera={}, envmap={}{frame})",
+            "Setup(name={:?}{variant}, scene={}, camera={}, envmap={}{frame})",
             self.name,
             self.scene.borrow(py).__repr__(),
             self.camera.get().__repr__(),
@@ -141,28 +156,48 @@ pub fn animated_scene_names() -> Vec<&'static str> {
     scenes::ANIMATED_NAMES.to_vec()
 }
 
+/// Names of the variants of the built-in scene `name` (possibly none); an unknown name
+/// raises ValueError naming `name`.
+#[pyfunction]
+pub fn scene_variants(name: &str) -> PyResult<Vec<&'static str>> {
+    scenes::variants(name).py()
+}
+
+/// The setups for indirect light, as (name, variant) pairs (variant None: the default).
+#[pyfunction]
+pub fn indirect_scene_names() -> Vec<(&'static str, Option<&'static str>)> {
+    scenes::INDIRECT_NAMES.to_vec()
+}
+
 /// Extractor of `detail=1.0`.
 fn detail_arg(obj: &Bound<'_, PyAny>) -> PyResult<f32> {
     or_default(obj, 1.0, |o| Ok(f64_arg(o, "detail")? as f32))
 }
 
 /// Builds a built-in scene. `detail` in (0, 16] scales its triangle count; `seed` drives
-/// every random choice of the generator; `animated` selects the animated variant.
+/// every random choice of the generator; `animated` selects the animated variant,
+/// `variant` a named one (`scene_variants(name)`); the two cannot be combined.
 #[pyfunction]
-#[pyo3(signature = (name, detail=1.0, seed=0, animated=false))]
+#[pyo3(signature = (name, detail=1.0, seed=0, animated=false, variant=None))]
 pub fn load_scene(
     py: Python<'_>,
     name: &str,
     #[pyo3(from_py_with = detail_arg)] detail: f32,
     #[pyo3(from_py_with = seed_or_zero)] seed: u64,
     animated: bool,
+    variant: Option<&str>,
 ) -> PyResult<PySetup> {
+    if animated && variant.is_some() {
+        return Err(PyValueError::new_err(
+            "variant: animated setups have no named variants; pass animated=False",
+        ));
+    }
     let setup = py
         .detach(|| {
             if animated {
                 scenes::load_animated(name, detail, seed)
             } else {
-                scenes::load(name, detail, seed)
+                scenes::load_variant(name, variant, detail, seed)
             }
         })
         .py()?;
@@ -183,5 +218,6 @@ pub fn load_scene(
         )?,
         animation: setup.animation,
         frame: setup.frame,
+        variant: setup.variant,
     })
 }

@@ -29,6 +29,18 @@
 //! no shading point inside sees it: it matters only if an experiment opens the box
 //! (removes a wall), and then it is a furnace-style uniform light with a known answer.
 //! The room's own light is the `light` object, which the area-light code makes emit.
+//!
+//! **Colour bleeding.** The red and green walls are the classic scene's: light they
+//! reflect tints the white floor and blocks, redder near the red wall and greener near the
+//! green one (`tests/test_scenes.py` measures it on the indirect image).
+//!
+//! **Variants** ([`build_glossy_floor`], see [`super::load_variant`]): `glossy_floor`
+//! makes the floor a normalised Phong BRDF of exponent [`GLOSSY_EXPONENT`] (50, the glossy
+//! floor of VF's Cornell box, its figures 1a and 5: `N_s = 50`), `semiglossy_floor` of
+//! exponent [`SEMIGLOSSY_EXPONENT`] (10, the low end of its figure 6: `N_s = 10` to 50).
+//! The floor's albedo is split between the lobes, `kd + ks` = [`FLOOR_KD`] + [`FLOOR_KS`] =
+//! 0.73, the white of the default floor; everything else, triangle for triangle, is the
+//! default setup.
 
 use glam::Vec3;
 
@@ -46,9 +58,35 @@ pub const HEIGHT: f32 = 5.5;
 /// Radiance of the ceiling light, W/(m² sr): the classic scene's warm white.
 pub const LIGHT_RADIANCE: [f32; 3] = [17.0, 12.0, 4.0];
 
+/// Phong exponent of the `glossy_floor` variant (VF's `N_s = 50`).
+pub const GLOSSY_EXPONENT: f32 = 50.0;
+/// Phong exponent of the `semiglossy_floor` variant (VF's `N_s = 10`).
+pub const SEMIGLOSSY_EXPONENT: f32 = 10.0;
+/// Diffuse albedo of the glossy floors (per channel).
+pub const FLOOR_KD: f32 = 0.5;
+/// Specular albedo of the glossy floors (per channel): with [`FLOOR_KD`], the default
+/// floor's white 0.73.
+pub const FLOOR_KS: f32 = 0.23;
+
 /// Builds the setup (see the module docs). `seed` is unused.
 pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
     check_detail(detail)?;
+    build_with_floor(detail, Material::lambert([0.73, 0.73, 0.73])?)
+}
+
+/// The glossy-floor variants (see the module docs): the floor is
+/// `Phong(kd = FLOOR_KD, ks = FLOOR_KS, exponent)`, `exponent` in [1, 1e4] (the variants use
+/// [`GLOSSY_EXPONENT`] and [`SEMIGLOSSY_EXPONENT`]). `seed` is unused.
+pub fn build_glossy_floor(detail: f32, _seed: u64, exponent: f32) -> Result<Setup> {
+    check_detail(detail)?;
+    build_with_floor(
+        detail,
+        Material::phong([FLOOR_KD; 3], [FLOOR_KS; 3], exponent)?,
+    )
+}
+
+/// The box with `floor` as the floor's material.
+fn build_with_floor(detail: f32, floor: Material) -> Result<Setup> {
     let cell = 0.65 / detail.sqrt();
     let white = Material::lambert([0.73, 0.73, 0.73])?;
     let red = Material::lambert([0.63, 0.065, 0.05])?;
@@ -61,7 +99,7 @@ pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
         cell,
     );
     for (face, name, material) in [
-        (Face::NegY, "floor", white),
+        (Face::NegY, "floor", floor),
         (Face::PosY, "ceiling", white),
         (Face::NegZ, "back_wall", white),
         (Face::PosZ, "front_wall", white),
@@ -145,6 +183,43 @@ mod tests {
         let light = m.objects.iter().find(|o| o.name == "light").unwrap();
         let t = &m.triangles[light.first_triangle as usize];
         assert!(triangle_cross(t).normalize().dot(Vec3::NEG_Y) > 0.999);
+    }
+
+    #[test]
+    fn glossy_floors_change_only_the_floor() {
+        let base = build(1.0, 0).unwrap();
+        for (variant, exponent) in [
+            ("glossy_floor", GLOSSY_EXPONENT),
+            ("semiglossy_floor", SEMIGLOSSY_EXPONENT),
+        ] {
+            let s = crate::scenes::load_variant("cornell", Some(variant), 1.0, 0).unwrap();
+            assert_eq!(s.variant.as_deref(), Some(variant));
+            check_basic(&s, "cornell", 1262..=1262);
+            let (m, b) = (s.scene.mesh(), base.scene.mesh());
+            assert_eq!(m.triangles, b.triangles);
+            assert_eq!(m.object_ids, b.object_ids);
+            assert_eq!(s.camera, base.camera);
+            for (o, ob) in m.objects.iter().zip(&b.objects) {
+                let mat = o.material;
+                if o.name == "floor" {
+                    // VF's glossy floors: N_s from 10 to 50.
+                    assert!((10.0..=50.0).contains(&exponent));
+                    assert_eq!(
+                        mat,
+                        Material::Phong {
+                            kd: [FLOOR_KD; 3],
+                            ks: [FLOOR_KS; 3],
+                            exponent
+                        }
+                    );
+                    assert_eq!(mat.base_color(), [0.73; 3]);
+                } else {
+                    assert_eq!(mat, ob.material, "{}", o.name);
+                }
+            }
+            assert_eq!(s.scene.area_lights(), base.scene.area_lights());
+        }
+        assert!(build_glossy_floor(1.0, 0, 0.5).is_err());
     }
 
     #[test]

@@ -42,6 +42,18 @@
 //! (azimuth 300°-360°, elevation 5°-25°, radiance 25) reaches the floor through the back
 //! and left walls' openings. From the centre pixel's point only a few percent of the
 //! unoccluded irradiance arrives.
+//!
+//! The default map has no sun, and its windows light the back and side walls directly:
+//! `low` reaches them under the roof's edge, so no floor patch dominates their light.
+//!
+//! **Variant `sun`** ([`build_sun`], see [`super::load_variant`]): the same geometry and
+//! camera under [`super::daylight`] with a low sun straight in front
+//! ([`SUN_AZIMUTH_DEG`] = 180°, toward +z; [`SUN_ELEVATION_DEG`] = 15°). The sun enters
+//! through the open front under the roof's edge and lights a patch of the floor from
+//! z ≈ -1.2 (where the ray past the edge at y = 3, z = 10 reaches the floor) to the front,
+//! with the cars' shadows; it reaches neither the roof's underside nor the walls' inner
+//! faces (the back wall lies beyond the patch, the side walls are parallel to the sun), so
+//! they are lit by the patch's bounce and by the sky. The ground outside is sunlit too.
 
 use glam::Vec3;
 
@@ -176,6 +188,21 @@ pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
     Ok(setup("garage", mesh, cam, envmap()?))
 }
 
+/// Azimuth of the `sun` variant's sun, degrees (180: in front of the open side, +z).
+pub const SUN_AZIMUTH_DEG: f32 = 180.0;
+/// Elevation of the `sun` variant's sun, degrees: low enough to pass under the roof's edge
+/// into the building (below atan(3 / 6) ≈ 26.6° it reaches the floor inside).
+pub const SUN_ELEVATION_DEG: f32 = 15.0;
+
+/// The `sun` variant (see the module docs): the default geometry and camera lit by
+/// [`super::daylight`] with the sun at [`SUN_AZIMUTH_DEG`], [`SUN_ELEVATION_DEG`]. `seed`
+/// is unused.
+pub fn build_sun(detail: f32, seed: u64) -> Result<Setup> {
+    let mut s = build(detail, seed)?;
+    s.envmap = super::daylight(SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG)?;
+    Ok(s)
+}
+
 /// The default environment: bright windows, mostly occluded from under the roof (see the
 /// module docs).
 pub fn envmap() -> Result<EnvMap> {
@@ -248,6 +275,66 @@ mod tests {
         );
         assert!(under >= 36, "{under} of 48 under the roof");
         assert!(sum / n as f32 > 0.6, "mean occlusion {}", sum / n as f32);
+    }
+
+    #[test]
+    fn the_sun_variant_lights_a_floor_patch_inside_but_not_the_walls() {
+        let s = crate::scenes::load_variant("garage", Some("sun"), 1.0, 0).unwrap();
+        let base = build(1.0, 0).unwrap();
+        assert_eq!(s.variant.as_deref(), Some("sun"));
+        assert_eq!(s.scene.mesh().triangles, base.scene.mesh().triangles);
+        assert_eq!(s.camera, base.camera);
+        let sun = procedural::direction(SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG);
+        let mut c = crate::geometry::TraversalCounters::default();
+        let lit = |p: Vec3, n: Vec3, c: &mut _| {
+            n.dot(sun) > 1e-3
+                && !s
+                    .scene
+                    .occluded1(s.scene.offset_point(p, n), sun, f32::INFINITY, c)
+        };
+        // The floor inside the building (x in [-6, 6], z in [-4, 4]) on a 0.25 m grid: the
+        // sun reaches it from z ≈ -1.2 on, outside the cars' long shadows (measured: 31%
+        // of the floor inside), never behind that.
+        let (mut lit_floor, mut inside) = (0, 0);
+        for i in 0..48 {
+            for j in 0..32 {
+                let p = Vec3::new(
+                    -6.0 + 0.25 * (i as f32 + 0.5),
+                    0.0,
+                    -4.0 + 0.25 * (j as f32 + 0.5),
+                );
+                inside += 1;
+                if lit(p, Vec3::Y, &mut c) {
+                    lit_floor += 1;
+                    assert!(p.z > -1.3, "sunlit floor at {p}");
+                }
+            }
+        }
+        let f = lit_floor as f32 / inside as f32;
+        assert!(
+            f > 0.25 && f < 0.4,
+            "sunlit fraction of the floor inside: {f}"
+        );
+        // No direct sun on the roof's underside or the walls' inner faces (the side walls
+        // are parallel to the sun: cos < 1e-3 counts as unlit).
+        for k in 0..200 {
+            let (u, v) = (
+                (k % 20) as f32 / 20.0 + 0.025,
+                (k / 20) as f32 / 10.0 + 0.05,
+            );
+            let faces = [
+                (
+                    Vec3::new(-6.0 + 12.0 * u, 3.0, -4.0 + 14.0 * v),
+                    Vec3::NEG_Y,
+                ),
+                (Vec3::new(-6.0 + 12.0 * u, 3.0 * v, -4.0), Vec3::Z),
+                (Vec3::new(-6.0, 3.0 * v, -4.0 + 8.0 * u), Vec3::X),
+                (Vec3::new(6.0, 3.0 * v, -4.0 + 8.0 * u), Vec3::NEG_X),
+            ];
+            for (p, n) in faces {
+                assert!(!lit(p, n, &mut c), "sunlit at {p}");
+            }
+        }
     }
 
     #[test]

@@ -31,6 +31,23 @@
 //!
 //! Each module's `//!` gives the exact layout, sizes and camera.
 //!
+//! **Variants** ([`load_variant`], [`VARIANTS`]): beside the eleven setups above (which
+//! stay exactly as they are: their renders are references for other benchmarks), a few
+//! scenes have named variants for indirect light. [`INDIRECT_NAMES`] lists the setups meant
+//! for indirect light, defaults and variants. The indirect share is the image mean of
+//! `method="path", bounces=3, direct=False` over that of `direct=True` at 128 x 96, 256 spp
+//! (standard errors at most 0.0022; `python benches/indirect_share.py`): the rest is direct
+//! light, including emitters and the map seen by the camera.
+//!
+//! | scene, variant             | what changes | what it is for | indirect share |
+//! |----------------------------|--------------|----------------|---------------:|
+//! | `cornell`                  | (default)    | colour bleeding: the red and green walls tint the white floor and blocks | 0.40 |
+//! | `cornell`, `glossy_floor`  | floor: Phong, exponent 50 | glossy indirect reflections (VF's figures 1a and 5, `N_s = 50`) | 0.41 |
+//! | `cornell`, `semiglossy_floor` | floor: Phong, exponent 10 | the low end of VF's figure 6 (`N_s = 10`) | 0.41 |
+//! | `garage`                   | (default)    | windows map, no sun: the walls are lit directly | 0.30 |
+//! | `garage`, `sun`            | map: [`daylight`] with a low sun under the roof's edge | a sun patch on the floor inside whose bounce lights the walls and the roof's underside | 0.29 |
+//! | `room`, `sunlit`           | map: sun through the back windows; camera turned away from them | a sun-lit interior where indirect light dominates | 0.70 |
+//!
 //! **Animated setups** ([`load_animated`], [`ANIMATED_NAMES`]): `dynamics` has a variant
 //! whose sphere rolls back and forth; [`Setup::at_frame`] moves it (see [`animation`]).
 //! Frame 0 of an animated setup is its static setup, triangle for triangle.
@@ -70,6 +87,8 @@ pub struct Setup {
     pub animation: Option<Animation>,
     /// The frame the scene is at (0 as built).
     pub frame: u64,
+    /// The variant of the built-in scene ([`load_variant`]), `None` for the default.
+    pub variant: Option<String>,
 }
 
 impl Setup {
@@ -138,6 +157,27 @@ pub const NAMES: [&str; 11] = [
 /// Names of the built-in setups that have an animated variant ([`load_animated`]).
 pub const ANIMATED_NAMES: [&str; 1] = ["dynamics"];
 
+/// Named variants of built-in setups, as (scene, variant) pairs, in a fixed order; each
+/// scene module's docs describe its variants. The default setups ([`load`]) are unchanged by
+/// them.
+pub const VARIANTS: [(&str, &str); 4] = [
+    ("cornell", "glossy_floor"),
+    ("cornell", "semiglossy_floor"),
+    ("garage", "sun"),
+    ("room", "sunlit"),
+];
+
+/// The setups for indirect light, as (scene, variant) pairs (`None`: the default setup),
+/// in a fixed order: see the table in the module docs.
+pub const INDIRECT_NAMES: [(&str, Option<&str>); 6] = [
+    ("cornell", None),
+    ("cornell", Some("glossy_floor")),
+    ("cornell", Some("semiglossy_floor")),
+    ("garage", None),
+    ("garage", Some("sun")),
+    ("room", Some("sunlit")),
+];
+
 /// Largest accepted `detail`.
 pub(crate) const MAX_DETAIL: f32 = 16.0;
 
@@ -167,14 +207,68 @@ pub fn load(name: &str, detail: f32, seed: u64) -> Result<Setup> {
         "panels" => panels::build(detail, seed),
         "scales" => scales::build(detail, seed),
         "blob" => blob::build(detail, seed),
-        _ => Err(Error::invalid(
-            "name",
-            format!(
-                "unknown scene {name:?}; valid names are {}",
-                NAMES.join(", ")
-            ),
-        )),
+        _ => Err(unknown_name(name)),
     }
+}
+
+/// The error for a name not in [`NAMES`].
+fn unknown_name(name: &str) -> Error {
+    Error::invalid(
+        "name",
+        format!(
+            "unknown scene {name:?}; valid names are {}",
+            NAMES.join(", ")
+        ),
+    )
+}
+
+/// The variants of the built-in scene `name` (from [`VARIANTS`], possibly none); an
+/// unknown name is an error naming `name`.
+pub fn variants(name: &str) -> Result<Vec<&'static str>> {
+    if !NAMES.contains(&name) {
+        return Err(unknown_name(name));
+    }
+    Ok(VARIANTS
+        .iter()
+        .filter(|(n, _)| *n == name)
+        .map(|(_, v)| *v)
+        .collect())
+}
+
+/// Builds the setup `name`, or its variant `variant` (one of [`variants`]`(name)`);
+/// `variant = None` is [`load`]. Errors name `detail`, then `name` (unknown), then
+/// `variant` (not a variant of this scene). The setup's `variant` field records it.
+pub fn load_variant(name: &str, variant: Option<&str>, detail: f32, seed: u64) -> Result<Setup> {
+    let Some(v) = variant else {
+        return load(name, detail, seed);
+    };
+    check_detail(detail)?;
+    let mut s = match (name, v) {
+        ("cornell", "glossy_floor") => {
+            cornell::build_glossy_floor(detail, seed, cornell::GLOSSY_EXPONENT)?
+        }
+        ("cornell", "semiglossy_floor") => {
+            cornell::build_glossy_floor(detail, seed, cornell::SEMIGLOSSY_EXPONENT)?
+        }
+        ("garage", "sun") => garage::build_sun(detail, seed)?,
+        ("room", "sunlit") => room::build_sunlit(detail, seed)?,
+        _ => {
+            let valid = variants(name)?;
+            return Err(Error::invalid(
+                "variant",
+                if valid.is_empty() {
+                    format!("scene {name:?} has no variants")
+                } else {
+                    format!(
+                        "scene {name:?} has no variant {v:?}; its variants are {}",
+                        valid.join(", ")
+                    )
+                },
+            ));
+        }
+    };
+    s.variant = Some(v.to_string());
+    Ok(s)
 }
 
 /// Builds the animated variant of setup `name` (one of [`ANIMATED_NAMES`]) at frame 0,
@@ -228,6 +322,7 @@ pub(crate) fn setup(name: &str, mesh: Mesh, camera: Camera, envmap: EnvMap) -> S
         envmap,
         animation: None,
         frame: 0,
+        variant: None,
     }
 }
 
@@ -342,6 +437,53 @@ mod tests {
         assert!(e.starts_with("detail"), "{e}");
         assert!(load("cornell", 16.0, 0).is_ok());
         assert!(load("dynamics", 1e-6, 0).is_ok());
+    }
+
+    #[test]
+    fn variants_load_deterministically_and_name_their_errors() {
+        for (name, variant) in VARIANTS {
+            assert!(variants(name).unwrap().contains(&variant));
+            let a = load_variant(name, Some(variant), 0.25, 3).unwrap();
+            let b = load_variant(name, Some(variant), 0.25, 3).unwrap();
+            assert_eq!(
+                (a.name.as_str(), a.variant.as_deref()),
+                (name, Some(variant))
+            );
+            assert_eq!(a.scene.mesh().triangles, b.scene.mesh().triangles);
+            assert_eq!(a.camera, b.camera);
+            assert_eq!(a.envmap.texels(), b.envmap.texels());
+            assert!(!a.envmap.is_black());
+        }
+        for (name, variant) in INDIRECT_NAMES {
+            assert!(NAMES.contains(&name));
+            if let Some(v) = variant {
+                assert!(VARIANTS.contains(&(name, v)), "{name} {v}");
+            }
+        }
+        // No variant: the default setup, unchanged.
+        let a = load_variant("garage", None, 0.25, 0).unwrap();
+        let b = load("garage", 0.25, 0).unwrap();
+        assert_eq!(a.variant, None);
+        assert_eq!(a.scene.mesh().triangles, b.scene.mesh().triangles);
+        assert_eq!(a.envmap.texels(), b.envmap.texels());
+        assert_eq!(variants("garden").unwrap(), Vec::<&str>::new());
+        assert_eq!(
+            variants("cornell").unwrap(),
+            ["glossy_floor", "semiglossy_floor"]
+        );
+        let e = |n, v, d| load_variant(n, v, d, 0).unwrap_err().to_string();
+        assert!(variants("nope")
+            .unwrap_err()
+            .to_string()
+            .starts_with("name"));
+        assert!(e("nope", Some("sun"), 1.0).starts_with("name"));
+        assert!(e("nope", Some("sun"), f32::NAN).starts_with("detail"));
+        let m = e("cornell", Some("sun"), 1.0);
+        assert!(
+            m.starts_with("variant") && m.contains("glossy_floor"),
+            "{m}"
+        );
+        assert!(e("garden", Some("sun"), 1.0).contains("no variants"));
     }
 
     #[test]

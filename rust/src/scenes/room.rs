@@ -21,6 +21,17 @@
 //!
 //! **Environment.** [`super::daylight`] with the sun at azimuth 340°, elevation 30°: it
 //! shines in through the back windows onto the floor. The seed is unused.
+//!
+//! **Variant `sunlit`** ([`build_sunlit`], see [`super::load_variant`]): a sun-lit
+//! interior where indirect light dominates. The same geometry under [`super::daylight`]
+//! with the sun higher and behind the back wall ([`SUNLIT_AZIMUTH_DEG`] = 350°,
+//! [`SUNLIT_ELEVATION_DEG`] = 45°): through the two back windows it lights two patches of
+//! the floor, z from about -2.1 to -0.7. The camera stands by the back wall between the
+//! windows, eye (0.5, 1.5, -2.7), and looks across the room at (0, 1.2, 3) (vertical field
+//! of view 60°): it sees the front wall, the sofa, the table, floor and ceiling, but
+//! neither a window, the door nor the patches, so most of what it sees is lit by the
+//! patches' bounce. At 128 x 96, 70% of the image's energy is indirect
+//! (`method="path", bounces=3`; see [`super`]'s table).
 
 use glam::Vec3;
 
@@ -149,10 +160,82 @@ pub fn build(detail: f32, _seed: u64) -> Result<Setup> {
     Ok(setup("room", mesh, cam, daylight(340.0, 30.0)?))
 }
 
+/// Azimuth of the `sunlit` variant's sun, degrees (behind the back wall, z < 0).
+pub const SUNLIT_AZIMUTH_DEG: f32 = 350.0;
+/// Elevation of the `sunlit` variant's sun, degrees.
+pub const SUNLIT_ELEVATION_DEG: f32 = 45.0;
+
+/// The `sunlit` variant (see the module docs): the default geometry, the sun at
+/// [`SUNLIT_AZIMUTH_DEG`], [`SUNLIT_ELEVATION_DEG`] and a camera that sees neither the
+/// windows nor the sun patches. `seed` is unused.
+pub fn build_sunlit(detail: f32, seed: u64) -> Result<Setup> {
+    let mut s = build(detail, seed)?;
+    s.envmap = daylight(SUNLIT_AZIMUTH_DEG, SUNLIT_ELEVATION_DEG)?;
+    s.camera = camera([0.5, 1.5, -2.7], [0.0, 1.2, 3.0], 60.0)?;
+    Ok(s)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::TraversalCounters;
+    use crate::lights::procedural;
     use crate::scenes::testing::{check_basic, check_scaling, check_seeds};
+
+    #[test]
+    fn sunlit_variant_hides_the_sun_patches_and_the_windows() {
+        let s = crate::scenes::load_variant("room", Some("sunlit"), 0.5, 0).unwrap();
+        assert_eq!(s.variant.as_deref(), Some("sunlit"));
+        check_basic(&s, "room", 9_000..=9_300);
+        check_seeds(build_sunlit, 0.25, false);
+        let sun = procedural::direction(SUNLIT_AZIMUTH_DEG, SUNLIT_ELEVATION_DEG);
+        let mut c = TraversalCounters::default();
+        let lit = |p: Vec3, n: Vec3, c: &mut _| {
+            n.dot(sun) > 1e-3
+                && !s
+                    .scene
+                    .occluded1(s.scene.offset_point(p, n), sun, f32::INFINITY, c)
+        };
+        // The sun falls through both back windows onto the floor (0.1 m grid over the room).
+        let mut patch = Vec::new();
+        for i in 0..80 {
+            for j in 0..60 {
+                let p = Vec3::new(
+                    -4.0 + 0.1 * (i as f32 + 0.5),
+                    0.0,
+                    -3.0 + 0.1 * (j as f32 + 0.5),
+                );
+                if lit(p, Vec3::Y, &mut c) {
+                    patch.push(p);
+                }
+            }
+        }
+        let area = patch.len() as f32 * 0.01;
+        assert!(area > 2.5 && area < 4.5, "sun patches: {area} m²");
+        assert!(patch.iter().all(|p| p.z > -2.3 && p.z < -0.5));
+        assert!(patch.iter().any(|p| p.x < -1.0) && patch.iter().any(|p| p.x > 0.0));
+        // Every pixel of a 64 x 48 grid sees a surface of the room that the sun misses.
+        let cam = &s.camera;
+        for y in 0..48 {
+            for x in 0..64 {
+                let d = cam.direction((x as f32 + 0.5) * 4.0, (y as f32 + 0.5) * 4.0);
+                let h = s
+                    .scene
+                    .intersect1(cam.eye, d, f32::INFINITY, &mut c)
+                    .unwrap_or_else(|| panic!("pixel ({x}, {y}) sees the sky"));
+                let n = if h.normal.dot(d) > 0.0 {
+                    -h.normal
+                } else {
+                    h.normal
+                };
+                assert!(
+                    !lit(h.position, n, &mut c),
+                    "pixel ({x}, {y}) sees sun at {}",
+                    h.position
+                );
+            }
+        }
+    }
 
     #[test]
     fn builds_deterministically_and_scales() {
