@@ -88,13 +88,39 @@ pub struct CacheParams {
     /// quarter of `d_max` apart, and when their visible sets differ on average by more than
     /// [`INCOHERENCE_LIMIT`] (Jaccard distance), records could not predict the points
     /// between them, so the build inserts none (the control variate then samples as plain
-    /// product sampling, for the check's few rays).
+    /// product sampling, for the check's few rays). A build that passes the check stops
+    /// inserting at [`record_cap`] records: past a tenth of the view's pixels, records
+    /// barely help the control variate and cost most of the build.
     pub check_coherence: bool,
 }
 
 /// Mean Jaccard distance between the visible sets of records a quarter of `d_max` apart
-/// above which [`CacheParams::check_coherence`] stops a build.
-pub const INCOHERENCE_LIMIT: f32 = 0.2;
+/// above which [`CacheParams::check_coherence`] stops a build. Measured over the suite at
+/// 160x120 and 256x192: the control variate's variance was 0.15-0.63x product sampling's
+/// below 0.25 (room, at 0.225, 0.36x) and 0.69-0.97x above (benches/README.md).
+pub const INCOHERENCE_LIMIT: f32 = 0.25;
+
+/// Records per covered pixel at which a checked build stops inserting ([`record_cap`]).
+pub const RECORD_SHARE_LIMIT: f64 = 0.1;
+
+/// Records a checked build always may insert, however small the view.
+pub const MIN_RECORD_CAP: usize = 1024;
+
+/// The most records a build over `covered_pixels` may hold with `params`:
+/// `max_records`, and with [`CacheParams::check_coherence`] also
+/// `max(RECORD_SHARE_LIMIT · covered_pixels, MIN_RECORD_CAP)`. Measured at 160x120, capping
+/// at a tenth of the pixels kept the control variate's variance within 3% of the uncapped
+/// cache's (hairball 0.79 against 0.77, instances 0.84 / 0.82, meshes 0.56 / 0.55) for a
+/// quarter to a fifth of the build's rays.
+pub fn record_cap(params: &CacheParams, covered_pixels: usize) -> usize {
+    let max = params.max_records as usize;
+    if params.check_coherence {
+        let share = (RECORD_SHARE_LIMIT * covered_pixels as f64).ceil() as usize;
+        max.min(share.max(MIN_RECORD_CAP))
+    } else {
+        max
+    }
+}
 
 /// Pixel pairs the coherence check traces.
 pub const COHERENCE_PAIRS: usize = 64;
@@ -378,5 +404,25 @@ mod tests {
             ..p
         };
         assert!(wide.weight_floor().abs() < 1e-6);
+    }
+
+    #[test]
+    fn checked_builds_cap_records_at_a_tenth_of_the_pixels() {
+        let auto = CacheParams::AUTO;
+        assert!(auto.check_coherence && !CacheParams::MEDIUM.check_coherence);
+        assert_eq!(record_cap(&auto, 100_000), 10_000);
+        assert_eq!(record_cap(&auto, 100_001), 10_001);
+        // Small views keep the floor; max_records still bounds everything.
+        assert_eq!(record_cap(&auto, 1_728), MIN_RECORD_CAP);
+        let small = CacheParams {
+            max_records: 500,
+            ..auto
+        };
+        assert_eq!(record_cap(&small, 100_000), 500);
+        let unchecked = CacheParams::MEDIUM;
+        assert_eq!(
+            record_cap(&unchecked, 100_000),
+            unchecked.max_records as usize
+        );
     }
 }

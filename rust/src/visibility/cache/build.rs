@@ -17,7 +17,9 @@ use crate::parallel::with_threads;
 use crate::sampling::pattern::default_pattern;
 use crate::sampling::rng::SampleRng;
 use crate::spatial::waves::{coarse_to_fine_levels, WaveBuilder, WaveTarget};
-use crate::visibility::params::{COHERENCE_LOG2_RESOLUTION, COHERENCE_PAIRS, INCOHERENCE_LIMIT};
+use crate::visibility::params::{
+    record_cap, COHERENCE_LOG2_RESOLUTION, COHERENCE_PAIRS, INCOHERENCE_LIMIT,
+};
 use crate::visibility::record::{Record, RecordRays};
 
 /// What [`VisibilityCache::build`] did.
@@ -185,6 +187,7 @@ impl VisibilityCache {
             let k = self.params.d_max_scale;
             let target = Refine {
                 cache: self,
+                max_records: record_cap(&self.params, report.covered_pixels),
                 scene,
                 query: |i: u32| {
                     let i = i as usize;
@@ -321,6 +324,7 @@ impl VisibilityCache {
         self.bind_scene(scene)?;
         let target = Refine {
             cache: self,
+            max_records: self.params.max_records as usize,
             scene,
             query: |i: u32| points[i as usize],
         };
@@ -340,6 +344,8 @@ impl VisibilityCache {
 /// traced.
 struct Refine<'a, Q> {
     cache: &'a VisibilityCache,
+    /// Records past which requests are refused ([`record_cap`] for a view's build).
+    max_records: usize,
     scene: &'a Scene,
     query: Q,
 }
@@ -376,7 +382,7 @@ impl<Q: Fn(u32) -> (Vec3, Vec3, f32) + Sync> WaveTarget for Refine<'_, Q> {
 
     fn limit(&self, requests: &mut Vec<u32>, deferred: &mut Vec<u32>) {
         // A full cache refuses every record: tracing them would only waste rays.
-        let room = (self.cache.params.max_records as usize).saturating_sub(self.cache.len());
+        let room = self.max_records.saturating_sub(self.cache.len());
         if room < requests.len() {
             let refused = (requests.len() - room) as u64;
             self.cache.write().counters.refused_full += refused;
