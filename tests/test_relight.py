@@ -140,6 +140,14 @@ def test_area_lights_and_radiance_edits():
     lit = np.isfinite(before.t[..., 1])
     ratio = after.image[lit].sum(axis=0) / before.image[lit].sum(axis=0)
     np.testing.assert_allclose(ratio, (2.0, 1.0, 0.5), rtol=0.02)
+    # A texture keeps the density too (SBF's pattern switch): t unchanged, V reused.
+    setup.scene.set_emission_texture(light, np.array([[[2, 0, 0], [0, 2, 0]]], np.float32))
+    try:
+        patterned = rl.render(threshold=0.25, seed=2)
+    finally:
+        setup.scene.set_emission_texture(light, None)
+    np.testing.assert_array_equal(patterned.visibility, before.visibility)
+    assert not np.array_equal(patterned.image, before.image)
 
 
 def test_bit_identical_for_any_thread_count(garage):

@@ -2,8 +2,8 @@
 edits, on fixed pixel centres.
 
 Cases: ``garage`` with its map rotated by 45 degrees and swapped for another sky; the Cornell
-box with two small white area lights under its ceiling switched to red and green after
-visibility converged (SBF's pattern switch, as two lights); ``meshes`` with its map rotated
+box with a white area light under its ceiling whose texture turns into a red and green
+checker after visibility converged (SBF's pattern switch, Fig. 1); ``meshes`` with its map rotated
 (when the shared meshes are found). Visibility converges under the original lighting
 (``converge_visibility``, 256 V-samples; ``visibility="pixels"``, and ``"cache"`` with a
 "medium" cache), then the edit is applied and:
@@ -56,15 +56,17 @@ def _cases(quick: bool):
     yield "garage_rot45", garage, lambda s: s.envmap.rotated(45)
     yield "garage_sky", garage, lambda s: sky
     box = vc.scenes.load("cornell")
-    lights = []
-    for x in (-0.3, 0.3):
-        quad = np.array([[x - 0.1, 1.95, -0.1], [x + 0.1, 1.95, -0.1], [x + 0.1, 1.95, 0.1],
-                         [x - 0.1, 1.95, 0.1]])
-        lights.append(box.scene.add_area_light(quad, (5, 5, 5)))
+    quad = np.array([[-0.4, 1.95, -0.2], [0.4, 1.95, -0.2], [0.4, 1.95, 0.2],
+                     [-0.4, 1.95, 0.2]])
+    light = box.scene.add_area_light(quad, (5, 5, 5))
+    # SBF Fig. 1: after visibility converged, the light's texture turns from white to a
+    # red and green pattern (8 x 4 checker), sampled by area as before.
+    checker = np.indices((4, 8)).sum(axis=0) % 2
+    pattern = np.where(checker[..., None] == 0, (1.6, 0.1, 0.1), (0.1, 1.6, 0.1))
+    pattern = pattern.astype(np.float32)
 
-    def switch(s, lights=lights):
-        s.scene.set_emission(lights[0], (8, 0.5, 0.5))
-        s.scene.set_emission(lights[1], (0.5, 8, 0.5))
+    def switch(s, light=light, pattern=pattern):
+        s.scene.set_emission_texture(light, pattern)
         return s.envmap
 
     yield "cornell_red_green", box, switch

@@ -74,7 +74,8 @@ impl LightingPreview {
                 let emitted = match scene.emitter(obj) {
                     Some(light) => {
                         let first = objects[obj as usize].first_triangle;
-                        light.emitted((g.prim[i] as u32 - first) as usize, -dir)
+                        let y = Vec3::from(g.position[i]);
+                        light.emitted((g.prim[i] as u32 - first) as usize, y, -dir)
                     }
                     None => Vec3::ZERO,
                 };

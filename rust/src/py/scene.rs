@@ -10,14 +10,15 @@ use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    as_rows, f64_arg, finite_rows, int_arg, rows3_array, rows3_f32, rows3_i64, seed_or_zero,
-    threads_arg, vec3_arg, IntoPyResult,
+    as_rows, f64_arg, finite_rows, image3_f32, int_arg, rows3_array, rows3_f32, rows3_i64,
+    seed_or_zero, threads_arg, vec3_arg, IntoPyResult,
 };
 use super::gbuffer::PyGBuffer;
 use super::material::PyMaterial;
 use crate::bsdf::Material;
 use crate::camera::GBuffer;
 use crate::geometry::{BuildQuality, Mesh, RayBatch, Scene, TMax};
+use crate::lights::area::EmissionTexture;
 
 /// Triangles grouped into objects, with a BVH built on first query.
 ///
@@ -213,6 +214,33 @@ impl PyScene {
             )));
         }
         self.edit(|s| s.set_emission(obj, radiance)).py()
+    }
+
+    /// Gives the emitting quad `obj` an RGB `texture` of shape (H, W, 3) over its uv square
+    /// (uv (0, 0) at its first vertex, (1, 0) at the second, (0, 1) at the fourth; row 0
+    /// at v = 0): it then emits its radiance times the texel. None removes the texture.
+    /// Sampling stays by area. Fails, leaving the scene unchanged, if `obj` does not emit
+    /// or is not a quad.
+    #[pyo3(signature = (obj, texture))]
+    fn set_emission_texture(
+        &self,
+        obj: &Bound<'_, PyAny>,
+        texture: &Bound<'_, PyAny>,
+    ) -> PyResult<()> {
+        let n = self.get().mesh().objects.len();
+        let obj = int_arg(obj, "obj", 0, n as i128 - 1)? as u32;
+        if self.get().emitter(obj).is_none() {
+            return Err(PyValueError::new_err(format!(
+                "obj: object {obj} does not emit (see set_emitter)"
+            )));
+        }
+        let texture = if texture.is_none() {
+            None
+        } else {
+            let (texels, h, w) = image3_f32(texture, "texture")?;
+            Some(EmissionTexture::new(w, h, texels).py()?)
+        };
+        self.edit(|s| s.set_emission_texture(obj, texture)).py()
     }
 
     /// Object ids of the area lights, in the order they were added.

@@ -6,7 +6,7 @@ use super::{Scene, SurfaceHit};
 use crate::bsdf::Material;
 use crate::error::{Error, Result};
 use crate::geometry::mesh::check_finite;
-use crate::lights::area::AreaLight;
+use crate::lights::area::{AreaLight, EmissionTexture};
 
 /// Area lights. Emitters are objects of the mesh (they occlude and can be hit like any
 /// other geometry); the scene keeps the [`AreaLight`] of each.
@@ -72,8 +72,27 @@ impl Scene {
                 format!("object {object} does not emit (see set_emitter)"),
             ));
         };
-        let light = AreaLight::new(object, self.lights[i].triangles().to_vec(), radiance)?;
-        self.lights[i] = light;
+        self.lights[i] = self.lights[i].with_radiance(radiance)?;
+        Ok(())
+    }
+
+    /// Gives the emitting quad `object` an RGB `texture` over its `uv` square (radiance
+    /// becomes its radiance times the texel; [`EmissionTexture`]), or removes it with
+    /// `None`. Sampling stays by area. Fails, leaving the scene unchanged, if the object
+    /// does not emit or is not a quad.
+    pub fn set_emission_texture(
+        &mut self,
+        object: u32,
+        texture: Option<EmissionTexture>,
+    ) -> Result<()> {
+        self.object(object)?;
+        let Some(i) = self.lights.iter().position(|l| l.object == object) else {
+            return Err(Error::invalid(
+                "object",
+                format!("object {object} does not emit (see set_emitter)"),
+            ));
+        };
+        self.lights[i] = self.lights[i].clone().with_texture(texture)?;
         Ok(())
     }
 
@@ -92,7 +111,7 @@ impl Scene {
         match self.emitter(hit.obj) {
             Some(light) => {
                 let first = self.mesh.objects[hit.obj as usize].first_triangle;
-                light.emitted((hit.prim - first) as usize, towards_viewer)
+                light.emitted((hit.prim - first) as usize, hit.position, towards_viewer)
             }
             None => Vec3::ZERO,
         }

@@ -8,7 +8,6 @@ use super::Scene;
 use crate::error::{Error, Result};
 use crate::geometry::bvh::BvhUpdate;
 use crate::geometry::mesh::Bounds;
-use crate::lights::area::AreaLight;
 
 /// A moved object's rest pose and the transform applied to it.
 #[derive(Clone, Debug)]
@@ -77,8 +76,7 @@ impl Scene {
         }
         let light = match self.lights.iter().position(|l| l.object == object) {
             Some(i) => {
-                let radiance = self.lights[i].radiance().to_array();
-                let light = AreaLight::new(object, moved.clone(), radiance).map_err(|e| {
+                let light = self.lights[i].moved(moved.clone()).map_err(|e| {
                     Error::invalid("transform", format!("leaves the area light unusable: {e}"))
                 })?;
                 Some((i, light))
