@@ -72,7 +72,7 @@ impl Moments {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::estimators::decoupled::stats::binary_variance;
+    use crate::estimators::decoupled::bound::binary_variance;
     use crate::sampling::rng::SampleRng;
 
     #[test]

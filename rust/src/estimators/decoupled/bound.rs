@@ -1,5 +1,11 @@
 //! SBF's error of decoupled visibility, its bound and the blend it sets (SBF eq. 4-11).
 
+/// The variance of a binary variable of mean `m` (SBF §3: visibility is 0 or 1, so
+/// `Var(V) = E[V](1 − E[V])`), clamped to `[0, 1/4]` for `m` outside `[0, 1]`.
+pub fn binary_variance(m: f64) -> f64 {
+    (m * (1.0 - m)).clamp(0.0, 0.25)
+}
+
 /// `|Err| ≤ sqrt(Var(LB/p) · Var(V))` (SBF eq. 7, from `Err = Cov(LB/p, V)`, eq. 5, and
 /// Cauchy–Schwarz): the largest error of replacing visibility by the scalar `E_p[V]`,
 /// per channel. Variances are those of one sample under the same density `p`.

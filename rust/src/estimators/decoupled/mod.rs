@@ -45,15 +45,13 @@
 //! are bit-identical for any thread count.
 
 pub mod bound;
-pub mod stats;
 
 use std::time::Instant;
 
 use glam::{DVec2, Vec3};
 use rayon::prelude::*;
 
-use self::bound::{blend, blend_factor, error_bound};
-use self::stats::binary_variance;
+use self::bound::{binary_variance, blend, blend_factor, error_bound};
 use super::control_variate::Interpolant;
 use super::direct::{ProductDistribution, ProductLevel, ShadingPoint};
 use super::indirect::shading_point_at;
