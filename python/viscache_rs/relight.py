@@ -84,7 +84,9 @@ class Relighter:
     def converge_visibility(self, spp: int = 256, seed: int = 0, envmap=None,
                             threads: int | None = None) -> dict[str, Any]:
         """Traces ``spp`` V-samples per pixel and light under ``envmap`` (default: the
-        setup's) and the scene's materials; returns shadow_rays and seconds."""
+        setup's) and the scene's materials; returns shadow_rays, seconds and
+        bytes_per_pixel_and_light (two 32-bit counts per light, and a bit per V-sample of
+        the map for reweighting)."""
         envmap = self.setup.envmap if envmap is None else envmap
         return self._core.converge_visibility(
             envmap, spp, seed=seed, threads=self.threads if threads is None else threads)

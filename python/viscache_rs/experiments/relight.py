@@ -142,7 +142,7 @@ def run(ctx: ExperimentContext) -> None:
         same_rays = vc.render(setup, cam, spp=8, method="product", jitter=False, envmap=env,
                               seed=ctx.seed + 6, threads=threads, progress=False)
         lights = blend.t.shape[-1]
-        bytes_per = 24 + 8 * ((V_SPP + 63) // 64)
+        bytes_per = converge["bytes_per_pixel_and_light"]
         over_rows.append([name, f"{blend.stats['seconds']:.3f}",
                           f"{same_rays.stats['seconds']:.3f}",
                           f"{blend.stats['seconds'] / same_rays.stats['seconds']:.2f}x",

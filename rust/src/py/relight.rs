@@ -122,7 +122,8 @@ impl PyRelighter {
     }
 
     /// Traces `spp` V-samples per pixel and light under `envmap` and the scene's materials
-    /// (replacing earlier ones); returns a dict: shadow_rays, seconds.
+    /// (replacing earlier ones); returns a dict: shadow_rays, seconds,
+    /// bytes_per_pixel_and_light (the visibility kept).
     #[pyo3(signature = (envmap, spp, seed=0, product_level=None, threads=None))]
     fn converge_visibility<'py>(
         &self,
@@ -145,9 +146,11 @@ impl PyRelighter {
                 inner.converge_visibility(&scene, env, spp, seed, level, threads)
             })
             .py()?;
+        let bytes = self.lock().visibility_bytes_per_pixel_and_light(&scene);
         let d = PyDict::new(py);
         d.set_item("shadow_rays", rays)?;
         d.set_item("seconds", start.elapsed().as_secs_f64())?;
+        d.set_item("bytes_per_pixel_and_light", bytes)?;
         Ok(d)
     }
 

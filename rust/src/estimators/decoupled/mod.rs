@@ -228,13 +228,21 @@ fn unit_pair(u: [f32; 2]) -> DVec2 {
     DVec2::new(u[0] as f64, u[1] as f64)
 }
 
-/// `V`-statistics of one pixel and light from [`Relighter::converge_visibility`].
-#[derive(Clone, Debug, Default)]
+/// `V`-statistics of one pixel and light from [`Relighter::converge_visibility`]: for
+/// binary `V` the counts are all (mean `visible / samples`, variance binary): two
+/// 32-bit words.
+#[derive(Clone, Copy, Debug, Default)]
 struct PixelVisibility {
-    v: Moments,
-    /// The samples' visibility, bit `s` for sample `s` (the map's light only: the
-    /// samples are redrawn from the stored density to reweight them).
-    bits: Vec<u64>,
+    /// Draws with `LB > 0`, each with a shadow ray.
+    samples: u32,
+    /// Those whose ray reached the light.
+    visible: u32,
+}
+
+impl PixelVisibility {
+    fn mean(&self) -> f64 {
+        self.visible as f64 / self.samples.max(1) as f64
+    }
 }
 
 /// The state the `V`-samples were drawn under.
@@ -247,6 +255,18 @@ struct Converged {
     product_level: ProductLevel,
     /// Per pixel, per light ([`Relighter::lights`] order).
     stats: Vec<PixelVisibility>,
+    /// Per pixel, `words` words of the map's samples' visibility, bit `s` for sample `s`
+    /// (the samples are redrawn from the stored density to reweight them): `spp` bits
+    /// per pixel.
+    bits: Vec<u64>,
+    words: usize,
+}
+
+impl Converged {
+    /// Bytes kept per pixel and light (averaged over the lights: the bits are the map's).
+    pub fn bytes_per_pixel_and_light(&self, lights: usize) -> usize {
+        std::mem::size_of::<PixelVisibility>() + 8 * self.words / lights.max(1)
+    }
 }
 
 /// What [`Relighter::render`] returns: images per pixel (row-major) and per pixel and
@@ -324,6 +344,15 @@ impl Relighter {
         self.converged.as_ref().map_or(0, |c| c.spp)
     }
 
+    /// Bytes of stored visibility per pixel and light (0 before
+    /// [`Self::converge_visibility`]): two 32-bit counts, and for the map one bit per
+    /// V-sample, averaged over the lights of `scene`.
+    pub fn visibility_bytes_per_pixel_and_light(&self, scene: &Scene) -> usize {
+        self.converged.as_ref().map_or(0, |c| {
+            c.bytes_per_pixel_and_light(Self::lights(scene).len())
+        })
+    }
+
     /// The shading point of pixel `i` with `materials` (per object), or `None` for a miss.
     fn point(&self, scene: &Scene, materials: &[Material], i: usize) -> Option<ShadingPoint> {
         let hit = self.gbuffer.surface_hit(i)?;
@@ -356,14 +385,15 @@ impl Relighter {
         let materials: Vec<Material> = scene.mesh().objects.iter().map(|o| o.material).collect();
         let lights = Self::lights(scene);
         let words = (spp as usize).div_ceil(64);
-        let per_pixel: Vec<(Vec<PixelVisibility>, u64)> = with_threads(threads, || {
+        let per_pixel: Vec<(Vec<PixelVisibility>, Vec<u64>, u64)> = with_threads(threads, || {
             (0..self.gbuffer.len())
                 .into_par_iter()
                 .with_min_len(64)
                 .map(|i| {
                     let mut out = vec![PixelVisibility::default(); lights.len()];
+                    let mut bits = vec![0u64; words];
                     let Some(sp) = self.point(scene, &materials, i) else {
-                        return (out, 0);
+                        return (out, bits, 0);
                     };
                     let at = PixelLights {
                         scene,
@@ -375,9 +405,6 @@ impl Relighter {
                     let mut rays = 0u64;
                     for (l, &light) in lights.iter().enumerate() {
                         let stats = &mut out[l];
-                        if light == LightId::Env {
-                            stats.bits = vec![0; words];
-                        }
                         for s in 0..spp {
                             let rng = PixelSampler::new(seed, i as u64, STREAM_V + s as u64);
                             // Draws with `LB = 0` tell nothing (module docs).
@@ -386,24 +413,33 @@ impl Relighter {
                             };
                             rays += 1;
                             let visible = at.visible(&d, &mut bvh);
-                            stats.v.push(visible as u8 as f64);
+                            stats.samples += 1;
+                            stats.visible += visible as u32;
                             if visible && light == LightId::Env {
-                                stats.bits[s as usize / 64] |= 1 << (s % 64);
+                                bits[s as usize / 64] |= 1 << (s % 64);
                             }
                         }
                     }
-                    (out, rays)
+                    (out, bits, rays)
                 })
                 .collect()
         })?;
-        let rays = per_pixel.iter().map(|p| p.1).sum();
+        let rays = per_pixel.iter().map(|p| p.2).sum();
+        let mut stats = Vec::with_capacity(self.gbuffer.len() * lights.len());
+        let mut bits = Vec::with_capacity(self.gbuffer.len() * words);
+        for (s, b, _) in per_pixel {
+            stats.extend(s);
+            bits.extend(b);
+        }
         self.converged = Some(Converged {
             env,
             materials,
             spp,
             seed,
             product_level,
-            stats: per_pixel.into_iter().flat_map(|p| p.0).collect(),
+            stats,
+            bits,
+            words,
         });
         Ok(rays)
     }
@@ -541,9 +577,9 @@ impl Relighter {
                             (Some(c), _, _) => {
                                 let stats = &c.stats[i * n_lights + l];
                                 if light == LightId::Env && !same_env_density {
-                                    reweighted(c, stats, &at, hit.obj, i)
+                                    reweighted(c, &at, hit.obj, i)
                                 } else {
-                                    (stats.v.mean, stats.v.count as f64)
+                                    (stats.mean(), stats.samples as f64)
                                 }
                             }
                             // Records see an area light's own geometry as an occluder: they
@@ -654,13 +690,7 @@ fn product_of(env: &EnvMap, sp: &ShadingPoint, level: ProductLevel) -> Option<Pr
 /// (self-normalised), and the effective sample count `(Σw)²/Σw²`. Directions `p` never
 /// drew (`p = 0 < p'`: light where the old map was black) are missed; the effective count
 /// shows how far the densities differ. `(NaN, 0)` when no sample has weight.
-fn reweighted(
-    c: &Converged,
-    stats: &PixelVisibility,
-    now: &PixelLights,
-    object: u32,
-    pixel: usize,
-) -> (f64, f64) {
+fn reweighted(c: &Converged, now: &PixelLights, object: u32, pixel: usize) -> (f64, f64) {
     let mut then_sp = now.sp;
     then_sp.material = c.materials[object as usize];
     let then = PixelLights {
@@ -679,7 +709,7 @@ fn reweighted(
             continue;
         };
         let w = p_now.pdf(now.env, d.dir) / d.pdf;
-        let v = (stats.bits[s as usize / 64] >> (s % 64)) & 1;
+        let v = (c.bits[pixel * c.words + s as usize / 64] >> (s % 64)) & 1;
         sum_w += w;
         sum_w2 += w * w;
         sum_wv += w * v as f64;
