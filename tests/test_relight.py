@@ -8,6 +8,7 @@ import pytest
 import viscache_rs as vc
 
 W, H = 32, 24
+W_SMALL, H_SMALL = 16, 12
 
 
 @pytest.fixture(scope="module")
@@ -195,3 +196,31 @@ def test_bad_construction_and_order():
     assert rl._core.visibility_spp == 0
     with pytest.raises(ValueError, match="^gbuffer"):
         vc._core.Relighter(vc.scenes.load("garage").scene, rl.gbuffer)
+
+
+def test_time_budget_and_stopping():
+    setup = vc.scenes.load("garage")
+    cam = setup.camera.with_resolution(W_SMALL, H_SMALL)
+    rl = vc.Relighter(setup, cam)
+    # A budget spent by the first pass: one pass of 16 samples, the same as asking for 16.
+    short = rl.converge_visibility(spp=1024, time_budget=1e-9, progress=False)
+    assert short["spp"] == 16 and rl._core.visibility_spp == 16
+    a = rl.render(threshold=0.25)
+    same = vc.Relighter(setup, cam)
+    assert same.converge_visibility(spp=16, progress=False)["spp"] == 16
+    np.testing.assert_array_equal(same.render(threshold=0.25).image, a.image)
+    # A callback that stops at once: nothing completed, the visibility of before stays.
+    with pytest.raises(KeyboardInterrupt, match="interrupted"):
+        rl._core.converge_visibility(setup.envmap, 64, callback=lambda done, total: False)
+    assert rl._core.visibility_spp == 16
+    # Stopped after its first pass: the completed passes are kept.
+    calls = []
+
+    def after_first_pass(done, total):
+        calls.append(done)
+        return done <= 16 * W_SMALL * H_SMALL
+    kept = rl._core.converge_visibility(setup.envmap, 64, callback=after_first_pass)
+    assert kept["spp"] == 16 and rl._core.visibility_spp == 16
+    np.testing.assert_array_equal(rl.render(threshold=0.25).image, a.image)
+    with pytest.raises(ValueError, match="^time_budget"):
+        rl.converge_visibility(spp=16, time_budget=-1, progress=False)

@@ -326,6 +326,8 @@ class Relighter:
         seed: int | None = 0,
         product_level: int | str | None = None,
         threads: int | None = None,
+        time_budget: float | None = None,
+        callback: Callable[[int, int], Any] | None = None,
     ) -> dict[str, Any]: ...
     def render(
         self,
@@ -339,6 +341,7 @@ class Relighter:
         seed: int | None = 0,
         product_level: int | str | None = None,
         threads: int | None = None,
+        callback: Callable[[int, int], Any] | None = None,
     ) -> dict[str, Any]: ...
 
 def write_exr(path: str | PathLike[str], image: _ArrayLike) -> None: ...

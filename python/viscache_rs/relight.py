@@ -19,12 +19,13 @@ sample) and takes ``<V>``, the expected visibility under the same density, from:
   unbiased ``<LBV>`` (``t = 0``) in this mode.
 
 ``render(envmap=None, materials=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1,
-seed=0, camera=None, threads=None)`` returns SBF eq. 9's blend ``(1 - t) <LBV> + t <LB> <V>``
-per light, with ``t`` from the estimated relative error bound ``sqrt(Var(LB/p) Var(V)) /
-<LB>`` (eq. 7, 10) against ``threshold`` (eq. 11; the worst channel decides, ``t <= 1 -
-epsilon``; ``threshold=0`` is the unbiased ``<LBV>`` alone). ``materials`` is a dict of
-object id -> :class:`Material` overriding the scene's; area-light radiance is edited on the
-scene (``scene.set_emission``). Results are bit-identical for any ``threads``.
+seed=0, camera=None, threads=None, progress=False)`` returns SBF eq. 9's blend
+``(1 - t) <LBV> + t <LB> <V>`` per light, with ``t`` from the estimated relative error
+bound ``sqrt(Var(LB/p) Var(V)) / <LB>`` (eq. 7, 10) against ``threshold`` (eq. 11; the
+worst channel decides, ``t <= 1 - epsilon``; ``threshold=0`` is the unbiased ``<LBV>``
+alone). ``materials`` is a dict of object id -> :class:`Material` overriding the scene's;
+area-light radiance and textures are edited on the scene (``scene.set_emission``,
+``scene.set_emission_texture``). Results are bit-identical for any ``threads``.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
+from ._progress import progress_bar
 from .cache import VisibilityCache
 
 
@@ -82,18 +84,25 @@ class Relighter:
         return self._core.visibility
 
     def converge_visibility(self, spp: int = 256, seed: int = 0, envmap=None,
-                            threads: int | None = None) -> dict[str, Any]:
+                            threads: int | None = None, time_budget: float | None = None,
+                            progress: bool = True) -> dict[str, Any]:
         """Traces ``spp`` V-samples per pixel and light under ``envmap`` (default: the
-        setup's) and the scene's materials; returns shadow_rays, seconds and
-        bytes_per_pixel_and_light (two 32-bit counts per light, and a bit per V-sample of
-        the map for reweighting)."""
+        setup's) and the scene's materials, in passes of 16 (with ``time_budget`` seconds,
+        no pass starts once it is spent; ``["spp"]`` says how many were taken). Shows a
+        progress bar unless ``progress=False``; Ctrl-C stops and leaves the relighter as it
+        was. Returns spp, shadow_rays, seconds and bytes_per_pixel_and_light (two 32-bit
+        counts per light, and a bit per V-sample of the map for reweighting)."""
         envmap = self.setup.envmap if envmap is None else envmap
-        return self._core.converge_visibility(
-            envmap, spp, seed=seed, threads=self.threads if threads is None else threads)
+        threads = self.threads if threads is None else threads
+        pixels = self.camera.width * self.camera.height
+        with progress_bar(progress, "visibility", "spp", total=spp, per_unit=pixels) as bar:
+            return self._core.converge_visibility(envmap, spp, seed=seed, threads=threads,
+                                                  time_budget=time_budget, callback=bar)
 
     def render(self, envmap=None, materials: dict[int, Any] | None = None, lb_spp: int = 64,
                lbv_spp: int = 8, threshold: float = 0.25, epsilon: float = 0.1, seed: int = 0,
-               camera=None, threads: int | None = None) -> RelightResult:
+               camera=None, threads: int | None = None,
+               progress: bool = False) -> RelightResult:
         """Relights the view; see the module docstring."""
         envmap = self.setup.envmap if envmap is None else envmap
         threads = self.threads if threads is None else threads
@@ -104,9 +113,10 @@ class Relighter:
             self.camera = camera
             self.gbuffer = self.setup.scene.gbuffer(camera, jitter=False, threads=threads)
             self._core = _core.Relighter(self.setup.scene, self.gbuffer, visibility="cache")
-        out = self._core.render(envmap, materials=materials, cache=self.cache, lb_spp=lb_spp,
-                                lbv_spp=lbv_spp, threshold=threshold, epsilon=epsilon,
-                                seed=seed, threads=threads)
+        with progress_bar(progress, "relight", "px") as bar:
+            out = self._core.render(envmap, materials=materials, cache=self.cache,
+                                    lb_spp=lb_spp, lbv_spp=lbv_spp, threshold=threshold,
+                                    epsilon=epsilon, seed=seed, threads=threads, callback=bar)
         return RelightResult(out["image"], out["variance"], out["error_bound"], out["t"],
                              out["bound"],
                              out["visibility"], out["effective_samples"], out["stats"])

@@ -91,6 +91,29 @@ pub fn run_polling<R: Send>(
     })
 }
 
+/// Seconds between progress reports of long work.
+pub const PROGRESS_INTERVAL: std::time::Duration = std::time::Duration::from_millis(100);
+
+/// Runs `work` on `threads` workers while the calling thread calls `poll` every
+/// [`PROGRESS_INTERVAL`] (it may ask the work to stop by returning false; the work checks
+/// a flag of its own).
+pub fn run_with_progress<R: Send>(
+    threads: Option<usize>,
+    work: impl FnOnce() -> R + Send,
+    poll: &mut dyn FnMut() -> bool,
+) -> Result<R> {
+    let mut polling = true;
+    run_polling(
+        || with_threads(threads, work),
+        PROGRESS_INTERVAL,
+        &mut || {
+            if polling {
+                polling = poll();
+            }
+        },
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

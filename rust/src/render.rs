@@ -69,7 +69,7 @@
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -88,7 +88,7 @@ use crate::estimators::direct::{
 use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParams, MAX_BOUNCES};
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
-use crate::parallel::with_threads;
+use crate::parallel::{run_with_progress, with_threads};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
 use crate::visibility::cache::{CacheState, Lookup, VisibilityCache};
@@ -98,9 +98,6 @@ const BAND_ROWS: usize = 4;
 
 /// Most samples per pixel a render takes.
 pub const MAX_SPP: u32 = 1 << 20;
-
-/// Seconds between progress reports.
-const PROGRESS_INTERVAL: Duration = Duration::from_millis(100);
 
 /// Parameters of [`render`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -1181,24 +1178,4 @@ impl PassSchedule {
         (target >= (mean + 1.0).floor() && target > min as f64)
             .then(|| target.min(MAX_SPP as f64) as u32)
     }
-}
-
-/// Runs `work` on `threads` workers while the calling thread calls `poll` every
-/// [`PROGRESS_INTERVAL`] (it may ask the work to stop by returning false; the work checks
-/// a flag of its own).
-fn run_with_progress<R: Send>(
-    threads: Option<usize>,
-    work: impl FnOnce() -> R + Send,
-    poll: &mut dyn FnMut() -> bool,
-) -> Result<R> {
-    let mut polling = true;
-    crate::parallel::run_polling(
-        || with_threads(threads, work),
-        PROGRESS_INTERVAL,
-        &mut || {
-            if polling {
-                polling = poll();
-            }
-        },
-    )
 }

@@ -106,7 +106,7 @@ def run(ctx: ExperimentContext) -> None:
     for name, setup, edit in _cases(ctx.quick):
         cam = setup.camera.with_resolution(w, h)
         pixels = vc.Relighter(setup, cam, threads=threads)
-        converge = pixels.converge_visibility(spp=V_SPP, seed=ctx.seed)
+        converge = pixels.converge_visibility(spp=V_SPP, seed=ctx.seed, progress=ctx.progress)
         cached = vc.Relighter(setup, cam, visibility="cache", threads=threads)
         env = edit(setup)
         ref = vc.render(setup, cam, spp=REFERENCE_SPP, method="product", jitter=False,

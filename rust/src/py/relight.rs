@@ -15,6 +15,7 @@ use super::convert::{
 };
 use super::envmap::PyEnvMap;
 use super::gbuffer::PyGBuffer;
+use super::interrupt::{detach_interruptible, PyProgress};
 use super::material::PyMaterial;
 use super::scene::PyScene;
 use crate::bsdf::Material;
@@ -122,9 +123,13 @@ impl PyRelighter {
     }
 
     /// Traces `spp` V-samples per pixel and light under `envmap` and the scene's materials
-    /// (replacing earlier ones); returns a dict: shadow_rays, seconds,
-    /// bytes_per_pixel_and_light (the visibility kept).
-    #[pyo3(signature = (envmap, spp, seed=0, product_level=None, threads=None))]
+    /// (replacing earlier ones), in passes of 16; with `time_budget` (seconds) no pass
+    /// starts once it is spent. `callback(done, planned)` (pixel samples), if given, is
+    /// called with the GIL held about every 0.1 s; a falsy return, an exception or Ctrl-C
+    /// stops, leaving the relighter as it was. Returns a dict: spp (taken), shadow_rays,
+    /// seconds, bytes_per_pixel_and_light (the visibility kept).
+    #[pyo3(signature = (envmap, spp, seed=0, product_level=None, threads=None, time_budget=None, callback=None))]
+    #[allow(clippy::too_many_arguments)]
     fn converge_visibility<'py>(
         &self,
         py: Python<'py>,
@@ -133,21 +138,40 @@ impl PyRelighter {
         #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         product_level: Option<&Bound<'py, PyAny>>,
         threads: Option<&Bound<'py, PyAny>>,
+        time_budget: Option<&Bound<'py, PyAny>>,
+        callback: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let spp = int_arg(spp, "spp", 1, MAX_VISIBILITY_SPP as i128)? as u32;
         let level = product_level_arg(product_level)?;
         let threads = threads_arg(threads)?;
+        let budget = match time_budget {
+            Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
+            _ => None,
+        };
         let scene = self.scene.borrow(py).get();
         let env = &envmap.inner;
         let start = std::time::Instant::now();
-        let rays = py
-            .detach(|| {
-                let mut inner = self.lock();
-                inner.converge_visibility(&scene, env, spp, seed, level, threads)
-            })
-            .py()?;
+        let mut reporter = PyProgress::new(callback);
+        let stop = reporter.stop_flag();
+        let mut progress = |done: u64, planned: u64| reporter.report(done, planned);
+        let out = detach_interruptible(py, &stop, || {
+            let mut inner = self.lock();
+            inner.converge_visibility(
+                &scene,
+                env,
+                spp,
+                seed,
+                level,
+                threads,
+                budget,
+                &mut progress,
+            )
+        })?;
+        reporter.finish()?;
+        let (taken, rays) = out.py()?;
         let bytes = self.lock().visibility_bytes_per_pixel_and_light(&scene);
         let d = PyDict::new(py);
+        d.set_item("spp", taken)?;
         d.set_item("shadow_rays", rays)?;
         d.set_item("seconds", start.elapsed().as_secs_f64())?;
         d.set_item("bytes_per_pixel_and_light", bytes)?;
@@ -157,7 +181,7 @@ impl PyRelighter {
     /// Relights the view: see `viscache_rs.Relighter.render`. Returns a dict of arrays
     /// (image, variance: (H, W, 3); t, bound, visibility, effective_samples: (H, W, L))
     /// and stats.
-    #[pyo3(signature = (envmap, materials=None, cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None))]
+    #[pyo3(signature = (envmap, materials=None, cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, callback=None))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -172,6 +196,7 @@ impl PyRelighter {
         #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         product_level: Option<&Bound<'py, PyAny>>,
         threads: Option<&Bound<'py, PyAny>>,
+        callback: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let params = RelightParams {
             lb_spp,
@@ -187,12 +212,24 @@ impl PyRelighter {
         let cache = cache.map(|c| c.bound(py)).transpose()?;
         let scene = self.scene.borrow(py).get();
         let env = &envmap.inner;
-        let out = py
-            .detach(|| {
-                let inner = self.lock();
-                inner.render(&scene, env, &overrides, cache.as_deref(), &params, threads)
-            })
-            .py()?;
+        let mut reporter = PyProgress::new(callback);
+        let stop = reporter.stop_flag();
+        let mut progress = |done: u64, total: u64| reporter.report(done, total);
+        let out = detach_interruptible(py, &stop, || {
+            let inner = self.lock();
+            let cache = cache.as_deref();
+            inner.render(
+                &scene,
+                env,
+                &overrides,
+                cache,
+                &params,
+                threads,
+                &mut progress,
+            )
+        })?;
+        reporter.finish()?;
+        let out = out.py()?;
         let (w, h) = {
             let inner = self.lock();
             (

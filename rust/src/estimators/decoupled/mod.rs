@@ -46,6 +46,7 @@
 
 pub mod bound;
 
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
 use glam::{DVec2, Vec3};
@@ -62,13 +63,16 @@ use crate::estimators::direct::dims;
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::moments::Moments;
-use crate::parallel::with_threads;
+use crate::parallel::run_with_progress;
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
 use crate::visibility::cache::VisibilityCache;
 
 /// Most `V`-samples per pixel and light [`Relighter::converge_visibility`] keeps.
 pub const MAX_VISIBILITY_SPP: u32 = 1 << 16;
+
+/// `V`-samples per pixel and light of one pass of [`Relighter::converge_visibility`].
+pub const VISIBILITY_PASS_SPP: u32 = 16;
 
 /// Most `LB`- or `LBV`-samples per pixel and light of one [`Relighter::render`].
 pub const MAX_RELIGHT_SPP: u32 = 1 << 16;
@@ -362,8 +366,17 @@ impl Relighter {
     }
 
     /// Traces `spp` `V`-samples per pixel and light under `env` and the scene's materials
-    /// now (their densities), replacing earlier ones; returns the shadow rays traced.
-    /// Needed for [`VisibilitySource::Pixels`].
+    /// now (their densities), replacing earlier ones; returns the samples per pixel and
+    /// light taken and the shadow rays traced. Needed for [`VisibilitySource::Pixels`].
+    ///
+    /// Samples go in passes of [`VISIBILITY_PASS_SPP`] over every pixel; with
+    /// `time_budget` (seconds) no pass starts once it is spent, so fewer than `spp` may be
+    /// taken (every pixel the same number; the result equals a run asked for that many).
+    /// `progress(done, planned)` (pixel samples) is called on the calling thread about
+    /// every 0.1 s; returning `false` stops: the passes completed before are kept, as
+    /// under a budget, and with none completed the call fails with
+    /// [`Error::Interrupted`], leaving the relighter as it was.
+    #[allow(clippy::too_many_arguments)]
     pub fn converge_visibility(
         &mut self,
         scene: &Scene,
@@ -372,76 +385,120 @@ impl Relighter {
         seed: u64,
         product_level: ProductLevel,
         threads: Option<usize>,
-    ) -> Result<u64> {
+        time_budget: Option<f64>,
+        progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
+    ) -> Result<(u32, u64)> {
         if spp == 0 || spp > MAX_VISIBILITY_SPP {
             return Err(Error::invalid(
                 "spp",
                 format!("must lie in [1, {MAX_VISIBILITY_SPP}], got {spp}"),
             ));
         }
+        if let Some(b) = time_budget {
+            if !(b.is_finite() && b > 0.0) {
+                return Err(Error::invalid(
+                    "time_budget",
+                    format!("must be a positive number of seconds, got {b}"),
+                ));
+            }
+        }
         product_level.validate()?;
         self.gbuffer.check(scene, None)?;
+        let start = Instant::now();
         let env = env.at_least(2)?.into_owned();
         let materials: Vec<Material> = scene.mesh().objects.iter().map(|o| o.material).collect();
         let lights = Self::lights(scene);
+        let n_lights = lights.len();
         let words = (spp as usize).div_ceil(64);
-        let per_pixel: Vec<(Vec<PixelVisibility>, Vec<u64>, u64)> = with_threads(threads, || {
-            (0..self.gbuffer.len())
-                .into_par_iter()
-                .with_min_len(64)
-                .map(|i| {
-                    let mut out = vec![PixelVisibility::default(); lights.len()];
-                    let mut bits = vec![0u64; words];
-                    let Some(sp) = self.point(scene, &materials, i) else {
-                        return (out, bits, 0);
-                    };
-                    let at = PixelLights {
-                        scene,
-                        env: &env,
-                        product: product_of(&env, &sp, product_level),
-                        sp,
-                    };
-                    let mut bvh = TraversalCounters::default();
-                    let mut rays = 0u64;
-                    for (l, &light) in lights.iter().enumerate() {
-                        let stats = &mut out[l];
-                        for s in 0..spp {
-                            let rng = PixelSampler::new(seed, i as u64, STREAM_V + s as u64);
-                            // Draws with `LB = 0` tell nothing (module docs).
-                            let Some(d) = at.draw(light, &rng).filter(|d| d.ray.is_some()) else {
-                                continue;
-                            };
-                            rays += 1;
-                            let visible = at.visible(&d, &mut bvh);
-                            stats.samples += 1;
-                            stats.visible += visible as u32;
-                            if visible && light == LightId::Env {
-                                bits[s as usize / 64] |= 1 << (s % 64);
+        let pixels = self.gbuffer.len();
+        let mut stats = vec![PixelVisibility::default(); pixels * n_lights];
+        let mut bits = vec![0u64; pixels * words];
+        let planned = spp as u64 * pixels as u64;
+        let cancel = AtomicBool::new(false);
+        let done = AtomicU64::new(0);
+        let mut rays = 0u64;
+        let mut taken = 0u32;
+        while taken < spp {
+            let pass = taken..(taken + VISIBILITY_PASS_SPP).min(spp);
+            // What the completed passes gave, kept in case this one is stopped.
+            let before = (taken > 0).then(|| (stats.clone(), bits.clone()));
+            let this = &*self;
+            let work = || {
+                stats
+                    .par_chunks_mut(n_lights)
+                    .zip(bits.par_chunks_mut(words))
+                    .enumerate()
+                    .with_min_len(64)
+                    .map(|(i, (stats, bits))| {
+                        if cancel.load(Ordering::Relaxed) {
+                            return 0;
+                        }
+                        done.fetch_add(pass.len() as u64, Ordering::Relaxed);
+                        let Some(sp) = this.point(scene, &materials, i) else {
+                            return 0;
+                        };
+                        let at = PixelLights {
+                            scene,
+                            env: &env,
+                            product: product_of(&env, &sp, product_level),
+                            sp,
+                        };
+                        let mut bvh = TraversalCounters::default();
+                        let mut rays = 0u64;
+                        for (stats, &light) in stats.iter_mut().zip(&lights) {
+                            for s in pass.clone() {
+                                let rng = PixelSampler::new(seed, i as u64, STREAM_V + s as u64);
+                                // Draws with `LB = 0` tell nothing (module docs).
+                                let Some(d) = at.draw(light, &rng).filter(|d| d.ray.is_some())
+                                else {
+                                    continue;
+                                };
+                                rays += 1;
+                                let visible = at.visible(&d, &mut bvh);
+                                stats.samples += 1;
+                                stats.visible += visible as u32;
+                                if visible && light == LightId::Env {
+                                    bits[s as usize / 64] |= 1 << (s % 64);
+                                }
                             }
                         }
-                    }
-                    (out, bits, rays)
-                })
-                .collect()
-        })?;
-        let rays = per_pixel.iter().map(|p| p.2).sum();
-        let mut stats = Vec::with_capacity(self.gbuffer.len() * lights.len());
-        let mut bits = Vec::with_capacity(self.gbuffer.len() * words);
-        for (s, b, _) in per_pixel {
-            stats.extend(s);
-            bits.extend(b);
+                        rays
+                    })
+                    .sum::<u64>()
+            };
+            let pass_rays = run_with_progress(threads, work, &mut || {
+                let keep = progress(done.load(Ordering::Relaxed), planned);
+                if !keep {
+                    cancel.store(true, Ordering::Relaxed);
+                }
+                keep
+            })?;
+            if cancel.load(Ordering::Relaxed) || !progress(done.load(Ordering::Relaxed), planned) {
+                let Some((s, b)) = before else {
+                    return Err(Error::Interrupted {
+                        what: "converge_visibility".into(),
+                    });
+                };
+                (stats, bits) = (s, b);
+                break;
+            }
+            rays += pass_rays;
+            taken = pass.end;
+            if time_budget.is_some_and(|b| start.elapsed().as_secs_f64() >= b) {
+                break;
+            }
         }
         self.converged = Some(Converged {
             env,
             materials,
-            spp,
+            spp: taken,
             seed,
             product_level,
             stats,
             bits,
             words,
         });
-        Ok(rays)
+        Ok((taken, rays))
     }
 
     /// Relights the view under `env`, the scene's area lights as they are now, and the
@@ -449,6 +506,9 @@ impl Relighter {
     /// light, `LB`- and `LBV`-samples under the current densities, `⟨V⟩` from the source,
     /// and SBF's blend (module docs). `cache` is needed for [`VisibilitySource::Cache`]
     /// (records of this scene); [`VisibilitySource::Pixels`] needs a converged visibility.
+    /// `progress(done, total)` (pixels) is called on the calling thread about every 0.1 s;
+    /// returning `false` stops with [`Error::Interrupted`].
+    #[allow(clippy::too_many_arguments)]
     pub fn render(
         &self,
         scene: &Scene,
@@ -457,6 +517,7 @@ impl Relighter {
         cache: Option<&VisibilityCache>,
         params: &RelightParams,
         threads: Option<usize>,
+        progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
     ) -> Result<Relit> {
         params.validate()?;
         self.gbuffer.check(scene, None)?;
@@ -515,12 +576,18 @@ impl Relighter {
         });
         let state = cache.map(|c| c.read());
         let n_lights = lights.len();
-        let pixels: Vec<PixelResult> = with_threads(threads, || {
+        let (cancel, done) = (AtomicBool::new(false), AtomicU64::new(0));
+        let total = self.gbuffer.len() as u64;
+        let work = || {
             (0..self.gbuffer.len())
                 .into_par_iter()
                 .with_min_len(16)
                 .map(|i| {
                     let dir = Vec3::from(self.gbuffer.direction[i]);
+                    if cancel.load(Ordering::Relaxed) {
+                        return PixelResult::miss(Vec3::ZERO, n_lights);
+                    }
+                    done.fetch_add(1, Ordering::Relaxed);
                     let Some(sp) = self.point(scene, &materials, i) else {
                         return PixelResult::miss(env.eval(dir), n_lights);
                     };
@@ -653,8 +720,20 @@ impl Relighter {
                     }
                     out
                 })
-                .collect()
+                .collect::<Vec<PixelResult>>()
+        };
+        let pixels = run_with_progress(threads, work, &mut || {
+            let keep = progress(done.load(Ordering::Relaxed), total);
+            if !keep {
+                cancel.store(true, Ordering::Relaxed);
+            }
+            keep
         })?;
+        if cancel.load(Ordering::Relaxed) {
+            return Err(Error::Interrupted {
+                what: "relighting".into(),
+            });
+        }
         let mut relit = Relit {
             lights: n_lights,
             ..Relit::default()
