@@ -50,11 +50,10 @@ use rayon::prelude::*;
 
 use crate::camera::{Camera, GBuffer};
 use crate::error::{Error, Result};
-use crate::estimators::direct::ShadingPoint;
 use crate::estimators::indirect::shading_point_at;
 use crate::geometry::{RayBatch, Scene, SurfaceHit, TMax, TraversalCounters};
 use crate::lights::envmap::EnvMap;
-use crate::lights::vpl::{luminance, Vpl, VplKind, VplSet};
+use crate::lights::vpl::{luminance, Receiver as VplReceiver, Vpl, VplKind, VplSet};
 use crate::parallel::{run_polling, with_threads};
 use crate::sampling::rng::{mix64, SampleRng};
 
@@ -158,14 +157,14 @@ impl Default for ManyLightParams {
 
 /// A per-pixel distribution over the VPLs for [`Gather::Sampled`].
 pub trait VplDistribution: Sync {
-    /// Fills `weights[k]` (finite, `>= 0`, any scale) for `vpls[k]` at the receiver `sp` of
+    /// Fills `weights[k]` (finite, `>= 0`, any scale) for `vpls[k]` at the receiver `r` of
     /// `pixel` (row-major). Unbiased only if `weights[k] > 0` wherever VPL `k`'s
     /// contribution is.
     fn weights(
         &self,
         scene: &Scene,
         pixel: usize,
-        sp: &ShadingPoint,
+        r: &VplReceiver,
         vpls: &[Vpl],
         disk_area: f32,
         weights: &mut [f64],
@@ -182,16 +181,16 @@ pub struct Unoccluded {
 impl VplDistribution for Unoccluded {
     fn weights(
         &self,
-        scene: &Scene,
+        _scene: &Scene,
         _pixel: usize,
-        sp: &ShadingPoint,
+        r: &VplReceiver,
         vpls: &[Vpl],
         disk_area: f32,
         weights: &mut [f64],
     ) {
         for (w, v) in weights.iter_mut().zip(vpls) {
             *w = v
-                .connect(scene, sp, self.clamp, disk_area)
+                .connect(r, self.clamp, disk_area)
                 .map_or(0.0, |c| luminance(c.value) as f64);
         }
     }
@@ -240,7 +239,7 @@ enum Receiver {
     /// `direct`).
     Background(Vec3),
     /// A surface: light it emits towards the camera (with `direct`) and its shading point.
-    Surface { emitted: Vec3, sp: ShadingPoint },
+    Surface { emitted: Vec3, r: VplReceiver },
 }
 
 /// Per-pixel sums over samples: the estimates' sum and sum of squares, and (one sample of
@@ -298,7 +297,10 @@ fn receivers(
             } else {
                 Vec3::ZERO
             };
-            Receiver::Surface { emitted, sp }
+            Receiver::Surface {
+                emitted,
+                r: VplReceiver::new(scene, sp),
+            }
         })
         .collect())
 }
@@ -368,7 +370,7 @@ impl Batch {
 #[allow(clippy::too_many_arguments)]
 fn gather_full(
     scene: &Scene,
-    points: &[(usize, ShadingPoint)],
+    points: &[(usize, VplReceiver)],
     vpls: &[Vpl],
     disk_area: f32,
     clamp: Option<f32>,
@@ -379,8 +381,8 @@ fn gather_full(
     // Point VPLs: rays from the VPL to each receiver of the tile (one origin per run).
     for block in vpls.chunks(VPL_BLOCK) {
         for v in block.iter().filter(|v| v.kind != VplKind::Env) {
-            for (k, (_, sp)) in points.iter().enumerate() {
-                if let Some(c) = v.connect(scene, sp, clamp, disk_area) {
+            for (k, (_, r)) in points.iter().enumerate() {
+                if let Some(c) = v.connect(r, clamp, disk_area) {
                     batch.push(c, k);
                 }
             }
@@ -389,10 +391,10 @@ fn gather_full(
     }
     // Map directions: rays from each receiver (one origin per run).
     let env: Vec<&Vpl> = vpls.iter().filter(|v| v.kind == VplKind::Env).collect();
-    for (k, (_, sp)) in points.iter().enumerate() {
+    for (k, (_, r)) in points.iter().enumerate() {
         for block in env.chunks(VPL_BLOCK * 16) {
             for v in block {
-                if let Some(c) = v.connect(scene, sp, clamp, disk_area) {
+                if let Some(c) = v.connect(r, clamp, disk_area) {
                     batch.push(c, k);
                 }
             }
@@ -408,7 +410,7 @@ fn gather_full(
 fn gather_sampled(
     scene: &Scene,
     pixel: usize,
-    sp: &ShadingPoint,
+    r: &VplReceiver,
     vpls: &[Vpl],
     disk_area: f32,
     params: &ManyLightParams,
@@ -419,7 +421,7 @@ fn gather_sampled(
     work: &mut Work,
 ) -> (DVec3, DVec3) {
     cdf.resize(vpls.len(), 0.0);
-    distribution.weights(scene, pixel, sp, vpls, disk_area, cdf);
+    distribution.weights(scene, pixel, r, vpls, disk_area, cdf);
     let mut total = 0.0f64;
     for w in cdf.iter_mut() {
         total += if w.is_finite() && *w > 0.0 { *w } else { 0.0 };
@@ -434,7 +436,7 @@ fn gather_sampled(
         let u = rng.get(m) as f64 * total;
         let k = cdf.partition_point(|&c| c <= u).min(vpls.len() - 1);
         let p = (cdf[k] - if k == 0 { 0.0 } else { cdf[k - 1] }) / total;
-        let x = match vpls[k].connect(scene, sp, params.clamp, disk_area) {
+        let x = match vpls[k].connect(r, params.clamp, disk_area) {
             Some(c) if p > 0.0 => {
                 work.shadow_rays += 1;
                 if scene.occluded1(c.origin, c.direction, c.tmax, &mut work.counters) {
@@ -532,7 +534,7 @@ pub fn render_many_lights(
                             return Ok((out, work));
                         }
                         let (tx, ty) = (t as u32 % tiles_x, t as u32 / tiles_x);
-                        let mut shading: Vec<(usize, ShadingPoint)> = Vec::new();
+                        let mut shading: Vec<(usize, VplReceiver)> = Vec::new();
                         for y in ty * TILE..((ty + 1) * TILE).min(height) {
                             for x in tx * TILE..((tx + 1) * TILE).min(width) {
                                 let i = (y * width + x) as usize;
@@ -540,9 +542,9 @@ pub fn render_many_lights(
                                     Receiver::Background(l) => {
                                         out.push((i, l.as_dvec3(), DVec3::ZERO))
                                     }
-                                    Receiver::Surface { emitted, sp } => {
+                                    Receiver::Surface { emitted, r } => {
                                         out.push((i, emitted.as_dvec3(), DVec3::ZERO));
-                                        shading.push((out.len() - 1, sp));
+                                        shading.push((out.len() - 1, r));
                                     }
                                 }
                             }
@@ -565,12 +567,12 @@ pub fn render_many_lights(
                                 }
                             }
                             Gather::Sampled { draws } => {
-                                for (slot, sp) in &shading {
+                                for (slot, r) in &shading {
                                     let pixel = out[*slot].0;
                                     let (mean, var) = gather_sampled(
                                         scene,
                                         pixel,
-                                        sp,
+                                        r,
                                         &used,
                                         vpls.disk_area,
                                         params,

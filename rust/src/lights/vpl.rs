@@ -147,8 +147,43 @@ pub struct Connection {
     pub tmax: f32,
 }
 
+/// A receiver of VPL light: a shading point with what every VPL's term reads of it
+/// computed once.
+#[derive(Clone, Copy, Debug)]
+pub struct Receiver {
+    pub sp: ShadingPoint,
+    /// `f_x` when it does not depend on directions (Lambert: `ρ / π`).
+    diffuse: Option<Vec3>,
+    /// How far short of `sp.origin` shadow rays stop: twice the scene's epsilon there.
+    shorten: f32,
+}
+
+impl Receiver {
+    /// The receiver at `sp` in `scene`.
+    pub fn new(scene: &Scene, sp: ShadingPoint) -> Self {
+        let diffuse = match sp.material {
+            Material::Lambert { albedo } => Some(Vec3::from(albedo) * std::f32::consts::FRAC_1_PI),
+            _ => None,
+        };
+        Self {
+            sp,
+            diffuse,
+            shorten: 2.0 * scene.ray_epsilon(sp.origin),
+        }
+    }
+
+    /// `f_x(ωo, w)` for `w` above the surface.
+    #[inline(always)]
+    fn f(&self, w: Vec3) -> Vec3 {
+        match self.diffuse {
+            Some(f) => f,
+            None => self.sp.material.eval(self.sp.normal, self.sp.wo, w),
+        }
+    }
+}
+
 impl Vpl {
-    /// Eq. 6.1's term of this VPL at the receiver `sp` without visibility: `f_x(ωo, ω) ·
+    /// Eq. 6.1's term of this VPL at receiver `r` without visibility: `f_x(ωo, ω) ·
     /// f_v(ω_in, -ω) · Φ · cos θ_x cos θ_v / d²` for a point VPL, `f_x · cos θ_x · Φ /
     /// disk_area` for a map direction. With `clamp`, the geometry term `cos cos / d²` is
     /// replaced by `min(G, clamp)` (biased: it removes the spikes of VPLs close to the
@@ -156,22 +191,16 @@ impl Vpl {
     /// faces away, a black BSDF) so no ray is needed. The shadow ray runs from the VPL
     /// to the receiver (rays towards one VPL then share their origin: packets) and stops
     /// short of the receiver's origin by twice the scene's epsilon there.
-    #[inline]
-    pub fn connect(
-        &self,
-        scene: &Scene,
-        sp: &ShadingPoint,
-        clamp: Option<f32>,
-        disk_area: f32,
-    ) -> Option<Connection> {
+    #[inline(always)]
+    pub fn connect(&self, r: &Receiver, clamp: Option<f32>, disk_area: f32) -> Option<Connection> {
+        let sp = &r.sp;
         if self.kind == VplKind::Env {
             let w = self.normal;
             let cos = sp.normal.dot(w);
             if cos <= 0.0 {
                 return None;
             }
-            let f = sp.material.eval(sp.normal, sp.wo, w);
-            let value = f * self.flux * (cos / disk_area);
+            let value = r.f(w) * self.flux * (cos / disk_area);
             if value == Vec3::ZERO {
                 return None;
             }
@@ -183,31 +212,33 @@ impl Vpl {
             });
         }
         let d = self.origin - sp.origin;
+        // The sides first, on the unnormalised offset: most pairs that fail do so here,
+        // before the square root.
+        let (side_x, side_v) = (sp.normal.dot(d), -self.normal.dot(d));
+        if !(side_x > 0.0 && side_v > 0.0) {
+            return None;
+        }
         let dist2 = d.length_squared();
-        if dist2.is_nan() || dist2 <= 0.0 {
-            return None;
-        }
         let dist = dist2.sqrt();
-        let w = d / dist; // receiver -> VPL
-        let cos_x = sp.normal.dot(w);
-        let cos_v = -self.normal.dot(w);
-        if !(cos_x > 0.0 && cos_v > 0.0) {
-            return None;
-        }
-        let f_x = sp.material.eval(sp.normal, sp.wo, w);
-        let f_v = match self.kind {
-            VplKind::Surface => self.material.eval(self.normal, self.incident, -w),
+        let inv = 1.0 / dist;
+        let w = d * inv; // receiver -> VPL
+        let (cos_x, cos_v) = (side_x * inv, side_v * inv);
+        let f_v = match (self.kind, self.material) {
+            (VplKind::Surface, Material::Lambert { albedo }) => {
+                Vec3::from(albedo) * std::f32::consts::FRAC_1_PI
+            }
+            (VplKind::Surface, m) => m.eval(self.normal, self.incident, -w),
             _ => Vec3::splat(std::f32::consts::FRAC_1_PI),
         };
         let mut g = cos_x * cos_v / dist2;
         if let Some(c) = clamp {
             g = g.min(c);
         }
-        let value = f_x * f_v * self.flux * g;
+        let value = r.f(w) * f_v * self.flux * g;
         if value == Vec3::ZERO {
             return None;
         }
-        let tmax = dist - 2.0 * scene.ray_epsilon(sp.origin);
+        let tmax = dist - r.shorten;
         if tmax <= 0.0 {
             return None;
         }
@@ -594,7 +625,7 @@ fn view_points(
     camera: &Camera,
     width: u32,
     threads: Option<usize>,
-) -> Result<Vec<ShadingPoint>> {
+) -> Result<Vec<Receiver>> {
     let height =
         ((width as f32 * camera.height as f32 / camera.width as f32).round() as u32).max(1);
     let small = camera.with_resolution(width, height)?;
@@ -612,7 +643,10 @@ fn view_points(
                 normal: Vec3::from(g.normal[i]),
             };
             let wo = -Vec3::from(g.direction[i]);
-            crate::estimators::indirect::shading_point_at(scene, &hit, wo)
+            Receiver::new(
+                scene,
+                crate::estimators::indirect::shading_point_at(scene, &hit, wo),
+            )
         })
         .collect())
 }
@@ -621,7 +655,7 @@ fn view_points(
 /// over `points`.
 fn view_contribution(
     scene: &Scene,
-    points: &[ShadingPoint],
+    points: &[Receiver],
     vpl: &Vpl,
     disk_area: f32,
     counters: &mut TraversalCounters,
@@ -632,7 +666,7 @@ fn view_contribution(
     }
     let mut sum = 0.0f64;
     for sp in points {
-        if let Some(c) = vpl.connect(scene, sp, None, disk_area) {
+        if let Some(c) = vpl.connect(sp, None, disk_area) {
             *shadow_rays += 1;
             if !scene.occluded1(c.origin, c.direction, c.tmax, counters) {
                 sum += luminance(c.value) as f64;
@@ -762,63 +796,61 @@ impl VplSet {
             stats.pilot_paths = pilot_paths;
             stats.path_rays += pilot.rays;
             let mut counters = pilot.counters;
-            let (per_path, accept_rule): (f64, Option<(Vec<ShadingPoint>, f64, f32)>) =
-                match importance {
-                    None => (pilot.vpls.len() as f64 / pilot_paths as f64, None),
-                    Some((imp, cam)) => {
-                        let points = view_points(scene, cam, imp.view_width, None)?;
-                        let phis: Vec<(f64, u64, TraversalCounters)> = pilot
-                            .vpls
-                            .par_iter()
-                            .map(|v| {
-                                let mut c = TraversalCounters::default();
-                                let mut rays = 0;
-                                let phi = if v.kind == VplKind::Surface {
-                                    view_contribution(
-                                        scene, &points, v, disk_area, &mut c, &mut rays,
-                                    )
-                                } else {
-                                    0.0
-                                };
-                                (phi, rays, c)
-                            })
-                            .collect();
-                        let mut sum = 0.0;
-                        let mut n = 0u64;
-                        for (v, (phi, rays, c)) in pilot.vpls.iter().zip(&phis) {
-                            stats.shadow_rays += rays;
-                            counters += *c;
-                            if v.kind == VplKind::Surface {
-                                sum += phi;
-                                n += 1;
-                            }
-                        }
-                        let mean = if n > 0 { sum / n as f64 } else { 0.0 };
-                        stats.mean_contribution = mean;
-                        // Replay the acceptance on the pilot's paths for the expected
-                        // number of VPLs per path: a surface VPL survives with the product
-                        // of its path's acceptance probabilities so far, each computed with
-                        // the flux divided by the ones before (Φ_i is linear in the flux).
-                        let mut expected = 0.0f64;
-                        let mut survive = 1.0f64;
-                        for (v, (phi, _, _)) in pilot.vpls.iter().zip(&phis) {
-                            if v.kind != VplKind::Surface {
-                                expected += 1.0;
-                                survive = 1.0;
-                                continue;
-                            }
-                            let p = if mean > 0.0 {
-                                (phi / survive / mean + imp.epsilon as f64).min(1.0)
+            let (per_path, accept_rule): (f64, Option<(Vec<Receiver>, f64, f32)>) = match importance
+            {
+                None => (pilot.vpls.len() as f64 / pilot_paths as f64, None),
+                Some((imp, cam)) => {
+                    let points = view_points(scene, cam, imp.view_width, None)?;
+                    let phis: Vec<(f64, u64, TraversalCounters)> = pilot
+                        .vpls
+                        .par_iter()
+                        .map(|v| {
+                            let mut c = TraversalCounters::default();
+                            let mut rays = 0;
+                            let phi = if v.kind == VplKind::Surface {
+                                view_contribution(scene, &points, v, disk_area, &mut c, &mut rays)
                             } else {
-                                1.0
+                                0.0
                             };
-                            survive *= p;
-                            expected += survive;
+                            (phi, rays, c)
+                        })
+                        .collect();
+                    let mut sum = 0.0;
+                    let mut n = 0u64;
+                    for (v, (phi, rays, c)) in pilot.vpls.iter().zip(&phis) {
+                        stats.shadow_rays += rays;
+                        counters += *c;
+                        if v.kind == VplKind::Surface {
+                            sum += phi;
+                            n += 1;
                         }
-                        let rule = (mean > 0.0).then_some((points, mean, imp.epsilon));
-                        (expected / pilot_paths as f64, rule)
                     }
-                };
+                    let mean = if n > 0 { sum / n as f64 } else { 0.0 };
+                    stats.mean_contribution = mean;
+                    // Replay the acceptance on the pilot's paths for the expected
+                    // number of VPLs per path: a surface VPL survives with the product
+                    // of its path's acceptance probabilities so far, each computed with
+                    // the flux divided by the ones before (Φ_i is linear in the flux).
+                    let mut expected = 0.0f64;
+                    let mut survive = 1.0f64;
+                    for (v, (phi, _, _)) in pilot.vpls.iter().zip(&phis) {
+                        if v.kind != VplKind::Surface {
+                            expected += 1.0;
+                            survive = 1.0;
+                            continue;
+                        }
+                        let p = if mean > 0.0 {
+                            (phi / survive / mean + imp.epsilon as f64).min(1.0)
+                        } else {
+                            1.0
+                        };
+                        survive *= p;
+                        expected += survive;
+                    }
+                    let rule = (mean > 0.0).then_some((points, mean, imp.epsilon));
+                    (expected / pilot_paths as f64, rule)
+                }
+            };
             let paths = if per_path > 0.0 {
                 ((params.count as f64 / per_path).ceil() as u64).clamp(1, MAX_VPLS)
             } else {
