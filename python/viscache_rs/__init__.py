@@ -14,6 +14,7 @@ from ._core import (
     Material,
     Scene,
     Setup,
+    VPLs,
     __version__,
 )
 from .ambient import AOResult, render_ao
@@ -29,6 +30,7 @@ __all__ = [
     "RenderResult",
     "Scene",
     "Setup",
+    "VPLs",
     "VisibilityCache",
     "__version__",
     "analysis",

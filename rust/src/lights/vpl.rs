@@ -38,11 +38,20 @@
 //! its descendants are dropped). The expectation of every VPL's flux is unchanged, while VPLs
 //! the camera cannot see (the outside of a building lit by the sun) are mostly dropped.
 //!
+//! Two additions beyond Algorithm 11, both unbiased: light VPLs are accepted the same way
+//! against the pilot's mean light VPL, but a rejected one does not end its path (it is
+//! direct light alone, and the photon's flux does not depend on it); and the lights are
+//! picked with probability `(p_k + v_k / Σ v) / 2`, half by power `p_k`, half by `v_k`, the
+//! pilot's total `Φ` of the VPLs of light `k` (fluxes divided by the new probability).
+//! Cornell's closed room under a white map is why: by power nine paths in ten start at the
+//! map and end on the outside of the box.
+//!
 //! ## How many paths
 //! `count` is the number of VPLs wanted. The pilot paths' mean number of VPLs per path
 //! (with the acceptance replayed on them when it is on) fixes the number of paths
 //! `P = ceil(count / mean)`, independently of the real paths, so the normalisation `1/P` is
-//! a constant for them and the set stays unbiased; `len()` is then about `count`.
+//! a constant for them and the set stays unbiased; `len()` is then about `count` (within
+//! the pilot's noise: a few per cent with 4000 pilot paths).
 //!
 //! ## Determinism
 //! Path `i` reads only `(seed, i, dimension)` of the counter-based generator, paths are
@@ -88,6 +97,8 @@ mod dims {
     pub const POINT: u64 = 2;
     /// Area light: the emitted direction; map: the point on the disk (two dimensions).
     pub const EMISSION: u64 = 4;
+    /// The light VPL's acceptance.
+    pub const ACCEPT_LIGHT: u64 = 6;
     /// Bounce `j` (1-based) reads from `BOUNCE + 8 (j - 1)`: lobe, roulette, direction
     /// (two), acceptance.
     pub const BOUNCE: u64 = 8;
@@ -134,6 +145,9 @@ pub struct Vpl {
     pub kind: VplKind,
     /// Generation: 0 for light VPLs, `j >= 1` for the `j`-th hit of a path.
     pub bounce: u32,
+    /// The light its path started at: 0 the map, `k >= 1` area light `k - 1`
+    /// ([`u32::MAX`] for [`VplSet::from_lights`]).
+    pub light: u32,
 }
 
 /// One VPL's contribution at a receiver before visibility, and the shadow ray that decides
@@ -264,10 +278,10 @@ pub struct Importance {
 }
 
 impl Importance {
-    /// `ε = 0.05`, 1000 pilot paths, a 16-point-wide view.
+    /// `ε = 0.05`, 4000 pilot paths, a 16-point-wide view.
     pub const DEFAULT: Self = Self {
         epsilon: 0.05,
-        pilot_paths: 1000,
+        pilot_paths: 4000,
         view_width: 16,
     };
 }
@@ -343,7 +357,8 @@ pub struct TraceStats {
     pub shadow_rays: u64,
     /// Surface VPLs rejected by the acceptance test.
     pub rejected: u64,
-    /// `Φ_v`, the pilot's mean contribution (luminance), 0 without importance.
+    /// `Φ_v`, the pilot's mean contribution of a surface VPL (luminance), 0 without
+    /// importance.
     pub mean_contribution: f64,
     /// Wall-clock seconds.
     pub seconds: f64,
@@ -434,6 +449,34 @@ impl<'a> Sources<'a> {
         std::f32::consts::PI * self.radius * self.radius
     }
 
+    /// Probability of light `k`.
+    fn probability(&self, k: usize) -> f64 {
+        self.cumulative[k] - if k == 0 { 0.0 } else { self.cumulative[k - 1] }
+    }
+
+    /// These lights picked with probability `(p_k + v_k / Σ v) / 2` instead of `p_k` (by
+    /// power): half by power, so every light keeps its share, half by `view[k] >= 0`, each
+    /// light's contribution to the view. Unchanged when no light contributes.
+    fn reweighted(&self, view: &[f64]) -> Sources<'a> {
+        let total: f64 = view.iter().sum();
+        let mut cumulative = self.cumulative.clone();
+        if total > 0.0 && total.is_finite() {
+            let mut acc = 0.0;
+            for (k, c) in cumulative.iter_mut().enumerate() {
+                acc += 0.5 * (self.probability(k) + view[k] / total);
+                *c = acc;
+            }
+        }
+        Sources {
+            scene: self.scene,
+            env: self.env,
+            centre: self.centre,
+            radius: self.radius,
+            cumulative,
+            areas: self.areas.clone(),
+        }
+    }
+
     /// The light of `u` and its probability.
     fn pick(&self, u: f32) -> (usize, f64) {
         let u = u as f64;
@@ -478,6 +521,29 @@ fn disk_point(u: [f32; 2]) -> Vec2 {
     Vec2::new(r * phi.cos(), r * phi.sin())
 }
 
+/// Stores a path's light VPL when the acceptance keeps it, its flux divided by the
+/// probability. Unlike a surface VPL's, a rejection does not end the path: the light VPL
+/// is direct light alone, and the photon's flux does not depend on it.
+fn keep_light(
+    mut vpl: Vpl,
+    rng: &SampleRng,
+    accept: &dyn Fn(&Vpl, &mut TraversalCounters, &mut u64) -> f32,
+    out: &mut Vec<Vpl>,
+    counters: &mut TraversalCounters,
+    shadow_rays: &mut u64,
+    rejected: &mut u64,
+) {
+    let p = accept(&vpl, counters, shadow_rays);
+    if p < 1.0 {
+        if rng.get(dims::ACCEPT_LIGHT) >= p {
+            *rejected += 1;
+            return;
+        }
+        vpl.flux /= p;
+    }
+    out.push(vpl);
+}
+
 /// The VPLs of one light path, in order, appended to `out`, with the acceptance `accept`
 /// (`None`: every VPL), which returns `Φ_i`-based probabilities. `flux_scale` is
 /// `1 / P`. Counts the rays in `rays` and rejections in `rejected`.
@@ -507,16 +573,25 @@ fn trace_path(
         };
         let l = src.env.eval(w);
         let flux = (l.as_dvec3() * (src.disk_area() as f64 / pdf * scale)).as_vec3();
-        out.push(Vpl {
-            position: Vec3::ZERO,
-            origin: Vec3::ZERO,
-            normal: w,
-            incident: Vec3::ZERO,
-            material: EMITTER,
-            flux,
-            kind: VplKind::Env,
-            bounce: 0,
-        });
+        keep_light(
+            Vpl {
+                position: Vec3::ZERO,
+                origin: Vec3::ZERO,
+                normal: w,
+                incident: Vec3::ZERO,
+                material: EMITTER,
+                flux,
+                kind: VplKind::Env,
+                bounce: 0,
+                light: 0,
+            },
+            &rng,
+            accept,
+            out,
+            counters,
+            shadow_rays,
+            rejected,
+        );
         let (t, b) = frame(w);
         let p = disk_point(rng.get2(dims::EMISSION)) * src.radius;
         let start = src.centre + w * src.radius + t * p.x + b * p.y;
@@ -538,16 +613,25 @@ fn trace_path(
         let power = DVec3::from_array(area_light.power());
         let flux = (power * scale).as_vec3();
         let origin = scene.offset_point(y, n);
-        out.push(Vpl {
-            position: y,
-            origin,
-            normal: n,
-            incident: Vec3::ZERO,
-            material: EMITTER,
-            flux,
-            kind: VplKind::Emitter,
-            bounce: 0,
-        });
+        keep_light(
+            Vpl {
+                position: y,
+                origin,
+                normal: n,
+                incident: Vec3::ZERO,
+                material: EMITTER,
+                flux,
+                kind: VplKind::Emitter,
+                bounce: 0,
+                light: light as u32,
+            },
+            &rng,
+            accept,
+            out,
+            counters,
+            shadow_rays,
+            rejected,
+        );
         let Some(w) = EMITTER.sample(n, n, 0.0, Vec2::from_array(rng.get2(dims::EMISSION))) else {
             return;
         };
@@ -576,6 +660,7 @@ fn trace_path(
             flux,
             kind: VplKind::Surface,
             bounce,
+            light: light as u32,
         };
         let p = accept(&vpl, counters, shadow_rays);
         if p < 1.0 {
@@ -781,11 +866,12 @@ impl VplSet {
             let mut stats = TraceStats::default();
             let every = |_: &Vpl, _: &mut TraversalCounters, _: &mut u64| 1.0f32;
             // The pilot: VPLs per path, and with importance Φ_v.
+            // A pilot path costs about one VPL (its shadow rays to a small view): a
+            // fixed pilot is a few milliseconds, and its noise is the VPL count's.
             let pilot_paths = match importance {
                 Some((imp, _)) => imp.pilot_paths as u64,
-                None => 1000,
-            }
-            .min(params.count.max(64));
+                None => Importance::DEFAULT.pilot_paths as u64,
+            };
             let pilot = trace_paths(
                 &src,
                 pilot_paths,
@@ -794,11 +880,13 @@ impl VplSet {
                 &every,
             );
             stats.pilot_paths = pilot_paths;
+            let pilot_src_probability: Vec<f64> = (0..src.cumulative.len())
+                .map(|k| src.probability(k))
+                .collect();
             stats.path_rays += pilot.rays;
             let mut counters = pilot.counters;
-            let (per_path, accept_rule): (f64, Option<(Vec<Receiver>, f64, f32)>) = match importance
-            {
-                None => (pilot.vpls.len() as f64 / pilot_paths as f64, None),
+            let (src, per_path, rule) = match importance {
+                None => (src, pilot.vpls.len() as f64 / pilot_paths as f64, None),
                 Some((imp, cam)) => {
                     let points = view_points(scene, cam, imp.view_width, None)?;
                     let phis: Vec<(f64, u64, TraversalCounters)> = pilot
@@ -807,48 +895,60 @@ impl VplSet {
                         .map(|v| {
                             let mut c = TraversalCounters::default();
                             let mut rays = 0;
-                            let phi = if v.kind == VplKind::Surface {
-                                view_contribution(scene, &points, v, disk_area, &mut c, &mut rays)
-                            } else {
-                                0.0
-                            };
+                            let phi =
+                                view_contribution(scene, &points, v, disk_area, &mut c, &mut rays);
                             (phi, rays, c)
                         })
                         .collect();
-                    let mut sum = 0.0;
-                    let mut n = 0u64;
+                    // Φ_v of surface and of light VPLs, and each light's share of the view.
+                    let (mut sums, mut counts) = ([0.0f64; 2], [0u64; 2]);
+                    let mut view = vec![0.0f64; src.cumulative.len()];
                     for (v, (phi, rays, c)) in pilot.vpls.iter().zip(&phis) {
                         stats.shadow_rays += rays;
                         counters += *c;
-                        if v.kind == VplKind::Surface {
-                            sum += phi;
-                            n += 1;
-                        }
+                        let kind = (v.kind == VplKind::Surface) as usize;
+                        sums[kind] += phi;
+                        counts[kind] += 1;
+                        view[v.light as usize] += phi;
                     }
-                    let mean = if n > 0 { sum / n as f64 } else { 0.0 };
-                    stats.mean_contribution = mean;
-                    // Replay the acceptance on the pilot's paths for the expected
-                    // number of VPLs per path: a surface VPL survives with the product
-                    // of its path's acceptance probabilities so far, each computed with
-                    // the flux divided by the ones before (Φ_i is linear in the flux).
-                    let mut expected = 0.0f64;
-                    let mut survive = 1.0f64;
-                    for (v, (phi, _, _)) in pilot.vpls.iter().zip(&phis) {
-                        if v.kind != VplKind::Surface {
-                            expected += 1.0;
-                            survive = 1.0;
-                            continue;
+                    let means = [0, 1].map(|k| {
+                        if counts[k] > 0 {
+                            sums[k] / counts[k] as f64
+                        } else {
+                            0.0
                         }
-                        let p = if mean > 0.0 {
-                            (phi / survive / mean + imp.epsilon as f64).min(1.0)
+                    });
+                    stats.mean_contribution = means[1];
+                    let src = src.reweighted(&view);
+                    let eps = imp.epsilon as f64;
+                    let p_of = |phi: f64, mean: f64| {
+                        if mean > 0.0 {
+                            (phi / mean + eps).min(1.0)
                         } else {
                             1.0
-                        };
-                        survive *= p;
-                        expected += survive;
+                        }
+                    };
+                    // Replay the acceptance on the pilot's paths for the expected number of
+                    // VPLs per real path. A pilot path from light k stands for q_k / p_k
+                    // real ones (the lights' probabilities changed from p to q), whose
+                    // fluxes are p_k / q_k of its own; a surface VPL survives with the
+                    // product of its path's acceptance probabilities so far, each computed
+                    // with the flux divided by the ones before (Φ_i is linear in the flux).
+                    let mut expected = 0.0f64;
+                    let (mut weight, mut ratio, mut survive) = (1.0f64, 1.0f64, 1.0f64);
+                    for (v, (phi, _, _)) in pilot.vpls.iter().zip(&phis) {
+                        if v.kind != VplKind::Surface {
+                            let k = v.light as usize;
+                            let (p, q) = (pilot_src_probability[k], src.probability(k));
+                            (weight, ratio, survive) = (q / p, p / q, 1.0);
+                            expected += weight * p_of(phi * ratio, means[0]);
+                            continue;
+                        }
+                        survive *= p_of(phi * ratio / survive, means[1]);
+                        expected += weight * survive;
                     }
-                    let rule = (mean > 0.0).then_some((points, mean, imp.epsilon));
-                    (expected / pilot_paths as f64, rule)
+                    let rule = (means[0] > 0.0 || means[1] > 0.0).then_some((points, means, eps));
+                    (src, expected / pilot_paths as f64, rule)
                 }
             };
             let paths = if per_path > 0.0 {
@@ -856,15 +956,19 @@ impl VplSet {
             } else {
                 params.count
             };
-            let traced = match &accept_rule {
+            let traced = match &rule {
                 None => trace_paths(&src, paths, params.seed, params.depth, &every),
-                Some((points, mean, epsilon)) => {
+                Some((points, means, eps)) => {
                     // Fluxes carry `1 / paths`, the pilot's `1 / pilot_paths`: compare
                     // contributions per path.
                     let per_path = paths as f64 / pilot_paths as f64;
                     let accept = |v: &Vpl, c: &mut TraversalCounters, rays: &mut u64| -> f32 {
+                        let mean = means[(v.kind == VplKind::Surface) as usize];
+                        if mean <= 0.0 {
+                            return 1.0;
+                        }
                         let phi = view_contribution(scene, points, v, disk_area, c, rays);
-                        ((phi * per_path / mean) as f32 + epsilon).min(1.0)
+                        ((phi * per_path / mean + eps) as f32).min(1.0)
                     };
                     trace_paths(&src, paths, params.seed, params.depth, &accept)
                 }
@@ -933,6 +1037,7 @@ impl VplSet {
                 flux: Vec3::from(flux[i]),
                 kind: VplKind::Emitter,
                 bounce: 0,
+                light: u32::MAX,
             });
         }
         let radius = bounding_disk(scene).1;

@@ -77,9 +77,9 @@ fn epsilon_arg(obj: &Bound<'_, PyAny>) -> PyResult<f32> {
     or_default(obj, 0.05, |o| Ok(f64_arg(o, "epsilon")? as f32))
 }
 
-/// Extractor of `pilot_paths=1000`.
+/// Extractor of `pilot_paths=4000`.
 fn pilot_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
-    or_default(obj, 1000, |o| {
+    or_default(obj, 4000, |o| {
         Ok(int_arg(o, "pilot_paths", 1, 1 << 24)? as u32)
     })
 }
@@ -100,7 +100,7 @@ impl PyVpls {
     /// their contribution to the view of `setup`'s camera (or `camera`) (survey Algorithm
     /// 11, `epsilon`, `pilot_paths`). Bit-identical for any `threads` at a fixed `seed`.
     #[staticmethod]
-    #[pyo3(signature = (setup, count, seed=0, importance=true, depth=1, epsilon=0.05, pilot_paths=1000, camera=None, envmap=None, threads=None))]
+    #[pyo3(signature = (setup, count, seed=0, importance=true, depth=1, epsilon=0.05, pilot_paths=4000, camera=None, envmap=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn trace(
         py: Python<'_>,
