@@ -312,6 +312,7 @@ class VPLs:
         depth: int | None = 1,
         epsilon: float | None = 0.05,
         pilot_paths: int | None = 4000,
+        lights: bool = True,
         camera: Camera | None = None,
         envmap: EnvMap | None = None,
         threads: int | None = None,

@@ -1,14 +1,15 @@
 """Virtual point lights and the many-light renderer (instant radiosity, survey ch. 6.2).
 
 ``VPLs.trace(setup, count, seed=0, importance=True, depth=1, epsilon=0.05,
-pilot_paths=4000, camera=None, envmap=None, threads=None)`` traces about ``count`` VPLs
+pilot_paths=4000, lights=True, camera=None, envmap=None, threads=None)`` traces about ``count`` VPLs
 by light tracing from the setup's map (a direction by the map's distribution, a start on
 the disk that covers the scene) and its area lights (a point by area, a cosine-weighted
 direction): a *light VPL* at each path's start (direct light) and a *surface VPL* at each
 of its first ``depth`` hits (light that bounced that many times). With ``importance``
 (survey sec. 6.2.2, Algorithm 11) surface VPLs are kept with probability
 ``min(Phi_i / Phi_v + epsilon, 1)`` by their contribution to the camera's view, their flux
-divided by it: unbiased, with the VPLs where the camera looks. ``.positions``,
+divided by it: unbiased, with the VPLs where the camera looks. ``lights=False`` keeps no
+light VPLs (``count`` then counts VPLs of indirect light only). ``.positions``,
 ``.normals``, ``.flux`` (N, 3) float32, ``.incident``, ``.bounces`` (generation, 0 for light
 VPLs), ``.kinds`` (0 area-light point, 1 map direction, 2 surface), ``len()``, ``.stats``.
 ``VPLs.from_lights(scene, positions, normals, flux)`` makes cosine point lights.
@@ -21,7 +22,7 @@ unoccluded contribution, an unbiased estimate of the same sum. ``clamp`` bounds 
 geometry term ``cos cos / d^2`` (1/m^2; removes the bright spots of nearby VPLs, biased);
 ``direct=False`` keeps the surface VPLs only: the indirect light of ``method="path",
 bounces=depth, direct=False``. Without ``vpls`` a set of 4096 is traced with
-``depth=bounces`` (default 1).
+``depth=bounces`` (default 1), without light VPLs when ``direct=False``.
 """
 
 from __future__ import annotations
@@ -65,8 +66,8 @@ def render_vpl(setup, camera=None, spp: int | None = None, method: str = "vpl",
     depth = _bounces(bounces)
     trace_stats: dict[str, Any] = {}
     if vpls is None:
-        vpls = VPLs.trace(setup, DEFAULT_COUNT, seed=seed, depth=depth or 1, camera=camera,
-                          envmap=envmap, threads=threads)
+        vpls = VPLs.trace(setup, DEFAULT_COUNT, seed=seed, depth=depth or 1, lights=direct,
+                          camera=camera, envmap=envmap, threads=threads)
         trace_stats = {"vpl_trace_seconds": vpls.stats["seconds"]}
     elif not isinstance(vpls, VPLs):
         raise TypeError(f"vpls: expected a VPLs set, got {type(vpls).__name__}")

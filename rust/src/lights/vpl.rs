@@ -296,6 +296,9 @@ pub struct TraceParams {
     pub seed: u64,
     /// Acceptance by importance to the camera's view, or every VPL.
     pub importance: Option<Importance>,
+    /// Whether the set keeps the light VPLs (direct light); without, `count` counts
+    /// surface VPLs, all of them for the indirect light.
+    pub lights: bool,
 }
 
 impl TraceParams {
@@ -306,6 +309,7 @@ impl TraceParams {
             depth: 1,
             seed: 0,
             importance: Some(Importance::DEFAULT),
+            lights: true,
         }
     }
 
@@ -524,7 +528,9 @@ fn disk_point(u: [f32; 2]) -> Vec2 {
 /// Stores a path's light VPL when the acceptance keeps it, its flux divided by the
 /// probability. Unlike a surface VPL's, a rejection does not end the path: the light VPL
 /// is direct light alone, and the photon's flux does not depend on it.
+#[allow(clippy::too_many_arguments)]
 fn keep_light(
+    store: bool,
     mut vpl: Vpl,
     rng: &SampleRng,
     accept: &dyn Fn(&Vpl, &mut TraversalCounters, &mut u64) -> f32,
@@ -533,6 +539,9 @@ fn keep_light(
     shadow_rays: &mut u64,
     rejected: &mut u64,
 ) {
+    if !store {
+        return;
+    }
     let p = accept(&vpl, counters, shadow_rays);
     if p < 1.0 {
         if rng.get(dims::ACCEPT_LIGHT) >= p {
@@ -546,13 +555,15 @@ fn keep_light(
 
 /// The VPLs of one light path, in order, appended to `out`, with the acceptance `accept`
 /// (`None`: every VPL), which returns `Φ_i`-based probabilities. `flux_scale` is
-/// `1 / P`. Counts the rays in `rays` and rejections in `rejected`.
+/// `1 / P`; `lights`: whether to keep the light VPL. Counts the rays in `rays` and
+/// rejections in `rejected`.
 #[allow(clippy::too_many_arguments)]
 fn trace_path(
     src: &Sources,
     path: u64,
     seed: u64,
     depth: u32,
+    lights: bool,
     flux_scale: f64,
     accept: &dyn Fn(&Vpl, &mut TraversalCounters, &mut u64) -> f32,
     out: &mut Vec<Vpl>,
@@ -574,6 +585,7 @@ fn trace_path(
         let l = src.env.eval(w);
         let flux = (l.as_dvec3() * (src.disk_area() as f64 / pdf * scale)).as_vec3();
         keep_light(
+            lights,
             Vpl {
                 position: Vec3::ZERO,
                 origin: Vec3::ZERO,
@@ -614,6 +626,7 @@ fn trace_path(
         let flux = (power * scale).as_vec3();
         let origin = scene.offset_point(y, n);
         keep_light(
+            lights,
             Vpl {
                 position: y,
                 origin,
@@ -782,6 +795,7 @@ fn trace_paths(
     paths: u64,
     seed: u64,
     depth: u32,
+    lights: bool,
     accept: &(dyn Fn(&Vpl, &mut TraversalCounters, &mut u64) -> f32 + Sync),
 ) -> Traced {
     let chunks = paths.div_ceil(PATH_CHUNK as u64);
@@ -802,6 +816,7 @@ fn trace_paths(
                     path,
                     seed,
                     depth,
+                    lights,
                     1.0 / paths as f64,
                     accept,
                     &mut t.vpls,
@@ -872,11 +887,13 @@ impl VplSet {
                 Some((imp, _)) => imp.pilot_paths as u64,
                 None => Importance::DEFAULT.pilot_paths as u64,
             };
+            // The pilot keeps its light VPLs: they start its paths in the replay below.
             let pilot = trace_paths(
                 &src,
                 pilot_paths,
                 pilot_seed(params.seed),
                 params.depth,
+                true,
                 &every,
             );
             stats.pilot_paths = pilot_paths;
@@ -886,7 +903,14 @@ impl VplSet {
             stats.path_rays += pilot.rays;
             let mut counters = pilot.counters;
             let (src, per_path, rule) = match importance {
-                None => (src, pilot.vpls.len() as f64 / pilot_paths as f64, None),
+                None => {
+                    let kept = pilot
+                        .vpls
+                        .iter()
+                        .filter(|v| params.lights || v.kind == VplKind::Surface)
+                        .count();
+                    (src, kept as f64 / pilot_paths as f64, None)
+                }
                 Some((imp, cam)) => {
                     let points = view_points(scene, cam, imp.view_width, None)?;
                     let phis: Vec<(f64, u64, TraversalCounters)> = pilot
@@ -895,8 +919,12 @@ impl VplSet {
                         .map(|v| {
                             let mut c = TraversalCounters::default();
                             let mut rays = 0;
-                            let phi =
-                                view_contribution(scene, &points, v, disk_area, &mut c, &mut rays);
+                            // Without light VPLs, only the indirect light counts.
+                            let phi = if params.lights || v.kind == VplKind::Surface {
+                                view_contribution(scene, &points, v, disk_area, &mut c, &mut rays)
+                            } else {
+                                0.0
+                            };
                             (phi, rays, c)
                         })
                         .collect();
@@ -941,7 +969,9 @@ impl VplSet {
                             let k = v.light as usize;
                             let (p, q) = (pilot_src_probability[k], src.probability(k));
                             (weight, ratio, survive) = (q / p, p / q, 1.0);
-                            expected += weight * p_of(phi * ratio, means[0]);
+                            if params.lights {
+                                expected += weight * p_of(phi * ratio, means[0]);
+                            }
                             continue;
                         }
                         survive *= p_of(phi * ratio / survive, means[1]);
@@ -957,7 +987,14 @@ impl VplSet {
                 params.count
             };
             let traced = match &rule {
-                None => trace_paths(&src, paths, params.seed, params.depth, &every),
+                None => trace_paths(
+                    &src,
+                    paths,
+                    params.seed,
+                    params.depth,
+                    params.lights,
+                    &every,
+                ),
                 Some((points, means, eps)) => {
                     // Fluxes carry `1 / paths`, the pilot's `1 / pilot_paths`: compare
                     // contributions per path.
@@ -970,7 +1007,14 @@ impl VplSet {
                         let phi = view_contribution(scene, points, v, disk_area, c, rays);
                         ((phi * per_path / mean + eps) as f32).min(1.0)
                     };
-                    trace_paths(&src, paths, params.seed, params.depth, &accept)
+                    trace_paths(
+                        &src,
+                        paths,
+                        params.seed,
+                        params.depth,
+                        params.lights,
+                        &accept,
+                    )
                 }
             };
             counters += traced.counters;

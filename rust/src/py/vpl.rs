@@ -98,9 +98,11 @@ impl PyVpls {
     /// Traces about `count` VPLs from `setup`'s map (or `envmap`) and area lights by light
     /// tracing with `depth` generations of surface VPLs; with `importance`, accepted by
     /// their contribution to the view of `setup`'s camera (or `camera`) (survey Algorithm
-    /// 11, `epsilon`, `pilot_paths`). Bit-identical for any `threads` at a fixed `seed`.
+    /// 11, `epsilon`, `pilot_paths`). Without `lights` the set has no light VPLs (direct
+    /// light) and `count` counts surface VPLs. Bit-identical for any `threads` at a fixed
+    /// `seed`.
     #[staticmethod]
-    #[pyo3(signature = (setup, count, seed=0, importance=true, depth=1, epsilon=0.05, pilot_paths=4000, camera=None, envmap=None, threads=None))]
+    #[pyo3(signature = (setup, count, seed=0, importance=true, depth=1, epsilon=0.05, pilot_paths=4000, lights=true, camera=None, envmap=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn trace(
         py: Python<'_>,
@@ -111,6 +113,7 @@ impl PyVpls {
         #[pyo3(from_py_with = depth_arg)] depth: u32,
         #[pyo3(from_py_with = epsilon_arg)] epsilon: f32,
         #[pyo3(from_py_with = pilot_arg)] pilot_paths: u32,
+        lights: bool,
         camera: Option<Bound<'_, PyCamera>>,
         envmap: Option<Bound<'_, PyEnvMap>>,
         threads: Option<&Bound<'_, PyAny>>,
@@ -138,6 +141,7 @@ impl PyVpls {
                 pilot_paths,
                 ..Importance::DEFAULT
             }),
+            lights,
         };
         params.validate().py()?;
         let stop = PyProgress::new(None).stop_flag();

@@ -45,6 +45,7 @@ fn trace(scene: &Scene, count: u64, seed: u64) -> VplSet {
         depth: 1,
         seed,
         importance: None,
+        lights: true,
     };
     VplSet::trace(scene, &black(), None, &p, Some(2)).unwrap()
 }
@@ -168,6 +169,7 @@ fn cornell() -> (Scene, EnvMap, Camera, VplSet) {
         depth: 1,
         seed: 5,
         importance: None,
+        lights: true,
     };
     let vpls = VplSet::trace(&scene, &setup.envmap, None, &p, Some(2)).unwrap();
     (scene, setup.envmap, cam, vpls)

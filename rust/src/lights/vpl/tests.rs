@@ -46,6 +46,7 @@ fn params(count: u64, depth: u32, importance: bool) -> TraceParams {
         depth,
         seed: 3,
         importance: importance.then_some(Importance::DEFAULT),
+        lights: true,
     }
 }
 
@@ -248,4 +249,31 @@ fn bad_parameters_and_unlit_setups_are_named() {
     assert_eq!(name(nan), "flux");
     let zero = VplSet::from_lights(&dark, &[[0.0; 3]], &[[0.0; 3]], &[[1.0; 3]]);
     assert_eq!(name(zero), "normals");
+}
+
+#[test]
+fn without_light_vpls_the_count_is_of_surface_vpls() {
+    let mut scene = furnace();
+    scene.build(Default::default());
+    let power = DVec3::from_array(scene.area_lights()[0].power());
+    for importance in [false, true] {
+        let mut p = params(8_000, 1, importance);
+        p.lights = false;
+        let set = VplSet::trace(&scene, &black(), Some(&camera()), &p, Some(2)).unwrap();
+        assert!(set.vpls.iter().all(|v| v.kind == VplKind::Surface));
+        let n = set.len() as f64;
+        assert!((n - 8_000.0).abs() < 0.05 * 8_000.0, "{n}");
+        let (got, se) = flux_and_se(&set, 1);
+        for c in 0..3 {
+            let tol = if importance {
+                4.0 * se[c]
+            } else {
+                1e-4 * power[c]
+            };
+            assert!(
+                (got[c] - power[c]).abs() <= tol,
+                "{got} vs {power} (SE {se})"
+            );
+        }
+    }
 }
