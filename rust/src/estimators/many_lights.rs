@@ -365,6 +365,87 @@ impl Batch {
     }
 }
 
+/// A tile's receivers in lanes (structure of arrays), when every one is diffuse: the terms
+/// of a diffuse VPL at all of them are computed together, in the vector registers. The
+/// term is [`Vpl::connect`]'s with `G = (n_x · d)(-n_v · d) / |d|⁴`.
+struct Lanes {
+    origin: [[f32; LANES]; 3],
+    normal: [[f32; LANES]; 3],
+    diffuse: [Vec3; LANES],
+    shorten: [f32; LANES],
+    len: usize,
+}
+
+/// Receivers per tile.
+const LANES: usize = (TILE * TILE) as usize;
+
+impl Lanes {
+    /// The lanes of `points` (at most [`LANES`]), or `None` when one is not diffuse.
+    fn new(points: &[(usize, VplReceiver)]) -> Option<Self> {
+        if points.len() > LANES {
+            return None;
+        }
+        // Unused lanes have a zero normal: every term there is zero.
+        let mut lanes = Lanes {
+            origin: [[0.0; LANES]; 3],
+            normal: [[0.0; LANES]; 3],
+            diffuse: [Vec3::ZERO; LANES],
+            shorten: [0.0; LANES],
+            len: points.len(),
+        };
+        for (k, (_, r)) in points.iter().enumerate() {
+            lanes.diffuse[k] = r.diffuse()?;
+            for a in 0..3 {
+                lanes.origin[a][k] = r.sp.origin[a];
+                lanes.normal[a][k] = r.sp.normal[a];
+            }
+            lanes.shorten[k] = r.shorten();
+        }
+        Some(lanes)
+    }
+
+    /// Pushes the rays of VPL `v` (of intensity `Φ f_v`) to the receivers its term
+    /// reaches, with their terms.
+    #[inline(always)]
+    fn connect(&self, v: &Vpl, intensity: Vec3, clamp: Option<f32>, batch: &mut Batch) {
+        let (o, m) = (v.origin, v.normal);
+        let bound = clamp.unwrap_or(f32::INFINITY);
+        let (mut g, mut inv) = ([0.0f32; LANES], [0.0f32; LANES]);
+        for k in 0..LANES {
+            let dx = o.x - self.origin[0][k];
+            let dy = o.y - self.origin[1][k];
+            let dz = o.z - self.origin[2][k];
+            let sx = self.normal[0][k] * dx + self.normal[1][k] * dy + self.normal[2][k] * dz;
+            let sv = -(m.x * dx + m.y * dy + m.z * dz);
+            let d2 = dx * dx + dy * dy + dz * dz;
+            let term = (sx * sv / (d2 * d2)).min(bound);
+            g[k] = if sx > 0.0 && sv > 0.0 { term } else { 0.0 };
+            inv[k] = 1.0 / d2.sqrt();
+        }
+        for k in 0..self.len {
+            if g[k] <= 0.0 {
+                continue;
+            }
+            let value = self.diffuse[k] * intensity * g[k];
+            let d = Vec3::new(
+                self.origin[0][k] - o.x,
+                self.origin[1][k] - o.y,
+                self.origin[2][k] - o.z,
+            );
+            let d2 = d.length_squared();
+            let tmax = d2 * inv[k] - self.shorten[k];
+            if value == Vec3::ZERO || tmax <= 0.0 {
+                continue;
+            }
+            batch.origins.push(o.to_array());
+            batch.directions.push((d * inv[k]).to_array());
+            batch.tmax.push(tmax);
+            batch.values.push(value);
+            batch.owner.push(k as u8);
+        }
+    }
+}
+
 /// The full sum of eq. 6.1 at the receivers of one tile (up to 16 pixels, `shading`
 /// holds their indices into `points`); adds each to `out`.
 #[allow(clippy::too_many_arguments)]
@@ -379,11 +460,19 @@ fn gather_full(
     work: &mut Work,
 ) -> Result<()> {
     // Point VPLs: rays from the VPL to each receiver of the tile (one origin per run).
+    let lanes = Lanes::new(points);
     for block in vpls.chunks(VPL_BLOCK) {
         for v in block.iter().filter(|v| v.kind != VplKind::Env) {
-            for (k, (_, r)) in points.iter().enumerate() {
-                if let Some(c) = v.connect(r, clamp, disk_area) {
-                    batch.push(c, k);
+            match (&lanes, v.diffuse_intensity()) {
+                (Some(lanes), Some(intensity)) => {
+                    lanes.connect(v, intensity, clamp, batch);
+                }
+                _ => {
+                    for (k, (_, r)) in points.iter().enumerate() {
+                        if let Some(c) = v.connect(r, clamp, disk_area) {
+                            batch.push(c, k);
+                        }
+                    }
                 }
             }
         }

@@ -186,6 +186,16 @@ impl Receiver {
         }
     }
 
+    /// `f_x`, when it does not depend on directions (Lambert: `ρ / π`).
+    pub fn diffuse(&self) -> Option<Vec3> {
+        self.diffuse
+    }
+
+    /// How far short of `sp.origin` shadow rays stop (world units).
+    pub fn shorten(&self) -> f32 {
+        self.shorten
+    }
+
     /// `f_x(ωo, w)` for `w` above the surface.
     #[inline(always)]
     fn f(&self, w: Vec3) -> Vec3 {
@@ -197,6 +207,19 @@ impl Receiver {
 }
 
 impl Vpl {
+    /// `Φ f_v` of a point VPL whose `f_v` does not depend on directions (a Lambert surface
+    /// or an emitter), W/sr per channel: its term is then `f_x Φ f_v G`.
+    pub fn diffuse_intensity(&self) -> Option<Vec3> {
+        match (self.kind, self.material) {
+            (VplKind::Env, _) => None,
+            (VplKind::Surface, Material::Lambert { albedo }) => {
+                Some(self.flux * Vec3::from(albedo) * std::f32::consts::FRAC_1_PI)
+            }
+            (VplKind::Surface, _) => None,
+            (VplKind::Emitter, _) => Some(self.flux * std::f32::consts::FRAC_1_PI),
+        }
+    }
+
     /// Eq. 6.1's term of this VPL at receiver `r` without visibility: `f_x(ωo, ω) ·
     /// f_v(ω_in, -ω) · Φ · cos θ_x cos θ_v / d²` for a point VPL, `f_x · cos θ_x · Φ /
     /// disk_area` for a map direction. With `clamp`, the geometry term `cos cos / d²` is
