@@ -887,6 +887,12 @@ impl VplSet {
         threads: Option<usize>,
     ) -> Result<VplSet> {
         params.validate()?;
+        // The chunks' VPLs and their concatenation, with room for the pilot's noise in the
+        // count: MemoryError up front rather than an abort part-way.
+        crate::error::check_memory(
+            (params.count as usize).saturating_mul(4 * std::mem::size_of::<Vpl>()),
+            "vpls",
+        )?;
         let start = std::time::Instant::now();
         let src = Sources::new(scene, env)?;
         let disk_area = src.disk_area();
