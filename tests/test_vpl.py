@@ -206,3 +206,14 @@ def test_bad_input_is_named():
     # Without a set, one is traced with depth = bounces.
     res = vc.render(setup, camera=cam, method="vpl", bounces=2, progress=False)
     assert res.stats["bounces"] == 2 and res.stats["vpls"] > 1000
+
+
+def test_a_time_budget_and_a_progress_bar():
+    setup = vc.scenes.load("cornell")
+    cam = setup.camera.with_resolution(16, 12)
+    vpls = vc.VPLs.trace(setup, count=300, seed=1)
+    res = vc.render(setup, camera=cam, method="vpl", vpls=vpls, time_budget=0.2, threads=2,
+                    progress=True)
+    assert 1 <= res.stats["spp"] and res.stats["complete"]
+    assert np.all(np.isfinite(res.variance)) or res.stats["spp"] == 1
+    assert res.stats["samples"] == res.stats["spp"] * 16 * 12
