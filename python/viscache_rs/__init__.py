@@ -15,6 +15,7 @@ from ._core import (
     Material,
     Scene,
     Setup,
+    VPLs,
     __version__,
 )
 from .ambient import AOResult, render_ao
@@ -34,6 +35,7 @@ __all__ = [
     "RenderResult",
     "Scene",
     "Setup",
+    "VPLs",
     "VisibilityCache",
     "__version__",
     "analysis",

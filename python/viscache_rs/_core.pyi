@@ -20,6 +20,8 @@ __all__ = [
     "LightingPreview",
     "Relighter",
     "render",
+    "VPLs",
+    "render_vpl",
     "render_ao",
     "write_exr",
     "scene_names",
@@ -365,6 +367,61 @@ def render(
     bounces: int | None = None,
     direct: bool = True,
     gbuffer: GBuffer | None = None,
+) -> dict[str, Any]: ...
+@final
+class VPLs:
+    """Virtual point lights (``viscache_rs.vpl``)."""
+
+    @staticmethod
+    def trace(
+        setup: Any,
+        count: int,
+        seed: int | None = 0,
+        importance: bool = True,
+        depth: int | None = 1,
+        epsilon: float | None = 0.05,
+        pilot_paths: int | None = 4000,
+        lights: bool = True,
+        camera: Camera | None = None,
+        envmap: EnvMap | None = None,
+        threads: int | None = None,
+    ) -> VPLs: ...
+    @staticmethod
+    def from_lights(
+        scene: Scene, positions: _ArrayLike, normals: _ArrayLike, flux: _ArrayLike
+    ) -> VPLs: ...
+    def __len__(self) -> int: ...
+    @property
+    def positions(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def normals(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def flux(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def incident(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def bounces(self) -> npt.NDArray[np.int32]: ...
+    @property
+    def kinds(self) -> npt.NDArray[np.int8]: ...
+    @property
+    def disk_area(self) -> float: ...
+    @property
+    def stats(self) -> dict[str, Any]: ...
+
+def render_vpl(
+    scene: Scene,
+    envmap: EnvMap,
+    camera: Camera,
+    vpls: VPLs,
+    spp: int | None = 1,
+    seed: int | None = 0,
+    threads: int | None = None,
+    clamp: float | None = None,
+    direct: bool = True,
+    jitter: bool = True,
+    vpl_samples: int | None = None,
+    time_budget: float | None = None,
+    callback: Any = None,
 ) -> dict[str, Any]: ...
 def render_ao(
     scene: Scene,

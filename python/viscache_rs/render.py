@@ -28,7 +28,9 @@ direct=True, gbuffer=None)`` renders
   light by MIS at every vertex it reaches; Russian roulette from the second bounce.
   ``direct=False`` keeps only the indirect part (no emitters or map seen by the camera, no
   direct light at the first hit): what irradiance caching and VF approximate. Any other
-  method takes ``bounces`` too (default 0), its own estimator then shading the first hit.
+  method takes ``bounces`` too (default 0), its own estimator then shading the first hit;
+- ``"vpl"`` and ``"vpl_sampled"``: the many-light renderer over virtual point lights
+  (``vpls=``, ``clamp=``, ``vpl_samples=``; see :mod:`viscache_rs.vpl`).
 
 All are unbiased estimators of the same image. Every pixel's per-point work (the product
 distribution, the cache lookup, J) is done once, at its *anchor*, the first hit through its
@@ -105,11 +107,27 @@ def render(
     bounces: int | None = None,
     direct: bool = True,
     gbuffer: _core.GBuffer | None = None,
+    vpls=None,
+    clamp: float | None = None,
+    vpl_samples: int | None = None,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     if gbuffer is not None and not isinstance(gbuffer, _core.GBuffer):
         raise TypeError(f"gbuffer: expected a GBuffer (from Scene.gbuffer), got "
                         f"{type(gbuffer).__name__}")
+    # Many-light methods over virtual point lights (viscache_rs.vpl).
+    from . import vpl as _vpl
+    if method in _vpl.METHODS:
+        if cache is not None:
+            raise ValueError(f"cache: only method 'cv' uses a cache, got method {method!r}")
+        if gbuffer is not None:
+            raise ValueError(f"gbuffer: method {method!r} traces the first hits of each "
+                             "sample itself")
+        return _vpl.render_vpl(setup, camera=camera, spp=spp, method=method, seed=seed,
+                               threads=threads, progress=progress, time_budget=time_budget,
+                               envmap=envmap, vpls=vpls, clamp=clamp, vpl_samples=vpl_samples,
+                               bounces=bounces, direct=direct, jitter=jitter)
+    _vpl.check_unused(method, vpls, clamp, vpl_samples)
     if camera is None:
         camera = setup.camera if gbuffer is None else gbuffer.camera
     envmap = setup.envmap if envmap is None else envmap

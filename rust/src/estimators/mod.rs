@@ -1,4 +1,4 @@
-//! Estimators: direct illumination, indirect illumination by path tracing, lighting preview (CAM08 §6.2) and ambient occlusion
+//! Estimators: direct illumination, indirect illumination by path tracing, the many-light renderer over virtual point lights, lighting preview (CAM08 §6.2) and ambient occlusion
 //! from the cache (CAM08 §6.1).
 
 pub mod ambient;
@@ -6,4 +6,5 @@ pub mod control_variate;
 pub mod decoupled;
 pub mod direct;
 pub mod indirect;
+pub mod many_lights;
 pub mod preview;

@@ -1,10 +1,12 @@
 //! Light sources: the octahedral HDR environment map ([`envmap`], over batches of rows in
 //! [`envmap::rows`]), the procedural maps the built-in scenes use ([`procedural`]) and area
-//! lights made of triangles ([`area`]).
+//! lights made of triangles ([`area`]), and virtual point lights traced from them all
+//! ([`vpl`]).
 
 pub mod area;
 pub mod envmap;
 pub mod procedural;
+pub mod vpl;
 
 pub use area::AreaLight;
 pub use envmap::{EnvMap, ExrLayout};

@@ -18,6 +18,7 @@ mod render;
 mod scene;
 mod setup;
 mod testing;
+mod vpl;
 
 use pyo3::prelude::*;
 
@@ -35,6 +36,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<preview::PyLightingPreview>()?;
     m.add_class::<relight::PyRelighter>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
+    m.add_class::<vpl::PyVpls>()?;
+    m.add_function(wrap_pyfunction!(vpl::render_vpl, m)?)?;
     m.add_function(wrap_pyfunction!(ambient::render_ao, m)?)?;
     m.add_function(wrap_pyfunction!(image::write_exr, m)?)?;
     m.add_function(wrap_pyfunction!(setup::scene_names, m)?)?;

@@ -1,0 +1,390 @@
+//! `viscache_rs._core.VPLs` and `render_vpl`: virtual point lights
+//! ([`crate::lights::vpl`]) and the many-light renderer
+//! ([`crate::estimators::many_lights`]). The Python wrapper (`viscache_rs.vpl`) adds the
+//! progress bar and `vc.render`'s methods "vpl" and "vpl_sampled".
+
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use super::camera::PyCamera;
+use super::convert::{
+    f64_arg, finite_rows, image_array, int_arg, or_default, rows3_array, rows_array, seed_or_zero,
+    threads_arg, IntoPyResult,
+};
+use super::envmap::PyEnvMap;
+use super::interrupt::{detach_interruptible, PyProgress};
+use super::scene::PyScene;
+use crate::estimators::many_lights::{
+    render_many_lights, Gather, ManyLightParams, MAX_DRAWS, MAX_SPP,
+};
+use crate::lights::vpl::{Importance, TraceParams, VplKind, VplSet, MAX_DEPTH, MAX_VPLS};
+
+/// A set of virtual point lights: `VPLs.trace(setup, count, ...)` traces them from the
+/// setup's map and area lights, `VPLs.from_lights(scene, positions, normals, flux)` makes
+/// cosine point lights. Read-only.
+#[pyclass(name = "VPLs", module = "viscache_rs._core", frozen)]
+pub struct PyVpls {
+    pub inner: VplSet,
+}
+
+/// `setup.<name>` as a `T`, with a `TypeError` naming it.
+fn attribute<'py, T: pyo3::PyClass>(
+    setup: &Bound<'py, PyAny>,
+    name: &str,
+) -> PyResult<Bound<'py, T>> {
+    setup
+        .getattr(name)
+        .map_err(|_| PyTypeError::new_err(format!("setup: expected an object with .{name}")))?
+        .cast_into::<T>()
+        .map_err(|_| {
+            PyTypeError::new_err(format!(
+                "setup: .{name} is not a {}",
+                std::any::type_name::<T>()
+                    .rsplit("::")
+                    .next()
+                    .unwrap_or(name)
+            ))
+        })
+}
+
+/// An optional positive float argument (None: none).
+fn positive_or_none(obj: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Option<f64>> {
+    match obj {
+        Some(o) if !o.is_none() => {
+            let v = f64_arg(o, name)?;
+            if v.is_finite() && v > 0.0 {
+                Ok(Some(v))
+            } else {
+                Err(PyValueError::new_err(format!(
+                    "{name}: must be a positive, finite number or None, got {v}"
+                )))
+            }
+        }
+        _ => Ok(None),
+    }
+}
+
+/// Extractor of `depth=1`.
+fn depth_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, 1, |o| {
+        Ok(int_arg(o, "depth", 1, MAX_DEPTH as i128)? as u32)
+    })
+}
+
+/// Extractor of `epsilon=0.05`.
+fn epsilon_arg(obj: &Bound<'_, PyAny>) -> PyResult<f32> {
+    or_default(obj, 0.05, |o| Ok(f64_arg(o, "epsilon")? as f32))
+}
+
+/// Extractor of `pilot_paths=4000`.
+fn pilot_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(obj, 4000, |o| {
+        Ok(int_arg(o, "pilot_paths", 1, 1 << 24)? as u32)
+    })
+}
+
+/// Extractor of `spp=1`.
+fn spp_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    or_default(
+        obj,
+        1,
+        |o| Ok(int_arg(o, "spp", 1, MAX_SPP as i128)? as u32),
+    )
+}
+
+#[pymethods]
+impl PyVpls {
+    /// Traces about `count` VPLs from `setup`'s map (or `envmap`) and area lights by light
+    /// tracing with `depth` generations of surface VPLs; with `importance`, accepted by
+    /// their contribution to the view of `setup`'s camera (or `camera`) (survey Algorithm
+    /// 11, `epsilon`, `pilot_paths`). Without `lights` the set has no light VPLs (direct
+    /// light) and `count` counts surface VPLs. Bit-identical for any `threads` at a fixed
+    /// `seed`.
+    #[staticmethod]
+    #[pyo3(signature = (setup, count, seed=0, importance=true, depth=1, epsilon=0.05, pilot_paths=4000, lights=true, camera=None, envmap=None, threads=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn trace(
+        py: Python<'_>,
+        setup: &Bound<'_, PyAny>,
+        count: &Bound<'_, PyAny>,
+        #[pyo3(from_py_with = seed_or_zero)] seed: u64,
+        importance: bool,
+        #[pyo3(from_py_with = depth_arg)] depth: u32,
+        #[pyo3(from_py_with = epsilon_arg)] epsilon: f32,
+        #[pyo3(from_py_with = pilot_arg)] pilot_paths: u32,
+        lights: bool,
+        camera: Option<Bound<'_, PyCamera>>,
+        envmap: Option<Bound<'_, PyEnvMap>>,
+        threads: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let count = int_arg(count, "count", 1, MAX_VPLS as i128)? as u64;
+        let threads = threads_arg(threads)?;
+        let scene = attribute::<PyScene>(setup, "scene")?.borrow().get();
+        let camera = match camera {
+            Some(c) => c,
+            None => attribute::<PyCamera>(setup, "camera")?,
+        }
+        .borrow()
+        .inner;
+        let env: Py<PyEnvMap> = match envmap {
+            Some(e) => e,
+            None => attribute::<PyEnvMap>(setup, "envmap")?,
+        }
+        .unbind();
+        let params = TraceParams {
+            count,
+            depth,
+            seed,
+            importance: importance.then_some(Importance {
+                epsilon,
+                pilot_paths,
+                ..Importance::DEFAULT
+            }),
+            lights,
+        };
+        params.validate().py()?;
+        let stop = PyProgress::new(None).stop_flag();
+        let set = detach_interruptible(py, &stop, || {
+            VplSet::trace(&scene, &env.get().inner, Some(&camera), &params, threads)
+        })?
+        .py()?;
+        Ok(Self { inner: set })
+    }
+
+    /// Cosine point lights (light VPLs, direct light) at `positions` (N, 3) facing
+    /// `normals` (N, 3, normalised here) with `flux` (N, 3; W, finite and >= 0), for
+    /// `scene`.
+    #[staticmethod]
+    fn from_lights(
+        scene: PyRef<'_, PyScene>,
+        positions: &Bound<'_, PyAny>,
+        normals: &Bound<'_, PyAny>,
+        flux: &Bound<'_, PyAny>,
+    ) -> PyResult<Self> {
+        let p = finite_rows::<3>(positions, "positions")?;
+        let n = finite_rows::<3>(normals, "normals")?;
+        let f = finite_rows::<3>(flux, "flux")?;
+        let set = VplSet::from_lights(&scene.get(), &p, &n, &f).py()?;
+        Ok(Self { inner: set })
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "VPLs({} lights from {} paths)",
+            self.inner.len(),
+            self.inner.stats.paths
+        )
+    }
+
+    /// Positions (N, 3) float32 (zero for map directions).
+    #[getter]
+    fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        rows3_array(
+            py,
+            self.inner
+                .vpls
+                .iter()
+                .map(|v| v.position.to_array())
+                .collect(),
+        )
+    }
+
+    /// Unit normals (N, 3) float32 on the side the light leaves; for map directions the
+    /// direction towards the map.
+    #[getter]
+    fn normals<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        rows3_array(
+            py,
+            self.inner
+                .vpls
+                .iter()
+                .map(|v| v.normal.to_array())
+                .collect(),
+        )
+    }
+
+    /// Flux (N, 3) float32, W per channel (the paths' normalisation included).
+    #[getter]
+    fn flux<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        rows3_array(
+            py,
+            self.inner.vpls.iter().map(|v| v.flux.to_array()).collect(),
+        )
+    }
+
+    /// Unit directions (N, 3) float32 the light arrived from (surface VPLs; zero else).
+    #[getter]
+    fn incident<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        rows3_array(
+            py,
+            self.inner
+                .vpls
+                .iter()
+                .map(|v| v.incident.to_array())
+                .collect(),
+        )
+    }
+
+    /// Generation (N,) int32: 0 for light VPLs, j for the j-th hit of a light path.
+    #[getter]
+    fn bounces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let rows: Vec<[i32; 1]> = self.inner.vpls.iter().map(|v| [v.bounce as i32]).collect();
+        rows_array(py, rows)?.call_method1("reshape", (-1,))
+    }
+
+    /// Kind (N,) int8: 0 a point on an area light (or from_lights), 1 a map direction,
+    /// 2 a surface hit.
+    #[getter]
+    fn kinds<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let rows: Vec<[i8; 1]> = self
+            .inner
+            .vpls
+            .iter()
+            .map(|v| {
+                [match v.kind {
+                    VplKind::Emitter => 0,
+                    VplKind::Env => 1,
+                    VplKind::Surface => 2,
+                }]
+            })
+            .collect();
+        rows_array(py, rows)?.call_method1("reshape", (-1,))
+    }
+
+    /// `π R²` of the map's disk (world units²): a map VPL's irradiance is flux / disk_area.
+    #[getter]
+    fn disk_area(&self) -> f32 {
+        self.inner.disk_area
+    }
+
+    /// Figures of the trace: paths, pilot_paths, path_rays, shadow_rays, rejected,
+    /// mean_contribution, seconds.
+    #[getter]
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = &self.inner.stats;
+        let d = PyDict::new(py);
+        d.set_item("vpls", self.inner.len())?;
+        d.set_item("paths", s.paths)?;
+        d.set_item("pilot_paths", s.pilot_paths)?;
+        d.set_item("path_rays", s.path_rays)?;
+        d.set_item("shadow_rays", s.shadow_rays)?;
+        d.set_item("rejected", s.rejected)?;
+        d.set_item("mean_contribution", s.mean_contribution)?;
+        d.set_item("seconds", s.seconds)?;
+        Ok(d)
+    }
+}
+
+/// Renders `camera`'s view of `scene` lit by `vpls`: the full sum of eq. 6.1
+/// (`vpl_samples=None`) or `vpl_samples` VPLs per pixel sample drawn by their unoccluded
+/// contribution. Returns a dict with `image` and `variance` (H, W, 3) float32 and `stats`.
+/// `callback(done, planned)` as for `render`.
+#[pyfunction]
+#[pyo3(signature = (scene, envmap, camera, vpls, spp=1, seed=0, threads=None, clamp=None, direct=true, jitter=true, vpl_samples=None, time_budget=None, callback=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn render_vpl<'py>(
+    py: Python<'py>,
+    scene: PyRef<'py, PyScene>,
+    envmap: Bound<'py, PyEnvMap>,
+    camera: PyRef<'py, PyCamera>,
+    vpls: Bound<'py, PyVpls>,
+    #[pyo3(from_py_with = spp_arg)] spp: u32,
+    #[pyo3(from_py_with = seed_or_zero)] seed: u64,
+    threads: Option<&Bound<'py, PyAny>>,
+    clamp: Option<&Bound<'py, PyAny>>,
+    direct: bool,
+    jitter: bool,
+    vpl_samples: Option<&Bound<'py, PyAny>>,
+    time_budget: Option<&Bound<'py, PyAny>>,
+    callback: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let clamp = match clamp {
+        Some(c) if !c.is_none() => {
+            let v = f64_arg(c, "clamp")?;
+            if !(v.is_finite() && v > 0.0) {
+                return Err(PyValueError::new_err(format!(
+                    "clamp: must be a positive, finite bound of the geometry term cos cos / d² \
+                     (1/m²) or None, got {v}"
+                )));
+            }
+            Some(v as f32)
+        }
+        _ => None,
+    };
+    let gather = match vpl_samples {
+        Some(m) if !m.is_none() => Gather::Sampled {
+            draws: int_arg(m, "vpl_samples", 1, MAX_DRAWS as i128)? as u32,
+        },
+        _ => Gather::Full,
+    };
+    let params = ManyLightParams {
+        spp,
+        seed,
+        jitter,
+        clamp,
+        direct,
+        gather,
+        time_budget: positive_or_none(time_budget, "time_budget")?,
+    };
+    params.validate().py()?;
+    let threads = threads_arg(threads)?;
+    let (scene, cam) = (scene.get(), camera.inner);
+    let env: Py<PyEnvMap> = envmap.unbind();
+    let vpls: Py<PyVpls> = vpls.unbind();
+    let mut reporter = PyProgress::new(callback);
+    let stop = reporter.stop_flag();
+    let mut progress = |done: u64, planned: u64| reporter.report(done, planned);
+    let out = detach_interruptible(py, &stop, || {
+        render_many_lights(
+            &scene,
+            &env.get().inner,
+            &cam,
+            &vpls.get().inner,
+            &params,
+            None,
+            threads,
+            &mut progress,
+        )
+    })?
+    .py()?;
+    reporter.finish()?;
+    let (w, h) = (out.width as usize, out.height as usize);
+    let d = PyDict::new(py);
+    d.set_item(
+        "image",
+        image_array(py, out.image.into_flattened(), h, w, Some(3))?,
+    )?;
+    d.set_item(
+        "variance",
+        image_array(py, out.variance.into_flattened(), h, w, Some(3))?,
+    )?;
+    let s = &out.stats;
+    let stats = PyDict::new(py);
+    stats.set_item("seconds", s.seconds)?;
+    stats.set_item("spp", s.spp)?;
+    stats.set_item("complete", s.complete)?;
+    stats.set_item("jitter", jitter)?;
+    stats.set_item("direct", direct)?;
+    stats.set_item("clamp", clamp)?;
+    stats.set_item(
+        "vpl_samples",
+        match gather {
+            Gather::Sampled { draws } => Some(draws),
+            Gather::Full => None,
+        },
+    )?;
+    stats.set_item("vpls", s.vpls)?;
+    stats.set_item("samples", s.samples)?;
+    stats.set_item("primary_rays", s.primary_rays)?;
+    stats.set_item("shadow_rays", s.shadow_rays)?;
+    stats.set_item("gather_seconds", s.gather_seconds)?;
+    stats.set_item("shadow_rays_per_second", s.shadow_rays_per_second)?;
+    stats.set_item("rays_per_second", s.rays_per_second)?;
+    d.set_item("stats", stats)?;
+    Ok(d)
+}
