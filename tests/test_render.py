@@ -165,6 +165,9 @@ def test_stats_time_budget_and_progress(small_setups):
     r = vc.render(setup, method="env", time_budget=0.05, progress=False)
     assert 1 <= r.stats["spp"] < 1 << 20
     assert np.isfinite(r.image).all()
+    # A budget spent by the probe pass still gives every pixel a sample.
+    tiny = vc.render(setup, method="product", time_budget=1e-9, progress=False)
+    assert tiny.stats["spp"] >= 1 and np.isfinite(tiny.image).all()
     # One sample: the variance of the mean is unknown (infinite).
     assert np.isinf(_render(setup, "env", 1).variance).all()
     # The progress bar runs (tqdm writes to stderr).

@@ -1032,9 +1032,12 @@ fn render_with(
             break;
         }
         let keep_going = progress(done.load(Ordering::Relaxed), planned);
+        // Every pixel gets a sample, whatever the budget: a probe pass alone leaves most
+        // of them at none.
+        let unsampled = sums.iter().any(|s| s.n == 0);
         let over_budget = params
             .time_budget
-            .is_some_and(|b| start.elapsed().as_secs_f64() >= b);
+            .is_some_and(|b| start.elapsed().as_secs_f64() >= b && !unsampled);
         if !keep_going || over_budget {
             break;
         }
