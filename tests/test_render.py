@@ -177,7 +177,7 @@ def test_stats_time_budget_and_progress(small_setups):
 @pytest.mark.parametrize(
     ("kwargs", "exc", "needle"),
     [
-        ({"method": "whitted"}, ValueError, "method"),
+        ({"method": "whitted"}, ValueError, 'method.*"vpl", "vpl_sampled"'),
         ({"spp": 0}, ValueError, "spp"),
         ({"spp": 2.5}, TypeError, "spp"),
         ({"time_budget": -1.0}, ValueError, "time_budget"),

@@ -118,7 +118,12 @@ pub fn render<'py>(
         Method::Mis
     } else {
         Method::from_name(method).ok_or_else(|| {
-            let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).chain([PATH]).collect();
+            // The many-light methods are dispatched in Python (viscache_rs.vpl).
+            let names: Vec<&str> = Method::ALL
+                .iter()
+                .map(|m| m.name())
+                .chain([PATH, "vpl", "vpl_sampled"])
+                .collect();
             PyValueError::new_err(format!("method: expected one of {names:?}, got {method:?}"))
         })?
     };
