@@ -64,3 +64,15 @@ pub const BYTES_PER_PIXEL: usize = 320;
 
 /// Result with the core's [`Error`].
 pub type Result<T> = std::result::Result<T, Error>;
+
+/// Fails, naming `time_budget`, unless the budget is absent or a finite, positive number of
+/// seconds.
+pub fn check_time_budget(time_budget: Option<f64>) -> Result<()> {
+    match time_budget {
+        Some(b) if !(b.is_finite() && b > 0.0) => Err(Error::invalid(
+            "time_budget",
+            format!("must be a positive number of seconds, got {b}"),
+        )),
+        _ => Ok(()),
+    }
+}

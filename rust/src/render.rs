@@ -203,14 +203,7 @@ impl RenderParams {
                 format!("must lie in [1, {MAX_SPP}], got {}", self.spp),
             ));
         }
-        if let Some(b) = self.time_budget {
-            if !(b.is_finite() && b > 0.0) {
-                return Err(Error::invalid(
-                    "time_budget",
-                    format!("must be a positive number of seconds, got {b}"),
-                ));
-            }
-        }
+        crate::error::check_time_budget(self.time_budget)?;
         if self.bounces > MAX_BOUNCES {
             return Err(Error::invalid(
                 "bounces",

@@ -6,6 +6,7 @@ use std::f32::consts::TAU;
 
 use glam::Vec3;
 
+use crate::bsdf::Material;
 use crate::geometry::Scene;
 use crate::math::triangle_cross;
 use crate::sampling::rng::SampleRng;
@@ -228,6 +229,32 @@ pub fn damaged(bytes: &[u8], k: u64, seed: u64) -> Vec<u8> {
         }
     }
     b
+}
+
+/// The furnace of the indirect-light tests: the inside of a closed sphere of radius 1 at
+/// the origin (an icosphere of `subdivisions`), of `material`, whose triangles face and
+/// emit radiance 1 inwards. Two points of it see each other with `G = 1 / (4 r²)`, so
+/// light bounces between them without `1/d²` spikes, and each bounce keeps the
+/// material's directional albedo.
+pub fn furnace_sphere(subdivisions: u32, material: Material) -> Scene {
+    let mut tris = Vec::new();
+    crate::scenes::shapes::icosphere(&mut tris, Vec3::ZERO, 1.0, subdivisions);
+    // Inward winding, so the emission faces the centre.
+    for t in &mut tris {
+        t.swap(1, 2);
+    }
+    let v: Vec<[f32; 3]> = tris.iter().flatten().map(|v| v.to_array()).collect();
+    let f: Vec<[i64; 3]> = (0..tris.len() as i64)
+        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+        .collect();
+    let mut scene = Scene::new();
+    let id = scene
+        .add_indexed(&v, &f, material, None)
+        .expect("an icosphere is a valid mesh");
+    scene
+        .set_emitter(id, [1.0; 3])
+        .expect("an icosphere has area");
+    scene
 }
 
 #[cfg(test)]

@@ -137,14 +137,7 @@ impl ManyLightParams {
                 ));
             }
         }
-        if let Some(b) = self.time_budget {
-            if !(b.is_finite() && b > 0.0) {
-                return Err(Error::invalid(
-                    "time_budget",
-                    format!("must be a positive number of seconds, got {b}"),
-                ));
-            }
-        }
+        crate::error::check_time_budget(self.time_budget)?;
         Ok(())
     }
 }

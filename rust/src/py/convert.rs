@@ -307,6 +307,22 @@ pub fn image_array<'py, T: numpy::Element>(
     })
 }
 
+/// A dict of `image` and `variance`, (H, W, 3) float32 each: what every renderer returns
+/// first.
+pub fn image_dict<'py>(
+    py: Python<'py>,
+    image: Vec<[f32; 3]>,
+    variance: Vec<[f32; 3]>,
+    height: usize,
+    width: usize,
+) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    let d = pyo3::types::PyDict::new(py);
+    let rgb = |v: Vec<[f32; 3]>| image_array(py, v.into_flattened(), height, width, Some(3));
+    d.set_item("image", rgb(image)?)?;
+    d.set_item("variance", rgb(variance)?)?;
+    Ok(d)
+}
+
 /// An `(N, 2)` array of real numbers as C-contiguous `float64`.
 pub fn rows2_f64<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonlyArray2<'py, f64>> {
     let arr = as_array(obj, name)?;

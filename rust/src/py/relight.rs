@@ -10,8 +10,8 @@ use pyo3::types::PyDict;
 
 use super::cache::PyVisibilityCache;
 use super::convert::{
-    f64_arg, image_array, int_arg, or_default, product_level_arg, seed_or_zero, threads_arg,
-    IntoPyResult,
+    f64_arg, image_array, image_dict, int_arg, or_default, product_level_arg, seed_or_zero,
+    threads_arg, IntoPyResult,
 };
 use super::envmap::PyEnvMap;
 use super::gbuffer::PyGBuffer;
@@ -238,15 +238,7 @@ impl PyRelighter {
             )
         };
         let lights = out.lights;
-        let d = PyDict::new(py);
-        d.set_item(
-            "image",
-            image_array(py, out.image.into_flattened(), h, w, Some(3))?,
-        )?;
-        d.set_item(
-            "variance",
-            image_array(py, out.variance.into_flattened(), h, w, Some(3))?,
-        )?;
+        let d = image_dict(py, out.image, out.variance, h, w)?;
         d.set_item(
             "error_bound",
             image_array(py, out.error_bound.into_flattened(), h, w, Some(3))?,

@@ -8,8 +8,8 @@ use pyo3::types::{PyDict, PyString};
 use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, image_array, int_arg, or_default, product_level_arg, seed_or_zero, threads_arg,
-    IntoPyResult,
+    f64_arg, image_array, image_dict, int_arg, or_default, product_level_arg, seed_or_zero,
+    threads_arg, IntoPyResult,
 };
 use super::envmap::PyEnvMap;
 use super::gbuffer::{view_arg, PyGBuffer, View};
@@ -168,15 +168,7 @@ pub fn render<'py>(
     .py()?;
     reporter.finish()?;
     let (w, h) = (out.width as usize, out.height as usize);
-    let d = PyDict::new(py);
-    d.set_item(
-        "image",
-        image_array(py, out.image.into_flattened(), h, w, Some(3))?,
-    )?;
-    d.set_item(
-        "variance",
-        image_array(py, out.variance.into_flattened(), h, w, Some(3))?,
-    )?;
+    let d = image_dict(py, out.image, out.variance, h, w)?;
     match out.alpha {
         Some(a) => d.set_item("alpha", image_array(py, a.into_flattened(), h, w, Some(3))?)?,
         None => d.set_item("alpha", py.None())?,

@@ -9,7 +9,7 @@ use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, finite_rows, image_array, int_arg, or_default, rows3_array, rows_array, seed_or_zero,
+    f64_arg, finite_rows, image_dict, int_arg, or_default, rows3_array, rows_array, seed_or_zero,
     threads_arg, IntoPyResult,
 };
 use super::envmap::PyEnvMap;
@@ -354,15 +354,7 @@ pub fn render_vpl<'py>(
     .py()?;
     reporter.finish()?;
     let (w, h) = (out.width as usize, out.height as usize);
-    let d = PyDict::new(py);
-    d.set_item(
-        "image",
-        image_array(py, out.image.into_flattened(), h, w, Some(3))?,
-    )?;
-    d.set_item(
-        "variance",
-        image_array(py, out.variance.into_flattened(), h, w, Some(3))?,
-    )?;
+    let d = image_dict(py, out.image, out.variance, h, w)?;
     let s = &out.stats;
     let stats = PyDict::new(py);
     stats.set_item("seconds", s.seconds)?;

@@ -394,14 +394,7 @@ impl Relighter {
                 format!("must lie in [1, {MAX_VISIBILITY_SPP}], got {spp}"),
             ));
         }
-        if let Some(b) = time_budget {
-            if !(b.is_finite() && b > 0.0) {
-                return Err(Error::invalid(
-                    "time_budget",
-                    format!("must be a positive number of seconds, got {b}"),
-                ));
-            }
-        }
+        crate::error::check_time_budget(time_budget)?;
         product_level.validate()?;
         self.gbuffer.check(scene, None)?;
         let start = Instant::now();

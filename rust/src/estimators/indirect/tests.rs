@@ -3,33 +3,12 @@ use crate::bsdf::Material;
 use crate::estimators::direct::ProductLevel;
 use crate::lights::envmap::EnvMap;
 use crate::sampling::rng::SampleRng;
-use crate::scenes::shapes::{icosphere, Tri};
 
-/// An indexed copy of `triangles` (three vertices each).
-fn indexed(triangles: &[Tri]) -> (Vec<[f32; 3]>, Vec<[i64; 3]>) {
-    let vertices = triangles.iter().flatten().map(|v| v.to_array()).collect();
-    let faces = (0..triangles.len() as i64)
-        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
-        .collect();
-    (vertices, faces)
-}
-
-/// The furnace: the inside of a closed sphere (radius 1) of `material` that emits
-/// radiance 1 inwards, under a black map. Direct light at any inner point is the
-/// directional albedo `ρ` (every direction sees radiance 1), and each bounce multiplies by
-/// `ρ` again.
+/// The furnace ([`crate::testing::furnace_sphere`]) of `material` under a black map:
+/// direct light at any inner point is the directional albedo `ρ`, and each bounce
+/// multiplies by `ρ` again.
 fn furnace(material: Material) -> Scene {
-    let mut tris = Vec::new();
-    icosphere(&mut tris, Vec3::ZERO, 1.0, 3);
-    // Inward winding, so the emission faces the centre.
-    for t in &mut tris {
-        t.swap(1, 2);
-    }
-    let (v, f) = indexed(&tris);
-    let mut scene = Scene::new();
-    let id = scene.add_indexed(&v, &f, material, None).unwrap();
-    scene.set_emitter(id, [1.0; 3]).unwrap();
-    scene
+    crate::testing::furnace_sphere(3, material)
 }
 
 /// The shading point where the ray from `origin` along `dir` first hits `scene`, and the

@@ -1,7 +1,6 @@
 use super::*;
 use crate::bsdf::Material;
 use crate::lights::vpl::TraceParams;
-use crate::scenes::shapes::{icosphere, Tri};
 
 const ALBEDO: [f32; 3] = [0.5, 0.3, 0.8];
 
@@ -13,26 +12,10 @@ fn black() -> EnvMap {
     EnvMap::constant([0.0; 3], 8).unwrap()
 }
 
-/// The inside of a closed sphere (radius 1) of Lambert `ALBEDO` emitting radiance 1
-/// inwards: one bounce of indirect light is `a²` at every point. Two points of a sphere
-/// see each other with `G = 1 / (4 r²)` whatever their places, so a VPL sum has no
-/// `1/d²` spikes and only the tessellation's error.
+/// The furnace ([`crate::testing::furnace_sphere`]) of Lambert `ALBEDO`: one bounce of
+/// indirect light is `a²` at every point, and a VPL sum has only the tessellation's error.
 fn furnace() -> Scene {
-    let mut tris: Vec<Tri> = Vec::new();
-    icosphere(&mut tris, Vec3::ZERO, 1.0, 4);
-    for t in &mut tris {
-        t.swap(1, 2);
-    }
-    let v: Vec<[f32; 3]> = tris.iter().flatten().map(|v| v.to_array()).collect();
-    let f: Vec<[i64; 3]> = (0..tris.len() as i64)
-        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
-        .collect();
-    let mut scene = Scene::new();
-    let id = scene
-        .add_indexed(&v, &f, Material::lambert(ALBEDO).unwrap(), None)
-        .unwrap();
-    scene.set_emitter(id, [1.0; 3]).unwrap();
-    scene
+    crate::testing::furnace_sphere(4, Material::lambert(ALBEDO).unwrap())
 }
 
 fn camera(eye: Vec3, target: Vec3, w: u32, h: u32) -> Camera {

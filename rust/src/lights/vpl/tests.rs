@@ -1,27 +1,11 @@
 use super::*;
-use crate::scenes::shapes::{icosphere, Tri};
 
 const ALBEDO: [f32; 3] = [0.5, 0.3, 0.8];
 
-/// The inside of a closed sphere (radius 1) of Lambert `ALBEDO` emitting radiance 1
-/// inwards, under a black map: every photon hits the sphere again, and each hit keeps
-/// `ALBEDO` of its flux.
+/// The furnace ([`crate::testing::furnace_sphere`]) of Lambert `ALBEDO` under a black map:
+/// every photon hits the sphere again, and each hit keeps `ALBEDO` of its flux.
 fn furnace() -> Scene {
-    let mut tris: Vec<Tri> = Vec::new();
-    icosphere(&mut tris, Vec3::ZERO, 1.0, 3);
-    for t in &mut tris {
-        t.swap(1, 2);
-    }
-    let v: Vec<[f32; 3]> = tris.iter().flatten().map(|v| v.to_array()).collect();
-    let f: Vec<[i64; 3]> = (0..tris.len() as i64)
-        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
-        .collect();
-    let mut scene = Scene::new();
-    let id = scene
-        .add_indexed(&v, &f, Material::lambert(ALBEDO).unwrap(), None)
-        .unwrap();
-    scene.set_emitter(id, [1.0; 3]).unwrap();
-    scene
+    crate::testing::furnace_sphere(3, Material::lambert(ALBEDO).unwrap())
 }
 
 fn black() -> EnvMap {

@@ -401,14 +401,7 @@ pub(crate) fn other_scene(bound: u64, f: u64) -> String {
 /// The arguments every pass over a camera's pixels checks: a scene with triangles and a
 /// time budget, if any, that is a finite positive number of seconds.
 pub(crate) fn check_scene_and_budget(scene: &Scene, time_budget: Option<f64>) -> Result<()> {
-    if let Some(b) = time_budget {
-        if !(b.is_finite() && b > 0.0) {
-            return Err(Error::invalid(
-                "time_budget",
-                format!("must be finite and > 0 seconds, got {b}"),
-            ));
-        }
-    }
+    crate::error::check_time_budget(time_budget)?;
     if scene.num_triangles() == 0 {
         return Err(Error::invalid("scene", "has no triangles"));
     }
