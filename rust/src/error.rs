@@ -65,6 +65,23 @@ pub const BYTES_PER_PIXEL: usize = 320;
 /// Result with the core's [`Error`].
 pub type Result<T> = std::result::Result<T, Error>;
 
+/// Fails, naming `name`, unless `lo <= value <= hi`.
+pub fn check_range<T: PartialOrd + std::fmt::Display>(
+    name: &str,
+    value: T,
+    lo: T,
+    hi: T,
+) -> Result<()> {
+    if lo <= value && value <= hi {
+        Ok(())
+    } else {
+        Err(Error::invalid(
+            name,
+            format!("must lie in [{lo}, {hi}], got {value}"),
+        ))
+    }
+}
+
 /// Fails, naming `time_budget`, unless the budget is absent or a finite, positive number of
 /// seconds.
 pub fn check_time_budget(time_budget: Option<f64>) -> Result<()> {

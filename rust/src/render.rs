@@ -197,19 +197,9 @@ impl RenderParams {
 
     /// Fails with an error naming the first parameter out of range.
     pub fn validate(&self) -> Result<()> {
-        if self.spp == 0 || self.spp > MAX_SPP {
-            return Err(Error::invalid(
-                "spp",
-                format!("must lie in [1, {MAX_SPP}], got {}", self.spp),
-            ));
-        }
+        crate::error::check_range("spp", self.spp, 1, MAX_SPP)?;
         crate::error::check_time_budget(self.time_budget)?;
-        if self.bounces > MAX_BOUNCES {
-            return Err(Error::invalid(
-                "bounces",
-                format!("must lie in [0, {MAX_BOUNCES}], got {}", self.bounces),
-            ));
-        }
+        crate::error::check_range("bounces", self.bounces, 0, MAX_BOUNCES)?;
         if !self.direct && self.bounces == 0 {
             return Err(Error::invalid(
                 "direct",
@@ -472,10 +462,6 @@ fn elapsed_ns(since: Instant) -> u64 {
 }
 
 impl Shader<'_> {
-    fn uses_product(&self) -> bool {
-        self.params.uses_product()
-    }
-
     /// Traces the primary ray through `pixel`'s point `jitter` (`[0.5, 0.5]`: the centre).
     fn trace_primary(
         &self,
@@ -521,7 +507,7 @@ impl Shader<'_> {
         // A product that ignores the view is the previous pixel's when the material and
         // normal are (flat diffuse surfaces: most pixels of most scenes).
         let product_key = (!sp.material.product_depends_on_wo()).then_some((sp.material, normal));
-        if self.uses_product() {
+        if self.params.uses_product() {
             let start = Instant::now();
             product = match (&work.last_product, product_key) {
                 (Some((key, p)), Some(k)) if *key == k => {
@@ -651,7 +637,7 @@ impl Shader<'_> {
         if !self.params.direct {
             return (indirect, [0.0; 3]);
         }
-        if !self.uses_product() {
+        if !self.params.uses_product() {
             let l = self.lighting.estimate(
                 sp,
                 self.params.method,

@@ -360,9 +360,7 @@ pub fn render_reference_ao(
     check_rays(rays)?;
     check_scene_and_budget(scene, time_budget)?;
     let start = Instant::now();
-    let g = with_threads(threads, || {
-        GBuffer::render(scene, camera, seed, false, None)
-    })??;
+    let g = GBuffer::render(scene, camera, seed, false, threads)?;
     reference_ao_at_gbuffer(scene, &g, rays, seed, threads, start, time_budget, progress)
 }
 
@@ -462,9 +460,7 @@ pub fn render_cache_ao(
     check_scene_and_budget(scene, time_budget)?;
     cache.bind_scene(scene)?;
     let start = Instant::now();
-    let g = with_threads(threads, || {
-        GBuffer::render(scene, camera, seed, false, None)
-    })??;
+    let g = GBuffer::render(scene, camera, seed, false, threads)?;
     cache_ao_at_gbuffer(scene, &g, cache, ao, threads, start, time_budget, progress)
 }
 

@@ -113,12 +113,7 @@ impl ManyLightParams {
 
     /// Fails with an error naming the first parameter out of range.
     pub fn validate(&self) -> Result<()> {
-        if !(1..=MAX_SPP).contains(&self.spp) {
-            return Err(Error::invalid(
-                "spp",
-                format!("must lie in [1, {MAX_SPP}], got {}", self.spp),
-            ));
-        }
+        crate::error::check_range("spp", self.spp, 1, MAX_SPP)?;
         if let Some(c) = self.clamp {
             if !(c.is_finite() && c > 0.0) {
                 return Err(Error::invalid(
@@ -130,12 +125,7 @@ impl ManyLightParams {
             }
         }
         if let Gather::Sampled { draws } = self.gather {
-            if !(1..=MAX_DRAWS).contains(&draws) {
-                return Err(Error::invalid(
-                    "vpl_samples",
-                    format!("must lie in [1, {MAX_DRAWS}], got {draws}"),
-                ));
-            }
+            crate::error::check_range("vpl_samples", draws, 1, MAX_DRAWS)?;
         }
         crate::error::check_time_budget(self.time_budget)?;
         Ok(())

@@ -338,18 +338,8 @@ impl TraceParams {
 
     /// Fails with an error naming the first parameter out of range.
     pub fn validate(&self) -> Result<()> {
-        if !(1..=MAX_VPLS).contains(&self.count) {
-            return Err(Error::invalid(
-                "count",
-                format!("must lie in [1, {MAX_VPLS}], got {}", self.count),
-            ));
-        }
-        if !(1..=MAX_DEPTH).contains(&self.depth) {
-            return Err(Error::invalid(
-                "depth",
-                format!("must lie in [1, {MAX_DEPTH}], got {}", self.depth),
-            ));
-        }
+        crate::error::check_range("count", self.count, 1, MAX_VPLS)?;
+        crate::error::check_range("depth", self.depth, 1, MAX_DEPTH)?;
         if let Some(imp) = self.importance {
             if !(imp.epsilon > 0.0 && imp.epsilon <= 1.0) {
                 return Err(Error::invalid(

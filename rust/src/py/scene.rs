@@ -81,6 +81,18 @@ impl PyScene {
         self.inner.read().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
+    /// `obj` as an object id of an emitter of the scene, or an error naming `obj`.
+    fn emitting_object(&self, obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+        let n = self.get().mesh().objects.len();
+        let obj = int_arg(obj, "obj", 0, n as i128 - 1)? as u32;
+        if self.get().emitter(obj).is_none() {
+            return Err(PyValueError::new_err(format!(
+                "obj: object {obj} does not emit (see set_emitter)"
+            )));
+        }
+        Ok(obj)
+    }
+
     /// Runs `f` on the scene, copying it first if a snapshot of it is in use. Edits from
     /// other threads wait for this one.
     pub fn edit<R>(&self, f: impl FnOnce(&mut Scene) -> R) -> R {
@@ -205,14 +217,8 @@ impl PyScene {
     /// and sampling stay. Fails, leaving the scene unchanged, if it does not emit.
     #[pyo3(signature = (obj, radiance))]
     fn set_emission(&self, obj: &Bound<'_, PyAny>, radiance: &Bound<'_, PyAny>) -> PyResult<()> {
-        let n = self.get().mesh().objects.len();
-        let obj = int_arg(obj, "obj", 0, n as i128 - 1)? as u32;
+        let obj = self.emitting_object(obj)?;
         let radiance = vec3_arg(radiance, "radiance")?;
-        if self.get().emitter(obj).is_none() {
-            return Err(PyValueError::new_err(format!(
-                "obj: object {obj} does not emit (see set_emitter)"
-            )));
-        }
         self.edit(|s| s.set_emission(obj, radiance)).py()
     }
 
@@ -227,13 +233,7 @@ impl PyScene {
         obj: &Bound<'_, PyAny>,
         texture: &Bound<'_, PyAny>,
     ) -> PyResult<()> {
-        let n = self.get().mesh().objects.len();
-        let obj = int_arg(obj, "obj", 0, n as i128 - 1)? as u32;
-        if self.get().emitter(obj).is_none() {
-            return Err(PyValueError::new_err(format!(
-                "obj: object {obj} does not emit (see set_emitter)"
-            )));
-        }
+        let obj = self.emitting_object(obj)?;
         let texture = if texture.is_none() {
             None
         } else {

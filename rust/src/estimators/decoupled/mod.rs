@@ -60,7 +60,7 @@ use crate::bsdf::Material;
 use crate::camera::GBuffer;
 use crate::error::{Error, Result};
 use crate::estimators::direct::dims;
-use crate::geometry::{Scene, TraversalCounters};
+use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::moments::Moments;
 use crate::parallel::run_with_progress;
@@ -126,18 +126,8 @@ impl RelightParams {
 
     /// Fails with an error naming the first parameter out of range.
     pub fn validate(&self) -> Result<()> {
-        if self.lb_spp == 0 || self.lb_spp > MAX_RELIGHT_SPP {
-            return Err(Error::invalid(
-                "lb_spp",
-                format!("must lie in [1, {MAX_RELIGHT_SPP}], got {}", self.lb_spp),
-            ));
-        }
-        if self.lbv_spp > MAX_RELIGHT_SPP {
-            return Err(Error::invalid(
-                "lbv_spp",
-                format!("must lie in [0, {MAX_RELIGHT_SPP}], got {}", self.lbv_spp),
-            ));
-        }
+        crate::error::check_range("lb_spp", self.lb_spp, 1, MAX_RELIGHT_SPP)?;
+        crate::error::check_range("lbv_spp", self.lbv_spp, 0, MAX_RELIGHT_SPP)?;
         if !(self.threshold.is_finite() && self.threshold >= 0.0) {
             return Err(Error::invalid(
                 "threshold",
@@ -357,12 +347,18 @@ impl Relighter {
         })
     }
 
-    /// The shading point of pixel `i` with `materials` (per object), or `None` for a miss.
-    fn point(&self, scene: &Scene, materials: &[Material], i: usize) -> Option<ShadingPoint> {
+    /// The hit of pixel `i` and its shading point with `materials` (per object), or
+    /// `None` for a miss.
+    fn point(
+        &self,
+        scene: &Scene,
+        materials: &[Material],
+        i: usize,
+    ) -> Option<(SurfaceHit, ShadingPoint)> {
         let hit = self.gbuffer.surface_hit(i)?;
         let mut sp = shading_point_at(scene, &hit, -Vec3::from(self.gbuffer.direction[i]));
         sp.material = materials[hit.obj as usize];
-        Some(sp)
+        Some((hit, sp))
     }
 
     /// Traces `spp` `V`-samples per pixel and light under `env` and the scene's materials
@@ -388,12 +384,7 @@ impl Relighter {
         time_budget: Option<f64>,
         progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
     ) -> Result<(u32, u64)> {
-        if spp == 0 || spp > MAX_VISIBILITY_SPP {
-            return Err(Error::invalid(
-                "spp",
-                format!("must lie in [1, {MAX_VISIBILITY_SPP}], got {spp}"),
-            ));
-        }
+        crate::error::check_range("spp", spp, 1, MAX_VISIBILITY_SPP)?;
         crate::error::check_time_budget(time_budget)?;
         product_level.validate()?;
         self.gbuffer.check(scene, None)?;
@@ -427,7 +418,7 @@ impl Relighter {
                             return 0;
                         }
                         done.fetch_add(pass.len() as u64, Ordering::Relaxed);
-                        let Some(sp) = this.point(scene, &materials, i) else {
+                        let Some((_, sp)) = this.point(scene, &materials, i) else {
                             return 0;
                         };
                         let at = PixelLights {
@@ -581,10 +572,9 @@ impl Relighter {
                         return PixelResult::miss(Vec3::ZERO, n_lights);
                     }
                     done.fetch_add(1, Ordering::Relaxed);
-                    let Some(sp) = self.point(scene, &materials, i) else {
+                    let Some((hit, sp)) = self.point(scene, &materials, i) else {
                         return PixelResult::miss(env.eval(dir), n_lights);
                     };
-                    let hit = self.gbuffer.surface_hit(i).expect("point has a hit");
                     let emitted = scene.emitted(&hit, sp.wo);
                     let at = PixelLights {
                         scene,

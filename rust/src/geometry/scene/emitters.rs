@@ -65,13 +65,7 @@ impl Scene {
     /// Gives the emitting object `object` another `radiance` (its triangles, and so how
     /// it is sampled, stay). Fails, leaving the scene unchanged, if it does not emit.
     pub fn set_emission(&mut self, object: u32, radiance: [f32; 3]) -> Result<()> {
-        self.object(object)?;
-        let Some(i) = self.lights.iter().position(|l| l.object == object) else {
-            return Err(Error::invalid(
-                "object",
-                format!("object {object} does not emit (see set_emitter)"),
-            ));
-        };
+        let i = self.emitter_index(object)?;
         self.lights[i] = self.lights[i].with_radiance(radiance)?;
         Ok(())
     }
@@ -85,15 +79,24 @@ impl Scene {
         object: u32,
         texture: Option<EmissionTexture>,
     ) -> Result<()> {
-        self.object(object)?;
-        let Some(i) = self.lights.iter().position(|l| l.object == object) else {
-            return Err(Error::invalid(
-                "object",
-                format!("object {object} does not emit (see set_emitter)"),
-            ));
-        };
+        let i = self.emitter_index(object)?;
         self.lights[i] = self.lights[i].clone().with_texture(texture)?;
         Ok(())
+    }
+
+    /// Index in [`Self::area_lights`] of the light of object `object`; an error naming
+    /// `object` if it does not exist or does not emit.
+    fn emitter_index(&self, object: u32) -> Result<usize> {
+        self.object(object)?;
+        self.lights
+            .iter()
+            .position(|l| l.object == object)
+            .ok_or_else(|| {
+                Error::invalid(
+                    "object",
+                    format!("object {object} does not emit (see set_emitter)"),
+                )
+            })
     }
 
     /// The scene's area lights, in the order they were added.

@@ -107,9 +107,7 @@ impl VisibilityCache {
     ) -> Result<BuildReport> {
         check_scene_and_budget(scene, time_budget)?;
         let start = Instant::now();
-        let gbuffer = with_threads(threads, || {
-            GBuffer::render(scene, camera, seed, false, None)
-        })??;
+        let gbuffer = GBuffer::render(scene, camera, seed, false, threads)?;
         self.build_at(scene, &gbuffer, seed, threads, start, time_budget, progress)
     }
 
