@@ -1,21 +1,97 @@
 //! `viscache_rs._core.LightingPreview`: CAM08 §6.2's preview of `J`
-//! ([`crate::estimators::preview`]).
+//! ([`crate::estimators::preview`]), direct or from a cached transfer.
 
+use std::sync::RwLock;
+
+use glam::DMat3;
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 use super::cache::PyVisibilityCache;
 use super::camera::PyCamera;
-use super::convert::{image_array, product_level_arg, threads_arg, IntoPyResult};
+use super::convert::{f64_arg, image_array, int_arg, product_level_arg, threads_arg, IntoPyResult};
 use super::envmap::PyEnvMap;
 use super::gbuffer::{view_arg, PyGBuffer, View};
+use super::material::PyMaterial;
 use super::scene::PyScene;
-use crate::estimators::preview::LightingPreview;
+use crate::estimators::preview::light::rotation_about_y;
+use crate::estimators::preview::transfer::{Basis, TransferSettings};
+use crate::estimators::preview::{BasisChoice, LightingPreview, TransferInfo, TransferRequest};
 
 /// The first hits of a view, kept so that `render(cache, envmap)` can show `J` (the
 /// control variate's integral) under any lighting without tracing a ray.
 #[pyclass(name = "LightingPreview", module = "viscache_rs._core", frozen)]
 pub struct PyLightingPreview {
-    inner: LightingPreview,
+    inner: RwLock<LightingPreview>,
+}
+
+impl PyLightingPreview {
+    fn get(&self) -> std::sync::RwLockReadGuard<'_, LightingPreview> {
+        self.inner.read().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// `rotation`: None, degrees about +y (as `EnvMap.rotated`), or a 3x3 rotation matrix
+/// (row-major; a feature at `ω` moves to `R ω`).
+fn rotation_arg(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<DMat3>> {
+    let Some(obj) = obj.filter(|o| !o.is_none()) else {
+        return Ok(None);
+    };
+    if let Ok(degrees) = obj.extract::<f64>() {
+        return rotation_about_y(degrees).map(Some).py();
+    }
+    let rows: Vec<Vec<f64>> = obj
+        .call_method0("tolist")
+        .and_then(|l| l.extract())
+        .or_else(|_| obj.extract())
+        .map_err(|_| {
+            PyValueError::new_err(
+                "rotation: must be None, degrees about +y or a 3x3 rotation matrix",
+            )
+        })?;
+    if rows.len() != 3 || rows.iter().any(|r| r.len() != 3) {
+        return Err(PyValueError::new_err(format!(
+            "rotation: a matrix must be 3x3, got {} rows",
+            rows.len()
+        )));
+    }
+    let m = DMat3::from_cols_array_2d(&[
+        [rows[0][0], rows[1][0], rows[2][0]],
+        [rows[0][1], rows[1][1], rows[2][1]],
+        [rows[0][2], rows[1][2], rows[2][2]],
+    ]);
+    crate::estimators::preview::light::check_rotation(&m).py()?;
+    Ok(Some(m))
+}
+
+fn basis_dict<'py>(py: Python<'py>, basis: Basis, d: &Bound<'py, PyDict>) -> PyResult<()> {
+    d.set_item("basis", basis.name())?;
+    match basis {
+        Basis::Texels { level } => d.set_item("basis_level", level)?,
+        Basis::Haar { terms } => d.set_item("terms", terms)?,
+    }
+    let _ = py;
+    Ok(())
+}
+
+fn info_dict<'py>(py: Python<'py>, info: &TransferInfo) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    basis_dict(py, info.basis, &d)?;
+    d.set_item("level", info.level)?;
+    d.set_item("seconds", info.seconds)?;
+    d.set_item("bytes", info.bytes)?;
+    d.set_item("pixels", info.pixels)?;
+    let measured = PyDict::new(py);
+    for (basis, err) in &info.measured {
+        let name = match basis {
+            Basis::Texels { level } => format!("texels{level}"),
+            Basis::Haar { terms } => format!("haar{terms}"),
+        };
+        measured.set_item(name, err)?;
+    }
+    d.set_item("measured", measured)?;
+    Ok(d)
 }
 
 #[pymethods]
@@ -41,34 +117,134 @@ impl PyLightingPreview {
                 View::GBuffer(g) => LightingPreview::from_gbuffer(&scene, g),
             })
             .py()?;
-        Ok(Self { inner })
+        Ok(Self {
+            inner: RwLock::new(inner),
+        })
     }
 
     /// (width, height) of the view.
     #[getter]
     fn size(&self) -> (u32, u32) {
-        self.inner.size()
+        self.get().size()
     }
 
-    /// `J` per pixel as an (H, W, 3) float32 image under `envmap` with `cache`'s records;
-    /// traces no rays. `product_level` None is "auto" (per material).
-    #[pyo3(signature = (cache, envmap, product_level=None, threads=None))]
+    /// `J` per pixel as an (H, W, 3) float32 image under `envmap` turned by `rotation`
+    /// (None, degrees about +y, or a 3x3 matrix) with `cache`'s records; traces no rays.
+    /// By default from the kept transfer (built on the first call for a cache, rebuilt
+    /// when the cache changes); `direct=True` integrates every pixel from scratch
+    /// (no rotation then). `product_level` None is "auto" (per material).
+    #[pyo3(signature = (cache, envmap, rotation=None, product_level=None, threads=None, direct=false))]
+    #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
         py: Python<'py>,
         cache: PyRef<'py, PyVisibilityCache>,
         envmap: PyRef<'py, PyEnvMap>,
+        rotation: Option<&Bound<'py, PyAny>>,
         product_level: Option<&Bound<'py, PyAny>>,
         threads: Option<&Bound<'py, PyAny>>,
+        direct: bool,
     ) -> PyResult<Bound<'py, PyAny>> {
         let level = product_level_arg(product_level)?;
         let threads = threads_arg(threads)?;
+        let rotation = rotation_arg(rotation)?;
         let cache = cache.bound(py)?;
         let env = &envmap.inner;
-        let image = py
-            .detach(|| self.inner.render(&cache, env, level, threads))
-            .py()?;
-        let (w, h) = self.inner.size();
+        let preview = self.get();
+        let image = if direct {
+            if rotation.is_some() {
+                return Err(PyValueError::new_err(
+                    "rotation: not taken with direct=True; pass envmap.rotated(degrees)",
+                ));
+            }
+            py.detach(|| preview.render(&cache, env, level, threads))
+                .py()?
+        } else {
+            if product_level.is_some() {
+                preview.set_product_level(level);
+            }
+            py.detach(|| preview.render_lighting(&cache, env, rotation.as_ref(), threads))
+                .py()?
+        };
+        let (w, h) = preview.size();
         image_array(py, image.into_flattened(), h as usize, w as usize, Some(3))
+    }
+
+    /// Builds and keeps the transfer of `cache` for this view: `basis` "auto" (the
+    /// candidates that fit `budget_mb` measured against the untruncated transfer under
+    /// `envmap`, or a sun-and-sky probe; `budget_mb` None is 200), "full", "texels" or "haar". `nearest=True` takes
+    /// visibility from each pixel's heaviest record only. Returns a dict: basis, terms or
+    /// basis_level, level, seconds, bytes, pixels, measured.
+    #[pyo3(signature = (cache, envmap=None, basis="auto", budget_mb=None, product_level=None, nearest=false, threads=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn prepare<'py>(
+        &self,
+        py: Python<'py>,
+        cache: PyRef<'py, PyVisibilityCache>,
+        envmap: Option<PyRef<'py, PyEnvMap>>,
+        basis: &str,
+        budget_mb: Option<&Bound<'py, PyAny>>,
+        product_level: Option<&Bound<'py, PyAny>>,
+        nearest: bool,
+        threads: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let basis = BasisChoice::parse(basis).py()?;
+        let budget = match budget_mb {
+            Some(b) => f64_arg(b, "budget_mb")?,
+            None => TransferRequest::DEFAULT.budget_bytes as f64 * 1e-6,
+        };
+        if !(budget.is_finite() && budget > 0.0) {
+            return Err(PyValueError::new_err(format!(
+                "budget_mb: must be a positive, finite number of megabytes, got {budget}"
+            )));
+        }
+        let request = TransferRequest {
+            basis,
+            budget_bytes: (budget * 1e6).min(usize::MAX as f64 / 2.0) as usize,
+            settings: TransferSettings {
+                product_level: product_level_arg(product_level)?,
+                nearest,
+            },
+        };
+        let threads = threads_arg(threads)?;
+        let cache = cache.bound(py)?;
+        let env = envmap.as_ref().map(|e| &e.inner);
+        let preview = self.get();
+        let info = py
+            .detach(|| preview.prepare(&cache, env, request, threads))
+            .py()?;
+        info_dict(py, &info)
+    }
+
+    /// What the kept transfer reports (as `prepare` returns it), or None.
+    #[getter]
+    fn transfer_info<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        self.get()
+            .transfer_info()
+            .map(|i| info_dict(py, &i))
+            .transpose()
+    }
+
+    /// Gives object `obj` the material `material` in this view; with `cache` (the one the
+    /// kept transfer was built from) only that object's pixels are rebuilt, without it the
+    /// transfer is dropped. Returns the number of pixels of the object.
+    #[pyo3(signature = (obj, material, cache=None, threads=None))]
+    fn set_material<'py>(
+        &self,
+        py: Python<'py>,
+        obj: &Bound<'py, PyAny>,
+        material: PyRef<'py, PyMaterial>,
+        cache: Option<PyRef<'py, PyVisibilityCache>>,
+        threads: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<usize> {
+        let obj = int_arg(obj, "obj", 0, u32::MAX as i128)? as u32;
+        let threads = threads_arg(threads)?;
+        let m = material.inner;
+        let cache = cache.map(|c| c.bound(py)).transpose()?;
+        py.detach(|| {
+            let mut preview = self.inner.write().unwrap_or_else(|e| e.into_inner());
+            preview.set_material(cache.as_deref(), obj, m, threads)
+        })
+        .py()
     }
 }

@@ -213,7 +213,15 @@ pub struct VisibilityCache {
     lookups: AtomicU64,
     /// Set by [`VisibilityCache::request_stop`]; cleared when a build starts.
     stop: AtomicBool,
+    /// Process-unique id of this cache object (a clone or a loaded file gets its own).
+    id: u64,
+    /// Bumped on every exclusive access: anything derived from the records (a preview's
+    /// transfer) compares it to know when to rebuild.
+    revision: AtomicU64,
 }
+
+/// Source of [`VisibilityCache`] ids.
+static NEXT_CACHE_ID: AtomicU64 = AtomicU64::new(1);
 
 impl Clone for VisibilityCache {
     fn clone(&self) -> Self {
@@ -223,6 +231,8 @@ impl Clone for VisibilityCache {
             state: RwLock::new(self.read().clone()),
             lookups: AtomicU64::new(self.lookups.load(Ordering::Relaxed)),
             stop: AtomicBool::new(false),
+            id: NEXT_CACHE_ID.fetch_add(1, Ordering::Relaxed),
+            revision: AtomicU64::new(0),
         }
     }
 }
@@ -243,6 +253,8 @@ impl VisibilityCache {
             state: RwLock::new(CacheState::new(m)?),
             lookups: AtomicU64::new(0),
             stop: AtomicBool::new(false),
+            id: NEXT_CACHE_ID.fetch_add(1, Ordering::Relaxed),
+            revision: AtomicU64::new(0),
         })
     }
 
@@ -269,7 +281,16 @@ impl VisibilityCache {
 
     /// Exclusive access (for insertions).
     pub(crate) fn write(&self) -> RwLockWriteGuard<'_, CacheState> {
-        self.state.write().unwrap_or_else(|e| e.into_inner())
+        let guard = self.state.write().unwrap_or_else(|e| e.into_inner());
+        self.revision.fetch_add(1, Ordering::Release);
+        guard
+    }
+
+    /// `(id, revision)`: the id is unique to this cache object in the process, the revision
+    /// grows with every change of its records (insertions, builds, frames, loading). Equal
+    /// pairs mean the same records.
+    pub fn version(&self) -> (u64, u64) {
+        (self.id, self.revision.load(Ordering::Acquire))
     }
 
     /// Number of records.

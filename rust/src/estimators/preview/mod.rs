@@ -1,0 +1,577 @@
+//! Lighting preview (CAM08 §6.2): the control variate's integral `J = ∫ L B~ Ṽ dω` shown
+//! directly, an estimate of direct illumination from the exact lighting, the approximate
+//! reflectance `B~` and the cache's interpolated visibility `Ṽ`, with no per-pixel
+//! sampling.
+//!
+//! [`LightingPreview::new`] traces the primary rays once and keeps the first hits; every
+//! [`LightingPreview::render`] after that — with another environment map, a rotated one,
+//! or a cache that has grown — looks the records up again and integrates `J`, but traces
+//! no ray at all. Channel `c` is scaled by the material's
+//! [`crate::bsdf::Material::channel_ratios`], as in the control variate.
+//!
+//! [`LightingPreview::render`] integrates `J` per pixel from scratch (the product's cells
+//! and the records' quadtrees), which costs most of a second at 640x480. The paper names
+//! the cure: cache what does not depend on the lighting. [`LightingPreview::prepare`]
+//! keeps each pixel's transfer `T = B~ Ṽ` ([`transfer`]) so that
+//! [`LightingPreview::render_lighting`] answers a swap, rotation or scaling of the map
+//! with one projection of the map and a dot product per pixel.
+
+pub mod haar;
+pub mod light;
+pub mod transfer;
+
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use glam::{DMat3, Vec3};
+use rayon::prelude::*;
+
+use transfer::{Basis, Transfer, TransferPoint, TransferSettings};
+
+use super::control_variate::{ControlTables, Interpolant, MapChroma};
+use super::direct::{ProductDistribution, ProductLevel};
+use crate::bsdf::Material;
+use crate::camera::{Camera, GBuffer};
+use crate::error::Result;
+use crate::geometry::Scene;
+use crate::lights::envmap::EnvMap;
+use crate::parallel::with_threads;
+use crate::visibility::cache::VisibilityCache;
+
+/// A first hit kept for previews.
+#[derive(Clone, Copy, Debug)]
+struct PreviewPoint {
+    position: Vec3,
+    /// Unit normal facing the camera.
+    normal: Vec3,
+    /// Unit direction to the eye.
+    wo: Vec3,
+    /// Pixel footprint (world units); a render looks up within the cache's
+    /// `d_max_scale` times it.
+    footprint: f32,
+    material: Material,
+    /// Object id (for material edits).
+    object: u32,
+    /// Radiance the surface emits towards the eye (area lights).
+    emitted: Vec3,
+}
+
+/// The first hits of a view, kept to preview `J` under any lighting (module docs).
+#[derive(Debug)]
+pub struct LightingPreview {
+    width: u32,
+    height: u32,
+    /// Per pixel: the hit, or the primary ray's direction where it escaped.
+    points: Vec<std::result::Result<PreviewPoint, Vec3>>,
+    /// [`Scene::geometry_fingerprint`] of the scene the points were traced in: caches
+    /// of other scenes are refused.
+    scene: u64,
+    /// Number of objects in the scene (material edits name one).
+    objects: usize,
+    /// The kept transfer, with what it was built from.
+    transfer: Mutex<Option<Arc<Prepared>>>,
+    /// What [`Self::render_lighting`] builds when it has no valid transfer: the last
+    /// [`Self::prepare`]'s request, else [`TransferRequest::DEFAULT`].
+    request: Mutex<TransferRequest>,
+}
+
+impl Clone for LightingPreview {
+    fn clone(&self) -> Self {
+        Self {
+            width: self.width,
+            height: self.height,
+            points: self.points.clone(),
+            scene: self.scene,
+            objects: self.objects,
+            transfer: Mutex::new(lock(&self.transfer).clone()),
+            request: Mutex::new(*lock(&self.request)),
+        }
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Which basis [`LightingPreview::prepare`] keeps the transfer in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BasisChoice {
+    /// The candidates that fit the budget, measured on a sample of pixels against the
+    /// untruncated transfer; the least error wins (the whole transfer when it fits).
+    Auto,
+    /// The untruncated transfer (cell values at the full level): today's `J`, exactly.
+    Full,
+    /// Cell averages at the finest level that fits the budget.
+    Texels,
+    /// As many Haar terms per pixel as fit the budget.
+    Haar,
+}
+
+impl BasisChoice {
+    /// Parses `"auto" | "full" | "texels" | "haar"`; the error names `basis`.
+    pub fn parse(s: &str) -> Result<Self> {
+        Ok(match s {
+            "auto" => Self::Auto,
+            "full" => Self::Full,
+            "texels" => Self::Texels,
+            "haar" => Self::Haar,
+            _ => {
+                return Err(crate::error::Error::invalid(
+                    "basis",
+                    format!("must be \"auto\", \"full\", \"texels\" or \"haar\", got {s:?}"),
+                ))
+            }
+        })
+    }
+}
+
+/// What to build a transfer as: the basis, a memory budget and the settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TransferRequest {
+    pub basis: BasisChoice,
+    /// Most bytes the transfer may hold.
+    pub budget_bytes: usize,
+    pub settings: TransferSettings,
+}
+
+impl TransferRequest {
+    /// `"auto"` within 200 MB, the renderer's product levels, interpolated `Ṽ`.
+    pub const DEFAULT: Self = Self {
+        basis: BasisChoice::Auto,
+        budget_bytes: 200_000_000,
+        settings: TransferSettings::DEFAULT,
+    };
+}
+
+/// A built transfer and what it was built from.
+#[derive(Clone, Debug)]
+struct Prepared {
+    /// [`VisibilityCache::version`] of the cache.
+    cache: (u64, u64),
+    request: TransferRequest,
+    transfer: Transfer,
+    info: TransferInfo,
+}
+
+/// What [`LightingPreview::prepare`] reports.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TransferInfo {
+    /// The basis kept.
+    pub basis: Basis,
+    /// The full level `L` of the transfer.
+    pub level: u32,
+    /// Seconds the build took (with the measurement of `"auto"`).
+    pub seconds: f64,
+    /// Bytes the transfer holds.
+    pub bytes: usize,
+    /// Pixels with a transfer.
+    pub pixels: usize,
+    /// `"auto"`: per candidate, its relative squared error on the sampled pixels (worst
+    /// RGB channel of `Σ (J - J_full)² / Σ J_full²`), under the map measured with.
+    pub measured: Vec<(Basis, f64)>,
+}
+
+/// Pixels [`BasisChoice::Auto`] measures on.
+const AUTO_SAMPLE: usize = 1024;
+
+impl LightingPreview {
+    /// Traces one primary ray through each pixel centre of `camera` (the G-buffer's points,
+    /// where a cache built for the camera has its records).
+    pub fn new(scene: &Scene, camera: &Camera, threads: Option<usize>) -> Result<Self> {
+        let g = GBuffer::render(scene, camera, 0, false, threads)?;
+        Self::from_gbuffer(scene, &g)
+    }
+
+    /// The preview of `gbuffer`'s hits (which must describe `scene` as posed now): with the
+    /// buffer a cache was built from, exactly the points its records were placed for.
+    pub fn from_gbuffer(scene: &Scene, g: &GBuffer) -> Result<Self> {
+        g.check(scene, None)?;
+        let objects = &scene.mesh().objects;
+        let points = (0..g.object.len())
+            .map(|i| {
+                let dir = Vec3::from(g.direction[i]);
+                if g.object[i] < 0 {
+                    return Err(dir);
+                }
+                let obj = g.object[i] as u32;
+                let normal = Vec3::from(g.normal[i]);
+                let emitted = match scene.emitter(obj) {
+                    Some(light) => {
+                        let first = objects[obj as usize].first_triangle;
+                        let y = Vec3::from(g.position[i]);
+                        light.emitted((g.prim[i] as u32 - first) as usize, y, -dir)
+                    }
+                    None => Vec3::ZERO,
+                };
+                Ok(PreviewPoint {
+                    position: Vec3::from(g.position[i]),
+                    normal,
+                    wo: -dir,
+                    footprint: g.footprint[i],
+                    material: objects[obj as usize].material,
+                    object: obj,
+                    emitted,
+                })
+            })
+            .collect();
+        Ok(Self {
+            width: g.width(),
+            height: g.height(),
+            points,
+            scene: scene.geometry_fingerprint(),
+            objects: objects.len(),
+            transfer: Mutex::new(None),
+            request: Mutex::new(TransferRequest::DEFAULT),
+        })
+    }
+
+    /// Image width and height.
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// `J` per pixel (row-major RGB) under `env` with `cache`'s records, product cells of
+    /// `product_level`. Escaped pixels show the map, emitters their emission,
+    /// pixels without records black. Traces no rays.
+    pub fn render(
+        &self,
+        cache: &VisibilityCache,
+        env: &EnvMap,
+        product_level: ProductLevel,
+        threads: Option<usize>,
+    ) -> Result<Vec<[f32; 3]>> {
+        product_level.validate()?;
+        cache.bind_fingerprint(self.scene)?;
+        let env = &*env.at_least(2)?;
+        let chroma = MapChroma::new(env);
+        let state = cache.read();
+        let params = cache.params();
+        with_threads(threads, || {
+            self.points
+                .par_iter()
+                .with_min_len(64)
+                .map(|point| {
+                    let p = match point {
+                        Err(dir) => return env.eval(*dir).to_array(),
+                        Ok(p) => p,
+                    };
+                    let lookup = state.lookup_records(
+                        params,
+                        p.position,
+                        p.normal,
+                        params.d_max_scale * p.footprint,
+                    );
+                    let level = product_level.for_material(&p.material);
+                    let product = ProductDistribution::new(env, &p.material, p.normal, p.wo, level);
+                    let j = match &product {
+                        Some(product) if !lookup.neighbours().is_empty() => {
+                            let tables = ControlTables::new(product, &chroma, state.store().m());
+                            Interpolant::new(&state, &lookup, Some((&tables, product, env))).j
+                        }
+                        _ => [0.0; 3],
+                    };
+                    let ratios = p.material.channel_ratios();
+                    std::array::from_fn(|c| p.emitted[c] + (ratios[c] as f64 * j[c]) as f32)
+                })
+                .collect()
+        })
+    }
+}
+
+impl LightingPreview {
+    /// The transfer inputs of every pixel (`None` where the ray escaped).
+    fn transfer_points(&self, cache: &VisibilityCache) -> Vec<Option<TransferPoint>> {
+        let scale = cache.params().d_max_scale;
+        self.points
+            .iter()
+            .map(|p| {
+                p.as_ref().ok().map(|p| TransferPoint {
+                    position: p.position,
+                    normal: p.normal,
+                    wo: p.wo,
+                    radius: scale * p.footprint,
+                    material: p.material,
+                })
+            })
+            .collect()
+    }
+
+    /// Builds and keeps the transfer of `cache`'s records for this view as `request` asks
+    /// (module docs); later [`Self::render_lighting`] calls reuse it while the cache is
+    /// unchanged. `"auto"` measures its candidates under `env` (a sun-and-sky probe when
+    /// `None`). Fails with an error naming `budget_mb` when no basis fits the budget.
+    pub fn prepare(
+        &self,
+        cache: &VisibilityCache,
+        env: Option<&EnvMap>,
+        request: TransferRequest,
+        threads: Option<usize>,
+    ) -> Result<TransferInfo> {
+        request.settings.product_level.validate()?;
+        cache.bind_fingerprint(self.scene)?;
+        let start = Instant::now();
+        let version = cache.version();
+        let points = self.transfer_points(cache);
+        let covered = points.iter().filter(|p| p.is_some()).count().max(1);
+        let level = Transfer::full_level(
+            cache,
+            points.iter().flatten().map(|p| &p.material),
+            &request.settings,
+        )?;
+        let per_pixel = request.budget_bytes.saturating_sub(4 * points.len()) / covered;
+        let candidates = candidates(level, per_pixel, request.basis);
+        if candidates.is_empty() {
+            return Err(crate::error::Error::invalid(
+                "budget_mb",
+                format!(
+                    "{:.3} MB leaves {per_pixel} bytes for each of {covered} pixels; a \
+                     transfer needs at least 6",
+                    request.budget_bytes as f64 * 1e-6
+                ),
+            ));
+        }
+        let probe;
+        let env = match env {
+            Some(env) => env,
+            None => {
+                probe = probe_map()?;
+                &probe
+            }
+        };
+        let (basis, measured) = with_threads(threads, || {
+            if candidates.len() == 1 {
+                Ok((candidates[0], Vec::new()))
+            } else {
+                measure(&points, cache, &request.settings, level, &candidates, env)
+            }
+        })??;
+        let transfer = with_threads(threads, || {
+            Transfer::build(&points, cache, request.settings, level, basis)
+        })??;
+        let info = TransferInfo {
+            basis,
+            level,
+            seconds: start.elapsed().as_secs_f64(),
+            bytes: transfer.memory_bytes(),
+            pixels: transfer.rows(),
+            measured,
+        };
+        *lock(&self.request) = request;
+        *lock(&self.transfer) = Some(Arc::new(Prepared {
+            cache: version,
+            request,
+            transfer,
+            info: info.clone(),
+        }));
+        Ok(info)
+    }
+
+    /// Makes later transfers use `level` for the product's cells (a kept transfer of
+    /// another level is rebuilt by the next [`Self::render_lighting`]).
+    pub fn set_product_level(&self, level: ProductLevel) {
+        lock(&self.request).settings.product_level = level;
+    }
+
+    /// What the kept transfer reports, if one is kept.
+    pub fn transfer_info(&self) -> Option<TransferInfo> {
+        lock(&self.transfer).as_ref().map(|p| p.info.clone())
+    }
+
+    /// The kept transfer when it was built from `cache` as it is now, else a new one (as
+    /// the last [`Self::prepare`] asked, under `env`).
+    fn prepared(
+        &self,
+        cache: &VisibilityCache,
+        env: &EnvMap,
+        threads: Option<usize>,
+    ) -> Result<Arc<Prepared>> {
+        let request = *lock(&self.request);
+        if let Some(p) = lock(&self.transfer).as_ref() {
+            if p.cache == cache.version() && p.request == request {
+                return Ok(p.clone());
+            }
+        }
+        self.prepare(cache, Some(env), request, threads)?;
+        Ok(lock(&self.transfer).clone().expect("just prepared"))
+    }
+
+    /// `J` per pixel (row-major RGB) under `env` turned by `rotation` (a feature at `ω`
+    /// moves to `R ω`), from the kept transfer of `cache` — built first when there is
+    /// none or the cache changed since. Escaped pixels show the turned map, emitters their
+    /// emission. Traces no rays.
+    pub fn render_lighting(
+        &self,
+        cache: &VisibilityCache,
+        env: &EnvMap,
+        rotation: Option<&DMat3>,
+        threads: Option<usize>,
+    ) -> Result<Vec<[f32; 3]>> {
+        if let Some(r) = rotation {
+            light::check_rotation(r)?;
+        }
+        cache.bind_fingerprint(self.scene)?;
+        let prepared = self.prepared(cache, env, threads)?;
+        let transfer = &prepared.transfer;
+        let light = transfer.light(env, rotation)?;
+        let inverse = rotation.map(|r| r.transpose());
+        with_threads(threads, || {
+            self.points
+                .par_iter()
+                .enumerate()
+                .with_min_len(1024)
+                .map(|(i, point)| match point {
+                    Err(dir) => {
+                        let d = match &inverse {
+                            Some(r) => (*r * dir.as_dvec3()).as_vec3(),
+                            None => *dir,
+                        };
+                        env.eval(d).to_array()
+                    }
+                    Ok(p) => {
+                        let j = transfer.eval(i, &light);
+                        let ratios = p.material.channel_ratios();
+                        std::array::from_fn(|c| p.emitted[c] + (ratios[c] as f64 * j[c]) as f32)
+                    }
+                })
+                .collect()
+        })
+    }
+
+    /// Gives `object` the material `material` in this view: its pixels shade with it from
+    /// now on, and a kept transfer rebuilds their rows only. Returns how many pixels
+    /// changed.
+    pub fn set_material(
+        &mut self,
+        cache: Option<&VisibilityCache>,
+        object: u32,
+        material: Material,
+        threads: Option<usize>,
+    ) -> Result<usize> {
+        if object as usize >= self.objects {
+            return Err(crate::error::Error::invalid(
+                "object",
+                format!("the scene has {} objects, got {object}", self.objects),
+            ));
+        }
+        let mut pixels = Vec::new();
+        for (i, p) in self.points.iter_mut().enumerate() {
+            if let Ok(p) = p {
+                if p.object == object {
+                    p.material = material;
+                    pixels.push(i);
+                }
+            }
+        }
+        let mut slot = lock(&self.transfer).take();
+        if let (Some(prepared), Some(cache)) = (slot.as_mut(), cache) {
+            let still_valid = prepared.cache == cache.version()
+                && Transfer::full_level(
+                    cache,
+                    self.points.iter().flatten().map(|p| &p.material),
+                    &prepared.request.settings,
+                )? == prepared.transfer.level();
+            if still_valid {
+                let points = self.transfer_points(cache);
+                let p = Arc::make_mut(prepared);
+                let settings = p.request.settings;
+                with_threads(threads, || {
+                    p.transfer.rebuild(&points, &pixels, cache, settings)
+                })?;
+                p.info.bytes = p.transfer.memory_bytes();
+                p.info.pixels = p.transfer.rows();
+                *lock(&self.transfer) = slot;
+            }
+        }
+        Ok(pixels.len())
+    }
+}
+
+/// The bases [`LightingPreview::prepare`] may keep for `choice` with `per_pixel` bytes a
+/// pixel, at full level `level` (finest first; empty when none fits).
+fn candidates(level: u32, per_pixel: usize, choice: BasisChoice) -> Vec<Basis> {
+    let full = Basis::Texels { level };
+    let texels = (1..=level)
+        .rev()
+        .map(|l| Basis::Texels { level: l })
+        .find(|b| b.bytes_per_pixel() <= per_pixel);
+    let terms = (per_pixel / 6).min(1 << (2 * level)) as u32;
+    let haar = (terms >= 1).then_some(Basis::Haar { terms });
+    match choice {
+        BasisChoice::Full => [full]
+            .into_iter()
+            .filter(|b| b.bytes_per_pixel() <= per_pixel)
+            .collect(),
+        BasisChoice::Texels => texels.into_iter().collect(),
+        BasisChoice::Haar => haar.into_iter().collect(),
+        BasisChoice::Auto if full.bytes_per_pixel() <= per_pixel => vec![full],
+        BasisChoice::Auto => texels.into_iter().chain(haar).collect(),
+    }
+}
+
+/// A sun-and-sky map to measure candidates under when the caller gives none: both a
+/// smooth sky and a sharp, bright sun (a third of the power).
+fn probe_map() -> Result<EnvMap> {
+    crate::lights::procedural::sky(
+        Vec3::new(0.5, 0.6, 0.3),
+        [2000.0, 1800.0, 1500.0],
+        2.0,
+        [0.3, 0.45, 0.9],
+        [0.8, 0.85, 0.9],
+        128,
+    )
+}
+
+/// [`BasisChoice::Auto`]'s measurement: the error of each candidate on up to
+/// [`AUTO_SAMPLE`] pixels spread over the view, against the untruncated transfer under
+/// `env`; returns the best and every figure.
+fn measure(
+    points: &[Option<TransferPoint>],
+    cache: &VisibilityCache,
+    settings: &TransferSettings,
+    level: u32,
+    candidates: &[Basis],
+    env: &EnvMap,
+) -> Result<(Basis, Vec<(Basis, f64)>)> {
+    let covered: Vec<usize> = (0..points.len()).filter(|&i| points[i].is_some()).collect();
+    let step = covered.len().div_ceil(AUTO_SAMPLE).max(1);
+    let sample: Vec<Option<TransferPoint>> =
+        covered.iter().step_by(step).map(|&i| points[i]).collect();
+    let full = Transfer::build(&sample, cache, *settings, level, Basis::Texels { level })?;
+    let full_light = full.light(env, None)?;
+    let reference: Vec<[f64; 3]> = (0..sample.len())
+        .map(|i| full.eval(i, &full_light))
+        .collect();
+    let power: [f64; 3] =
+        std::array::from_fn(|c| reference.iter().map(|j| j[c] * j[c]).sum::<f64>());
+    let mut measured = Vec::new();
+    for &basis in candidates {
+        let t = Transfer::build(&sample, cache, *settings, level, basis)?;
+        let light = t.light(env, None)?;
+        let mut err = [0.0f64; 3];
+        for (i, r) in reference.iter().enumerate() {
+            let j = t.eval(i, &light);
+            for c in 0..3 {
+                err[c] += (j[c] - r[c]).powi(2);
+            }
+        }
+        let worst = (0..3)
+            .map(|c| {
+                if power[c] > 0.0 {
+                    err[c] / power[c]
+                } else {
+                    0.0
+                }
+            })
+            .fold(0.0, f64::max);
+        measured.push((basis, worst));
+    }
+    let best = measured
+        .iter()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|m| m.0)
+        .expect("at least one candidate");
+    Ok((best, measured))
+}
+
+#[cfg(test)]
+mod tests;

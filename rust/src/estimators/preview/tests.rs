@@ -1,0 +1,268 @@
+use glam::DMat3;
+
+use super::transfer::Basis;
+use super::*;
+use crate::scenes;
+use crate::visibility::params::CacheParams;
+
+struct View {
+    setup: scenes::Setup,
+    camera: Camera,
+    cache: VisibilityCache,
+}
+
+fn view(name: &str, w: u32, h: u32) -> View {
+    let setup = scenes::load(name, 0.3, 0).unwrap();
+    let camera = setup.camera.with_resolution(w, h).unwrap();
+    let cache = VisibilityCache::new(CacheParams {
+        n_startup: 20,
+        ..CacheParams::MEDIUM
+    })
+    .unwrap();
+    cache
+        .build(&setup.scene, &camera, 0, Some(2), None, &mut |_, _| true)
+        .unwrap();
+    View {
+        setup,
+        camera,
+        cache,
+    }
+}
+
+/// `env` with every texel's radiance times `colour`: one chroma over the whole map, where
+/// the direct preview's per-region colours are exact.
+fn tinted(env: &EnvMap, colour: [f32; 3]) -> EnvMap {
+    let texels = env
+        .texels()
+        .iter()
+        .map(|t| {
+            let y = 0.2126 * t[0] + 0.7152 * t[1] + 0.0722 * t[2];
+            std::array::from_fn(|c| y * colour[c])
+        })
+        .collect();
+    EnvMap::from_octahedral(env.resolution(), texels).unwrap()
+}
+
+fn max_relative(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    let scale = b
+        .iter()
+        .flatten()
+        .fold(0.0f64, |m, &x| m.max(x.abs() as f64));
+    a.iter()
+        .flatten()
+        .zip(b.iter().flatten())
+        .map(|(&x, &y)| (x as f64 - y as f64).abs() / (y.abs() as f64).max(1e-3 * scale))
+        .fold(0.0, f64::max)
+}
+
+const FULL: TransferRequest = TransferRequest {
+    basis: BasisChoice::Full,
+    ..TransferRequest::DEFAULT
+};
+
+/// Kept whole, the transfer gives the direct preview's `J` (same records, same product
+/// cells) to 1e-5 relative, for the map and rotated copies of it, with the full Haar basis
+/// too (an orthogonal change of basis).
+#[test]
+fn untruncated_transfer_equals_the_direct_preview() {
+    let v = view("garage", 40, 30);
+    let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
+    let info = preview.prepare(&v.cache, None, FULL, Some(2)).unwrap();
+    assert_eq!(info.basis, Basis::Texels { level: info.level });
+    let base = tinted(&v.setup.envmap, [1.0, 0.8, 0.5]);
+    for degrees in [0.0f32, 45.0, 135.0] {
+        let env = base.rotated(degrees);
+        let direct = preview
+            .render(&v.cache, &env, ProductLevel::PerMaterial, Some(2))
+            .unwrap();
+        let cached = preview
+            .render_lighting(&v.cache, &env, None, Some(2))
+            .unwrap();
+        let err = max_relative(&cached, &direct);
+        assert!(err < 1e-5, "{degrees}°: {err}");
+    }
+    let haar = TransferRequest {
+        basis: BasisChoice::Haar,
+        budget_bytes: usize::MAX / 2,
+        ..TransferRequest::DEFAULT
+    };
+    let info = preview.prepare(&v.cache, None, haar, Some(2)).unwrap();
+    assert_eq!(
+        info.basis,
+        Basis::Haar {
+            terms: 1 << (2 * info.level)
+        }
+    );
+    let direct = preview
+        .render(&v.cache, &base, ProductLevel::PerMaterial, Some(2))
+        .unwrap();
+    let cached = preview
+        .render_lighting(&v.cache, &base, None, Some(2))
+        .unwrap();
+    assert!(max_relative(&cached, &direct) < 1e-5);
+}
+
+/// A rotation given to the render equals the map turned beforehand, up to the texel
+/// binning of the rotation (mean relative difference ≤ 1%), and a full turn is the
+/// identity exactly.
+#[test]
+fn rotation_matches_a_rotated_map() {
+    let v = view("garage", 32, 24);
+    let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
+    let env = &v.setup.envmap;
+    let r = light::rotation_about_y(45.0).unwrap();
+    let turned = preview
+        .render_lighting(&v.cache, env, Some(&r), Some(2))
+        .unwrap();
+    let rotated = preview
+        .render_lighting(&v.cache, &env.rotated(45.0), None, Some(2))
+        .unwrap();
+    let (mut diff, mut total) = (0.0f64, 0.0f64);
+    for (a, b) in turned.iter().flatten().zip(rotated.iter().flatten()) {
+        diff += (a - b).abs() as f64;
+        total += b.abs() as f64;
+    }
+    assert!(diff < 0.01 * total, "{}", diff / total);
+    let full = light::rotation_about_y(360.0).unwrap();
+    assert_eq!(
+        preview
+            .render_lighting(&v.cache, env, Some(&full), Some(2))
+            .unwrap(),
+        preview
+            .render_lighting(&v.cache, env, Some(&DMat3::IDENTITY), Some(2))
+            .unwrap()
+    );
+}
+
+/// The transfer is reused while the cache is unchanged and rebuilt when it changes; a
+/// cache of another scene is refused; results are the same for any thread count.
+#[test]
+fn transfer_follows_its_cache() {
+    let v = view("garage", 32, 24);
+    let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(1)).unwrap();
+    let env = &v.setup.envmap;
+    let one = preview
+        .render_lighting(&v.cache, env, None, Some(1))
+        .unwrap();
+    let built = preview.transfer_info().unwrap().seconds;
+    let two = preview
+        .render_lighting(&v.cache, env, None, Some(2))
+        .unwrap();
+    assert_eq!(one, two);
+    assert_eq!(preview.transfer_info().unwrap().seconds, built, "reused");
+    let before = v.cache.version();
+    v.cache
+        .insert(
+            &v.setup.scene,
+            glam::Vec3::new(0.0, 0.01, 0.0),
+            glam::Vec3::Y,
+        )
+        .unwrap();
+    assert_ne!(v.cache.version(), before);
+    preview
+        .render_lighting(&v.cache, env, None, Some(2))
+        .unwrap();
+    let again = preview.transfer_info().unwrap();
+    assert_ne!(again.seconds, built, "rebuilt after an insertion");
+    let other = view("cornell", 16, 12);
+    let e = preview
+        .render_lighting(&other.cache, env, None, Some(2))
+        .unwrap_err();
+    assert!(e.to_string().contains("cache"), "{e}");
+}
+
+/// Truncated bases stay close to the whole transfer under a smooth map, Haar closer than
+/// coarse texels at the same memory, and `"auto"` picks the better one it measured.
+#[test]
+fn truncated_bases_and_auto() {
+    let v = view("garage", 32, 24);
+    let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
+    let env = &v.setup.envmap;
+    preview.prepare(&v.cache, Some(env), FULL, Some(2)).unwrap();
+    let exact = preview
+        .render_lighting(&v.cache, env, None, Some(2))
+        .unwrap();
+    let n = (32 * 24) as usize;
+    let budget = |per_pixel: usize| 4 * n + per_pixel * n;
+    let mut errors = Vec::new();
+    for basis in [BasisChoice::Texels, BasisChoice::Haar] {
+        let req = TransferRequest {
+            basis,
+            budget_bytes: budget(512),
+            ..TransferRequest::DEFAULT
+        };
+        let info = preview.prepare(&v.cache, Some(env), req, Some(2)).unwrap();
+        assert!(info.bytes <= req.budget_bytes, "{info:?}");
+        let img = preview
+            .render_lighting(&v.cache, env, None, Some(2))
+            .unwrap();
+        let (mut e, mut p) = (0.0f64, 0.0f64);
+        for (a, b) in img.iter().flatten().zip(exact.iter().flatten()) {
+            e += ((a - b) as f64).powi(2);
+            p += (*b as f64).powi(2);
+        }
+        errors.push(e / p);
+    }
+    assert!(errors[1] < errors[0], "{errors:?}");
+    assert!(errors[1] < 0.01, "{errors:?}");
+    let req = TransferRequest {
+        budget_bytes: budget(512),
+        ..TransferRequest::DEFAULT
+    };
+    let info = preview.prepare(&v.cache, Some(env), req, Some(2)).unwrap();
+    assert_eq!(info.measured.len(), 2);
+    let best = info
+        .measured
+        .iter()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap();
+    assert_eq!(info.basis, best.0);
+    let e = preview
+        .prepare(
+            &v.cache,
+            Some(env),
+            TransferRequest {
+                budget_bytes: 4 * n,
+                ..TransferRequest::DEFAULT
+            },
+            Some(2),
+        )
+        .unwrap_err();
+    assert!(e.to_string().contains("budget_mb"), "{e}");
+}
+
+/// A material edit rebuilds the edited object's rows: the result equals a transfer
+/// prepared from scratch with the new material.
+#[test]
+fn material_edit_rebuilds_its_pixels() {
+    let v = view("garage", 32, 24);
+    let mut preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
+    let env = &v.setup.envmap;
+    preview
+        .render_lighting(&v.cache, env, None, Some(2))
+        .unwrap();
+    let shiny = Material::phong([0.2, 0.3, 0.1], [0.5; 3], 40.0).unwrap();
+    let object = preview
+        .points
+        .iter()
+        .flatten()
+        .map(|p| p.object)
+        .next()
+        .unwrap();
+    let changed = preview
+        .set_material(Some(&v.cache), object, shiny, Some(2))
+        .unwrap();
+    assert!(changed > 0);
+    assert!(preview.transfer_info().is_some(), "kept and patched");
+    let patched = preview
+        .render_lighting(&v.cache, env, None, Some(2))
+        .unwrap();
+    let fresh = preview.clone();
+    *lock(&fresh.transfer) = None;
+    let rebuilt = fresh.render_lighting(&v.cache, env, None, Some(2)).unwrap();
+    assert_eq!(patched, rebuilt);
+    let e = preview
+        .set_material(Some(&v.cache), 10_000, shiny, Some(2))
+        .unwrap_err();
+    assert!(e.to_string().contains("object"), "{e}");
+}
