@@ -308,9 +308,30 @@ class LightingPreview:
         self,
         cache: VisibilityCache,
         envmap: EnvMap,
+        rotation: float | _ArrayLike | None = None,
         product_level: int | str | None = None,
         threads: int | None = None,
+        direct: bool = False,
     ) -> npt.NDArray[np.float32]: ...
+    def prepare(
+        self,
+        cache: VisibilityCache,
+        envmap: EnvMap | None = None,
+        basis: str = "auto",
+        budget_mb: float | None = None,
+        product_level: int | str | None = None,
+        nearest: bool = False,
+        threads: int | None = None,
+    ) -> dict[str, Any]: ...
+    @property
+    def transfer_info(self) -> dict[str, Any] | None: ...
+    def set_material(
+        self,
+        obj: int,
+        material: Material,
+        cache: VisibilityCache | None = None,
+        threads: int | None = None,
+    ) -> int: ...
 
 @final
 class Relighter:

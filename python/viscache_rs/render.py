@@ -194,13 +194,15 @@ def preview(setup, cache, envmap=None, camera=None, product_level: int | str = "
     """CAM08 sec. 6.2's lighting preview: ``J = int L B~ V~`` per pixel, an (H, W, 3) float32
     image, from ``cache``'s records under ``envmap`` (default: the setup's), at the hits of
     ``gbuffer`` if given (the buffer the cache was built from), else through ``camera``'s
-    pixel centres. For many lightings of one view, make a :class:`LightingPreview` once (it
-    keeps the hits) and call its ``render(cache, envmap)``, which traces no ray."""
+    pixel centres. One call integrates every pixel from scratch. For many lightings of one
+    view, make a :class:`LightingPreview` once (it keeps the hits) and call its
+    ``render(cache, envmap, rotation=...)``: it traces no ray and, after a first call that
+    caches each pixel's transfer, answers a swap or rotation of the map in milliseconds."""
     if camera is None and gbuffer is None:
         camera = setup.camera
     envmap = setup.envmap if envmap is None else envmap
     view = _core.LightingPreview(setup.scene, camera, threads=threads, gbuffer=gbuffer)
-    return view.render(cache, envmap, product_level=product_level, threads=threads)
+    return view.render(cache, envmap, product_level=product_level, threads=threads, direct=True)
 
 
 __all__ = ["RenderResult", "preview", "render"]

@@ -449,8 +449,8 @@ impl LightingPreview {
     ) -> Result<usize> {
         if object as usize >= self.objects {
             return Err(crate::error::Error::invalid(
-                "object",
-                format!("the scene has {} objects, got {object}", self.objects),
+                "obj",
+                format!("no object {object} (the scene has {})", self.objects),
             ));
         }
         let mut pixels = Vec::new();

@@ -264,5 +264,5 @@ fn material_edit_rebuilds_its_pixels() {
     let e = preview
         .set_material(Some(&v.cache), 10_000, shiny, Some(2))
         .unwrap_err();
-    assert!(e.to_string().contains("object"), "{e}");
+    assert!(e.to_string().contains("obj"), "{e}");
 }
