@@ -42,10 +42,13 @@ def test_untruncated_transfer_equals_direct_preview(garage):
         a = view.render(cache, turned)
         b = view.render(cache, turned, direct=True)
         assert _rel(a, b) < 1e-5, degrees
-    # Every Haar term kept: an orthogonal change of basis, the same J.
+    # Every Haar term kept: an orthogonal change of basis, the same J but for the values'
+    # 15-bit rounding (bounded per pixel in the Rust tests; here: far below the preview's
+    # own error).
     info = view.prepare(cache, basis="haar", budget_mb=1e6)
     assert info["terms"] == 4 ** info["level"]
-    assert _rel(view.render(cache, env), view.render(cache, env, direct=True)) < 1e-5
+    a, b = view.render(cache, env), view.render(cache, env, direct=True)
+    assert np.abs(a - b).max() < 1e-3 * np.abs(b).max()
 
 
 def test_rotation_and_other_resolutions(garage):

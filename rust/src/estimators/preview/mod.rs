@@ -321,12 +321,22 @@ impl LightingPreview {
         let per_pixel = request.budget_bytes.saturating_sub(4 * points.len()) / covered;
         let candidates = candidates(level, per_pixel, request.basis);
         if candidates.is_empty() {
+            let needed = match request.basis {
+                BasisChoice::Full => Basis::Texels { level }.bytes_per_pixel(),
+                BasisChoice::Texels => Basis::Texels { level: 1 }.bytes_per_pixel(),
+                _ => Basis::Haar { terms: 1 }.bytes_per_pixel(),
+            };
             return Err(crate::error::Error::invalid(
                 "budget_mb",
                 format!(
-                    "{:.3} MB leaves {per_pixel} bytes for each of {covered} pixels; a \
-                     transfer needs at least 6",
-                    request.budget_bytes as f64 * 1e-6
+                    "{:.3} MB leaves {per_pixel} bytes for each of {covered} pixels; {} \
+                     needs at least {needed}",
+                    request.budget_bytes as f64 * 1e-6,
+                    match request.basis {
+                        BasisChoice::Full => "the whole transfer",
+                        BasisChoice::Texels => "a texel basis",
+                        _ => "a transfer",
+                    }
                 ),
             ));
         }
@@ -345,8 +355,16 @@ impl LightingPreview {
                 measure(&points, cache, &request.settings, level, &candidates, env)
             }
         })??;
+        let weights = transfer::level_weights(env, level)?;
         let transfer = with_threads(threads, || {
-            Transfer::build(&points, cache, request.settings, level, basis)
+            Transfer::build(
+                &points,
+                cache,
+                request.settings,
+                level,
+                basis,
+                Some(weights),
+            )
         })??;
         let info = TransferInfo {
             basis,
@@ -494,7 +512,7 @@ fn candidates(level: u32, per_pixel: usize, choice: BasisChoice) -> Vec<Basis> {
         .rev()
         .map(|l| Basis::Texels { level: l })
         .find(|b| b.bytes_per_pixel() <= per_pixel);
-    let terms = (per_pixel / 6).min(1 << (2 * level)) as u32;
+    let terms = (per_pixel.saturating_sub(4) / 4).min(1 << (2 * level)) as u32;
     let haar = (terms >= 1).then_some(Basis::Haar { terms });
     match choice {
         BasisChoice::Full => [full]
@@ -536,7 +554,15 @@ fn measure(
     let step = covered.len().div_ceil(AUTO_SAMPLE).max(1);
     let sample: Vec<Option<TransferPoint>> =
         covered.iter().step_by(step).map(|&i| points[i]).collect();
-    let full = Transfer::build(&sample, cache, *settings, level, Basis::Texels { level })?;
+    let full = Transfer::build(
+        &sample,
+        cache,
+        *settings,
+        level,
+        Basis::Texels { level },
+        None,
+    )?;
+    let weights = transfer::level_weights(env, level)?;
     let full_light = full.light(env, None)?;
     let reference: Vec<[f64; 3]> = (0..sample.len())
         .map(|i| full.eval(i, &full_light))
@@ -545,7 +571,14 @@ fn measure(
         std::array::from_fn(|c| reference.iter().map(|j| j[c] * j[c]).sum::<f64>());
     let mut measured = Vec::new();
     for &basis in candidates {
-        let t = Transfer::build(&sample, cache, *settings, level, basis)?;
+        let t = Transfer::build(
+            &sample,
+            cache,
+            *settings,
+            level,
+            basis,
+            Some(weights.clone()),
+        )?;
         let light = t.light(env, None)?;
         let mut err = [0.0f64; 3];
         for (i, r) in reference.iter().enumerate() {

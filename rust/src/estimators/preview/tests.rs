@@ -1,6 +1,6 @@
 use glam::DMat3;
 
-use super::transfer::Basis;
+use super::transfer::{Basis, Transfer, TransferSettings};
 use super::*;
 use crate::scenes;
 use crate::visibility::params::CacheParams;
@@ -81,25 +81,59 @@ fn untruncated_transfer_equals_the_direct_preview() {
         let err = max_relative(&cached, &direct);
         assert!(err < 1e-5, "{degrees}°: {err}");
     }
-    let haar = TransferRequest {
-        basis: BasisChoice::Haar,
-        budget_bytes: usize::MAX / 2,
-        ..TransferRequest::DEFAULT
-    };
-    let info = preview.prepare(&v.cache, None, haar, Some(2)).unwrap();
-    assert_eq!(
-        info.basis,
-        Basis::Haar {
-            terms: 1 << (2 * info.level)
-        }
+}
+
+/// Every Haar term kept: an orthogonal change of basis, so `J` differs from the whole
+/// transfer's only by the rounding of the values to 15 bits, at most `scale / 2 / i16::MAX`
+/// each (plus f32 rounding of the transform, far below).
+#[test]
+fn haar_with_every_term_is_j_within_its_rounding() {
+    let v = view("garage", 24, 18);
+    let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
+    let points = preview.transfer_points(&v.cache);
+    let settings = TransferSettings::DEFAULT;
+    let materials = points.iter().flatten().map(|p| &p.material);
+    let level = Transfer::full_level(&v.cache, materials, &settings).unwrap();
+    let full = Transfer::build(
+        &points,
+        &v.cache,
+        settings,
+        level,
+        Basis::Texels { level },
+        None,
+    )
+    .unwrap();
+    let terms = 1 << (2 * level);
+    let haar = Transfer::build(
+        &points,
+        &v.cache,
+        settings,
+        level,
+        Basis::Haar { terms },
+        None,
+    )
+    .unwrap();
+    let env = &v.setup.envmap;
+    let (lf, lh) = (
+        full.light(env, None).unwrap(),
+        haar.light(env, None).unwrap(),
     );
-    let direct = preview
-        .render(&v.cache, &base, ProductLevel::PerMaterial, Some(2))
-        .unwrap();
-    let cached = preview
-        .render_lighting(&v.cache, &base, None, Some(2))
-        .unwrap();
-    assert!(max_relative(&cached, &direct) < 1e-5);
+    let sums: [f64; 3] =
+        std::array::from_fn(|c| lh.values().iter().map(|l| l[c].abs()).sum::<f64>());
+    let mut rows = 0;
+    for i in 0..points.len() {
+        let (a, b) = (full.eval(i, &lf), haar.eval(i, &lh));
+        let Some(scale) = haar.haar_scale(i) else {
+            assert_eq!(a, [0.0; 3]);
+            continue;
+        };
+        rows += 1;
+        for c in 0..3 {
+            let bound = scale as f64 * 0.5 / i16::MAX as f64 * sums[c] + 1e-6 * a[c].abs();
+            assert!((a[c] - b[c]).abs() <= bound, "pixel {i}: {a:?} vs {b:?}");
+        }
+    }
+    assert!(rows > 100);
 }
 
 /// A rotation given to the render equals the map turned beforehand, up to the texel

@@ -37,9 +37,11 @@ const CHUNK: usize = 256;
 /// How a pixel's transfer is stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Basis {
-    /// Cell averages of `T` at `level` (dense, `4^level` values a pixel).
+    /// Cell averages of `T` at `level` (dense, `4^level` `f32` values a pixel).
     Texels { level: u32 },
-    /// The `terms` largest Haar coefficients of `T` at the full level (index and value).
+    /// The `terms` largest Haar coefficients of `T` at the full level: per pixel one `f32`
+    /// scale, then per term its index (`u16`) and its value over the scale in 15 bits
+    /// (`i16`, rounding error at most `2^-16` of the pixel's largest term).
     Haar { terms: u32 },
 }
 
@@ -48,7 +50,7 @@ impl Basis {
     pub fn bytes_per_pixel(self) -> usize {
         match self {
             Basis::Texels { level } => 4 << (2 * level),
-            Basis::Haar { terms } => 6 * terms as usize,
+            Basis::Haar { terms } => 4 + 4 * terms as usize,
         }
     }
 
@@ -185,11 +187,13 @@ pub struct Transfer {
     level: u32,
     /// Per pixel: its row, or [`NO_ROW`] where `T = 0` (escaped, unlit, no records).
     row_of: Vec<u32>,
-    /// Per row, `stride` coefficient indices (Haar only).
-    index: Vec<u16>,
-    /// Per row, `stride` values.
-    values: Vec<f32>,
+    /// Per row, `stride` words: `f32` cell values, or for Haar the row's `f32` scale and
+    /// then per term `index << 16 | value as u16` ([`Basis::Haar`]).
+    words: Vec<u32>,
+    /// Words per row.
     stride: usize,
+    /// Haar truncation weights by level ([`Transfer::build`]).
+    level_weights: Vec<f64>,
 }
 
 /// [`Transfer::row_of`] of a pixel without a transfer.
@@ -200,6 +204,13 @@ pub const NO_ROW: u32 = u32::MAX;
 pub struct LightCoefficients {
     basis: Basis,
     values: Vec<[f64; 3]>,
+}
+
+impl LightCoefficients {
+    /// Per coefficient, RGB (`∫ L_c` against the basis function).
+    pub fn values(&self) -> &[[f64; 3]] {
+        &self.values
+    }
 }
 
 impl Transfer {
@@ -230,14 +241,24 @@ impl Transfer {
     }
 
     /// Builds the transfer of `points` (`None` for pixels without one) in `basis` at the
-    /// full level `level`, from `cache` under `settings`.
+    /// full level `level`, from `cache` under `settings`. A Haar basis keeps per pixel the
+    /// coefficients of largest `|c| w(l)`, `w` = `level_weights` by level ([`level_weights`];
+    /// `None`: all 1, the best approximation of `T` alone).
     pub fn build(
         points: &[Option<TransferPoint>],
         cache: &VisibilityCache,
         settings: TransferSettings,
         level: u32,
         basis: Basis,
+        level_weights: Option<Vec<f64>>,
     ) -> Result<Self> {
+        let level_weights = level_weights.unwrap_or_else(|| vec![1.0; level as usize + 1]);
+        if level_weights.len() != level as usize + 1 {
+            return Err(Error::invalid(
+                "level_weights",
+                format!("needs {} weights, got {}", level + 1, level_weights.len()),
+            ));
+        }
         let stride = match basis {
             Basis::Texels { level: l } if l > level => {
                 return Err(Error::invalid(
@@ -246,17 +267,17 @@ impl Transfer {
                 ))
             }
             Basis::Texels { level: l } => 1usize << (2 * l),
-            Basis::Haar { terms } => (terms as usize).clamp(1, 1 << (2 * level)),
+            Basis::Haar { terms } => 1 + (terms as usize).clamp(1, 1 << (2 * level)),
         };
         let state = cache.read();
         let params = cache.params();
-        let chunks: Vec<(Vec<bool>, Vec<u16>, Vec<f32>)> = points
+        let chunks: Vec<(Vec<bool>, Vec<u32>)> = points
             .par_chunks(CHUNK)
             .map(|chunk| {
                 let mut builder = PixelTransfer::new(&state, params, settings, level);
-                let mut enc = Encoder::new(level, basis, stride);
+                let mut enc = Encoder::new(level, basis, stride, &level_weights);
                 let mut present = Vec::with_capacity(chunk.len());
-                let (mut index, mut values) = (Vec::new(), Vec::new());
+                let mut words = Vec::new();
                 for point in chunk {
                     let ok = match point {
                         Some(p) => builder.dense(p, &mut enc.dense),
@@ -264,28 +285,27 @@ impl Transfer {
                     };
                     present.push(ok);
                     if ok {
-                        enc.encode(&mut index, &mut values);
+                        enc.encode(&mut words);
                     }
                 }
-                (present, index, values)
+                (present, words)
             })
             .collect();
         let mut t = Self {
             basis,
             level,
             row_of: Vec::with_capacity(points.len()),
-            index: Vec::new(),
-            values: Vec::new(),
+            words: Vec::new(),
             stride,
+            level_weights,
         };
         let mut rows = 0u32;
-        for (present, index, values) in chunks {
+        for (present, words) in chunks {
             for ok in present {
                 t.row_of.push(if ok { rows } else { NO_ROW });
                 rows += ok as u32;
             }
-            t.index.extend_from_slice(&index);
-            t.values.extend_from_slice(&values);
+            t.words.extend_from_slice(&words);
         }
         Ok(t)
     }
@@ -302,48 +322,51 @@ impl Transfer {
         let state = cache.read();
         let params = cache.params();
         let (level, basis, stride) = (self.level, self.basis, self.stride);
-        let rows: Vec<(usize, bool, Vec<u16>, Vec<f32>)> = pixels
+        let weights = &self.level_weights;
+        let rows: Vec<(usize, bool, Vec<u32>)> = pixels
             .par_chunks(CHUNK)
             .flat_map_iter(|chunk| {
                 let mut builder = PixelTransfer::new(&state, params, settings, level);
-                let mut enc = Encoder::new(level, basis, stride);
+                let mut enc = Encoder::new(level, basis, stride, weights);
                 chunk
                     .iter()
                     .map(|&i| {
                         let ok = points[i].is_some_and(|p| builder.dense(&p, &mut enc.dense));
-                        let (mut index, mut values) = (Vec::new(), Vec::new());
+                        let mut words = Vec::new();
                         if ok {
-                            enc.encode(&mut index, &mut values);
+                            enc.encode(&mut words);
                         }
-                        (i, ok, index, values)
+                        (i, ok, words)
                     })
                     .collect::<Vec<_>>()
             })
             .collect();
-        for (i, ok, index, values) in rows {
+        for (i, ok, words) in rows {
             if !ok {
                 self.row_of[i] = NO_ROW;
                 continue;
             }
             if self.row_of[i] == NO_ROW {
-                self.row_of[i] = (self.values.len() / stride) as u32;
-                self.values.resize(self.values.len() + stride, 0.0);
-                if matches!(basis, Basis::Haar { .. }) {
-                    self.index.resize(self.index.len() + stride, 0);
-                }
+                self.row_of[i] = (self.words.len() / stride) as u32;
+                self.words.resize(self.words.len() + stride, 0);
             }
             let r = self.row_of[i] as usize * stride;
-            self.values[r..r + stride].copy_from_slice(&values);
-            if !index.is_empty() {
-                self.index[r..r + stride].copy_from_slice(&index);
-            }
+            self.words[r..r + stride].copy_from_slice(&words);
         }
         pixels.len()
     }
 
     /// Pixels with a transfer (rows).
     pub fn rows(&self) -> usize {
-        self.values.len() / self.stride
+        self.words.len() / self.stride
+    }
+
+    /// A Haar row's scale (its largest term's magnitude; a value's rounding error is at
+    /// most `scale / 2 / i16::MAX`); `None` for other bases and pixels without a row.
+    pub fn haar_scale(&self, i: usize) -> Option<f32> {
+        let row = self.row_of[i];
+        (matches!(self.basis, Basis::Haar { .. }) && row != NO_ROW)
+            .then(|| f32::from_bits(self.words[row as usize * self.stride]))
     }
 
     /// The basis.
@@ -358,7 +381,7 @@ impl Transfer {
 
     /// Bytes held.
     pub fn memory_bytes(&self) -> usize {
-        4 * self.row_of.len() + 2 * self.index.len() + 4 * self.values.len()
+        4 * self.row_of.len() + 4 * self.words.len()
     }
 
     /// `env` (turned by `rotation`) in this transfer's basis.
@@ -397,27 +420,38 @@ impl Transfer {
             return [0.0; 3];
         }
         let r = row as usize * self.stride;
-        let values = &self.values[r..r + self.stride];
+        let words = &self.words[r..r + self.stride];
         let l = &light.values;
         let mut acc = [0.0f64; 3];
-        let mut add = |v: f32, c: &[f64; 3]| {
-            let v = v as f64;
+        let mut add = |v: f64, c: &[f64; 3]| {
             acc = [acc[0] + v * c[0], acc[1] + v * c[1], acc[2] + v * c[2]];
         };
         match self.basis {
             Basis::Texels { .. } => {
-                for (v, c) in values.iter().zip(l) {
-                    add(*v, c);
+                for (&w, c) in words.iter().zip(l) {
+                    add(f32::from_bits(w) as f64, c);
                 }
+                acc
             }
             Basis::Haar { .. } => {
-                for (&v, &j) in values.iter().zip(&self.index[r..r + self.stride]) {
-                    add(v, &l[j as usize]);
+                for &w in &words[1..] {
+                    let (index, value) = unpack(w);
+                    add(value as f64, &l[index]);
                 }
+                let scale = f32::from_bits(words[0]) as f64 / QUANTUM;
+                acc.map(|a| a * scale)
             }
         }
-        acc
     }
+}
+
+/// Largest magnitude of a quantised Haar value: a row's largest term.
+const QUANTUM: f64 = i16::MAX as f64;
+
+/// A Haar word's coefficient index and quantised value.
+#[inline(always)]
+fn unpack(w: u32) -> (usize, i16) {
+    ((w >> 16) as usize, w as u16 as i16)
 }
 
 /// Turns a dense `T` into one row of a basis.
@@ -429,10 +463,22 @@ struct Encoder {
     dense: Vec<f64>,
     scratch: Vec<f64>,
     order: Vec<u16>,
+    /// Per Haar coefficient, the weight of its level.
+    weights: Vec<f64>,
+}
+
+/// The level-weight slot of Haar coefficient `k` (0 the root's scaling, `1 + l` the details
+/// of level `l`).
+fn weight_slot(k: usize) -> usize {
+    if k == 0 {
+        0
+    } else {
+        1 + (k.ilog2() / 2) as usize
+    }
 }
 
 impl Encoder {
-    fn new(level: u32, basis: Basis, stride: usize) -> Self {
+    fn new(level: u32, basis: Basis, stride: usize, level_weights: &[f64]) -> Self {
         let n = 1usize << (2 * level);
         Self {
             level,
@@ -441,44 +487,91 @@ impl Encoder {
             dense: vec![0.0; n],
             scratch: vec![0.0; n],
             order: (0..n).map(|i| i as u16).collect(),
+            weights: (0..n).map(|k| level_weights[weight_slot(k)]).collect(),
         }
     }
 
-    /// Appends the row of `self.dense` (`stride` values, and indices for Haar).
-    fn encode(&mut self, index: &mut Vec<u16>, values: &mut Vec<f32>) {
+    /// Appends the row of `self.dense` (`stride` words, [`Transfer::words`]).
+    fn encode(&mut self, words: &mut Vec<u32>) {
         match self.basis {
             Basis::Texels { level } => {
                 // Cell averages at the coarser level.
                 let per = 1usize << (2 * (self.level - level));
                 let scale = 1.0 / per as f64;
-                values.extend(
+                words.extend(
                     self.dense
                         .chunks_exact(per)
-                        .map(|c| (c.iter().sum::<f64>() * scale) as f32),
+                        .map(|c| ((c.iter().sum::<f64>() * scale) as f32).to_bits()),
                 );
             }
             Basis::Haar { .. } => {
                 haar::forward(&mut self.dense, &mut self.scratch);
-                let k = self.stride;
+                let k = self.stride - 1;
                 let dense = &self.dense;
+                let weights = &self.weights;
                 let n = dense.len();
                 for (i, o) in self.order.iter_mut().enumerate() {
                     *o = i as u16;
                 }
                 if k < n {
-                    // The k largest magnitudes (ties by index: the same row on every run).
+                    // The k largest weighted magnitudes (ties by index: the same row on
+                    // every run).
+                    let key = |i: u16| dense[i as usize].abs() * weights[i as usize];
                     self.order.select_nth_unstable_by(k - 1, |&a, &b| {
-                        let (x, y) = (dense[a as usize].abs(), dense[b as usize].abs());
-                        y.total_cmp(&x).then(a.cmp(&b))
+                        key(b).total_cmp(&key(a)).then(a.cmp(&b))
                     });
                 }
                 let kept = &mut self.order[..k];
                 kept.sort_unstable();
+                let largest = kept
+                    .iter()
+                    .map(|&i| dense[i as usize].abs())
+                    .fold(0.0, f64::max);
+                let scale = largest as f32;
+                words.push(scale.to_bits());
+                let to_unit = if scale > 0.0 {
+                    QUANTUM / scale as f64
+                } else {
+                    0.0
+                };
                 for &i in kept.iter() {
-                    index.push(i);
-                    values.push(dense[i as usize] as f32);
+                    let q = (dense[i as usize] * to_unit).round() as i16;
+                    words.push(((i as u32) << 16) | q as u16 as u32);
                 }
             }
         }
     }
+}
+
+/// Haar truncation weights for lighting like `env` at full level `level`: per level, the
+/// root-mean-square of the map's luminance detail coefficients there (the root's scaling
+/// coefficient for slot 0), so that a pixel keeps the terms `|T_k| w` that matter most
+/// under lighting of that spectrum. By level only, so they hold for the map turned any way.
+/// All 1 for a black map.
+pub fn level_weights(env: &EnvMap, level: u32) -> Result<Vec<f64>> {
+    let cells = cell_integrals(env, level, None)?;
+    let mut lum: Vec<f64> = cells
+        .iter()
+        .map(|c| {
+            c.iter()
+                .zip(crate::lights::envmap::LUMINANCE)
+                .map(|(x, w)| x * w as f64)
+                .sum()
+        })
+        .collect();
+    let mut scratch = vec![0.0; lum.len()];
+    haar::forward(&mut lum, &mut scratch);
+    let mut sums = vec![(0.0f64, 0usize); level as usize + 1];
+    for (k, c) in lum.iter().enumerate() {
+        let s = &mut sums[weight_slot(k)];
+        s.0 += c * c;
+        s.1 += 1;
+    }
+    let w: Vec<f64> = sums.iter().map(|&(s, n)| (s / n as f64).sqrt()).collect();
+    let max = w.iter().cloned().fold(0.0, f64::max);
+    Ok(if max > 0.0 && max.is_finite() {
+        w.iter().map(|x| x / max).collect()
+    } else {
+        vec![1.0; level as usize + 1]
+    })
 }

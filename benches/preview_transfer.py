@@ -1,0 +1,125 @@
+"""The lighting preview's cached transfer against the direct preview, per suite scene.
+
+Speed at 640x480 (the issue's size): the default ``"auto"`` cache built for the view,
+``LightingPreview.prepare(cache, envmap)`` with its defaults (``basis="auto"``, 200 MB),
+then the median and worst milliseconds of ``render(cache, map, rotation=deg)`` over twelve
+changes (rotations and swaps), against one ``render(..., direct=True)``.
+
+Error at ``--size`` (160x120 by default; the budget scaled by the pixel count, so each
+pixel keeps what it keeps at 640x480): relMSE on RGB (``vc.metrics.relmse``) and the
+relative error of the image mean, against a ``--spp`` product render without jitter (the
+preview's pixel centres) under the same lighting: the scene's map, the map turned by 45°
+and 135° about +y, and a sun-and-sky map. The direct preview sees the turned map
+(``EnvMap.rotated``); the transfer gets ``rotation=``. ``nearest`` is the transfer with
+each pixel's heaviest record only (CAM08's blotchy preview).
+
+    python benches/preview_transfer.py [--size 160x120] [--spp 256] [scene ...]
+"""
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+import viscache_rs as vc
+
+SKY = dict(sun_dir=(0.4, 0.6, -0.5), sun_radiance=(40000.0, 38000.0, 34000.0), sun_angle=1.0)
+BUDGET_MB = 200.0
+
+
+def lightings(setup):
+    """(name, map for the direct preview and the reference, map and rotation for the
+    transfer)."""
+    env = setup.envmap
+    sky = vc.envmaps.sky(**SKY)
+    return [("map", env, env, None),
+            ("45°", env.rotated(45.0), env, 45.0),
+            ("135°", env.rotated(135.0), env, 135.0),
+            ("sky", sky, sky, None)]
+
+
+def speed(setup, threads=None):
+    cam = setup.camera.with_resolution(640, 480)
+    cache = vc.VisibilityCache(setup.scene)
+    cache.build(cam, progress=False, threads=threads)
+    view = vc.LightingPreview(setup.scene, cam, threads=threads)
+    t = time.perf_counter()
+    view.render(cache, setup.envmap, direct=True, threads=threads)
+    direct = time.perf_counter() - t
+    info = view.prepare(cache, setup.envmap, threads=threads)
+    sky = vc.envmaps.sky(**SKY)
+    times = []
+    for k in range(12):
+        env = sky if k % 4 == 3 else setup.envmap
+        t = time.perf_counter()
+        view.render(cache, env, rotation=15.0 * k, threads=threads)
+        times.append(time.perf_counter() - t)
+    return dict(records=len(cache), direct_ms=1e3 * direct, info=info,
+                median_ms=1e3 * statistics.median(times), max_ms=1e3 * max(times))
+
+
+def errors(setup, size, spp, threads=None):
+    cam = setup.camera.with_resolution(*size)
+    cache = vc.VisibilityCache(setup.scene)
+    cache.build(cam, progress=False, threads=threads)
+    budget = BUDGET_MB * size[0] * size[1] / (640 * 480)
+    view = vc.LightingPreview(setup.scene, cam, threads=threads)
+    nearest = vc.LightingPreview(setup.scene, cam, threads=threads)
+    info = view.prepare(cache, setup.envmap, budget_mb=budget, threads=threads)
+    nearest.prepare(cache, setup.envmap, budget_mb=budget, nearest=True, threads=threads)
+    out = {}
+    for name, env, base, rotation in lightings(setup):
+        ref = vc.render(setup, camera=cam, spp=spp, method="product", envmap=env,
+                        jitter=False, progress=False, threads=threads).image
+        imgs = dict(direct=view.render(cache, env, direct=True, threads=threads),
+                    transfer=view.render(cache, base, rotation=rotation, threads=threads),
+                    nearest=nearest.render(cache, base, rotation=rotation, threads=threads))
+        out[name] = {k: (vc.metrics.relmse(img, ref), img.mean() / ref.mean() - 1.0)
+                     for k, img in imgs.items()}
+    return info, out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--size", default="160x120")
+    ap.add_argument("--spp", type=int, default=256)
+    ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("scenes", nargs="*")
+    a = ap.parse_args()
+    size = tuple(int(x) for x in a.size.split("x"))
+    names = a.scenes or vc.scenes.suite_names()
+    print("## Speed at 640x480 (ms per lighting change after prepare)\n")
+    print("| scene | records | basis | prepare s | MB | median ms | max ms | direct ms |")
+    print("|---|---:|---|---:|---:|---:|---:|---:|")
+    worst_ms = []
+    for name in names:
+        s = speed(vc.scenes.load(name), a.threads)
+        i = s["info"]
+        basis = i["basis"] + str(i.get("terms", i.get("basis_level")))
+        worst_ms.append((s["max_ms"], name))
+        print(f"| {name} | {s['records']} | {basis} | {i['seconds']:.2f} | {i['bytes'] / 1e6:.0f} "
+              f"| {s['median_ms']:.1f} | {s['max_ms']:.1f} | {s['direct_ms']:.0f} |", flush=True)
+    print(f"\nworst max: {max(worst_ms)[0]:.1f} ms ({max(worst_ms)[1]})\n")
+    print(f"## Error at {a.size} against a {a.spp}-spp product render "
+          "(relMSE; mean error in parentheses)\n")
+    print("| scene | lighting | direct | transfer | nearest | transfer / direct |"
+          " auto measured |")
+    print("|---|---|---:|---:|---:|---:|---|")
+    ratios = []
+    for name in names:
+        info, out = errors(vc.scenes.load(name), size, a.spp, a.threads)
+        measured = ", ".join(f"{k} {v:.2g}" for k, v in info["measured"].items())
+        for light, e in out.items():
+            r = e["transfer"][0] / e["direct"][0]
+            ratios.append((r, f"{name} {light}"))
+            cells = " | ".join(f"{e[k][0]:.4f} ({e[k][1]:+.1%})"
+                               for k in ("direct", "transfer", "nearest"))
+            print(f"| {name} | {light} | {cells} | {r:.2f} | {measured} |", flush=True)
+    geo = float(np.exp(np.mean([np.log(r) for r, _ in ratios])))
+    worst = max(ratios)
+    print(f"\ntransfer / direct relMSE: geometric mean {geo:.3f}, worst {worst[0]:.3f} "
+          f"({worst[1]}), {sum(r <= 1.0 for r, _ in ratios)}/{len(ratios)} at most 1")
+
+
+if __name__ == "__main__":
+    main()
