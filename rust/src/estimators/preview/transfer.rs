@@ -555,7 +555,7 @@ pub fn level_weights(env: &EnvMap, level: u32) -> Result<Vec<f64>> {
         .map(|c| {
             c.iter()
                 .zip(crate::lights::envmap::LUMINANCE)
-                .map(|(x, w)| x * w as f64)
+                .map(|(x, w)| x * w)
                 .sum()
         })
         .collect();
