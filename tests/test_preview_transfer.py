@@ -34,7 +34,7 @@ def _rel(a, b):
 def test_untruncated_transfer_equals_direct_preview(garage):
     setup, cache = garage
     view = vc.LightingPreview(setup.scene, setup.camera)
-    info = view.prepare(cache, basis="full")
+    info = view.prepare(cache, basis="full", product_level="auto")
     assert info["basis"] == "texels" and info["basis_level"] == info["level"]
     env = _tinted(setup.envmap, (1.0, 0.7, 0.4))
     for degrees in (0.0, 45.0, 135.0):
@@ -45,7 +45,7 @@ def test_untruncated_transfer_equals_direct_preview(garage):
     # Every Haar term kept: an orthogonal change of basis, the same J but for the values'
     # 15-bit rounding (bounded per pixel in the Rust tests; here: far below the preview's
     # own error).
-    info = view.prepare(cache, basis="haar", budget_mb=1e6)
+    info = view.prepare(cache, basis="haar", budget_mb=1e6, product_level="auto")
     assert info["terms"] == 4 ** info["level"]
     a, b = view.render(cache, env), view.render(cache, env, direct=True)
     assert np.abs(a - b).max() < 1e-3 * np.abs(b).max()

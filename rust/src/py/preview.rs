@@ -132,7 +132,8 @@ impl PyLightingPreview {
     /// (None, degrees about +y, or a 3x3 matrix) with `cache`'s records; traces no rays.
     /// By default from the kept transfer (built on the first call for a cache, rebuilt
     /// when the cache changes); `direct=True` integrates every pixel from scratch
-    /// (no rotation then). `product_level` None is "auto" (per material).
+    /// (no rotation then). `product_level`: the level of `B~`'s cells; None is "auto" (per
+    /// material) for the direct path and the transfer's own level for the transfer.
     #[pyo3(signature = (cache, envmap, rotation=None, product_level=None, threads=None, direct=false))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
@@ -161,7 +162,7 @@ impl PyLightingPreview {
                 .py()?
         } else {
             if product_level.is_some() {
-                preview.set_product_level(level);
+                preview.set_product_level(Some(level));
             }
             py.detach(|| preview.render_lighting(&cache, env, rotation.as_ref(), threads))
                 .py()?
@@ -202,7 +203,10 @@ impl PyLightingPreview {
             basis,
             budget_bytes: (budget * 1e6).min(usize::MAX as f64 / 2.0) as usize,
             settings: TransferSettings {
-                product_level: product_level_arg(product_level)?,
+                product_level: match product_level {
+                    Some(_) => Some(product_level_arg(product_level)?),
+                    None => None,
+                },
                 nearest,
             },
         };

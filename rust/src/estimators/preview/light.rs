@@ -3,10 +3,10 @@
 //! A preview's `J_c = Σ_cell T(cell) l_c(cell)` is then one dot product per pixel, in that
 //! basis or (both sides transformed alike) in Haar wavelets over it.
 
-use glam::{DMat3, UVec2};
+use glam::{DMat3, DVec3, UVec2};
 
 use crate::error::{Error, Result};
-use crate::lights::envmap::EnvMap;
+use crate::lights::envmap::{EnvMap, LUMINANCE};
 use crate::sampling::octahedral::{morton_encode, texel_center, texel_of, texel_solid_angle};
 
 /// `R` as a checked rotation: finite, orthonormal to `1e-4` and of determinant `+1`; the
@@ -43,6 +43,26 @@ pub fn rotation_about_y(degrees: f64) -> Result<DMat3> {
 /// each texel of the map — split first to at least 4 x 4 per cell — goes whole to the cell
 /// its rotated centre falls in: one pass over the texels.
 pub fn cell_integrals(env: &EnvMap, level: u32, rotation: Option<&DMat3>) -> Result<Vec<[f64; 3]>> {
+    Ok(project(env, level, rotation, false)?.0)
+}
+
+/// [`cell_integrals`] and, per cell, the luminance-weighted sum of the (turned) texel
+/// directions in it: normalised, the direction a cell's light comes from on average (a
+/// sun's direction within its cell).
+pub fn cell_integrals_and_centroids(
+    env: &EnvMap,
+    level: u32,
+    rotation: Option<&DMat3>,
+) -> Result<(Vec<[f64; 3]>, Vec<DVec3>)> {
+    project(env, level, rotation, true)
+}
+
+fn project(
+    env: &EnvMap,
+    level: u32,
+    rotation: Option<&DMat3>,
+    centroids: bool,
+) -> Result<(Vec<[f64; 3]>, Vec<DVec3>)> {
     if let Some(r) = rotation {
         check_rotation(r)?;
     }
@@ -52,23 +72,30 @@ pub fn cell_integrals(env: &EnvMap, level: u32, rotation: Option<&DMat3>) -> Res
     let res = env.resolution();
     let omega = texel_solid_angle(res);
     let mut out = vec![[0.0f64; 3]; cells * cells];
+    let mut dirs = vec![DVec3::ZERO; if centroids { cells * cells } else { 0 }];
     let depth = res.trailing_zeros();
     for (i, t) in env.texels().iter().enumerate() {
         let (x, y) = (i as u32 % res, i as u32 / res);
-        let cell = match rotation {
-            None => morton_encode(x, y) >> (2 * (depth - level)),
+        let centre = || texel_center(UVec2::new(x, y), res).as_dvec3();
+        let (cell, d) = match rotation {
+            None if !centroids => (morton_encode(x, y) >> (2 * (depth - level)), DVec3::ZERO),
+            None => (morton_encode(x, y) >> (2 * (depth - level)), centre()),
             Some(r) => {
-                let d = texel_center(UVec2::new(x, y), res).as_dvec3();
-                let c = texel_of((*r * d).as_vec3(), cells as u32);
-                morton_encode(c.x, c.y)
+                let d = *r * centre();
+                let c = texel_of(d.as_vec3(), cells as u32);
+                (morton_encode(c.x, c.y), d)
             }
         };
         let o = &mut out[cell as usize];
         for k in 0..3 {
             o[k] += t[k] as f64 * omega;
         }
+        if centroids {
+            let lum: f64 = t.iter().zip(LUMINANCE).map(|(&c, w)| c as f64 * w).sum();
+            dirs[cell as usize] += d * lum;
+        }
     }
-    Ok(out)
+    Ok((out, dirs))
 }
 
 #[cfg(test)]

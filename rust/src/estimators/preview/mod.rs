@@ -16,6 +16,7 @@
 //! [`LightingPreview::render_lighting`] answers a swap, rotation or scaling of the map
 //! with one projection of the map and a dot product per pixel.
 
+pub mod bright;
 pub mod haar;
 pub mod light;
 pub mod transfer;
@@ -150,6 +151,9 @@ struct Prepared {
     cache: (u64, u64),
     request: TransferRequest,
     transfer: Transfer,
+    /// Each pixel's records, for the bright cells a truncated basis leaves out
+    /// ([`bright`]); `None` with the whole transfer.
+    records: Option<bright::PixelRecords>,
     info: TransferInfo,
 }
 
@@ -299,7 +303,7 @@ impl LightingPreview {
     /// Builds and keeps the transfer of `cache`'s records for this view as `request` asks
     /// (module docs); later [`Self::render_lighting`] calls reuse it while the cache is
     /// unchanged. `"auto"` measures its candidates under `env` (a sun-and-sky probe when
-    /// `None`). Fails with an error naming `budget_mb` when no basis fits the budget.
+    /// `None` or black). Fails with an error naming `budget_mb` when no basis fits the budget.
     pub fn prepare(
         &self,
         cache: &VisibilityCache,
@@ -307,7 +311,9 @@ impl LightingPreview {
         request: TransferRequest,
         threads: Option<usize>,
     ) -> Result<TransferInfo> {
-        request.settings.product_level.validate()?;
+        if let Some(level) = request.settings.product_level {
+            level.validate()?;
+        }
         cache.bind_fingerprint(self.scene)?;
         let start = Instant::now();
         let version = cache.version();
@@ -318,18 +324,26 @@ impl LightingPreview {
             points.iter().flatten().map(|p| &p.material),
             &request.settings,
         )?;
-        let per_pixel = request.budget_bytes.saturating_sub(4 * points.len()) / covered;
-        let candidates = candidates(level, per_pixel, request.basis);
+        // A truncated basis also keeps each pixel's records (for the bright cells).
+        let records_bytes = bright::PixelRecords::bytes_per_pixel(cache.params());
+        let per_pixel = |extra: usize| {
+            request
+                .budget_bytes
+                .saturating_sub((4 + extra) * points.len())
+                / covered
+        };
+        let (whole, truncated) = (per_pixel(0), per_pixel(records_bytes));
+        let candidates = candidates(level, whole, truncated, request.basis);
         if candidates.is_empty() {
             let needed = match request.basis {
                 BasisChoice::Full => Basis::Texels { level }.bytes_per_pixel(),
-                BasisChoice::Texels => Basis::Texels { level: 1 }.bytes_per_pixel(),
-                _ => Basis::Haar { terms: 1 }.bytes_per_pixel(),
+                BasisChoice::Texels => Basis::Texels { level: 1 }.bytes_per_pixel() + records_bytes,
+                _ => Basis::Haar { terms: 1 }.bytes_per_pixel() + records_bytes,
             };
             return Err(crate::error::Error::invalid(
                 "budget_mb",
                 format!(
-                    "{:.3} MB leaves {per_pixel} bytes for each of {covered} pixels; {} \
+                    "{:.3} MB leaves {whole} bytes for each of {covered} pixels; {} \
                      needs at least {needed}",
                     request.budget_bytes as f64 * 1e-6,
                     match request.basis {
@@ -342,8 +356,8 @@ impl LightingPreview {
         }
         let probe;
         let env = match env {
-            Some(env) => env,
-            None => {
+            Some(env) if !env.is_black() => env,
+            _ => {
                 probe = probe_map()?;
                 &probe
             }
@@ -355,7 +369,11 @@ impl LightingPreview {
                 measure(&points, cache, &request.settings, level, &candidates, env)
             }
         })??;
-        let weights = transfer::level_weights(env, level)?;
+        // Truncation weights from the map's light without its bright cells (those the
+        // pixels add exactly).
+        let (mut cells, centroids) = light::cell_integrals_and_centroids(env, level, None)?;
+        bright::BrightCells::split(&mut cells, &centroids);
+        let weights = transfer::level_weights(&cells);
         let transfer = with_threads(threads, || {
             Transfer::build(
                 &points,
@@ -366,11 +384,19 @@ impl LightingPreview {
                 Some(weights),
             )
         })??;
+        let records = (!transfer.is_whole()).then(|| {
+            bright::PixelRecords::gather(
+                &points,
+                &cache.read(),
+                cache.params(),
+                request.settings.nearest,
+            )
+        });
         let info = TransferInfo {
             basis,
             level,
             seconds: start.elapsed().as_secs_f64(),
-            bytes: transfer.memory_bytes(),
+            bytes: transfer.memory_bytes() + records.as_ref().map_or(0, |r| r.memory_bytes()),
             pixels: transfer.rows(),
             measured,
         };
@@ -379,6 +405,7 @@ impl LightingPreview {
             cache: version,
             request,
             transfer,
+            records,
             info: info.clone(),
         }));
         Ok(info)
@@ -386,7 +413,7 @@ impl LightingPreview {
 
     /// Makes later transfers use `level` for the product's cells (a kept transfer of
     /// another level is rebuilt by the next [`Self::render_lighting`]).
-    pub fn set_product_level(&self, level: ProductLevel) {
+    pub fn set_product_level(&self, level: Option<ProductLevel>) {
         lock(&self.request).settings.product_level = level;
     }
 
@@ -430,7 +457,17 @@ impl LightingPreview {
         cache.bind_fingerprint(self.scene)?;
         let prepared = self.prepared(cache, env, threads)?;
         let transfer = &prepared.transfer;
-        let light = transfer.light(env, rotation)?;
+        let (mut cells, centroids) =
+            light::cell_integrals_and_centroids(env, transfer.level(), rotation)?;
+        let bright = match &prepared.records {
+            Some(_) => bright::BrightCells::split(&mut cells, &centroids),
+            None => bright::BrightCells::default(),
+        };
+        let masks = match bright.is_empty() {
+            true => Vec::new(),
+            false => bright.record_masks(&cache.read(), transfer.level()),
+        };
+        let light = transfer.light_from_cells(cells);
         let inverse = rotation.map(|r| r.transpose());
         with_threads(threads, || {
             self.points
@@ -446,7 +483,14 @@ impl LightingPreview {
                         env.eval(d).to_array()
                     }
                     Ok(p) => {
-                        let j = transfer.eval(i, &light);
+                        let mut j = transfer.eval(i, &light);
+                        if let (Some(records), false) = (&prepared.records, bright.is_empty()) {
+                            if transfer.has_row(i) {
+                                let b =
+                                    records.eval(i, &p.material, p.normal, p.wo, &bright, &masks);
+                                j = std::array::from_fn(|c| j[c] + b[c]);
+                            }
+                        }
                         let ratios = p.material.channel_ratios();
                         std::array::from_fn(|c| p.emitted[c] + (ratios[c] as f64 * j[c]) as f32)
                     }
@@ -504,24 +548,23 @@ impl LightingPreview {
     }
 }
 
-/// The bases [`LightingPreview::prepare`] may keep for `choice` with `per_pixel` bytes a
-/// pixel, at full level `level` (finest first; empty when none fits).
-fn candidates(level: u32, per_pixel: usize, choice: BasisChoice) -> Vec<Basis> {
+/// The bases [`LightingPreview::prepare`] may keep for `choice` at full level `level`,
+/// with `whole` bytes a pixel for the whole transfer and `truncated` for a truncated one
+/// (which keeps the pixel's records too); finest first, empty when none fits.
+fn candidates(level: u32, whole: usize, truncated: usize, choice: BasisChoice) -> Vec<Basis> {
     let full = Basis::Texels { level };
-    let texels = (1..=level)
+    let full = (full.bytes_per_pixel() <= whole).then_some(full);
+    let texels = (1..level)
         .rev()
         .map(|l| Basis::Texels { level: l })
-        .find(|b| b.bytes_per_pixel() <= per_pixel);
-    let terms = (per_pixel.saturating_sub(4) / 4).min(1 << (2 * level)) as u32;
+        .find(|b| b.bytes_per_pixel() <= truncated);
+    let terms = (truncated.saturating_sub(4) / 4).min(1 << (2 * level)) as u32;
     let haar = (terms >= 1).then_some(Basis::Haar { terms });
     match choice {
-        BasisChoice::Full => [full]
-            .into_iter()
-            .filter(|b| b.bytes_per_pixel() <= per_pixel)
-            .collect(),
+        BasisChoice::Full => full.into_iter().collect(),
         BasisChoice::Texels => texels.into_iter().collect(),
         BasisChoice::Haar => haar.into_iter().collect(),
-        BasisChoice::Auto if full.bytes_per_pixel() <= per_pixel => vec![full],
+        BasisChoice::Auto if full.is_some() => full.into_iter().collect(),
         BasisChoice::Auto => texels.into_iter().chain(haar).collect(),
     }
 }
@@ -562,13 +605,21 @@ fn measure(
         Basis::Texels { level },
         None,
     )?;
-    let weights = transfer::level_weights(env, level)?;
     let full_light = full.light(env, None)?;
     let reference: Vec<[f64; 3]> = (0..sample.len())
         .map(|i| full.eval(i, &full_light))
         .collect();
     let power: [f64; 3] =
         std::array::from_fn(|c| reference.iter().map(|j| j[c] * j[c]).sum::<f64>());
+    // The truncated bases see the map without its bright cells, which the pixels add
+    // exactly (as renders do).
+    let (mut cells, centroids) = light::cell_integrals_and_centroids(env, level, None)?;
+    let bright = bright::BrightCells::split(&mut cells, &centroids);
+    let state = cache.read();
+    let masks = bright.record_masks(&state, level);
+    let records = bright::PixelRecords::gather(&sample, &state, cache.params(), settings.nearest);
+    drop(state);
+    let weights = transfer::level_weights(&cells);
     let mut measured = Vec::new();
     for &basis in candidates {
         let t = Transfer::build(
@@ -579,10 +630,14 @@ fn measure(
             basis,
             Some(weights.clone()),
         )?;
-        let light = t.light(env, None)?;
+        let light = t.light_from_cells(cells.clone());
         let mut err = [0.0f64; 3];
         for (i, r) in reference.iter().enumerate() {
-            let j = t.eval(i, &light);
+            let mut j = t.eval(i, &light);
+            if let (Some(p), true) = (&sample[i], t.has_row(i)) {
+                let b = records.eval(i, &p.material, p.normal, p.wo, &bright, &masks);
+                j = std::array::from_fn(|c| j[c] + b[c]);
+            }
             for c in 0..3 {
                 err[c] += (j[c] - r[c]).powi(2);
             }

@@ -55,8 +55,13 @@ fn max_relative(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The whole transfer with the direct preview's product cells.
 const FULL: TransferRequest = TransferRequest {
     basis: BasisChoice::Full,
+    settings: TransferSettings {
+        product_level: Some(ProductLevel::PerMaterial),
+        nearest: false,
+    },
     ..TransferRequest::DEFAULT
 };
 
@@ -299,4 +304,39 @@ fn material_edit_rebuilds_its_pixels() {
         .set_material(Some(&v.cache), 10_000, shiny, Some(2))
         .unwrap_err();
     assert!(e.to_string().contains("obj"), "{e}");
+}
+
+/// Under a sun, a small truncated transfer plus the sun's cells taken exactly stays within
+/// a few percent of the whole transfer (whose sun is its cell average of `B~ Ṽ`).
+#[test]
+fn truncated_transfer_under_a_sun() {
+    let v = view("dynamics", 32, 24);
+    let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
+    let sun = glam::Vec3::new(0.4, 0.6, -0.5);
+    let env = crate::lights::procedural::sky(sun, [4e4; 3], 1.0, [0.25, 0.45, 1.0], [0.85; 3], 256)
+        .unwrap();
+    preview
+        .prepare(&v.cache, Some(&env), TransferRequest::DEFAULT, Some(2))
+        .unwrap();
+    let whole = preview
+        .render_lighting(&v.cache, &env, None, Some(2))
+        .unwrap();
+    let n = 32 * 24;
+    for basis in [BasisChoice::Haar, BasisChoice::Texels] {
+        let req = TransferRequest {
+            basis,
+            budget_bytes: n * (4 + 64 + 300),
+            ..TransferRequest::DEFAULT
+        };
+        preview.prepare(&v.cache, Some(&env), req, Some(2)).unwrap();
+        let img = preview
+            .render_lighting(&v.cache, &env, None, Some(2))
+            .unwrap();
+        let (mut e, mut p) = (0.0f64, 0.0f64);
+        for (a, b) in img.iter().flatten().zip(whole.iter().flatten()) {
+            e += ((a - b) as f64).powi(2);
+            p += (*b as f64).powi(2);
+        }
+        assert!(e / p < 0.01, "{basis:?}: {}", e / p);
+    }
 }

@@ -66,17 +66,19 @@ impl Basis {
 /// What a transfer is built from besides the view: the cache's records and these.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TransferSettings {
-    /// Level of the product's `B~` cells.
-    pub product_level: ProductLevel,
+    /// Level of the product's `B~` cells; `None`: the transfer's full level (the finest
+    /// the transfer holds anyway, so free after preparation; it follows `B cos θ` closer
+    /// than the renderer's coarser sampling cells).
+    pub product_level: Option<ProductLevel>,
     /// `Ṽ` from the heaviest record alone instead of the cache's `β`-weighted blend
     /// (CAM08's nearest-record preview, for comparison).
     pub nearest: bool,
 }
 
 impl TransferSettings {
-    /// The renderer's product levels and the cache's interpolation.
+    /// `B~` at the full level and the cache's interpolation.
     pub const DEFAULT: Self = Self {
-        product_level: ProductLevel::PerMaterial,
+        product_level: None,
         nearest: false,
     };
 }
@@ -135,11 +137,10 @@ impl<'a> PixelTransfer<'a> {
         if self.settings.nearest {
             neighbours = &neighbours[..1];
         }
-        let p = self
-            .settings
-            .product_level
-            .for_material(&point.material)
-            .min(self.level);
+        let p = match self.settings.product_level {
+            Some(level) => level.for_material(&point.material).min(self.level),
+            None => self.level,
+        };
         self.cells.resize(1 << (2 * p), 0.0);
         point
             .material
@@ -224,7 +225,12 @@ impl Transfer {
     ) -> Result<u32> {
         let m = cache.params().log2_resolution;
         let p = materials
-            .map(|mat| settings.product_level.for_material(mat))
+            .map(|mat| {
+                settings
+                    .product_level
+                    .unwrap_or(ProductLevel::PerMaterial)
+                    .for_material(mat)
+            })
             .max()
             .unwrap_or(1);
         let level = m.max(p);
@@ -386,10 +392,25 @@ impl Transfer {
 
     /// `env` (turned by `rotation`) in this transfer's basis.
     pub fn light(&self, env: &EnvMap, rotation: Option<&DMat3>) -> Result<LightCoefficients> {
+        Ok(self.light_from_cells(cell_integrals(env, self.level, rotation)?))
+    }
+
+    /// The light whose integrals over the cells of the full level are `cells` (Morton) in
+    /// this transfer's basis.
+    pub fn light_from_cells(&self, cells: Vec<[f64; 3]>) -> LightCoefficients {
+        debug_assert_eq!(cells.len(), 1 << (2 * self.level));
         let values = match self.basis {
-            Basis::Texels { level } => cell_integrals(env, level, rotation)?,
+            Basis::Texels { level } => {
+                let per = 1usize << (2 * (self.level - level));
+                cells
+                    .chunks_exact(per)
+                    .map(|c| {
+                        c.iter()
+                            .fold([0.0; 3], |a, x| [a[0] + x[0], a[1] + x[1], a[2] + x[2]])
+                    })
+                    .collect()
+            }
             Basis::Haar { .. } => {
-                let cells = cell_integrals(env, self.level, rotation)?;
                 let n = cells.len();
                 let mut out = vec![[0.0; 3]; n];
                 let (mut channel, mut scratch) = (vec![0.0; n], vec![0.0; n]);
@@ -405,10 +426,20 @@ impl Transfer {
                 out
             }
         };
-        Ok(LightCoefficients {
+        LightCoefficients {
             basis: self.basis,
             values,
-        })
+        }
+    }
+
+    /// True when pixel `i` has a transfer (a non-zero `T`).
+    pub fn has_row(&self, i: usize) -> bool {
+        self.row_of[i] != NO_ROW
+    }
+
+    /// True when the basis keeps `T` whole (cell values at the full level).
+    pub fn is_whole(&self) -> bool {
+        self.basis == Basis::Texels { level: self.level }
     }
 
     /// `Σ T l_c` of pixel `i` under `light` (zero without a transfer).
@@ -462,7 +493,8 @@ struct Encoder {
     /// The dense `T` (filled by the caller).
     dense: Vec<f64>,
     scratch: Vec<f64>,
-    order: Vec<u16>,
+    /// The non-zero Haar terms of a row: weighted magnitude and index.
+    order: Vec<(f64, u16)>,
     /// Per Haar coefficient, the weight of its level.
     weights: Vec<f64>,
 }
@@ -486,7 +518,7 @@ impl Encoder {
             stride,
             dense: vec![0.0; n],
             scratch: vec![0.0; n],
-            order: (0..n).map(|i| i as u16).collect(),
+            order: Vec::with_capacity(n),
             weights: (0..n).map(|k| level_weights[weight_slot(k)]).collect(),
         }
     }
@@ -507,25 +539,30 @@ impl Encoder {
             Basis::Haar { .. } => {
                 haar::forward(&mut self.dense, &mut self.scratch);
                 let k = self.stride - 1;
-                let dense = &self.dense;
-                let weights = &self.weights;
-                let n = dense.len();
-                for (i, o) in self.order.iter_mut().enumerate() {
-                    *o = i as u16;
-                }
-                if k < n {
-                    // The k largest weighted magnitudes (ties by index: the same row on
-                    // every run).
-                    let key = |i: u16| dense[i as usize].abs() * weights[i as usize];
-                    self.order.select_nth_unstable_by(k - 1, |&a, &b| {
-                        key(b).total_cmp(&key(a)).then(a.cmp(&b))
+                // The non-zero terms with their weighted magnitudes (most are zero: T
+                // vanishes below the surface and where every record is blocked).
+                let kept = &mut self.order;
+                kept.clear();
+                kept.extend(
+                    self.dense
+                        .iter()
+                        .zip(&self.weights)
+                        .enumerate()
+                        .filter(|(_, (c, _))| **c != 0.0)
+                        .map(|(i, (c, w))| (c.abs() * w, i as u16)),
+                );
+                if kept.len() > k {
+                    // The k largest (ties by index: the same row on every run).
+                    kept.select_nth_unstable_by(k - 1, |a, b| {
+                        b.0.total_cmp(&a.0).then(a.1.cmp(&b.1))
                     });
+                    kept.truncate(k);
                 }
-                let kept = &mut self.order[..k];
-                kept.sort_unstable();
+                kept.sort_unstable_by_key(|t| t.1);
+                let dense = &self.dense;
                 let largest = kept
                     .iter()
-                    .map(|&i| dense[i as usize].abs())
+                    .map(|t| dense[t.1 as usize].abs())
                     .fold(0.0, f64::max);
                 let scale = largest as f32;
                 words.push(scale.to_bits());
@@ -534,22 +571,24 @@ impl Encoder {
                 } else {
                     0.0
                 };
-                for &i in kept.iter() {
+                for &(_, i) in kept.iter() {
                     let q = (dense[i as usize] * to_unit).round() as i16;
                     words.push(((i as u32) << 16) | q as u16 as u32);
                 }
+                // Rows are `stride` words: pad with zero terms.
+                words.resize(words.len() + k - kept.len(), 0);
             }
         }
     }
 }
 
-/// Haar truncation weights for lighting like `env` at full level `level`: per level, the
-/// root-mean-square of the map's luminance detail coefficients there (the root's scaling
-/// coefficient for slot 0), so that a pixel keeps the terms `|T_k| w` that matter most
-/// under lighting of that spectrum. By level only, so they hold for the map turned any way.
-/// All 1 for a black map.
-pub fn level_weights(env: &EnvMap, level: u32) -> Result<Vec<f64>> {
-    let cells = cell_integrals(env, level, None)?;
+/// Haar truncation weights for lighting like the light whose integrals over the cells of
+/// the full level are `cells` (Morton): per level, the root-mean-square of its luminance
+/// detail coefficients there (the root's scaling coefficient for slot 0), so that a pixel
+/// keeps the terms `|T_k| w` that matter most under lighting of that spectrum. By level
+/// only, so they hold for the map turned any way. All 1 for a black light.
+pub fn level_weights(cells: &[[f64; 3]]) -> Vec<f64> {
+    let level = haar::level_of(cells.len()).expect("4^L cells");
     let mut lum: Vec<f64> = cells
         .iter()
         .map(|c| {
@@ -569,9 +608,9 @@ pub fn level_weights(env: &EnvMap, level: u32) -> Result<Vec<f64>> {
     }
     let w: Vec<f64> = sums.iter().map(|&(s, n)| (s / n as f64).sqrt()).collect();
     let max = w.iter().cloned().fold(0.0, f64::max);
-    Ok(if max > 0.0 && max.is_finite() {
+    if max > 0.0 && max.is_finite() {
         w.iter().map(|x| x / max).collect()
     } else {
         vec![1.0; level as usize + 1]
-    })
+    }
 }

@@ -1,0 +1,212 @@
+//! The few brightest cells of a map, taken out of a truncated transfer and integrated
+//! exactly per pixel (the split Ng et al. 2003 make implicitly by truncating the lighting).
+//!
+//! A sun holds most of a map's power in one or two cells. A pixel's truncated transfer
+//! keeps its largest terms, which describe `T` well on average but not in the cell the sun
+//! happens to light it from; there, a dropped term times the sun's radiance is the whole
+//! error (dynamics at 160 Haar terms: relMSE 0.10 against 0.066 whole). So every lighting
+//! change moves the cells that hold a concentrated light — at most [`MAX_BRIGHT`], each at
+//! least [`BRIGHT_FACTOR`] times the mean — out of the projection, and each pixel adds
+//! `Σ_s l_c(s) B(ω_s) cos θ_s Ṽ(ω_s)` for them: the BSDF at the light's centroid direction
+//! `ω_s` in the cell and the cache's `Ṽ = Σ β_i V_i` from the pixel's kept records.
+
+use glam::{DVec3, Vec3};
+
+use super::transfer::TransferPoint;
+use crate::bsdf::Material;
+use crate::lights::envmap::LUMINANCE;
+use crate::visibility::cache::CacheState;
+use crate::visibility::params::CacheParams;
+
+/// Most cells taken out of the projection.
+pub const MAX_BRIGHT: usize = 8;
+
+/// A cell is bright when its luminance is at least this many times the mean cell's (it
+/// holds at least `BRIGHT_FACTOR / 4^L` of the map's power).
+pub const BRIGHT_FACTOR: f64 = 64.0;
+
+/// The bright cells of one lighting: cell index (level `L`, Morton), `∫ L_c` over it and
+/// the unit direction its light comes from.
+#[derive(Clone, Debug, Default)]
+pub struct BrightCells {
+    pub cells: Vec<u32>,
+    pub rgb: Vec<[f64; 3]>,
+    pub dirs: Vec<Vec3>,
+}
+
+fn luminance(c: &[f64; 3]) -> f64 {
+    c.iter().zip(LUMINANCE).map(|(x, w)| x * w).sum()
+}
+
+impl BrightCells {
+    /// Moves the bright cells of `cells` (zeroed there) into the result; `centroids` are
+    /// the cells' luminance-weighted direction sums.
+    pub fn split(cells: &mut [[f64; 3]], centroids: &[DVec3]) -> Self {
+        let total: f64 = cells.iter().map(luminance).sum();
+        let threshold = BRIGHT_FACTOR * total / cells.len() as f64;
+        let mut bright: Vec<(f64, u32)> = cells
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (luminance(c), i as u32))
+            .filter(|&(y, _)| y >= threshold && y > 0.0)
+            .collect();
+        bright.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        bright.truncate(MAX_BRIGHT);
+        let mut out = Self::default();
+        for (_, i) in bright {
+            let d = centroids[i as usize];
+            let length = d.length_squared();
+            if length.is_nan() || length <= 0.0 {
+                continue;
+            }
+            out.cells.push(i);
+            out.rgb.push(cells[i as usize]);
+            out.dirs.push(d.normalize().as_vec3());
+            cells[i as usize] = [0.0; 3];
+        }
+        out
+    }
+
+    /// True without bright cells.
+    pub fn is_empty(&self) -> bool {
+        self.cells.is_empty()
+    }
+
+    /// Per record of `state`, bit `s` set when it sees bright cell `s` (level `level`).
+    pub fn record_masks(&self, state: &CacheState, level: u32) -> Vec<u8> {
+        let store = state.store();
+        let shift = 2 * (level - store.m());
+        (0..store.len())
+            .map(|i| {
+                let bits = store.bits(i);
+                self.cells.iter().enumerate().fold(0u8, |m, (s, &c)| {
+                    m | ((bits.get((c >> shift) as usize) as u8) << s)
+                })
+            })
+            .collect()
+    }
+}
+
+/// Each pixel's kept records and their `β` (`n_keep` slots a pixel, unused ones `β = 0`).
+#[derive(Clone, Debug)]
+pub struct PixelRecords {
+    per_pixel: usize,
+    ids: Vec<u32>,
+    betas: Vec<f32>,
+}
+
+impl PixelRecords {
+    /// The lookups of `points` (the transfer's), the heaviest record alone with `nearest`.
+    pub fn gather(
+        points: &[Option<TransferPoint>],
+        state: &CacheState,
+        params: &CacheParams,
+        nearest: bool,
+    ) -> Self {
+        let per_pixel = params.n_keep as usize;
+        let mut ids = vec![0u32; per_pixel * points.len()];
+        let mut betas = vec![0.0f32; per_pixel * points.len()];
+        for (i, p) in points.iter().enumerate() {
+            let Some(p) = p else { continue };
+            let lookup = state.lookup_records(params, p.position, p.normal, p.radius);
+            let kept = lookup.neighbours();
+            let kept = if nearest {
+                &kept[..kept.len().min(1)]
+            } else {
+                kept
+            };
+            for (k, n) in kept.iter().enumerate() {
+                ids[i * per_pixel + k] = n.id;
+                betas[i * per_pixel + k] = if nearest { 1.0 } else { n.beta };
+            }
+        }
+        Self {
+            per_pixel,
+            ids,
+            betas,
+        }
+    }
+
+    /// Bytes held.
+    pub fn memory_bytes(&self) -> usize {
+        8 * self.ids.len()
+    }
+
+    /// Bytes a pixel takes for a cache of `params`.
+    pub fn bytes_per_pixel(params: &CacheParams) -> usize {
+        8 * params.n_keep as usize
+    }
+
+    /// `Σ_s l_c(s) B(ω_s) cos θ_s Ṽ(ω_s)` of pixel `i` (module docs), `masks` from
+    /// [`BrightCells::record_masks`].
+    pub fn eval(
+        &self,
+        i: usize,
+        material: &Material,
+        normal: Vec3,
+        wo: Vec3,
+        bright: &BrightCells,
+        masks: &[u8],
+    ) -> [f64; 3] {
+        let slots = i * self.per_pixel..(i + 1) * self.per_pixel;
+        let (ids, betas) = (&self.ids[slots.clone()], &self.betas[slots]);
+        let mut out = [0.0f64; 3];
+        for (s, (dir, rgb)) in bright.dirs.iter().zip(&bright.rgb).enumerate() {
+            let cos = normal.dot(*dir);
+            if cos <= 0.0 {
+                continue;
+            }
+            let v: f64 = ids
+                .iter()
+                .zip(betas)
+                .filter(|(&id, _)| masks[id as usize] >> s & 1 == 1)
+                .map(|(_, &b)| b as f64)
+                .sum();
+            if v <= 0.0 {
+                continue;
+            }
+            let b = material.eval(normal, wo, *dir) * cos;
+            let f = v
+                * (LUMINANCE[0] * b.x as f64
+                    + LUMINANCE[1] * b.y as f64
+                    + LUMINANCE[2] * b.z as f64);
+            for c in 0..3 {
+                out[c] += rgb[c] * f;
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimators::preview::light::cell_integrals_and_centroids;
+    use crate::lights::procedural::sky;
+
+    /// A sun's cells leave the projection with their power and its direction; the rest of
+    /// the map stays; a map without a concentrated light keeps every cell.
+    #[test]
+    fn split_takes_the_sun() {
+        let sun = Vec3::new(0.3, 0.7, -0.4).normalize();
+        let env = sky(sun, [5e4; 3], 1.0, [0.3, 0.5, 1.0], [0.9; 3], 256).unwrap();
+        let (mut cells, centroids) = cell_integrals_and_centroids(&env, 6, None).unwrap();
+        let before = cells.clone();
+        let bright = BrightCells::split(&mut cells, &centroids);
+        assert!(!bright.is_empty() && bright.cells.len() <= MAX_BRIGHT);
+        let sun_power: f64 = bright.rgb.iter().map(|c| c[0]).sum();
+        let total: f64 = before.iter().map(|c| c[0]).sum();
+        assert!(sun_power > 0.5 * total, "{sun_power} of {total}");
+        let kept: f64 = cells.iter().map(|c| c[0]).sum();
+        assert!((kept + sun_power - total).abs() < 1e-9 * total);
+        let d = bright.dirs[0];
+        assert!(d.dot(sun) > (1.0f32).to_radians().cos(), "{d} vs {sun}");
+        for (i, c) in bright.cells.iter().enumerate() {
+            assert_eq!(cells[*c as usize], [0.0; 3]);
+            assert_eq!(bright.rgb[i], before[*c as usize]);
+        }
+        let flat = crate::lights::envmap::EnvMap::constant([1.0; 3], 64).unwrap();
+        let (mut cells, centroids) = cell_integrals_and_centroids(&flat, 6, None).unwrap();
+        assert!(BrightCells::split(&mut cells, &centroids).is_empty());
+    }
+}
