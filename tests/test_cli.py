@@ -55,3 +55,68 @@ def test_experiment_list_gives_whole_first_sentences(capsys):
     assert len(entries) >= 5
     for entry in out.replace("\n" + " " * 16, " ").splitlines():
         assert entry.rstrip().endswith((".", ")")), entry
+
+
+def _read_png(path):
+    """The pixels of a PNG that ``viscache_rs.io.encode_png`` wrote (RGB, no filters)."""
+    import struct
+    import zlib
+
+    data = path.read_bytes()
+    assert data.startswith(b"\x89PNG")
+    w, h = struct.unpack(">II", data[16:24])
+    idat = data[data.index(b"IDAT") + 4:data.index(b"IEND") - 8]
+    raw = np.frombuffer(zlib.decompress(idat), dtype=np.uint8).reshape(h, 1 + 3 * w)
+    return raw[:, 1:].reshape(h, w, 3)
+
+
+def test_preview_writes_a_frame_per_rotation_and_times_them(tmp_path, capsys):
+    import re
+
+    out = tmp_path / "frames"
+    assert cli.main(["preview", "garage", "--rotate", "0:721:360", "--width", "64",
+                     "--height", "48", "--out", str(out), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == [f"garage_{i:03d}.png" for i in range(3)]
+    frames = [_read_png(out / f"garage_{i:03d}.png") for i in range(3)]
+    assert frames[0].shape == (48, 64, 3) and frames[0].max() > 0
+    # Turning the map by 360 and 720 degrees is the identity (to rounding of 8 bits).
+    for f in frames[1:]:
+        assert np.abs(f.astype(int) - frames[0]).max() <= 1
+    line = re.search(r"prepare (\S+) s, (\S+) MB, basis (\w+).*; render median (\S+) ms, "
+                     r"max (\S+) ms per frame \(render only, 3 frames\)", text)
+    assert line, text
+    assert float(line[1]) > 0 and float(line[2]) > 0 and line[3] in ("haar", "texels")
+    assert 0 < float(line[4]) <= float(line[5])
+    assert "wrote 3 frames (0 to 720 deg)" in text
+
+
+def test_preview_frames_change_with_the_rotation(tmp_path):
+    assert cli.main(["preview", "garage", "--rotate", "0:180:90", "--width", "32",
+                     "--height", "24", "--envmap", "low-sun", "--basis", "texels", "--out",
+                     str(tmp_path), "--quiet"]) == 0
+    a, b = _read_png(tmp_path / "garage_000.png"), _read_png(tmp_path / "garage_001.png")
+    assert np.abs(a.astype(int) - b).mean() > 1
+
+
+def test_preview_refuses_bad_arguments_clearly(tmp_path, capsys):
+    import pytest
+
+    for args, message in (
+        (["garage", "--rotate", "0:360"], "expected A:B:STEP"),
+        (["garage", "--rotate", "0:x:15"], "expected A:B:STEP"),
+        (["garage", "--rotate", "0:360:0"], "STEP must be > 0"),
+        (["garage", "--rotate", "0:360:-15"], "STEP must be > 0"),
+        (["garage", "--rotate", "90:0:15"], "is empty"),
+        (["garage", "--rotate", "0:inf:15"], "finite"),
+        (["atlantis"], "invalid choice: 'atlantis'"),
+        (["garage", "--width", "0"], "argument --width: must be positive"),
+        (["garage", "--budget-mb", "nan"], "argument --budget-mb: must be positive"),
+    ):
+        with pytest.raises(SystemExit) as e:
+            cli.main(["preview", *args, "--out", str(tmp_path / "x")])
+        assert e.value.code == 2
+        assert message in capsys.readouterr().err, args
+    assert cli.main(["preview", "garage", "--envmap", "moon", "--out", str(tmp_path / "x")]) == 2
+    assert "envmap: unknown map 'moon'" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

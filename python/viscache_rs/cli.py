@@ -4,6 +4,11 @@
                     sampling with the cache's control variate (CAM08) and by plain product
                     sampling at equal time, print the table and write the images side
                     by side.
+``viscache preview SCENE --rotate A:B:STEP --out DIR``
+                    lighting design (CAM08 §6.2): prepare the cached transfer of SCENE's
+                    view, render one preview frame per rotation of the map about +y (A,
+                    A+STEP, ... below B, in degrees) into DIR/SCENE_000.png, ... and print
+                    the preparation's cost and the milliseconds per frame.
 ``viscache scenes`` list the built-in scenes.
 ``viscache experiment NAME [--quick]``
                     run an experiment (``viscache experiment --list``) and write
@@ -13,15 +18,18 @@
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import sys
 import textwrap
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from . import metrics, scenes
+from . import design, metrics, scenes
 from .io import auto_exposure, to_srgb8, write_png
 
 
@@ -85,6 +93,69 @@ def demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def preview(args: argparse.Namespace) -> int:
+    """One preview frame per rotation from the cached transfer (CAM08 §6.2)."""
+    from ._core import LightingPreview
+    from .cache import VisibilityCache
+
+    setup = scenes.load(args.scene)
+    cam = setup.camera.with_resolution(args.width, args.height)
+    try:
+        env = design.envmap(setup, args.envmap)
+    except ValueError as e:
+        print(f"viscache preview: {e}", file=sys.stderr)
+        return 2
+    setup.scene.build(threads=args.threads)
+    cache = VisibilityCache(setup.scene)
+    b = cache.build(cam, threads=args.threads, progress=not args.quiet)
+    pv = LightingPreview(setup.scene, cam, threads=args.threads)
+    info = pv.prepare(cache, env, basis=args.basis, budget_mb=args.budget_mb,
+                      threads=args.threads)
+    frames, ms = [], []
+    for deg in args.rotate:
+        t = time.perf_counter()
+        frames.append(pv.render(cache, env, rotation=deg, threads=args.threads))
+        ms.append(1e3 * (time.perf_counter() - t))
+    # One exposure for all frames, so that they show how the rotation changes the light.
+    exposure = auto_exposure(frames[0])
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for i, img in enumerate(frames):
+        write_png(out / f"{args.scene}_{i:03d}.png", to_srgb8(img, exposure))
+    basis = info["basis"]
+    if "terms" in info:
+        basis += f" ({info['terms']} terms)"
+    elif "basis_level" in info:
+        basis += f" (level {info['basis_level']})"
+    print(f"{args.scene} {args.width}x{args.height}, {args.envmap} map, cache "
+          f"{b['records']:,} records: wrote {len(frames)} frames "
+          f"({args.rotate[0]:g} to {args.rotate[-1]:g} deg) to {out}/")
+    print(f"prepare {info['seconds']:.2f} s, {info['bytes'] / 1e6:.1f} MB, basis {basis}; "
+          f"render median {np.median(ms):.1f} ms, max {max(ms):.1f} ms per frame "
+          f"(render only, {len(ms)} frames)")
+    return 0
+
+
+def _rotations(spec: str) -> list[float]:
+    try:
+        return design.rotations(spec)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix("rotate: ")) from None
+
+
+def _positive(kind: type) -> Callable[[str], Any]:
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"must be positive and finite, got {text!r}")
+        return value
+
+    return parse
+
+
 def list_scenes(_args: argparse.Namespace) -> int:
     print(scenes.__doc__)
     return 0
@@ -142,6 +213,26 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--out", default="results", help="parent directory of results/NAME/")
     p.set_defaults(func=experiment)
+    p = sub.add_parser("preview", help="preview frames of a rotating map from the cached "
+                       "transfer, with timings")
+    p.add_argument("scene", choices=scenes.suite_names(), metavar="SCENE",
+                   help=f"one of {', '.join(scenes.suite_names())}")
+    p.add_argument("--rotate", type=_rotations, default=_rotations("0:360:15"),
+                   metavar="A:B:STEP",
+                   help="degrees about +y: A, A+STEP, ... below B (default 0:360:15)")
+    p.add_argument("--out", default="frames", help="directory of the frames (created)")
+    p.add_argument("--width", type=_positive(int), default=640, help="pixels (default 640)")
+    p.add_argument("--height", type=_positive(int), default=480, help="pixels (default 480)")
+    p.add_argument("--envmap", default="scene", metavar="NAME",
+                   help=f"the map: {', '.join(design.MAPS)} (viscache_rs.design.MAPS says "
+                   "what each is) or the path of an .exr file; default: the scene's own")
+    p.add_argument("--basis", default="auto", choices=["auto", "full", "texels", "haar"],
+                   help="of the transfer (default auto: the most accurate that fits the budget)")
+    p.add_argument("--budget-mb", type=_positive(float), default=200.0,
+                   help="memory for the transfer in MB (default 200)")
+    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=preview)
     p = sub.add_parser("scenes", help="list the built-in scenes")
     p.set_defaults(func=list_scenes)
     args = parser.parse_args(argv)
