@@ -4,8 +4,8 @@
 ``T(p, ω) = B̃(p, ω) Ṽ(p, ω)`` of the control variate's integral ``J = ∫ L B̃ Ṽ dω`` in a
 basis (texel cells, or the largest Haar terms that fit a memory budget), so that swapping or
 rotating the environment map costs one projection of the map and a dot product per pixel:
-CAM08's "almost instant preview" (§6.2, Fig. 11). This module holds what an interactive
-front end needs around it, shared by ``viscache preview`` and
+the near-instant preview for lighting design of CAM08 §6.2 (Fig. 11). This module holds
+what an interactive front end needs around it, shared by ``viscache preview`` and
 ``examples/lighting_design.ipynb``:
 
 - :data:`MAPS` and :func:`envmap`: named maps to swap between;

