@@ -6,7 +6,7 @@ the core reports to, and adds built-in scenes, environment maps, I/O and the ``v
 command line.
 """
 
-from . import analysis, envmaps, metrics, mitsuba, octahedral, scenes, testing
+from . import analysis, design, envmaps, metrics, mitsuba, octahedral, scenes, testing
 from ._core import (
     Camera,
     EnvMap,
@@ -39,6 +39,7 @@ __all__ = [
     "VisibilityCache",
     "__version__",
     "analysis",
+    "design",
     "envmaps",
     "metrics",
     "mitsuba",
