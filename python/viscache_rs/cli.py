@@ -111,16 +111,18 @@ def preview(args: argparse.Namespace) -> int:
     pv = LightingPreview(setup.scene, cam, threads=args.threads)
     info = pv.prepare(cache, env, basis=args.basis, budget_mb=args.budget_mb,
                       threads=args.threads)
-    frames, ms = [], []
-    for deg in args.rotate:
-        t = time.perf_counter()
-        frames.append(pv.render(cache, env, rotation=deg, threads=args.threads))
-        ms.append(1e3 * (time.perf_counter() - t))
-    # One exposure for all frames, so that they show how the rotation changes the light.
-    exposure = auto_exposure(frames[0])
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    for i, img in enumerate(frames):
+    ms: list[float] = []
+    exposure = 1.0
+    for i, deg in enumerate(args.rotate):
+        t = time.perf_counter()
+        img = pv.render(cache, env, rotation=deg, threads=args.threads)
+        ms.append(1e3 * (time.perf_counter() - t))
+        if i == 0:
+            # One exposure for all frames, so that they show how the rotation changes the
+            # light rather than each being evened out.
+            exposure = auto_exposure(img)
         write_png(out / f"{args.scene}_{i:03d}.png", to_srgb8(img, exposure))
     basis = info["basis"]
     if "terms" in info:
@@ -128,7 +130,7 @@ def preview(args: argparse.Namespace) -> int:
     elif "basis_level" in info:
         basis += f" (level {info['basis_level']})"
     print(f"{args.scene} {args.width}x{args.height}, {args.envmap} map, cache "
-          f"{b['records']:,} records: wrote {len(frames)} frames "
+          f"{b['records']:,} records: wrote {len(ms)} frames "
           f"({args.rotate[0]:g} to {args.rotate[-1]:g} deg) to {out}/")
     print(f"prepare {info['seconds']:.2f} s, {info['bytes'] / 1e6:.1f} MB, basis {basis}; "
           f"render median {np.median(ms):.1f} ms, max {max(ms):.1f} ms per frame "
