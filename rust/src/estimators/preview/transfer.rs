@@ -205,6 +205,8 @@ pub const NO_ROW: u32 = u32::MAX;
 pub struct LightCoefficients {
     basis: Basis,
     values: Vec<[f64; 3]>,
+    /// `values` as `f32` RGB plus a zero lane, for the Haar rows' inner loop.
+    packed: Vec<[f32; 4]>,
 }
 
 impl LightCoefficients {
@@ -426,9 +428,17 @@ impl Transfer {
                 out
             }
         };
+        let packed = match self.basis {
+            Basis::Haar { .. } => values
+                .iter()
+                .map(|v| [v[0] as f32, v[1] as f32, v[2] as f32, 0.0])
+                .collect(),
+            Basis::Texels { .. } => Vec::new(),
+        };
         LightCoefficients {
             basis: self.basis,
             values,
+            packed,
         }
     }
 
@@ -465,12 +475,18 @@ impl Transfer {
                 acc
             }
             Basis::Haar { .. } => {
+                // f32 lanes: the sum's rounding stays far below the values' 15 bits.
+                let mut sum = [0.0f32; 4];
                 for &w in &words[1..] {
                     let (index, value) = unpack(w);
-                    add(value as f64, &l[index]);
+                    let l = &light.packed[index];
+                    let v = value as f32;
+                    for k in 0..4 {
+                        sum[k] += v * l[k];
+                    }
                 }
                 let scale = f32::from_bits(words[0]) as f64 / QUANTUM;
-                acc.map(|a| a * scale)
+                std::array::from_fn(|c| sum[c] as f64 * scale)
             }
         }
     }
