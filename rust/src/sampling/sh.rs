@@ -180,7 +180,7 @@ fn eval_batch(order: u32, x: &[f64], y: &[f64], z: &[f64], out: &mut [f64], scra
 }
 
 /// All `order²` basis values at the unit direction `dir` (library frame, `|dir| = 1`; not
-/// normalised here): `out[k] = Y_k(dir)`, dimensionless (`∫ Y_k² dω = 1` over steradians).
+/// normalised here): `out[k] = Y_k(dir)`, in sr^-½ (`∫ Y_k² dω = 1` over steradians).
 ///
 /// # Panics
 /// If `order > MAX_ORDER` or `out.len() != order²`.
@@ -356,11 +356,15 @@ impl CellBasis {
                 if r == 0.0 && g == 0.0 && b == 0.0 {
                     continue;
                 }
-                for k in 0..n2 {
-                    let v = row[k];
-                    ar[k] += r * v;
-                    ag[k] += g * v;
-                    ab[k] += b * v;
+                // Three separate passes: each is the vectorized loop of `project`.
+                for (o, &v) in ar.iter_mut().zip(row) {
+                    *o += r * v;
+                }
+                for (o, &v) in ag.iter_mut().zip(row) {
+                    *o += g * v;
+                }
+                for (o, &v) in ab.iter_mut().zip(row) {
+                    *o += b * v;
                 }
             }
         }
