@@ -9,8 +9,8 @@ Error at ``--size`` (160x120 by default; the budget scaled by the pixel count, s
 pixel keeps what it keeps at 640x480): relMSE on RGB (``vc.metrics.relmse``) and the
 relative error of the image mean, against a ``--spp`` product render without jitter (the
 preview's pixel centres) under the same lighting, its variance taken out of the relMSE
-(``vc.metrics.relmse(image, reference, reference_variance)``): the scene's map, the map turned by 45°
-and 135° about +y, and a sun-and-sky map. The direct preview sees the turned map
+(``vc.metrics.relmse(image, reference, reference_variance)``): the scene's map, the map
+turned by 45° and 135° about +y, and a sun-and-sky map. The direct preview sees the turned map
 (``EnvMap.rotated``); the transfer gets ``rotation=``. ``nearest`` is the transfer with
 each pixel's heaviest record only (CAM08's blotchy preview).
 

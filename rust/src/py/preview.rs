@@ -70,6 +70,7 @@ fn basis_dict<'py>(py: Python<'py>, basis: Basis, d: &Bound<'py, PyDict>) -> PyR
     match basis {
         Basis::Texels { level } => d.set_item("basis_level", level)?,
         Basis::Haar { terms } => d.set_item("terms", terms)?,
+        Basis::Sh { order } => d.set_item("order", order)?,
     }
     let _ = py;
     Ok(())
@@ -87,6 +88,7 @@ fn info_dict<'py>(py: Python<'py>, info: &TransferInfo) -> PyResult<Bound<'py, P
         let name = match basis {
             Basis::Texels { level } => format!("texels{level}"),
             Basis::Haar { terms } => format!("haar{terms}"),
+            Basis::Sh { order } => format!("sh{order}"),
         };
         measured.set_item(name, err)?;
     }
@@ -173,9 +175,9 @@ impl PyLightingPreview {
 
     /// Builds and keeps the transfer of `cache` for this view: `basis` "auto" (the
     /// candidates that fit `budget_mb` measured against the untruncated transfer under
-    /// `envmap`, or a sun-and-sky probe; `budget_mb` None is 200), "full", "texels" or "haar". `nearest=True` takes
-    /// visibility from each pixel's heaviest record only. Returns a dict: basis, terms or
-    /// basis_level, level, seconds, bytes, pixels, measured.
+    /// `envmap`, or a sun-and-sky probe; `budget_mb` None is 200), "full", "texels", "haar" or "sh". `nearest=True` takes
+    /// visibility from each pixel's heaviest record only. Returns a dict: basis, terms,
+    /// basis_level or order, level, seconds, bytes, pixels, measured.
     #[pyo3(signature = (cache, envmap=None, basis="auto", budget_mb=None, product_level=None, nearest=false, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn prepare<'py>(

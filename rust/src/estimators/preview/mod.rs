@@ -106,6 +106,9 @@ pub enum BasisChoice {
     Texels,
     /// As many Haar terms per pixel as fit the budget.
     Haar,
+    /// Spherical harmonics of the highest order that fits the budget (at most
+    /// [`transfer::MAX_SH_ORDER`]).
+    Sh,
 }
 
 impl BasisChoice {
@@ -116,10 +119,13 @@ impl BasisChoice {
             "full" => Self::Full,
             "texels" => Self::Texels,
             "haar" => Self::Haar,
+            "sh" => Self::Sh,
             _ => {
                 return Err(crate::error::Error::invalid(
                     "basis",
-                    format!("must be \"auto\", \"full\", \"texels\" or \"haar\", got {s:?}"),
+                    format!(
+                        "must be \"auto\", \"full\", \"texels\", \"haar\" or \"sh\", got {s:?}"
+                    ),
                 ))
             }
         })
@@ -349,6 +355,7 @@ impl LightingPreview {
                     match request.basis {
                         BasisChoice::Full => "the whole transfer",
                         BasisChoice::Texels => "a texel basis",
+                        BasisChoice::Sh => "an SH basis",
                         _ => "a transfer",
                     }
                 ),
@@ -467,7 +474,7 @@ impl LightingPreview {
             true => Vec::new(),
             false => bright.record_masks(&cache.read(), transfer.level()),
         };
-        let light = transfer.light_from_cells(cells);
+        let light = transfer.light_for(env, rotation, cells, &bright)?;
         let inverse = rotation.map(|r| r.transpose());
         with_threads(threads, || {
             self.points
@@ -560,12 +567,17 @@ fn candidates(level: u32, whole: usize, truncated: usize, choice: BasisChoice) -
         .find(|b| b.bytes_per_pixel() <= truncated);
     let terms = (truncated.saturating_sub(4) / 4).min(1 << (2 * level)) as u32;
     let haar = (terms >= 1).then_some(Basis::Haar { terms });
+    let sh = (1..=transfer::MAX_SH_ORDER)
+        .rev()
+        .map(|order| Basis::Sh { order })
+        .find(|b| b.bytes_per_pixel() <= truncated);
     match choice {
         BasisChoice::Full => full.into_iter().collect(),
         BasisChoice::Texels => texels.into_iter().collect(),
         BasisChoice::Haar => haar.into_iter().collect(),
+        BasisChoice::Sh => sh.into_iter().collect(),
         BasisChoice::Auto if full.is_some() => full.into_iter().collect(),
-        BasisChoice::Auto => texels.into_iter().chain(haar).collect(),
+        BasisChoice::Auto => texels.into_iter().chain(haar).chain(sh).collect(),
     }
 }
 
@@ -630,7 +642,7 @@ fn measure(
             basis,
             Some(weights.clone()),
         )?;
-        let light = t.light_from_cells(cells.clone());
+        let light = t.light_for(env, None, cells.clone(), &bright)?;
         let mut err = [0.0f64; 3];
         for (i, r) in reference.iter().enumerate() {
             let mut j = t.eval(i, &light);

@@ -19,12 +19,16 @@
 use glam::{DMat3, Vec3};
 use rayon::prelude::*;
 
+use std::sync::Arc;
+
+use super::bright::BrightCells;
 use super::haar;
 use super::light::cell_integrals;
 use crate::bsdf::Material;
 use crate::error::{Error, Result};
 use crate::estimators::direct::ProductLevel;
 use crate::lights::envmap::EnvMap;
+use crate::sampling::sh::{self, CellBasis};
 use crate::visibility::cache::{CacheState, VisibilityCache};
 use crate::visibility::params::CacheParams;
 
@@ -43,7 +47,17 @@ pub enum Basis {
     /// scale, then per term its index (`u16`) and its value over the scale in 15 bits
     /// (`i16`, rounding error at most `2^-16` of the pixel's largest term).
     Haar { terms: u32 },
+    /// Spherical harmonics of `T` to `order` (`order²` `f32` values a pixel), projected
+    /// from `T`'s averages over the cells of level [`SH_CELL_LEVEL`]; the map's
+    /// coefficients come from its texels and turn by SH rotation matrices.
+    Sh { order: u32 },
 }
+
+/// Level of the cells a pixel's `T` is averaged over before its SH projection.
+pub const SH_CELL_LEVEL: u32 = 5;
+
+/// Highest SH order a transfer takes (64 coefficients).
+pub const MAX_SH_ORDER: u32 = 8;
 
 impl Basis {
     /// Bytes a pixel's transfer takes.
@@ -51,6 +65,7 @@ impl Basis {
         match self {
             Basis::Texels { level } => 4 << (2 * level),
             Basis::Haar { terms } => 4 + 4 * terms as usize,
+            Basis::Sh { order } => 4 * sh::coefficient_count(order),
         }
     }
 
@@ -59,6 +74,7 @@ impl Basis {
         match self {
             Basis::Texels { .. } => "texels",
             Basis::Haar { .. } => "haar",
+            Basis::Sh { .. } => "sh",
         }
     }
 }
@@ -195,6 +211,8 @@ pub struct Transfer {
     stride: usize,
     /// Haar truncation weights by level ([`Transfer::build`]).
     level_weights: Vec<f64>,
+    /// The SH basis over cells ([`Basis::Sh`]).
+    sh_basis: Option<Arc<CellBasis>>,
 }
 
 /// [`Transfer::row_of`] of a pixel without a transfer.
@@ -276,6 +294,17 @@ impl Transfer {
             }
             Basis::Texels { level: l } => 1usize << (2 * l),
             Basis::Haar { terms } => 1 + (terms as usize).clamp(1, 1 << (2 * level)),
+            Basis::Sh { order } if !(1..=MAX_SH_ORDER).contains(&order) => {
+                return Err(Error::invalid(
+                    "basis",
+                    format!("an SH order must lie in [1, {MAX_SH_ORDER}], got {order}"),
+                ))
+            }
+            Basis::Sh { order } => sh::coefficient_count(order),
+        };
+        let sh_basis = match basis {
+            Basis::Sh { order } => Some(Arc::new(CellBasis::new(order, SH_CELL_LEVEL.min(level)))),
+            _ => None,
         };
         let state = cache.read();
         let params = cache.params();
@@ -283,7 +312,7 @@ impl Transfer {
             .par_chunks(CHUNK)
             .map(|chunk| {
                 let mut builder = PixelTransfer::new(&state, params, settings, level);
-                let mut enc = Encoder::new(level, basis, stride, &level_weights);
+                let mut enc = Encoder::new(level, basis, stride, &level_weights, &sh_basis);
                 let mut present = Vec::with_capacity(chunk.len());
                 let mut words = Vec::new();
                 for point in chunk {
@@ -306,6 +335,7 @@ impl Transfer {
             words: Vec::new(),
             stride,
             level_weights,
+            sh_basis,
         };
         let mut rows = 0u32;
         for (present, words) in chunks {
@@ -331,11 +361,12 @@ impl Transfer {
         let params = cache.params();
         let (level, basis, stride) = (self.level, self.basis, self.stride);
         let weights = &self.level_weights;
+        let sh_basis = &self.sh_basis;
         let rows: Vec<(usize, bool, Vec<u32>)> = pixels
             .par_chunks(CHUNK)
             .flat_map_iter(|chunk| {
                 let mut builder = PixelTransfer::new(&state, params, settings, level);
-                let mut enc = Encoder::new(level, basis, stride, weights);
+                let mut enc = Encoder::new(level, basis, stride, weights, sh_basis);
                 chunk
                     .iter()
                     .map(|&i| {
@@ -394,12 +425,23 @@ impl Transfer {
 
     /// `env` (turned by `rotation`) in this transfer's basis.
     pub fn light(&self, env: &EnvMap, rotation: Option<&DMat3>) -> Result<LightCoefficients> {
-        Ok(self.light_from_cells(cell_integrals(env, self.level, rotation)?))
+        let cells = cell_integrals(env, self.level, rotation)?;
+        self.light_for(env, rotation, cells, &BrightCells::default())
     }
 
-    /// The light whose integrals over the cells of the full level are `cells` (Morton) in
-    /// this transfer's basis.
-    pub fn light_from_cells(&self, cells: Vec<[f64; 3]>) -> LightCoefficients {
+    /// `env` turned by `rotation` in this transfer's basis, without the light of `bright`
+    /// (which pixels add exactly); `cells` are the turned map's integrals over the cells of
+    /// the full level, the bright ones already zeroed ([`BrightCells::split`]). Texel and
+    /// Haar bases read `cells`; SH projects the map's texels, turns the coefficients by
+    /// SH rotation matrices and takes out each bright cell's light as a point light at
+    /// its direction.
+    pub fn light_for(
+        &self,
+        env: &EnvMap,
+        rotation: Option<&DMat3>,
+        cells: Vec<[f64; 3]>,
+        bright: &BrightCells,
+    ) -> Result<LightCoefficients> {
         debug_assert_eq!(cells.len(), 1 << (2 * self.level));
         let values = match self.basis {
             Basis::Texels { level } => {
@@ -427,19 +469,38 @@ impl Transfer {
                 }
                 out
             }
+            Basis::Sh { order } => {
+                let mut coeffs = sh::project_texels(order, env.texels(), env.resolution());
+                if let Some(r) = rotation {
+                    let turned = sh::Rotation::new(order, *r)?;
+                    let mut out = vec![[0.0; 3]; coeffs.len()];
+                    turned.apply_rgb(&coeffs, &mut out);
+                    coeffs = out;
+                }
+                let mut y = vec![0.0; coeffs.len()];
+                for (dir, rgb) in bright.dirs.iter().zip(&bright.rgb) {
+                    sh::eval(order, dir.as_dvec3(), &mut y);
+                    for (c, yk) in coeffs.iter_mut().zip(&y) {
+                        for k in 0..3 {
+                            c[k] -= rgb[k] * yk;
+                        }
+                    }
+                }
+                coeffs
+            }
         };
         let packed = match self.basis {
             Basis::Haar { .. } => values
                 .iter()
                 .map(|v| [v[0] as f32, v[1] as f32, v[2] as f32, 0.0])
                 .collect(),
-            Basis::Texels { .. } => Vec::new(),
+            _ => Vec::new(),
         };
-        LightCoefficients {
+        Ok(LightCoefficients {
             basis: self.basis,
             values,
             packed,
-        }
+        })
     }
 
     /// True when pixel `i` has a transfer (a non-zero `T`).
@@ -468,7 +529,7 @@ impl Transfer {
             acc = [acc[0] + v * c[0], acc[1] + v * c[1], acc[2] + v * c[2]];
         };
         match self.basis {
-            Basis::Texels { .. } => {
+            Basis::Texels { .. } | Basis::Sh { .. } => {
                 for (&w, c) in words.iter().zip(l) {
                     add(f32::from_bits(w) as f64, c);
                 }
@@ -513,6 +574,10 @@ struct Encoder {
     order: Vec<(f64, u16)>,
     /// Per Haar coefficient, the weight of its level.
     weights: Vec<f64>,
+    sh_basis: Option<Arc<CellBasis>>,
+    /// `T` averaged over the SH basis's cells.
+    sh_cells: Vec<f32>,
+    sh_out: Vec<f32>,
 }
 
 /// The level-weight slot of Haar coefficient `k` (0 the root's scaling, `1 + l` the details
@@ -526,9 +591,19 @@ fn weight_slot(k: usize) -> usize {
 }
 
 impl Encoder {
-    fn new(level: u32, basis: Basis, stride: usize, level_weights: &[f64]) -> Self {
+    fn new(
+        level: u32,
+        basis: Basis,
+        stride: usize,
+        level_weights: &[f64],
+        sh_basis: &Option<Arc<CellBasis>>,
+    ) -> Self {
         let n = 1usize << (2 * level);
+        let sh_cells = sh_basis.as_ref().map_or(0, |b| b.cells());
         Self {
+            sh_basis: sh_basis.clone(),
+            sh_cells: vec![0.0; sh_cells],
+            sh_out: vec![0.0; stride],
             level,
             basis,
             stride,
@@ -551,6 +626,19 @@ impl Encoder {
                         .chunks_exact(per)
                         .map(|c| ((c.iter().sum::<f64>() * scale) as f32).to_bits()),
                 );
+            }
+            Basis::Sh { .. } => {
+                let basis = self
+                    .sh_basis
+                    .as_ref()
+                    .expect("an SH transfer has its basis");
+                let per = self.dense.len() / basis.cells();
+                let scale = 1.0 / per as f64;
+                for (o, c) in self.sh_cells.iter_mut().zip(self.dense.chunks_exact(per)) {
+                    *o = (c.iter().sum::<f64>() * scale) as f32;
+                }
+                basis.project(&self.sh_cells, &mut self.sh_out);
+                words.extend(self.sh_out.iter().map(|v| v.to_bits()));
             }
             Basis::Haar { .. } => {
                 haar::forward(&mut self.dense, &mut self.scratch);
