@@ -351,7 +351,9 @@ fn sh_transfer_is_exact_under_a_constant_map() {
     let v = view("garage", 24, 18);
     let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
     let env = EnvMap::constant([0.4, 0.7, 1.3], 256).unwrap();
-    let whole = preview.render_lighting(&v.cache, &env, None, Some(2)).unwrap();
+    let whole = preview
+        .render_lighting(&v.cache, &env, None, Some(2))
+        .unwrap();
     let req = TransferRequest {
         basis: BasisChoice::Sh,
         budget_bytes: 24 * 18 * (4 + 64 + 256),
@@ -361,7 +363,9 @@ fn sh_transfer_is_exact_under_a_constant_map() {
     assert_eq!(info.basis, Basis::Sh { order: 8 });
     let r = DMat3::from_axis_angle(glam::DVec3::new(0.3, 1.0, 0.2).normalize(), 0.7);
     for rotation in [None, Some(&r)] {
-        let sh = preview.render_lighting(&v.cache, &env, rotation, Some(2)).unwrap();
+        let sh = preview
+            .render_lighting(&v.cache, &env, rotation, Some(2))
+            .unwrap();
         let err = max_relative(&sh, &whole);
         assert!(err < 5e-4, "{err}");
     }

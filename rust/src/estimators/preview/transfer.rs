@@ -536,18 +536,37 @@ impl Transfer {
                 acc
             }
             Basis::Haar { .. } => {
-                // f32 lanes: the sum's rounding stays far below the values' 15 bits.
-                let mut sum = [0.0f32; 4];
-                for &w in &words[1..] {
+                // f32 lanes: the sum's rounding stays far below the values' 15 bits. Four
+                // sums, one per term of each group of four, so that the additions do not
+                // wait on each other.
+                let packed = &light.packed;
+                let term = |w: u32| {
                     let (index, value) = unpack(w);
-                    let l = &light.packed[index];
+                    let l = &packed[index];
                     let v = value as f32;
+                    [v * l[0], v * l[1], v * l[2], v * l[3]]
+                };
+                let add = |a: &mut [f32; 4], b: [f32; 4]| {
                     for k in 0..4 {
-                        sum[k] += v * l[k];
+                        a[k] += b[k];
+                    }
+                };
+                let mut sums = [[0.0f32; 4]; 4];
+                let terms = &words[1..];
+                let mut groups = terms.chunks_exact(4);
+                for g in &mut groups {
+                    for (sum, &w) in sums.iter_mut().zip(g) {
+                        add(sum, term(w));
                     }
                 }
+                for (sum, &w) in sums.iter_mut().zip(groups.remainder()) {
+                    add(sum, term(w));
+                }
                 let scale = f32::from_bits(words[0]) as f64 / QUANTUM;
-                std::array::from_fn(|c| sum[c] as f64 * scale)
+                std::array::from_fn(|c| {
+                    let total = (sums[0][c] + sums[1][c]) + (sums[2][c] + sums[3][c]);
+                    total as f64 * scale
+                })
             }
         }
     }
