@@ -33,7 +33,7 @@ def _rel(a, b):
 def test_untruncated_transfer_equals_direct_preview(garage):
     setup, cache = garage
     view = vc.LightingPreview(setup.scene, setup.camera)
-    info = view.prepare(cache, basis="full", product_level="auto")
+    info = view.prepare(cache, basis="full", product_level="auto", nearest=False)
     assert info["basis"] == "texels" and info["basis_level"] == info["level"]
     env = _tinted(setup.envmap, (1.0, 0.7, 0.4))
     for degrees in (0.0, 45.0, 135.0):
@@ -44,7 +44,8 @@ def test_untruncated_transfer_equals_direct_preview(garage):
     # Every Haar term kept: an orthogonal change of basis, the same J but for the values'
     # 15-bit rounding (bounded per pixel in the Rust tests; here: far below the preview's
     # own error).
-    info = view.prepare(cache, basis="haar", budget_mb=1e6, product_level="auto")
+    info = view.prepare(cache, basis="haar", budget_mb=1e6, product_level="auto",
+                        nearest=False)
     assert info["terms"] == 4 ** info["level"]
     a, b = view.render(cache, env), view.render(cache, env, direct=True)
     assert np.abs(a - b).max() < 1e-3 * np.abs(b).max()
@@ -75,21 +76,25 @@ def test_transfer_follows_its_cache_and_traces_no_rays(garage):
     cache.build(setup.camera, seed=0, progress=False)
     view = vc.LightingPreview(setup.scene, setup.camera)
     assert view.transfer_info is None
+    one = view.render(cache, setup.envmap, threads=1)  # prepares (tracing a few records)
+    first = view.transfer_info
     setup.scene.counting = True
     try:
         setup.scene.reset_counters()
-        one = view.render(cache, setup.envmap, threads=1)
-        first = view.transfer_info
+        assert np.array_equal(view.render(cache, setup.envmap, threads=2), one)
         two = view.render(cache, setup.envmap.rotated(90.0), threads=2)
-        assert setup.scene.counters()["rays"] == 0
+        assert setup.scene.counters()["rays"] == 0, "after preparation, no rays"
     finally:
         setup.scene.counting = False
     assert first is not None and view.transfer_info == first, "reused"
-    assert np.array_equal(view.render(cache, setup.envmap, threads=2), one)
     assert not np.allclose(one, two)
     cache.insert((0.0, 0.01, 0.0), (0.0, 1.0, 0.0))
     view.render(cache, setup.envmap)
-    assert view.transfer_info["seconds"] != first["seconds"], "rebuilt after an insertion"
+    second = view.transfer_info
+    assert second["seconds"] != first["seconds"], "rebuilt after an insertion"
+    cache.build(setup.camera, seed=1, progress=False)
+    view.render(cache, setup.envmap)
+    assert view.transfer_info["seconds"] != second["seconds"], "rebuilt after a build"
     other = vc.scenes.load("cornell", detail=0.3)
     foreign = vc.VisibilityCache(other.scene)
     foreign.build(other.camera.with_resolution(16, 12), progress=False)
@@ -121,17 +126,29 @@ def test_material_edit_rebuilds_its_pixels(garage):
     setup, cache = garage
     scene = vc.scenes.load("garage", detail=0.3).scene
     view = vc.LightingPreview(scene, setup.camera)
-    view.render(cache, setup.envmap)
+    view.prepare(cache, setup.envmap, nearest=False)
     obj = int(scene.gbuffer(setup.camera)["object"].max())
     shiny = vc.Material.phong(kd=(0.2, 0.3, 0.1), ks=(0.5, 0.5, 0.5), exponent=40.0)
     assert view.set_material(obj, shiny, cache=cache) > 0
     assert view.transfer_info is not None, "patched, not dropped"
     patched = view.render(cache, setup.envmap)
     scene.set_material(obj, shiny)
-    fresh = vc.LightingPreview(scene, setup.camera).render(cache, setup.envmap)
+    fresh_view = vc.LightingPreview(scene, setup.camera)
+    fresh_view.prepare(cache, setup.envmap, nearest=False)
+    fresh = fresh_view.render(cache, setup.envmap)
     assert np.array_equal(patched, fresh)
     assert view.set_material(obj, shiny) > 0
     assert view.transfer_info is None, "dropped without the cache"
+
+
+def test_visibility_form_is_measured(garage):
+    setup, cache = garage
+    view = vc.LightingPreview(setup.scene, setup.camera)
+    info = view.prepare(cache, setup.envmap)
+    m = info["visibility_measured"]
+    assert info["nearest"] == (m["nearest"] < m["blend"])
+    assert "visibility_measured" not in view.prepare(cache, setup.envmap, nearest=True)
+    assert view.transfer_info["nearest"] is True
 
 
 def test_bad_input_names_the_argument(garage):

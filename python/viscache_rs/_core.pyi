@@ -320,7 +320,7 @@ class LightingPreview:
         basis: str = "auto",
         budget_mb: float | None = None,
         product_level: int | str | None = None,
-        nearest: bool = False,
+        nearest: bool | None = None,
         threads: int | None = None,
     ) -> dict[str, Any]: ...
     @property

@@ -1,7 +1,7 @@
 //! `viscache_rs._core.LightingPreview`: CAM08 §6.2's preview of `J`
 //! ([`crate::estimators::preview`]), direct or from a cached transfer.
 
-use std::sync::RwLock;
+use std::sync::{Arc, RwLock};
 
 use glam::DMat3;
 use pyo3::exceptions::PyValueError;
@@ -18,12 +18,16 @@ use super::scene::PyScene;
 use crate::estimators::preview::light::rotation_about_y;
 use crate::estimators::preview::transfer::{Basis, TransferSettings};
 use crate::estimators::preview::{BasisChoice, LightingPreview, TransferInfo, TransferRequest};
+use crate::geometry::Scene;
 
 /// The first hits of a view, kept so that `render(cache, envmap)` can show `J` (the
 /// control variate's integral) under any lighting without tracing a ray.
 #[pyclass(name = "LightingPreview", module = "viscache_rs._core", frozen)]
 pub struct PyLightingPreview {
     inner: RwLock<LightingPreview>,
+    /// The scene as posed when the view was traced (for tracing a few records when a
+    /// transfer chooses its form of `Ṽ`).
+    scene: Arc<Scene>,
 }
 
 impl PyLightingPreview {
@@ -93,6 +97,13 @@ fn info_dict<'py>(py: Python<'py>, info: &TransferInfo) -> PyResult<Bound<'py, P
         measured.set_item(name, err)?;
     }
     d.set_item("measured", measured)?;
+    d.set_item("nearest", info.nearest)?;
+    if let Some([blend, nearest]) = info.visibility_measured {
+        let v = PyDict::new(py);
+        v.set_item("blend", blend)?;
+        v.set_item("nearest", nearest)?;
+        d.set_item("visibility_measured", v)?;
+    }
     Ok(d)
 }
 
@@ -121,6 +132,7 @@ impl PyLightingPreview {
             .py()?;
         Ok(Self {
             inner: RwLock::new(inner),
+            scene,
         })
     }
 
@@ -166,7 +178,8 @@ impl PyLightingPreview {
             if product_level.is_some() {
                 preview.set_product_level(Some(level));
             }
-            py.detach(|| preview.render_lighting(&cache, env, rotation.as_ref(), threads))
+            let scene = Some(&*self.scene);
+            py.detach(|| preview.render_lighting(scene, &cache, env, rotation.as_ref(), threads))
                 .py()?
         };
         let (w, h) = preview.size();
@@ -175,10 +188,12 @@ impl PyLightingPreview {
 
     /// Builds and keeps the transfer of `cache` for this view: `basis` "auto" (the
     /// candidates that fit `budget_mb` measured against the untruncated transfer under
-    /// `envmap`, or a sun-and-sky probe; `budget_mb` None is 200), "full", "texels", "haar" or "sh". `nearest=True` takes
-    /// visibility from each pixel's heaviest record only. Returns a dict: basis, terms,
+    /// `envmap`, or a sun-and-sky probe; `budget_mb` None is 200), "full", "texels",
+    /// "haar" or "sh". `nearest`: True takes visibility from each pixel's heaviest record
+    /// only, False from the cache's blend of records, None (default) the one whose `J` lies
+    /// closer to exact visibility at 256 pixels (a record traced at each). Returns a dict: basis, terms,
     /// basis_level or order, level, seconds, bytes, pixels, measured.
-    #[pyo3(signature = (cache, envmap=None, basis="auto", budget_mb=None, product_level=None, nearest=false, threads=None))]
+    #[pyo3(signature = (cache, envmap=None, basis="auto", budget_mb=None, product_level=None, nearest=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn prepare<'py>(
         &self,
@@ -188,7 +203,7 @@ impl PyLightingPreview {
         basis: &str,
         budget_mb: Option<&Bound<'py, PyAny>>,
         product_level: Option<&Bound<'py, PyAny>>,
-        nearest: bool,
+        nearest: Option<bool>,
         threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let basis = BasisChoice::parse(basis).py()?;
@@ -209,15 +224,17 @@ impl PyLightingPreview {
                     Some(_) => Some(product_level_arg(product_level)?),
                     None => None,
                 },
-                nearest,
+                nearest: nearest.unwrap_or(false),
             },
+            choose_visibility: nearest.is_none(),
         };
         let threads = threads_arg(threads)?;
         let cache = cache.bound(py)?;
         let env = envmap.as_ref().map(|e| &e.inner);
         let preview = self.get();
+        let scene = Some(&*self.scene);
         let info = py
-            .detach(|| preview.prepare(&cache, env, request, threads))
+            .detach(|| preview.prepare(scene, &cache, env, request, threads))
             .py()?;
         info_dict(py, &info)
     }

@@ -139,7 +139,15 @@ pub struct TransferRequest {
     /// Most bytes the transfer may hold.
     pub budget_bytes: usize,
     pub settings: TransferSettings,
+    /// Decide `settings.nearest` by measurement: at up to [`VISIBILITY_SAMPLE`] pixels,
+    /// trace each pixel's own record (its exact visibility) and keep the form of `Ṽ` —
+    /// the cache's blend of records or the heaviest record alone — whose `J` lies closer
+    /// to the exact one. Needs the scene; without it the blend is kept.
+    pub choose_visibility: bool,
 }
+
+/// Pixels [`TransferRequest::choose_visibility`] traces a record at.
+pub const VISIBILITY_SAMPLE: usize = 256;
 
 impl TransferRequest {
     /// `"auto"` within 200 MB, the renderer's product levels, interpolated `Ṽ`.
@@ -147,6 +155,7 @@ impl TransferRequest {
         basis: BasisChoice::Auto,
         budget_bytes: 200_000_000,
         settings: TransferSettings::DEFAULT,
+        choose_visibility: true,
     };
 }
 
@@ -156,6 +165,8 @@ struct Prepared {
     /// [`VisibilityCache::version`] of the cache.
     cache: (u64, u64),
     request: TransferRequest,
+    /// The settings built with (`nearest` decided when the request left it open).
+    settings: TransferSettings,
     transfer: Transfer,
     /// Each pixel's records, for the bright cells a truncated basis leaves out
     /// ([`bright`]); `None` with the whole transfer.
@@ -179,6 +190,12 @@ pub struct TransferInfo {
     /// `"auto"`: per candidate, its relative squared error on the sampled pixels (worst
     /// RGB channel of `Σ (J - J_full)² / Σ J_full²`), under the map measured with.
     pub measured: Vec<(Basis, f64)>,
+    /// `Ṽ` from the heaviest record alone (else the cache's blend).
+    pub nearest: bool,
+    /// With [`TransferRequest::choose_visibility`] and a scene: the relative squared error
+    /// of the whole transfer's `J` against the exact visibility's at the traced pixels,
+    /// blend first, nearest second.
+    pub visibility_measured: Option<[f64; 2]>,
 }
 
 /// Pixels [`BasisChoice::Auto`] measures on.
@@ -308,10 +325,12 @@ impl LightingPreview {
 
     /// Builds and keeps the transfer of `cache`'s records for this view as `request` asks
     /// (module docs); later [`Self::render_lighting`] calls reuse it while the cache is
-    /// unchanged. `"auto"` measures its candidates under `env` (a sun-and-sky probe when
+    /// unchanged. `scene` (the scene as posed when the view was traced) lets the request
+    /// choose `Ṽ`'s form by tracing a few records ([`TransferRequest::choose_visibility`]). `"auto"` measures its candidates under `env` (a sun-and-sky probe when
     /// `None` or black). Fails with an error naming `budget_mb` when no basis fits the budget.
     pub fn prepare(
         &self,
+        scene: Option<&Scene>,
         cache: &VisibilityCache,
         env: Option<&EnvMap>,
         request: TransferRequest,
@@ -369,11 +388,20 @@ impl LightingPreview {
                 &probe
             }
         };
+        let mut settings = request.settings;
+        let mut visibility_measured = None;
+        if let (true, Some(scene)) = (request.choose_visibility, scene) {
+            let errors = with_threads(threads, || {
+                measure_visibility(scene, &points, cache, &settings, level, env)
+            })??;
+            settings.nearest = errors[1] < errors[0];
+            visibility_measured = Some(errors);
+        }
         let (basis, measured) = with_threads(threads, || {
             if candidates.len() == 1 {
                 Ok((candidates[0], Vec::new()))
             } else {
-                measure(&points, cache, &request.settings, level, &candidates, env)
+                measure(&points, cache, &settings, level, &candidates, env)
             }
         })??;
         // Truncation weights from the map's light without its bright cells (those the
@@ -382,22 +410,10 @@ impl LightingPreview {
         bright::BrightCells::split(&mut cells, &centroids);
         let weights = transfer::level_weights(&cells);
         let transfer = with_threads(threads, || {
-            Transfer::build(
-                &points,
-                cache,
-                request.settings,
-                level,
-                basis,
-                Some(weights),
-            )
+            Transfer::build(&points, cache, settings, level, basis, Some(weights))
         })??;
         let records = (!transfer.is_whole()).then(|| {
-            bright::PixelRecords::gather(
-                &points,
-                &cache.read(),
-                cache.params(),
-                request.settings.nearest,
-            )
+            bright::PixelRecords::gather(&points, &cache.read(), cache.params(), settings.nearest)
         });
         let info = TransferInfo {
             basis,
@@ -406,11 +422,14 @@ impl LightingPreview {
             bytes: transfer.memory_bytes() + records.as_ref().map_or(0, |r| r.memory_bytes()),
             pixels: transfer.rows(),
             measured,
+            nearest: settings.nearest,
+            visibility_measured,
         };
         *lock(&self.request) = request;
         *lock(&self.transfer) = Some(Arc::new(Prepared {
             cache: version,
             request,
+            settings,
             transfer,
             records,
             info: info.clone(),
@@ -433,6 +452,7 @@ impl LightingPreview {
     /// the last [`Self::prepare`] asked, under `env`).
     fn prepared(
         &self,
+        scene: Option<&Scene>,
         cache: &VisibilityCache,
         env: &EnvMap,
         threads: Option<usize>,
@@ -443,16 +463,18 @@ impl LightingPreview {
                 return Ok(p.clone());
             }
         }
-        self.prepare(cache, Some(env), request, threads)?;
+        self.prepare(scene, cache, Some(env), request, threads)?;
         Ok(lock(&self.transfer).clone().expect("just prepared"))
     }
 
     /// `J` per pixel (row-major RGB) under `env` turned by `rotation` (a feature at `ω`
     /// moves to `R ω`), from the kept transfer of `cache` — built first when there is
-    /// none or the cache changed since. Escaped pixels show the turned map, emitters their
+    /// none or the cache changed since (with `scene`, the scene as posed when the view was
+    /// traced, for [`TransferRequest::choose_visibility`]). Escaped pixels show the turned map, emitters their
     /// emission. Traces no rays.
     pub fn render_lighting(
         &self,
+        scene: Option<&Scene>,
         cache: &VisibilityCache,
         env: &EnvMap,
         rotation: Option<&DMat3>,
@@ -462,7 +484,7 @@ impl LightingPreview {
             light::check_rotation(r)?;
         }
         cache.bind_fingerprint(self.scene)?;
-        let prepared = self.prepared(cache, env, threads)?;
+        let prepared = self.prepared(scene, cache, env, threads)?;
         let transfer = &prepared.transfer;
         let (mut cells, centroids) =
             light::cell_integrals_and_centroids(env, transfer.level(), rotation)?;
@@ -537,12 +559,12 @@ impl LightingPreview {
                 && Transfer::full_level(
                     cache,
                     self.points.iter().flatten().map(|p| &p.material),
-                    &prepared.request.settings,
+                    &prepared.settings,
                 )? == prepared.transfer.level();
             if still_valid {
                 let points = self.transfer_points(cache);
                 let p = Arc::make_mut(prepared);
-                let settings = p.request.settings;
+                let settings = p.settings;
                 with_threads(threads, || {
                     p.transfer.rebuild(&points, &pixels, cache, settings)
                 })?;
@@ -675,3 +697,73 @@ fn measure(
 
 #[cfg(test)]
 mod tests;
+
+/// [`TransferRequest::choose_visibility`]'s measurement: at up to [`VISIBILITY_SAMPLE`]
+/// pixels with records, the whole transfer's `J` under `env` with the cache's blend of
+/// records and with the heaviest record alone, against `J` with the pixel's own record
+/// traced now (its exact visibility at the records' resolution); returns both relative
+/// squared errors (worst RGB channel).
+fn measure_visibility(
+    scene: &Scene,
+    points: &[Option<TransferPoint>],
+    cache: &VisibilityCache,
+    settings: &TransferSettings,
+    level: u32,
+    env: &EnvMap,
+) -> Result<[f64; 2]> {
+    let covered: Vec<usize> = (0..points.len()).filter(|&i| points[i].is_some()).collect();
+    let step = covered.len().div_ceil(VISIBILITY_SAMPLE).max(1);
+    let sample: Vec<TransferPoint> = covered
+        .iter()
+        .step_by(step)
+        .filter_map(|&i| points[i])
+        .collect();
+    let light = light::cell_integrals(env, level, None)?;
+    let state = cache.read();
+    let params = cache.params();
+    let blend = TransferSettings {
+        nearest: false,
+        ..*settings
+    };
+    let nearest = TransferSettings {
+        nearest: true,
+        ..*settings
+    };
+    let per_point: Vec<Result<Option<[[f64; 3]; 3]>>> = sample
+        .par_iter()
+        .map(|p| {
+            let n = 1usize << (2 * level);
+            let mut dense = vec![0.0; n];
+            let j = |dense: &[f64]| -> [f64; 3] {
+                std::array::from_fn(|c| dense.iter().zip(&light).map(|(t, l)| t * l[c]).sum())
+            };
+            let mut builder = transfer::PixelTransfer::new(&state, params, blend, level);
+            if !builder.dense(p, &mut dense) {
+                return Ok(None);
+            }
+            let j_blend = j(&dense);
+            let mut builder = transfer::PixelTransfer::new(&state, params, nearest, level);
+            builder.dense(p, &mut dense);
+            let j_nearest = j(&dense);
+            let (record, _) = cache.trace(scene, p.position, p.normal)?;
+            builder.dense_with(p, &[(record.bits.view(), 1.0)], &mut dense);
+            Ok(Some([j(&dense), j_blend, j_nearest]))
+        })
+        .collect();
+    let (mut err, mut power) = ([[0.0f64; 3]; 2], [0.0f64; 3]);
+    for r in per_point {
+        let Some([exact, blend, nearest]) = r? else {
+            continue;
+        };
+        for c in 0..3 {
+            power[c] += exact[c] * exact[c];
+            err[0][c] += (blend[c] - exact[c]).powi(2);
+            err[1][c] += (nearest[c] - exact[c]).powi(2);
+        }
+    }
+    Ok(err.map(|e| {
+        (0..3)
+            .map(|c| if power[c] > 0.0 { e[c] / power[c] } else { 0.0 })
+            .fold(0.0, f64::max)
+    }))
+}

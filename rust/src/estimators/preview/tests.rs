@@ -62,6 +62,7 @@ const FULL: TransferRequest = TransferRequest {
         product_level: Some(ProductLevel::PerMaterial),
         nearest: false,
     },
+    choose_visibility: false,
     ..TransferRequest::DEFAULT
 };
 
@@ -72,7 +73,9 @@ const FULL: TransferRequest = TransferRequest {
 fn untruncated_transfer_equals_the_direct_preview() {
     let v = view("garage", 40, 30);
     let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
-    let info = preview.prepare(&v.cache, None, FULL, Some(2)).unwrap();
+    let info = preview
+        .prepare(None, &v.cache, None, FULL, Some(2))
+        .unwrap();
     assert_eq!(info.basis, Basis::Texels { level: info.level });
     let base = tinted(&v.setup.envmap, [1.0, 0.8, 0.5]);
     for degrees in [0.0f32, 45.0, 135.0] {
@@ -81,7 +84,7 @@ fn untruncated_transfer_equals_the_direct_preview() {
             .render(&v.cache, &env, ProductLevel::PerMaterial, Some(2))
             .unwrap();
         let cached = preview
-            .render_lighting(&v.cache, &env, None, Some(2))
+            .render_lighting(None, &v.cache, &env, None, Some(2))
             .unwrap();
         let err = max_relative(&cached, &direct);
         assert!(err < 1e-5, "{degrees}°: {err}");
@@ -151,10 +154,10 @@ fn rotation_matches_a_rotated_map() {
     let env = &v.setup.envmap;
     let r = light::rotation_about_y(45.0).unwrap();
     let turned = preview
-        .render_lighting(&v.cache, env, Some(&r), Some(2))
+        .render_lighting(None, &v.cache, env, Some(&r), Some(2))
         .unwrap();
     let rotated = preview
-        .render_lighting(&v.cache, &env.rotated(45.0), None, Some(2))
+        .render_lighting(None, &v.cache, &env.rotated(45.0), None, Some(2))
         .unwrap();
     let (mut diff, mut total) = (0.0f64, 0.0f64);
     for (a, b) in turned.iter().flatten().zip(rotated.iter().flatten()) {
@@ -165,10 +168,10 @@ fn rotation_matches_a_rotated_map() {
     let full = light::rotation_about_y(360.0).unwrap();
     assert_eq!(
         preview
-            .render_lighting(&v.cache, env, Some(&full), Some(2))
+            .render_lighting(None, &v.cache, env, Some(&full), Some(2))
             .unwrap(),
         preview
-            .render_lighting(&v.cache, env, Some(&DMat3::IDENTITY), Some(2))
+            .render_lighting(None, &v.cache, env, Some(&DMat3::IDENTITY), Some(2))
             .unwrap()
     );
 }
@@ -181,11 +184,11 @@ fn transfer_follows_its_cache() {
     let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(1)).unwrap();
     let env = &v.setup.envmap;
     let one = preview
-        .render_lighting(&v.cache, env, None, Some(1))
+        .render_lighting(None, &v.cache, env, None, Some(1))
         .unwrap();
     let built = preview.transfer_info().unwrap().seconds;
     let two = preview
-        .render_lighting(&v.cache, env, None, Some(2))
+        .render_lighting(None, &v.cache, env, None, Some(2))
         .unwrap();
     assert_eq!(one, two);
     assert_eq!(preview.transfer_info().unwrap().seconds, built, "reused");
@@ -199,13 +202,13 @@ fn transfer_follows_its_cache() {
         .unwrap();
     assert_ne!(v.cache.version(), before);
     preview
-        .render_lighting(&v.cache, env, None, Some(2))
+        .render_lighting(None, &v.cache, env, None, Some(2))
         .unwrap();
     let again = preview.transfer_info().unwrap();
     assert_ne!(again.seconds, built, "rebuilt after an insertion");
     let other = view("cornell", 16, 12);
     let e = preview
-        .render_lighting(&other.cache, env, None, Some(2))
+        .render_lighting(None, &other.cache, env, None, Some(2))
         .unwrap_err();
     assert!(e.to_string().contains("cache"), "{e}");
 }
@@ -217,9 +220,11 @@ fn truncated_bases_and_auto() {
     let v = view("garage", 32, 24);
     let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
     let env = &v.setup.envmap;
-    preview.prepare(&v.cache, Some(env), FULL, Some(2)).unwrap();
+    preview
+        .prepare(None, &v.cache, Some(env), FULL, Some(2))
+        .unwrap();
     let exact = preview
-        .render_lighting(&v.cache, env, None, Some(2))
+        .render_lighting(None, &v.cache, env, None, Some(2))
         .unwrap();
     let n = (32 * 24) as usize;
     let budget = |per_pixel: usize| 4 * n + per_pixel * n;
@@ -230,10 +235,12 @@ fn truncated_bases_and_auto() {
             budget_bytes: budget(512),
             ..TransferRequest::DEFAULT
         };
-        let info = preview.prepare(&v.cache, Some(env), req, Some(2)).unwrap();
+        let info = preview
+            .prepare(None, &v.cache, Some(env), req, Some(2))
+            .unwrap();
         assert!(info.bytes <= req.budget_bytes, "{info:?}");
         let img = preview
-            .render_lighting(&v.cache, env, None, Some(2))
+            .render_lighting(None, &v.cache, env, None, Some(2))
             .unwrap();
         let (mut e, mut p) = (0.0f64, 0.0f64);
         for (a, b) in img.iter().flatten().zip(exact.iter().flatten()) {
@@ -248,7 +255,9 @@ fn truncated_bases_and_auto() {
         budget_bytes: budget(512),
         ..TransferRequest::DEFAULT
     };
-    let info = preview.prepare(&v.cache, Some(env), req, Some(2)).unwrap();
+    let info = preview
+        .prepare(None, &v.cache, Some(env), req, Some(2))
+        .unwrap();
     assert_eq!(info.measured.len(), 3);
     let best = info
         .measured
@@ -258,6 +267,7 @@ fn truncated_bases_and_auto() {
     assert_eq!(info.basis, best.0);
     let e = preview
         .prepare(
+            None,
             &v.cache,
             Some(env),
             TransferRequest {
@@ -278,7 +288,7 @@ fn material_edit_rebuilds_its_pixels() {
     let mut preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
     let env = &v.setup.envmap;
     preview
-        .render_lighting(&v.cache, env, None, Some(2))
+        .render_lighting(None, &v.cache, env, None, Some(2))
         .unwrap();
     let shiny = Material::phong([0.2, 0.3, 0.1], [0.5; 3], 40.0).unwrap();
     let object = preview
@@ -294,11 +304,13 @@ fn material_edit_rebuilds_its_pixels() {
     assert!(changed > 0);
     assert!(preview.transfer_info().is_some(), "kept and patched");
     let patched = preview
-        .render_lighting(&v.cache, env, None, Some(2))
+        .render_lighting(None, &v.cache, env, None, Some(2))
         .unwrap();
     let fresh = preview.clone();
     *lock(&fresh.transfer) = None;
-    let rebuilt = fresh.render_lighting(&v.cache, env, None, Some(2)).unwrap();
+    let rebuilt = fresh
+        .render_lighting(None, &v.cache, env, None, Some(2))
+        .unwrap();
     assert_eq!(patched, rebuilt);
     let e = preview
         .set_material(Some(&v.cache), 10_000, shiny, Some(2))
@@ -316,10 +328,16 @@ fn truncated_transfer_under_a_sun() {
     let env = crate::lights::procedural::sky(sun, [4e4; 3], 1.0, [0.25, 0.45, 1.0], [0.85; 3], 256)
         .unwrap();
     preview
-        .prepare(&v.cache, Some(&env), TransferRequest::DEFAULT, Some(2))
+        .prepare(
+            None,
+            &v.cache,
+            Some(&env),
+            TransferRequest::DEFAULT,
+            Some(2),
+        )
         .unwrap();
     let whole = preview
-        .render_lighting(&v.cache, &env, None, Some(2))
+        .render_lighting(None, &v.cache, &env, None, Some(2))
         .unwrap();
     let n = 32 * 24;
     for basis in [BasisChoice::Haar, BasisChoice::Texels] {
@@ -328,9 +346,11 @@ fn truncated_transfer_under_a_sun() {
             budget_bytes: n * (4 + 64 + 300),
             ..TransferRequest::DEFAULT
         };
-        preview.prepare(&v.cache, Some(&env), req, Some(2)).unwrap();
+        preview
+            .prepare(None, &v.cache, Some(&env), req, Some(2))
+            .unwrap();
         let img = preview
-            .render_lighting(&v.cache, &env, None, Some(2))
+            .render_lighting(None, &v.cache, &env, None, Some(2))
             .unwrap();
         let (mut e, mut p) = (0.0f64, 0.0f64);
         for (a, b) in img.iter().flatten().zip(whole.iter().flatten()) {
@@ -352,21 +372,48 @@ fn sh_transfer_is_exact_under_a_constant_map() {
     let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
     let env = EnvMap::constant([0.4, 0.7, 1.3], 256).unwrap();
     let whole = preview
-        .render_lighting(&v.cache, &env, None, Some(2))
+        .render_lighting(None, &v.cache, &env, None, Some(2))
         .unwrap();
     let req = TransferRequest {
         basis: BasisChoice::Sh,
         budget_bytes: 24 * 18 * (4 + 64 + 256),
         ..TransferRequest::DEFAULT
     };
-    let info = preview.prepare(&v.cache, Some(&env), req, Some(2)).unwrap();
+    let info = preview
+        .prepare(None, &v.cache, Some(&env), req, Some(2))
+        .unwrap();
     assert_eq!(info.basis, Basis::Sh { order: 8 });
     let r = DMat3::from_axis_angle(glam::DVec3::new(0.3, 1.0, 0.2).normalize(), 0.7);
     for rotation in [None, Some(&r)] {
         let sh = preview
-            .render_lighting(&v.cache, &env, rotation, Some(2))
+            .render_lighting(None, &v.cache, &env, rotation, Some(2))
             .unwrap();
         let err = max_relative(&sh, &whole);
         assert!(err < 5e-4, "{err}");
     }
+}
+
+/// With the scene, the request picks the form of `Ṽ` whose `J` lies closer to the exact
+/// visibility's at traced pixels, and says so; without it (or when told) it keeps the blend.
+#[test]
+fn visibility_form_is_chosen_by_measurement() {
+    let v = view("hairball", 32, 24);
+    let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
+    let env = &v.setup.envmap;
+    let info = preview
+        .prepare(
+            Some(&v.setup.scene),
+            &v.cache,
+            Some(env),
+            TransferRequest::DEFAULT,
+            Some(2),
+        )
+        .unwrap();
+    let [blend, nearest] = info.visibility_measured.expect("measured");
+    assert!(blend.is_finite() && nearest.is_finite() && blend >= 0.0 && nearest >= 0.0);
+    assert_eq!(info.nearest, nearest < blend);
+    let info = preview
+        .prepare(None, &v.cache, Some(env), TransferRequest::DEFAULT, Some(2))
+        .unwrap();
+    assert!(info.visibility_measured.is_none() && !info.nearest);
 }

@@ -31,6 +31,7 @@ use crate::lights::envmap::EnvMap;
 use crate::sampling::sh::{self, CellBasis};
 use crate::visibility::cache::{CacheState, VisibilityCache};
 use crate::visibility::params::CacheParams;
+use crate::visibility::record::VisibilityView;
 
 /// Finest transfer level: Haar indices are `u16` (`4^8` coefficients).
 pub const MAX_TRANSFER_LEVEL: u32 = 8;
@@ -142,17 +143,41 @@ impl<'a> PixelTransfer<'a> {
     /// `T` of `point` per cell of the full level (Morton order) into `out`; false when it
     /// is zero everywhere (no records, or a surface reflecting nothing towards the eye).
     pub fn dense(&mut self, point: &TransferPoint, out: &mut [f64]) -> bool {
-        out.fill(0.0);
         let lookup =
             self.state
                 .lookup_records(self.params, point.position, point.normal, point.radius);
         let mut neighbours = lookup.neighbours();
         if neighbours.is_empty() {
+            out.fill(0.0);
             return false;
         }
         if self.settings.nearest {
             neighbours = &neighbours[..1];
         }
+        let store = self.state.store();
+        let maps: Vec<(VisibilityView, f64)> = neighbours
+            .iter()
+            .map(|k| {
+                let beta = if self.settings.nearest {
+                    1.0
+                } else {
+                    k.beta as f64
+                };
+                (store.bits(k.id as usize), beta)
+            })
+            .collect();
+        self.dense_with(point, &maps, out)
+    }
+
+    /// `T` of `point` with `V = Σ β V_i` over `maps` (records' visibility and their
+    /// weights; one exact record of the point itself gives the exact `T`).
+    pub fn dense_with(
+        &mut self,
+        point: &TransferPoint,
+        maps: &[(VisibilityView, f64)],
+        out: &mut [f64],
+    ) -> bool {
+        out.fill(0.0);
         let p = match self.settings.product_level {
             Some(level) => level.for_material(&point.material).min(self.level),
             None => self.level,
@@ -165,16 +190,9 @@ impl<'a> PixelTransfer<'a> {
             return false;
         }
         // Ṽ at the full level: each record texel covers 4^(L - m) cells.
-        let store = self.state.store();
-        let m = store.m();
-        let spread = 2 * (self.level - m);
-        for k in neighbours {
-            let beta = if self.settings.nearest {
-                1.0
-            } else {
-                k.beta as f64
-            };
-            for (w, &word) in store.bits(k.id as usize).bit_words().iter().enumerate() {
+        for (bits, beta) in maps {
+            let spread = 2 * (self.level - bits.m());
+            for (w, &word) in bits.bit_words().iter().enumerate() {
                 let mut x = word;
                 while x != 0 {
                     let texel = 64 * w + x.trailing_zeros() as usize;
