@@ -126,8 +126,15 @@ mod tests {
                 }
             }
         }
-        let env = sun_map(Vec3::new(0.3, 0.8, -0.2));
+        // One bright texel: its cell holds the background's share plus exactly its power.
+        let sun = Vec3::new(0.3, 0.8, -0.2);
+        let env = sun_map(sun);
         let sums = cell_integrals(&env, 4, None).unwrap();
+        let t = texel_of(sun.normalize(), 16);
+        let cell = sums[morton_encode(t.x, t.y) as usize];
+        let omega = texel_solid_angle(64);
+        let expected = 15.0 * 0.1 * omega + 500.0 * omega;
+        assert!((cell[0] - expected).abs() < 1e-9 * expected, "{cell:?}");
         let power = env.total_power();
         for k in 0..3 {
             let s: f64 = sums.iter().map(|s| s[k]).sum();
