@@ -140,7 +140,7 @@ pub struct TransferRequest {
     pub budget_bytes: usize,
     pub settings: TransferSettings,
     /// Decide `settings.nearest` by measurement: at up to [`VISIBILITY_SAMPLE`] pixels,
-    /// trace each pixel's own record (its exact visibility) and keep the form of `Ṽ` —
+    /// trace a record at the pixel (twice the cache's resolution) and keep the form of `Ṽ` —
     /// the cache's blend of records or the heaviest record alone — whose `J` lies closer
     /// to the exact one. Needs the scene; without it the blend is kept.
     pub choose_visibility: bool,
@@ -192,8 +192,8 @@ pub struct TransferInfo {
     pub measured: Vec<(Basis, f64)>,
     /// `Ṽ` from the heaviest record alone (else the cache's blend).
     pub nearest: bool,
-    /// With [`TransferRequest::choose_visibility`] and a scene: the relative squared error
-    /// of the whole transfer's `J` against the exact visibility's at the traced pixels,
+    /// With [`TransferRequest::choose_visibility`] and a scene: the relMSE of the whole
+    /// transfer's `J` against a traced record's at up to [`VISIBILITY_SAMPLE`] pixels,
     /// blend first, nearest second.
     pub visibility_measured: Option<[f64; 2]>,
 }
@@ -700,9 +700,11 @@ mod tests;
 
 /// [`TransferRequest::choose_visibility`]'s measurement: at up to [`VISIBILITY_SAMPLE`]
 /// pixels with records, the whole transfer's `J` under `env` with the cache's blend of
-/// records and with the heaviest record alone, against `J` with the pixel's own record
-/// traced now (its exact visibility at the records' resolution); returns both relative
-/// squared errors (worst RGB channel).
+/// records and with the heaviest record alone, against `J` with a record traced now at the
+/// pixel at twice the records' resolution (its visibility, four rays a cell: a record of
+/// the cache's own resolution would make a record at the pixel look exact when one ray a
+/// cell is itself a noisy estimate); returns both errors in the relMSE of the images
+/// (`Σ (Δ c J)² / ((c J)² + 0.01)` over pixels and channels, `c` the channel ratio).
 fn measure_visibility(
     scene: &Scene,
     points: &[Option<TransferPoint>],
@@ -711,6 +713,7 @@ fn measure_visibility(
     level: u32,
     env: &EnvMap,
 ) -> Result<[f64; 2]> {
+    const FLOOR: f64 = 1e-2;
     let covered: Vec<usize> = (0..points.len()).filter(|&i| points[i].is_some()).collect();
     let step = covered.len().div_ceil(VISIBILITY_SAMPLE).max(1);
     let sample: Vec<TransferPoint> = covered
@@ -719,7 +722,10 @@ fn measure_visibility(
         .filter_map(|&i| points[i])
         .collect();
     let light = light::cell_integrals(env, level, None)?;
+    let fine = (level + 1).min(crate::sampling::pattern::MAX_LOG2_RESOLUTION);
+    let pattern = crate::sampling::pattern::default_pattern(fine)?;
     let state = cache.read();
+    let frame = state.frame();
     let params = cache.params();
     let blend = TransferSettings {
         nearest: false,
@@ -729,13 +735,16 @@ fn measure_visibility(
         nearest: true,
         ..*settings
     };
-    let per_point: Vec<Result<Option<[[f64; 3]; 3]>>> = sample
+    let per_point: Vec<Result<Option<[f64; 2]>>> = sample
         .par_iter()
         .map(|p| {
             let n = 1usize << (2 * level);
             let mut dense = vec![0.0; n];
+            let ratios = p.material.channel_ratios();
             let j = |dense: &[f64]| -> [f64; 3] {
-                std::array::from_fn(|c| dense.iter().zip(&light).map(|(t, l)| t * l[c]).sum())
+                std::array::from_fn(|c| {
+                    ratios[c] as f64 * dense.iter().zip(&light).map(|(t, l)| t * l[c]).sum::<f64>()
+                })
             };
             let mut builder = transfer::PixelTransfer::new(&state, params, blend, level);
             if !builder.dense(p, &mut dense) {
@@ -745,25 +754,25 @@ fn measure_visibility(
             let mut builder = transfer::PixelTransfer::new(&state, params, nearest, level);
             builder.dense(p, &mut dense);
             let j_nearest = j(&dense);
-            let (record, _) = cache.trace(scene, p.position, p.normal)?;
+            let (record, _) = crate::visibility::record::Record::trace_with(
+                scene, p.position, p.normal, pattern, frame, false,
+            )?;
             builder.dense_with(p, &[(record.bits.view(), 1.0)], &mut dense);
-            Ok(Some([j(&dense), j_blend, j_nearest]))
+            let exact = j(&dense);
+            let err = |x: [f64; 3]| -> f64 {
+                (0..3)
+                    .map(|c| (x[c] - exact[c]).powi(2) / (exact[c] * exact[c] + FLOOR))
+                    .sum()
+            };
+            Ok(Some([err(j_blend), err(j_nearest)]))
         })
         .collect();
-    let (mut err, mut power) = ([[0.0f64; 3]; 2], [0.0f64; 3]);
+    let (mut total, mut count) = ([0.0f64; 2], 0usize);
     for r in per_point {
-        let Some([exact, blend, nearest]) = r? else {
-            continue;
-        };
-        for c in 0..3 {
-            power[c] += exact[c] * exact[c];
-            err[0][c] += (blend[c] - exact[c]).powi(2);
-            err[1][c] += (nearest[c] - exact[c]).powi(2);
+        if let Some(e) = r? {
+            total = [total[0] + e[0], total[1] + e[1]];
+            count += 3;
         }
     }
-    Ok(err.map(|e| {
-        (0..3)
-            .map(|c| if power[c] > 0.0 { e[c] / power[c] } else { 0.0 })
-            .fold(0.0, f64::max)
-    }))
+    Ok(total.map(|t| t / count.max(1) as f64))
 }

@@ -189,8 +189,20 @@ impl<'a> PixelTransfer<'a> {
         if self.cells.iter().all(|&b| b <= 0.0) {
             return false;
         }
-        // Ṽ at the full level: each record texel covers 4^(L - m) cells.
+        // Ṽ at the full level: each record texel covers 4^(L - m) cells, or each cell
+        // 4^(m - L) texels of a finer record (its visible share).
         for (bits, beta) in maps {
+            if bits.m() > self.level {
+                let per = 1usize << (2 * (bits.m() - self.level));
+                let share = beta / per as f64;
+                for (cell, v) in out.iter_mut().enumerate() {
+                    let visible = (cell * per..(cell + 1) * per)
+                        .filter(|&z| bits.get(z))
+                        .count();
+                    *v += share * visible as f64;
+                }
+                continue;
+            }
             let spread = 2 * (self.level - bits.m());
             for (w, &word) in bits.bit_words().iter().enumerate() {
                 let mut x = word;
