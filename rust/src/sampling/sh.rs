@@ -633,21 +633,9 @@ impl Rotation {
     /// # Panics
     /// If `input.len()` or `out.len()` is not `order²`.
     pub fn apply(&self, input: &[f64], out: &mut [f64]) {
-        let n2 = coefficient_count(self.order);
-        assert_eq!(input.len(), n2, "input must hold order² coefficients");
-        assert_eq!(out.len(), n2, "out must hold order² coefficients");
-        for (l, b) in self.blocks.iter().enumerate() {
-            let d = 2 * l + 1;
-            let base = l * l;
-            let x = &input[base..base + d];
-            for (i, o) in out[base..base + d].iter_mut().enumerate() {
-                *o = b[i * d..(i + 1) * d]
-                    .iter()
-                    .zip(x)
-                    .map(|(a, v)| a * v)
-                    .sum();
-            }
-        }
+        self.apply_with(input, out, |row, x| {
+            row.iter().zip(x).map(|(a, v)| a * v).sum()
+        });
     }
 
     /// [`Self::apply`] for RGB coefficients (each channel rotated alike).
@@ -655,6 +643,20 @@ impl Rotation {
     /// # Panics
     /// If `input.len()` or `out.len()` is not `order²`.
     pub fn apply_rgb(&self, input: &[[f64; 3]], out: &mut [[f64; 3]]) {
+        self.apply_with(input, out, |row, x| {
+            let mut s = [0.0; 3];
+            for (a, v) in row.iter().zip(x) {
+                for ch in 0..3 {
+                    s[ch] += a * v[ch];
+                }
+            }
+            s
+        });
+    }
+
+    /// `out = D(R) input` band by band, `dot` one row of a band's block against the band's
+    /// input coefficients.
+    fn apply_with<T>(&self, input: &[T], out: &mut [T], dot: impl Fn(&[f64], &[T]) -> T) {
         let n2 = coefficient_count(self.order);
         assert_eq!(input.len(), n2, "input must hold order² coefficients");
         assert_eq!(out.len(), n2, "out must hold order² coefficients");
@@ -663,13 +665,7 @@ impl Rotation {
             let base = l * l;
             let x = &input[base..base + d];
             for (i, o) in out[base..base + d].iter_mut().enumerate() {
-                let mut s = [0.0; 3];
-                for (a, v) in b[i * d..(i + 1) * d].iter().zip(x) {
-                    for ch in 0..3 {
-                        s[ch] += a * v[ch];
-                    }
-                }
-                *o = s;
+                *o = dot(&b[i * d..(i + 1) * d], x);
             }
         }
     }
