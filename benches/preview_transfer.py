@@ -101,23 +101,35 @@ def main():
     ap.add_argument("--size", default="160x120")
     ap.add_argument("--spp", type=int, default=256)
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--no-speed", action="store_true", help="skip the 640x480 timings")
+    ap.add_argument("--no-errors", action="store_true", help="skip the error table")
     ap.add_argument("scenes", nargs="*")
     a = ap.parse_args()
     size = tuple(int(x) for x in a.size.split("x"))
     names = a.scenes or vc.scenes.suite_names()
+    if not a.no_speed:
+        speed_table(names, a.threads)
+    if not a.no_errors:
+        error_table(names, size, a.spp, a.threads)
+
+
+def speed_table(names, threads):
     print("## Speed at 640x480 (ms per lighting change after prepare)\n")
     print("| scene | records | basis | prepare s | MB | median ms | max ms | direct ms |")
     print("|---|---:|---|---:|---:|---:|---:|---:|")
     worst_ms = []
     for name in names:
-        s = speed(vc.scenes.load(name), a.threads)
+        s = speed(vc.scenes.load(name), threads)
         i = s["info"]
         basis = i["basis"] + str(i.get("terms", i.get("order", i.get("basis_level"))))
         worst_ms.append((s["max_ms"], name))
         print(f"| {name} | {s['records']} | {basis} | {i['seconds']:.2f} | {i['bytes'] / 1e6:.0f} "
               f"| {s['median_ms']:.1f} | {s['max_ms']:.1f} | {s['direct_ms']:.0f} |", flush=True)
     print(f"\nworst max: {max(worst_ms)[0]:.1f} ms ({max(worst_ms)[1]})\n")
-    print(f"## Error at {a.size} against a {a.spp}-spp product render "
+
+
+def error_table(names, size, spp, threads):
+    print(f"## Error at {size[0]}x{size[1]} against a {spp}-spp product render "
           "(relMSE; mean error in parentheses)\n")
     cols = ("direct", "auto", "nearest", "haar", "sh", "texels")
     print("| scene | lighting | auto basis | " + " | ".join(cols) + " | auto / direct |")
@@ -125,7 +137,7 @@ def main():
     ratios = []
     for name in names:
         setup = vc.scenes.load(name)
-        info, out = errors(setup, size, a.spp, a.threads)
+        info, out = errors(setup, size, spp, threads)
         if info["pixels"] == 0:
             print(f"| {name} | no pixel sees the map (a closed room lit by its area light) |")
             continue

@@ -98,10 +98,11 @@ fn info_dict<'py>(py: Python<'py>, info: &TransferInfo) -> PyResult<Bound<'py, P
     }
     d.set_item("measured", measured)?;
     d.set_item("nearest", info.nearest)?;
-    if let Some([blend, nearest]) = info.visibility_measured {
+    if let Some(m) = info.visibility_measured {
         let v = PyDict::new(py);
-        v.set_item("blend", blend)?;
-        v.set_item("nearest", nearest)?;
+        v.set_item("blend", m.blend)?;
+        v.set_item("nearest", m.nearest)?;
+        v.set_item("standard_error", m.standard_error)?;
         d.set_item("visibility_measured", v)?;
     }
     Ok(d)
@@ -191,7 +192,7 @@ impl PyLightingPreview {
     /// `envmap`, or a sun-and-sky probe; `budget_mb` None is 200), "full", "texels",
     /// "haar" or "sh". `nearest`: True takes visibility from each pixel's heaviest record
     /// only, False from the cache's blend of records, None (default) the one whose `J` lies
-    /// closer to exact visibility at 256 pixels (a record traced at each). Returns a dict: basis, terms,
+    /// closer to exact visibility at 1024 pixels (a record traced at each). Returns a dict: basis, terms,
     /// basis_level or order, level, seconds, bytes, pixels, measured.
     #[pyo3(signature = (cache, envmap=None, basis="auto", budget_mb=None, product_level=None, nearest=None, threads=None))]
     #[allow(clippy::too_many_arguments)]

@@ -409,9 +409,10 @@ fn visibility_form_is_chosen_by_measurement() {
             Some(2),
         )
         .unwrap();
-    let [blend, nearest] = info.visibility_measured.expect("measured");
-    assert!(blend.is_finite() && nearest.is_finite() && blend >= 0.0 && nearest >= 0.0);
-    assert_eq!(info.nearest, nearest < blend);
+    let m = info.visibility_measured.expect("measured");
+    assert!(m.blend.is_finite() && m.nearest.is_finite() && m.blend >= 0.0 && m.nearest >= 0.0);
+    assert!(m.standard_error.is_finite() && m.standard_error >= 0.0);
+    assert_eq!(info.nearest, m.nearest < m.blend);
     let info = preview
         .prepare(None, &v.cache, Some(env), TransferRequest::DEFAULT, Some(2))
         .unwrap();
