@@ -269,6 +269,7 @@ def test_preview_is_j_and_traces_no_rays(garage):
     setup, cache = garage
     view = vc.LightingPreview(setup.scene, setup.camera)
     assert view.size == (setup.camera.width, setup.camera.height)
+    view.prepare(cache, setup.envmap)  # the transfer (traces a few records to choose V~)
     setup.scene.counting = True
     try:
         setup.scene.reset_counters()
