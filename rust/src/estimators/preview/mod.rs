@@ -721,12 +721,19 @@ fn measure_visibility(
         .step_by(step)
         .filter_map(|&i| points[i])
         .collect();
-    let light = light::cell_integrals(env, level, None)?;
+    // The bright cells as the preview takes them: out of the cells, added per pixel at
+    // their directions — here with a shadow ray for the exact form.
+    let (mut light, centroids) = light::cell_integrals_and_centroids(env, level, None)?;
+    let bright = bright::BrightCells::split(&mut light, &centroids);
     let fine = (level + 1).min(crate::sampling::pattern::MAX_LOG2_RESOLUTION);
     let pattern = crate::sampling::pattern::default_pattern(fine)?;
     let state = cache.read();
     let frame = state.frame();
     let params = cache.params();
+    let masks = bright.record_masks(&state, level);
+    let sample_points: Vec<Option<TransferPoint>> = sample.iter().map(|&p| Some(p)).collect();
+    let blend_records = bright::PixelRecords::gather(&sample_points, &state, params, false);
+    let nearest_records = bright::PixelRecords::gather(&sample_points, &state, params, true);
     let blend = TransferSettings {
         nearest: false,
         ..*settings
@@ -737,28 +744,49 @@ fn measure_visibility(
     };
     let per_point: Vec<Result<Option<[f64; 2]>>> = sample
         .par_iter()
-        .map(|p| {
+        .enumerate()
+        .map(|(i, p)| {
             let n = 1usize << (2 * level);
             let mut dense = vec![0.0; n];
             let ratios = p.material.channel_ratios();
-            let j = |dense: &[f64]| -> [f64; 3] {
+            let j = |dense: &[f64], extra: [f64; 3]| -> [f64; 3] {
                 std::array::from_fn(|c| {
-                    ratios[c] as f64 * dense.iter().zip(&light).map(|(t, l)| t * l[c]).sum::<f64>()
+                    let smooth = dense.iter().zip(&light).map(|(t, l)| t * l[c]).sum::<f64>();
+                    ratios[c] as f64 * (smooth + extra[c])
                 })
+            };
+            let bright_of = |records: &bright::PixelRecords| {
+                records.eval(i, &p.material, p.normal, p.wo, &bright, &masks)
             };
             let mut builder = transfer::PixelTransfer::new(&state, params, blend, level);
             if !builder.dense(p, &mut dense) {
                 return Ok(None);
             }
-            let j_blend = j(&dense);
+            let j_blend = j(&dense, bright_of(&blend_records));
             let mut builder = transfer::PixelTransfer::new(&state, params, nearest, level);
             builder.dense(p, &mut dense);
-            let j_nearest = j(&dense);
+            let j_nearest = j(&dense, bright_of(&nearest_records));
             let (record, _) = crate::visibility::record::Record::trace_with(
                 scene, p.position, p.normal, pattern, frame, false,
             )?;
             builder.dense_with(p, &[(record.bits.view(), 1.0)], &mut dense);
-            let exact = j(&dense);
+            let origin = scene.offset_point(p.position, p.normal);
+            let mut counters = crate::geometry::TraversalCounters::default();
+            let mut sun = [0.0f64; 3];
+            for (dir, rgb) in bright.dirs.iter().zip(&bright.rgb) {
+                let cos = p.normal.dot(*dir);
+                if cos <= 0.0 || scene.occluded1(origin, *dir, f32::INFINITY, &mut counters) {
+                    continue;
+                }
+                let b = p.material.eval(p.normal, p.wo, *dir) * cos;
+                let f = crate::lights::envmap::LUMINANCE[0] * b.x as f64
+                    + crate::lights::envmap::LUMINANCE[1] * b.y as f64
+                    + crate::lights::envmap::LUMINANCE[2] * b.z as f64;
+                for c in 0..3 {
+                    sun[c] += rgb[c] * f;
+                }
+            }
+            let exact = j(&dense, sun);
             let err = |x: [f64; 3]| -> f64 {
                 (0..3)
                     .map(|c| (x[c] - exact[c]).powi(2) / (exact[c] * exact[c] + FLOOR))
