@@ -51,7 +51,7 @@ use rayon::prelude::*;
 use crate::camera::{Camera, GBuffer};
 use crate::error::{Error, Result};
 use crate::estimators::indirect::shading_point_at;
-use crate::geometry::{RayBatch, Scene, SurfaceHit, TMax, TraversalCounters};
+use crate::geometry::{RayBatch, Scene, TMax, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::lights::vpl::{luminance, Receiver as VplReceiver, Vpl, VplKind, VplSet};
 use crate::parallel::{run_polling, with_threads};
@@ -257,22 +257,13 @@ fn receivers(
     Ok((0..g.object.len())
         .map(|i| {
             let dir = Vec3::from(g.direction[i]);
-            if g.object[i] < 0 {
+            let Some(hit) = g.surface_hit(i) else {
                 let l = if params.direct {
                     env.eval(dir)
                 } else {
                     Vec3::ZERO
                 };
                 return Receiver::Background(l);
-            }
-            let hit = SurfaceHit {
-                t: g.depth[i],
-                prim: g.prim[i] as u32,
-                obj: g.object[i] as u32,
-                u: 0.0,
-                v: 0.0,
-                position: Vec3::from(g.position[i]),
-                normal: Vec3::from(g.normal[i]),
             };
             let sp = shading_point_at(scene, &hit, -dir);
             let emitted = if params.direct {

@@ -65,7 +65,7 @@ use crate::bsdf::Material;
 use crate::camera::{Camera, GBuffer};
 use crate::error::{Error, Result};
 use crate::estimators::direct::ShadingPoint;
-use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
+use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::math::{triangle_cross, LUMINANCE_F32};
 use crate::parallel::with_threads;
@@ -743,17 +743,8 @@ fn view_points(
     let small = camera.with_resolution(width, height)?;
     let g = GBuffer::render(scene, &small, 0, false, threads)?;
     Ok((0..g.object.len())
-        .filter(|&i| g.object[i] >= 0)
-        .map(|i| {
-            let hit = SurfaceHit {
-                t: g.depth[i],
-                prim: g.prim[i] as u32,
-                obj: g.object[i] as u32,
-                u: 0.0,
-                v: 0.0,
-                position: Vec3::from(g.position[i]),
-                normal: Vec3::from(g.normal[i]),
-            };
+        .filter_map(|i| g.surface_hit(i).map(|hit| (i, hit)))
+        .map(|(i, hit)| {
             let wo = -Vec3::from(g.direction[i]);
             Receiver::new(
                 scene,
