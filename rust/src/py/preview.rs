@@ -69,20 +69,19 @@ fn rotation_arg(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<DMat3>> {
     Ok(Some(m))
 }
 
-fn basis_dict<'py>(py: Python<'py>, basis: Basis, d: &Bound<'py, PyDict>) -> PyResult<()> {
+fn basis_dict(basis: Basis, d: &Bound<'_, PyDict>) -> PyResult<()> {
     d.set_item("basis", basis.name())?;
     match basis {
         Basis::Texels { level } => d.set_item("basis_level", level)?,
         Basis::Haar { terms } => d.set_item("terms", terms)?,
         Basis::Sh { order } => d.set_item("order", order)?,
     }
-    let _ = py;
     Ok(())
 }
 
 fn info_dict<'py>(py: Python<'py>, info: &TransferInfo) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    basis_dict(py, info.basis, &d)?;
+    basis_dict(info.basis, &d)?;
     d.set_item("level", info.level)?;
     d.set_item("seconds", info.seconds)?;
     d.set_item("bytes", info.bytes)?;

@@ -388,11 +388,15 @@ impl LightingPreview {
                 &probe
             }
         };
+        // The map as truncated bases see it: without its bright cells, which the pixels
+        // add exactly.
+        let (residual, bright) = split_light(env, level, None, true)?;
+        let split = (&residual[..], &bright);
         let mut settings = request.settings;
         let mut visibility_measured = None;
         if let (true, Some(scene)) = (request.choose_visibility, scene) {
             let errors = with_threads(threads, || {
-                measure_visibility(scene, &points, cache, &settings, level, env)
+                measure_visibility(scene, &points, cache, &settings, level, split)
             })??;
             settings.nearest = errors.prefers_nearest();
             visibility_measured = Some(errors);
@@ -401,14 +405,10 @@ impl LightingPreview {
             if candidates.len() == 1 {
                 Ok((candidates[0], Vec::new()))
             } else {
-                measure(&points, cache, &settings, level, &candidates, env)
+                measure(&points, cache, &settings, level, &candidates, env, split)
             }
         })??;
-        // Truncation weights from the map's light without its bright cells (those the
-        // pixels add exactly).
-        let (mut cells, centroids) = light::cell_integrals_and_centroids(env, level, None)?;
-        bright::BrightCells::split(&mut cells, &centroids);
-        let weights = transfer::level_weights(&cells);
+        let weights = transfer::level_weights(&residual);
         let transfer = with_threads(threads, || {
             Transfer::build(&points, cache, settings, level, basis, Some(weights))
         })??;
@@ -486,12 +486,8 @@ impl LightingPreview {
         cache.bind_fingerprint(self.scene)?;
         let prepared = self.prepared(scene, cache, env, threads)?;
         let transfer = &prepared.transfer;
-        let (mut cells, centroids) =
-            light::cell_integrals_and_centroids(env, transfer.level(), rotation)?;
-        let bright = match &prepared.records {
-            Some(_) => bright::BrightCells::split(&mut cells, &centroids),
-            None => bright::BrightCells::default(),
-        };
+        let (cells, bright) =
+            split_light(env, transfer.level(), rotation, prepared.records.is_some())?;
         let masks = match bright.is_empty() {
             true => Vec::new(),
             false => bright.record_masks(&cache.read(), transfer.level()),
@@ -626,11 +622,9 @@ fn measure(
     level: u32,
     candidates: &[Basis],
     env: &EnvMap,
+    (cells, bright): (&[[f64; 3]], &bright::BrightCells),
 ) -> Result<(Basis, Vec<(Basis, f64)>)> {
-    let covered: Vec<usize> = (0..points.len()).filter(|&i| points[i].is_some()).collect();
-    let step = covered.len().div_ceil(AUTO_SAMPLE).max(1);
-    let sample: Vec<Option<TransferPoint>> =
-        covered.iter().step_by(step).map(|&i| points[i]).collect();
+    let sample = spread(points, AUTO_SAMPLE);
     let full = Transfer::build(
         &sample,
         cache,
@@ -645,15 +639,11 @@ fn measure(
         .collect();
     let power: [f64; 3] =
         std::array::from_fn(|c| reference.iter().map(|j| j[c] * j[c]).sum::<f64>());
-    // The truncated bases see the map without its bright cells, which the pixels add
-    // exactly (as renders do).
-    let (mut cells, centroids) = light::cell_integrals_and_centroids(env, level, None)?;
-    let bright = bright::BrightCells::split(&mut cells, &centroids);
     let state = cache.read();
     let masks = bright.record_masks(&state, level);
     let records = bright::PixelRecords::gather(&sample, &state, cache.params(), settings.nearest);
     drop(state);
-    let weights = transfer::level_weights(&cells);
+    let weights = transfer::level_weights(cells);
     let mut measured = Vec::new();
     for &basis in candidates {
         let t = Transfer::build(
@@ -664,12 +654,12 @@ fn measure(
             basis,
             Some(weights.clone()),
         )?;
-        let light = t.light_for(env, None, cells.clone(), &bright)?;
+        let light = t.light_for(env, None, cells.to_vec(), bright)?;
         let mut err = [0.0f64; 3];
         for (i, r) in reference.iter().enumerate() {
             let mut j = t.eval(i, &light);
             if let (Some(p), true) = (&sample[i], t.has_row(i)) {
-                let b = records.eval(i, &p.material, p.normal, p.wo, &bright, &masks);
+                let b = records.eval(i, &p.material, p.normal, p.wo, bright, &masks);
                 j = std::array::from_fn(|c| j[c] + b[c]);
             }
             for c in 0..3 {
@@ -711,27 +701,19 @@ fn measure_visibility(
     cache: &VisibilityCache,
     settings: &TransferSettings,
     level: u32,
-    env: &EnvMap,
+    (light, bright): (&[[f64; 3]], &bright::BrightCells),
 ) -> Result<VisibilityErrors> {
     const FLOOR: f64 = 1e-2;
-    let covered: Vec<usize> = (0..points.len()).filter(|&i| points[i].is_some()).collect();
-    let step = covered.len().div_ceil(VISIBILITY_SAMPLE).max(1);
-    let sample: Vec<TransferPoint> = covered
-        .iter()
-        .step_by(step)
-        .filter_map(|&i| points[i])
-        .collect();
     // The bright cells as the preview takes them: out of the cells, added per pixel at
     // their directions — here with a shadow ray for the exact form.
-    let (mut light, centroids) = light::cell_integrals_and_centroids(env, level, None)?;
-    let bright = bright::BrightCells::split(&mut light, &centroids);
+    let sample_points = spread(points, VISIBILITY_SAMPLE);
+    let sample: Vec<TransferPoint> = sample_points.iter().flatten().copied().collect();
     let fine = (level + 1).min(crate::sampling::pattern::MAX_LOG2_RESOLUTION);
     let pattern = crate::sampling::pattern::default_pattern(fine)?;
     let state = cache.read();
     let frame = state.frame();
     let params = cache.params();
     let masks = bright.record_masks(&state, level);
-    let sample_points: Vec<Option<TransferPoint>> = sample.iter().map(|&p| Some(p)).collect();
     let blend_records = bright::PixelRecords::gather(&sample_points, &state, params, false);
     let nearest_records = bright::PixelRecords::gather(&sample_points, &state, params, true);
     let blend = TransferSettings {
@@ -751,12 +733,12 @@ fn measure_visibility(
             let ratios = p.material.channel_ratios();
             let j = |dense: &[f64], extra: [f64; 3]| -> [f64; 3] {
                 std::array::from_fn(|c| {
-                    let smooth = dense.iter().zip(&light).map(|(t, l)| t * l[c]).sum::<f64>();
+                    let smooth = dense.iter().zip(light).map(|(t, l)| t * l[c]).sum::<f64>();
                     ratios[c] as f64 * (smooth + extra[c])
                 })
             };
             let bright_of = |records: &bright::PixelRecords| {
-                records.eval(i, &p.material, p.normal, p.wo, &bright, &masks)
+                records.eval(i, &p.material, p.normal, p.wo, bright, &masks)
             };
             let mut builder = transfer::PixelTransfer::new(&state, params, blend, level);
             if !builder.dense(p, &mut dense) {
@@ -832,4 +814,35 @@ impl VisibilityErrors {
     pub fn prefers_nearest(&self) -> bool {
         self.nearest < self.blend
     }
+}
+
+/// Up to `n` of the view's surface points, spread evenly over it (every k-th).
+fn spread(points: &[Option<TransferPoint>], n: usize) -> Vec<Option<TransferPoint>> {
+    let covered = points.iter().filter(|p| p.is_some()).count();
+    let step = covered.div_ceil(n).max(1);
+    points
+        .iter()
+        .filter(|p| p.is_some())
+        .step_by(step)
+        .copied()
+        .collect()
+}
+
+/// `env` turned by `rotation` as integrals over the cells of `level`, with its bright cells
+/// moved out when `split` ([`bright`]; none moved otherwise, and no centroids taken).
+fn split_light(
+    env: &EnvMap,
+    level: u32,
+    rotation: Option<&DMat3>,
+    split: bool,
+) -> Result<(Vec<[f64; 3]>, bright::BrightCells)> {
+    if !split {
+        return Ok((
+            light::cell_integrals(env, level, rotation)?,
+            bright::BrightCells::default(),
+        ));
+    }
+    let (mut cells, centroids) = light::cell_integrals_and_centroids(env, level, rotation)?;
+    let bright = bright::BrightCells::split(&mut cells, &centroids);
+    Ok((cells, bright))
 }
