@@ -151,6 +151,33 @@ def test_visibility_form_is_measured(garage):
     assert view.transfer_info["nearest"] is True
 
 
+def test_sun_is_judged_per_lighting(garage):
+    """A truncated transfer adds a sun's cells per pixel, with visibility in the form that
+    shadow rays at the sample pixels judge best for that lighting; the rays it traces are
+    the only ones after preparation, at most one per sample pixel and cell."""
+    setup, cache = garage
+    view = vc.LightingPreview(setup.scene, setup.camera)
+    sky = vc.envmaps.sky(sun_dir=(0.4, 0.6, -0.5), resolution=128)
+    info = view.prepare(cache, sky, basis="haar", budget_mb=40 * 30 * 300 / 1e6)
+    assert info["basis"] == "haar" and view.last_bright is None
+    setup.scene.counting = True
+    try:
+        for degrees in (0.0, 90.0, 200.0):
+            setup.scene.reset_counters()
+            one = view.render(cache, sky, rotation=degrees, threads=1)
+            rays = setup.scene.counters()["rays"]
+            b = view.last_bright
+            assert b["cells"] >= 1 and b["errors"] is not None
+            assert b["nearest"] == (b["errors"]["nearest"] < b["errors"]["blend"])
+            assert rays == b["errors"]["rays"] and 0 < rays <= 40 * 30 * b["cells"]
+            assert np.array_equal(view.render(cache, sky, rotation=degrees, threads=2), one)
+    finally:
+        setup.scene.counting = False
+    view.prepare(cache, sky, basis="haar", budget_mb=40 * 30 * 300 / 1e6, nearest=True)
+    view.render(cache, sky)
+    assert view.last_bright["nearest"] is True and view.last_bright["errors"] is None
+
+
 def test_bad_input_names_the_argument(garage):
     setup, cache = garage
     view = vc.LightingPreview(setup.scene, setup.camera)

@@ -191,8 +191,11 @@ impl PyLightingPreview {
     /// `envmap`, or a sun-and-sky probe; `budget_mb` None is 200), "full", "texels",
     /// "haar" or "sh". `nearest`: True takes visibility from each pixel's heaviest record
     /// only, False from the cache's blend of records, None (default) the one whose `J` lies
-    /// closer to exact visibility at 1024 pixels (a record traced at each). Returns a dict: basis, terms,
-    /// basis_level or order, level, seconds, bytes, pixels, measured.
+    /// closer to exact visibility at 1024 pixels (a record traced at each) — and, for a
+    /// truncated basis, visibility toward each lighting's bright cells (a sun) in the form
+    /// that shadow rays at up to 16384 pixels judge best for that lighting (see
+    /// `last_bright`). Returns a dict: basis, terms, basis_level or order, level, seconds,
+    /// bytes, pixels, measured, nearest, visibility_measured.
     #[pyo3(signature = (cache, envmap=None, basis="auto", budget_mb=None, product_level=None, nearest=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn prepare<'py>(
@@ -246,6 +249,33 @@ impl PyLightingPreview {
             .transfer_info()
             .map(|i| info_dict(py, &i))
             .transpose()
+    }
+
+    /// How the last transfer render added the map's bright cells (a sun's), or None (no
+    /// render yet, no bright cell, or a whole transfer, which needs none): a dict with
+    /// `cells`, `nearest` (visibility toward them from each pixel's heaviest record, else
+    /// the cache's blend) and `errors` (`{"blend", "nearest", "rays"}`: each form's error
+    /// against shadow rays at 1024 pixels, which chose it; None when `prepare` fixed
+    /// `nearest`).
+    #[getter]
+    fn last_bright<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(choice) = self.get().last_bright() else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        d.set_item("cells", choice.cells)?;
+        d.set_item("nearest", choice.nearest)?;
+        match choice.errors {
+            Some(e) => {
+                let errors = PyDict::new(py);
+                errors.set_item("blend", e.blend)?;
+                errors.set_item("nearest", e.nearest)?;
+                errors.set_item("rays", e.rays)?;
+                d.set_item("errors", errors)?;
+            }
+            None => d.set_item("errors", py.None())?,
+        }
+        Ok(Some(d))
     }
 
     /// Gives object `obj` the material `material` in this view; with `cache` (the one the

@@ -87,7 +87,9 @@ impl BrightCells {
     }
 }
 
-/// Each pixel's kept records and their `β` (`n_keep` slots a pixel, unused ones `β = 0`).
+/// Each pixel's kept records and their `β` (`n_keep` slots a pixel, heaviest first, unused
+/// ones `β = 0`): `Ṽ` toward a bright cell as the cache's blend, or from the heaviest
+/// record alone.
 #[derive(Clone, Debug)]
 pub struct PixelRecords {
     per_pixel: usize,
@@ -96,12 +98,11 @@ pub struct PixelRecords {
 }
 
 impl PixelRecords {
-    /// The lookups of `points` (the transfer's), the heaviest record alone with `nearest`.
+    /// The lookups of `points` (the transfer's).
     pub fn gather(
         points: &[Option<TransferPoint>],
         state: &CacheState,
         params: &CacheParams,
-        nearest: bool,
     ) -> Self {
         let per_pixel = params.n_keep as usize;
         let mut ids = vec![0u32; per_pixel * points.len()];
@@ -109,15 +110,9 @@ impl PixelRecords {
         for (i, p) in points.iter().enumerate() {
             let Some(p) = p else { continue };
             let lookup = state.lookup_records(params, p.position, p.normal, p.radius);
-            let kept = lookup.neighbours();
-            let kept = if nearest {
-                &kept[..kept.len().min(1)]
-            } else {
-                kept
-            };
-            for (k, n) in kept.iter().enumerate() {
+            for (k, n) in lookup.neighbours().iter().enumerate() {
                 ids[i * per_pixel + k] = n.id;
-                betas[i * per_pixel + k] = if nearest { 1.0 } else { n.beta };
+                betas[i * per_pixel + k] = n.beta;
             }
         }
         Self {
@@ -137,8 +132,24 @@ impl PixelRecords {
         8 * params.n_keep as usize
     }
 
-    /// `Σ_s l_c(s) B(ω_s) cos θ_s Ṽ(ω_s)` of pixel `i` (module docs), `masks` from
-    /// [`BrightCells::record_masks`].
+    /// `Ṽ` of pixel `i` toward bright cell `s`: the blend `Σ β_k V_k`, or with `nearest`
+    /// the heaviest record's `V`.
+    fn visibility(&self, i: usize, s: usize, masks: &[u8], nearest: bool) -> f64 {
+        let slots = i * self.per_pixel..(i + 1) * self.per_pixel;
+        let (ids, betas) = (&self.ids[slots.clone()], &self.betas[slots]);
+        let sees = |k: usize| betas[k] > 0.0 && masks[ids[k] as usize] >> s & 1 == 1;
+        if nearest {
+            return if sees(0) { 1.0 } else { 0.0 };
+        }
+        (0..ids.len())
+            .filter(|&k| sees(k))
+            .map(|k| betas[k] as f64)
+            .sum()
+    }
+
+    /// `Σ_s l_c(s) B(ω_s) cos θ_s Ṽ(ω_s)` of pixel `i` (module docs) with `Ṽ` in the
+    /// form `nearest` names, `masks` from [`BrightCells::record_masks`].
+    #[allow(clippy::too_many_arguments)]
     pub fn eval(
         &self,
         i: usize,
@@ -147,21 +158,31 @@ impl PixelRecords {
         wo: Vec3,
         bright: &BrightCells,
         masks: &[u8],
+        nearest: bool,
     ) -> [f64; 3] {
-        let slots = i * self.per_pixel..(i + 1) * self.per_pixel;
-        let (ids, betas) = (&self.ids[slots.clone()], &self.betas[slots]);
+        bright.light(material, normal, wo, |s| {
+            self.visibility(i, s, masks, nearest)
+        })
+    }
+}
+
+impl BrightCells {
+    /// `Σ_s l_c(s) B(ω_s) cos θ_s V(s)` at a point, `V(s)` from `visibility` (called only
+    /// for cells above the surface).
+    pub fn light(
+        &self,
+        material: &Material,
+        normal: Vec3,
+        wo: Vec3,
+        mut visibility: impl FnMut(usize) -> f64,
+    ) -> [f64; 3] {
         let mut out = [0.0f64; 3];
-        for (s, (dir, rgb)) in bright.dirs.iter().zip(&bright.rgb).enumerate() {
+        for (s, (dir, rgb)) in self.dirs.iter().zip(&self.rgb).enumerate() {
             let cos = normal.dot(*dir);
             if cos <= 0.0 {
                 continue;
             }
-            let v: f64 = ids
-                .iter()
-                .zip(betas)
-                .filter(|(&id, _)| masks[id as usize] >> s & 1 == 1)
-                .map(|(_, &b)| b as f64)
-                .sum();
+            let v = visibility(s);
             if v <= 0.0 {
                 continue;
             }

@@ -19,6 +19,7 @@
 pub mod bright;
 pub mod haar;
 pub mod light;
+pub mod sample;
 pub mod transfer;
 
 use std::sync::{Arc, Mutex};
@@ -74,6 +75,20 @@ pub struct LightingPreview {
     /// What [`Self::render_lighting`] builds when it has no valid transfer: the last
     /// [`Self::prepare`]'s request, else [`TransferRequest::DEFAULT`].
     request: Mutex<TransferRequest>,
+    /// How the last [`Self::render_lighting`] took its bright cells.
+    last_bright: Mutex<Option<BrightChoice>>,
+}
+
+/// How a lighting's bright cells were added ([`LightingPreview::last_bright`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BrightChoice {
+    /// Bright cells taken out of the projection.
+    pub cells: usize,
+    /// `Ṽ` toward them from the heaviest record alone (else the cache's blend).
+    pub nearest: bool,
+    /// The measurement that chose it ([`sample::judge`]); `None` where the form was fixed
+    /// at preparation (or no scene was given).
+    pub errors: Option<sample::BrightErrors>,
 }
 
 impl Clone for LightingPreview {
@@ -86,6 +101,7 @@ impl Clone for LightingPreview {
             objects: self.objects,
             transfer: Mutex::new(lock(&self.transfer).clone()),
             request: Mutex::new(*lock(&self.request)),
+            last_bright: Mutex::new(*lock(&self.last_bright)),
         }
     }
 }
@@ -142,13 +158,17 @@ pub struct TransferRequest {
     /// Decide `settings.nearest` by measurement: at up to [`VISIBILITY_SAMPLE`] pixels,
     /// trace a record at the pixel (twice the cache's resolution) and compare `J` with the
     /// cache's blend of records and with the heaviest record alone against it; the
-    /// lower mean error wins ([`VisibilityErrors::prefers_nearest`]). Needs the scene; without it the blend
-    /// is kept.
+    /// lower mean error wins ([`VisibilityErrors::prefers_nearest`]). A truncated
+    /// transfer's bright cells are then judged per lighting ([`sample`]). Needs the
+    /// scene; without it the blend is kept.
     pub choose_visibility: bool,
 }
 
 /// Pixels [`TransferRequest::choose_visibility`] traces a record at.
 pub const VISIBILITY_SAMPLE: usize = 1024;
+
+/// Pixels at which each lighting's bright cells are judged ([`sample`]).
+pub const JUDGE_SAMPLE: usize = 16384;
 
 impl TransferRequest {
     /// `"auto"` within 200 MB, the renderer's product levels, interpolated `Ṽ`.
@@ -172,7 +192,19 @@ struct Prepared {
     /// Each pixel's records, for the bright cells a truncated basis leaves out
     /// ([`bright`]); `None` with the whole transfer.
     records: Option<bright::PixelRecords>,
+    /// With `records` and [`TransferRequest::choose_visibility`], the pixels at which each
+    /// lighting's bright cells are judged ([`sample`]); else their form is `settings`'.
+    sample: Option<Vec<usize>>,
     info: TransferInfo,
+}
+
+impl Prepared {
+    /// Bytes the transfer, the pixels' records and the traced sample hold.
+    fn bytes(&self) -> usize {
+        self.transfer.memory_bytes()
+            + self.records.as_ref().map_or(0, |r| r.memory_bytes())
+            + self.sample.as_ref().map_or(0, |s| 8 * s.len())
+    }
 }
 
 /// What [`LightingPreview::prepare`] reports.
@@ -249,6 +281,7 @@ impl LightingPreview {
             objects: objects.len(),
             transfer: Mutex::new(None),
             request: Mutex::new(TransferRequest::DEFAULT),
+            last_bright: Mutex::new(None),
         })
     }
 
@@ -351,13 +384,18 @@ impl LightingPreview {
         )?;
         // A truncated basis also keeps each pixel's records (for the bright cells).
         let records_bytes = bright::PixelRecords::bytes_per_pixel(cache.params());
-        let per_pixel = |extra: usize| {
+        let judged = request.choose_visibility && scene.is_some();
+        let sample_bytes = match judged {
+            true => 8 * VISIBILITY_SAMPLE.min(covered),
+            false => 0,
+        };
+        let per_pixel = |extra: usize, fixed: usize| {
             request
                 .budget_bytes
-                .saturating_sub((4 + extra) * points.len())
+                .saturating_sub((4 + extra) * points.len() + fixed)
                 / covered
         };
-        let (whole, truncated) = (per_pixel(0), per_pixel(records_bytes));
+        let (whole, truncated) = (per_pixel(0, 0), per_pixel(records_bytes, sample_bytes));
         let candidates = candidates(level, whole, truncated, request.basis);
         if candidates.is_empty() {
             let needed = match request.basis {
@@ -412,28 +450,32 @@ impl LightingPreview {
         let transfer = with_threads(threads, || {
             Transfer::build(&points, cache, settings, level, basis, Some(weights))
         })??;
-        let records = (!transfer.is_whole()).then(|| {
-            bright::PixelRecords::gather(&points, &cache.read(), cache.params(), settings.nearest)
-        });
-        let info = TransferInfo {
-            basis,
-            level,
-            seconds: start.elapsed().as_secs_f64(),
-            bytes: transfer.memory_bytes() + records.as_ref().map_or(0, |r| r.memory_bytes()),
-            pixels: transfer.rows(),
-            measured,
-            nearest: settings.nearest,
-            visibility_measured,
-        };
-        *lock(&self.request) = request;
-        *lock(&self.transfer) = Some(Arc::new(Prepared {
+        let records = (!transfer.is_whole())
+            .then(|| bright::PixelRecords::gather(&points, &cache.read(), cache.params()));
+        let mut prepared = Prepared {
             cache: version,
             request,
             settings,
+            sample: (judged && records.is_some()).then(|| spread_indices(&points, JUDGE_SAMPLE)),
             transfer,
             records,
-            info: info.clone(),
-        }));
+            info: TransferInfo {
+                basis,
+                level,
+                seconds: 0.0,
+                bytes: 0,
+                pixels: 0,
+                measured,
+                nearest: settings.nearest,
+                visibility_measured,
+            },
+        };
+        prepared.info.bytes = prepared.bytes();
+        prepared.info.pixels = prepared.transfer.rows();
+        prepared.info.seconds = start.elapsed().as_secs_f64();
+        let info = prepared.info.clone();
+        *lock(&self.request) = request;
+        *lock(&self.transfer) = Some(Arc::new(prepared));
         Ok(info)
     }
 
@@ -441,6 +483,12 @@ impl LightingPreview {
     /// another level is rebuilt by the next [`Self::render_lighting`]).
     pub fn set_product_level(&self, level: Option<ProductLevel>) {
         lock(&self.request).settings.product_level = level;
+    }
+
+    /// How the last [`Self::render_lighting`] added its bright cells (`None` before one,
+    /// or when that lighting had none or the transfer was whole).
+    pub fn last_bright(&self) -> Option<BrightChoice> {
+        *lock(&self.last_bright)
     }
 
     /// What the kept transfer reports, if one is kept.
@@ -493,6 +541,35 @@ impl LightingPreview {
             false => bright.record_masks(&cache.read(), transfer.level()),
         };
         let light = transfer.light_for(env, rotation, cells, &bright)?;
+        let errors = match (
+            scene,
+            &prepared.records,
+            &prepared.sample,
+            bright.is_empty(),
+        ) {
+            (Some(scene), Some(records), Some(pixels), false) => {
+                let shading = |i: usize| {
+                    self.points[i].as_ref().ok().map(|p| sample::Shading {
+                        position: p.position,
+                        normal: p.normal,
+                        wo: p.wo,
+                        material: p.material,
+                    })
+                };
+                let smooth = |i: usize| transfer.has_row(i).then(|| transfer.eval(i, &light));
+                Some(with_threads(threads, || {
+                    sample::judge(scene, pixels, shading, records, &bright, &masks, smooth)
+                })?)
+            }
+            _ => None,
+        };
+        let choice = (!bright.is_empty()).then(|| BrightChoice {
+            cells: bright.cells.len(),
+            nearest: errors.map_or(prepared.settings.nearest, |e| e.prefers_nearest()),
+            errors,
+        });
+        *lock(&self.last_bright) = choice;
+        let bright_nearest = choice.is_some_and(|c| c.nearest);
         let inverse = rotation.map(|r| r.transpose());
         with_threads(threads, || {
             self.points
@@ -511,8 +588,15 @@ impl LightingPreview {
                         let mut j = transfer.eval(i, &light);
                         if let (Some(records), false) = (&prepared.records, bright.is_empty()) {
                             if transfer.has_row(i) {
-                                let b =
-                                    records.eval(i, &p.material, p.normal, p.wo, &bright, &masks);
+                                let b = records.eval(
+                                    i,
+                                    &p.material,
+                                    p.normal,
+                                    p.wo,
+                                    &bright,
+                                    &masks,
+                                    bright_nearest,
+                                );
                                 j = std::array::from_fn(|c| j[c] + b[c]);
                             }
                         }
@@ -564,7 +648,7 @@ impl LightingPreview {
                 with_threads(threads, || {
                     p.transfer.rebuild(&points, &pixels, cache, settings)
                 })?;
-                p.info.bytes = p.transfer.memory_bytes();
+                p.info.bytes = p.bytes();
                 p.info.pixels = p.transfer.rows();
                 *lock(&self.transfer) = slot;
             }
@@ -641,7 +725,7 @@ fn measure(
         std::array::from_fn(|c| reference.iter().map(|j| j[c] * j[c]).sum::<f64>());
     let state = cache.read();
     let masks = bright.record_masks(&state, level);
-    let records = bright::PixelRecords::gather(&sample, &state, cache.params(), settings.nearest);
+    let records = bright::PixelRecords::gather(&sample, &state, cache.params());
     drop(state);
     let weights = transfer::level_weights(cells);
     let mut measured = Vec::new();
@@ -659,7 +743,15 @@ fn measure(
         for (i, r) in reference.iter().enumerate() {
             let mut j = t.eval(i, &light);
             if let (Some(p), true) = (&sample[i], t.has_row(i)) {
-                let b = records.eval(i, &p.material, p.normal, p.wo, bright, &masks);
+                let b = records.eval(
+                    i,
+                    &p.material,
+                    p.normal,
+                    p.wo,
+                    bright,
+                    &masks,
+                    settings.nearest,
+                );
                 j = std::array::from_fn(|c| j[c] + b[c]);
             }
             for c in 0..3 {
@@ -688,13 +780,20 @@ fn measure(
 #[cfg(test)]
 mod tests;
 
+/// The level of the records [`measure_visibility`] traces for a transfer of `level`:
+/// twice the resolution (four rays a cell: a record of the cache's own resolution would
+/// make a record at the pixel look exact when one ray a cell is itself a noisy estimate).
+fn sample_level(level: u32) -> u32 {
+    (level + 1).min(crate::sampling::pattern::MAX_LOG2_RESOLUTION)
+}
+
 /// [`TransferRequest::choose_visibility`]'s measurement: at up to [`VISIBILITY_SAMPLE`]
 /// pixels with records, the whole transfer's `J` under `env` with the cache's blend of
 /// records and with the heaviest record alone, against `J` with a record traced now at the
-/// pixel at twice the records' resolution (its visibility, four rays a cell: a record of
-/// the cache's own resolution would make a record at the pixel look exact when one ray a
-/// cell is itself a noisy estimate); returns both errors in the relMSE of the images
-/// (`Σ (Δ c J)² / ((c J)² + 0.01)` over pixels and channels, `c` the channel ratio).
+/// pixel ([`sample_level`]); returns both errors in the relMSE of the images
+/// (`Σ (Δ c J)² / ((c J)² + 0.01)` over pixels and channels, `c` the channel ratio). The
+/// bright cells enter every `J` exactly (a shadow ray each): their form is judged per
+/// lighting ([`sample`]), so this measurement decides the rest.
 fn measure_visibility(
     scene: &Scene,
     points: &[Option<TransferPoint>],
@@ -704,18 +803,11 @@ fn measure_visibility(
     (light, bright): (&[[f64; 3]], &bright::BrightCells),
 ) -> Result<VisibilityErrors> {
     const FLOOR: f64 = 1e-2;
-    // The bright cells as the preview takes them: out of the cells, added per pixel at
-    // their directions — here with a shadow ray for the exact form.
-    let sample_points = spread(points, VISIBILITY_SAMPLE);
-    let sample: Vec<TransferPoint> = sample_points.iter().flatten().copied().collect();
-    let fine = (level + 1).min(crate::sampling::pattern::MAX_LOG2_RESOLUTION);
-    let pattern = crate::sampling::pattern::default_pattern(fine)?;
+    let pixels = spread_indices(points, VISIBILITY_SAMPLE);
+    let pattern = crate::sampling::pattern::default_pattern(sample_level(level))?;
     let state = cache.read();
     let frame = state.frame();
     let params = cache.params();
-    let masks = bright.record_masks(&state, level);
-    let blend_records = bright::PixelRecords::gather(&sample_points, &state, params, false);
-    let nearest_records = bright::PixelRecords::gather(&sample_points, &state, params, true);
     let blend = TransferSettings {
         nearest: false,
         ..*settings
@@ -724,51 +816,43 @@ fn measure_visibility(
         nearest: true,
         ..*settings
     };
-    let per_point: Vec<Result<Option<[f64; 2]>>> = sample
+    let per_point: Vec<Result<Option<[f64; 2]>>> = pixels
         .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
+        .map(|&i| {
+            let p = points[i].as_ref().expect("spread picks covered pixels");
+            let (record, _) = crate::visibility::record::Record::trace_with(
+                scene, p.position, p.normal, pattern, frame, false,
+            )?;
             let n = 1usize << (2 * level);
             let mut dense = vec![0.0; n];
             let ratios = p.material.channel_ratios();
-            let j = |dense: &[f64], extra: [f64; 3]| -> [f64; 3] {
+            let origin = scene.offset_point(p.position, p.normal);
+            let mut counters = crate::geometry::TraversalCounters::default();
+            let sun = bright.light(&p.material, p.normal, p.wo, |s| {
+                let blocked = scene.occluded1(origin, bright.dirs[s], f32::INFINITY, &mut counters);
+                if blocked {
+                    0.0
+                } else {
+                    1.0
+                }
+            });
+            scene.add_counters(counters);
+            let j = |dense: &[f64]| -> [f64; 3] {
                 std::array::from_fn(|c| {
                     let smooth = dense.iter().zip(light).map(|(t, l)| t * l[c]).sum::<f64>();
-                    ratios[c] as f64 * (smooth + extra[c])
+                    ratios[c] as f64 * (smooth + sun[c])
                 })
-            };
-            let bright_of = |records: &bright::PixelRecords| {
-                records.eval(i, &p.material, p.normal, p.wo, bright, &masks)
             };
             let mut builder = transfer::PixelTransfer::new(&state, params, blend, level);
             if !builder.dense(p, &mut dense) {
                 return Ok(None);
             }
-            let j_blend = j(&dense, bright_of(&blend_records));
+            let j_blend = j(&dense);
             let mut builder = transfer::PixelTransfer::new(&state, params, nearest, level);
             builder.dense(p, &mut dense);
-            let j_nearest = j(&dense, bright_of(&nearest_records));
-            let (record, _) = crate::visibility::record::Record::trace_with(
-                scene, p.position, p.normal, pattern, frame, false,
-            )?;
+            let j_nearest = j(&dense);
             builder.dense_with(p, &[(record.bits.view(), 1.0)], &mut dense);
-            let origin = scene.offset_point(p.position, p.normal);
-            let mut counters = crate::geometry::TraversalCounters::default();
-            let mut sun = [0.0f64; 3];
-            for (dir, rgb) in bright.dirs.iter().zip(&bright.rgb) {
-                let cos = p.normal.dot(*dir);
-                if cos <= 0.0 || scene.occluded1(origin, *dir, f32::INFINITY, &mut counters) {
-                    continue;
-                }
-                let b = p.material.eval(p.normal, p.wo, *dir) * cos;
-                let f = crate::lights::envmap::LUMINANCE[0] * b.x as f64
-                    + crate::lights::envmap::LUMINANCE[1] * b.y as f64
-                    + crate::lights::envmap::LUMINANCE[2] * b.z as f64;
-                for c in 0..3 {
-                    sun[c] += rgb[c] * f;
-                }
-            }
-            let exact = j(&dense, sun);
+            let exact = j(&dense);
             let err = |x: [f64; 3]| -> f64 {
                 (0..3)
                     .map(|c| (x[c] - exact[c]).powi(2) / (exact[c] * exact[c] + FLOOR))
@@ -818,13 +902,19 @@ impl VisibilityErrors {
 
 /// Up to `n` of the view's surface points, spread evenly over it (every k-th).
 fn spread(points: &[Option<TransferPoint>], n: usize) -> Vec<Option<TransferPoint>> {
+    spread_indices(points, n)
+        .into_iter()
+        .map(|i| points[i])
+        .collect()
+}
+
+/// The pixels [`spread`] picks.
+fn spread_indices(points: &[Option<TransferPoint>], n: usize) -> Vec<usize> {
     let covered = points.iter().filter(|p| p.is_some()).count();
     let step = covered.div_ceil(n).max(1);
-    points
-        .iter()
-        .filter(|p| p.is_some())
+    (0..points.len())
+        .filter(|&i| points[i].is_some())
         .step_by(step)
-        .copied()
         .collect()
 }
 

@@ -418,3 +418,119 @@ fn visibility_form_is_chosen_by_measurement() {
         .unwrap();
     assert!(info.visibility_measured.is_none() && !info.nearest);
 }
+
+/// Each lighting's bright cells are judged at the sample pixels against shadow rays: on a
+/// view whose sample holds every pixel, the judge's two errors are the whole image's
+/// (recomputed here from rays and both forms), the lower one picks the form the render
+/// used, the rays are one per pixel and cell above its surface, and the render equals
+/// the transfer plus the bright cells in that form. Without the scene the form stays
+/// the one prepared.
+#[test]
+fn bright_cells_are_judged_per_lighting() {
+    let v = view("dynamics", 32, 24);
+    let scene = &v.setup.scene;
+    let preview = LightingPreview::new(scene, &v.camera, Some(2)).unwrap();
+    let sun = glam::Vec3::new(0.4, 0.6, -0.5);
+    let env = crate::lights::procedural::sky(sun, [4e4; 3], 1.0, [0.25, 0.45, 1.0], [0.85; 3], 256)
+        .unwrap();
+    let request = TransferRequest {
+        basis: BasisChoice::Haar,
+        budget_bytes: 32 * 24 * (4 + 64 + 300 + 8),
+        ..TransferRequest::DEFAULT
+    };
+    preview
+        .prepare(Some(scene), &v.cache, Some(&env), request, Some(2))
+        .unwrap();
+    let prepared = lock(&preview.transfer).clone().unwrap();
+    let pixels = prepared.sample.clone().expect("judged");
+    let covered = preview.points.iter().filter(|p| p.is_ok()).count();
+    assert_eq!(pixels.len(), covered);
+    for turn in [0.0, 135.0] {
+        let r = light::rotation_about_y(turn).unwrap();
+        let img = preview
+            .render_lighting(Some(scene), &v.cache, &env, Some(&r), Some(1))
+            .unwrap();
+        let again = preview
+            .render_lighting(Some(scene), &v.cache, &env, Some(&r), Some(2))
+            .unwrap();
+        assert_eq!(img, again, "threads");
+        let choice = preview.last_bright().expect("a sun");
+        let errors = choice.errors.expect("judged");
+        // The whole image's errors, from rays traced here.
+        let transfer = &prepared.transfer;
+        let (cells, bright) = split_light(&env, transfer.level(), Some(&r), true).unwrap();
+        let light = transfer.light_for(&env, Some(&r), cells, &bright).unwrap();
+        let state = v.cache.read();
+        let masks = bright.record_masks(&state, transfer.level());
+        let records = prepared.records.as_ref().unwrap();
+        let (mut e, mut rays) = ([0.0f64; 2], 0u64);
+        for (i, p) in preview.points.iter().enumerate() {
+            let Ok(p) = p else { continue };
+            if !transfer.has_row(i) {
+                continue;
+            }
+            let smooth = transfer.eval(i, &light);
+            let origin = scene.offset_point(p.position, p.normal);
+            let mut exact = [0.0f64; 3];
+            for (dir, rgb) in bright.dirs.iter().zip(&bright.rgb) {
+                let cos = p.normal.dot(*dir);
+                if cos <= 0.0 {
+                    continue;
+                }
+                rays += 1;
+                let mut counters = crate::geometry::TraversalCounters::default();
+                if scene.occluded1(origin, *dir, f32::INFINITY, &mut counters) {
+                    continue;
+                }
+                let b = p.material.eval(p.normal, p.wo, *dir) * cos;
+                let y = 0.2126 * b.x as f64 + 0.7152 * b.y as f64 + 0.0722 * b.z as f64;
+                for c in 0..3 {
+                    exact[c] += rgb[c] * y;
+                }
+            }
+            let ratios = p.material.channel_ratios();
+            for (k, nearest) in [false, true].into_iter().enumerate() {
+                let b = records.eval(i, &p.material, p.normal, p.wo, &bright, &masks, nearest);
+                for c in 0..3 {
+                    let r = ratios[c] as f64;
+                    let j = r * (smooth[c] + exact[c]);
+                    e[k] += (r * (b[c] - exact[c])).powi(2) / (j * j + 1e-2);
+                }
+            }
+            let shown = img[i];
+            let b = records.eval(
+                i,
+                &p.material,
+                p.normal,
+                p.wo,
+                &bright,
+                &masks,
+                choice.nearest,
+            );
+            for c in 0..3 {
+                let want = p.emitted[c] + (ratios[c] as f64 * (smooth[c] + b[c])) as f32;
+                assert!(
+                    (shown[c] - want).abs() <= 1e-5 * want.abs().max(1e-3),
+                    "pixel {i}"
+                );
+            }
+        }
+        assert!(e[0] > 0.0 && e[1] > 0.0 && e[0] != e[1], "{e:?}");
+        assert!(
+            (errors.blend - e[0]).abs() <= 1e-9 * e[0],
+            "{errors:?} vs {e:?}"
+        );
+        assert!(
+            (errors.nearest - e[1]).abs() <= 1e-9 * e[1],
+            "{errors:?} vs {e:?}"
+        );
+        assert_eq!(errors.rays, rays);
+        assert_eq!(choice.nearest, e[1] < e[0]);
+        assert_eq!(choice.cells, bright.cells.len());
+    }
+    preview
+        .render_lighting(None, &v.cache, &env, None, Some(2))
+        .unwrap();
+    let fixed = preview.last_bright().unwrap();
+    assert!(fixed.errors.is_none() && fixed.nearest == prepared.settings.nearest);
+}
