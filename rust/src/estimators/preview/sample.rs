@@ -68,11 +68,11 @@ pub fn judge(
 ) -> BrightErrors {
     use rayon::prelude::*;
     const FLOOR: f64 = 1e-2;
-    let per_pixel: Vec<[f64; 3]> = pixels
+    let per_pixel: Vec<(f64, f64, u64)> = pixels
         .par_iter()
         .map(|&i| {
             let (Some(p), Some(smooth)) = (point(i), smooth(i)) else {
-                return [0.0; 3];
+                return (0.0, 0.0, 0);
             };
             let origin = scene.offset_point(p.position, p.normal);
             let mut counters = TraversalCounters::default();
@@ -96,7 +96,7 @@ pub fn judge(
                     })
                     .sum()
             };
-            [err(false), err(true), rays as f64]
+            (err(false), err(true), rays)
         })
         .collect();
     per_pixel.iter().fold(
@@ -105,10 +105,10 @@ pub fn judge(
             nearest: 0.0,
             rays: 0,
         },
-        |a, e| BrightErrors {
-            blend: a.blend + e[0],
-            nearest: a.nearest + e[1],
-            rays: a.rays + e[2] as u64,
+        |a, &(blend, nearest, rays)| BrightErrors {
+            blend: a.blend + blend,
+            nearest: a.nearest + nearest,
+            rays: a.rays + rays,
         },
     )
 }
