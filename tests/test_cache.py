@@ -217,7 +217,8 @@ def test_build_is_identical_for_one_and_two_threads(cornell):
     cam = cornell.camera.with_resolution(64, 48)
     caches = []
     for threads in (1, 2):
-        c = vc.VisibilityCache(cornell.scene, n_startup=100)
+        # Unchecked: the closed box sees no map, so a checked build keeps no record.
+        c = vc.VisibilityCache(cornell.scene, n_startup=100, check_coherence=False)
         c.build(cam, seed=5, threads=threads, progress=False)
         caches.append(c)
     a, b = caches
@@ -492,6 +493,23 @@ def test_auto_preset_skips_incoherent_visibility_and_keeps_its_flag(tmp_path):
     # Other presets skip the check.
     medium = vc.VisibilityCache(garage.scene, preset="medium")
     assert medium.build(cam, progress=False)["incoherence"] is None
+
+
+def test_auto_preset_keeps_no_record_where_no_ray_sees_the_map(cornell):
+    # The closed Cornell box is lit by its ceiling light: every ray of the check ends on a
+    # wall, so records would all be zero and the control variate would cancel nothing.
+    # The build stops after the check; "cv" then costs what product sampling does.
+    cam = cornell.camera.with_resolution(64, 48)
+    cache = vc.VisibilityCache(cornell.scene)
+    report = cache.build(cam, progress=False)
+    assert report["blind"] and not report["incoherent"] and report["incoherence"] == 0.0
+    assert len(cache) == 0 and report["shadow_rays"] > 0  # the check's maps only
+    r = vc.render(cornell, camera=cam, spp=2, method="cv", progress=False)
+    assert r.stats["cache_blind"] and r.stats["cache_records"] == 0
+    # Open the box to the sky and the check's rays see it: it is no longer blind.
+    opened = vc.scenes.without(cornell, ("ceiling", "light"))
+    report = vc.VisibilityCache(opened.scene).build(cam, progress=False)
+    assert not report["blind"] and report["incoherence"] > 0.0
 
 
 def test_auto_builds_in_the_closed_room_and_caps_its_records():

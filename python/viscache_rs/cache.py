@@ -35,7 +35,9 @@ class VisibilityCache(_core.VisibilityCache):
         stops after the wave that spends ``time_budget`` seconds. Returns a dict: records,
         bootstrap_records, refined_records, discarded_records, pixels, covered_pixels,
         shadow_rays, nearest_rays, shadow_rays_per_pixel (CAM08 Table 2's last row),
-        seconds, complete, incoherence, incoherent. A ``callback(done, total)`` (pixels)
+        seconds, complete, incoherence, incoherent, blind (the check saw the map through
+        none of its rays: no records, as the control variate would cancel nothing). A
+        ``callback(done, total)`` (pixels)
         replaces the bar: a falsy return or an exception stops the build."""
         if callback is not None:
             return super().build(camera, seed=seed, threads=threads, gbuffer=gbuffer,

@@ -152,7 +152,8 @@ def render(
         cache_stats = {"cache_seconds": built,
                        "cache_records": report["records"],
                        "cache_shadow_rays": report["shadow_rays"],
-                       "cache_incoherent": report["incoherent"]}
+                       "cache_incoherent": report["incoherent"],
+                       "cache_blind": report["blind"]}
         if time_budget is not None:
             time_budget = max(time_budget - built, 1e-3)
     elif cache is not None and method != "cv":

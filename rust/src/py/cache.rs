@@ -283,6 +283,7 @@ impl PyVisibilityCache {
         d.set_item("complete", r.complete)?;
         d.set_item("incoherence", r.incoherence)?;
         d.set_item("incoherent", r.incoherent)?;
+        d.set_item("blind", r.blind)?;
         Ok(d)
     }
 

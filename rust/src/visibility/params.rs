@@ -88,7 +88,9 @@ pub struct CacheParams {
     /// quarter of `d_max` apart, and when their visible sets differ on average by more than
     /// [`INCOHERENCE_LIMIT`] (Jaccard distance), records could not predict the points
     /// between them, so the build inserts none (the control variate then samples as plain
-    /// product sampling, for the check's few rays). A build that passes the check stops
+    /// product sampling, for the check's few rays). Nor does it when none of the check's
+    /// rays sees the map (a closed room lit by its own lights): records would all be zero
+    /// and cancel nothing (`BuildReport::blind`). A build that passes the check stops
     /// inserting at [`record_cap`] records: past a tenth of the view's pixels, records
     /// barely help the control variate and cost most of the build.
     pub check_coherence: bool,

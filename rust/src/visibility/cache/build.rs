@@ -56,6 +56,10 @@ pub struct BuildReport {
     /// Whether the check found visibility too incoherent for records and stopped the build
     /// after it.
     pub incoherent: bool,
+    /// Whether the check saw the map through none of its rays (a closed room lit by its
+    /// own lights) and stopped the build after it: `Ṽ` would be zero everywhere, so the
+    /// control variate would cancel nothing and records would only cost their rays.
+    pub blind: bool,
 }
 
 impl VisibilityCache {
@@ -164,11 +168,15 @@ impl VisibilityCache {
                     Some(*footprints.select_nth_unstable_by(mid, f32::total_cmp).1);
             }
             if self.is_empty() && self.params.check_coherence {
-                let (incoherence, rays) = self.coherence_check(scene, gbuffer)?;
-                count_rays(&mut self.write().counters, rays);
-                report.incoherence = incoherence;
-                if incoherence.is_some_and(|d| d > INCOHERENCE_LIMIT) {
+                let check = self.coherence_check(scene, gbuffer)?;
+                count_rays(&mut self.write().counters, check.rays);
+                report.incoherence = check.incoherence;
+                if check.incoherence.is_some_and(|d| d > INCOHERENCE_LIMIT) {
                     report.incoherent = true;
+                    return Ok(());
+                }
+                if check.incoherence.is_some() && check.visible == 0 {
+                    report.blind = true;
                     return Ok(());
                 }
             }
@@ -267,9 +275,10 @@ impl VisibilityCache {
     /// (16 x 16 directions, a sixteenth of a 64² record's rays; not inserted) at
     /// [`COHERENCE_PAIRS`] pixels on a grid over the image and at their partners a quarter
     /// of `d_max` to the side (both surface hits); returns the mean Jaccard distance
-    /// `|A ⊕ B| / |A ∪ B|` of the pairs' visible sets (`None` without pairs) and the rays
-    /// traced. The pairs are fixed by the image, so the check is deterministic.
-    fn coherence_check(&self, scene: &Scene, g: &GBuffer) -> Result<(Option<f32>, RecordRays)> {
+    /// `|A ⊕ B| / |A ∪ B|` of the pairs' visible sets (`None` without pairs), the visible
+    /// directions summed over all maps and the rays traced. The pairs are fixed by the
+    /// image, so the check is deterministic.
+    fn coherence_check(&self, scene: &Scene, g: &GBuffer) -> Result<CoherenceCheck> {
         let (w, h) = (g.width() as usize, g.height() as usize);
         let step = ((self.params.d_max_scale / 4.0).round() as usize).max(1);
         let side = (COHERENCE_PAIRS as f64).sqrt().ceil() as usize;
@@ -290,7 +299,7 @@ impl VisibilityCache {
             }
         }
         if pairs.is_empty() {
-            return Ok((None, RecordRays::default()));
+            return Ok(CoherenceCheck::default());
         }
         let pattern = default_pattern(COHERENCE_LOG2_RESOLUTION)?;
         let map = |i: usize| {
@@ -302,16 +311,18 @@ impl VisibilityCache {
             .map(|&(a, b)| Ok([map(a)?, map(b)?]))
             .collect::<Result<_>>()?;
         let mut distance = 0.0f64;
-        let mut rays = RecordRays::default();
+        let mut check = CoherenceCheck::default();
         for [(a, ra), (b, rb)] in &traced {
             let (a, b) = (a.bits.view(), b.bits.view());
             let union = (a.popcount() + b.popcount() + a.xor_popcount(&b)) / 2;
             if union > 0 {
                 distance += a.xor_popcount(&b) as f64 / union as f64;
             }
-            rays.shadow += ra.shadow + rb.shadow;
+            check.visible += (a.popcount() + b.popcount()) as u64;
+            check.rays.shadow += ra.shadow + rb.shadow;
         }
-        Ok((Some((distance / traced.len() as f64) as f32), rays))
+        check.incoherence = Some((distance / traced.len() as f64) as f32);
+        Ok(check)
     }
 
     /// Gives the points `(position, unit normal, d_max)` the records §5.2 asks for, in
@@ -334,6 +345,16 @@ impl VisibilityCache {
         )?;
         Ok(waves.inserted)
     }
+}
+
+/// What [`VisibilityCache::coherence_check`] measures.
+#[derive(Clone, Copy, Debug, Default)]
+struct CoherenceCheck {
+    /// Mean Jaccard distance of the pairs (`None` without pairs).
+    incoherence: Option<f32>,
+    /// Visible directions over all the check's maps.
+    visible: u64,
+    rays: RecordRays,
 }
 
 /// The visibility cache as [`WaveBuilder`] grows it by §5.2's criteria, at the points
