@@ -48,6 +48,7 @@ def measure(setup, size, ladder, ref_spp, threads, emit):
         emit(dict(scene=setup.name, size=f"{size[0]}x{size[1]}", config=config, spp=spp,
                   seconds=total, build_seconds=build or res.stats.get("cache_seconds", 0.0),
                   records=res.stats.get("cache_records"), relmse=mse,
+                  variance=vc.metrics.relative_variance(res.variance, ref_img),
                   relmse_rgb=vc.metrics.relmse_per_channel(res.image, ref_img,
                                                            ref_var).tolist(),
                   efficiency=vc.metrics.efficiency(mse, total)))
@@ -71,9 +72,10 @@ def measure(setup, size, ladder, ref_spp, threads, emit):
 
 
 def table(rows):
-    """Efficiency per setting; a group where a setting's relMSE does not exceed the
-    reference's own noise (it goes to zero or below once that is subtracted) has no
-    measurable ratio and is marked so."""
+    """Efficiency per setting. Where a setting's relMSE does not exceed the reference's
+    own noise (it goes to zero or below once that is subtracted), the whole group is
+    compared by the images' own variance instead (``vc.metrics.relative_variance``: the
+    expected relMSE of these unbiased images), marked ``var``."""
     groups = {}
     for r in rows:
         groups.setdefault((r["scene"], r["size"], r["spp"]), {})[r["config"]] = r
@@ -81,15 +83,21 @@ def table(rows):
     print("|---|---|---:|---:|---:|---:|---:|---:|---|---:|")
     ratios = []
     for (scene, size, spp), g in groups.items():
-        cells = " | ".join(("below ref." if g[c]["relmse"] <= 0 else f"{g[c]['efficiency']:.3g}")
-                           if c in g else "" for c in ("product", "auto") + PRESETS)
-        if "auto" not in g or any(r["relmse"] <= 0 for r in g.values()):
-            print(f"| {scene} | {size} | {spp} | {cells} | | not measurable |")
+        by_variance = any(r["relmse"] <= 0 for r in g.values())
+        if by_variance and not all("variance" in r for r in g.values()):
+            print(f"| {scene} | {size} | {spp} | | | | | | | not measurable |")
             continue
-        best = max(g.values(), key=lambda r: r["efficiency"])
-        ratio = g["auto"]["efficiency"] / best["efficiency"]
+
+        def eff(r):
+            return 1.0 / (r["variance"] * r["seconds"]) if by_variance else r["efficiency"]
+
+        cells = " | ".join(f"{eff(g[c]):.3g}" if c in g else ""
+                           for c in ("product", "auto") + PRESETS)
+        best = max(g.values(), key=eff)
+        ratio = eff(g["auto"]) / eff(best)
         ratios.append((ratio, f"{scene} {size} {spp}"))
-        print(f"| {scene} | {size} | {spp} | {cells} | {best['config']} | {ratio:.2f} |")
+        mark = " (var)" if by_variance else ""
+        print(f"| {scene} | {size} | {spp}{mark} | {cells} | {best['config']} | {ratio:.2f} |")
     if ratios:
         geo = float(np.exp(np.mean([np.log(r) for r, _ in ratios])))
         worst = min(ratios)
