@@ -88,7 +88,7 @@ def table(rows):
             print(f"| {scene} | {size} | {spp} | | | | | | | not measurable |")
             continue
 
-        def eff(r):
+        def eff(r, by_variance=by_variance):
             return 1.0 / (r["variance"] * r["seconds"]) if by_variance else r["efficiency"]
 
         cells = " | ".join(f"{eff(g[c]):.3g}" if c in g else ""
