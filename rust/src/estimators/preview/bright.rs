@@ -147,35 +147,39 @@ impl PixelRecords {
             .sum()
     }
 
-    /// `Σ_s l_c(s) B(ω_s) cos θ_s Ṽ(ω_s)` of pixel `i` (module docs) with `Ṽ` in the
-    /// form `nearest` names, `masks` from [`BrightCells::record_masks`].
-    #[allow(clippy::too_many_arguments)]
+    /// `Σ_s l_c(s) B(ω_s) cos θ_s Ṽ(ω_s)` of pixel `i`, shaded `at` (module docs), with
+    /// `Ṽ` in the form `nearest` names, `masks` from [`BrightCells::record_masks`].
     pub fn eval(
         &self,
         i: usize,
-        material: &Material,
-        normal: Vec3,
-        wo: Vec3,
+        at: &Shading,
         bright: &BrightCells,
         masks: &[u8],
         nearest: bool,
     ) -> [f64; 3] {
-        bright.light(material, normal, wo, |s| {
-            self.visibility(i, s, masks, nearest)
-        })
+        bright.light(at, |s| self.visibility(i, s, masks, nearest))
     }
 }
 
+/// What the bright cells' light at a point depends on besides visibility.
+#[derive(Clone, Copy, Debug)]
+pub struct Shading {
+    /// Unit normal facing the camera.
+    pub normal: Vec3,
+    /// Unit direction to the eye.
+    pub wo: Vec3,
+    pub material: Material,
+}
+
 impl BrightCells {
-    /// `Σ_s l_c(s) B(ω_s) cos θ_s V(s)` at a point, `V(s)` from `visibility` (called only
+    /// `Σ_s l_c(s) B(ω_s) cos θ_s V(s)` shaded `at`, `V(s)` from `visibility` (called only
     /// for cells above the surface).
-    pub fn light(
-        &self,
-        material: &Material,
-        normal: Vec3,
-        wo: Vec3,
-        mut visibility: impl FnMut(usize) -> f64,
-    ) -> [f64; 3] {
+    pub fn light(&self, at: &Shading, mut visibility: impl FnMut(usize) -> f64) -> [f64; 3] {
+        let Shading {
+            normal,
+            wo,
+            ref material,
+        } = *at;
         let mut out = [0.0f64; 3];
         for (s, (dir, rgb)) in self.dirs.iter().zip(&self.rgb).enumerate() {
             let cos = normal.dot(*dir);

@@ -58,6 +58,17 @@ struct PreviewPoint {
     emitted: Vec3,
 }
 
+impl PreviewPoint {
+    /// What the bright cells' light here depends on.
+    fn shading(&self) -> bright::Shading {
+        bright::Shading {
+            normal: self.normal,
+            wo: self.wo,
+            material: self.material,
+        }
+    }
+}
+
 /// The first hits of a view, kept to preview `J` under any lighting (module docs).
 #[derive(Debug)]
 pub struct LightingPreview {
@@ -549,12 +560,10 @@ impl LightingPreview {
         ) {
             (Some(scene), Some(records), Some(pixels), false) => {
                 let shading = |i: usize| {
-                    self.points[i].as_ref().ok().map(|p| sample::Shading {
-                        position: p.position,
-                        normal: p.normal,
-                        wo: p.wo,
-                        material: p.material,
-                    })
+                    self.points[i]
+                        .as_ref()
+                        .ok()
+                        .map(|p| (p.position, p.shading()))
                 };
                 let smooth = |i: usize| transfer.has_row(i).then(|| transfer.eval(i, &light));
                 Some(with_threads(threads, || {
@@ -588,15 +597,8 @@ impl LightingPreview {
                         let mut j = transfer.eval(i, &light);
                         if let (Some(records), false) = (&prepared.records, bright.is_empty()) {
                             if transfer.has_row(i) {
-                                let b = records.eval(
-                                    i,
-                                    &p.material,
-                                    p.normal,
-                                    p.wo,
-                                    &bright,
-                                    &masks,
-                                    bright_nearest,
-                                );
+                                let at = p.shading();
+                                let b = records.eval(i, &at, &bright, &masks, bright_nearest);
                                 j = std::array::from_fn(|c| j[c] + b[c]);
                             }
                         }
@@ -743,15 +745,7 @@ fn measure(
         for (i, r) in reference.iter().enumerate() {
             let mut j = t.eval(i, &light);
             if let (Some(p), true) = (&sample[i], t.has_row(i)) {
-                let b = records.eval(
-                    i,
-                    &p.material,
-                    p.normal,
-                    p.wo,
-                    bright,
-                    &masks,
-                    settings.nearest,
-                );
+                let b = records.eval(i, &p.shading(), bright, &masks, settings.nearest);
                 j = std::array::from_fn(|c| j[c] + b[c]);
             }
             for c in 0..3 {
@@ -828,7 +822,7 @@ fn measure_visibility(
             let ratios = p.material.channel_ratios();
             let origin = scene.offset_point(p.position, p.normal);
             let mut counters = crate::geometry::TraversalCounters::default();
-            let sun = bright.light(&p.material, p.normal, p.wo, |s| {
+            let sun = bright.light(&p.shading(), |s| {
                 let blocked = scene.occluded1(origin, bright.dirs[s], f32::INFINITY, &mut counters);
                 if blocked {
                     0.0

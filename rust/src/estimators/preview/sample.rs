@@ -21,20 +21,8 @@
 
 use glam::Vec3;
 
-use super::bright::{BrightCells, PixelRecords};
-use crate::bsdf::Material;
+use super::bright::{BrightCells, PixelRecords, Shading};
 use crate::geometry::{Scene, TraversalCounters};
-
-/// What the bright cells' light at a pixel depends on.
-#[derive(Clone, Copy, Debug)]
-pub struct Shading {
-    pub position: Vec3,
-    /// Unit normal facing the camera.
-    pub normal: Vec3,
-    /// Unit direction to the eye.
-    pub wo: Vec3,
-    pub material: Material,
-}
 
 /// What [`judge`] finds under one lighting: the bright cells' error in each form, in the
 /// images' relMSE summed over the sample pixels, and the shadow rays it traced.
@@ -52,15 +40,15 @@ impl BrightErrors {
     }
 }
 
-/// The error of `bright`'s light at `pixels` in each form of `Ṽ` against shadow rays in
-/// `scene`, per pixel `Σ_c (c ΔJ)² / ((c J)² + 0.01)` (`c` the channel ratio) with
+/// The error of `bright`'s light at `pixels` (`point`: position and shading) in each form
+/// of `Ṽ` against shadow rays in `scene`, per pixel `Σ_c (c ΔJ)² / ((c J)² + 0.01)` (`c` the channel ratio) with
 /// `J = smooth(i) +` the bright light by the rays. Pixels without `smooth` (no
 /// transfer) are skipped. Per-pixel errors are summed in pixel order: the same for
 /// any thread count.
 pub fn judge(
     scene: &Scene,
     pixels: &[usize],
-    point: impl Fn(usize) -> Option<Shading> + Sync,
+    point: impl Fn(usize) -> Option<(Vec3, Shading)> + Sync,
     records: &PixelRecords,
     bright: &BrightCells,
     masks: &[u8],
@@ -71,13 +59,13 @@ pub fn judge(
     let per_pixel: Vec<(f64, f64, u64)> = pixels
         .par_iter()
         .map(|&i| {
-            let (Some(p), Some(smooth)) = (point(i), smooth(i)) else {
+            let (Some((position, p)), Some(smooth)) = (point(i), smooth(i)) else {
                 return (0.0, 0.0, 0);
             };
-            let origin = scene.offset_point(p.position, p.normal);
+            let origin = scene.offset_point(position, p.normal);
             let mut counters = TraversalCounters::default();
             let mut rays = 0u64;
-            let exact = bright.light(&p.material, p.normal, p.wo, |s| {
+            let exact = bright.light(&p, |s| {
                 rays += 1;
                 match scene.occluded1(origin, bright.dirs[s], f32::INFINITY, &mut counters) {
                     true => 0.0,
@@ -87,7 +75,7 @@ pub fn judge(
             scene.add_counters(counters);
             let ratios = p.material.channel_ratios();
             let err = |nearest: bool| -> f64 {
-                let b = records.eval(i, &p.material, p.normal, p.wo, bright, masks, nearest);
+                let b = records.eval(i, &p, bright, masks, nearest);
                 (0..3)
                     .map(|c| {
                         let r = ratios[c] as f64;

@@ -490,7 +490,7 @@ fn bright_cells_are_judged_per_lighting() {
             }
             let ratios = p.material.channel_ratios();
             for (k, nearest) in [false, true].into_iter().enumerate() {
-                let b = records.eval(i, &p.material, p.normal, p.wo, &bright, &masks, nearest);
+                let b = records.eval(i, &p.shading(), &bright, &masks, nearest);
                 for c in 0..3 {
                     let r = ratios[c] as f64;
                     let j = r * (smooth[c] + exact[c]);
@@ -498,15 +498,7 @@ fn bright_cells_are_judged_per_lighting() {
                 }
             }
             let shown = img[i];
-            let b = records.eval(
-                i,
-                &p.material,
-                p.normal,
-                p.wo,
-                &bright,
-                &masks,
-                choice.nearest,
-            );
+            let b = records.eval(i, &p.shading(), &bright, &masks, choice.nearest);
             for c in 0..3 {
                 let want = p.emitted[c] + (ratios[c] as f64 * (smooth[c] + b[c])) as f32;
                 assert!(

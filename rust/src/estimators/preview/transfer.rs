@@ -113,6 +113,17 @@ pub struct TransferPoint {
     pub material: Material,
 }
 
+impl TransferPoint {
+    /// What the bright cells' light here depends on.
+    pub fn shading(&self) -> super::bright::Shading {
+        super::bright::Shading {
+            normal: self.normal,
+            wo: self.wo,
+            material: self.material,
+        }
+    }
+}
+
 /// Builds the dense transfer `T` of points at one level (module docs). One per thread.
 pub struct PixelTransfer<'a> {
     state: &'a CacheState,
