@@ -89,34 +89,26 @@ fn project(
         for y in rows {
             for x in 0..res {
                 let t = &texels[(y * res + x) as usize];
-                let centre = || texel_center(UVec2::new(x, y), res).as_dvec3();
-                let mut add = |cell: usize, d: DVec3, share: f64| {
+                // The texel's (turned) direction times its luminance, for the centroids.
+                let weighted = if centroids {
+                    let centre = texel_center(UVec2::new(x, y), res).as_dvec3();
+                    let lum: f64 = t.iter().zip(LUMINANCE).map(|(&c, w)| c as f64 * w).sum();
+                    rotation.map_or(centre, |r| *r * centre) * lum
+                } else {
+                    DVec3::ZERO
+                };
+                let mut add = |cell: usize, share: f64| {
                     let o = &mut out[cell];
                     for k in 0..3 {
                         o[k] += t[k] as f64 * omega * share;
                     }
                     if centroids {
-                        let lum: f64 = t.iter().zip(LUMINANCE).map(|(&c, w)| c as f64 * w).sum();
-                        dirs[cell] += d * lum * share;
+                        dirs[cell] += weighted * share;
                     }
                 };
                 match (rotation, &corners) {
-                    (Some(r), Some(corners)) => {
-                        let d = if centroids {
-                            *r * centre()
-                        } else {
-                            DVec3::ZERO
-                        };
-                        corners.split(x, y, r, |cell, share| add(cell, d, share));
-                    }
-                    _ => {
-                        let d = if centroids { centre() } else { DVec3::ZERO };
-                        add(
-                            (morton_encode(x, y) >> (2 * (depth - level))) as usize,
-                            d,
-                            1.0,
-                        )
-                    }
+                    (Some(r), Some(corners)) => corners.split(x, y, r, &mut add),
+                    _ => add((morton_encode(x, y) >> (2 * (depth - level))) as usize, 1.0),
                 }
             }
         }
