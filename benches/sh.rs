@@ -37,14 +37,9 @@ fn bench_cell_project(c: &mut Criterion) {
                 }
             })
             .collect();
-        let rgb: Vec<[f32; 3]> = per_cell.iter().map(|&v| [v, 0.5 * v, 0.25 * v]).collect();
         let mut out = vec![0.0f32; 64];
-        let mut out3 = vec![[0.0f32; 3]; 64];
         c.bench_function(&format!("cell_project/order8/level{level}"), |b| {
             b.iter(|| basis.project(black_box(&per_cell), black_box(&mut out)))
-        });
-        c.bench_function(&format!("cell_project_rgb/order8/level{level}"), |b| {
-            b.iter(|| basis.project_rgb(black_box(&rgb), black_box(&mut out3)))
         });
     }
 }

@@ -10,7 +10,7 @@
 //! Orientation: the square's centre is `+y`, its four corners are `-y`; `u` grows with `+x`
 //! and `v` with `+z`. (pbrt's `z` is our `y`, pbrt's `y` our `z`.)
 
-use glam::{UVec2, Vec2, Vec3};
+use glam::{DVec2, DVec3, UVec2, Vec2, Vec3};
 
 /// Solid angle of one texel of a `res x res` octahedral grid, in steradians.
 #[inline]
@@ -18,26 +18,42 @@ pub fn texel_solid_angle(res: u32) -> f64 {
     4.0 * std::f64::consts::PI / (res as f64 * res as f64)
 }
 
-/// Maps a point of `[0,1]^2` to a unit direction. Total and continuous on the closed square;
-/// the border folds onto itself (see [`wrap_texel`]).
-#[inline]
-pub fn square_to_sphere(p: Vec2) -> Vec3 {
-    let u = 2.0 * p.x - 1.0;
-    let v = 2.0 * p.y - 1.0;
-    let (up, vp) = (u.abs(), v.abs());
-    // Signed distance from the diagonal |u| + |v| = 1, which is the equator.
-    let signed_distance = 1.0 - (up + vp);
-    let r = 1.0 - signed_distance.abs();
-    let phi = if r == 0.0 { 1.0 } else { (vp - up) / r + 1.0 } * std::f32::consts::FRAC_PI_4;
-    let height = (1.0 - r * r).copysign(signed_distance);
-    let (sin_phi, cos_phi) = phi.sin_cos();
-    let radial = r * (2.0 - r * r).max(0.0).sqrt();
-    Vec3::new(
-        cos_phi.copysign(u) * radial,
-        height,
-        sin_phi.copysign(v) * radial,
-    )
+/// One body for the map in `f32` and `f64`: the two precisions stay the same map.
+macro_rules! square_to_sphere_in {
+    ($(#[$doc:meta])* $name:ident, $vec2:ty, $vec3:ident, $float:ident) => {
+        $(#[$doc])*
+        #[inline]
+        pub fn $name(p: $vec2) -> $vec3 {
+            let u = 2.0 * p.x - 1.0;
+            let v = 2.0 * p.y - 1.0;
+            let (up, vp) = (u.abs(), v.abs());
+            // Signed distance from the diagonal |u| + |v| = 1, which is the equator.
+            let signed_distance = 1.0 - (up + vp);
+            let r = 1.0 - signed_distance.abs();
+            let phi = if r == 0.0 { 1.0 } else { (vp - up) / r + 1.0 }
+                * std::$float::consts::FRAC_PI_4;
+            let height = (1.0 - r * r).copysign(signed_distance);
+            let (sin_phi, cos_phi) = phi.sin_cos();
+            let radial = r * (2.0 - r * r).max(0.0).sqrt();
+            $vec3::new(
+                cos_phi.copysign(u) * radial,
+                height,
+                sin_phi.copysign(v) * radial,
+            )
+        }
+    };
 }
+
+square_to_sphere_in!(
+    /// Maps a point of `[0,1]^2` to a unit direction. Total and continuous on the closed
+    /// square; the border folds onto itself (see [`wrap_texel`]).
+    square_to_sphere, Vec2, Vec3, f32
+);
+
+square_to_sphere_in!(
+    /// [`square_to_sphere`] in `f64`, unit length to `~1e-16`.
+    square_to_sphere_f64, DVec2, DVec3, f64
+);
 
 /// `atan(b) · 2/π` on `[0, 1]`, the odd polynomial pbrt-v4 uses (max error ~1e-6).
 #[inline]

@@ -200,20 +200,10 @@ pub fn eval(order: u32, dir: DVec3, out: &mut [f64]) {
 /// evaluated in double precision, so it is unit length to `~1e-16`.
 pub fn texel_center_f64(texel: UVec2, res: u32) -> DVec3 {
     let inv = 1.0 / res as f64;
-    let u = 2.0 * ((texel.x as f64 + 0.5) * inv) - 1.0;
-    let v = 2.0 * ((texel.y as f64 + 0.5) * inv) - 1.0;
-    let (up, vp) = (u.abs(), v.abs());
-    let signed_distance = 1.0 - (up + vp);
-    let r = 1.0 - signed_distance.abs();
-    let phi = if r == 0.0 { 1.0 } else { (vp - up) / r + 1.0 } * std::f64::consts::FRAC_PI_4;
-    let height = (1.0 - r * r).copysign(signed_distance);
-    let (sin_phi, cos_phi) = phi.sin_cos();
-    let radial = r * (2.0 - r * r).max(0.0).sqrt();
-    DVec3::new(
-        cos_phi.copysign(u) * radial,
-        height,
-        sin_phi.copysign(v) * radial,
-    )
+    octahedral::square_to_sphere_f64(glam::DVec2::new(
+        (texel.x as f64 + 0.5) * inv,
+        (texel.y as f64 + 0.5) * inv,
+    ))
 }
 
 /// The SH basis averaged over the cells of an octahedral level, weighted by the cells' solid
@@ -328,48 +318,6 @@ impl CellBasis {
             for (o, &v) in out.iter_mut().zip(row) {
                 *o += f * v;
             }
-        }
-    }
-
-    /// [`Self::project`] for three channels at once: `out[k][c] = Σ_cell per_cell[cell][c]
-    /// · row(cell)[k]` (overwrites `out`). Cells that are zero in all three channels are
-    /// skipped. Each channel is accumulated in its own contiguous `f32` array (so the loop
-    /// over `k` vectorizes) and interleaved at the end; the sums are the same, bit for bit,
-    /// as three calls of [`Self::project`].
-    ///
-    /// # Panics
-    /// If `per_cell.len() != 4^level` or `out.len() != order²`.
-    pub fn project_rgb(&self, per_cell: &[[f32; 3]], out: &mut [[f32; 3]]) {
-        let n2 = coefficient_count(self.order);
-        assert_eq!(
-            per_cell.len(),
-            self.cells(),
-            "per_cell must hold 4^level values"
-        );
-        assert_eq!(out.len(), n2, "out must hold order² values");
-        const MAX: usize = coefficient_count(MAX_ORDER);
-        let mut acc = [[0.0f32; MAX]; 3];
-        let [ar, ag, ab] = &mut acc;
-        let (ar, ag, ab) = (&mut ar[..n2], &mut ag[..n2], &mut ab[..n2]);
-        if n2 > 0 {
-            for (&[r, g, b], row) in per_cell.iter().zip(self.values.chunks_exact(n2)) {
-                if r == 0.0 && g == 0.0 && b == 0.0 {
-                    continue;
-                }
-                // Three separate passes: each is the vectorized loop of `project`.
-                for (o, &v) in ar.iter_mut().zip(row) {
-                    *o += r * v;
-                }
-                for (o, &v) in ag.iter_mut().zip(row) {
-                    *o += g * v;
-                }
-                for (o, &v) in ab.iter_mut().zip(row) {
-                    *o += b * v;
-                }
-            }
-        }
-        for (k, o) in out.iter_mut().enumerate() {
-            *o = [ar[k], ag[k], ab[k]];
         }
     }
 }
@@ -1095,23 +1043,6 @@ mod tests {
         // All zero: exactly zero.
         basis.project(&vec![0.0; cells], &mut out);
         assert!(out.iter().all(|&v| v == 0.0));
-        // RGB: each channel bit-identical to the scalar projection.
-        let rgb: Vec<[f32; 3]> = (0..cells)
-            .map(|c| [per_cell[c], per_cell[(c + 3) % cells], 0.0])
-            .collect();
-        let mut out_rgb = vec![[f32::NAN; 3]; n2];
-        basis.project_rgb(&rgb, &mut out_rgb);
-        for ch in 0..3 {
-            let chan: Vec<f32> = rgb.iter().map(|v| v[ch]).collect();
-            basis.project(&chan, &mut out);
-            for k in 0..n2 {
-                assert_eq!(
-                    out_rgb[k][ch].to_bits(),
-                    out[k].to_bits(),
-                    "channel {ch} k {k}"
-                );
-            }
-        }
         // A constant function projects to band 0: √(4π) c, to f32 rounding.
         basis.project(&vec![2.0; cells], &mut out);
         assert!((out[0] as f64 - 2.0 * (4.0 * PI).sqrt()).abs() < 1e-5);
@@ -1607,17 +1538,7 @@ mod tests {
                 std::hint::black_box(&out);
             }
             let us = t.elapsed().as_secs_f64() * 1e6 / reps as f64;
-            let rgb: Vec<[f32; 3]> = per_cell.iter().map(|&v| [v, v, v]).collect();
-            let mut out3 = vec![[0.0f32; 3]; 64];
-            let t = Instant::now();
-            for _ in 0..reps {
-                basis.project_rgb(std::hint::black_box(&rgb), &mut out3);
-                std::hint::black_box(&out3);
-            }
-            let us3 = t.elapsed().as_secs_f64() * 1e6 / reps as f64;
-            println!(
-                "CellBasis order 8 level {level}: build {build:.1} ms, project {us:.2} us, project_rgb {us3:.2} us"
-            );
+            println!("CellBasis order 8 level {level}: build {build:.1} ms, project {us:.2} us");
         }
         let t = Instant::now();
         let reps = 1000;
