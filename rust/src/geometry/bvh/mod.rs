@@ -22,6 +22,7 @@ use super::watertight::{Triangle4, WatertightRay};
 
 mod build;
 mod closest;
+mod closest_packet;
 mod packet;
 mod shadow;
 #[cfg(test)]

@@ -259,7 +259,7 @@ pub(super) struct LaneRays<'a> {
 #[cfg(target_arch = "x86_64")]
 impl<'a> LaneRays<'a> {
     #[inline(always)]
-    fn new(origin: Vec3A, directions: &'a [Vec3A], tmax: &'a [f32]) -> Self {
+    pub(super) fn new(origin: Vec3A, directions: &'a [Vec3A], tmax: &'a [f32]) -> Self {
         LaneRays {
             origin,
             directions,
@@ -271,7 +271,7 @@ impl<'a> LaneRays<'a> {
 
     /// Lane `l`'s ray ([`WatertightPacket::lane_ray`]).
     #[inline(always)]
-    fn get(&mut self, packet: &WatertightPacket, l: usize) -> &WatertightRay {
+    pub(super) fn get(&mut self, packet: &WatertightPacket, l: usize) -> &WatertightRay {
         let l = l % PACKET;
         if self.ready >> l & 1 == 0 {
             self.rays[l].write(packet.lane_ray(l));
@@ -297,7 +297,7 @@ pub(super) struct Packet {
     near_row: [usize; 3],
     far_row: [usize; 3],
     /// `tmax · EXIT_SCALE` per lane.
-    exit: std::arch::x86_64::__m512,
+    pub(super) exit: std::arch::x86_64::__m512,
     /// `tmax` per lane (local frame).
     pub(super) tmax: std::arch::x86_64::__m512,
     pub(super) watertight: WatertightPacket,
@@ -483,6 +483,20 @@ impl Packet {
     #[target_feature(enable = "avx512f")]
     #[inline]
     pub(super) fn box_hits(&self, relative: &[[f32; WIDTH]; 6], j: usize, lanes: u16) -> u16 {
+        self.box_entries(relative, j, lanes, self.exit).0
+    }
+
+    /// [`Self::box_hits`] against `exit` (`tmax · EXIT_SCALE` per lane, for rays whose
+    /// `tmax` has shrunk to their closest hit so far), with each lane's entry distance.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    pub(super) fn box_entries(
+        &self,
+        relative: &[[f32; WIDTH]; 6],
+        j: usize,
+        lanes: u16,
+        exit: std::arch::x86_64::__m512,
+    ) -> (u16, std::arch::x86_64::__m512) {
         use std::arch::x86_64::*;
         // Below WIDTH for the callers' child bits; said so, the row reads need no checks.
         let j = j % WIDTH;
@@ -521,8 +535,11 @@ impl Packet {
                 _mm512_min_ps(_mm512_min_ps(fx, fy), fz),
                 _mm512_set1_ps(EXIT_SCALE),
             ),
-            self.exit,
+            exit,
         );
-        _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(lanes, t_near, t_far)
+        (
+            _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(lanes, t_near, t_far),
+            t_near,
+        )
     }
 }

@@ -14,9 +14,9 @@ use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::OnceLock;
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
-use super::bvh::{BuildQuality, Bvh, TraversalCounters};
+use super::bvh::{BuildQuality, Bvh, Hit, TraversalCounters, PACKET};
 use super::mesh::{Bounds, Mesh};
 use crate::bsdf::Material;
 use crate::error::Result;
@@ -346,9 +346,34 @@ impl Scene {
         } else {
             bvh.intersect::<false>(origin.into(), direction.into(), tmax, c)
         }?;
+        Some(self.surface_hit(hit))
+    }
+
+    /// Closest hits of up to [`PACKET`] rays from one origin, traced together
+    /// ([`Bvh::intersect_packet`]: each ray's distance is [`Self::intersect1`]'s); counts
+    /// them if counting is on. Directions must be non-zero.
+    pub fn intersect_packet(
+        &self,
+        origin: Vec3,
+        directions: &[Vec3A],
+        tmax: &[f32],
+        c: &mut TraversalCounters,
+    ) -> [Option<SurfaceHit>; PACKET] {
+        let bvh = self.bvh();
+        let hits = if self.counting_enabled() {
+            bvh.intersect_packet::<true>(origin.into(), directions, tmax, c)
+        } else {
+            bvh.intersect_packet::<false>(origin.into(), directions, tmax, c)
+        };
+        hits.map(|h| h.map(|h| self.surface_hit(h)))
+    }
+
+    /// The surface at a BVH hit.
+    #[inline]
+    fn surface_hit(&self, hit: Hit) -> SurfaceHit {
         let tri = &self.mesh.triangles[hit.triangle as usize];
         let w = 1.0 - hit.u - hit.v;
-        Some(SurfaceHit {
+        SurfaceHit {
             t: hit.t,
             prim: hit.triangle,
             obj: self.mesh.object_ids[hit.triangle as usize],
@@ -356,7 +381,7 @@ impl Scene {
             v: hit.v,
             position: tri[0] * w + tri[1] * hit.u + tri[2] * hit.v,
             normal: triangle_cross(tri).normalize(),
-        })
+        }
     }
 
     /// Closest hits.

@@ -1,0 +1,183 @@
+//! Packets of up to [`PACKET`] closest-hit rays from one origin: a pinhole camera's rays
+//! through one pixel, which visit nearly the same nodes and leaves.
+
+use glam::Vec3A;
+
+use super::packet::PACKET;
+#[cfg(target_arch = "x86_64")]
+use super::{packet::LaneRays, packet::Packet, STACK};
+use super::{Bvh, Hit, TraversalCounters};
+#[cfg(target_arch = "x86_64")]
+use crate::geometry::bvh8::{decode, BoundedStack, Child, Stack, TraversalStack, EXIT_SCALE};
+#[cfg(target_arch = "x86_64")]
+use crate::geometry::watertight::{lanes, TriangleHit};
+
+impl Bvh {
+    /// Closest hits of up to [`PACKET`] rays from one `origin` (`directions[l]`,
+    /// `tmax[l]`), traced together under AVX-512 (one by one elsewhere): each node's
+    /// children are tested against every lane at once by [`Self::occluded_packet`]'s box
+    /// test, against each lane's closest hit so far, and visited nearest first (by the
+    /// least entry distance over the lanes that hit them); each lane tests the triangles of
+    /// the leaves its own box tests reach with [`Self::intersect`]'s watertight test.
+    /// Every lane therefore finds the distance [`Self::intersect`] finds for its ray; where
+    /// two triangles are hit at exactly that distance (a ray through a shared edge), the
+    /// packet may report the other one. Counters count each ray, each node test once per
+    /// ray taking part, and each ray's triangle tests.
+    pub fn intersect_packet<const COUNT: bool>(
+        &self,
+        origin: Vec3A,
+        directions: &[Vec3A],
+        tmax: &[f32],
+        counters: &mut TraversalCounters,
+    ) -> [Option<Hit>; PACKET] {
+        assert!(directions.len() <= PACKET && tmax.len() == directions.len());
+        let mut out = [None; PACKET];
+        #[cfg(target_arch = "x86_64")]
+        if !directions.is_empty()
+            && !self.blocks.is_empty()
+            && crate::simd::has(crate::simd::SimdLevel::Avx512)
+        {
+            if COUNT {
+                counters.rays += directions.len() as u64;
+            }
+            // SAFETY: the CPU has AVX-512 F and VL, and popcnt (part of the level); 1 to
+            // PACKET rays.
+            unsafe {
+                let packet = Packet::new(self, origin, directions, tmax);
+                let rays = &mut LaneRays::new(origin, directions, tmax);
+                let found = if self.stack_is_bounded() {
+                    type Bounded = BoundedStack<(u32, u16, f32), STACK>;
+                    self.closest_packet::<COUNT, Bounded>(&packet, rays, counters)
+                } else {
+                    type Spilling = Stack<(u32, u16, f32), STACK>;
+                    self.closest_packet::<COUNT, Spilling>(&packet, rays, counters)
+                };
+                for (l, f) in found.into_iter().enumerate().take(directions.len()) {
+                    out[l] = f.map(|(slot, h)| {
+                        let r = self.local_ray(origin, directions[l], tmax[l]);
+                        Hit {
+                            t: h.t * r.t_to_param,
+                            triangle: self.triangle_ids[slot as usize],
+                            u: h.u,
+                            v: h.v,
+                        }
+                    });
+                }
+            }
+            return out;
+        }
+        for (l, (&d, &t)) in directions.iter().zip(tmax).enumerate() {
+            out[l] = self.intersect::<COUNT>(origin, d, t, counters);
+        }
+        out
+    }
+
+    /// The traversal of [`Self::intersect_packet`] under AVX-512: per lane, the block slot
+    /// and hit of its closest triangle. Stack entries hold a child, the lanes that hit it
+    /// and their least entry distance, so that an entry behind every one of its lanes'
+    /// closest hits is dropped when popped.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512vl,popcnt")]
+    fn closest_packet<const COUNT: bool, S: TraversalStack<(u32, u16, f32)>>(
+        &self,
+        packet: &Packet,
+        rays: &mut LaneRays,
+        counters: &mut TraversalCounters,
+    ) -> [Option<(u32, TriangleHit)>; PACKET] {
+        use std::arch::x86_64::*;
+        let (mut nodes, mut tests) = (0u64, 0u64);
+        let mut best_t = lanes(packet.tmax);
+        let mut best = [None; PACKET];
+        // `best_t` in a register, and the box tests' exit (`best_t · EXIT_SCALE`).
+        let mut best_v = packet.tmax;
+        let mut exit = packet.exit;
+        let mut stack = S::new();
+        stack.push((0, packet.all, 0.0));
+        while let Some((entry, lanes_in, t_enter)) = stack.pop() {
+            // The lanes whose closest hit so far is not nearer than the entry.
+            let live =
+                _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(lanes_in, best_v, _mm512_set1_ps(t_enter));
+            if live == 0 {
+                continue;
+            }
+            match decode(entry) {
+                Child::Leaf { first, count } => {
+                    let block = &self.blocks[first as usize];
+                    if COUNT {
+                        tests += count as u64 * live.count_ones() as u64;
+                    }
+                    let mut rest = live;
+                    let mut closer = false;
+                    while rest != 0 {
+                        let l = rest.trailing_zeros() as usize % PACKET;
+                        rest &= rest - 1;
+                        let r = rays.get(&packet.watertight, l);
+                        let (mut hit, t, u, v) = r.intersect4(block, best_t[l]);
+                        let (t, u, v) = (t.to_array(), u.to_array(), v.to_array());
+                        // Nearest triangle; the lowest wins ties, as in `closest_hit`.
+                        while hit != 0 {
+                            let k = hit.trailing_zeros() as usize % 4;
+                            hit &= hit - 1;
+                            if t[k] < best_t[l] {
+                                best_t[l] = t[k];
+                                best[l] = Some((
+                                    first * 4 + k as u32,
+                                    TriangleHit {
+                                        t: t[k],
+                                        u: u[k],
+                                        v: v[k],
+                                    },
+                                ));
+                                closer = true;
+                            }
+                        }
+                    }
+                    if closer {
+                        // SAFETY: `best_t` holds PACKET = 16 f32s.
+                        best_v = unsafe { _mm512_loadu_ps(best_t.as_ptr()) };
+                        exit = _mm512_mul_ps(best_v, _mm512_set1_ps(EXIT_SCALE));
+                    }
+                }
+                Child::Node(node) => {
+                    let n = &self.tree.nodes[node as usize];
+                    if COUNT {
+                        nodes += live.count_ones() as u64;
+                    }
+                    let relative = packet.relative_planes(n);
+                    let mut touched = packet.children_touched(&relative);
+                    // The children some lane hits, farthest first, so the nearest is
+                    // popped next.
+                    let mut hits = [(0u32, 0u16, 0f32); 8];
+                    let mut k = 0;
+                    while touched != 0 {
+                        let j = touched.trailing_zeros() as usize;
+                        touched &= touched - 1;
+                        let (hit, t_near) = packet.box_entries(&relative, j, live, exit);
+                        if hit == 0 {
+                            continue;
+                        }
+                        let t = _mm512_mask_reduce_min_ps(hit, t_near);
+                        let mut i = k;
+                        while i > 0 && hits[i - 1].2 < t {
+                            hits[i] = hits[i - 1];
+                            i -= 1;
+                        }
+                        hits[i % 8] = (n.child(j), hit, t);
+                        k += 1;
+                    }
+                    for &h in &hits[..k] {
+                        if let Child::Node(c) = decode(h.0) {
+                            self.tree.prefetch(c);
+                        }
+                        stack.push(h);
+                    }
+                }
+            }
+        }
+        if COUNT {
+            counters.nodes += nodes;
+            counters.triangles += tests;
+        }
+        best
+    }
+}
