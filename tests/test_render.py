@@ -145,6 +145,39 @@ def test_bit_identical_for_any_thread_count(small_setups):
     assert not np.array_equal(c.image, a.image)
 
 
+@pytest.mark.parametrize("method", ["product", "cv"])
+def test_light_samples_stay_unbiased_and_cut_the_variance(small_setups, method):
+    # Four light draws per sample against MIS (independent seeds): every pixel channel in
+    # the CLT regime within the Bonferroni threshold, the image means within 4 SE; and at
+    # equal spp the draws' average leaves less variance than one draw does.
+    setup = small_setups["garage"]
+    ref = _render(setup, "mis", 256, seed=3)
+    one = _render(setup, method, 64, seed=4)
+    four = _render(setup, method, 64, seed=5, light_samples=4)
+    assert four.stats["light_samples"] == 4 and one.stats["light_samples"] == 1
+    assert four.stats["shadow_rays"] > 3 * one.stats["shadow_rays"]
+    n_pix = setup.camera.width * setup.camera.height
+    diff = four.image - ref.image
+    se = np.sqrt(four.variance + ref.variance)
+    clt = _in_clt_regime(four) & _in_clt_regime(ref)
+    assert clt.mean() >= 0.45
+    z = bonferroni_z(n_pix * 3)
+    bad = clt & (np.abs(diff) > z * se)
+    assert bad.sum() == 0, f"{bad.sum()} pixel channels beyond {z:.2f} SE"
+    mean_se = math.sqrt(luminance_variance(four.variance + ref.variance).sum()) / n_pix
+    assert abs(luminance(diff).mean() / mean_se) < 4
+    ratio = four.variance.mean() / one.variance.mean()
+    assert ratio < 0.5, f"variance with four draws {ratio:.2f}x one draw's"
+
+
+def test_light_samples_are_bit_identical_for_any_thread_count(small_setups):
+    setup = small_setups["garage"]
+    for method in ("product", "cv"):
+        a = _render(setup, method, 20, seed=7, threads=1, light_samples=3)
+        b = _render(setup, method, 20, seed=7, threads=2, light_samples=3)
+        assert np.array_equal(a.image, b.image) and np.array_equal(a.variance, b.variance)
+
+
 def test_stats_time_budget_and_progress(small_setups):
     setup = small_setups["cornell"]
     r = _render(setup, "mis", 4, jitter=False)
@@ -185,6 +218,10 @@ def test_stats_time_budget_and_progress(small_setups):
         ({"threads": 0}, ValueError, "threads"),
         ({"seed": -1}, ValueError, "seed"),
         ({"product_level": 0}, ValueError, "product_level"),
+        ({"method": "product", "light_samples": 0}, ValueError, "light_samples"),
+        ({"method": "product", "light_samples": 65}, ValueError, "light_samples"),
+        ({"method": "product", "light_samples": 2.5}, TypeError, "light_samples"),
+        ({"method": "mis", "light_samples": 2}, ValueError, "light_samples.*product"),
     ],
 )
 def test_bad_arguments_name_themselves(small_setups, kwargs, exc, needle):

@@ -390,6 +390,7 @@ def render(
     bounces: int | None = None,
     direct: bool = True,
     gbuffer: GBuffer | None = None,
+    light_samples: int | None = None,
 ) -> dict[str, Any]: ...
 @final
 class VPLs:

@@ -4,7 +4,7 @@ indirect light by path tracing.
 ``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
 time_budget=None, envmap=None, product_level="auto", cache=None, preset="auto", jitter=True,
 alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None, bounces=None,
-direct=True, gbuffer=None)`` renders
+direct=True, gbuffer=None, light_samples=1)`` renders
 ``setup.scene`` lit by ``setup.envmap`` (or ``envmap``) and the scene's area lights, through
 ``camera`` (default: the setup's). Methods:
 
@@ -39,7 +39,11 @@ own jittered primary ray and shades its own hit with the anchor's work: for "pro
 "cv" the environment is drawn from a one-sample mixture of the anchor's product
 distribution, BSDF sampling at the hit and the map's own distribution, with probabilities
 ``technique_weights=(product, bsdf, env)`` (default (0.8, 0.1, 0.1)); the BSDF share keeps
-it unbiased at any hit. ``jitter=False`` shades every sample at the anchor (CAM08's fixed
+it unbiased at any hit. A pixel's jittered rays are traced in packets of 16 from the eye
+(they visit nearly the same nodes). ``light_samples=n`` (product methods) averages ``n`` draws
+of the mixture, each with its shadow ray, at every sample's hit: worth it where shadow
+rays are cheap beside the rest of a sample and visibility dominates the noise.
+``jitter=False`` shades every sample at the anchor (CAM08's fixed
 points; aliased); with ``technique_weights={"product": 1}`` that is the paper's plain product
 sampling.
 ``gbuffer=`` (from ``setup.scene.gbuffer(camera, jitter=False)``) gives the anchors: the same
@@ -110,6 +114,7 @@ def render(
     vpls=None,
     clamp: float | None = None,
     vpl_samples: int | None = None,
+    light_samples: int = 1,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     if gbuffer is not None and not isinstance(gbuffer, _core.GBuffer):
@@ -182,6 +187,7 @@ def render(
             bounces=bounces,
             direct=direct,
             gbuffer=gbuffer,
+            light_samples=light_samples,
         )
     stats = out["stats"]
     if traced:

@@ -10,7 +10,9 @@
 //! records' points by construction, not by equal seeds). The per-point work is done at the
 //! anchor once per pixel and pass: the product distribution (B~ and the product pyramid), the cache lookup and `J`,
 //! as in CAM08. By default (`jitter`) every sample then traces its own primary ray
-//! through a random point of the pixel (antialiasing, box filter) and shades its own hit
+//! through a random point of the pixel (antialiasing, box filter; the pixel's rays go as
+//! packets of [`PACKET`] from the eye, [`crate::geometry::Bvh::intersect_packet`]) and
+//! shades its own hit
 //! with the anchor's work: the environment is drawn from the one-sample mixture of the
 //! anchor's product, BSDF sampling at the sample's hit and the map's own distribution
 //! ([`Techniques`], [`Lighting::estimate_mixture`]), unbiased for any hit because BSDF
@@ -71,7 +73,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 
 use crate::bsdf::Material;
@@ -86,6 +88,7 @@ use crate::estimators::direct::{
     ShadingPoint, Techniques,
 };
 use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParams, MAX_BOUNCES};
+use crate::geometry::bvh::PACKET;
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::parallel::{run_with_progress, with_threads};
@@ -131,7 +134,16 @@ pub struct RenderParams {
     /// Whether the image holds direct light (what the camera sees of emitters and the map,
     /// and light reflected once); `false` keeps only the indirect part (`bounces >= 1`).
     pub direct: bool,
+    /// Light draws per sample in the product methods, `1..=MAX_LIGHT_SAMPLES`: each
+    /// sample's hit averages this many draws of the mixture (and of each area light), each
+    /// with its shadow ray, from a stream of its own ([`PixelSampler::light_draw`]). More
+    /// than one pays where shadow rays are cheap beside the rest of a sample and the
+    /// light's noise outweighs the pixel's.
+    pub light_samples: u32,
 }
+
+/// Most light draws per sample ([`RenderParams::light_samples`]).
+pub const MAX_LIGHT_SAMPLES: u32 = 64;
 
 impl RenderParams {
     /// 16 samples per pixel by MIS, seed 0, no budget, product cells per material,
@@ -148,6 +160,7 @@ impl RenderParams {
         insert_missing: false,
         bounces: 0,
         direct: true,
+        light_samples: 1,
     };
 
     /// The defaults with another method and sample count.
@@ -200,6 +213,14 @@ impl RenderParams {
         crate::error::check_range("spp", self.spp, 1, MAX_SPP)?;
         crate::error::check_time_budget(self.time_budget)?;
         crate::error::check_range("bounces", self.bounces, 0, MAX_BOUNCES)?;
+        crate::error::check_range("light_samples", self.light_samples, 1, MAX_LIGHT_SAMPLES)?;
+        if self.light_samples > 1 && !self.uses_product() {
+            return Err(Error::invalid(
+                "light_samples",
+                "more than one light draw per sample needs a product method (\"product\" or \
+                 \"cv\") shading direct light",
+            ));
+        }
         if !self.direct && self.bounces == 0 {
             return Err(Error::invalid(
                 "direct",
@@ -462,36 +483,48 @@ fn elapsed_ns(since: Instant) -> u64 {
 }
 
 impl Shader<'_> {
-    /// Traces the primary ray through `pixel`'s point `jitter` (`[0.5, 0.5]`: the centre).
-    fn trace_primary(
+    /// The hits of the jittered primary rays of samples `rngs` of `pixel` (at most
+    /// [`PACKET`]), traced as one packet from the eye: a pixel's rays visit nearly the
+    /// same nodes, so together they cost a fraction of tracing them one by one.
+    fn trace_samples(
         &self,
         pixel: usize,
-        jitter: [f32; 2],
+        rngs: &[PixelSampler],
         work: &mut BandWork,
-    ) -> (Vec3, Option<(crate::geometry::SurfaceHit, ShadingPoint)>) {
+    ) -> [Option<SampleHit>; PACKET] {
         let scene = self.lighting.scene;
         let width = self.camera.width as usize;
         let (px, py) = ((pixel % width) as u32, (pixel / width) as u32);
-        let (origin, dir) = self.camera.pixel_ray(px, py, jitter);
-        let hit = scene.intersect1(origin, dir, f32::INFINITY, &mut work.bvh);
-        work.primary_rays += 1;
-        let Some(hit) = hit else {
-            return (dir, None);
-        };
-        let sp = shading_point_at(scene, &hit, -dir);
-        (dir, Some((hit, sp)))
-    }
-
-    /// The hit of one sample's jittered primary ray.
-    fn trace_sample(&self, pixel: usize, rng: &PixelSampler, work: &mut BandWork) -> SampleHit {
-        match self.trace_primary(pixel, rng.get2(DIM_PIXEL_JITTER), work) {
-            (dir, None) => SampleHit::Miss(self.lighting.env.eval(dir)),
-            (_, Some((hit, sp))) => SampleHit::Surface {
-                emitted: self.lighting.scene.emitted(&hit, sp.wo),
-                object: hit.obj,
-                sp,
-            },
+        let mut directions = [Vec3A::ZERO; PACKET];
+        let mut eye = Vec3::ZERO;
+        for (d, rng) in directions.iter_mut().zip(rngs) {
+            let (origin, dir) = self.camera.pixel_ray(px, py, rng.get2(DIM_PIXEL_JITTER));
+            (eye, *d) = (origin, dir.into());
         }
+        let n = rngs.len();
+        let hits = scene.intersect_packet(
+            eye,
+            &directions[..n],
+            &[f32::INFINITY; PACKET][..n],
+            &mut work.bvh,
+        );
+        work.primary_rays += n as u64;
+        let mut out = [const { None }; PACKET];
+        for (k, hit) in hits.into_iter().enumerate().take(n) {
+            let dir = Vec3::from(directions[k]);
+            out[k] = Some(match hit {
+                None => SampleHit::Miss(self.lighting.env.eval(dir)),
+                Some(hit) => {
+                    let sp = shading_point_at(scene, &hit, -dir);
+                    SampleHit::Surface {
+                        emitted: scene.emitted(&hit, sp.wo),
+                        object: hit.obj,
+                        sp,
+                    }
+                }
+            });
+        }
+        out
     }
 
     /// Prepares the anchor of `pixel` at its G-buffer hit.
@@ -654,29 +687,37 @@ impl Shader<'_> {
             }
             _ => (None, None, self.techniques.without_product()),
         };
-        let (l, drawn) = self.lighting.estimate_mixture(
-            sp,
-            product,
-            guided,
-            &techniques,
-            rng,
-            &mut work.direct,
-            &mut work.bvh,
-        );
-        let z = emitted + l + indirect;
-        let (Some(a), Some((state, _)), Some(chroma), true) =
-            (anchor, self.cache, self.chroma, matched)
-        else {
-            return (z, [0.0; 3]);
+        // The control variate where the anchor's records and product describe the hit.
+        let control = match (anchor, self.cache, self.chroma, matched) {
+            (Some(a), Some((state, _)), Some(chroma), true)
+                if !a.interpolant.is_empty() && a.product.is_some() =>
+            {
+                Some((a, state, chroma))
+            }
+            _ => None,
         };
-        let interp = &a.interpolant;
-        if interp.is_empty() || a.product.is_none() {
-            return (z, [0.0; 3]);
-        }
-        // g/p of the mixture; a draw of no direction is a sample of g/p = 0.
-        let g_over_p = match drawn {
-            None => [0.0; 3],
-            Some(d) => {
+        let draws = self.params.light_samples;
+        let mut l = Vec3::ZERO;
+        let mut g_over_p = [0.0; 3];
+        for j in 0..draws {
+            let draw = if draws == 1 {
+                *rng
+            } else {
+                rng.light_draw(j, draws)
+            };
+            let (lj, drawn) = self.lighting.estimate_mixture(
+                sp,
+                product,
+                guided,
+                &techniques,
+                &draw,
+                &mut work.direct,
+                &mut work.bvh,
+            );
+            l += lj;
+            // g/p of the mixture; a draw of no direction is a sample of g/p = 0.
+            if let (Some((a, state, chroma)), Some(d)) = (control, drawn) {
+                let interp = &a.interpolant;
                 let g = control_sample(state, interp, chroma, d.square);
                 if let Some(visible) = d.visible {
                     for (k, v) in verdicts.iter_mut().enumerate().take(interp.ids().len()) {
@@ -685,10 +726,17 @@ impl Shader<'_> {
                         v.1 += 1;
                     }
                 }
-                g.value.map(|v| v * d.product_ratio)
+                for (c, gp) in g_over_p.iter_mut().enumerate() {
+                    *gp += g.value[c] * d.product_ratio;
+                }
             }
+        }
+        let inv = 1.0 / draws as f64;
+        let z = emitted + l * inv as f32 + indirect;
+        let Some((a, _, _)) = control else {
+            return (z, [0.0; 3]);
         };
-        let w = std::array::from_fn(|c| a.ratios[c] * (g_over_p[c] - interp.j[c]));
+        let w = std::array::from_fn(|c| a.ratios[c] * (g_over_p[c] * inv - a.interpolant.j[c]));
         (z, w)
     }
 
@@ -739,40 +787,48 @@ impl Shader<'_> {
         };
         // Record verdicts add up over the pixel and reach the band's map once.
         let mut verdicts = [(0u32, 0u32); crate::estimators::control_variate::MAX_KEPT];
-        for s in samples {
-            let rng = PixelSampler::new(seed, pixel as u64, s as u64);
-            let (z, w) = if self.params.jitter {
-                match self.trace_sample(pixel, &rng, work) {
-                    SampleHit::Miss(l) => (self.background(l), [0.0; 3]),
-                    SampleHit::Surface {
-                        sp,
-                        object,
-                        emitted,
-                    } => {
-                        let matched = anchor_surface.is_some_and(|a| {
-                            a.object == object && a.sp.normal.dot(sp.normal) >= a.cos_match
-                        });
-                        work.unmatched_samples += !matched as u64;
-                        self.sample(
-                            anchor_surface,
-                            &sp,
-                            emitted,
-                            matched,
-                            &rng,
-                            work,
-                            &mut verdicts,
-                        )
-                    }
+        let shade_hit = |hit: SampleHit,
+                         rng: &PixelSampler,
+                         work: &mut BandWork,
+                         verdicts: &mut [(u32, u32)]| match hit {
+            SampleHit::Miss(l) => (self.background(l), [0.0; 3]),
+            SampleHit::Surface {
+                sp,
+                object,
+                emitted,
+            } => {
+                let matched = anchor_surface.is_some_and(|a| {
+                    a.object == object && a.sp.normal.dot(sp.normal) >= a.cos_match
+                });
+                work.unmatched_samples += !matched as u64;
+                self.sample(anchor_surface, &sp, emitted, matched, rng, work, verdicts)
+            }
+        };
+        if self.params.jitter {
+            // Packets of the pixel's samples, shaded in sample order.
+            for first in samples.clone().step_by(PACKET) {
+                let n = (samples.end - first).min(PACKET as u32) as usize;
+                let rngs: [PixelSampler; PACKET] = std::array::from_fn(|k| {
+                    PixelSampler::new(seed, pixel as u64, (first as usize + k.min(n - 1)) as u64)
+                });
+                let hits = self.trace_samples(pixel, &rngs[..n], work);
+                for (hit, rng) in hits.into_iter().zip(&rngs).take(n) {
+                    let hit = hit.expect("one hit per traced sample");
+                    let (z, w) = shade_hit(hit, rng, work, &mut verdicts);
+                    acc.add(z, w);
                 }
-            } else {
-                match anchor.as_ref().expect("fixed points have an anchor") {
+            }
+        } else {
+            for s in samples {
+                let rng = PixelSampler::new(seed, pixel as u64, s as u64);
+                let (z, w) = match anchor.as_ref().expect("fixed points have an anchor") {
                     Point::Miss(l) => (self.background(*l), [0.0; 3]),
                     Point::Surface(p) => {
                         self.sample(Some(p), &p.sp, p.emitted, true, &rng, work, &mut verdicts)
                     }
-                }
-            };
-            acc.add(z, w);
+                };
+                acc.add(z, w);
+            }
         }
         let sampled = elapsed_ns(prepared);
         work.sample_ns += sampled;

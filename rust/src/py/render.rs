@@ -18,7 +18,7 @@ use super::scene::PyScene;
 use crate::estimators::control_variate::AlphaRule;
 use crate::estimators::direct::{Method, Techniques};
 use crate::estimators::indirect::MAX_BOUNCES;
-use crate::render::{render as render_core, render_from, RenderParams, MAX_SPP};
+use crate::render::{render as render_core, render_from, RenderParams, MAX_LIGHT_SAMPLES, MAX_SPP};
 
 /// The method name of the path-traced reference (direct light by MIS plus `bounces`).
 const PATH: &str = "path";
@@ -87,7 +87,7 @@ fn techniques_arg(weights: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Techniq
 /// `technique_weights` the method's own, `bounces` 1 for method "path" and 0 otherwise.
 /// With `gbuffer` (traced through `camera`) its hits are the pixels' anchors.
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None))]
+#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -110,6 +110,7 @@ pub fn render<'py>(
     bounces: Option<&Bound<'py, PyAny>>,
     direct: bool,
     gbuffer: Option<PyRef<'py, PyGBuffer>>,
+    light_samples: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let view = view_arg(Some(camera), gbuffer)?;
     // "path": the unbiased reference with indirect light, MIS at every vertex.
@@ -147,6 +148,12 @@ pub fn render<'py>(
         insert_missing,
         bounces,
         direct,
+        light_samples: match light_samples {
+            Some(n) if !n.is_none() => {
+                int_arg(n, "light_samples", 1, MAX_LIGHT_SAMPLES as i128)? as u32
+            }
+            _ => 1,
+        },
     };
     params.validate().py()?;
     let threads = threads_arg(threads)?;
@@ -183,6 +190,7 @@ pub fn render<'py>(
     stats.set_item("passes", s.passes)?;
     stats.set_item("complete", s.complete)?;
     stats.set_item("jitter", params.jitter)?;
+    stats.set_item("light_samples", params.light_samples)?;
     let t = params.techniques();
     let weights = PyDict::new(py);
     for (name, w) in ["product", "guided", "bsdf", "env"]

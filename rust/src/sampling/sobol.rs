@@ -23,10 +23,15 @@ use super::rng::{hash4, mix64, Sampler};
 /// Domain separation from the other users of [`hash4`].
 const SOBOL_DOMAIN: u64 = 0x50b0_1d15_ea5e_0001;
 
+/// Domain of the light draws' stream ([`PixelSampler::light_draw`]).
+const DRAW_DOMAIN: u64 = 0x50b0_1d15_ea5e_0002;
+
 /// The quasi-random stream of one sample of one pixel: `get(d)` is dimension `d`, and the
 /// dimensions `4k..4k+4` of a pixel's samples form one scrambled 4D Sobol sequence.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PixelSampler {
+    /// What the sampler was made from: `(seed, pixel, sample)`.
+    origin: (u64, u64, u64),
     /// Scramble of the pixel and block.
     key: u64,
     /// Index within the block of `2^16`.
@@ -38,13 +43,35 @@ pub struct PixelSampler {
 impl PixelSampler {
     /// Sample `sample` of pixel `pixel` under `seed`.
     pub fn new(seed: u64, pixel: u64, sample: u64) -> Self {
-        let key = hash4(seed, pixel, sample >> 16, SOBOL_DOMAIN);
+        Self::in_domain(seed, pixel, sample, SOBOL_DOMAIN)
+    }
+
+    fn in_domain(seed: u64, pixel: u64, sample: u64, domain: u64) -> Self {
+        let key = hash4(seed, pixel, sample >> 16, domain);
         let index = (sample & 0xffff) as u32;
+        let mut first = Self::set(key, index, 0);
+        if domain == DRAW_DOMAIN {
+            // A draw reads no pixel jitter: its environment pair (dimensions 2-3) takes
+            // Sobol's first two dimensions, the pair that is a (0, 2)-sequence.
+            first = [first[2], first[3], first[0], first[1]];
+        }
         Self {
+            origin: (seed, pixel, sample),
             key,
             index,
-            first: Self::set(key, index, 0),
+            first,
         }
+    }
+
+    /// Light draw `j` of `n` of this sample: point `sample · n + j` of the pixel's second
+    /// stream (scrambled independently of the first), so the `n` draws of one sample are
+    /// consecutive points of one Sobol sequence (for `n` a power of two, an aligned block
+    /// that fills the unit square's strata evenly) and the draws of all the pixel's
+    /// samples together are its first `spp · n` points. Every draw is uniform on its own.
+    pub fn light_draw(&self, j: u32, n: u32) -> Self {
+        debug_assert!(j < n);
+        let (seed, pixel, sample) = self.origin;
+        Self::in_domain(seed, pixel, sample * n as u64 + j as u64, DRAW_DOMAIN)
     }
 
     /// Dimensions `4 set .. 4 set + 4`.
@@ -144,5 +171,28 @@ mod tests {
         let a = PixelSampler::new(1, 2, 3);
         let b = PixelSampler::new(1, 2, 3 + (1 << 16));
         assert_ne!(a.get4(0), b.get4(0));
+    }
+
+    #[test]
+    fn light_draws_are_stratified_within_a_sample_and_over_the_pixel() {
+        // 4 draws of each of 64 samples: the 4 draws of one sample put one point in each
+        // quarter of the env pair's square (2 x 2), and all 256 draws of the pixel one
+        // point in each cell of a 16 x 16 grid; the draws' stream is not the samples'.
+        let env = 2;
+        for pixel in 0..20 {
+            let mut grid = [0u32; 256];
+            for s in 0..64 {
+                let sample = PixelSampler::new(4, pixel, s);
+                let mut quarters = [0u32; 4];
+                for j in 0..4 {
+                    let [x, y] = sample.light_draw(j, 4).get2(env);
+                    quarters[(y * 2.0) as usize * 2 + (x * 2.0) as usize] += 1;
+                    grid[(y * 16.0) as usize * 16 + (x * 16.0) as usize] += 1;
+                }
+                assert_eq!(quarters, [1; 4], "pixel {pixel} sample {s}");
+                assert_ne!(sample.light_draw(0, 1).get2(env), sample.get2(env));
+            }
+            assert!(grid.iter().all(|&c| c == 1), "pixel {pixel}");
+        }
     }
 }
