@@ -4,7 +4,9 @@ answers agree.
 Workloads (identical rays for both, from ``viscache_rs.testing``):
   incoherent  2^20 rays from points on the ground, directions uniform on the hemisphere;
   bundles     1000 ground points x 1024 stratified hemisphere directions, point after point
-              (how visibility records are built).
+              (how visibility records are built);
+  shading     the view's jittered first hits at 160x120, 32 passes in pixel order, one
+              cosine-weighted direction each (what a render shades with).
 
 viscache_rs runs with threads=2; embreex runs two Python threads on the two halves of the
 rays (``EmbreeScene.run(..., query='OCCLUDED')``), once with robust=False and once with its
@@ -69,6 +71,7 @@ def run(scene_name: str, repeats: int) -> dict:
     workloads = {
         "incoherent": vc.testing.ground_hemisphere_rays(scene, 1 << 20, seed=1),
         "bundles": vc.testing.record_bundle_rays(scene, 1000, 32, seed=1),
+        "shading": vc.testing.view_shading_rays(setup, seed=1),
     }
     result = {"scene": scene_name, "triangles": int(scene.num_triangles),
               "our_build_s": build_s, "builder": builder, "workloads": {}}
@@ -113,7 +116,8 @@ def main() -> None:
     ap.add_argument("--json", default="results/peer_embree.json")
     args = ap.parse_args()
     results = [run(s, args.repeats) for s in (args.scenes or vc.scenes.suite_names())]
-    print("ratios: median over the repeats [least, greatest]")
+    print(f"ratios: median over the repeats [least, greatest]; our kernels: "
+          f"{vc.testing.simd_level()}")
     print(f"{'scene':<9}{'workload':<12}{'rays':>9}{'occl.':>7}{'ours Mr/s':>11}"
           f"{'x fast':>20}{'x robust':>20}{'agree fast':>12}{'agree rob.':>12}")
 

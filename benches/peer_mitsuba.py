@@ -46,7 +46,8 @@ def parse_args(argv=None):
                    help="scene names (default: every vc.scenes.suite_names() scene, or the "
                         "built-ins)")
     p.add_argument("--budgets", nargs="*", type=float, default=[1.0, 3.0, 10.0])
-    p.add_argument("--methods", nargs="*", default=["product", "cv"])
+    p.add_argument("--methods", nargs="*", default=["product", "cv"],
+                   help="ours; a method may take light draws per sample as 'product:4'")
     p.add_argument("--size", default="160x120", help="WxH")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--ref-spp", type=int, default=2048)
@@ -90,11 +91,18 @@ def mitsuba_equal_time(ms, budget: float, seed0: int):
     return mean, var, MITSUBA_PASS_SPP * len(passes), seconds
 
 
+def method_args(method: str) -> dict:
+    """``vc.render`` keywords of a ``--methods`` entry: ``"cv"`` or ``"cv:4"`` (4 light
+    draws per sample)."""
+    name, _, draws = method.partition(":")
+    return {"method": name, "light_samples": int(draws) if draws else 1}
+
+
 def ours_equal_time(setup, camera, method: str, budget: float, threads: int, seed: int):
     settle()
     start = time.perf_counter()
-    r = vc.render(setup, camera=camera, method=method, time_budget=budget, threads=threads,
-                  progress=False, seed=seed)
+    r = vc.render(setup, camera=camera, time_budget=budget, threads=threads,
+                  progress=False, seed=seed, **method_args(method))
     return r, time.perf_counter() - start
 
 
@@ -119,6 +127,7 @@ def main(argv=None) -> int:
     ref_spp = 512 if args.quick else args.ref_spp
     scenes = args.scenes or (DEFAULT_SCENES if args.quick else default_scenes())
     rows = []
+    print(f"# our kernels: {vc.testing.simd_level()}", file=sys.stderr)
     for name in scenes:
         setup = load_setup(name)
         cam = setup.camera.with_resolution(width, height)
@@ -127,8 +136,8 @@ def main(argv=None) -> int:
         for k in range(2):  # warm-up: Mitsuba compiles its kernel, we build tables
             vc.mitsuba.render(ms, MITSUBA_PASS_SPP, seed=10_000 + k)
         for m in args.methods:
-            vc.render(setup, camera=cam, method=m, spp=1, threads=args.threads,
-                      progress=False)
+            vc.render(setup, camera=cam, spp=1, threads=args.threads, progress=False,
+                      **method_args(m))
         t = time.perf_counter()
         chunks = np.stack([vc.mitsuba.render(ms, max(1, ref_spp // REF_CHUNKS),
                                              seed=20_000 + k) for k in range(REF_CHUNKS)])
@@ -166,7 +175,8 @@ def main(argv=None) -> int:
     if args.out:
         with open(args.out, "w") as f:
             json.dump({"size": [width, height], "threads": args.threads,
-                       "ref_spp": ref_spp, "variant": args.variant, "rows": rows}, f, indent=1)
+                       "ref_spp": ref_spp, "variant": args.variant,
+                       "simd_level": vc.testing.simd_level(), "rows": rows}, f, indent=1)
     return 0
 
 

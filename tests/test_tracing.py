@@ -222,3 +222,29 @@ def test_single_triangle_and_tangent_rays():
     np.testing.assert_allclose(h["t"], [1, 0, np.inf, 1])
     occ = scene.occluded(o, d, tmax=np.array([1.0, 1.0, 5.0, 1.0]))
     assert list(occ) == [False, True, False, False]
+
+
+def test_view_shading_rays_leave_the_seen_surfaces_toward_the_viewer_side():
+    setup = vc.scenes.load("cornell", detail=0.3)
+    passes, seed = 3, 2
+    o, d = vc.testing.view_shading_rays(setup, width=16, height=12, passes=passes, seed=seed)
+    assert o.dtype == np.float32 and d.dtype == np.float32 and o.shape == d.shape
+    assert np.allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-5)
+    # The first hits of the same jittered G-buffers, in the same order: each ray starts just
+    # off its hit and leaves on the side the viewer sees.
+    cam = setup.camera.with_resolution(16, 12)
+    points, normals = [], []
+    for k in range(passes):
+        g = setup.scene.gbuffer(cam, jitter=True, seed=seed * passes + k)
+        hit = g["object"] >= 0
+        n = g["normal"][hit]
+        n = np.where((np.sum(n * g["direction"][hit], axis=1) > 0)[:, None], -n, n)
+        points.append(g["position"][hit])
+        normals.append(n)
+    p, n = np.concatenate(points), np.concatenate(normals)
+    assert len(p) == len(o) > 0.9 * passes * 16 * 12
+    assert np.allclose(o, p, atol=1e-3)
+    assert (np.sum(d * n, axis=1) > 0).all()
+    assert (np.sum((o - p) * n, axis=1) > 0).all()
+    a, b = vc.testing.view_shading_rays(setup, width=16, height=12, passes=passes, seed=seed)
+    assert np.array_equal(a, o) and np.array_equal(b, d)

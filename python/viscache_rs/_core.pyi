@@ -485,6 +485,8 @@ class _OctahedralModule:
 
 class _TestingModule:
     @staticmethod
+    def simd_level() -> str: ...
+    @staticmethod
     def ground_hemisphere_rays(
         scene: Scene, n: int, seed: int | None = 0
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]: ...

@@ -49,6 +49,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     testing.add_function(wrap_pyfunction!(testing::ground_hemisphere_rays, &testing)?)?;
     testing.add_function(wrap_pyfunction!(testing::record_bundle_rays, &testing)?)?;
     testing.add_function(wrap_pyfunction!(testing::chi2_sphere, &testing)?)?;
+    testing.add_function(wrap_pyfunction!(testing::simd_level, &testing)?)?;
     m.add_submodule(&testing)?;
     let octa = PyModule::new(m.py(), "octahedral")?;
     octa.add_function(wrap_pyfunction!(octahedral::sphere_to_square, &octa)?)?;

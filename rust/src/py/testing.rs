@@ -160,3 +160,15 @@ pub fn chi2_sphere<'py>(
     d.set_item("passed", o.passed)?;
     Ok(d)
 }
+
+/// The vector instruction set the kernels run with on this CPU: "avx512", "avx2",
+/// "popcnt" or "portable" (benches report it beside their timings).
+#[pyfunction]
+pub fn simd_level() -> &'static str {
+    match crate::simd::level() {
+        crate::simd::SimdLevel::Avx512 => "avx512",
+        crate::simd::SimdLevel::Avx2 => "avx2",
+        crate::simd::SimdLevel::Popcnt => "popcnt",
+        crate::simd::SimdLevel::Portable => "portable",
+    }
+}
