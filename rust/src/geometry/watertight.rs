@@ -330,6 +330,28 @@ impl WatertightPacket {
         tmax: std::arch::x86_64::__m512,
         lanes: u16,
     ) -> u16 {
+        self.hits_at(tri, t, tmax, lanes).0
+    }
+
+    /// [`Self::hits`] with each lane's distance and barycentrics `(t, u, v)` as
+    /// [`WatertightRay::intersect4`] returns them (valid in the lanes hit).
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 F.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    pub fn hits_at(
+        &self,
+        tri: &Triangle4,
+        t: usize,
+        tmax: std::arch::x86_64::__m512,
+        lanes: u16,
+    ) -> (
+        u16,
+        std::arch::x86_64::__m512,
+        std::arch::x86_64::__m512,
+        std::arch::x86_64::__m512,
+    ) {
         use std::arch::x86_64::*;
         let rel = |k: usize| [0, 1, 2].map(|axis| tri.v[k][axis].to_array()[t] - self.origin[axis]);
         let pick = |which: usize, v: [f32; 3]| {
@@ -395,12 +417,14 @@ impl WatertightPacket {
             _mm512_mul_ps(w, ckz),
         );
         let t_scaled = _mm512_mul_ps(sz, along);
-        let t = _mm512_mul_ps(t_scaled, _mm512_div_ps(_mm512_set1_ps(1.0), det));
-        lanes
+        let inv_det = _mm512_div_ps(_mm512_set1_ps(1.0), det);
+        let t = _mm512_mul_ps(t_scaled, inv_det);
+        let hit = lanes
             & !(neg & pos)
             & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(det, zero)
             & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(t, zero)
-            & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(t, tmax)
+            & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(t, tmax);
+        (hit, t, _mm512_mul_ps(v, inv_det), _mm512_mul_ps(w, inv_det))
     }
 }
 

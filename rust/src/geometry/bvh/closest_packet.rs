@@ -7,6 +7,12 @@ use super::packet::PACKET;
 #[cfg(target_arch = "x86_64")]
 use super::{packet::LaneRays, packet::Packet, STACK};
 use super::{Bvh, Hit, TraversalCounters};
+
+/// Lanes of a packet reaching a leaf from which its triangles are tested against the lanes
+/// all at once ([`crate::geometry::watertight::WatertightPacket`]) rather than lane by
+/// lane.
+#[cfg(target_arch = "x86_64")]
+const VECTOR_TRIANGLE_LANES: u32 = 6;
 #[cfg(target_arch = "x86_64")]
 use crate::geometry::bvh8::{decode, BoundedStack, Child, Stack, TraversalStack, EXIT_SCALE};
 #[cfg(target_arch = "x86_64")]
@@ -105,6 +111,34 @@ impl Bvh {
                     let block = &self.blocks[first as usize];
                     if COUNT {
                         tests += count as u64 * live.count_ones() as u64;
+                    }
+                    if live.count_ones() >= VECTOR_TRIANGLE_LANES {
+                        // Triangle after triangle against the lanes at once, each lane's
+                        // closest hit so far as its bound: the lowest triangle wins ties.
+                        for k in 0..count as usize {
+                            let (hit, t, u, v) = packet.watertight.hits_at(block, k, best_v, live);
+                            if hit == 0 {
+                                continue;
+                            }
+                            best_v = _mm512_mask_blend_ps(hit, best_v, t);
+                            let (t, u, v) = (lanes(t), lanes(u), lanes(v));
+                            let mut rest = hit;
+                            while rest != 0 {
+                                let l = rest.trailing_zeros() as usize % PACKET;
+                                rest &= rest - 1;
+                                best_t[l] = t[l];
+                                best[l] = Some((
+                                    first * 4 + k as u32,
+                                    TriangleHit {
+                                        t: t[l],
+                                        u: u[l],
+                                        v: v[l],
+                                    },
+                                ));
+                            }
+                        }
+                        exit = _mm512_mul_ps(best_v, _mm512_set1_ps(EXIT_SCALE));
+                        continue;
                     }
                     let mut rest = live;
                     let mut closer = false;
