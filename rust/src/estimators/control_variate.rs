@@ -586,40 +586,42 @@ impl Interpolant {
     /// weighted share of its record texels that the kept records see, in `[0, 1]`. What
     /// [`super::direct::ProductDistribution::guided`] samples by.
     pub fn cell_visibility(&self, state: &CacheState, level: u32) -> Vec<f32> {
-        let store = state.store();
-        let m = store.m();
         let mut out = vec![0.0f32; 1 << (2 * level)];
         for (&id, &beta) in self.ids().iter().zip(self.betas()) {
-            let bits = store.bits(id as usize);
-            let words = bits.bit_words();
-            if m <= level {
-                // Each record texel covers 4^(level - m) cells.
-                let shift = 2 * (level - m);
-                for (w, &word) in words.iter().enumerate() {
-                    let mut x = word;
-                    while x != 0 {
-                        let texel = 64 * w + x.trailing_zeros() as usize;
-                        x &= x - 1;
-                        let first = texel << shift;
-                        for v in &mut out[first..first + (1 << shift)] {
-                            *v += beta;
-                        }
-                    }
-                }
-            } else {
-                // Each cell covers 4^(m - level) record texels, a Morton range.
-                let per_cell = 1usize << (2 * (m - level));
-                let share = beta / per_cell as f32;
-                for (c, v) in out.iter_mut().enumerate() {
-                    let visible = count_bits(words, c * per_cell, per_cell);
-                    *v += share * visible as f32;
-                }
-            }
+            add_record_cells(state, id, beta, level, &mut out);
         }
         for v in &mut out {
             *v = v.min(1.0);
         }
         out
+    }
+
+    /// Each kept record's visibility averaged over the cells of octahedral level `level`
+    /// with the cells' `weights` (Morton order, non-negative, positive sum): `(β_i,
+    /// E_w[V_i])`, heaviest record first. Their spread around `Ṽ`'s own average says how
+    /// much the records that `Ṽ` blends disagree there.
+    pub fn record_averages(
+        &self,
+        state: &CacheState,
+        level: u32,
+        weights: &[f64],
+    ) -> Vec<(f32, f64)> {
+        let total: f64 = weights.iter().sum();
+        let mut cells = vec![0.0f32; 1 << (2 * level)];
+        self.ids()
+            .iter()
+            .zip(self.betas())
+            .map(|(&id, &beta)| {
+                cells.fill(0.0);
+                add_record_cells(state, id, 1.0, level, &mut cells);
+                let v: f64 = weights
+                    .iter()
+                    .zip(&cells)
+                    .map(|(&w, &v)| w * v as f64)
+                    .sum();
+                (beta, v / total)
+            })
+            .collect()
     }
 
     /// Record ids, heaviest first.
@@ -654,6 +656,37 @@ impl Interpolant {
             }
         }
         (v, mask)
+    }
+}
+
+/// Adds `beta` times record `id`'s visible share of each cell of octahedral level `level`
+/// (Morton order) to `out`.
+fn add_record_cells(state: &CacheState, id: u32, beta: f32, level: u32, out: &mut [f32]) {
+    let store = state.store();
+    let m = store.m();
+    let words = store.bits(id as usize).bit_words();
+    if m <= level {
+        // Each record texel covers 4^(level - m) cells.
+        let shift = 2 * (level - m);
+        for (w, &word) in words.iter().enumerate() {
+            let mut x = word;
+            while x != 0 {
+                let texel = 64 * w + x.trailing_zeros() as usize;
+                x &= x - 1;
+                let first = texel << shift;
+                for v in &mut out[first..first + (1 << shift)] {
+                    *v += beta;
+                }
+            }
+        }
+    } else {
+        // Each cell covers 4^(m - level) record texels, a Morton range.
+        let per_cell = 1usize << (2 * (m - level));
+        let share = beta / per_cell as f32;
+        for (c, v) in out.iter_mut().enumerate() {
+            let visible = count_bits(words, c * per_cell, per_cell);
+            *v += share * visible as f32;
+        }
     }
 }
 
@@ -1085,6 +1118,57 @@ mod tests {
                         "m {m} level {level}"
                     );
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn record_averages_are_each_records_weighted_share_and_blend_to_v_tilde() {
+        for m in [3u32, 5, 6] {
+            let bits: Vec<_> = (0..3).map(|i| random_bits(m, 21 + i)).collect();
+            let (cache, lookup) = cache_with(&bits);
+            let state = cache.read();
+            let interp = Interpolant::new(&state, &lookup, None);
+            for level in [4u32, 5] {
+                let cells = 1usize << (2 * level);
+                let weights: Vec<f64> = (0..cells).map(|c| 1.0 + (c % 7) as f64).collect();
+                let total: f64 = weights.iter().sum();
+                let got = interp.record_averages(&state, level, &weights);
+                assert_eq!(got.len(), interp.ids().len());
+                let mut blended = 0.0;
+                for ((&(beta, avg), &id), &b) in got.iter().zip(interp.ids()).zip(interp.betas()) {
+                    assert_eq!(beta, b);
+                    let rec = state.store().bits(id as usize);
+                    let want: f64 = (0..cells)
+                        .map(|c| {
+                            let share = if m >= level {
+                                let k = 1usize << (2 * (m - level));
+                                (0..k).filter(|t| rec.get(c * k + t)).count() as f64 / k as f64
+                            } else {
+                                rec.get(c >> (2 * (level - m))) as u32 as f64
+                            };
+                            weights[c] * share
+                        })
+                        .sum::<f64>()
+                        / total;
+                    assert!(
+                        (avg - want).abs() < 1e-6,
+                        "m {m} level {level}: {avg} {want}"
+                    );
+                    blended += beta as f64 * avg;
+                }
+                // With β summing to one no cell is clamped: the records' blend is Ṽ's.
+                let v: f64 = interp
+                    .cell_visibility(&state, level)
+                    .iter()
+                    .zip(&weights)
+                    .map(|(&v, &w)| w * v as f64)
+                    .sum::<f64>()
+                    / total;
+                assert!(
+                    (blended - v).abs() < 1e-5,
+                    "m {m} level {level}: {blended} {v}"
+                );
             }
         }
     }

@@ -37,7 +37,11 @@
 //!   record's rays are unbounded, so they find an area light's own triangles and mark
 //!   its directions blocked; area lights keep the unbiased `⟨LBV⟩` in this mode.
 //!
-//! `Var(V)` is the binary variance `⟨V⟩(1 − ⟨V⟩)` in both cases.
+//! `Var(V)` is the binary variance `⟨V⟩(1 − ⟨V⟩)` in both cases. The bound adds the error of
+//! `⟨V⟩` itself, carried by `⟨LB⟩⟨V⟩`: [`V_ERROR_SIGMAS`] times its standard error (pixels),
+//! or times the spread `sqrt(Σ β_i (E_p'[V_i] − E_p'[Ṽ])² / Σ β_i)` of the records that
+//! `Ṽ` blends (cache): where they agree the interpolation is trusted, where they differ
+//! (a shadow's edge between records) the bound widens.
 //!
 //! ## Determinism
 //! Every random number is a pure function of `(seed, pixel, stream, sample, dimension)`;
@@ -77,7 +81,8 @@ pub const VISIBILITY_PASS_SPP: u32 = 16;
 /// Most `LB`- or `LBV`-samples per pixel and light of one [`Relighter::render`].
 pub const MAX_RELIGHT_SPP: u32 = 1 << 16;
 
-/// Standard errors of `⟨V⟩` added to the bound (module docs).
+/// Standard errors of `⟨V⟩` (or record spreads, in cache mode) added to the bound (module
+/// docs).
 pub const V_ERROR_SIGMAS: f64 = 2.0;
 
 /// Sample streams, kept apart so that `V`-, `LB`- and `LBV`-samples are independent.
@@ -623,6 +628,8 @@ impl Relighter {
                                 lb[c].push(lb_x[c] as f64);
                             });
                         }
+                        // How far the cache's records disagree about `⟨V⟩` (cache mode).
+                        let mut v_spread = 0.0f64;
                         let (v, ess) = match (converged, &interpolant, &state) {
                             (Some(c), _, _) => {
                                 let stats = &c.stats[i * n_lights + l];
@@ -648,8 +655,19 @@ impl Relighter {
                                             .iter()
                                             .zip(&cells)
                                             .map(|(&w, &v)| w * v as f64)
-                                            .sum();
-                                        (v / total, f64::INFINITY)
+                                            .sum::<f64>()
+                                            / total;
+                                        // Ṽ interpolates records that may disagree here:
+                                        // their spread about it stands for its error.
+                                        let records = interp.record_averages(state, level, weights);
+                                        let betas: f64 = records.iter().map(|r| r.0 as f64).sum();
+                                        let spread = records
+                                            .iter()
+                                            .map(|&(b, vi)| b as f64 * (vi - v).powi(2))
+                                            .sum::<f64>()
+                                            / betas.max(f64::MIN_POSITIVE);
+                                        v_spread = spread.sqrt();
+                                        (v, f64::INFINITY)
                                     }
                                     None => (f64::NAN, 0.0),
                                 }
@@ -668,7 +686,10 @@ impl Relighter {
                             let var_v = binary_variance(v);
                             // Eq. 7 assumes the exact E_p[V]; ⟨V⟩ from `ess` samples is off
                             // by about sqrt(Var(V)/ess), which ⟨LB⟩⟨V⟩ carries too.
-                            let v_error = V_ERROR_SIGMAS * (var_v / ess.max(1.0)).sqrt();
+                            // From the cache, `Ṽ` is no sample mean but an
+                            // interpolation: its records' spread takes that place.
+                            let v_error =
+                                V_ERROR_SIGMAS * ((var_v / ess.max(1.0)).sqrt() + v_spread);
                             let err: [f64; 3] = std::array::from_fn(|c| {
                                 error_bound(lb[c].variance(), var_v) + lb_mean[c].abs() * v_error
                             });
