@@ -2,9 +2,9 @@
 
 use glam::Vec3A;
 
-use super::{Bvh, Hit, LocalRay, TraversalCounters, STACK};
+use super::{Bvh, FarthestFirst, Hit, LocalRay, TraversalCounters, STACK};
 use crate::geometry::bvh8::{
-    decode, BoundedStack, BoxTest, Child, LevelBoxTest, Stack, TraversalStack, WIDTH,
+    decode, BoundedStack, BoxTest, Child, LevelBoxTest, Stack, TraversalStack,
 };
 use crate::geometry::watertight::TriangleHit;
 use crate::simd::{Kernel, Level, SimdLevel};
@@ -107,26 +107,13 @@ impl Bvh {
                         nodes += 1;
                     }
                     let (t_near, mut mask) = box_test.test(n, &r.boxes, best_t);
-                    // Push the hit children farthest first, so the nearest is popped next.
-                    let mut hits = [(0u32, 0f32); WIDTH];
-                    let mut k = 0;
+                    let mut hits = FarthestFirst::new(0u32);
                     while mask != 0 {
                         let i = mask.trailing_zeros() as usize;
                         mask &= mask - 1;
-                        let mut j = k;
-                        while j > 0 && hits[j - 1].1 < t_near[i] {
-                            hits[j] = hits[j - 1];
-                            j -= 1;
-                        }
-                        hits[j] = (n.child(i), t_near[i]);
-                        k += 1;
+                        hits.insert(n.child(i), t_near[i]);
                     }
-                    for &h in &hits[..k] {
-                        if let Child::Node(c) = decode(h.0) {
-                            self.tree.prefetch(c);
-                        }
-                        stack.push(h);
-                    }
+                    self.push_farthest_first(&mut stack, &hits, |r| r);
                 }
             }
         }

@@ -5,6 +5,8 @@ use glam::Vec3A;
 
 use super::packet::PACKET;
 #[cfg(target_arch = "x86_64")]
+use super::FarthestFirst;
+#[cfg(target_arch = "x86_64")]
 use super::{packet::LaneRays, packet::Packet, STACK};
 use super::{Bvh, Hit, TraversalCounters};
 
@@ -52,10 +54,10 @@ impl Bvh {
                 let packet = Packet::new(self, origin, directions, tmax);
                 let rays = &mut LaneRays::new(origin, directions, tmax);
                 let found = if self.stack_is_bounded() {
-                    type Bounded = BoundedStack<(u32, u16, f32), STACK>;
+                    type Bounded = BoundedStack<((u32, u16), f32), STACK>;
                     self.closest_packet::<COUNT, Bounded>(&packet, rays, counters)
                 } else {
-                    type Spilling = Stack<(u32, u16, f32), STACK>;
+                    type Spilling = Stack<((u32, u16), f32), STACK>;
                     self.closest_packet::<COUNT, Spilling>(&packet, rays, counters)
                 };
                 for (l, f) in found.into_iter().enumerate().take(directions.len()) {
@@ -84,7 +86,7 @@ impl Bvh {
     /// closest hits is dropped when popped.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,avx512vl,popcnt")]
-    fn closest_packet<const COUNT: bool, S: TraversalStack<(u32, u16, f32)>>(
+    fn closest_packet<const COUNT: bool, S: TraversalStack<((u32, u16), f32)>>(
         &self,
         packet: &Packet,
         rays: &mut LaneRays,
@@ -98,8 +100,8 @@ impl Bvh {
         let mut best_v = packet.tmax;
         let mut exit = packet.exit;
         let mut stack = S::new();
-        stack.push((0, packet.all, 0.0));
-        while let Some((entry, lanes_in, t_enter)) = stack.pop() {
+        stack.push(((0, packet.all), 0.0));
+        while let Some(((entry, lanes_in), t_enter)) = stack.pop() {
             // The lanes whose closest hit so far is not nearer than the entry.
             let live =
                 _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(lanes_in, best_v, _mm512_set1_ps(t_enter));
@@ -179,32 +181,17 @@ impl Bvh {
                     }
                     let relative = packet.relative_planes(n);
                     let mut touched = packet.children_touched(&relative);
-                    // The children some lane hits, farthest first, so the nearest is
-                    // popped next.
-                    let mut hits = [(0u32, 0u16, 0f32); 8];
-                    let mut k = 0;
+                    let mut hits = FarthestFirst::new((0u32, 0u16));
                     while touched != 0 {
                         let j = touched.trailing_zeros() as usize;
                         touched &= touched - 1;
                         let (hit, t_near) = packet.box_entries(&relative, j, live, exit);
-                        if hit == 0 {
-                            continue;
+                        if hit != 0 {
+                            // The least entry over the lanes that hit it.
+                            hits.insert((n.child(j), hit), _mm512_mask_reduce_min_ps(hit, t_near));
                         }
-                        let t = _mm512_mask_reduce_min_ps(hit, t_near);
-                        let mut i = k;
-                        while i > 0 && hits[i - 1].2 < t {
-                            hits[i] = hits[i - 1];
-                            i -= 1;
-                        }
-                        hits[i % 8] = (n.child(j), hit, t);
-                        k += 1;
                     }
-                    for &h in &hits[..k] {
-                        if let Child::Node(c) = decode(h.0) {
-                            self.tree.prefetch(c);
-                        }
-                        stack.push(h);
-                    }
+                    self.push_farthest_first(&mut stack, &hits, |(r, _)| r);
                 }
             }
         }

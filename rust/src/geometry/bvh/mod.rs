@@ -17,7 +17,7 @@ use std::time::Duration;
 
 use glam::Vec3A;
 
-use super::bvh8::{BoxRay, Bvh8, Node8, Parents};
+use super::bvh8::{decode, BoxRay, Bvh8, Child, Node8, Parents, TraversalStack, WIDTH};
 use super::watertight::{Triangle4, WatertightRay};
 
 mod build;
@@ -97,6 +97,36 @@ struct LocalRay {
     tmax: f32,
     /// Local t times this gives the caller's ray parameter.
     t_to_param: f32,
+}
+
+/// A node's hit children sorted by entry distance, farthest first: pushed on a stack in this
+/// order, the nearest is popped next (the closest-hit traversals).
+pub(super) struct FarthestFirst<T> {
+    hits: [(T, f32); WIDTH],
+    len: usize,
+}
+
+impl<T: Copy> FarthestFirst<T> {
+    /// No child yet (`fill` only fills the unused slots).
+    #[inline(always)]
+    pub(super) fn new(fill: T) -> Self {
+        Self {
+            hits: [(fill, 0.0); WIDTH],
+            len: 0,
+        }
+    }
+
+    /// Adds a child entered at distance `t` (at most [`WIDTH`] per node).
+    #[inline(always)]
+    pub(super) fn insert(&mut self, item: T, t: f32) {
+        let mut j = self.len;
+        while j > 0 && self.hits[j - 1].1 < t {
+            self.hits[j] = self.hits[j - 1];
+            j -= 1;
+        }
+        self.hits[j % WIDTH] = (item, t);
+        self.len += 1;
+    }
 }
 
 /// A built BVH over the non-degenerate triangles of a mesh.
@@ -217,5 +247,22 @@ impl Bvh {
     #[inline(always)]
     fn stack_is_bounded(&self) -> bool {
         7 * (self.tree.depth as usize) < STACK
+    }
+
+    /// Pushes `hits` on `stack` in their order, asking for the memory of each child node
+    /// (`child` gives an entry's child reference).
+    #[inline(always)]
+    fn push_farthest_first<T: Copy, S: TraversalStack<(T, f32)>>(
+        &self,
+        stack: &mut S,
+        hits: &FarthestFirst<T>,
+        child: impl Fn(T) -> u32,
+    ) {
+        for &(item, t) in &hits.hits[..hits.len] {
+            if let Child::Node(c) = decode(child(item)) {
+                self.tree.prefetch(c);
+            }
+            stack.push((item, t));
+        }
     }
 }

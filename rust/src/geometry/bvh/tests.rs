@@ -11,6 +11,25 @@ use crate::geometry::mesh::Mesh;
 use crate::geometry::watertight::{lanes, WatertightPacket};
 use glam::{vec3a, Vec3};
 
+/// 600 random triangles of side about 0.6 in a 4-unit cube (`seed` picks them).
+fn triangle_soup(seed: u64) -> Mesh {
+    use crate::sampling::rng::{hash4, to_unit_f32};
+    let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, seed));
+    let mut soup = Mesh::new();
+    let mut v = Vec::new();
+    for k in 0..600u64 {
+        let c = vec3a(unit(1, k), unit(2, k), unit(3, k)) * 4.0;
+        for j in 0..3u64 {
+            let e = vec3a(unit(4, 3 * k + j), unit(5, 3 * k + j), unit(6, 3 * k + j));
+            v.push((c + (e - 0.5) * 0.6).to_array());
+        }
+    }
+    let faces: Vec<[i64; 3]> = (0..600).map(|k| [3 * k, 3 * k + 1, 3 * k + 2]).collect();
+    soup.add_indexed(&v, &faces, Material::DEFAULT, None)
+        .unwrap();
+    soup
+}
+
 fn quad_mesh(scale: f32) -> Mesh {
     let mut m = Mesh::new();
     let v = [
@@ -345,18 +364,7 @@ fn packet_interval_test_keeps_every_child_a_lane_touches() {
 fn packets_answer_as_single_rays() {
     use crate::sampling::rng::{hash4, to_unit_f32};
     let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 9));
-    let mut soup = Mesh::new();
-    let mut v = Vec::new();
-    for k in 0..600u64 {
-        let c = vec3a(unit(1, k), unit(2, k), unit(3, k)) * 4.0;
-        for j in 0..3u64 {
-            let e = vec3a(unit(4, 3 * k + j), unit(5, 3 * k + j), unit(6, 3 * k + j));
-            v.push((c + (e - 0.5) * 0.6).to_array());
-        }
-    }
-    let faces: Vec<[i64; 3]> = (0..600).map(|k| [3 * k, 3 * k + 1, 3 * k + 2]).collect();
-    soup.add_indexed(&v, &faces, Material::DEFAULT, None)
-        .unwrap();
+    let soup = triangle_soup(9);
     let mut grid = Mesh::new();
     for (i, j) in (0..4).flat_map(|i| (0..4).map(move |j| (i, j))) {
         let (x, y) = (i as f32, j as f32);
@@ -433,18 +441,7 @@ fn packets_answer_as_single_rays() {
 fn closest_packets_find_the_single_rays_hits() {
     use crate::sampling::rng::{hash4, to_unit_f32};
     let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 21));
-    let mut soup = Mesh::new();
-    let mut v = Vec::new();
-    for k in 0..600u64 {
-        let c = vec3a(unit(1, k), unit(2, k), unit(3, k)) * 4.0;
-        for j in 0..3u64 {
-            let e = vec3a(unit(4, 3 * k + j), unit(5, 3 * k + j), unit(6, 3 * k + j));
-            v.push((c + (e - 0.5) * 0.6).to_array());
-        }
-    }
-    let faces: Vec<[i64; 3]> = (0..600).map(|k| [3 * k, 3 * k + 1, 3 * k + 2]).collect();
-    soup.add_indexed(&v, &faces, Material::DEFAULT, None)
-        .unwrap();
+    let soup = triangle_soup(21);
     let groups: Vec<_> = (0..600).map(|i| i..i + 1).collect();
     let deep = Bvh::build_grouped(&soup, BuildQuality::Sah, &groups);
     assert!(!deep.stack_is_bounded());
