@@ -44,7 +44,8 @@ from .cache import VisibilityCache
 class RelightResult:
     """``image`` and ``variance`` (H, W, 3) float32 (the variance treats ``<V>`` as exact);
     ``error_bound`` (H, W, 3): the estimated absolute error of ``<LB><V>`` summed over
-    lights (eq. 7 plus two standard errors of ``<V>``). Per pixel and light (H, W, L),
+    lights (eq. 7 plus two standard errors of ``<V>``: from its effective sample count, or
+    from the cache, the spread of the records it blends). Per pixel and light (H, W, L),
     light 0 the map, then the area lights: ``t`` (the blend factor), ``bound`` (estimated
     relative error bound, worst channel), ``visibility`` (``<V>``) and
     ``effective_samples``; NaN where a pixel has no surface or a light no ``<V>``."""

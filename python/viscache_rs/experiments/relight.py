@@ -175,5 +175,6 @@ def run(ctx: ExperimentContext) -> None:
               ["case", "relight s", "product 8 spp s", "ratio", "lights",
                "bytes per pixel and light"], over_rows)
     ctx.note("The bound is SBF eq. 7 with estimated variances plus two standard errors of "
-             "<V>; the actual error is that of <LB><V> at lb_spp 1024 against the reference, "
-             f"with {NOISE_SIGMAS:g} standard errors of both allowed for their noise.")
+             "<V> (pixels: from its effective sample count; cache: the spread of the records "
+             "it blends); the actual error is that of <LB><V> at lb_spp 1024 against the "
+             f"reference, with {NOISE_SIGMAS:g} standard errors of both allowed for their noise.")
