@@ -6,22 +6,6 @@ pub fn binary_variance(m: f64) -> f64 {
     (m * (1.0 - m)).clamp(0.0, 0.25)
 }
 
-/// Variance of the estimate `⟨V⟩ = m` of a visibility from `ess` (effective) binary
-/// samples: the posterior variance of `E[V]` under a uniform prior, a Beta(`m ess + 1`,
-/// `(1 − m) ess + 1`) distribution. For many samples it is `m(1 − m)/ess`, the variance
-/// of the mean; for few it stays positive where `m` is 0 or 1, which `m(1 − m)/ess` would
-/// call certain (two reweighted samples that both saw the sky say little of a sun's new
-/// place). Infinite `ess` (a value that is no sample mean) gives 0.
-pub fn visibility_mean_variance(m: f64, ess: f64) -> f64 {
-    if !ess.is_finite() {
-        return 0.0;
-    }
-    let m = m.clamp(0.0, 1.0);
-    let ess = ess.max(0.0);
-    let (a, b) = (m * ess + 1.0, (1.0 - m) * ess + 1.0);
-    a * b / ((a + b).powi(2) * (a + b + 1.0))
-}
-
 /// `|Err| ≤ sqrt(Var(LB/p) · Var(V))` (SBF eq. 7, from `Err = Cov(LB/p, V)`, eq. 5, and
 /// Cauchy–Schwarz): the largest error of replacing visibility by the scalar `E_p[V]`,
 /// per channel. Variances are those of one sample under the same density `p`.
@@ -121,27 +105,6 @@ mod tests {
                 "case {case}: {err} > {bound}"
             );
         }
-    }
-
-    #[test]
-    fn visibility_mean_variance_is_the_beta_posterior_and_the_mean_variance_in_the_limit() {
-        // No sample: the uniform prior's variance, 1/12.
-        assert!((visibility_mean_variance(0.5, 0.0) - 1.0 / 12.0).abs() < 1e-15);
-        // Two samples that both saw the light: Beta(3, 1), variance 3/80, not 0.
-        assert!((visibility_mean_variance(1.0, 2.0) - 3.0 / 80.0).abs() < 1e-15);
-        assert!(visibility_mean_variance(0.0, 2.0) > 0.0);
-        // Many samples: m(1 - m)/n to first order.
-        for m in [0.1, 0.5, 0.9] {
-            let n = 1e6;
-            let want = m * (1.0 - m) / n;
-            assert!(
-                (visibility_mean_variance(m, n) / want - 1.0).abs() < 1e-5,
-                "{m}"
-            );
-        }
-        assert_eq!(visibility_mean_variance(0.3, f64::INFINITY), 0.0);
-        // Fewer samples, wider.
-        assert!(visibility_mean_variance(1.0, 1.4) > visibility_mean_variance(1.0, 50.0));
     }
 
     #[test]

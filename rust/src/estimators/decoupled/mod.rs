@@ -38,9 +38,7 @@
 //!   its directions blocked; area lights keep the unbiased `⟨LBV⟩` in this mode.
 //!
 //! `Var(V)` is the binary variance `⟨V⟩(1 − ⟨V⟩)` in both cases. The bound adds the error of
-//! `⟨V⟩` itself, carried by `⟨LB⟩⟨V⟩`: [`V_ERROR_SIGMAS`] times its standard error (pixels:
-//! from the effective sample count, [`bound::visibility_mean_variance`], which stays
-//! positive where few reweighted samples all agree),
+//! `⟨V⟩` itself, carried by `⟨LB⟩⟨V⟩`: [`V_ERROR_SIGMAS`] times its standard error (pixels),
 //! or times the spread `sqrt(Σ β_i (E_p'[V_i] − E_p'[Ṽ])² / Σ β_i)` of the records that
 //! `Ṽ` blends (cache): where they agree the interpolation is trusted, where they differ
 //! (a shadow's edge between records) the bound widens.
@@ -58,7 +56,7 @@ use std::time::Instant;
 use glam::{DVec2, Vec3};
 use rayon::prelude::*;
 
-use self::bound::{binary_variance, blend, blend_factor, error_bound, visibility_mean_variance};
+use self::bound::{binary_variance, blend, blend_factor, error_bound};
 use super::control_variate::Interpolant;
 use super::direct::{ProductDistribution, ProductLevel, ShadingPoint};
 use super::indirect::shading_point_at;
@@ -690,8 +688,8 @@ impl Relighter {
                             // by about sqrt(Var(V)/ess), which ⟨LB⟩⟨V⟩ carries too.
                             // From the cache, `Ṽ` is no sample mean but an
                             // interpolation: its records' spread takes that place.
-                            let v_error = V_ERROR_SIGMAS
-                                * (visibility_mean_variance(v, ess).sqrt() + v_spread);
+                            let v_error =
+                                V_ERROR_SIGMAS * ((var_v / ess.max(1.0)).sqrt() + v_spread);
                             let err: [f64; 3] = std::array::from_fn(|c| {
                                 error_bound(lb[c].variance(), var_v) + lb_mean[c].abs() * v_error
                             });
