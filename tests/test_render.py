@@ -170,6 +170,34 @@ def test_light_samples_stay_unbiased_and_cut_the_variance(small_setups, method):
     assert ratio < 0.5, f"variance with four draws {ratio:.2f}x one draw's"
 
 
+def test_budgeted_product_renders_learn_their_mixture_and_stay_unbiased(small_setups):
+    # Under a time budget method "product" learns its mixture weights from the probe pass
+    # (reported); later samples use them. Against MIS at 256 spp (independent seeds): every
+    # pixel channel in the CLT regime within the Bonferroni threshold, the means within 4 SE.
+    setup = small_setups["garage"]
+    ref = _render(setup, "mis", 256, seed=3)
+    r = vc.render(setup, method="product", time_budget=0.5, spp=200, seed=9, progress=False)
+    w = r.stats["learnt_weights"]
+    assert w is not None and abs(sum(w.values()) - 1.0) < 1e-5 and w["guided"] == 0.0
+    assert min(w["product"], w["bsdf"], w["env"]) >= 0.05 - 1e-6
+    assert r.stats["spp"] > 20
+    n_pix = setup.camera.width * setup.camera.height
+    diff = r.image - ref.image
+    se = np.sqrt(r.variance + ref.variance)
+    clt = _in_clt_regime(r) & _in_clt_regime(ref)
+    assert clt.mean() >= 0.45
+    z = bonferroni_z(n_pix * 3)
+    bad = clt & (np.abs(diff) > z * se)
+    assert bad.sum() == 0, f"{bad.sum()} pixel channels beyond {z:.2f} SE"
+    mean_se = math.sqrt(luminance_variance(r.variance + ref.variance).sum()) / n_pix
+    assert abs(luminance(diff).mean() / mean_se) < 4
+    # Off, and for other methods or without a budget, nothing is learnt.
+    off = vc.render(setup, method="product", time_budget=0.2, seed=9, progress=False,
+                    learn_techniques=False)
+    assert off.stats["learnt_weights"] is None
+    assert _render(setup, "product", 4).stats["learnt_weights"] is None
+
+
 def test_light_samples_are_bit_identical_for_any_thread_count(small_setups):
     setup = small_setups["garage"]
     for method in ("product", "cv"):

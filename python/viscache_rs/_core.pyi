@@ -391,6 +391,7 @@ def render(
     direct: bool = True,
     gbuffer: GBuffer | None = None,
     light_samples: int | None = None,
+    learn_techniques: bool = True,
 ) -> dict[str, Any]: ...
 @final
 class VPLs:

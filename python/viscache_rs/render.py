@@ -4,7 +4,7 @@ indirect light by path tracing.
 ``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
 time_budget=None, envmap=None, product_level="auto", cache=None, preset="auto", jitter=True,
 alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None, bounces=None,
-direct=True, gbuffer=None, light_samples=1)`` renders
+direct=True, gbuffer=None, light_samples=1, learn_techniques=True)`` renders
 ``setup.scene`` lit by ``setup.envmap`` (or ``envmap``) and the scene's area lights, through
 ``camera`` (default: the setup's). Methods:
 
@@ -43,6 +43,11 @@ it unbiased at any hit. A pixel's jittered rays are traced in packets of 16 from
 (they visit nearly the same nodes). ``light_samples=n`` (product methods) averages ``n`` draws
 of the mixture, each with its shadow ray, at every sample's hit: worth it where shadow
 rays are cheap beside the rest of a sample and visibility dominates the noise.
+Under a ``time_budget``, method ``"product"`` learns its mixture weights from the probe
+pass's draws (``learn_techniques=True``, default): fixed-point steps toward the weights of
+least relMSE-weighted second moment, every technique kept at a share of 0.05 at least;
+``stats["learnt_weights"]`` reports them (later samples stay unbiased: their weights are
+fixed before they are drawn).
 ``jitter=False`` shades every sample at the anchor (CAM08's fixed
 points; aliased); with ``technique_weights={"product": 1}`` that is the paper's plain product
 sampling.
@@ -115,6 +120,7 @@ def render(
     clamp: float | None = None,
     vpl_samples: int | None = None,
     light_samples: int = 1,
+    learn_techniques: bool = True,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     if gbuffer is not None and not isinstance(gbuffer, _core.GBuffer):
@@ -188,6 +194,7 @@ def render(
             direct=direct,
             gbuffer=gbuffer,
             light_samples=light_samples,
+            learn_techniques=learn_techniques,
         )
     stats = out["stats"]
     if traced:

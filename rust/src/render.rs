@@ -140,6 +140,10 @@ pub struct RenderParams {
     /// than one pays where shadow rays are cheap beside the rest of a sample and the
     /// light's noise outweighs the pixel's.
     pub light_samples: u32,
+    /// Method "product" under a time budget: the passes after the probe use the mixture
+    /// weights learnt from the probe's draws ([`Techniques::learnt`]) instead of the given
+    /// ones.
+    pub learn_techniques: bool,
 }
 
 /// Most light draws per sample ([`RenderParams::light_samples`]).
@@ -161,6 +165,7 @@ impl RenderParams {
         bounces: 0,
         direct: true,
         light_samples: 1,
+        learn_techniques: true,
     };
 
     /// The defaults with another method and sample count.
@@ -177,6 +182,7 @@ impl RenderParams {
     pub const fn fixed_points(mut self) -> Self {
         self.jitter = false;
         self.techniques = Some(Techniques::PRODUCT_ONLY);
+        self.learn_techniques = false;
         self
     }
 
@@ -279,6 +285,9 @@ pub struct StageSeconds {
 pub struct RenderStats {
     /// Wall-clock seconds.
     pub seconds: f64,
+    /// The mixture weights the passes after the probe used, when learnt
+    /// ([`RenderParams::learn_techniques`]): `[product, guided, bsdf, env]`.
+    pub learnt_techniques: Option<[f32; 4]>,
     /// Samples every pixel received.
     pub spp: u32,
     /// Passes made.
@@ -380,6 +389,10 @@ struct BandWork {
     shared_lookups: u64,
     /// ... whose `J` was the neighbour's too (the same product distribution).
     reused_integrals: u64,
+    /// The pixel being shaded, and the matched draws kept for learning the mixture:
+    /// (pixel, `f cos L V` in luminance, techniques' densities, mixture density).
+    pixel: u32,
+    draws: Vec<(u32, f64, [f64; 4], f64)>,
 }
 
 /// A lookup, the point it was made for, and the interpolant made of it there.
@@ -476,7 +489,12 @@ struct Shader<'a> {
     chroma: Option<&'a MapChroma>,
     /// The mixture's weights.
     techniques: Techniques,
+    /// Whether matched draws are kept for [`Techniques::learnt`] (the probe pass).
+    learning: bool,
 }
+
+/// Draws a band keeps for [`Techniques::learnt`].
+const LEARNT_DRAWS_PER_BAND: usize = 2048;
 
 fn elapsed_ns(since: Instant) -> u64 {
     since.elapsed().as_nanos() as u64
@@ -715,6 +733,12 @@ impl Shader<'_> {
                 &mut work.bvh,
             );
             l += lj;
+            if let (true, true, Some(d)) = (self.learning, product.is_some(), &drawn) {
+                if work.draws.len() < LEARNT_DRAWS_PER_BAND {
+                    work.draws
+                        .push((work.pixel, d.value, d.technique_pdfs, d.pdf));
+                }
+            }
             // g/p of the mixture; a draw of no direction is a sample of g/p = 0.
             if let (Some((a, state, chroma)), Some(d)) = (control, drawn) {
                 let interp = &a.interpolant;
@@ -777,6 +801,7 @@ impl Shader<'_> {
         work: &mut BandWork,
     ) {
         let seed = self.params.seed;
+        work.pixel = pixel as u32;
         let start = Instant::now();
         let anchor = self.anchors.map(|g| self.prepare(g, pixel, work));
         let prepared = Instant::now();
@@ -976,6 +1001,13 @@ fn render_with(
     };
     let anchors = anchors.or(traced.as_ref());
     let mut schedule = PassSchedule::default();
+    // Method "product" under a budget learns its mixture from the probe pass.
+    let mut techniques = params.techniques();
+    let learn = params.learn_techniques
+        && params.method == Method::Product
+        && params.direct
+        && params.time_budget.is_some();
+    let mut learnt = None;
     let mut taken = 0u64;
     loop {
         // Each pass brings the pixels it covers up to `target` samples.
@@ -1007,7 +1039,8 @@ fn render_with(
             // Without direct light the records predict nothing a sample uses.
             cache: guard.as_deref().zip(cache).filter(|_| params.direct),
             chroma: chroma.as_ref(),
-            techniques: params.techniques(),
+            techniques,
+            learning: probe && learn,
         };
         let work = run_with_progress(
             threads,
@@ -1055,6 +1088,21 @@ fn render_with(
             pass.samples += w.samples;
             pass.anchor_ns += w.anchor_ns;
             pass.sample_ns += w.sample_ns;
+        }
+        if probe && learn {
+            // Each draw counts as its pixel counts in relMSE: 1 / (mean² + 10⁻²).
+            let weight = |p: u32| {
+                let (mean, _) = sums[p as usize].estimate([0.0; 3]);
+                let m = crate::lights::envmap::luminance(mean.map(|v| v as f32));
+                1.0 / (m * m + 1e-2)
+            };
+            let draws: Vec<(f64, f64, [f64; 4], f64)> = work
+                .iter()
+                .flat_map(|w| &w.draws)
+                .map(|&(p, f, pdfs, p0)| (weight(p), f, pdfs, p0))
+                .collect();
+            techniques = techniques.learnt(&draws);
+            learnt = Some(techniques.to_array());
         }
         for w in work {
             total.merge(w);
@@ -1120,6 +1168,7 @@ fn render_with(
         unmatched_samples: total.unmatched_samples,
         record_misses: total.verdicts.values().map(|v| v.0 as u64).sum(),
         record_uses: total.verdicts.values().map(|v| v.1 as u64).sum(),
+        learnt_techniques: learnt,
         ..RenderStats::default()
     };
     if cv {

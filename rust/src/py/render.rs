@@ -87,7 +87,7 @@ fn techniques_arg(weights: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Techniq
 /// `technique_weights` the method's own, `bounces` 1 for method "path" and 0 otherwise.
 /// With `gbuffer` (traced through `camera`) its hits are the pixels' anchors.
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None))]
+#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -111,6 +111,7 @@ pub fn render<'py>(
     direct: bool,
     gbuffer: Option<PyRef<'py, PyGBuffer>>,
     light_samples: Option<&Bound<'py, PyAny>>,
+    learn_techniques: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let view = view_arg(Some(camera), gbuffer)?;
     // "path": the unbiased reference with indirect light, MIS at every vertex.
@@ -154,6 +155,7 @@ pub fn render<'py>(
             }
             _ => 1,
         },
+        learn_techniques,
     };
     params.validate().py()?;
     let threads = threads_arg(threads)?;
@@ -200,6 +202,16 @@ pub fn render<'py>(
         weights.set_item(name, w)?;
     }
     stats.set_item("technique_weights", weights)?;
+    match s.learnt_techniques {
+        Some(w) => {
+            let learnt = PyDict::new(py);
+            for (name, v) in ["product", "guided", "bsdf", "env"].iter().zip(w) {
+                learnt.set_item(name, v)?;
+            }
+            stats.set_item("learnt_weights", learnt)?;
+        }
+        None => stats.set_item("learnt_weights", py.None())?,
+    }
     stats.set_item("samples", s.samples)?;
     stats.set_item("primary_rays", s.primary_rays)?;
     stats.set_item("shadow_rays", s.shadow_rays)?;
