@@ -57,6 +57,22 @@ def _in_clt_regime(r):
     return (r.image > 0) & (np.sqrt(r.variance) <= 0.2 * r.image)
 
 
+def _assert_agrees(r, ref, coverage):
+    """Two independent unbiased renders of one view agree: every pixel channel in the CLT
+    regime of both (at least ``coverage`` of them) within the Bonferroni threshold, and
+    the image means within 4 SE."""
+    n_pix = r.image.shape[0] * r.image.shape[1]
+    diff = r.image - ref.image
+    se = np.sqrt(r.variance + ref.variance)
+    clt = _in_clt_regime(r) & _in_clt_regime(ref)
+    assert clt.mean() >= coverage, f"only {clt.mean():.3f} of pixels compared"
+    z = bonferroni_z(n_pix * 3)
+    bad = clt & (np.abs(diff) > z * se)
+    assert bad.sum() == 0, f"{bad.sum()} pixel channels beyond {z:.2f} SE"
+    mean_se = math.sqrt(luminance_variance(r.variance + ref.variance).sum()) / n_pix
+    assert abs(luminance(diff).mean() / mean_se) < 4
+
+
 @pytest.mark.parametrize("name", ["cornell", "garage"])
 def test_all_methods_agree_per_pixel_and_per_image(small_setups, name):
     setup = small_setups[name]
@@ -156,16 +172,7 @@ def test_light_samples_stay_unbiased_and_cut_the_variance(small_setups, method):
     four = _render(setup, method, 64, seed=5, light_samples=4)
     assert four.stats["light_samples"] == 4 and one.stats["light_samples"] == 1
     assert four.stats["shadow_rays"] > 3 * one.stats["shadow_rays"]
-    n_pix = setup.camera.width * setup.camera.height
-    diff = four.image - ref.image
-    se = np.sqrt(four.variance + ref.variance)
-    clt = _in_clt_regime(four) & _in_clt_regime(ref)
-    assert clt.mean() >= 0.45
-    z = bonferroni_z(n_pix * 3)
-    bad = clt & (np.abs(diff) > z * se)
-    assert bad.sum() == 0, f"{bad.sum()} pixel channels beyond {z:.2f} SE"
-    mean_se = math.sqrt(luminance_variance(four.variance + ref.variance).sum()) / n_pix
-    assert abs(luminance(diff).mean() / mean_se) < 4
+    _assert_agrees(four, ref, coverage=0.45)
     ratio = four.variance.mean() / one.variance.mean()
     assert ratio < 0.5, f"variance with four draws {ratio:.2f}x one draw's"
 
@@ -181,16 +188,7 @@ def test_budgeted_product_renders_learn_their_mixture_and_stay_unbiased(small_se
     assert w is not None and abs(sum(w.values()) - 1.0) < 1e-5 and w["guided"] == 0.0
     assert min(w["product"], w["bsdf"], w["env"]) >= 0.05 - 1e-6
     assert r.stats["spp"] > 20
-    n_pix = setup.camera.width * setup.camera.height
-    diff = r.image - ref.image
-    se = np.sqrt(r.variance + ref.variance)
-    clt = _in_clt_regime(r) & _in_clt_regime(ref)
-    assert clt.mean() >= 0.45
-    z = bonferroni_z(n_pix * 3)
-    bad = clt & (np.abs(diff) > z * se)
-    assert bad.sum() == 0, f"{bad.sum()} pixel channels beyond {z:.2f} SE"
-    mean_se = math.sqrt(luminance_variance(r.variance + ref.variance).sum()) / n_pix
-    assert abs(luminance(diff).mean() / mean_se) < 4
+    _assert_agrees(r, ref, coverage=0.45)
     # Off, and for other methods or without a budget, nothing is learnt.
     off = vc.render(setup, method="product", time_budget=0.2, seed=9, progress=False,
                     learn_techniques=False)
