@@ -5,20 +5,18 @@ use glam::Vec3A;
 
 use super::packet::PACKET;
 #[cfg(target_arch = "x86_64")]
-use super::FarthestFirst;
-#[cfg(target_arch = "x86_64")]
-use super::{packet::LaneRays, packet::Packet, STACK};
+use super::packet::{LaneRays, Packet, VECTOR_TRIANGLE_LANES};
 use super::{Bvh, Hit, TraversalCounters};
-
-/// Lanes of a packet reaching a leaf from which its triangles are tested against the lanes
-/// all at once ([`crate::geometry::watertight::WatertightPacket`]) rather than lane by
-/// lane.
 #[cfg(target_arch = "x86_64")]
-const VECTOR_TRIANGLE_LANES: u32 = 6;
+use super::{FarthestFirst, STACK};
 #[cfg(target_arch = "x86_64")]
 use crate::geometry::bvh8::{decode, BoundedStack, Child, Stack, TraversalStack, EXIT_SCALE};
 #[cfg(target_arch = "x86_64")]
-use crate::geometry::watertight::{lanes, TriangleHit};
+use crate::geometry::watertight::lanes;
+
+/// A lane's closest triangle: its block slot and barycentrics `(u, v)`.
+#[cfg(target_arch = "x86_64")]
+type LaneHit = (u32, f32, f32);
 
 impl Bvh {
     /// Closest hits of up to [`PACKET`] rays from one `origin` (`directions[l]`,
@@ -41,10 +39,7 @@ impl Bvh {
         assert!(directions.len() <= PACKET && tmax.len() == directions.len());
         let mut out = [None; PACKET];
         #[cfg(target_arch = "x86_64")]
-        if !directions.is_empty()
-            && !self.blocks.is_empty()
-            && crate::simd::has(crate::simd::SimdLevel::Avx512)
-        {
+        if self.traces_packets(directions.len()) {
             if COUNT {
                 counters.rays += directions.len() as u64;
             }
@@ -60,14 +55,15 @@ impl Bvh {
                     type Spilling = Stack<((u32, u16), f32), STACK>;
                     self.closest_packet::<COUNT, Spilling>(&packet, rays, counters)
                 };
-                for (l, f) in found.into_iter().enumerate().take(directions.len()) {
-                    out[l] = f.map(|(slot, h)| {
+                let (best_t, best) = found;
+                for (l, f) in best.into_iter().enumerate().take(directions.len()) {
+                    out[l] = f.map(|(slot, u, v)| {
                         let r = self.local_ray(origin, directions[l], tmax[l]);
                         Hit {
-                            t: h.t * r.t_to_param,
+                            t: best_t[l] * r.t_to_param,
                             triangle: self.triangle_ids[slot as usize],
-                            u: h.u,
-                            v: h.v,
+                            u,
+                            v,
                         }
                     });
                 }
@@ -80,8 +76,9 @@ impl Bvh {
         out
     }
 
-    /// The traversal of [`Self::intersect_packet`] under AVX-512: per lane, the block slot
-    /// and hit of its closest triangle. Stack entries hold a child, the lanes that hit it
+    /// The traversal of [`Self::intersect_packet`] under AVX-512: per lane, the distance
+    /// (local frame) of its closest triangle so far, and the triangle's block slot and
+    /// barycentrics when one was hit. Stack entries hold a child, the lanes that hit it
     /// and their least entry distance, so that an entry behind every one of its lanes'
     /// closest hits is dropped when popped.
     #[cfg(target_arch = "x86_64")]
@@ -91,7 +88,7 @@ impl Bvh {
         packet: &Packet,
         rays: &mut LaneRays,
         counters: &mut TraversalCounters,
-    ) -> [Option<(u32, TriangleHit)>; PACKET] {
+    ) -> ([f32; PACKET], [Option<LaneHit>; PACKET]) {
         use std::arch::x86_64::*;
         let (mut nodes, mut tests) = (0u64, 0u64);
         let mut best_t = lanes(packet.tmax);
@@ -129,14 +126,7 @@ impl Bvh {
                                 let l = rest.trailing_zeros() as usize % PACKET;
                                 rest &= rest - 1;
                                 best_t[l] = t[l];
-                                best[l] = Some((
-                                    first * 4 + k as u32,
-                                    TriangleHit {
-                                        t: t[l],
-                                        u: u[l],
-                                        v: v[l],
-                                    },
-                                ));
+                                best[l] = Some((first * 4 + k as u32, u[l], v[l]));
                             }
                         }
                         exit = _mm512_mul_ps(best_v, _mm512_set1_ps(EXIT_SCALE));
@@ -156,14 +146,7 @@ impl Bvh {
                             hit &= hit - 1;
                             if t[k] < best_t[l] {
                                 best_t[l] = t[k];
-                                best[l] = Some((
-                                    first * 4 + k as u32,
-                                    TriangleHit {
-                                        t: t[k],
-                                        u: u[k],
-                                        v: v[k],
-                                    },
-                                ));
+                                best[l] = Some((first * 4 + k as u32, u[k], v[k]));
                                 closer = true;
                             }
                         }
@@ -199,6 +182,6 @@ impl Bvh {
             counters.nodes += nodes;
             counters.triangles += tests;
         }
-        best
+        (best_t, best)
     }
 }

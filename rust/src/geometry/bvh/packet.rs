@@ -15,9 +15,10 @@ use crate::geometry::bvh8::{
 use crate::geometry::watertight::{lanes, WatertightPacket, WatertightRay};
 
 /// Rays of a packet reaching a leaf from which its triangles are tested against the rays
-/// all at once ([`WatertightPacket`]) rather than ray by ray.
+/// all at once ([`WatertightPacket`]) rather than ray by ray (shadow and closest-hit
+/// packets).
 #[cfg(target_arch = "x86_64")]
-const VECTOR_TRIANGLE_LANES: u32 = 6;
+pub(super) const VECTOR_TRIANGLE_LANES: u32 = 6;
 
 /// Largest number of rays [`Bvh::occluded_packet`] traces together: one AVX-512 register
 /// of `f32` lanes.
@@ -48,10 +49,7 @@ impl Bvh {
     ) -> u16 {
         assert!(directions.len() <= PACKET && tmax.len() == directions.len());
         #[cfg(target_arch = "x86_64")]
-        if !directions.is_empty()
-            && !self.blocks.is_empty()
-            && crate::simd::has(crate::simd::SimdLevel::Avx512)
-        {
+        if self.traces_packets(directions.len()) {
             if COUNT {
                 counters.rays += directions.len() as u64;
             }
@@ -70,6 +68,13 @@ impl Bvh {
             }
         }
         occluded
+    }
+
+    /// Whether a packet of `rays` rays runs the AVX-512 kernels: some rays, a non-empty
+    /// tree and a CPU with AVX-512 (else its rays go one by one).
+    #[cfg(target_arch = "x86_64")]
+    pub(super) fn traces_packets(&self, rays: usize) -> bool {
+        rays > 0 && !self.blocks.is_empty() && crate::simd::has(crate::simd::SimdLevel::Avx512)
     }
 
     /// [`Self::occluded_packet`] under AVX-512: the hinted node's subtree, then the tree
