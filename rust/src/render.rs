@@ -504,45 +504,48 @@ impl Shader<'_> {
     /// The hits of the jittered primary rays of samples `rngs` of `pixel` (at most
     /// [`PACKET`]), traced as one packet from the eye: a pixel's rays visit nearly the
     /// same nodes, so together they cost a fraction of tracing them one by one.
-    fn trace_samples(
-        &self,
+    fn trace_samples<'s>(
+        &'s self,
         pixel: usize,
         rngs: &[PixelSampler],
         work: &mut BandWork,
-    ) -> [Option<SampleHit>; PACKET] {
+    ) -> impl Iterator<Item = SampleHit> + 's {
         let scene = self.lighting.scene;
         let width = self.camera.width as usize;
         let (px, py) = ((pixel % width) as u32, (pixel / width) as u32);
-        let mut directions = [Vec3A::ZERO; PACKET];
-        let mut eye = Vec3::ZERO;
-        for (d, rng) in directions.iter_mut().zip(rngs) {
-            let (origin, dir) = self.camera.pixel_ray(px, py, rng.get2(DIM_PIXEL_JITTER));
-            (eye, *d) = (origin, dir.into());
-        }
         let n = rngs.len();
+        let mut directions = [Vec3A::ZERO; PACKET];
+        for (d, rng) in directions.iter_mut().zip(rngs) {
+            *d = self
+                .camera
+                .pixel_ray(px, py, rng.get2(DIM_PIXEL_JITTER))
+                .1
+                .into();
+        }
         let hits = scene.intersect_packet(
-            eye,
+            self.camera.eye,
             &directions[..n],
             &[f32::INFINITY; PACKET][..n],
             &mut work.bvh,
         );
         work.primary_rays += n as u64;
-        let mut out = [const { None }; PACKET];
-        for (k, hit) in hits.into_iter().enumerate().take(n) {
-            let dir = Vec3::from(directions[k]);
-            out[k] = Some(match hit {
-                None => SampleHit::Miss(self.lighting.env.eval(dir)),
-                Some(hit) => {
-                    let sp = shading_point_at(scene, &hit, -dir);
-                    SampleHit::Surface {
-                        emitted: scene.emitted(&hit, sp.wo),
-                        object: hit.obj,
-                        sp,
+        hits.into_iter()
+            .zip(directions)
+            .take(n)
+            .map(move |(hit, dir)| {
+                let dir = Vec3::from(dir);
+                match hit {
+                    None => SampleHit::Miss(self.lighting.env.eval(dir)),
+                    Some(hit) => {
+                        let sp = shading_point_at(scene, &hit, -dir);
+                        SampleHit::Surface {
+                            emitted: scene.emitted(&hit, sp.wo),
+                            object: hit.obj,
+                            sp,
+                        }
                     }
                 }
-            });
-        }
-        out
+            })
     }
 
     /// Prepares the anchor of `pixel` at its G-buffer hit.
@@ -833,12 +836,18 @@ impl Shader<'_> {
             // Packets of the pixel's samples, shaded in sample order.
             for first in samples.clone().step_by(PACKET) {
                 let n = (samples.end - first).min(PACKET as u32) as usize;
-                let rngs: [PixelSampler; PACKET] = std::array::from_fn(|k| {
-                    PixelSampler::new(seed, pixel as u64, (first as usize + k.min(n - 1)) as u64)
+                // Only the packet's own samples are made; the rest of the array repeats
+                // the first.
+                let head = PixelSampler::new(seed, pixel as u64, first as u64);
+                let rngs: [PixelSampler; PACKET] = std::array::from_fn(|k| match k {
+                    0 => head,
+                    k if k < n => {
+                        PixelSampler::new(seed, pixel as u64, (first as usize + k) as u64)
+                    }
+                    _ => head,
                 });
                 let hits = self.trace_samples(pixel, &rngs[..n], work);
-                for (hit, rng) in hits.into_iter().zip(&rngs).take(n) {
-                    let hit = hit.expect("one hit per traced sample");
+                for (hit, rng) in hits.zip(&rngs) {
                     let (z, w) = shade_hit(hit, rng, work, &mut verdicts);
                     acc.add(z, w);
                 }
