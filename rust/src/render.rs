@@ -90,7 +90,7 @@ use crate::estimators::direct::{
 use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParams, MAX_BOUNCES};
 use crate::geometry::bvh::PACKET;
 use crate::geometry::{Scene, TraversalCounters};
-use crate::lights::envmap::EnvMap;
+use crate::lights::envmap::{luminance, EnvMap};
 use crate::parallel::{run_with_progress, with_threads};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
@@ -738,8 +738,12 @@ impl Shader<'_> {
             l += lj;
             if let (true, true, Some(d)) = (self.learning, product.is_some(), &drawn) {
                 if work.draws.len() < LEARNT_DRAWS_PER_BAND {
-                    work.draws
-                        .push((work.pixel, d.value, d.technique_pdfs, d.pdf));
+                    work.draws.push((
+                        work.pixel,
+                        luminance(d.value.to_array()),
+                        d.technique_pdfs,
+                        d.pdf,
+                    ));
                 }
             }
             // g/p of the mixture; a draw of no direction is a sample of g/p = 0.
@@ -1102,7 +1106,7 @@ fn render_with(
             // Each draw counts as its pixel counts in relMSE: 1 / (mean² + 10⁻²).
             let weight = |p: u32| {
                 let (mean, _) = sums[p as usize].estimate([0.0; 3]);
-                let m = crate::lights::envmap::luminance(mean.map(|v| v as f32));
+                let m = luminance(mean.map(|v| v as f32));
                 1.0 / (m * m + 1e-2)
             };
             let draws: Vec<(f64, f64, [f64; 4], f64)> = work

@@ -629,9 +629,9 @@ pub struct MixtureSample {
     pub product_ratio: f64,
     /// Whether the shadow ray found the map (`None`: no ray was needed, `f cos L = 0`).
     pub visible: Option<bool>,
-    /// What [`Techniques::learnt`] learns from: the draw's `f cos L V` in luminance, the
+    /// What [`Techniques::learnt`] learns from: the draw's `f cos L V` (RGB), the
     /// techniques' own densities there and the mixture's.
-    pub value: f64,
+    pub value: Vec3,
     pub technique_pdfs: [f64; 4],
     pub pdf: f64,
 }
@@ -868,7 +868,7 @@ impl Lighting<'_> {
             square: d.square,
             product_ratio: d.product_pdf / d.pdf,
             visible: None,
-            value: 0.0,
+            value: Vec3::ZERO,
             technique_pdfs: d.technique_pdfs,
             pdf: d.pdf,
         };
@@ -886,8 +886,8 @@ impl Lighting<'_> {
             .scene
             .occluded1(sp.origin, d.direction, f32::INFINITY, bvh);
         if visible {
-            total += f * l * cos * (1.0 / d.pdf) as f32;
-            drawn.value = crate::lights::envmap::luminance((f * l * cos).to_array());
+            drawn.value = f * l * cos;
+            total += drawn.value * (1.0 / d.pdf) as f32;
         }
         drawn.visible = Some(visible);
         (total, Some(drawn))
