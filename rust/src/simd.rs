@@ -20,6 +20,18 @@ pub enum SimdLevel {
     Avx512 = 3,
 }
 
+impl SimdLevel {
+    /// The level's name: "portable", "popcnt", "avx2" or "avx512".
+    pub const fn name(self) -> &'static str {
+        match self {
+            SimdLevel::Portable => "portable",
+            SimdLevel::Popcnt => "popcnt",
+            SimdLevel::Avx2 => "avx2",
+            SimdLevel::Avx512 => "avx512",
+        }
+    }
+}
+
 /// The detected [`SimdLevel`] as a `u8` (`u8::MAX` until detected). A relaxed atomic rather
 /// than a `OnceLock`: the check sits on paths of a few nanoseconds.
 static LEVEL: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(u8::MAX);

@@ -165,10 +165,5 @@ pub fn chi2_sphere<'py>(
 /// "popcnt" or "portable" (benches report it beside their timings).
 #[pyfunction]
 pub fn simd_level() -> &'static str {
-    match crate::simd::level() {
-        crate::simd::SimdLevel::Avx512 => "avx512",
-        crate::simd::SimdLevel::Avx2 => "avx2",
-        crate::simd::SimdLevel::Popcnt => "popcnt",
-        crate::simd::SimdLevel::Portable => "portable",
-    }
+    crate::simd::level().name()
 }
