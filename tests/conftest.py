@@ -25,6 +25,39 @@ def bonferroni_z(n: int, alpha: float = 1e-3) -> float:
     return max(4.0, hi)
 
 
+def student_t_bonferroni(n: int, dof: int, alpha: float = 1e-3) -> float:
+    """:func:`bonferroni_z` for Student's t with ``dof`` degrees of freedom: the t with
+    P(|T| > t) * n = alpha (at least 4), for means judged by their sample spread."""
+    import math
+
+    log_norm = (math.lgamma((dof + 1) / 2) - math.lgamma(dof / 2)
+                - 0.5 * math.log(dof * math.pi))
+
+    def tail(t: float) -> float:
+        # Two-sided tail by Simpson's rule in u = 1/x over (0, 1/t]: the density's
+        # x^-(dof+1) decay becomes a smooth u^(dof-1).
+        steps, top = 2000, 1.0 / t
+        h = top / steps
+
+        def f(u: float) -> float:
+            if u == 0.0:
+                return 0.0
+            x = 1.0 / u
+            return math.exp(log_norm - (dof + 1) / 2 * math.log1p(x * x / dof)) / (u * u)
+
+        total = f(0.0) + f(top) + sum((4 if k % 2 else 2) * f(k * h) for k in range(1, steps))
+        return 2.0 * total * h / 3.0
+
+    lo, hi = 0.0, 200.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if tail(mid) > alpha / n:
+            lo = mid
+        else:
+            hi = mid
+    return max(4.0, hi)
+
+
 def brute_force(tris: np.ndarray, origins: np.ndarray, dirs: np.ndarray, tmax=np.inf,
                 chunk: int = 128) -> dict[str, np.ndarray]:
     """Closest hits over all triangles in float64 (Moller-Trumbore, no BVH).

@@ -21,7 +21,7 @@ import math
 import numpy as np
 import pytest
 import viscache_rs as vc
-from conftest import bonferroni_z
+from conftest import bonferroni_z, student_t_bonferroni
 from viscache_rs.metrics import luminance, luminance_variance
 
 METHODS = ["env", "bsdf", "mis", "product"]
@@ -204,6 +204,80 @@ def test_light_samples_are_bit_identical_for_any_thread_count(small_setups):
         assert np.array_equal(a.image, b.image) and np.array_equal(a.variance, b.variance)
 
 
+@pytest.mark.parametrize("method", ["product", "cv"])
+def test_adaptive_counts_stay_unbiased_and_follow_the_error(small_setups, method):
+    # A pilot of a quarter of the samples, then shares from the neighbours' relative
+    # variance: against MIS (independent seeds) every pixel channel in the CLT regime
+    # within the Bonferroni threshold and the means within 4 SE; the counts average spp,
+    # none below the pilot or above 16x the mean; noisy regions take more than quiet ones;
+    # and the image's relMSE against a converged render is
+    # below that of even counts at the same total.
+    setup = small_setups["garage"]
+    n = setup.camera.width * setup.camera.height
+    ref = _render(setup, "mis", 1024, seed=3)
+    spp = 64
+    even = _render(setup, method, spp, seed=21)
+    r = _render(setup, method, spp, seed=21, adaptive=True)
+    counts = r.sample_counts
+    assert counts.shape == (setup.camera.height, setup.camera.width)
+    assert counts.dtype == np.uint32 and int(counts.sum()) == r.stats["samples"]
+    assert spp * n - n <= counts.sum() <= spp * n
+    assert counts.min() >= spp // 4 and counts.min() == r.stats["spp"]
+    assert counts.max() <= 16 * spp
+    assert r.stats["adaptive"] and not even.stats["adaptive"]
+    assert (even.sample_counts == spp).all()
+    # The relative variance of one sample that the even render measured, pooled over
+    # each 5x5 window: the quarter of pixels where it is highest take on average more than
+    # twice the samples of the quarter where it is lowest.
+    v = (even.variance * spp / (even.image.astype(np.float64) ** 2 + 1e-2)).mean(axis=-1)
+    pooled = sum(np.roll(np.roll(v, dy, 0), dx, 1) for dy in range(-2, 3) for dx in range(-2, 3))
+    low, high = np.quantile(pooled, [0.25, 0.75])
+    assert counts[pooled >= high].mean() > 2 * counts[pooled <= low].mean()
+    # Unbiased: the mean of 32 independent adaptive renders against MIS, each pixel's
+    # error judged by the spread over the renders (a pixel's own variance estimate is
+    # least reliable where its count is low, which the counts make likelier).
+    runs = np.stack([_render(setup, method, spp, seed=100 + k, adaptive=True).image
+                     for k in range(32)]).astype(np.float64)
+    mean, sem = runs.mean(0), runs.std(0, ddof=1) / math.sqrt(len(runs))
+    se = np.sqrt(sem**2 + ref.variance)
+    clt = (mean > 0) & (sem <= 0.2 * mean) & _in_clt_regime(ref)
+    assert clt.mean() >= 0.45, f"only {clt.mean():.3f} of pixels compared"
+    t = student_t_bonferroni(n * 3, dof=len(runs) - 1)
+    bad = clt & (np.abs(mean - ref.image) > t * se)
+    assert bad.sum() == 0, f"{bad.sum()} pixel channels beyond {t:.2f} SE"
+    image_means = luminance(runs).mean(axis=(1, 2))
+    image_se = math.hypot(image_means.std(ddof=1) / math.sqrt(len(runs)),
+                          math.sqrt(luminance_variance(ref.variance).sum()) / n)
+    assert abs(image_means.mean() - luminance(ref.image).mean()) < 4 * image_se
+    from viscache_rs.metrics import relmse
+    e_even, e_adaptive = relmse(even.image, ref.image), relmse(r.image, ref.image)
+    assert e_adaptive < 0.8 * e_even, f"{e_adaptive:.3g} against {e_even:.3g}"
+
+
+def test_adaptive_counts_are_bit_identical_for_any_thread_count(small_setups):
+    setup = small_setups["garage"]
+    for method in ("product", "cv", "mis"):
+        a = _render(setup, method, 24, seed=7, threads=1, adaptive=True)
+        b = _render(setup, method, 24, seed=7, threads=2, adaptive=True)
+        assert np.array_equal(a.image, b.image) and np.array_equal(a.variance, b.variance)
+        assert np.array_equal(a.sample_counts, b.sample_counts)
+        assert a.sample_counts.min() < a.sample_counts.max(), method
+
+
+def test_budgets_adapt_by_default(small_setups):
+    setup = small_setups["garage"]
+    r = vc.render(setup, method="product", time_budget=0.3, spp=128, seed=9, progress=False)
+    assert r.stats["adaptive"] and r.stats["passes"] >= 3
+    assert r.stats["spp"] < r.stats["mean_spp"] < r.stats["max_spp"] <= 16 * 128
+    assert r.stats["mean_spp"] <= 128
+    off = vc.render(setup, method="product", time_budget=0.3, spp=128, seed=9,
+                    progress=False, adaptive=False)
+    assert not off.stats["adaptive"] and (off.sample_counts == off.stats["spp"]).all()
+    # Short renders take their samples evenly.
+    short = _render(setup, "product", 7, adaptive=True)
+    assert (short.sample_counts == 7).all()
+
+
 def test_stats_time_budget_and_progress(small_setups):
     setup = small_setups["cornell"]
     r = _render(setup, "mis", 4, jitter=False)
@@ -248,6 +322,8 @@ def test_stats_time_budget_and_progress(small_setups):
         ({"method": "product", "light_samples": 65}, ValueError, "light_samples"),
         ({"method": "product", "light_samples": 2.5}, TypeError, "light_samples"),
         ({"method": "mis", "light_samples": 2}, ValueError, "light_samples.*product"),
+        ({"adaptive": "yes"}, TypeError, "adaptive"),
+        ({"method": "vpl", "adaptive": True}, ValueError, "adaptive"),
     ],
 )
 def test_bad_arguments_name_themselves(small_setups, kwargs, exc, needle):

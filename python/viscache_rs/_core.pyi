@@ -392,6 +392,7 @@ def render(
     gbuffer: GBuffer | None = None,
     light_samples: int | None = None,
     learn_techniques: bool = True,
+    adaptive: bool | None = None,
 ) -> dict[str, Any]: ...
 @final
 class VPLs:

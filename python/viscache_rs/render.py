@@ -4,7 +4,7 @@ indirect light by path tracing.
 ``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
 time_budget=None, envmap=None, product_level="auto", cache=None, preset="auto", jitter=True,
 alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None, bounces=None,
-direct=True, gbuffer=None, light_samples=1, learn_techniques=True)`` renders
+direct=True, gbuffer=None, light_samples=1, learn_techniques=True, adaptive=None)`` renders
 ``setup.scene`` lit by ``setup.envmap`` (or ``envmap``) and the scene's area lights, through
 ``camera`` (default: the setup's). Methods:
 
@@ -57,8 +57,17 @@ points, and no primary ray through a pixel centre is traced again (``camera`` th
 to the buffer's; another camera is refused). Method "cv" without a cache traces one G-buffer
 and builds the cache and renders from it.
 ``spp`` defaults to 16; with a ``time_budget`` (seconds) the render runs passes of growing
-size until the budget is spent (at most ``spp`` samples if given) and ``stats["spp"]`` says
-how many every pixel got. The result is bit-identical for any ``threads`` at a fixed seed.
+size until the budget is spent (at most ``spp`` samples per pixel on average if given).
+
+``adaptive`` (default: on under a ``time_budget``, off otherwise) spends the samples where
+they cut the image's relMSE most: a pilot pass takes a quarter of them evenly, then every
+pixel takes a share proportional to the relative standard deviation of one sample, as its
+neighbours' samples (a 5x5 window without the pixel) measured it, never below the pilot
+and at most 16 times the mean. ``spp`` is then the mean per pixel; renders of fewer than 8
+samples per pixel take them evenly. ``res.sample_counts`` (H, W) holds every pixel's
+count, ``stats["spp"]``, ``stats["mean_spp"]`` and ``stats["max_spp"]`` the least, mean
+and most. The result is bit-identical for any ``threads`` at a fixed seed (with
+``adaptive=True`` and no budget too: the shares are a function of the pilot's samples).
 """
 
 from __future__ import annotations
@@ -82,12 +91,14 @@ CACHE_BUDGET_SHARE = 0.25
 class RenderResult:
     """``image`` and ``variance`` (per-pixel variance of the mean) are (H, W, 3) float32;
     ``alpha`` is the control variate's per-pixel alpha (method "cv", else None); ``stats``
-    holds seconds, spp, samples, rays, per-stage CPU seconds and, for "cv", cache figures."""
+    holds seconds, spp, samples, rays, per-stage CPU seconds and, for "cv", cache figures;
+    ``sample_counts`` (H, W) uint32 the samples each pixel took."""
 
     image: np.ndarray
     variance: np.ndarray
     stats: dict[str, Any] = field(default_factory=dict)
     alpha: np.ndarray | None = None
+    sample_counts: np.ndarray | None = None
 
     @property
     def standard_error(self) -> np.ndarray:
@@ -121,6 +132,7 @@ def render(
     vpl_samples: int | None = None,
     light_samples: int = 1,
     learn_techniques: bool = True,
+    adaptive: bool | None = None,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     if gbuffer is not None and not isinstance(gbuffer, _core.GBuffer):
@@ -134,6 +146,8 @@ def render(
         if gbuffer is not None:
             raise ValueError(f"gbuffer: method {method!r} traces the first hits of each "
                              "sample itself")
+        if adaptive:
+            raise ValueError(f"adaptive: method {method!r} takes every pixel's samples evenly")
         return _vpl.render_vpl(setup, camera=camera, spp=spp, method=method, seed=seed,
                                threads=threads, progress=progress, time_budget=time_budget,
                                envmap=envmap, vpls=vpls, clamp=clamp, vpl_samples=vpl_samples,
@@ -195,12 +209,14 @@ def render(
             gbuffer=gbuffer,
             light_samples=light_samples,
             learn_techniques=learn_techniques,
+            adaptive=adaptive,
         )
     stats = out["stats"]
     if traced:
         stats["primary_rays"] += camera.width * camera.height
     stats.update(cache_stats)
-    return RenderResult(out["image"], out["variance"], stats, out["alpha"])
+    return RenderResult(out["image"], out["variance"], stats, out["alpha"],
+                        out["sample_counts"])
 
 
 def preview(setup, cache, envmap=None, camera=None, product_level: int | str = "auto",

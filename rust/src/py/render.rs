@@ -85,9 +85,11 @@ fn techniques_arg(weights: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Techniq
 /// (the exception is then raised). None stands for the core's defaults: `threads` every
 /// core, `time_budget` none, `product_level` "auto" (per material), `alpha` 1.0 (CAM08's),
 /// `technique_weights` the method's own, `bounces` 1 for method "path" and 0 otherwise.
-/// With `gbuffer` (traced through `camera`) its hits are the pixels' anchors.
+/// With `gbuffer` (traced through `camera`) its hits are the pixels' anchors. `adaptive`
+/// None: adaptive sample counts under a time budget only. Also returns `sample_counts`
+/// (H, W) uint32.
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true))]
+#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -112,6 +114,7 @@ pub fn render<'py>(
     gbuffer: Option<PyRef<'py, PyGBuffer>>,
     light_samples: Option<&Bound<'py, PyAny>>,
     learn_techniques: bool,
+    adaptive: Option<bool>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let view = view_arg(Some(camera), gbuffer)?;
     // "path": the unbiased reference with indirect light, MIS at every vertex.
@@ -134,14 +137,15 @@ pub fn render<'py>(
         Some(b) if !b.is_none() => int_arg(b, "bounces", min_bounces, MAX_BOUNCES as i128)? as u32,
         _ => min_bounces as u32,
     };
+    let time_budget = match time_budget {
+        Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
+        _ => None,
+    };
     let params = RenderParams {
         spp: int_arg(spp, "spp", 1, MAX_SPP as i128)? as u32,
         method,
         seed,
-        time_budget: match time_budget {
-            Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
-            _ => None,
-        },
+        time_budget,
         product_level: product_level_arg(product_level)?,
         jitter,
         techniques: techniques_arg(technique_weights)?,
@@ -156,6 +160,8 @@ pub fn render<'py>(
             _ => 1,
         },
         learn_techniques,
+        // Adaptive by default under a time budget: what the budget buys is least error.
+        adaptive: adaptive.unwrap_or(time_budget.is_some()),
     };
     params.validate().py()?;
     let threads = threads_arg(threads)?;
@@ -183,12 +189,23 @@ pub fn render<'py>(
         None => d.set_item("alpha", py.None())?,
     }
     let s = &out.stats;
+    d.set_item(
+        "sample_counts",
+        image_array(py, out.sample_counts.clone(), h, w, None)?,
+    )?;
     let stats = PyDict::new(py);
     stats.set_item("method", if path { PATH } else { method.name() })?;
     stats.set_item("bounces", params.bounces)?;
     stats.set_item("direct", params.direct)?;
     stats.set_item("seconds", s.seconds)?;
     stats.set_item("spp", s.spp)?;
+    stats.set_item("mean_spp", s.samples as f64 / (w * h).max(1) as f64)?;
+    stats.set_item(
+        "max_spp",
+        out.sample_counts.iter().copied().max().unwrap_or(0),
+    )?;
+    stats.set_item("adaptive", params.adaptive)?;
+    stats.set_item("adaptive_gain", s.adaptive_gain)?;
     stats.set_item("passes", s.passes)?;
     stats.set_item("complete", s.complete)?;
     stats.set_item("jitter", params.jitter)?;

@@ -50,6 +50,11 @@
 //! ([`PassSchedule`]). The anchors' work is redone each pass from the G-buffer's hits (it
 //! is not kept: a product distribution is kilobytes), hence so few passes. Every pixel ends with the same number
 //! of samples but the probe's, which may have up to four more.
+//! With [`RenderParams::adaptive`] the main pass is a pilot of a quarter of its samples,
+//! after which each pixel takes a share of the rest measured from its neighbours'
+//! samples ([`adaptive`]); the passes that follow bring each pixel to its share of the
+//! most that fits, each pixel's cost per sample taken from the pilot. Without a budget
+//! the same two passes spend `spp` samples per pixel on average.
 //! Progress is reported from the calling thread while the workers run, in pixel samples;
 //! a `false` from it stops the pass (pixels not started keep the samples they had,
 //! `stats.complete` says so).
@@ -95,6 +100,12 @@ use crate::parallel::{run_with_progress, with_threads};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
 use crate::visibility::cache::{CacheState, Lookup, VisibilityCache};
+
+pub mod adaptive;
+mod schedule;
+
+use adaptive::{pilot_spp, SampleShares, CAP_FACTOR, RELMSE_FLOOR};
+use schedule::{PassSchedule, PassWork};
 
 /// Rows per work item: small enough to balance two to hundreds of threads.
 const BAND_ROWS: usize = 4;
@@ -144,6 +155,12 @@ pub struct RenderParams {
     /// weights learnt from the probe's draws ([`Techniques::learnt`]) instead of the given
     /// ones.
     pub learn_techniques: bool,
+    /// Samples go where they cut the image's relMSE most ([`adaptive`]): a pilot pass
+    /// takes a quarter of them evenly, the rest follow each pixel's share measured from
+    /// its neighbours. `spp` is then the mean per pixel (with a time budget, the most on
+    /// average); renders of fewer than [`adaptive::MIN_ADAPTIVE_SPP`] samples per pixel
+    /// take them evenly.
+    pub adaptive: bool,
 }
 
 /// Most light draws per sample ([`RenderParams::light_samples`]).
@@ -166,6 +183,7 @@ impl RenderParams {
         direct: true,
         light_samples: 1,
         learn_techniques: true,
+        adaptive: false,
     };
 
     /// The defaults with another method and sample count.
@@ -288,7 +306,11 @@ pub struct RenderStats {
     /// The mixture weights the passes after the probe used, when learnt
     /// ([`RenderParams::learn_techniques`]): `[product, guided, bsdf, env]`.
     pub learnt_techniques: Option<[f32; 4]>,
-    /// Samples every pixel received.
+    /// The predicted gain of adaptive counts measured after the pilot
+    /// ([`adaptive::SampleShares::gain`]; below [`adaptive::MIN_GAIN`] the counts stayed
+    /// even), when [`RenderParams::adaptive`] made a pilot.
+    pub adaptive_gain: Option<f64>,
+    /// Samples every pixel received (the least, with adaptive counts).
     pub spp: u32,
     /// Passes made.
     pub passes: u32,
@@ -347,6 +369,8 @@ pub struct Rendered {
     pub variance: Vec<[f32; 3]>,
     /// Per-pixel `α` of the control variate (only for [`Method::ControlVariate`]).
     pub alpha: Option<Vec<[f32; 3]>>,
+    /// Samples each pixel took, row-major.
+    pub sample_counts: Vec<u32>,
     pub stats: RenderStats,
 }
 
@@ -1022,23 +1046,89 @@ fn render_with(
         && params.time_budget.is_some();
     let mut learnt = None;
     let mut taken = 0u64;
+    // Adaptive renders: the shares measured after the pilot pass, the most samples a
+    // pixel may take, and each pixel's CPU nanoseconds per sample in its latest pass.
+    let adapt = params.adaptive;
+    let mut shares: Option<(SampleShares, u32)> = None;
+    let mut pixel_ns = vec![f32::NAN; pixels];
+    let mut adaptive_gain = None;
+    let counts = |sums: &[CvSums]| sums.iter().map(|s| s.n).collect::<Vec<u32>>();
+    let alphas = |sums: &[CvSums]| pixel_alphas(cv, params.alpha, sums, width, height);
     loop {
-        // Each pass brings the pixels it covers up to `target` samples.
-        let (target, probe) = match params.time_budget {
-            None if passes == 0 => (params.spp, false),
+        // Each pass brings the pixels it covers up to their target.
+        let mut pilot = None;
+        let (targets, probe) = match params.time_budget {
+            None if passes == 0 => match pilot_spp(params.spp).filter(|_| adapt) {
+                Some(p) => {
+                    pilot = Some(((CAP_FACTOR * params.spp as f64) as u32).min(MAX_SPP));
+                    (Targets::Even(p), false)
+                }
+                None => (Targets::Even(params.spp), false),
+            },
+            // The adaptive pass of a render of `spp` samples per pixel on average: the
+            // budget is the samples left.
+            None if passes == 1 && shares.is_some() => {
+                let (shares, cap) = shares.as_ref().expect("measured after the pilot");
+                let current = counts(&sums);
+                let left = (params.spp as u64 * pixels as u64).saturating_sub(taken) as f64;
+                let lambda = shares.scale_for(&current, *cap, left, |_, added| added as f64);
+                (Targets::scaled(shares, lambda, &current, *cap), false)
+            }
             None => break,
-            Some(_) if passes == 0 => (PassSchedule::PROBE_SPP.min(params.spp), true),
+            Some(_) if passes == 0 => {
+                (Targets::Even(PassSchedule::PROBE_SPP.min(params.spp)), true)
+            }
             Some(budget) => {
                 let left = budget - start.elapsed().as_secs_f64();
                 let min = sums.iter().map(|s| s.n).min().unwrap_or(0);
-                if min >= params.spp {
+                let done_all = match shares {
+                    Some(_) => taken >= params.spp as u64 * pixels as u64,
+                    None => min >= params.spp,
+                };
+                if done_all {
                     break;
                 }
-                match schedule.next_target(left, pixels as u64, taken, min) {
-                    Some(t) => (t.min(params.spp), false),
-                    // Every pixel gets a sample, whatever the budget.
-                    None if min == 0 => (1, false),
-                    None => break,
+                match &shares {
+                    Some((shares, cap)) => {
+                        let current = counts(&sums);
+                        let (per_pixel, wall_ns) =
+                            (schedule.anchor_seconds(), schedule.wall_per_cpu_ns());
+                        let mean_ns = schedule.sample_ns_mean();
+                        let cost = |i: usize, added: u32| {
+                            let ns = match pixel_ns[i] {
+                                ns if ns.is_finite() => ns as f64,
+                                _ => mean_ns,
+                            };
+                            per_pixel + wall_ns * ns * added as f64
+                        };
+                        let by_time = shares.scale_for(&current, *cap, schedule.spend(left), cost);
+                        let left_samples =
+                            (params.spp as u64 * pixels as u64).saturating_sub(taken) as f64;
+                        let by_count =
+                            shares.scale_for(&current, *cap, left_samples, |_, a| a as f64);
+                        let t = Targets::scaled(shares, by_time.min(by_count), &current, *cap);
+                        // A pass is worth its anchors when it adds a sample per pixel on
+                        // average.
+                        if t.added(&current) < pixels as u64 {
+                            break;
+                        }
+                        (t, false)
+                    }
+                    None => match schedule.next_target(left, pixels as u64, taken, min) {
+                        Some(t) => {
+                            let t = t.min(params.spp);
+                            match pilot_spp(t).filter(|&p| adapt && p > min) {
+                                Some(p) => {
+                                    pilot = Some(((CAP_FACTOR * t as f64) as u32).min(MAX_SPP));
+                                    (Targets::Even(p), false)
+                                }
+                                None => (Targets::Even(t), false),
+                            }
+                        }
+                        // Every pixel gets a sample, whatever the budget.
+                        None if min == 0 => (Targets::Even(1), false),
+                        None => break,
+                    },
                 }
             }
         };
@@ -1059,8 +1149,9 @@ fn render_with(
             threads,
             || {
                 sums.par_chunks_mut(BAND_ROWS * width)
+                    .zip(pixel_ns.par_chunks_mut(BAND_ROWS * width))
                     .enumerate()
-                    .map(|(band, band_sums)| {
+                    .map(|(band, (band_sums, band_ns))| {
                         let mut work = BandWork::default();
                         if cancel.load(Ordering::Relaxed)
                             || (probe && band % PassSchedule::PROBE_STRIDE != 0)
@@ -1069,15 +1160,19 @@ fn render_with(
                         }
                         let first = band * BAND_ROWS * width;
                         let mut band_samples = 0u64;
-                        for (i, acc) in band_sums.iter_mut().enumerate() {
+                        for (i, (acc, ns)) in band_sums.iter_mut().zip(band_ns).enumerate() {
                             // A band of many samples takes seconds; stop within a pixel.
                             if cancel.load(Ordering::Relaxed) {
                                 break;
                             }
+                            let target = targets.of(first + i);
                             if acc.n < target {
-                                band_samples += (target - acc.n) as u64;
+                                let added = target - acc.n;
+                                band_samples += added as u64;
                                 work.anchored_pixels += 1;
+                                let before = work.sample_ns;
                                 shader.shade_pixel(first + i, acc.n..target, acc, &mut work);
+                                *ns = (work.sample_ns - before) as f32 / added as f32;
                             }
                         }
                         work.samples += band_samples;
@@ -1107,7 +1202,7 @@ fn render_with(
             let weight = |p: u32| {
                 let (mean, _) = sums[p as usize].estimate([0.0; 3]);
                 let m = luminance(mean.map(|v| v as f32));
-                1.0 / (m * m + 1e-2)
+                1.0 / (m * m + RELMSE_FLOOR)
             };
             let draws: Vec<(f64, f64, [f64; 4], f64)> = work
                 .iter()
@@ -1123,6 +1218,13 @@ fn render_with(
         passes += 1;
         taken += pass.samples;
         schedule.record(pass_start.elapsed().as_secs_f64(), pass);
+        if let Some(cap) = pilot {
+            // Under a budget, a sample's cost counts too: sky is cheap, grass is not.
+            let costs = params.time_budget.map(|_| &pixel_ns[..]);
+            let measured = SampleShares::measure(&sums, &alphas(&sums), costs, width, height);
+            adaptive_gain = Some(measured.gain());
+            shares = Some((measured, cap));
+        }
         if cancel.load(Ordering::Relaxed) {
             complete = false;
             break;
@@ -1143,11 +1245,7 @@ fn render_with(
     }
 
     // α per pixel, then the estimates.
-    let alpha: Vec<[f64; 3]> = match (cv, params.alpha) {
-        (true, AlphaRule::Neighbours { radius }) => neighbour_alphas(&sums, width, height, radius),
-        (_, AlphaRule::Fixed(a)) if cv => vec![[a; 3]; pixels],
-        _ => vec![[0.0; 3]; pixels],
-    };
+    let alpha = alphas(&sums);
     let mut image = Vec::with_capacity(pixels);
     let mut variance = Vec::with_capacity(pixels);
     for (s, a) in sums.iter().zip(&alpha) {
@@ -1182,6 +1280,7 @@ fn render_with(
         record_misses: total.verdicts.values().map(|v| v.0 as u64).sum(),
         record_uses: total.verdicts.values().map(|v| v.1 as u64).sum(),
         learnt_techniques: learnt,
+        adaptive_gain,
         ..RenderStats::default()
     };
     if cv {
@@ -1214,68 +1313,59 @@ fn render_with(
         image,
         variance,
         alpha: cv.then(|| alpha.iter().map(|a| a.map(|v| v as f32)).collect()),
+        sample_counts: counts(&sums),
         stats,
     })
 }
 
-/// What one pass did, for [`PassSchedule`].
-#[derive(Clone, Copy, Debug, Default)]
-struct PassWork {
-    anchored_pixels: u64,
-    samples: u64,
-    anchor_ns: u64,
-    sample_ns: u64,
+/// Per-pixel `α` of the control variate by `rule` (zeros for the other methods).
+fn pixel_alphas(
+    cv: bool,
+    rule: AlphaRule,
+    sums: &[CvSums],
+    width: usize,
+    height: usize,
+) -> Vec<[f64; 3]> {
+    match (cv, rule) {
+        (true, AlphaRule::Neighbours { radius }) => neighbour_alphas(sums, width, height, radius),
+        (true, AlphaRule::Fixed(a)) => vec![[a; 3]; sums.len()],
+        _ => vec![[0.0; 3]; sums.len()],
+    }
 }
 
-/// Sizes the passes of a budgeted render. The first pass is a probe: [`Self::PROBE_SPP`]
-/// samples in the pixels of every [`Self::PROBE_STRIDE`]-th band. From it (and any later
-/// pass) the cost of a pass is modelled as wall-clock seconds per anchored pixel plus
-/// seconds per sample (the CPU time of the two, scaled to the wall clock the passes took);
-/// a further pass runs when one more sample per pixel fits [`Self::SHARE`] of the budget
-/// left. A pass recomputes its pixels' anchors, so few passes waste least: usually the
-/// probe and one main pass.
-#[derive(Clone, Copy, Debug, Default)]
-struct PassSchedule {
-    passes: u32,
-    wall: f64,
-    work: PassWork,
+/// The sample count a pass brings each pixel up to.
+enum Targets {
+    /// Every pixel the same.
+    Even(u32),
+    /// Per pixel, row-major ([`adaptive`]).
+    PerPixel(Vec<u32>),
 }
 
-impl PassSchedule {
-    /// The probe pass covers one band in this many, with this many samples per pixel (the
-    /// first sample after an anchor costs half as much again as the later ones: a probe
-    /// of one sample would overestimate them).
-    const PROBE_STRIDE: usize = 8;
-    const PROBE_SPP: u32 = 4;
-    /// Share of the budget left that a pass aims to spend (the rest absorbs the model's
-    /// error).
-    const SHARE: f64 = 0.95;
-
-    fn record(&mut self, wall: f64, pass: PassWork) {
-        self.passes += 1;
-        self.wall += wall;
-        self.work.anchored_pixels += pass.anchored_pixels;
-        self.work.samples += pass.samples;
-        self.work.anchor_ns += pass.anchor_ns;
-        self.work.sample_ns += pass.sample_ns;
+impl Targets {
+    /// `shares` at scale `lambda` over the pixels' `current` counts.
+    fn scaled(shares: &SampleShares, lambda: f64, current: &[u32], cap: u32) -> Self {
+        Self::PerPixel(
+            current
+                .iter()
+                .enumerate()
+                .map(|(i, &n)| shares.target(i, lambda, n, cap))
+                .collect(),
+        )
     }
 
-    /// The sample count per pixel the next pass should bring every one of `pixels` pixels
-    /// to, with `left` seconds of budget, `taken` samples already taken and every pixel
-    /// at `min` or more; `None` when not even one more sample per pixel fits.
-    fn next_target(&self, left: f64, pixels: u64, taken: u64, min: u32) -> Option<u32> {
-        let w = &self.work;
-        let cpu = (w.anchor_ns + w.sample_ns).max(1) as f64;
-        let per_pixel = self.wall * w.anchor_ns as f64 / cpu / w.anchored_pixels.max(1) as f64;
-        let per_sample = self.wall * w.sample_ns as f64 / cpu / w.samples.max(1) as f64;
-        let spend = left * Self::SHARE - per_pixel * pixels as f64;
-        // Samples that fit, on top of those taken, spread over every pixel: a pass is worth
-        // its anchors when it adds a sample per pixel on average (or gives every pixel a
-        // first one).
-        let total = taken as f64 + spend / per_sample.max(1e-12);
-        let target = (total / pixels.max(1) as f64).floor();
-        let mean = taken as f64 / pixels.max(1) as f64;
-        (target >= (mean + 1.0).floor() && target > min as f64)
-            .then(|| target.min(MAX_SPP as f64) as u32)
+    fn of(&self, pixel: usize) -> u32 {
+        match self {
+            Self::Even(t) => *t,
+            Self::PerPixel(t) => t[pixel],
+        }
+    }
+
+    /// Samples the pass adds to pixels at `current`.
+    fn added(&self, current: &[u32]) -> u64 {
+        current
+            .iter()
+            .enumerate()
+            .map(|(i, &n)| self.of(i).saturating_sub(n) as u64)
+            .sum()
     }
 }

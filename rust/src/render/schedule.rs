@@ -1,0 +1,86 @@
+//! How many samples each pass of a budgeted render takes.
+
+use super::MAX_SPP;
+
+/// What one pass did, for [`PassSchedule`].
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct PassWork {
+    pub(super) anchored_pixels: u64,
+    pub(super) samples: u64,
+    pub(super) anchor_ns: u64,
+    pub(super) sample_ns: u64,
+}
+
+/// Sizes the passes of a budgeted render. The first pass is a probe: [`Self::PROBE_SPP`]
+/// samples in the pixels of every [`Self::PROBE_STRIDE`]-th band. From it (and any later
+/// pass) the cost of a pass is modelled as wall-clock seconds per anchored pixel plus
+/// seconds per sample (the CPU time of the two, scaled to the wall clock the passes took);
+/// a further pass runs when one more sample per pixel fits [`Self::SHARE`] of the budget
+/// left. A pass recomputes its pixels' anchors, so few passes waste least: usually the
+/// probe and one main pass.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct PassSchedule {
+    passes: u32,
+    wall: f64,
+    work: PassWork,
+}
+
+impl PassSchedule {
+    /// The probe pass covers one band in this many, with this many samples per pixel (the
+    /// first sample after an anchor costs half as much again as the later ones: a probe
+    /// of one sample would overestimate them).
+    pub(super) const PROBE_STRIDE: usize = 8;
+    pub(super) const PROBE_SPP: u32 = 4;
+    /// Share of the budget left that a pass aims to spend (the rest absorbs the model's
+    /// error).
+    const SHARE: f64 = 0.95;
+
+    /// Wall-clock seconds per CPU nanosecond the passes so far took (the threads' share).
+    pub(super) fn wall_per_cpu_ns(&self) -> f64 {
+        let w = &self.work;
+        self.wall / (w.anchor_ns + w.sample_ns).max(1) as f64
+    }
+
+    /// Wall-clock seconds of one pixel's anchor.
+    pub(super) fn anchor_seconds(&self) -> f64 {
+        let w = &self.work;
+        self.wall_per_cpu_ns() * w.anchor_ns as f64 / w.anchored_pixels.max(1) as f64
+    }
+
+    /// CPU nanoseconds of a sample, on average over the passes so far.
+    pub(super) fn sample_ns_mean(&self) -> f64 {
+        self.work.sample_ns as f64 / self.work.samples.max(1) as f64
+    }
+
+    /// What a pass may spend of `left` seconds.
+    pub(super) fn spend(&self, left: f64) -> f64 {
+        left * Self::SHARE
+    }
+
+    pub(super) fn record(&mut self, wall: f64, pass: PassWork) {
+        self.passes += 1;
+        self.wall += wall;
+        self.work.anchored_pixels += pass.anchored_pixels;
+        self.work.samples += pass.samples;
+        self.work.anchor_ns += pass.anchor_ns;
+        self.work.sample_ns += pass.sample_ns;
+    }
+
+    /// The sample count per pixel the next pass should bring every one of `pixels` pixels
+    /// to, with `left` seconds of budget, `taken` samples already taken and every pixel
+    /// at `min` or more; `None` when not even one more sample per pixel fits.
+    pub(super) fn next_target(&self, left: f64, pixels: u64, taken: u64, min: u32) -> Option<u32> {
+        let w = &self.work;
+        let per_pixel = self.anchor_seconds();
+        let per_sample = self.wall_per_cpu_ns() * w.sample_ns as f64 / w.samples.max(1) as f64;
+        let spend = self.spend(left) - per_pixel * pixels as f64;
+        // Samples that fit, on top of those taken, spread over every pixel: a pass is worth
+        // its anchors when it adds a sample per pixel on average (or gives every pixel a
+        // first one).
+        let total = taken as f64 + spend / per_sample.max(1e-12);
+        let target = (total / pixels.max(1) as f64).floor();
+        let mean = taken as f64 / pixels.max(1) as f64;
+        (target >= (mean + 1.0).floor() && target > min as f64)
+            .then(|| target.min(MAX_SPP as f64) as u32)
+    }
+}
