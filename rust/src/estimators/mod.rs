@@ -7,4 +7,5 @@ pub mod decoupled;
 pub mod direct;
 pub mod indirect;
 pub mod many_lights;
+pub mod normal_products;
 pub mod preview;

@@ -206,6 +206,8 @@ pub fn render<'py>(
     )?;
     stats.set_item("adaptive", params.adaptive)?;
     stats.set_item("adaptive_gain", s.adaptive_gain)?;
+    stats.set_item("pixel_mixtures", s.pixel_techniques.map(|c| c.to_vec()))?;
+    stats.set_item("unmatched_samples", s.unmatched_samples)?;
     stats.set_item("passes", s.passes)?;
     stats.set_item("complete", s.complete)?;
     stats.set_item("jitter", params.jitter)?;
@@ -262,7 +264,6 @@ pub fn render<'py>(
         stats.set_item("records_per_point", s.records_used as f64 / points)?;
         stats.set_item("shared_lookups", s.shared_lookups)?;
         stats.set_item("reused_integrals", s.reused_integrals)?;
-        stats.set_item("unmatched_samples", s.unmatched_samples)?;
         stats.set_item("record_misses", s.record_misses)?;
         stats.set_item("record_uses", s.record_uses)?;
         stats.set_item(

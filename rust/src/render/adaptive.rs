@@ -30,6 +30,7 @@
 //! - No pixel takes more than [`CAP_FACTOR`] times the mean.
 
 use crate::estimators::control_variate::CvSums;
+use crate::estimators::direct::Techniques;
 
 /// The constant of relMSE's denominator `μ² + 10⁻²` (`viscache_rs.metrics`): keeps black
 /// pixels from dominating.
@@ -231,6 +232,123 @@ impl SampleShares {
     }
 }
 
+/// The mixtures a pixel of method "product" may take after the pilot
+/// ([`PixelTechniques`]), besides the image's own (learnt from the probe, or given):
+/// from mostly the product to mostly BSDF sampling, and two with more of the map's own
+/// distribution. Every technique keeps 0.05 at least, so that every one is unbiased.
+pub const CANDIDATES: [Techniques; 7] = [
+    Techniques::new(0.9, 0.0, 0.05, 0.05),
+    Techniques::new(0.7, 0.0, 0.2, 0.1),
+    Techniques::new(0.5, 0.0, 0.45, 0.05),
+    Techniques::new(0.3, 0.0, 0.6, 0.1),
+    Techniques::new(0.1, 0.0, 0.8, 0.1),
+    Techniques::new(0.5, 0.0, 0.2, 0.3),
+    Techniques::new(0.3, 0.0, 0.35, 0.35),
+];
+/// The image's mixture and the [`CANDIDATES`].
+pub const CHOICES: usize = CANDIDATES.len() + 1;
+/// Fewest draws a window must hold for its pixel to leave the image's mixture.
+pub const MIN_WINDOW_DRAWS: u32 = 64;
+
+/// The pilot's draws at one pixel, as the second moment each of [`CHOICES`] would give:
+/// a draw of value `f` (luminance of `f cos L V`), drawn with density `p₀`, where the
+/// techniques' own densities are `p_t`, adds `f² / (q_k p₀)` with `q_k = Σ c_kt p_t`, an
+/// unbiased estimate of mixture `k`'s `∫ f² / q_k` ([`crate::estimators::direct::Techniques::learnt`]'s
+/// objective, per pixel).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DrawMoments {
+    sums: [f64; CHOICES],
+    draws: u32,
+}
+
+impl DrawMoments {
+    /// Adds one draw of the pixel's mixture (`image`: the image's weights).
+    #[inline]
+    pub fn add(&mut self, image: &Techniques, value: f64, pdfs: [f64; 4], pdf: f64) {
+        self.draws += 1;
+        if !(value > 0.0 && pdf > 0.0) {
+            return;
+        }
+        for (k, sum) in self.sums.iter_mut().enumerate() {
+            let t = if k == 0 { image } else { &CANDIDATES[k - 1] };
+            let c = t.probabilities(true, false, true);
+            let q: f64 = c.iter().zip(&pdfs).map(|(c, p)| c * p).sum();
+            *sum += if q > 0.0 {
+                value * value / (q * pdf)
+            } else {
+                f64::INFINITY
+            };
+        }
+    }
+
+    /// Draws added.
+    pub fn draws(&self) -> u32 {
+        self.draws
+    }
+}
+
+/// Each pixel's mixture after the pilot: the choice of least second moment over the
+/// draws of its window, the pixel excluded (unbiased for the reason the shares are), or
+/// the image's where the window held fewer than [`MIN_WINDOW_DRAWS`] draws.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PixelTechniques {
+    options: [Techniques; CHOICES],
+    choice: Vec<u8>,
+}
+
+impl PixelTechniques {
+    /// Choices from the pilot's `moments` of a `width x height` image (row-major) drawn
+    /// with the image's mixture `image`.
+    pub fn measure(
+        moments: &[DrawMoments],
+        image: Techniques,
+        width: usize,
+        height: usize,
+    ) -> Self {
+        debug_assert_eq!(moments.len(), width * height);
+        let mut options = [image; CHOICES];
+        options[1..].copy_from_slice(&CANDIDATES);
+        let choice = (0..moments.len())
+            .map(|i| {
+                let (x, y, r) = (i % width, i / width, WINDOW_RADIUS);
+                let (mut sums, mut draws) = ([0.0f64; CHOICES], 0u32);
+                for yy in y.saturating_sub(r)..(y + r + 1).min(height) {
+                    for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
+                        if (xx, yy) != (x, y) {
+                            let m = &moments[yy * width + xx];
+                            draws += m.draws;
+                            for (s, v) in sums.iter_mut().zip(&m.sums) {
+                                *s += v;
+                            }
+                        }
+                    }
+                }
+                if draws < MIN_WINDOW_DRAWS {
+                    return 0;
+                }
+                // The first of the least (the image's on ties).
+                (0..CHOICES).fold(0, |best, k| if sums[k] < sums[best] { k } else { best }) as u8
+            })
+            .collect();
+        Self { options, choice }
+    }
+
+    /// Pixel `i`'s mixture.
+    #[inline]
+    pub fn get(&self, i: usize) -> &Techniques {
+        &self.options[self.choice[i] as usize]
+    }
+
+    /// How many pixels took each choice (the image's mixture first).
+    pub fn counts(&self) -> [u64; CHOICES] {
+        let mut counts = [0u64; CHOICES];
+        for &c in &self.choice {
+            counts[c as usize] += 1;
+        }
+        counts
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -329,6 +447,58 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn pixels_take_the_mixture_of_least_second_moment_over_their_neighbours_draws() {
+        let image = Techniques::PRODUCT;
+        let q = |t: &Techniques, p: [f64; 4]| -> f64 {
+            let c = t.probabilities(true, false, true);
+            c.iter().zip(&p).map(|(c, p)| c * p).sum()
+        };
+        // One draw: f² / (q_k p₀) for every choice, p₀ the image mixture's density.
+        let pdfs = [0.2, 0.0, 3.0, 0.5];
+        let mut m = DrawMoments::default();
+        m.add(&image, 2.0, pdfs, q(&image, pdfs));
+        m.add(&image, 0.0, pdfs, q(&image, pdfs));
+        assert_eq!(m.draws(), 2);
+        for k in 0..CHOICES {
+            let t = if k == 0 { image } else { CANDIDATES[k - 1] };
+            let expected = 4.0 / (q(&t, pdfs) * q(&image, pdfs));
+            assert!((m.sums[k] - expected).abs() <= 1e-12 * expected);
+        }
+        // Left columns: light where BSDF sampling goes and the product does not; right
+        // columns: where the product goes. 8 draws per pixel.
+        let (w, h) = (8, 5);
+        let bsdf_light = [0.01, 0.0, 2.0, 0.1];
+        let product_light = [4.0, 0.0, 0.3, 0.1];
+        let moments: Vec<DrawMoments> = (0..w * h)
+            .map(|i| {
+                let p = if i % w < 4 { bsdf_light } else { product_light };
+                let mut m = DrawMoments::default();
+                for _ in 0..8 {
+                    m.add(&image, 1.0, p, q(&image, p));
+                }
+                m
+            })
+            .collect();
+        let chosen = PixelTechniques::measure(&moments, image, w, h);
+        let bsdf_heaviest =
+            CANDIDATES
+                .iter()
+                .fold(CANDIDATES[0], |a, b| if b.bsdf > a.bsdf { *b } else { a });
+        assert_eq!(*chosen.get(2 * w), bsdf_heaviest);
+        assert_eq!(chosen.get(2 * w + 7).product, 0.9);
+        assert_eq!(chosen.counts().iter().sum::<u64>(), (w * h) as u64);
+        // A pixel's own draws do not count: the same choices with pixel 2w's replaced.
+        let mut changed = moments.clone();
+        changed[2 * w] = moments[2 * w + 7];
+        let again = PixelTechniques::measure(&changed, image, w, h);
+        assert_eq!(again.get(2 * w), chosen.get(2 * w));
+        // Too few draws in a window: the image's mixture.
+        let sparse = vec![moments[0]; w * h];
+        let few = PixelTechniques::measure(&sparse[..4], image, 2, 2);
+        assert!((0..4).all(|i| *few.get(i) == image));
     }
 
     #[test]

@@ -25,8 +25,9 @@
 //! sample. A sample whose hit lies on another object than the anchor, or whose normal
 //! turns away by more than the material's product tolerance
 //! ([`crate::bsdf::Material::product_tolerance`]), is *unmatched*: it leaves the anchor's
-//! product out of its mixture (BSDF and map sampling only) and the control variate out
-//! (`W = 0`). That choice depends only on the pixel jitter, which is independent of the
+//! product out of its mixture and the control variate out (`W = 0`); a diffuse hit then
+//! draws from the product of the nearest of a grid of normals instead
+//! ([`crate::estimators::normal_products`]), any other from BSDF and map sampling only. That choice depends only on the pixel jitter, which is independent of the
 //! directions drawn, so each sample's estimate is unbiased given its hit, while a product
 //! or a `g` that does not describe the hit adds no noise. With one anchor per pixel, a pixel in an odd
 //! column shares its left neighbour's cache lookup when the two anchors nearly coincide
@@ -93,6 +94,7 @@ use crate::estimators::direct::{
     ShadingPoint, Techniques,
 };
 use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParams, MAX_BOUNCES};
+use crate::estimators::normal_products::NormalProducts;
 use crate::geometry::bvh::PACKET;
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::{luminance, EnvMap};
@@ -104,7 +106,7 @@ use crate::visibility::cache::{CacheState, Lookup, VisibilityCache};
 pub mod adaptive;
 mod schedule;
 
-use adaptive::{pilot_spp, SampleShares, CAP_FACTOR, RELMSE_FLOOR};
+use adaptive::{pilot_spp, DrawMoments, PixelTechniques, SampleShares, CAP_FACTOR, RELMSE_FLOOR};
 use schedule::{PassSchedule, PassWork};
 
 /// Rows per work item of a pass with even counts: small enough to balance two to hundreds
@@ -154,7 +156,8 @@ pub struct RenderParams {
     pub light_samples: u32,
     /// Method "product" under a time budget: the passes after the probe use the mixture
     /// weights learnt from the probe's draws ([`Techniques::learnt`]) instead of the given
-    /// ones.
+    /// ones; with [`Self::adaptive`] counts, every pixel then takes the mixture its
+    /// neighbours' pilot draws favour ([`adaptive::PixelTechniques`]).
     pub learn_techniques: bool,
     /// Samples go where they cut the image's relMSE most ([`adaptive`]): a pilot pass
     /// takes a quarter of them evenly, the rest follow each pixel's share measured from
@@ -311,6 +314,9 @@ pub struct RenderStats {
     /// ([`adaptive::SampleShares::gain`]; below [`adaptive::MIN_GAIN`] the counts stayed
     /// even), when [`RenderParams::adaptive`] made a pilot.
     pub adaptive_gain: Option<f64>,
+    /// How many pixels took each mixture after the pilot ([`adaptive::PixelTechniques`]:
+    /// the image's first, then [`adaptive::CANDIDATES`]).
+    pub pixel_techniques: Option<[u64; adaptive::CHOICES]>,
     /// Samples every pixel received (the least, with adaptive counts).
     pub spp: u32,
     /// Passes made.
@@ -418,6 +424,8 @@ struct BandWork {
     /// (pixel, `f cos L V` in luminance, techniques' densities, mixture density).
     pixel: u32,
     draws: Vec<(u32, f64, [f64; 4], f64)>,
+    /// The pixel's draws for [`PixelTechniques`] (the adaptive pilot).
+    moments: DrawMoments,
 }
 
 /// A lookup, the point it was made for, and the interpolant made of it there.
@@ -516,6 +524,12 @@ struct Shader<'a> {
     techniques: Techniques,
     /// Whether matched draws are kept for [`Techniques::learnt`] (the probe pass).
     learning: bool,
+    /// Whether matched draws go to the pixel's [`DrawMoments`] (the adaptive pilot).
+    measuring: bool,
+    /// Each pixel's mixture, chosen after the pilot ([`PixelTechniques`]).
+    pixel_techniques: Option<&'a PixelTechniques>,
+    /// Products by normal for diffuse hits off their anchor's surface.
+    normal_products: Option<&'a NormalProducts<'a>>,
 }
 
 /// Draws a band keeps for [`Techniques::learnt`].
@@ -726,12 +740,23 @@ impl Shader<'_> {
             );
             return (emitted + l + indirect, [0.0; 3]);
         }
-        // The anchor's product where it describes the hit; BSDF and map sampling elsewhere.
+        let mixture = match self.pixel_techniques {
+            Some(p) => *p.get(work.pixel as usize),
+            None => self.techniques,
+        };
+        // The anchor's product where it describes the hit; for a diffuse hit elsewhere,
+        // the product of the nearest grid normal; else BSDF and map sampling.
         let (product, guided, techniques) = match anchor {
             Some(a) if matched && a.product.is_some() => {
-                (a.product.as_deref(), a.guided.as_deref(), self.techniques)
+                (a.product.as_deref(), a.guided.as_deref(), mixture)
             }
-            _ => (None, None, self.techniques.without_product()),
+            _ => match self
+                .normal_products
+                .and_then(|t| t.get(&sp.material, sp.normal))
+            {
+                Some(p) => (Some(p), None, mixture),
+                None => (None, None, mixture.without_product()),
+            },
         };
         // The control variate where the anchor's records and product describe the hit.
         let control = match (anchor, self.cache, self.chroma, matched) {
@@ -761,6 +786,11 @@ impl Shader<'_> {
                 &mut work.bvh,
             );
             l += lj;
+            if let (true, true, Some(d)) = (self.measuring, product.is_some(), &drawn) {
+                let value = luminance(d.value.to_array());
+                work.moments
+                    .add(&techniques, value, d.technique_pdfs, d.pdf);
+            }
             if let (true, true, Some(d)) = (self.learning, product.is_some(), &drawn) {
                 if work.draws.len() < LEARNT_DRAWS_PER_BAND {
                     work.draws.push((
@@ -1041,17 +1071,20 @@ fn render_with(
     let mut schedule = PassSchedule::default();
     // Method "product" under a budget learns its mixture from the probe pass.
     let mut techniques = params.techniques();
-    let learn = params.learn_techniques
-        && params.method == Method::Product
-        && params.direct
-        && params.time_budget.is_some();
+    let learn = learn_techniques_per_pixel(params) && params.time_budget.is_some();
     let mut learnt = None;
     let mut taken = 0u64;
     // Adaptive renders: the shares measured after the pilot pass, the most samples a
     // pixel may take, and each pixel's CPU nanoseconds per sample in its latest pass.
     let adapt = params.adaptive;
     let mut shares: Option<(SampleShares, u32)> = None;
-    let mut pixel_ns = vec![f32::NAN; pixels];
+    let mut pilot_state = vec![PixelPilot::default(); pixels];
+    // Method "product" with adaptive counts chooses each pixel's mixture after the pilot.
+    let choose_mixtures = adapt && learn_techniques_per_pixel(params);
+    let mut pixel_techniques: Option<PixelTechniques> = None;
+    // Jittered hits off their anchor's surface draw from products by normal.
+    let normal_products = (params.jitter && params.uses_product())
+        .then(|| NormalProducts::new(env, params.product_level));
     let mut adaptive_gain = None;
     let counts = |sums: &[CvSums]| sums.iter().map(|s| s.n).collect::<Vec<u32>>();
     let alphas = |sums: &[CvSums]| pixel_alphas(cv, params.alpha, sums, width, height);
@@ -1096,7 +1129,7 @@ fn render_with(
                             (schedule.anchor_seconds(), schedule.wall_per_cpu_ns());
                         let mean_ns = schedule.sample_ns_mean();
                         let cost = |i: usize, added: u32| {
-                            let ns = match pixel_ns[i] {
+                            let ns = match pilot_state[i].ns_per_sample {
                                 ns if ns.is_finite() => ns as f64,
                                 _ => mean_ns,
                             };
@@ -1151,18 +1184,21 @@ fn render_with(
             chroma: chroma.as_ref(),
             techniques,
             learning: probe && learn,
+            measuring: pilot.is_some() && choose_mixtures,
+            pixel_techniques: pixel_techniques.as_ref(),
+            normal_products: normal_products.as_ref(),
         };
         let work = run_with_progress(
             threads,
             || {
                 sums.par_chunks_mut(rows * width)
-                    .zip(pixel_ns.par_chunks_mut(rows * width))
+                    .zip(pilot_state.par_chunks_mut(rows * width))
                     .enumerate()
                     // Every band a task of its own: rayon's default splits the bands into
                     // a few runs per thread, and a thread that ends its runs first cannot
                     // take part of another's (measured: 13% of a pass idle on cornell).
                     .with_max_len(1)
-                    .map(|(band, (band_sums, band_ns))| {
+                    .map(|(band, (band_sums, band_pilot))| {
                         let mut work = BandWork::default();
                         if cancel.load(Ordering::Relaxed)
                             || (probe && band % PassSchedule::PROBE_STRIDE != 0)
@@ -1171,7 +1207,7 @@ fn render_with(
                         }
                         let first = band * rows * width;
                         let mut band_samples = 0u64;
-                        for (i, (acc, ns)) in band_sums.iter_mut().zip(band_ns).enumerate() {
+                        for (i, (acc, state)) in band_sums.iter_mut().zip(band_pilot).enumerate() {
                             // A band of many samples takes seconds; stop within a pixel.
                             if cancel.load(Ordering::Relaxed) {
                                 break;
@@ -1183,7 +1219,11 @@ fn render_with(
                                 work.anchored_pixels += 1;
                                 let before = work.sample_ns;
                                 shader.shade_pixel(first + i, acc.n..target, acc, &mut work);
-                                *ns = (work.sample_ns - before) as f32 / added as f32;
+                                state.ns_per_sample =
+                                    (work.sample_ns - before) as f32 / added as f32;
+                                if shader.measuring {
+                                    state.moments = std::mem::take(&mut work.moments);
+                                }
                             }
                         }
                         work.samples += band_samples;
@@ -1231,8 +1271,15 @@ fn render_with(
         schedule.record(pass_start.elapsed().as_secs_f64(), pass);
         if let Some(cap) = pilot {
             // Under a budget, a sample's cost counts too: sky is cheap, grass is not.
-            let costs = params.time_budget.map(|_| &pixel_ns[..]);
+            let ns: Vec<f32> = pilot_state.iter().map(|p| p.ns_per_sample).collect();
+            let costs = params.time_budget.map(|_| &ns[..]);
             let measured = SampleShares::measure(&sums, &alphas(&sums), costs, width, height);
+            if choose_mixtures {
+                let moments: Vec<DrawMoments> = pilot_state.iter().map(|p| p.moments).collect();
+                pixel_techniques = Some(PixelTechniques::measure(
+                    &moments, techniques, width, height,
+                ));
+            }
             adaptive_gain = Some(measured.gain());
             shares = Some((measured, cap));
         }
@@ -1292,6 +1339,7 @@ fn render_with(
         record_uses: total.verdicts.values().map(|v| v.1 as u64).sum(),
         learnt_techniques: learnt,
         adaptive_gain,
+        pixel_techniques: pixel_techniques.as_ref().map(PixelTechniques::counts),
         ..RenderStats::default()
     };
     if cv {
@@ -1379,4 +1427,28 @@ impl Targets {
             .map(|(i, &n)| self.of(i).saturating_sub(n) as u64)
             .sum()
     }
+}
+
+/// What the adaptive pilot measured at a pixel.
+#[derive(Clone, Copy, Debug)]
+struct PixelPilot {
+    /// CPU nanoseconds per sample of the pixel's latest pass (NaN before any).
+    ns_per_sample: f32,
+    /// The pilot's draws ([`PixelTechniques`]).
+    moments: DrawMoments,
+}
+
+impl Default for PixelPilot {
+    fn default() -> Self {
+        Self {
+            ns_per_sample: f32::NAN,
+            moments: DrawMoments::default(),
+        }
+    }
+}
+
+/// Whether a render's mixture is learnt (from the probe) and chosen per pixel (after an
+/// adaptive pilot): method "product" shading direct light with `learn_techniques`.
+fn learn_techniques_per_pixel(params: &RenderParams) -> bool {
+    params.learn_techniques && params.method == Method::Product && params.direct
 }
