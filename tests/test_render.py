@@ -285,9 +285,9 @@ def test_budgets_adapt_by_default(small_setups):
     setup = small_setups["garage"]
     r = vc.render(setup, method="product", time_budget=0.3, spp=128, seed=9, progress=False)
     assert r.stats["adaptive"] and r.stats["passes"] >= 3
-    # Each pixel's mixture was chosen after the pilot (the image's first, then 7 others).
+    # Each pixel's mixture was chosen after the pilot (the image's first, then 10 others).
     mixtures = r.stats["pixel_mixtures"]
-    assert len(mixtures) == 8 and sum(mixtures) == setup.camera.width * setup.camera.height
+    assert len(mixtures) == 11 and sum(mixtures) == setup.camera.width * setup.camera.height
     assert r.stats["spp"] < r.stats["mean_spp"] < r.stats["max_spp"] <= 16 * 128
     assert r.stats["mean_spp"] <= 128
     off = vc.render(setup, method="product", time_budget=0.3, spp=128, seed=9,

@@ -48,9 +48,9 @@ pass's draws (``learn_techniques=True``, default): fixed-point steps toward the 
 least relMSE-weighted second moment, every technique kept at a share of 0.05 at least;
 ``stats["learnt_weights"]`` reports them (later samples stay unbiased: their weights are
 fixed before they are drawn). With adaptive counts (below) every pixel then takes, for the
-samples after the pilot, whichever of the image's mixture and 7 others (mostly product to
-mostly BSDF, two with more map sampling) gave its neighbours' pilot draws the least second
-moment (``stats["pixel_mixtures"]`` counts the pixels per choice).
+samples after the pilot, whichever of the image's mixture and 10 others (mostly product to
+mostly BSDF, with more map sampling or none) gave its neighbours' pilot draws the least
+second moment (``stats["pixel_mixtures"]`` counts the pixels per choice).
 A jittered sample whose hit is not its anchor's surface (another blade of grass) cannot use
 the anchor's product; on a diffuse surface it draws from the product of the nearest of a
 32x32 octahedral grid of normals, built once per render (``stats["unmatched_samples"]``

@@ -234,9 +234,11 @@ impl SampleShares {
 
 /// The mixtures a pixel of method "product" may take after the pilot
 /// ([`PixelTechniques`]), besides the image's own (learnt from the probe, or given):
-/// from mostly the product to mostly BSDF sampling, and two with more of the map's own
-/// distribution. Every technique keeps 0.05 at least, so that every one is unbiased.
-pub const CANDIDATES: [Techniques; 7] = [
+/// from mostly the product to mostly BSDF sampling, two with more of the map's own
+/// distribution and three without it (where the map's peak is mostly hidden, as under
+/// panels, its draws are wasted). BSDF sampling keeps 0.05 at least, so that every one is
+/// unbiased at any hit.
+pub const CANDIDATES: [Techniques; 10] = [
     Techniques::new(0.9, 0.0, 0.05, 0.05),
     Techniques::new(0.7, 0.0, 0.2, 0.1),
     Techniques::new(0.5, 0.0, 0.45, 0.05),
@@ -244,6 +246,9 @@ pub const CANDIDATES: [Techniques; 7] = [
     Techniques::new(0.1, 0.0, 0.8, 0.1),
     Techniques::new(0.5, 0.0, 0.2, 0.3),
     Techniques::new(0.3, 0.0, 0.35, 0.35),
+    Techniques::new(0.8, 0.0, 0.2, 0.0),
+    Techniques::new(0.5, 0.0, 0.5, 0.0),
+    Techniques::new(0.2, 0.0, 0.8, 0.0),
 ];
 /// The image's mixture and the [`CANDIDATES`].
 pub const CHOICES: usize = CANDIDATES.len() + 1;
@@ -289,7 +294,11 @@ impl DrawMoments {
 
 /// Each pixel's mixture after the pilot: the choice of least second moment over the
 /// draws of its window, the pixel excluded (unbiased for the reason the shares are), or
-/// the image's where the window held fewer than [`MIN_WINDOW_DRAWS`] draws.
+/// the image's where the window held fewer than [`MIN_WINDOW_DRAWS`] draws that saw light.
+/// Each neighbour counts by its moments relative to the image mixture's, so that a
+/// sunlit neighbour does not choose for a pixel in shadow (on panels, by absolute
+/// moments most of the shadowed ground kept the product-heavy mixture the sunlit
+/// ground wants).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PixelTechniques {
     options: [Techniques; CHOICES],
@@ -314,11 +323,11 @@ impl PixelTechniques {
                 let (mut sums, mut draws) = ([0.0f64; CHOICES], 0u32);
                 for yy in y.saturating_sub(r)..(y + r + 1).min(height) {
                     for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
-                        if (xx, yy) != (x, y) {
-                            let m = &moments[yy * width + xx];
+                        let m = &moments[yy * width + xx];
+                        if (xx, yy) != (x, y) && m.sums[0] > 0.0 {
                             draws += m.draws;
                             for (s, v) in sums.iter_mut().zip(&m.sums) {
-                                *s += v;
+                                *s += v / m.sums[0];
                             }
                         }
                     }
