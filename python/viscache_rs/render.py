@@ -52,9 +52,9 @@ samples after the pilot, whichever of the image's mixture and 10 others (mostly 
 mostly BSDF, with more map sampling or none) gave its neighbours' pilot draws the least
 second moment (``stats["pixel_mixtures"]`` counts the pixels per choice).
 A jittered sample whose hit is not its anchor's surface (another blade of grass) cannot use
-the anchor's product; on a diffuse surface it draws from the product of the nearest of a
-32x32 octahedral grid of normals, built once per render (``stats["unmatched_samples"]``
-counts such samples).
+the anchor's product; where its material has a diffuse part it draws from the product of
+the nearest of a 32x32 octahedral grid of normals, built once per render, for the diffuse
+part's share of the product's weight (``stats["unmatched_samples"]`` counts such samples).
 ``jitter=False`` shades every sample at the anchor (CAM08's fixed
 points; aliased); with ``technique_weights={"product": 1}`` that is the paper's plain product
 sampling.

@@ -188,6 +188,19 @@ impl Techniques {
         Ok(())
     }
 
+    /// The weights with `share` (in `[0, 1]`) of the product techniques' weight kept on
+    /// the plain product and the rest moved to BSDF sampling: for a product that covers
+    /// only part of the BSDF (a glossy material's diffuse part).
+    pub fn with_product_share(&self, share: f32) -> Self {
+        let product = self.product + self.guided;
+        Self::new(
+            product * share,
+            0.0,
+            self.bsdf + product * (1.0 - share),
+            self.env,
+        )
+    }
+
     /// The weights for a sample that the product was not built for (another surface): the
     /// product techniques' shares split evenly between BSDF and map sampling.
     pub fn without_product(&self) -> Self {

@@ -27,7 +27,7 @@ use glam::Vec3;
 
 use crate::bsdf::Material;
 use crate::estimators::direct::{ProductDistribution, ProductLevel};
-use crate::lights::envmap::EnvMap;
+use crate::lights::envmap::{luminance, EnvMap};
 use crate::sampling::octahedral::{texel_center, texel_of};
 
 /// Normals per side of the octahedral grid: cells about 6° across, so a hit's normal is
@@ -55,10 +55,12 @@ impl<'a> NormalProducts<'a> {
     /// The material whose products the table holds.
     const WHITE: Material = Material::Lambert { albedo: [1.0; 3] };
 
-    /// The product for a hit of `material` with unit shading `normal`, when the material's
-    /// product ignores the view and the map lights the grid normal's hemisphere.
+    /// The product for a hit of `material` with unit shading `normal`, when the material
+    /// has a diffuse part and the map lights the grid normal's hemisphere. For a lobe
+    /// that follows the view it is the diffuse part's product, which samples only that
+    /// part: [`Self::diffuse_share`] says how much of the product's weight to keep.
     pub fn get(&self, material: &Material, normal: Vec3) -> Option<&ProductDistribution> {
-        if material.product_depends_on_wo() || !normal.is_finite() {
+        if Self::diffuse_share(material) <= 0.0 || !normal.is_finite() {
             return None;
         }
         let texel = texel_of(normal, NORMAL_RESOLUTION);
@@ -69,6 +71,23 @@ impl<'a> NormalProducts<'a> {
                 ProductDistribution::new(self.env, &Self::WHITE, n, n, self.level).map(Arc::new)
             })
             .as_deref()
+    }
+}
+
+impl NormalProducts<'_> {
+    /// The diffuse part's share of `material`'s reflectance (luminance of `kd` over that
+    /// of `kd + ks`; 1 for Lambert): the share of a mixture's product weight that the
+    /// table's product should draw, the rest going to BSDF sampling, which follows the
+    /// lobe.
+    pub fn diffuse_share(material: &Material) -> f32 {
+        let (kd, ks) = match *material {
+            Material::Lambert { albedo } => (luminance(albedo), 0.0),
+            Material::Phong { kd, ks, .. } => (luminance(kd), luminance(ks)),
+        };
+        match kd + ks {
+            total if total > 0.0 => (kd / total) as f32,
+            _ => 0.0,
+        }
     }
 }
 
@@ -105,8 +124,13 @@ mod tests {
             let d = Vec3::new((k as f32 * 0.7).sin(), 0.6, (k as f32 * 0.7).cos()).normalize();
             assert_eq!(a.pdf(&env, d), direct.pdf(&env, d));
         }
-        // Lobes that follow the view are not in the table.
-        let glossy = Material::phong([0.2; 3], [0.5; 3], 50.0).unwrap();
-        assert!(table.get(&glossy, n).is_none());
+        // A lobe that follows the view takes its diffuse part's product for that part's
+        // share; a lobe without a diffuse part none.
+        let glossy = Material::phong([0.2; 3], [0.6; 3], 50.0).unwrap();
+        assert!(std::ptr::eq(table.get(&glossy, n).unwrap(), a));
+        assert!((NormalProducts::diffuse_share(&glossy) - 0.25).abs() < 1e-6);
+        assert_eq!(NormalProducts::diffuse_share(&red), 1.0);
+        let mirror = Material::phong([0.0; 3], [0.5; 3], 50.0).unwrap();
+        assert!(table.get(&mirror, n).is_none());
     }
 }

@@ -25,9 +25,10 @@
 //! sample. A sample whose hit lies on another object than the anchor, or whose normal
 //! turns away by more than the material's product tolerance
 //! ([`crate::bsdf::Material::product_tolerance`]), is *unmatched*: it leaves the anchor's
-//! product out of its mixture and the control variate out (`W = 0`); a diffuse hit then
-//! draws from the product of the nearest of a grid of normals instead
-//! ([`crate::estimators::normal_products`]), any other from BSDF and map sampling only. That choice depends only on the pixel jitter, which is independent of the
+//! product out of its mixture and the control variate out (`W = 0`); a hit with a diffuse
+//! part then draws from the product of the nearest of a grid of normals instead, for
+//! that part's share ([`crate::estimators::normal_products`]), any other from BSDF and
+//! map sampling only. That choice depends only on the pixel jitter, which is independent of the
 //! directions drawn, so each sample's estimate is unbiased given its hit, while a product
 //! or a `g` that does not describe the hit adds no noise. With one anchor per pixel, a pixel in an odd
 //! column shares its left neighbour's cache lookup when the two anchors nearly coincide
@@ -744,8 +745,9 @@ impl Shader<'_> {
             Some(p) => *p.get(work.pixel as usize),
             None => self.techniques,
         };
-        // The anchor's product where it describes the hit; for a diffuse hit elsewhere,
-        // the product of the nearest grid normal; else BSDF and map sampling.
+        // The anchor's product where it describes the hit; for a hit elsewhere with a
+        // diffuse part, the product of the nearest grid normal for that part's share;
+        // else BSDF and map sampling.
         let (product, guided, techniques) = match anchor {
             Some(a) if matched && a.product.is_some() => {
                 (a.product.as_deref(), a.guided.as_deref(), mixture)
@@ -754,7 +756,10 @@ impl Shader<'_> {
                 .normal_products
                 .and_then(|t| t.get(&sp.material, sp.normal))
             {
-                Some(p) => (Some(p), None, mixture),
+                Some(p) => {
+                    let share = NormalProducts::diffuse_share(&sp.material);
+                    (Some(p), None, mixture.with_product_share(share))
+                }
                 None => (None, None, mixture.without_product()),
             },
         };
