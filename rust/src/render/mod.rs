@@ -120,7 +120,8 @@ pub const MAX_SPP: u32 = 1 << 20;
 /// Parameters of [`render`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderParams {
-    /// Samples per pixel; with a time budget, the most to take.
+    /// Samples per pixel (on average, with [`Self::adaptive`] counts); with a time
+    /// budget, the most to take.
     pub spp: u32,
     /// The direct-lighting estimator.
     pub method: Method,
