@@ -10,19 +10,25 @@ import viscache_rs as vc
 EDGE_TOLERANCE = 1e-5
 
 
+def _bonferroni(tail, n: int, alpha: float, hi: float, steps: int) -> float:
+    """The threshold where ``tail`` (a two-sided tail probability, falling) times ``n``
+    equals ``alpha``, by bisection of ``[0, hi]``; at least 4."""
+    lo = 0.0
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        if tail(mid) > alpha / n:
+            lo = mid
+        else:
+            hi = mid
+    return max(4.0, hi)
+
+
 def bonferroni_z(n: int, alpha: float = 1e-3) -> float:
     """The z with P(|Z| > z) * n = alpha for a standard Gaussian (at least 4): the per-test
     threshold that keeps n independent comparisons' family-wise false alarms at alpha."""
     import math
 
-    lo, hi = 0.0, 40.0
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if math.erfc(mid / math.sqrt(2)) > alpha / n:
-            lo = mid
-        else:
-            hi = mid
-    return max(4.0, hi)
+    return _bonferroni(lambda z: math.erfc(z / math.sqrt(2)), n, alpha, 40.0, 200)
 
 
 def student_t_bonferroni(n: int, dof: int, alpha: float = 1e-3) -> float:
@@ -48,14 +54,7 @@ def student_t_bonferroni(n: int, dof: int, alpha: float = 1e-3) -> float:
         total = f(0.0) + f(top) + sum((4 if k % 2 else 2) * f(k * h) for k in range(1, steps))
         return 2.0 * total * h / 3.0
 
-    lo, hi = 0.0, 200.0
-    for _ in range(100):
-        mid = 0.5 * (lo + hi)
-        if tail(mid) > alpha / n:
-            lo = mid
-        else:
-            hi = mid
-    return max(4.0, hi)
+    return _bonferroni(tail, n, alpha, 200.0, 100)
 
 
 def brute_force(tris: np.ndarray, origins: np.ndarray, dirs: np.ndarray, tmax=np.inf,

@@ -72,21 +72,16 @@ impl<'a> NormalProducts<'a> {
             })
             .as_deref()
     }
-}
 
-impl NormalProducts<'_> {
-    /// The diffuse part's share of `material`'s reflectance (luminance of `kd` over that
-    /// of `kd + ks`; 1 for Lambert): the share of a mixture's product weight that the
-    /// table's product should draw, the rest going to BSDF sampling, which follows the
-    /// lobe.
+    /// The diffuse part's share of `material`'s reflectance (1 for Lambert, one minus
+    /// [`Material::specular_probability`] for Phong, 0 for a black material): the share of
+    /// a mixture's product weight that the table's product should draw, the rest going to
+    /// BSDF sampling, which follows the lobe.
     pub fn diffuse_share(material: &Material) -> f32 {
-        let (kd, ks) = match *material {
-            Material::Lambert { albedo } => (luminance(albedo), 0.0),
-            Material::Phong { kd, ks, .. } => (luminance(kd), luminance(ks)),
-        };
-        match kd + ks {
-            total if total > 0.0 => (kd / total) as f32,
-            _ => 0.0,
+        if luminance(material.base_color()) > 0.0 {
+            1.0 - material.specular_probability()
+        } else {
+            0.0
         }
     }
 }

@@ -191,7 +191,7 @@ pub fn render<'py>(
     let s = &out.stats;
     d.set_item(
         "sample_counts",
-        image_array(py, out.sample_counts.clone(), h, w, None)?,
+        image_array(py, out.sample_counts, h, w, None)?,
     )?;
     let stats = PyDict::new(py);
     stats.set_item("method", if path { PATH } else { method.name() })?;
@@ -199,11 +199,8 @@ pub fn render<'py>(
     stats.set_item("direct", params.direct)?;
     stats.set_item("seconds", s.seconds)?;
     stats.set_item("spp", s.spp)?;
-    stats.set_item("mean_spp", s.samples as f64 / (w * h).max(1) as f64)?;
-    stats.set_item(
-        "max_spp",
-        out.sample_counts.iter().copied().max().unwrap_or(0),
-    )?;
+    stats.set_item("mean_spp", s.mean_spp)?;
+    stats.set_item("max_spp", s.max_spp)?;
     stats.set_item("adaptive", params.adaptive)?;
     stats.set_item("adaptive_gain", s.adaptive_gain)?;
     stats.set_item("pixel_mixtures", s.pixel_techniques.map(|c| c.to_vec()))?;

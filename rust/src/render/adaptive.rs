@@ -61,6 +61,12 @@ pub fn pilot_spp(mean: u32) -> Option<u32> {
     (mean >= MIN_ADAPTIVE_SPP).then(|| ((mean as f64 * PILOT_SHARE).ceil() as u32).max(2))
 }
 
+/// Most samples a pixel of a render of `mean` samples per pixel on average takes
+/// ([`CAP_FACTOR`], and at most `max`).
+pub fn sample_cap(mean: u32, max: u32) -> u32 {
+    ((CAP_FACTOR * mean as f64) as u32).min(max)
+}
+
 /// Each pixel's share of the samples after the pilot: `√v` pooled over its neighbours
 /// (module docs), scaled to mean 1.
 #[derive(Clone, Debug, PartialEq)]
@@ -252,6 +258,38 @@ pub const CANDIDATES: [Techniques; 10] = [
 ];
 /// The image's mixture and the [`CANDIDATES`].
 pub const CHOICES: usize = CANDIDATES.len() + 1;
+
+/// The mixtures a pixel may take after the pilot, the image's first, with each one's
+/// technique probabilities where a product can draw: made once per pass, read at every
+/// draw of the pilot ([`DrawMoments::add`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Choices {
+    options: [Techniques; CHOICES],
+    probabilities: [[f64; 4]; CHOICES],
+}
+
+impl Choices {
+    /// The image's mixture `image` and the [`CANDIDATES`].
+    pub fn new(image: Techniques) -> Self {
+        let mut options = [image; CHOICES];
+        options[1..].copy_from_slice(&CANDIDATES);
+        Self::of(options)
+    }
+
+    /// Every option with `share` of its product weight kept
+    /// ([`Techniques::with_product_share`]): the mixtures a glossy hit's diffuse product
+    /// is drawn with.
+    pub fn with_product_share(&self, share: f32) -> Self {
+        Self::of(self.options.map(|t| t.with_product_share(share)))
+    }
+
+    fn of(options: [Techniques; CHOICES]) -> Self {
+        Self {
+            options,
+            probabilities: options.map(|t| t.probabilities(true, false, true)),
+        }
+    }
+}
 /// Fewest draws a window must hold for its pixel to leave the image's mixture.
 pub const MIN_WINDOW_DRAWS: u32 = 64;
 
@@ -267,16 +305,15 @@ pub struct DrawMoments {
 }
 
 impl DrawMoments {
-    /// Adds one draw of the pixel's mixture (`image`: the image's weights).
+    /// Adds one draw, of value `value` drawn with density `pdf`, where the techniques'
+    /// own densities are `pdfs`.
     #[inline]
-    pub fn add(&mut self, image: &Techniques, value: f64, pdfs: [f64; 4], pdf: f64) {
+    pub fn add(&mut self, choices: &Choices, value: f64, pdfs: [f64; 4], pdf: f64) {
         self.draws += 1;
         if !(value > 0.0 && pdf > 0.0) {
             return;
         }
-        for (k, sum) in self.sums.iter_mut().enumerate() {
-            let t = if k == 0 { image } else { &CANDIDATES[k - 1] };
-            let c = t.probabilities(true, false, true);
+        for (sum, c) in self.sums.iter_mut().zip(&choices.probabilities) {
             let q: f64 = c.iter().zip(&pdfs).map(|(c, p)| c * p).sum();
             *sum += if q > 0.0 {
                 value * value / (q * pdf)
@@ -306,17 +343,16 @@ pub struct PixelTechniques {
 }
 
 impl PixelTechniques {
-    /// Choices from the pilot's `moments` of a `width x height` image (row-major) drawn
-    /// with the image's mixture `image`.
+    /// Choices among `choices` from the pilot's `moments` of a `width x height` image
+    /// (row-major).
     pub fn measure(
         moments: &[DrawMoments],
-        image: Techniques,
+        choices: &Choices,
         width: usize,
         height: usize,
     ) -> Self {
         debug_assert_eq!(moments.len(), width * height);
-        let mut options = [image; CHOICES];
-        options[1..].copy_from_slice(&CANDIDATES);
+        let options = choices.options;
         let choice = (0..moments.len())
             .map(|i| {
                 let (x, y, r) = (i % width, i / width, WINDOW_RADIUS);
@@ -461,6 +497,7 @@ mod tests {
     #[test]
     fn pixels_take_the_mixture_of_least_second_moment_over_their_neighbours_draws() {
         let image = Techniques::PRODUCT;
+        let choices = Choices::new(image);
         let q = |t: &Techniques, p: [f64; 4]| -> f64 {
             let c = t.probabilities(true, false, true);
             c.iter().zip(&p).map(|(c, p)| c * p).sum()
@@ -468,8 +505,8 @@ mod tests {
         // One draw: f² / (q_k p₀) for every choice, p₀ the image mixture's density.
         let pdfs = [0.2, 0.0, 3.0, 0.5];
         let mut m = DrawMoments::default();
-        m.add(&image, 2.0, pdfs, q(&image, pdfs));
-        m.add(&image, 0.0, pdfs, q(&image, pdfs));
+        m.add(&choices, 2.0, pdfs, q(&image, pdfs));
+        m.add(&choices, 0.0, pdfs, q(&image, pdfs));
         assert_eq!(m.draws(), 2);
         for k in 0..CHOICES {
             let t = if k == 0 { image } else { CANDIDATES[k - 1] };
@@ -486,12 +523,12 @@ mod tests {
                 let p = if i % w < 4 { bsdf_light } else { product_light };
                 let mut m = DrawMoments::default();
                 for _ in 0..8 {
-                    m.add(&image, 1.0, p, q(&image, p));
+                    m.add(&choices, 1.0, p, q(&image, p));
                 }
                 m
             })
             .collect();
-        let chosen = PixelTechniques::measure(&moments, image, w, h);
+        let chosen = PixelTechniques::measure(&moments, &choices, w, h);
         let bsdf_heaviest =
             CANDIDATES
                 .iter()
@@ -502,11 +539,11 @@ mod tests {
         // A pixel's own draws do not count: the same choices with pixel 2w's replaced.
         let mut changed = moments.clone();
         changed[2 * w] = moments[2 * w + 7];
-        let again = PixelTechniques::measure(&changed, image, w, h);
+        let again = PixelTechniques::measure(&changed, &choices, w, h);
         assert_eq!(again.get(2 * w), chosen.get(2 * w));
         // Too few draws in a window: the image's mixture.
         let sparse = vec![moments[0]; w * h];
-        let few = PixelTechniques::measure(&sparse[..4], image, 2, 2);
+        let few = PixelTechniques::measure(&sparse[..4], &choices, 2, 2);
         assert!((0..4).all(|i| *few.get(i) == image));
     }
 

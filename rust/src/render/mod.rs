@@ -107,7 +107,9 @@ use crate::visibility::cache::{CacheState, Lookup, VisibilityCache};
 pub mod adaptive;
 mod schedule;
 
-use adaptive::{pilot_spp, DrawMoments, PixelTechniques, SampleShares, CAP_FACTOR, RELMSE_FLOOR};
+use adaptive::{
+    pilot_spp, sample_cap, Choices, DrawMoments, PixelTechniques, SampleShares, RELMSE_FLOOR,
+};
 use schedule::{PassSchedule, PassWork};
 
 /// Rows per work item of a pass with even counts: small enough to balance two to hundreds
@@ -327,6 +329,9 @@ pub struct RenderStats {
     pub complete: bool,
     /// Pixel samples taken.
     pub samples: u64,
+    /// Samples per pixel on average, and the most any pixel received.
+    pub mean_spp: f64,
+    pub max_spp: u32,
     /// Primary rays traced.
     pub primary_rays: u64,
     /// Shadow rays traced.
@@ -526,8 +531,9 @@ struct Shader<'a> {
     techniques: Techniques,
     /// Whether matched draws are kept for [`Techniques::learnt`] (the probe pass).
     learning: bool,
-    /// Whether matched draws go to the pixel's [`DrawMoments`] (the adaptive pilot).
-    measuring: bool,
+    /// The mixtures whose moments the pixels' draws add up (the adaptive pilot), when
+    /// they do ([`DrawMoments`]).
+    choices: Option<Choices>,
     /// Each pixel's mixture, chosen after the pilot ([`PixelTechniques`]).
     pixel_techniques: Option<&'a PixelTechniques>,
     /// Products by normal for diffuse hits off their anchor's surface.
@@ -749,9 +755,9 @@ impl Shader<'_> {
         // The anchor's product where it describes the hit; for a hit elsewhere with a
         // diffuse part, the product of the nearest grid normal for that part's share;
         // else BSDF and map sampling.
-        let (product, guided, techniques) = match anchor {
+        let (product, guided, techniques, share) = match anchor {
             Some(a) if matched && a.product.is_some() => {
-                (a.product.as_deref(), a.guided.as_deref(), mixture)
+                (a.product.as_deref(), a.guided.as_deref(), mixture, 1.0)
             }
             _ => match self
                 .normal_products
@@ -759,10 +765,16 @@ impl Shader<'_> {
             {
                 Some(p) => {
                     let share = NormalProducts::diffuse_share(&sp.material);
-                    (Some(p), None, mixture.with_product_share(share))
+                    (Some(p), None, mixture.with_product_share(share), share)
                 }
-                None => (None, None, mixture.without_product()),
+                None => (None, None, mixture.without_product(), 1.0),
             },
+        };
+        // The pilot's candidate mixtures as this hit would draw them.
+        let choices = match (self.choices, product) {
+            (Some(c), Some(_)) if share < 1.0 => Some(c.with_product_share(share)),
+            (c, Some(_)) => c,
+            (_, None) => None,
         };
         // The control variate where the anchor's records and product describe the hit.
         let control = match (anchor, self.cache, self.chroma, matched) {
@@ -792,10 +804,9 @@ impl Shader<'_> {
                 &mut work.bvh,
             );
             l += lj;
-            if let (true, true, Some(d)) = (self.measuring, product.is_some(), &drawn) {
+            if let (Some(choices), Some(d)) = (&choices, &drawn) {
                 let value = luminance(d.value.to_array());
-                work.moments
-                    .add(&techniques, value, d.technique_pdfs, d.pdf);
+                work.moments.add(choices, value, d.technique_pdfs, d.pdf);
             }
             if let (true, true, Some(d)) = (self.learning, product.is_some(), &drawn) {
                 if work.draws.len() < LEARNT_DRAWS_PER_BAND {
@@ -1100,7 +1111,7 @@ fn render_with(
         let (targets, probe) = match params.time_budget {
             None if passes == 0 => match pilot_spp(params.spp).filter(|_| adapt) {
                 Some(p) => {
-                    pilot = Some(((CAP_FACTOR * params.spp as f64) as u32).min(MAX_SPP));
+                    pilot = Some(sample_cap(params.spp, MAX_SPP));
                     (Targets::Even(p), false)
                 }
                 None => (Targets::Even(params.spp), false),
@@ -1110,7 +1121,7 @@ fn render_with(
             None if passes == 1 && shares.is_some() => {
                 let (shares, cap) = shares.as_ref().expect("measured after the pilot");
                 let current = counts(&sums);
-                let left = (params.spp as u64 * pixels as u64).saturating_sub(taken) as f64;
+                let left = planned.saturating_sub(taken) as f64;
                 let lambda = shares.scale_for(&current, *cap, left, |_, added| added as f64);
                 (Targets::scaled(shares, lambda, &current, *cap), false)
             }
@@ -1122,7 +1133,7 @@ fn render_with(
                 let left = budget - start.elapsed().as_secs_f64();
                 let min = sums.iter().map(|s| s.n).min().unwrap_or(0);
                 let done_all = match shares {
-                    Some(_) => taken >= params.spp as u64 * pixels as u64,
+                    Some(_) => taken >= planned,
                     None => min >= params.spp,
                 };
                 if done_all {
@@ -1142,8 +1153,7 @@ fn render_with(
                             per_pixel + wall_ns * ns * added as f64
                         };
                         let by_time = shares.scale_for(&current, *cap, schedule.spend(left), cost);
-                        let left_samples =
-                            (params.spp as u64 * pixels as u64).saturating_sub(taken) as f64;
+                        let left_samples = planned.saturating_sub(taken) as f64;
                         let by_count =
                             shares.scale_for(&current, *cap, left_samples, |_, a| a as f64);
                         let t = Targets::scaled(shares, by_time.min(by_count), &current, *cap);
@@ -1159,7 +1169,7 @@ fn render_with(
                             let t = t.min(params.spp);
                             match pilot_spp(t).filter(|&p| adapt && p > min) {
                                 Some(p) => {
-                                    pilot = Some(((CAP_FACTOR * t as f64) as u32).min(MAX_SPP));
+                                    pilot = Some(sample_cap(t, MAX_SPP));
                                     (Targets::Even(p), false)
                                 }
                                 None => (Targets::Even(t), false),
@@ -1190,7 +1200,7 @@ fn render_with(
             chroma: chroma.as_ref(),
             techniques,
             learning: probe && learn,
-            measuring: pilot.is_some() && choose_mixtures,
+            choices: (pilot.is_some() && choose_mixtures).then(|| Choices::new(techniques)),
             pixel_techniques: pixel_techniques.as_ref(),
             normal_products: normal_products.as_ref(),
         };
@@ -1227,7 +1237,7 @@ fn render_with(
                                 shader.shade_pixel(first + i, acc.n..target, acc, &mut work);
                                 state.ns_per_sample =
                                     (work.sample_ns - before) as f32 / added as f32;
-                                if shader.measuring {
+                                if shader.choices.is_some() {
                                     state.moments = std::mem::take(&mut work.moments);
                                 }
                             }
@@ -1282,9 +1292,9 @@ fn render_with(
             let measured = SampleShares::measure(&sums, &alphas(&sums), costs, width, height);
             if choose_mixtures {
                 let moments: Vec<DrawMoments> = pilot_state.iter().map(|p| p.moments).collect();
-                pixel_techniques = Some(PixelTechniques::measure(
-                    &moments, techniques, width, height,
-                ));
+                let choices = Choices::new(techniques);
+                pixel_techniques =
+                    Some(PixelTechniques::measure(&moments, &choices, width, height));
             }
             adaptive_gain = Some(measured.gain());
             shares = Some((measured, cap));
@@ -1322,6 +1332,8 @@ fn render_with(
         passes,
         complete,
         samples: sums.iter().map(|s| s.n as u64).sum(),
+        mean_spp: sums.iter().map(|s| s.n as f64).sum::<f64>() / pixels.max(1) as f64,
+        max_spp: sums.iter().map(|s| s.n).max().unwrap_or(0),
         primary_rays: total.primary_rays,
         shadow_rays: total.direct.shadow_rays,
         bsdf_rays: total.direct.bsdf_rays,
