@@ -93,11 +93,12 @@ def mitsuba_equal_time(ms, budget: float, seed0: int):
 
 
 def method_args(method: str) -> dict:
-    """``vc.render`` keywords of a ``--methods`` entry: ``"cv"``, ``"cv:4"`` (4 light
-    draws per sample), ``"cv:even"`` (every pixel the same samples, not adaptive) or
+    """``vc.render`` keywords of a ``--methods`` entry: ``"cv"`` (the defaults, which
+    choose the light draws per sample from the view), ``"cv:4"`` (4 light draws per
+    sample), ``"cv:even"`` (every pixel the same samples, not adaptive) or
     ``"cv:4:even"``."""
     name, *options = method.split(":")
-    args = {"method": name, "light_samples": 1}
+    args: dict = {"method": name}
     for option in options:
         if option == "even":
             args["adaptive"] = False

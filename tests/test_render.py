@@ -196,6 +196,34 @@ def test_budgeted_product_renders_learn_their_mixture_and_stay_unbiased(small_se
     assert _render(setup, "product", 4).stats["learnt_weights"] is None
 
 
+def test_budgeted_product_renders_choose_light_draws_from_the_view():
+    # Without a count, a budgeted product render reads its view's edge share from the
+    # anchors: a garage of smooth floor and walls splits every sample into 8 light draws,
+    # grass keeps one. The split image stays unbiased (against MIS as above).
+    garage = vc.scenes.load("garage", detail=0.3)
+    garage.camera = garage.camera.with_resolution(96, 72)
+    r = vc.render(garage, method="product", time_budget=0.6, seed=13, progress=False)
+    assert r.stats["light_samples"] == 8 and 0.05 < r.stats["edge_share"] < 0.275
+    assert r.stats["shadow_rays"] > 4 * r.stats["samples"]
+    ref = _render(garage, "mis", 256, seed=3)
+    _assert_agrees(r, ref, coverage=0.45)
+    garden = vc.scenes.load("garden", detail=0.3)
+    garden.camera = garden.camera.with_resolution(48, 36)
+    g = vc.render(garden, method="product", time_budget=0.2, seed=13, progress=False)
+    assert g.stats["light_samples"] == 1 and g.stats["edge_share"] > 0.9
+    # A count given is kept; without a budget, or for method "mis", nothing is chosen;
+    # method "cv" chooses as "product" does.
+    given = vc.render(garage, method="product", time_budget=0.2, light_samples=2,
+                      progress=False)
+    assert given.stats["light_samples"] == 2 and given.stats["edge_share"] is None
+    plain = _render(garage, "product", 4)
+    assert plain.stats["light_samples"] == 1 and plain.stats["edge_share"] is None
+    cv = vc.render(garage, method="cv", time_budget=0.3, progress=False)
+    assert cv.stats["light_samples"] == 8 and cv.stats["edge_share"] == r.stats["edge_share"]
+    mis = vc.render(garage, method="mis", time_budget=0.1, progress=False)
+    assert mis.stats["light_samples"] == 1 and mis.stats["edge_share"] is None
+
+
 def test_light_samples_are_bit_identical_for_any_thread_count(small_setups):
     setup = small_setups["garage"]
     for method in ("product", "cv"):

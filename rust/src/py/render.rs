@@ -159,6 +159,8 @@ pub fn render<'py>(
             }
             _ => 1,
         },
+        // Without a count, budgeted product renders choose one from the view.
+        auto_light_samples: light_samples.is_none_or(|n| n.is_none()),
         learn_techniques,
         // Adaptive by default under a time budget: what the budget buys is least error.
         adaptive: adaptive.unwrap_or(time_budget.is_some()),
@@ -208,7 +210,8 @@ pub fn render<'py>(
     stats.set_item("passes", s.passes)?;
     stats.set_item("complete", s.complete)?;
     stats.set_item("jitter", params.jitter)?;
-    stats.set_item("light_samples", params.light_samples)?;
+    stats.set_item("light_samples", s.light_samples)?;
+    stats.set_item("edge_share", s.edge_share)?;
     let t = params.techniques();
     let weights = PyDict::new(py);
     for (name, w) in ["product", "guided", "bsdf", "env"]

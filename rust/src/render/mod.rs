@@ -106,6 +106,7 @@ use crate::visibility::cache::{CacheState, Lookup, VisibilityCache};
 
 pub mod adaptive;
 mod schedule;
+pub mod split;
 
 use adaptive::{
     pilot_spp, sample_cap, Choices, DrawMoments, PixelTechniques, SampleShares, RELMSE_FLOOR,
@@ -169,6 +170,11 @@ pub struct RenderParams {
     /// average); renders of fewer than [`adaptive::MIN_ADAPTIVE_SPP`] samples per pixel
     /// take them evenly.
     pub adaptive: bool,
+    /// The product methods under a time budget: the light draws per sample are chosen from
+    /// the anchors ([`split`]: several where the view is mostly smooth surfaces, one
+    /// where jittered hits leave their anchor's surface) instead of
+    /// [`Self::light_samples`], which must then be 1.
+    pub auto_light_samples: bool,
 }
 
 /// Most light draws per sample ([`RenderParams::light_samples`]).
@@ -192,6 +198,7 @@ impl RenderParams {
         light_samples: 1,
         learn_techniques: true,
         adaptive: false,
+        auto_light_samples: false,
     };
 
     /// The defaults with another method and sample count.
@@ -246,6 +253,12 @@ impl RenderParams {
         crate::error::check_time_budget(self.time_budget)?;
         crate::error::check_range("bounces", self.bounces, 0, MAX_BOUNCES)?;
         crate::error::check_range("light_samples", self.light_samples, 1, MAX_LIGHT_SAMPLES)?;
+        if self.auto_light_samples && self.light_samples != 1 {
+            return Err(Error::invalid(
+                "light_samples",
+                "a fixed count of light draws excludes the count chosen from the view",
+            ));
+        }
         if self.light_samples > 1 && !self.uses_product() {
             return Err(Error::invalid(
                 "light_samples",
@@ -321,6 +334,12 @@ pub struct RenderStats {
     /// How many pixels took each mixture after the pilot ([`adaptive::PixelTechniques`]:
     /// the image's first, then [`adaptive::CANDIDATES`]).
     pub pixel_techniques: Option<[u64; adaptive::CHOICES]>,
+    /// Light draws per sample the render took ([`RenderParams::light_samples`], or the
+    /// count chosen by [`RenderParams::auto_light_samples`]).
+    pub light_samples: u32,
+    /// The view's edge share ([`split::edge_share`]), when the render chose its light
+    /// draws from it.
+    pub edge_share: Option<f64>,
     /// Samples every pixel received (the least, with adaptive counts).
     pub spp: u32,
     /// Passes made.
@@ -536,6 +555,8 @@ struct Shader<'a> {
     choices: Option<Choices>,
     /// Each pixel's mixture, chosen after the pilot ([`PixelTechniques`]).
     pixel_techniques: Option<&'a PixelTechniques>,
+    /// Light draws per sample.
+    light_samples: u32,
     /// Products by normal for diffuse hits off their anchor's surface.
     normal_products: Option<&'a NormalProducts<'a>>,
 }
@@ -785,7 +806,7 @@ impl Shader<'_> {
             }
             _ => None,
         };
-        let draws = self.params.light_samples;
+        let draws = self.light_samples;
         let mut l = Vec3::ZERO;
         let mut g_over_p = [0.0; 3];
         for j in 0..draws {
@@ -1085,6 +1106,13 @@ fn render_with(
         _ => None,
     };
     let anchors = anchors.or(traced.as_ref());
+    // Light draws per sample, from the anchors where the render chooses them.
+    let chooses_draws =
+        params.auto_light_samples && params.time_budget.is_some() && params.uses_product();
+    let edge_share = anchors
+        .filter(|_| chooses_draws)
+        .map(|g| split::edge_share(g, scene));
+    let light_samples = edge_share.map_or(params.light_samples, split::draws_for);
     let mut schedule = PassSchedule::default();
     // Method "product" under a budget learns its mixture from the probe pass.
     let mut techniques = params.techniques();
@@ -1202,6 +1230,7 @@ fn render_with(
             learning: probe && learn,
             choices: (pilot.is_some() && choose_mixtures).then(|| Choices::new(techniques)),
             pixel_techniques: pixel_techniques.as_ref(),
+            light_samples,
             normal_products: normal_products.as_ref(),
         };
         let work = run_with_progress(
@@ -1358,6 +1387,8 @@ fn render_with(
         learnt_techniques: learnt,
         adaptive_gain,
         pixel_techniques: pixel_techniques.as_ref().map(PixelTechniques::counts),
+        light_samples,
+        edge_share,
         ..RenderStats::default()
     };
     if cv {

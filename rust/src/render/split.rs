@@ -1,0 +1,153 @@
+//! Light draws per sample chosen from the anchors (splitting,
+//! [`super::RenderParams::auto_light_samples`]).
+//!
+//! A sample's value is what its jittered primary ray decides (the hit) plus the noise of
+//! its light draws about it. Where a pixel's rays all land on its anchor's surface, the
+//! first part hardly varies, and averaging several draws per sample saves the rest of a
+//! sample (primary ray, hit, mixture set-up) for each draw. Where the hits differ from ray
+//! to ray (grass, hair, thin parts, silhouettes of small things), a draw is better spent
+//! on a sample of its own.
+//!
+//! The view's *edge share* measures which: the share of the pixels that see a surface
+//! whose anchor and eight neighbours' anchors are not all on one object with normals
+//! within the material's product tolerance (the test that decides whether a sample
+//! shares its anchor's product; the image border counts as an edge). Below
+//! [`SPLIT_EDGE_SHARE`] every sample takes [`SPLIT_DRAWS`] draws, else one. The choice
+//! reads the G-buffer only, never samples, and holds for the whole render, so every
+//! pixel's draws are one run of one quasi-random stream (choosing counts per pixel from a
+//! pilot mixed counts within pixels and lost the Sobol points' stratification; choosing
+//! them per pixel from the anchors starved the silhouettes of scenes whose edges want
+//! draws too: benches/HISTORY.md).
+//!
+//! Measured at 1 s on the suite, 160x120, eight draws everywhere against one
+//! (`benches/peer_mitsuba.py --methods product product:8`, relMSE over Mitsuba's, edge
+//! share in brackets): garage (0.11) 0.22 → 0.14, panels (0.11) 0.47 → 0.38, room (0.13)
+//! 0.83 → 0.61, dynamics (0.13) 0.13 → 0.12, blob (0.24) 0.13 → 0.11, meshes (0.25) 0.16
+//! → 0.15; garden (1.00) 0.46 → 1.55, strands (0.66) 0.34 → 0.68, instances (0.59) 0.22
+//! → 0.33, hairball (0.44) 0.41 → 0.61, scales (0.30) 0.19 → 0.23. Cornell's box (0.12)
+//! is the exception, 0.010 → 0.014 under its area light, far below Mitsuba either way.
+//! The control variate follows the same pattern (`cv` against `cv:8`, same size and
+//! budget): garage 0.16 → 0.13, room 0.36 → 0.32, panels 0.22 → 0.17, blob 0.10 → 0.09;
+//! garden 0.45 → 1.43, strands 0.40 → 0.70, hairball 0.47 → 0.62, instances 0.26 → 0.37,
+//! scales 0.19 → 0.26; meshes 0.15 → 0.17 and cornell 0.01 → 0.02 lose a little.
+
+use glam::Vec3;
+
+use crate::camera::GBuffer;
+use crate::geometry::Scene;
+
+/// Light draws per sample where the view splits.
+pub const SPLIT_DRAWS: u32 = 8;
+
+/// Largest edge share at which the view splits (between meshes' 0.25, where eight draws
+/// tie with one, and scales' 0.30, where they lose 1.2x).
+pub const SPLIT_EDGE_SHARE: f64 = 0.275;
+
+/// The edge share of `anchors` of `scene` (module docs): edge pixels over pixels that see
+/// a surface; 1 when none does.
+pub fn edge_share(anchors: &GBuffer, scene: &Scene) -> f64 {
+    let (w, h) = (
+        anchors.camera.width as usize,
+        anchors.camera.height as usize,
+    );
+    let objects = &scene.mesh().objects;
+    let normal = |i: usize| Vec3::from(anchors.normal[i]);
+    let (mut surfaces, mut edges) = (0u64, 0u64);
+    for i in 0..w * h {
+        let object = anchors.object[i];
+        if object < 0 {
+            continue;
+        }
+        surfaces += 1;
+        let (x, y) = (i % w, i / w);
+        if x == 0 || y == 0 || x + 1 == w || y + 1 == h {
+            edges += 1;
+            continue;
+        }
+        let cos_match = objects[object as usize].material.product_tolerance().cos();
+        let n = normal(i);
+        let smooth = (y - 1..=y + 1).all(|yy| {
+            (x - 1..=x + 1).all(|xx| {
+                let j = yy * w + xx;
+                anchors.object[j] == object && normal(j).dot(n) >= cos_match
+            })
+        });
+        edges += !smooth as u64;
+    }
+    if surfaces == 0 {
+        1.0
+    } else {
+        edges as f64 / surfaces as f64
+    }
+}
+
+/// Light draws per sample for a view of edge share `share`.
+pub fn draws_for(share: f64) -> u32 {
+    if share < SPLIT_EDGE_SHARE {
+        SPLIT_DRAWS
+    } else {
+        1
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenes;
+
+    fn share(name: &str) -> f64 {
+        let setup = scenes::load(name, 1.0, 0).unwrap();
+        let cam = setup.camera.with_resolution(80, 60).unwrap();
+        let g = GBuffer::render(&setup.scene, &cam, 0, false, None).unwrap();
+        edge_share(&g, &setup.scene)
+    }
+
+    #[test]
+    fn grass_is_all_edges_and_a_garage_mostly_smooth_surfaces() {
+        // Every garden pixel sees blades whose neighbours are other blades.
+        let garden = share("garden");
+        assert!(garden > 0.95, "{garden}");
+        assert_eq!(draws_for(garden), 1);
+        // Garage: floor and walls; its edges are the silhouettes and the image border
+        // (at 80x60 the border alone is 276 / 4800 = 5.8% of the pixels).
+        let garage = share("garage");
+        assert!(garage > 0.058 && garage < 0.25, "{garage}");
+        assert_eq!(draws_for(garage), SPLIT_DRAWS);
+        assert_eq!(draws_for(SPLIT_EDGE_SHARE), 1);
+    }
+
+    #[test]
+    fn a_count_given_excludes_the_choice() {
+        use crate::estimators::direct::Method;
+        use crate::render::RenderParams;
+        let auto = RenderParams {
+            auto_light_samples: true,
+            ..RenderParams::with(Method::Product, 8)
+        };
+        assert!(auto.validate().is_ok());
+        let both = RenderParams {
+            light_samples: 2,
+            ..auto
+        };
+        let err = both.validate().unwrap_err().to_string();
+        assert!(err.contains("light_samples"), "{err}");
+    }
+
+    #[test]
+    fn a_view_of_no_surface_has_share_one() {
+        let setup = scenes::load("garage", 1.0, 0).unwrap();
+        // Looking straight up into the sky above the garage.
+        let cam = crate::camera::Camera::look_at(
+            Vec3::new(0.0, 50.0, 0.0),
+            Vec3::new(0.0, 100.0, 0.1),
+            Vec3::Y,
+            20.0,
+            8,
+            6,
+        )
+        .unwrap();
+        let g = GBuffer::render(&setup.scene, &cam, 0, false, None).unwrap();
+        assert_eq!(g.object.iter().filter(|&&o| o >= 0).count(), 0);
+        assert_eq!(edge_share(&g, &setup.scene), 1.0);
+    }
+}
