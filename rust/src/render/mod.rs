@@ -1218,6 +1218,8 @@ fn render_with(
         };
         let pass_start = Instant::now();
         let guard = cache.map(|c| c.read());
+        // The mixtures the pilot's draws are weighed for, and chosen among after it.
+        let pilot_choices = (pilot.is_some() && choose_mixtures).then(|| Choices::new(techniques));
         let shader = Shader {
             lighting,
             camera,
@@ -1228,7 +1230,7 @@ fn render_with(
             chroma: chroma.as_ref(),
             techniques,
             learning: probe && learn,
-            choices: (pilot.is_some() && choose_mixtures).then(|| Choices::new(techniques)),
+            choices: pilot_choices,
             pixel_techniques: pixel_techniques.as_ref(),
             light_samples,
             normal_products: normal_products.as_ref(),
@@ -1319,11 +1321,9 @@ fn render_with(
             let ns: Vec<f32> = pilot_state.iter().map(|p| p.ns_per_sample).collect();
             let costs = params.time_budget.map(|_| &ns[..]);
             let measured = SampleShares::measure(&sums, &alphas(&sums), costs, width, height);
-            if choose_mixtures {
+            if let Some(choices) = &pilot_choices {
                 let moments: Vec<DrawMoments> = pilot_state.iter().map(|p| p.moments).collect();
-                let choices = Choices::new(techniques);
-                pixel_techniques =
-                    Some(PixelTechniques::measure(&moments, &choices, width, height));
+                pixel_techniques = Some(PixelTechniques::measure(&moments, choices, width, height));
             }
             adaptive_gain = Some(measured.gain());
             shares = Some((measured, cap));

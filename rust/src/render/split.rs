@@ -50,7 +50,10 @@ pub fn edge_share(anchors: &GBuffer, scene: &Scene) -> f64 {
         anchors.camera.width as usize,
         anchors.camera.height as usize,
     );
-    let objects = &scene.mesh().objects;
+    // Per object, the cosine of its material's product tolerance.
+    let cos_match: Vec<f32> = (scene.mesh().objects.iter())
+        .map(|o| o.material.product_tolerance().cos())
+        .collect();
     let normal = |i: usize| Vec3::from(anchors.normal[i]);
     let (mut surfaces, mut edges) = (0u64, 0u64);
     for i in 0..w * h {
@@ -64,7 +67,7 @@ pub fn edge_share(anchors: &GBuffer, scene: &Scene) -> f64 {
             edges += 1;
             continue;
         }
-        let cos_match = objects[object as usize].material.product_tolerance().cos();
+        let cos_match = cos_match[object as usize];
         let n = normal(i);
         let smooth = (y - 1..=y + 1).all(|yy| {
             (x - 1..=x + 1).all(|xx| {
