@@ -164,6 +164,9 @@ def test_from_equirect_preserves_power():
     img = sunny(64).to_equirect(256, 128)
     assert img.shape == (128, 256, 3) and img.dtype == np.float32
     np.testing.assert_allclose(latlong_power(img), sunny(64).total_power(), rtol=0.02)
+    # The width Mitsuba gets: sixteen pixels per texel width, at most 8192.
+    widths = {r: vc.mitsuba.equirect_width_for(sunny(r)) for r in (16, 64, 256, 1024)}
+    assert widths == {16: 512, 64: 2048, 256: 8192, 1024: 8192}
 
 
 def test_exr_round_trips(tmp_path):
