@@ -168,7 +168,8 @@ def test_relight_experiment_smoke(tmp_path, monkeypatch):
 
     monkeypatch.setattr(relight, "SIZES", {True: (16, 12), False: (16, 12)})
     monkeypatch.setattr(relight, "V_SPP", 32)
-    monkeypatch.setattr(relight, "REFERENCE_SPP", 64)
+    monkeypatch.setattr(relight, "REFERENCE_SPP", {True: 64, False: 64})
+    monkeypatch.setattr(relight, "EQUAL_TIME_SECONDS", {True: 0.05, False: 0.05})
     cases = list(relight._cases(quick=True))
     assert [c[0] for c in cases][:3] == ["garage_rot45", "garage_sky", "cornell_red_green"]
     monkeypatch.setattr(relight, "_cases", lambda quick: iter(cases[:1]))
@@ -180,7 +181,12 @@ def test_relight_experiment_smoke(tmp_path, monkeypatch):
         for thr in relight.THRESHOLDS:
             row = rec[f"equal_time_{source}_{thr}"]
             assert row["seconds"] > 0 and row["classical_spp"] >= 1 and 0 <= row["mean_t"] <= 1
+            assert row["blend_lbv_spp"] == 8
+        longer = rec[f"equal_time_{source}_{relight.THRESHOLDS[-1]}_budget"]
+        assert longer["blend_lbv_spp"] >= 8 and longer["seconds"] > 0
     assert 0 <= rec["camera_move_bound_holds"] <= 1
+    over = rec["overhead"]
+    assert over["first_frame_seconds"] > 0 and over["later_lbv_spp"] >= 0
     # Two 32-bit counts, and the map's 32 V-sample bits (one word) for its one light.
     assert rec["overhead"]["bytes_per_pixel_and_light"] == 8 + 8
     md = (tmp_path / "relight" / "results.md").read_text()

@@ -171,6 +171,8 @@ def test_bit_identical_for_any_thread_count(garage):
     (dict(lbv_spp=-1), ValueError, "lbv_spp"),
     (dict(materials={10**6: vc.Material.lambert((0.5, 0.5, 0.5))}), ValueError, "materials"),
     (dict(materials={0: "red"}), TypeError, "materials"),
+    (dict(time_budget=0.0), ValueError, "time_budget"),
+    (dict(time_budget=float("inf")), ValueError, "time_budget"),
 ])
 def test_bad_arguments_name_themselves_and_change_nothing(garage, kwargs, exc, name):
     setup, cam, rl = garage
@@ -224,3 +226,21 @@ def test_time_budget_and_stopping():
     np.testing.assert_array_equal(rl.render(threshold=0.25).image, a.image)
     with pytest.raises(ValueError, match="^time_budget"):
         rl.converge_visibility(spp=16, time_budget=-1, progress=False)
+
+
+def test_a_time_budget_adds_passes_of_lbv_samples(garage):
+    # SBF's later frames: after the first pass, passes of LBV-samples (their LB values
+    # count too) fill the budget; the image is the one a run asked for that many gives.
+    setup, cam, rl = garage
+    budgeted = rl.render(threshold=0.25, lb_spp=16, lbv_spp=4, seed=2, time_budget=0.2)
+    taken = budgeted.stats["lbv_spp"]
+    assert budgeted.stats["passes"] >= 2 and taken > 4
+    assert 0 < budgeted.stats["first_pass_seconds"] < budgeted.stats["seconds"]
+    asked = rl.render(threshold=0.25, lb_spp=16, lbv_spp=taken, seed=2)
+    assert asked.stats["passes"] == 1 and asked.stats["lbv_spp"] == taken
+    for key in ("image", "variance", "error_bound", "t", "bound", "visibility"):
+        np.testing.assert_array_equal(getattr(budgeted, key), getattr(asked, key))
+    assert budgeted.stats["shadow_rays"] == asked.stats["shadow_rays"]
+    # Without LBV-samples there is no unbiased part to add to: one pass.
+    alone = rl.render(lbv_spp=0, lb_spp=16, time_budget=0.2)
+    assert alone.stats["passes"] == 1 and alone.stats["lbv_spp"] == 0

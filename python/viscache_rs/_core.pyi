@@ -366,6 +366,7 @@ class Relighter:
         seed: int | None = 0,
         product_level: int | str | None = None,
         threads: int | None = None,
+        time_budget: float | None = None,
         callback: Callable[[int, int], Any] | None = None,
     ) -> dict[str, Any]: ...
 

@@ -8,8 +8,9 @@ sampled by area) it estimates ``<LB>`` (no shadow rays), ``<LBV>`` (one shadow r
 sample) and takes ``<V>``, the expected visibility under the same density, from:
 
 - ``visibility="pixels"``: ``converge_visibility(spp=256)`` traces V-samples at the pixels
-  and keeps their mean, variance and bits. Edits that keep a light's density (area-light
-  radiance, any edit of an area light's receivers' materials) reuse them as they are; an
+  and keeps their counts and the map's samples bit by bit. Edits that keep a light's
+  density (area-light radiance, any edit of an area light's receivers' materials) reuse
+  them as they are; an
   edit of the map's density (another or rotated map, another material) reweights them by
   ``p'/p`` (``res.effective_samples`` says how far the densities differ), with no ray;
 - ``visibility="cache"``: the visibility cache's interpolated records ``V~`` averaged over
@@ -19,13 +20,18 @@ sample) and takes ``<V>``, the expected visibility under the same density, from:
   unbiased ``<LBV>`` (``t = 0``) in this mode.
 
 ``render(envmap=None, materials=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1,
-seed=0, camera=None, threads=None, progress=False)`` returns SBF eq. 9's blend
+seed=0, camera=None, threads=None, time_budget=None, progress=False)`` returns SBF eq. 9's
+blend
 ``(1 - t) <LBV> + t <LB> <V>`` per light, with ``t`` from the estimated relative error
 bound ``sqrt(Var(LB/p) Var(V)) / <LB>`` (eq. 7, 10) against ``threshold`` (eq. 11; the
 worst channel decides, ``t <= 1 - epsilon``; ``threshold=0`` is the unbiased ``<LBV>``
 alone). ``materials`` is a dict of object id -> :class:`Material` overriding the scene's;
 area-light radiance and textures are edited on the scene (``scene.set_emission``,
-``scene.set_emission_texture``). Results are bit-identical for any ``threads``.
+``scene.set_emission_texture``). With ``time_budget`` (seconds), passes of further
+``LBV``-samples follow the first while at least one more per pixel fits (SBF's later
+frames: ``Var(LB/p)`` is known, a sample costs what a classical one does);
+``stats["lbv_spp"]`` is the count taken, and the image equals a run without a budget asked
+for that count. Results are bit-identical for any ``threads``.
 """
 
 from __future__ import annotations
@@ -102,7 +108,7 @@ class Relighter:
 
     def render(self, envmap=None, materials: dict[int, Any] | None = None, lb_spp: int = 64,
                lbv_spp: int = 8, threshold: float = 0.25, epsilon: float = 0.1, seed: int = 0,
-               camera=None, threads: int | None = None,
+               camera=None, threads: int | None = None, time_budget: float | None = None,
                progress: bool = False) -> RelightResult:
         """Relights the view; see the module docstring."""
         envmap = self.setup.envmap if envmap is None else envmap
@@ -117,7 +123,8 @@ class Relighter:
         with progress_bar(progress, "relight", "px") as bar:
             out = self._core.render(envmap, materials=materials, cache=self.cache,
                                     lb_spp=lb_spp, lbv_spp=lbv_spp, threshold=threshold,
-                                    epsilon=epsilon, seed=seed, threads=threads, callback=bar)
+                                    epsilon=epsilon, seed=seed, threads=threads,
+                                    time_budget=time_budget, callback=bar)
         return RelightResult(out["image"], out["variance"], out["error_bound"], out["t"],
                              out["bound"],
                              out["visibility"], out["effective_samples"], out["stats"])

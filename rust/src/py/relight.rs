@@ -181,7 +181,7 @@ impl PyRelighter {
     /// Relights the view: see `viscache_rs.Relighter.render`. Returns a dict of arrays
     /// (image, variance: (H, W, 3); t, bound, visibility, effective_samples: (H, W, L))
     /// and stats.
-    #[pyo3(signature = (envmap, materials=None, cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, callback=None))]
+    #[pyo3(signature = (envmap, materials=None, cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, time_budget=None, callback=None))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -196,6 +196,7 @@ impl PyRelighter {
         #[pyo3(from_py_with = seed_or_zero)] seed: u64,
         product_level: Option<&Bound<'py, PyAny>>,
         threads: Option<&Bound<'py, PyAny>>,
+        time_budget: Option<&Bound<'py, PyAny>>,
         callback: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let params = RelightParams {
@@ -205,6 +206,10 @@ impl PyRelighter {
             epsilon,
             seed,
             product_level: product_level_arg(product_level)?,
+            time_budget: match time_budget {
+                Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
+                _ => None,
+            },
         };
         params.validate().py()?;
         let overrides = materials_arg(materials)?;
@@ -257,8 +262,10 @@ impl PyRelighter {
         stats.set_item("lights", lights)?;
         stats.set_item("shadow_rays", out.shadow_rays)?;
         stats.set_item("seconds", out.seconds)?;
+        stats.set_item("first_pass_seconds", out.first_pass_seconds)?;
+        stats.set_item("passes", out.passes)?;
         stats.set_item("lb_spp", params.lb_spp)?;
-        stats.set_item("lbv_spp", params.lbv_spp)?;
+        stats.set_item("lbv_spp", out.lbv_spp)?;
         d.set_item("stats", stats)?;
         Ok(d)
     }

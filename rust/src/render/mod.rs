@@ -105,7 +105,7 @@ use crate::sampling::sobol::PixelSampler;
 use crate::visibility::cache::{CacheState, Lookup, VisibilityCache};
 
 pub mod adaptive;
-mod schedule;
+pub(crate) mod schedule;
 pub mod split;
 
 use adaptive::{

@@ -2,13 +2,15 @@
 
 use super::MAX_SPP;
 
-/// What one pass did, for [`PassSchedule`].
+/// What one pass did, for [`PassSchedule`]: CPU nanoseconds of its pixels' set-up
+/// (anchors), of its samples, and of work later passes do not repeat.
 #[derive(Clone, Copy, Debug, Default)]
-pub(super) struct PassWork {
-    pub(super) anchored_pixels: u64,
-    pub(super) samples: u64,
-    pub(super) anchor_ns: u64,
-    pub(super) sample_ns: u64,
+pub(crate) struct PassWork {
+    pub(crate) anchored_pixels: u64,
+    pub(crate) samples: u64,
+    pub(crate) anchor_ns: u64,
+    pub(crate) sample_ns: u64,
+    pub(crate) once_ns: u64,
 }
 
 /// Sizes the passes of a budgeted render. The first pass is a probe: [`Self::PROBE_SPP`]
@@ -19,7 +21,7 @@ pub(super) struct PassWork {
 /// left. A pass recomputes its pixels' anchors, so few passes waste least: usually the
 /// probe and one main pass.
 #[derive(Clone, Copy, Debug, Default)]
-pub(super) struct PassSchedule {
+pub(crate) struct PassSchedule {
     passes: u32,
     wall: f64,
     work: PassWork,
@@ -36,40 +38,41 @@ impl PassSchedule {
     const SHARE: f64 = 0.95;
 
     /// Wall-clock seconds per CPU nanosecond the passes so far took (the threads' share).
-    pub(super) fn wall_per_cpu_ns(&self) -> f64 {
+    pub(crate) fn wall_per_cpu_ns(&self) -> f64 {
         let w = &self.work;
-        self.wall / (w.anchor_ns + w.sample_ns).max(1) as f64
+        self.wall / (w.anchor_ns + w.sample_ns + w.once_ns).max(1) as f64
     }
 
     /// Wall-clock seconds of one pixel's anchor.
-    pub(super) fn anchor_seconds(&self) -> f64 {
+    pub(crate) fn anchor_seconds(&self) -> f64 {
         let w = &self.work;
         self.wall_per_cpu_ns() * w.anchor_ns as f64 / w.anchored_pixels.max(1) as f64
     }
 
     /// CPU nanoseconds of a sample, on average over the passes so far.
-    pub(super) fn sample_ns_mean(&self) -> f64 {
+    pub(crate) fn sample_ns_mean(&self) -> f64 {
         self.work.sample_ns as f64 / self.work.samples.max(1) as f64
     }
 
     /// What a pass may spend of `left` seconds.
-    pub(super) fn spend(&self, left: f64) -> f64 {
+    pub(crate) fn spend(&self, left: f64) -> f64 {
         left * Self::SHARE
     }
 
-    pub(super) fn record(&mut self, wall: f64, pass: PassWork) {
+    pub(crate) fn record(&mut self, wall: f64, pass: PassWork) {
         self.passes += 1;
         self.wall += wall;
         self.work.anchored_pixels += pass.anchored_pixels;
         self.work.samples += pass.samples;
         self.work.anchor_ns += pass.anchor_ns;
         self.work.sample_ns += pass.sample_ns;
+        self.work.once_ns += pass.once_ns;
     }
 
     /// The sample count per pixel the next pass should bring every one of `pixels` pixels
     /// to, with `left` seconds of budget, `taken` samples already taken and every pixel
     /// at `min` or more; `None` when not even one more sample per pixel fits.
-    pub(super) fn next_target(&self, left: f64, pixels: u64, taken: u64, min: u32) -> Option<u32> {
+    pub(crate) fn next_target(&self, left: f64, pixels: u64, taken: u64, min: u32) -> Option<u32> {
         let w = &self.work;
         let per_pixel = self.anchor_seconds();
         let per_sample = self.wall_per_cpu_ns() * w.sample_ns as f64 / w.samples.max(1) as f64;

@@ -51,6 +51,7 @@
 pub mod bound;
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{DVec2, Vec3};
@@ -68,9 +69,10 @@ use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::moments::Moments;
 use crate::parallel::run_with_progress;
+use crate::render::schedule::{PassSchedule, PassWork as ScheduleWork};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
-use crate::visibility::cache::VisibilityCache;
+use crate::visibility::cache::{CacheState, VisibilityCache};
 
 /// Most `V`-samples per pixel and light [`Relighter::converge_visibility`] keeps.
 pub const MAX_VISIBILITY_SPP: u32 = 1 << 16;
@@ -116,6 +118,9 @@ pub struct RelightParams {
     pub seed: u64,
     /// Octahedral level of the map's product cells.
     pub product_level: ProductLevel,
+    /// Seconds after which no further pass of `LBV`-samples starts (`None`: the first pass
+    /// alone); see [`Relighter::render`].
+    pub time_budget: Option<f64>,
 }
 
 impl RelightParams {
@@ -127,6 +132,7 @@ impl RelightParams {
         epsilon: 0.1,
         seed: 0,
         product_level: ProductLevel::PerMaterial,
+        time_budget: None,
     };
 
     /// Fails with an error naming the first parameter out of range.
@@ -145,6 +151,7 @@ impl RelightParams {
                 format!("must lie in (0, 1), got {}", self.epsilon),
             ));
         }
+        crate::error::check_time_budget(self.time_budget)?;
         self.product_level.validate()
     }
 }
@@ -177,7 +184,7 @@ struct PixelLights<'a> {
     scene: &'a Scene,
     env: &'a EnvMap,
     sp: ShadingPoint,
-    product: Option<ProductDistribution>,
+    product: Option<Arc<ProductDistribution>>,
 }
 
 impl PixelLights<'_> {
@@ -296,6 +303,13 @@ pub struct Relit {
     pub lights: usize,
     /// Shadow rays traced (`LBV`-samples).
     pub shadow_rays: u64,
+    /// `LBV`-samples per pixel and light taken: [`RelightParams::lbv_spp`], or more under
+    /// a time budget.
+    pub lbv_spp: u32,
+    /// Passes over the pixels (1 without a time budget).
+    pub passes: u32,
+    /// Wall-clock seconds of the first pass (the `LB`-samples and `⟨V⟩`).
+    pub first_pass_seconds: f64,
     /// Wall-clock seconds.
     pub seconds: f64,
 }
@@ -429,7 +443,7 @@ impl Relighter {
                         let at = PixelLights {
                             scene,
                             env: &env,
-                            product: product_of(&env, &sp, product_level),
+                            product: product_of(&env, &sp, product_level).map(Arc::new),
                             sp,
                         };
                         let mut bvh = TraversalCounters::default();
@@ -495,8 +509,17 @@ impl Relighter {
     /// light, `LB`- and `LBV`-samples under the current densities, `⟨V⟩` from the source,
     /// and SBF's blend (module docs). `cache` is needed for [`VisibilitySource::Cache`]
     /// (records of this scene); [`VisibilitySource::Pixels`] needs a converged visibility.
-    /// `progress(done, total)` (pixels) is called on the calling thread about every 0.1 s;
-    /// returning `false` stops with [`Error::Interrupted`].
+    ///
+    /// The first pass takes `lb_spp` `LB`- and `lbv_spp` `LBV`-samples per pixel and light.
+    /// With [`RelightParams::time_budget`], further passes add `LBV`-samples (whose `LB`
+    /// values count as `LB`-samples too, as in the first pass) while the time the passes
+    /// so far measured says at least one more per pixel fits: SBF's later frames, where
+    /// `Var(LB/p)` is known and a sample costs what a classical one does. Each pixel's
+    /// samples accumulate in sample order, so the result equals a run without a budget
+    /// asked for the `LBV`-samples taken ([`Relit::lbv_spp`]).
+    ///
+    /// `progress(done, total)` (pixels of the passes so far) is called on the calling
+    /// thread about every 0.1 s; returning `false` stops with [`Error::Interrupted`].
     #[allow(clippy::too_many_arguments)]
     pub fn render(
         &self,
@@ -556,193 +579,104 @@ impl Relighter {
             VisibilitySource::Pixels => None,
         };
         let env = &*env.at_least(2)?;
-        // Whether the map's density is the converged one (same map, same materials).
-        let same_env_density = converged.is_some_and(|c| {
-            c.env.resolution() == env.resolution()
-                && c.env.texels() == env.texels()
-                && c.materials == materials
-                && c.product_level == params.product_level
-        });
         let state = cache.map(|c| c.read());
-        let n_lights = lights.len();
-        let (cancel, done) = (AtomicBool::new(false), AtomicU64::new(0));
-        let total = self.gbuffer.len() as u64;
-        let work = || {
-            (0..self.gbuffer.len())
-                .into_par_iter()
-                .with_min_len(16)
-                .map(|i| {
-                    let dir = Vec3::from(self.gbuffer.direction[i]);
-                    if cancel.load(Ordering::Relaxed) {
-                        return PixelResult::miss(Vec3::ZERO, n_lights);
-                    }
-                    done.fetch_add(1, Ordering::Relaxed);
-                    let Some((hit, sp)) = self.point(scene, &materials, i) else {
-                        return PixelResult::miss(env.eval(dir), n_lights);
-                    };
-                    let emitted = scene.emitted(&hit, sp.wo);
-                    let at = PixelLights {
-                        scene,
-                        env,
-                        product: product_of(env, &sp, params.product_level),
-                        sp,
-                    };
-                    let interpolant = match (&state, cache) {
-                        (Some(state), Some(cache)) => {
-                            let d_max = cache.params().d_max_scale * self.gbuffer.footprint[i];
-                            let lookup = state.lookup_records(
-                                cache.params(),
-                                hit.position,
-                                sp.normal,
-                                d_max,
-                            );
-                            Some(Interpolant::new(state, &lookup, None))
-                        }
-                        _ => None,
-                    };
-                    let mut out = PixelResult::miss(emitted, n_lights);
-                    let mut bvh = TraversalCounters::default();
-                    for (l, &light) in lights.iter().enumerate() {
-                        let mut lb = [Moments::default(); 3];
-                        let mut lbv = [Moments::default(); 3];
-                        for s in 0..params.lb_spp {
-                            let rng =
-                                PixelSampler::new(params.seed, i as u64, STREAM_LB + s as u64);
-                            let x = at.draw(light, &rng).map_or(Vec3::ZERO, |d| d.lb_over_p);
-                            (0..3).for_each(|c| lb[c].push(x[c] as f64));
-                        }
-                        for s in 0..params.lbv_spp {
-                            let rng =
-                                PixelSampler::new(params.seed, i as u64, STREAM_LBV + s as u64);
-                            let (lb_x, x) = match at.draw(light, &rng) {
-                                Some(d) => {
-                                    out.shadow_rays += d.ray.is_some() as u64;
-                                    let v = at.visible(&d, &mut bvh);
-                                    (d.lb_over_p, if v { d.lb_over_p } else { Vec3::ZERO })
-                                }
-                                None => (Vec3::ZERO, Vec3::ZERO),
-                            };
-                            // An LBV-sample is an LB-sample of the same density too.
-                            (0..3).for_each(|c| {
-                                lbv[c].push(x[c] as f64);
-                                lb[c].push(lb_x[c] as f64);
-                            });
-                        }
-                        // How far the cache's records disagree about `⟨V⟩` (cache mode).
-                        let mut v_spread = 0.0f64;
-                        let (v, ess) = match (converged, &interpolant, &state) {
-                            (Some(c), _, _) => {
-                                let stats = &c.stats[i * n_lights + l];
-                                if light == LightId::Env && !same_env_density {
-                                    reweighted(c, &at, hit.obj, i)
-                                } else {
-                                    (stats.mean(), stats.samples as f64)
-                                }
-                            }
-                            // Records see an area light's own geometry as an occluder: they
-                            // tell nothing of its visibility.
-                            (None, Some(interp), Some(state))
-                                if !interp.is_empty() && light == LightId::Env =>
-                            {
-                                // E_p'[Ṽ] over the product's cells, exactly: no draws.
-                                match &at.product {
-                                    Some(product) => {
-                                        let level = product.level();
-                                        let cells = interp.cell_visibility(state, level);
-                                        let weights = product.pyramid().level(level);
-                                        let total: f64 = weights.iter().sum();
-                                        let v: f64 = weights
-                                            .iter()
-                                            .zip(&cells)
-                                            .map(|(&w, &v)| w * v as f64)
-                                            .sum::<f64>()
-                                            / total;
-                                        // Ṽ interpolates records that may disagree here:
-                                        // their spread about it stands for its error.
-                                        let records = interp.record_averages(state, level, weights);
-                                        let betas: f64 = records.iter().map(|r| r.0 as f64).sum();
-                                        let spread = records
-                                            .iter()
-                                            .map(|&(b, vi)| b as f64 * (vi - v).powi(2))
-                                            .sum::<f64>()
-                                            / betas.max(f64::MIN_POSITIVE);
-                                        v_spread = spread.sqrt();
-                                        (v, f64::INFINITY)
-                                    }
-                                    None => (f64::NAN, 0.0),
-                                }
-                            }
-                            // No records here: nothing to decouple, the unbiased part alone.
-                            _ => (f64::NAN, 0.0),
-                        };
-                        // No draw with `LB > 0`: no `⟨V⟩` (nor light to decouple).
-                        let v = if ess > 0.0 { v } else { f64::NAN };
-                        let lb_mean = lb.map(|w| w.mean);
-                        // Without `⟨V⟩` (no records, no weighted sample) the unbiased part
-                        // alone; with no `LBV`-samples the decoupled part alone.
-                        let (t, rel) = if v.is_nan() {
-                            (0.0, f64::NAN)
-                        } else {
-                            let var_v = binary_variance(v);
-                            // Eq. 7 assumes the exact E_p[V]; ⟨V⟩ from `ess` samples is off
-                            // by about sqrt(Var(V)/ess), which ⟨LB⟩⟨V⟩ carries too.
-                            // From the cache, `Ṽ` is no sample mean but an
-                            // interpolation: its records' spread takes that place.
-                            let v_error =
-                                V_ERROR_SIGMAS * ((var_v / ess.max(1.0)).sqrt() + v_spread);
-                            let err: [f64; 3] = std::array::from_fn(|c| {
-                                error_bound(lb[c].variance(), var_v) + lb_mean[c].abs() * v_error
-                            });
-                            (0..3).for_each(|c| out.error_bound[c] += err[c]);
-                            let rel = (0..3)
-                                .map(|c| {
-                                    if lb_mean[c] > 0.0 {
-                                        err[c] / lb_mean[c]
-                                    } else {
-                                        0.0
-                                    }
-                                })
-                                .fold(0.0f64, f64::max);
-                            let t = if params.lbv_spp == 0 {
-                                1.0
-                            } else {
-                                blend_factor(err, lb_mean, params.threshold, params.epsilon)
-                            };
-                            (t, rel)
-                        };
-                        let v_or_zero = if v.is_nan() { 0.0 } else { v };
-                        for c in 0..3 {
-                            let value = blend(lbv[c].mean, lb_mean[c], v_or_zero, t);
-                            out.rgb[c] += value;
-                            out.variance[c] += (1.0 - t).powi(2) * lbv[c].variance_of_mean()
-                                + (t * v_or_zero).powi(2) * lb[c].variance_of_mean();
-                        }
-                        out.t[l] = t as f32;
-                        out.bound[l] = rel as f32;
-                        out.visibility[l] = v as f32;
-                        out.effective_samples[l] = ess as f32;
-                    }
-                    out
-                })
-                .collect::<Vec<PixelResult>>()
+        let pass = RelightPass {
+            relighter: self,
+            scene,
+            env,
+            materials: &materials,
+            lights: &lights,
+            // Whether the map's density is the converged one (same map, same materials).
+            same_env_density: converged.is_some_and(|c| {
+                c.env.resolution() == env.resolution()
+                    && c.env.texels() == env.texels()
+                    && c.materials == materials
+                    && c.product_level == params.product_level
+            }),
+            converged,
+            cache: cache.zip(state.as_deref()),
+            params,
         };
-        let pixels = run_with_progress(threads, work, &mut || {
-            let keep = progress(done.load(Ordering::Relaxed), total);
-            if !keep {
-                cancel.store(true, Ordering::Relaxed);
+        let n_lights = lights.len();
+        let pixels = self.gbuffer.len();
+        let mut seen = vec![PixelSeen::default(); pixels];
+        let mut sums = vec![LightSums::default(); pixels * n_lights];
+        let (cancel, done) = (AtomicBool::new(false), AtomicU64::new(0));
+        let mut schedule = PassSchedule::default();
+        let mut shadow_rays = 0u64;
+        let mut taken = 0u32;
+        let mut passes = 0u32;
+        let mut first_pass_seconds = 0.0;
+        let mut planned = pixels as u64;
+        let mut lbv_this_pass = params.lbv_spp;
+        loop {
+            let pass_start = Instant::now();
+            let (lb, lbv) = if passes == 0 {
+                (0..params.lb_spp, 0..params.lbv_spp)
+            } else {
+                (0..0, taken..taken + lbv_this_pass)
+            };
+            let first = passes == 0;
+            let work = || {
+                seen.par_iter_mut()
+                    .zip(sums.par_chunks_mut(n_lights))
+                    .enumerate()
+                    .with_min_len(16)
+                    .map_init(
+                        || None,
+                        |last_product, (i, (seen, sums))| {
+                            if cancel.load(Ordering::Relaxed) {
+                                return PassWork::default();
+                            }
+                            done.fetch_add(1, Ordering::Relaxed);
+                            pass.gather(i, seen, sums, &lb, &lbv, first, last_product)
+                        },
+                    )
+                    .reduce(PassWork::default, PassWork::add)
+            };
+            let work = run_with_progress(threads, work, &mut || {
+                let keep = progress(done.load(Ordering::Relaxed), planned);
+                if !keep {
+                    cancel.store(true, Ordering::Relaxed);
+                }
+                keep
+            })?;
+            if cancel.load(Ordering::Relaxed) {
+                return Err(Error::Interrupted {
+                    what: "relighting".into(),
+                });
             }
-            keep
-        })?;
-        if cancel.load(Ordering::Relaxed) {
-            return Err(Error::Interrupted {
-                what: "relighting".into(),
-            });
+            let wall = pass_start.elapsed().as_secs_f64();
+            if first {
+                first_pass_seconds = wall;
+            }
+            shadow_rays += work.shadow_rays;
+            schedule.record(wall, work.schedule);
+            taken = lbv.end;
+            passes += 1;
+            // Without LBV-samples there is no unbiased part to add to.
+            let Some(budget) = params.time_budget.filter(|_| params.lbv_spp > 0) else {
+                break;
+            };
+            let left = budget - start.elapsed().as_secs_f64();
+            match schedule.next_target(left, pixels as u64, taken as u64 * pixels as u64, taken) {
+                Some(target) if taken < MAX_RELIGHT_SPP => {
+                    lbv_this_pass = target.min(MAX_RELIGHT_SPP) - taken;
+                    planned += pixels as u64;
+                }
+                _ => break,
+            }
         }
         let mut relit = Relit {
             lights: n_lights,
+            lbv_spp: taken,
+            passes,
+            first_pass_seconds,
+            shadow_rays,
             ..Relit::default()
         };
-        for p in pixels {
+        for (seen, sums) in seen.iter().zip(sums.chunks(n_lights)) {
+            let p = pass.finish(seen, sums);
             relit.image.push(p.rgb.map(|v| v as f32));
             relit.variance.push(p.variance.map(|v| v as f32));
             relit.error_bound.push(p.error_bound.map(|v| v as f32));
@@ -750,10 +684,279 @@ impl Relighter {
             relit.bound.extend(p.bound);
             relit.visibility.extend(p.visibility);
             relit.effective_samples.extend(p.effective_samples);
-            relit.shadow_rays += p.shadow_rays;
         }
         relit.seconds = start.elapsed().as_secs_f64();
         Ok(relit)
+    }
+}
+
+/// What the camera sees at a pixel before any light is added, and whether it sees a
+/// surface (set by the first pass of [`Relighter::render`]).
+#[derive(Clone, Copy, Debug, Default)]
+struct PixelSeen {
+    radiance: Vec3,
+    surface: bool,
+}
+
+/// What one pixel and light gathered over the passes of [`Relighter::render`].
+#[derive(Clone, Copy, Debug)]
+struct LightSums {
+    lb: [Moments; 3],
+    lbv: [Moments; 3],
+    /// `⟨V⟩` (NaN without one), its effective sample count, and the spread of the records
+    /// it interpolates (cache mode): fixed by the first pass.
+    v: f64,
+    ess: f64,
+    v_spread: f64,
+}
+
+impl Default for LightSums {
+    fn default() -> Self {
+        Self {
+            lb: [Moments::default(); 3],
+            lbv: [Moments::default(); 3],
+            v: f64::NAN,
+            ess: 0.0,
+            v_spread: 0.0,
+        }
+    }
+}
+
+/// What one pass of [`Relighter::render`] did, for its [`PassSchedule`].
+#[derive(Clone, Copy, Debug, Default)]
+struct PassWork {
+    schedule: ScheduleWork,
+    shadow_rays: u64,
+}
+
+impl PassWork {
+    fn add(self, o: Self) -> Self {
+        let (a, b) = (self.schedule, o.schedule);
+        Self {
+            schedule: ScheduleWork {
+                anchored_pixels: a.anchored_pixels + b.anchored_pixels,
+                samples: a.samples + b.samples,
+                anchor_ns: a.anchor_ns + b.anchor_ns,
+                sample_ns: a.sample_ns + b.sample_ns,
+                once_ns: a.once_ns + b.once_ns,
+            },
+            shadow_rays: self.shadow_rays + o.shadow_rays,
+        }
+    }
+}
+
+/// A product distribution kept for the next pixel of the same material and normal (the
+/// renderer's reuse: flat diffuse surfaces share one).
+type LastProduct = Option<((Material, Vec3), Arc<ProductDistribution>)>;
+
+/// What every pixel of a pass of [`Relighter::render`] reads.
+struct RelightPass<'a> {
+    relighter: &'a Relighter,
+    scene: &'a Scene,
+    env: &'a EnvMap,
+    materials: &'a [Material],
+    lights: &'a [LightId],
+    converged: Option<&'a Converged>,
+    same_env_density: bool,
+    cache: Option<(&'a VisibilityCache, &'a CacheState)>,
+    params: &'a RelightParams,
+}
+
+impl RelightPass<'_> {
+    /// Adds `LB`-samples `lb` and `LBV`-samples `lbv` of pixel `i` to its `sums` (one per
+    /// light); the first pass also sets what the pixel sees and each light's `⟨V⟩`.
+    #[allow(clippy::too_many_arguments)]
+    fn gather(
+        &self,
+        i: usize,
+        seen: &mut PixelSeen,
+        sums: &mut [LightSums],
+        lb: &std::ops::Range<u32>,
+        lbv: &std::ops::Range<u32>,
+        first: bool,
+        last_product: &mut LastProduct,
+    ) -> PassWork {
+        let started = Instant::now();
+        let mut work = PassWork::default();
+        let Some((hit, sp)) = self.relighter.point(self.scene, self.materials, i) else {
+            if first {
+                let dir = Vec3::from(self.relighter.gbuffer.direction[i]);
+                seen.radiance = self.env.eval(dir);
+            }
+            return work;
+        };
+        let key = (!sp.material.product_depends_on_wo()).then_some((sp.material, sp.normal));
+        let product = match (&*last_product, key) {
+            (Some((k, p)), Some(key)) if *k == key => Some(p.clone()),
+            _ => {
+                let p = product_of(self.env, &sp, self.params.product_level).map(Arc::new);
+                *last_product = key.zip(p.clone());
+                p
+            }
+        };
+        let at = PixelLights {
+            scene: self.scene,
+            env: self.env,
+            product,
+            sp,
+        };
+        let prepared = Instant::now();
+        if first {
+            seen.radiance = self.scene.emitted(&hit, sp.wo);
+            seen.surface = true;
+            self.visibility_of(i, &hit, &at, sums);
+        }
+        let mut bvh = TraversalCounters::default();
+        for (sums, &light) in sums.iter_mut().zip(self.lights) {
+            for s in lb.clone() {
+                let rng = PixelSampler::new(self.params.seed, i as u64, STREAM_LB + s as u64);
+                let x = at.draw(light, &rng).map_or(Vec3::ZERO, |d| d.lb_over_p);
+                (0..3).for_each(|c| sums.lb[c].push(x[c] as f64));
+            }
+        }
+        let sampled = Instant::now();
+        for (sums, &light) in sums.iter_mut().zip(self.lights) {
+            for s in lbv.clone() {
+                let rng = PixelSampler::new(self.params.seed, i as u64, STREAM_LBV + s as u64);
+                let (lb_x, x) = match at.draw(light, &rng) {
+                    Some(d) => {
+                        work.shadow_rays += d.ray.is_some() as u64;
+                        let v = at.visible(&d, &mut bvh);
+                        (d.lb_over_p, if v { d.lb_over_p } else { Vec3::ZERO })
+                    }
+                    None => (Vec3::ZERO, Vec3::ZERO),
+                };
+                // An LBV-sample is an LB-sample of the same density too.
+                (0..3).for_each(|c| {
+                    sums.lbv[c].push(x[c] as f64);
+                    sums.lb[c].push(lb_x[c] as f64);
+                });
+            }
+        }
+        let ns = |a: Instant, b: Instant| b.duration_since(a).as_nanos() as u64;
+        let end = Instant::now();
+        work.schedule = ScheduleWork {
+            anchored_pixels: 1,
+            samples: lbv.len() as u64,
+            anchor_ns: ns(started, prepared),
+            // `⟨V⟩` and the LB-samples of the first pass are not repeated.
+            once_ns: ns(prepared, sampled),
+            sample_ns: ns(sampled, end),
+        };
+        work
+    }
+
+    /// Sets each light's `⟨V⟩`, its effective sample count and (cache) the records'
+    /// spread at pixel `i`.
+    fn visibility_of(&self, i: usize, hit: &SurfaceHit, at: &PixelLights, sums: &mut [LightSums]) {
+        let lookup = self.cache.map(|(cache, state)| {
+            let d_max = cache.params().d_max_scale * self.relighter.gbuffer.footprint[i];
+            let lookup = state.lookup_records(cache.params(), hit.position, at.sp.normal, d_max);
+            (state, Interpolant::new(state, &lookup, None))
+        });
+        let n_lights = self.lights.len();
+        for (l, (sums, &light)) in sums.iter_mut().zip(self.lights).enumerate() {
+            let (v, ess) = match (self.converged, &lookup) {
+                (Some(c), _) => {
+                    let stats = &c.stats[i * n_lights + l];
+                    if light == LightId::Env && !self.same_env_density {
+                        reweighted(c, at, hit.obj, i)
+                    } else {
+                        (stats.mean(), stats.samples as f64)
+                    }
+                }
+                // Records see an area light's own geometry as an occluder: they tell
+                // nothing of its visibility.
+                (None, Some((state, interp))) if !interp.is_empty() && light == LightId::Env => {
+                    // E_p'[Ṽ] over the product's cells, exactly: no draws.
+                    match &at.product {
+                        Some(product) => {
+                            let level = product.level();
+                            let cells = interp.cell_visibility(state, level);
+                            let weights = product.pyramid().level(level);
+                            let total: f64 = weights.iter().sum();
+                            let v: f64 = weights
+                                .iter()
+                                .zip(&cells)
+                                .map(|(&w, &v)| w * v as f64)
+                                .sum::<f64>()
+                                / total;
+                            // Ṽ interpolates records that may disagree here: their
+                            // spread about it stands for its error.
+                            let records = interp.record_averages(state, level, weights);
+                            let betas: f64 = records.iter().map(|r| r.0 as f64).sum();
+                            let spread = records
+                                .iter()
+                                .map(|&(b, vi)| b as f64 * (vi - v).powi(2))
+                                .sum::<f64>()
+                                / betas.max(f64::MIN_POSITIVE);
+                            sums.v_spread = spread.sqrt();
+                            (v, f64::INFINITY)
+                        }
+                        None => (f64::NAN, 0.0),
+                    }
+                }
+                // No records here: nothing to decouple, the unbiased part alone.
+                _ => (f64::NAN, 0.0),
+            };
+            // No draw with `LB > 0`: no `⟨V⟩` (nor light to decouple).
+            sums.v = if ess > 0.0 { v } else { f64::NAN };
+            sums.ess = ess;
+        }
+    }
+
+    /// The pixel's blend (eq. 9) from what the passes gathered.
+    fn finish(&self, seen: &PixelSeen, sums: &[LightSums]) -> PixelResult {
+        let mut out = PixelResult::miss(seen.radiance, sums.len());
+        if !seen.surface {
+            return out;
+        }
+        let params = self.params;
+        for (l, s) in sums.iter().enumerate() {
+            let v = s.v;
+            let lb_mean = s.lb.map(|w| w.mean);
+            // Without `⟨V⟩` (no records, no weighted sample) the unbiased part alone; with
+            // no `LBV`-samples the decoupled part alone.
+            let (t, rel) = if v.is_nan() {
+                (0.0, f64::NAN)
+            } else {
+                let var_v = binary_variance(v);
+                // Eq. 7 assumes the exact E_p[V]; ⟨V⟩ from `ess` samples is off by about
+                // sqrt(Var(V)/ess), which ⟨LB⟩⟨V⟩ carries too. From the cache, `Ṽ` is no
+                // sample mean but an interpolation: its records' spread takes that place.
+                let v_error = V_ERROR_SIGMAS * ((var_v / s.ess.max(1.0)).sqrt() + s.v_spread);
+                let err: [f64; 3] = std::array::from_fn(|c| {
+                    error_bound(s.lb[c].variance(), var_v) + lb_mean[c].abs() * v_error
+                });
+                (0..3).for_each(|c| out.error_bound[c] += err[c]);
+                let rel = (0..3)
+                    .map(|c| {
+                        if lb_mean[c] > 0.0 {
+                            err[c] / lb_mean[c]
+                        } else {
+                            0.0
+                        }
+                    })
+                    .fold(0.0f64, f64::max);
+                let t = if s.lbv[0].count == 0 {
+                    1.0
+                } else {
+                    blend_factor(err, lb_mean, params.threshold, params.epsilon)
+                };
+                (t, rel)
+            };
+            let v_or_zero = if v.is_nan() { 0.0 } else { v };
+            for (c, (lbv, lb)) in s.lbv.iter().zip(&s.lb).enumerate() {
+                out.rgb[c] += blend(lbv.mean, lb.mean, v_or_zero, t);
+                out.variance[c] += (1.0 - t).powi(2) * lbv.variance_of_mean()
+                    + (t * v_or_zero).powi(2) * lb.variance_of_mean();
+            }
+            out.t[l] = t as f32;
+            out.bound[l] = rel as f32;
+            out.visibility[l] = v as f32;
+            out.effective_samples[l] = s.ess as f32;
+        }
+        out
     }
 }
 
@@ -779,7 +982,7 @@ fn reweighted(c: &Converged, now: &PixelLights, object: u32, pixel: usize) -> (f
     let then = PixelLights {
         scene: now.scene,
         env: &c.env,
-        product: product_of(&c.env, &then_sp, c.product_level),
+        product: product_of(&c.env, &then_sp, c.product_level).map(Arc::new),
         sp: then_sp,
     };
     let Some(p_now) = now.product.as_ref() else {
@@ -813,7 +1016,6 @@ struct PixelResult {
     bound: Vec<f32>,
     visibility: Vec<f32>,
     effective_samples: Vec<f32>,
-    shadow_rays: u64,
 }
 
 impl PixelResult {
@@ -827,7 +1029,6 @@ impl PixelResult {
             bound: vec![f32::NAN; lights],
             visibility: vec![f32::NAN; lights],
             effective_samples: vec![0.0; lights],
-            shadow_rays: 0,
         }
     }
 }

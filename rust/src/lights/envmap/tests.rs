@@ -406,7 +406,12 @@ fn to_equirect_keeps_a_suns_irradiance_at_every_width() {
             let rel = (e[c] / exact[c] - 1.0).abs();
             // Below ~1024 the rows are too coarse to place the sun's cosine closer.
             let tolerance = if w < 1024 { 2e-3 } else { 2e-4 };
-            assert!(rel < tolerance, "width {w}, channel {c}: {} vs {} ({rel:e})", e[c], exact[c]);
+            assert!(
+                rel < tolerance,
+                "width {w}, channel {c}: {} vs {} ({rel:e})",
+                e[c],
+                exact[c]
+            );
         }
     }
 }
