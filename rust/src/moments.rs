@@ -24,6 +24,22 @@ impl Moments {
         self.m2 += delta * (x - self.mean);
     }
 
+    /// [`Moments::push`] of `x[k]` into `moments[k]` for moments that have all seen the
+    /// same count (the channels of one stream): one division serves them all, which makes
+    /// the last bits differ from `push`'s, not the accuracy.
+    #[inline]
+    pub fn push_each<const N: usize>(moments: &mut [Moments; N], x: [f64; N]) {
+        let count = moments.first().map_or(0, |m| m.count) + 1;
+        let inv = 1.0 / count as f64;
+        for (m, x) in moments.iter_mut().zip(x) {
+            debug_assert_eq!(m.count + 1, count, "push_each needs equal counts");
+            m.count = count;
+            let delta = x - m.mean;
+            m.mean += delta * inv;
+            m.m2 += delta * (x - m.mean);
+        }
+    }
+
     /// Adds every value `other` has seen.
     pub fn merge(&mut self, other: &Moments) {
         if other.count == 0 {
@@ -82,21 +98,30 @@ mod tests {
         let n = 10_000_000u64;
         let x = |i: u64| 1e6 + rng.get(i) as f64;
         let mut w = Moments::default();
+        // The same stream through `push_each`, beside a constant channel.
+        let mut each = [Moments::default(); 2];
         for i in 0..n {
             w.push(x(i));
+            Moments::push_each(&mut each, [x(i), 1.0]);
         }
         let mean: f64 = (0..n).map(|i| x(i) - 1e6).sum::<f64>() / n as f64 + 1e6;
         let var: f64 = (0..n).map(|i| (x(i) - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
-        assert!(
-            ((w.mean - mean) / mean).abs() <= 1e-9,
-            "{} {}",
-            w.mean,
-            mean
-        );
-        assert!(
-            ((w.variance() - var) / var).abs() <= 1e-9,
-            "{} {var}",
-            w.variance()
+        for w in [w, each[0]] {
+            assert!(
+                ((w.mean - mean) / mean).abs() <= 1e-9,
+                "{} {}",
+                w.mean,
+                mean
+            );
+            assert!(
+                ((w.variance() - var) / var).abs() <= 1e-9,
+                "{} {var}",
+                w.variance()
+            );
+        }
+        assert_eq!(
+            (each[1].count, each[1].mean, each[1].variance()),
+            (n, 1.0, 0.0)
         );
     }
 

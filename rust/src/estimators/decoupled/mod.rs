@@ -448,9 +448,9 @@ impl Relighter {
                         };
                         let mut bvh = TraversalCounters::default();
                         let mut rays = 0u64;
-                        for (stats, &light) in stats.iter_mut().zip(&lights) {
-                            for s in pass.clone() {
-                                let rng = PixelSampler::new(seed, i as u64, STREAM_V + s as u64);
+                        for s in pass.clone() {
+                            let rng = PixelSampler::new(seed, i as u64, STREAM_V + s as u64);
+                            for (stats, &light) in stats.iter_mut().zip(&lights) {
                                 // Draws with `LB = 0` tell nothing (module docs).
                                 let Some(d) = at.draw(light, &rng).filter(|d| d.ray.is_some())
                                 else {
@@ -807,17 +807,19 @@ impl RelightPass<'_> {
             self.visibility_of(i, &hit, &at, sums);
         }
         let mut bvh = TraversalCounters::default();
-        for (sums, &light) in sums.iter_mut().zip(self.lights) {
-            for s in lb.clone() {
-                let rng = PixelSampler::new(self.params.seed, i as u64, STREAM_LB + s as u64);
+        // One sampler per sample serves every light (each reads its own dimensions); each
+        // light's moments still take its samples in order.
+        for s in lb.clone() {
+            let rng = PixelSampler::new(self.params.seed, i as u64, STREAM_LB + s as u64);
+            for (sums, &light) in sums.iter_mut().zip(self.lights) {
                 let x = at.draw(light, &rng).map_or(Vec3::ZERO, |d| d.lb_over_p);
-                (0..3).for_each(|c| sums.lb[c].push(x[c] as f64));
+                Moments::push_each(&mut sums.lb, x.as_dvec3().to_array());
             }
         }
         let sampled = Instant::now();
-        for (sums, &light) in sums.iter_mut().zip(self.lights) {
-            for s in lbv.clone() {
-                let rng = PixelSampler::new(self.params.seed, i as u64, STREAM_LBV + s as u64);
+        for s in lbv.clone() {
+            let rng = PixelSampler::new(self.params.seed, i as u64, STREAM_LBV + s as u64);
+            for (sums, &light) in sums.iter_mut().zip(self.lights) {
                 let (lb_x, x) = match at.draw(light, &rng) {
                     Some(d) => {
                         work.shadow_rays += d.ray.is_some() as u64;
@@ -827,10 +829,8 @@ impl RelightPass<'_> {
                     None => (Vec3::ZERO, Vec3::ZERO),
                 };
                 // An LBV-sample is an LB-sample of the same density too.
-                (0..3).for_each(|c| {
-                    sums.lbv[c].push(x[c] as f64);
-                    sums.lb[c].push(lb_x[c] as f64);
-                });
+                Moments::push_each(&mut sums.lbv, x.as_dvec3().to_array());
+                Moments::push_each(&mut sums.lb, lb_x.as_dvec3().to_array());
             }
         }
         let ns = |a: Instant, b: Instant| b.duration_since(a).as_nanos() as u64;
