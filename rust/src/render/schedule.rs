@@ -13,6 +13,16 @@ pub(crate) struct PassWork {
     pub(crate) once_ns: u64,
 }
 
+impl std::ops::AddAssign for PassWork {
+    fn add_assign(&mut self, o: Self) {
+        self.anchored_pixels += o.anchored_pixels;
+        self.samples += o.samples;
+        self.anchor_ns += o.anchor_ns;
+        self.sample_ns += o.sample_ns;
+        self.once_ns += o.once_ns;
+    }
+}
+
 /// Sizes the passes of a budgeted render. The first pass is a probe: [`Self::PROBE_SPP`]
 /// samples in the pixels of every [`Self::PROBE_STRIDE`]-th band. From it (and any later
 /// pass) the cost of a pass is modelled as wall-clock seconds per anchored pixel plus
@@ -62,11 +72,7 @@ impl PassSchedule {
     pub(crate) fn record(&mut self, wall: f64, pass: PassWork) {
         self.passes += 1;
         self.wall += wall;
-        self.work.anchored_pixels += pass.anchored_pixels;
-        self.work.samples += pass.samples;
-        self.work.anchor_ns += pass.anchor_ns;
-        self.work.sample_ns += pass.sample_ns;
-        self.work.once_ns += pass.once_ns;
+        self.work += pass;
     }
 
     /// The sample count per pixel the next pass should bring every one of `pixels` pixels

@@ -432,41 +432,44 @@ impl Relighter {
                     .zip(bits.par_chunks_mut(words))
                     .enumerate()
                     .with_min_len(64)
-                    .map(|(i, (stats, bits))| {
-                        if cancel.load(Ordering::Relaxed) {
-                            return 0;
-                        }
-                        done.fetch_add(pass.len() as u64, Ordering::Relaxed);
-                        let Some((_, sp)) = this.point(scene, &materials, i) else {
-                            return 0;
-                        };
-                        let at = PixelLights {
-                            scene,
-                            env: &env,
-                            product: product_of(&env, &sp, product_level).map(Arc::new),
-                            sp,
-                        };
-                        let mut bvh = TraversalCounters::default();
-                        let mut rays = 0u64;
-                        for s in pass.clone() {
-                            let rng = PixelSampler::new(seed, i as u64, STREAM_V + s as u64);
-                            for (stats, &light) in stats.iter_mut().zip(&lights) {
-                                // Draws with `LB = 0` tell nothing (module docs).
-                                let Some(d) = at.draw(light, &rng).filter(|d| d.ray.is_some())
-                                else {
-                                    continue;
-                                };
-                                rays += 1;
-                                let visible = at.visible(&d, &mut bvh);
-                                stats.samples += 1;
-                                stats.visible += visible as u32;
-                                if visible && light == LightId::Env {
-                                    bits[s as usize / 64] |= 1 << (s % 64);
+                    .map_init(
+                        || None,
+                        |last_product, (i, (stats, bits))| {
+                            if cancel.load(Ordering::Relaxed) {
+                                return 0;
+                            }
+                            done.fetch_add(pass.len() as u64, Ordering::Relaxed);
+                            let Some((_, sp)) = this.point(scene, &materials, i) else {
+                                return 0;
+                            };
+                            let at = PixelLights {
+                                scene,
+                                env: &env,
+                                product: reused_product(&env, &sp, product_level, last_product),
+                                sp,
+                            };
+                            let mut bvh = TraversalCounters::default();
+                            let mut rays = 0u64;
+                            for s in pass.clone() {
+                                let rng = PixelSampler::new(seed, i as u64, STREAM_V + s as u64);
+                                for (stats, &light) in stats.iter_mut().zip(&lights) {
+                                    // Draws with `LB = 0` tell nothing (module docs).
+                                    let Some(d) = at.draw(light, &rng).filter(|d| d.ray.is_some())
+                                    else {
+                                        continue;
+                                    };
+                                    rays += 1;
+                                    let visible = at.visible(&d, &mut bvh);
+                                    stats.samples += 1;
+                                    stats.visible += visible as u32;
+                                    if visible && light == LightId::Env {
+                                        bits[s as usize / 64] |= 1 << (s % 64);
+                                    }
                                 }
                             }
-                        }
-                        rays
-                    })
+                            rays
+                        },
+                    )
                     .sum::<u64>()
             };
             let pass_rays = run_with_progress(threads, work, &mut || {
@@ -730,24 +733,35 @@ struct PassWork {
 }
 
 impl PassWork {
-    fn add(self, o: Self) -> Self {
-        let (a, b) = (self.schedule, o.schedule);
-        Self {
-            schedule: ScheduleWork {
-                anchored_pixels: a.anchored_pixels + b.anchored_pixels,
-                samples: a.samples + b.samples,
-                anchor_ns: a.anchor_ns + b.anchor_ns,
-                sample_ns: a.sample_ns + b.sample_ns,
-                once_ns: a.once_ns + b.once_ns,
-            },
-            shadow_rays: self.shadow_rays + o.shadow_rays,
-        }
+    fn add(mut self, o: Self) -> Self {
+        self.schedule += o.schedule;
+        self.shadow_rays += o.shadow_rays;
+        self
     }
 }
 
 /// A product distribution kept for the next pixel of the same material and normal (the
 /// renderer's reuse: flat diffuse surfaces share one).
 type LastProduct = Option<((Material, Vec3), Arc<ProductDistribution>)>;
+
+/// The product distribution of the map at `sp`: `last`'s where it was built for the same
+/// view-independent material and normal, else a new one, kept in `last`.
+fn reused_product(
+    env: &EnvMap,
+    sp: &ShadingPoint,
+    level: ProductLevel,
+    last: &mut LastProduct,
+) -> Option<Arc<ProductDistribution>> {
+    let key = (!sp.material.product_depends_on_wo()).then_some((sp.material, sp.normal));
+    match (&*last, key) {
+        (Some((k, p)), Some(key)) if *k == key => Some(p.clone()),
+        _ => {
+            let p = product_of(env, sp, level).map(Arc::new);
+            *last = key.zip(p.clone());
+            p
+        }
+    }
+}
 
 /// What every pixel of a pass of [`Relighter::render`] reads.
 struct RelightPass<'a> {
@@ -785,19 +799,10 @@ impl RelightPass<'_> {
             }
             return work;
         };
-        let key = (!sp.material.product_depends_on_wo()).then_some((sp.material, sp.normal));
-        let product = match (&*last_product, key) {
-            (Some((k, p)), Some(key)) if *k == key => Some(p.clone()),
-            _ => {
-                let p = product_of(self.env, &sp, self.params.product_level).map(Arc::new);
-                *last_product = key.zip(p.clone());
-                p
-            }
-        };
         let at = PixelLights {
             scene: self.scene,
             env: self.env,
-            product,
+            product: reused_product(self.env, &sp, self.params.product_level, last_product),
             sp,
         };
         let prepared = Instant::now();

@@ -55,32 +55,43 @@ impl Accumulator {
         }
     }
 
-    /// Runs `work` over `units` in parallel batches of at most ~2M pending splats (`cost`
-    /// bounds a unit's), adding the results in unit order: deterministic, bounded memory.
+    /// Adds the splats of `work` over `units` ([`for_each_splat`]).
     fn run<U: Sync>(
         &mut self,
         units: &[U],
         cost: impl Fn(&U) -> usize,
         work: impl Fn(&U) -> Vec<Splat> + Sync,
     ) {
-        const BUDGET: usize = 1 << 21;
-        let mut start = 0;
-        while start < units.len() {
-            let mut end = start;
-            let mut pending = 0;
-            while end < units.len() && (end == start || pending + cost(&units[end]) <= BUDGET) {
-                pending += cost(&units[end]);
-                end += 1;
-            }
-            let done: Vec<Vec<Splat>> = units[start..end].par_iter().map(&work).collect();
-            for s in done.iter().flatten() {
-                let t = s.texel as usize;
-                self.base[t] += s.base;
-                self.excess[t] += s.excess;
-                self.omega[t] += s.omega;
-            }
-            start = end;
+        for_each_splat(units, cost, work, |s| {
+            let t = s.texel as usize;
+            self.base[t] += s.base;
+            self.excess[t] += s.excess;
+            self.omega[t] += s.omega;
+        });
+    }
+}
+
+/// Runs `work` over `units` in parallel batches of at most ~2M pending splats (`cost`
+/// bounds a unit's), handing the results to `sink` in unit order: deterministic, bounded
+/// memory.
+fn for_each_splat<U: Sync>(
+    units: &[U],
+    cost: impl Fn(&U) -> usize,
+    work: impl Fn(&U) -> Vec<Splat> + Sync,
+    mut sink: impl FnMut(&Splat),
+) {
+    const BUDGET: usize = 1 << 21;
+    let mut start = 0;
+    while start < units.len() {
+        let mut end = start;
+        let mut pending = 0;
+        while end < units.len() && (end == start || pending + cost(&units[end]) <= BUDGET) {
+            pending += cost(&units[end]);
+            end += 1;
         }
+        let done: Vec<Vec<Splat>> = units[start..end].par_iter().map(&work).collect();
+        done.iter().flatten().for_each(&mut sink);
+        start = end;
     }
 }
 /// Largest accepted lat-long image side (width or height), in pixels.
@@ -330,35 +341,45 @@ impl EnvMap {
             }
             out.0
         };
-        let n = width * height;
-        let mut acc = Accumulator::new(n);
-        acc.run(&units, |u| ((u.2 - u.1) * sub) as usize, unit_splats);
+        let cost = |u: &(u32, u32, u32, u32)| ((u.2 - u.1) * sub) as usize;
+        let pixel_omega = |y: usize| {
+            std::f64::consts::TAU / w
+                * ((pi * y as f64 / h).cos() - (pi * (y + 1) as f64 / h).cos())
+        };
+        if gather {
+            // The excess lands in few pixels: kept sparse beside the gathered base.
+            let mut image = self.gather_equirect(width, height, |l| split(l).0);
+            let mut excess = std::collections::BTreeMap::<u32, DVec3>::new();
+            for_each_splat(&units, cost, unit_splats, |s| {
+                *excess.entry(s.texel).or_default() += s.excess;
+            });
+            for (i, e) in excess {
+                let px = &mut image[i as usize];
+                let value = Vec3::from(*px).as_dvec3() + e / pixel_omega(i as usize / width);
+                *px = value.as_vec3().to_array();
+            }
+            return image;
+        }
+        let mut acc = Accumulator::new(width * height);
+        acc.run(&units, cost, unit_splats);
         let Accumulator {
             base,
             excess,
             omega,
         } = acc;
-        let mut image = if gather {
-            self.gather_equirect(width, height, |l| split(l).0)
-        } else {
-            vec![DVec3::ZERO; n]
-        };
-        image.par_iter_mut().enumerate().for_each(|(i, px)| {
-            let (x, y) = (i % width, i / width);
-            let pixel_omega = std::f64::consts::TAU / w
-                * ((pi * y as f64 / h).cos() - (pi * (y + 1) as f64 / h).cos());
-            if !gather {
-                *px = if omega[i] > 0.0 {
+        (0..width * height)
+            .map(|i| {
+                let (x, y) = (i % width, i / width);
+                let b = if omega[i] > 0.0 {
                     base[i] / omega[i]
                 } else {
                     // A pixel too thin to catch a sub-texel (near the poles): its centre.
                     let d = latlong_to_dir((x as f64 + 0.5) / w, (y as f64 + 0.5) / h);
                     split(self.texels[self.index_of(d.as_vec3())]).0
                 };
-            }
-            *px += excess[i] / pixel_omega;
-        });
-        image.iter().map(|p| p.as_vec3().to_array()).collect()
+                (b + excess[i] / pixel_omega(y)).as_vec3().to_array()
+            })
+            .collect()
     }
 
     /// The base of [`Self::to_equirect`] for pixels much smaller than texels: `base` of the
@@ -368,10 +389,10 @@ impl EnvMap {
         width: usize,
         height: usize,
         base: impl Fn([f32; 3]) -> DVec3 + Sync,
-    ) -> Vec<DVec3> {
+    ) -> Vec<[f32; 3]> {
         let (w, h) = (width as f64, height as f64);
         let pi = std::f64::consts::PI;
-        let mut out = vec![DVec3::ZERO; width * height];
+        let mut out = vec![[0.0f32; 3]; width * height];
         out.par_chunks_mut(width).enumerate().for_each(|(j, row)| {
             let (c0, c1) = ((pi * j as f64 / h).cos(), (pi * (j + 1) as f64 / h).cos());
             let ts = [0.25, 0.75].map(|f| (c0 + (c1 - c0) * f).clamp(-1.0, 1.0).acos() / pi);
@@ -383,7 +404,7 @@ impl EnvMap {
                         sum += base(self.eval(d.as_vec3()).to_array());
                     }
                 }
-                *px = sum * 0.25;
+                *px = (sum * 0.25).as_vec3().to_array();
             }
         });
         out
