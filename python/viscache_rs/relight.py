@@ -13,6 +13,8 @@ sample) and takes ``<V>``, the expected visibility under the same density, from:
   them as they are; an
   edit of the map's density (another or rotated map, another material) reweights them by
   ``p'/p`` (``res.effective_samples`` says how far the densities differ), with no ray;
+  where the new density puts light the old one never drew toward (a sun turned to
+  where the old map was dark), the bound widens by that share and ``t`` falls;
 - ``visibility="cache"``: the visibility cache's interpolated records ``V~`` averaged over
   directions drawn from the current density, with no ray, so ``render(camera=...)`` may
   move the view. ``cache`` defaults to a "medium" cache built for the view. The map only:
@@ -51,10 +53,11 @@ class RelightResult:
     """``image`` and ``variance`` (H, W, 3) float32 (the variance treats ``<V>`` as exact);
     ``error_bound`` (H, W, 3): the estimated absolute error of ``<LB><V>`` summed over
     lights (eq. 7 plus two standard errors of ``<V>``: from its effective sample count, or
-    from the cache, the spread of the records it blends). Per pixel and light (H, W, L),
-    light 0 the map, then the area lights: ``t`` (the blend factor), ``bound`` (estimated
-    relative error bound, worst channel), ``visibility`` (``<V>``) and
-    ``effective_samples``; NaN where a pixel has no surface or a light no ``<V>``."""
+    from the cache, the spread of the records it blends; reweighted samples add the share
+    of the new density they missed, ``1 - mean(p'/p)``, times ``max(<V>, 1 - <V>)``). Per
+    pixel and light (H, W, L), light 0 the map, then the area lights: ``t`` (the blend
+    factor), ``bound`` (estimated relative error bound, worst channel), ``visibility``
+    (``<V>``) and ``effective_samples``; NaN where a pixel has no surface or a light no ``<V>``."""
 
     image: np.ndarray
     variance: np.ndarray

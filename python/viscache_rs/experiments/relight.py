@@ -210,6 +210,7 @@ def run(ctx: ExperimentContext) -> None:
                "later LBV spp", "later ms per sample", "product ms per sample",
                "later overhead", "lights", "bytes per pixel and light"], over_rows)
     ctx.note("The bound is SBF eq. 7 with estimated variances plus two standard errors of "
-             "<V> (pixels: from its effective sample count; cache: the spread of the records "
-             "it blends); the actual error is that of <LB><V> at lb_spp 1024 against the "
+             "<V> (pixels: from its effective sample count, plus, after an edit of the map, the "
+             "share of the new density the stored samples missed; cache: the spread of the "
+             "records it blends); the actual error is that of <LB><V> at lb_spp 1024 against the "
              f"reference, with {NOISE_SIGMAS:g} standard errors of both allowed for their noise.")
