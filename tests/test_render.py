@@ -198,13 +198,14 @@ def test_budgeted_product_renders_learn_their_mixture_and_stay_unbiased(small_se
 
 def test_budgeted_product_renders_choose_light_draws_from_the_view():
     # Without a count, a budgeted product render reads its view's edge share from the
-    # anchors: a garage of smooth floor and walls splits every sample into 8 light draws,
-    # grass keeps one. The split image stays unbiased (against MIS as above).
+    # anchors: a garage of smooth floor and walls splits every sample into light draws
+    # (at most 8, as many as its probe finds best: 4-5 at this size), grass keeps one.
+    # The split image stays unbiased (against MIS as above).
     garage = vc.scenes.load("garage", detail=0.3)
     garage.camera = garage.camera.with_resolution(96, 72)
     r = vc.render(garage, method="product", time_budget=0.6, seed=13, progress=False)
-    assert r.stats["light_samples"] == 8 and 0.05 < r.stats["edge_share"] < 0.275
-    assert r.stats["shadow_rays"] > 4 * r.stats["samples"]
+    assert 2 <= r.stats["light_samples"] <= 8 and 0.05 < r.stats["edge_share"] < 0.275
+    assert r.stats["shadow_rays"] > 1.5 * r.stats["samples"]
     ref = _render(garage, "mis", 256, seed=3)
     _assert_agrees(r, ref, coverage=0.45)
     garden = vc.scenes.load("garden", detail=0.3)
@@ -219,9 +220,25 @@ def test_budgeted_product_renders_choose_light_draws_from_the_view():
     plain = _render(garage, "product", 4)
     assert plain.stats["light_samples"] == 1 and plain.stats["edge_share"] is None
     cv = vc.render(garage, method="cv", time_budget=0.3, progress=False)
-    assert cv.stats["light_samples"] == 8 and cv.stats["edge_share"] == r.stats["edge_share"]
+    assert cv.stats["light_samples"] >= 2 and cv.stats["edge_share"] == r.stats["edge_share"]
     mis = vc.render(garage, method="mis", time_budget=0.1, progress=False)
     assert mis.stats["light_samples"] == 1 and mis.stats["edge_share"] is None
+
+
+def test_the_probe_takes_fewer_draws_where_they_are_dear_and_the_hits_vary():
+    # The Cornell box splits by its edge share, but a draw there traces two shadow rays
+    # (the closed box's map and the ceiling light) against a primary ray into 1,262
+    # triangles, and the light's edge and the blocks' silhouettes make the hits vary:
+    # its probe measures about 2.4 draws as best (two-stage optimum, render/split.rs),
+    # where garage's light noise outweighs its hits' and keeps all eight (above).
+    box = vc.scenes.load("cornell")
+    box.camera = box.camera.with_resolution(160, 120)
+    r = vc.render(box, method="product", time_budget=0.5, seed=5, progress=False)
+    assert r.stats["edge_share"] < 0.275
+    assert 1.5 < r.stats["probe_draws"] < 3.5 and r.stats["light_samples"] in (2, 3)
+    # Draws per sample changed after the probe's samples: the image stays unbiased.
+    ref = _render(box, "mis", 64, seed=3)
+    _assert_agrees(r, ref, coverage=0.45)
 
 
 def test_light_samples_are_bit_identical_for_any_thread_count(small_setups):

@@ -340,6 +340,9 @@ pub struct RenderStats {
     /// The view's edge share ([`split::edge_share`]), when the render chose its light
     /// draws from it.
     pub edge_share: Option<f64>,
+    /// The light draws per sample its probe found best ([`split::draws_from`]), before
+    /// rounding and capping, when the view split and the probe could tell.
+    pub probe_draws: Option<f64>,
     /// Samples every pixel received (the least, with adaptive counts).
     pub spp: u32,
     /// Passes made.
@@ -452,6 +455,11 @@ struct BandWork {
     draws: Vec<(u32, f64, [f64; 4], f64)>,
     /// The pixel's draws for [`PixelTechniques`] (the adaptive pilot).
     moments: DrawMoments,
+    /// What the probe measures for [`split::draws_after_probe`], and the pixel's sums, over
+    /// its samples of the pass, of their values and first-draw values and of their
+    /// squares (per channel).
+    split: split::SplitProbe,
+    pixel_values: [[f64; 3]; 4],
 }
 
 /// A lookup, the point it was made for, and the interpolant made of it there.
@@ -557,6 +565,8 @@ struct Shader<'a> {
     pixel_techniques: Option<&'a PixelTechniques>,
     /// Light draws per sample.
     light_samples: u32,
+    /// Whether the samples measure their draws' spread and cost ([`split::SplitProbe`]).
+    measure_split: bool,
     /// Products by normal for diffuse hits off their anchor's surface.
     normal_products: Option<&'a NormalProducts<'a>>,
 }
@@ -809,6 +819,10 @@ impl Shader<'_> {
         let draws = self.light_samples;
         let mut l = Vec3::ZERO;
         let mut g_over_p = [0.0; 3];
+        // The probe's one-draw value of the sample, and the draws' time.
+        let measure = self.measure_split && draws > 1;
+        let mut first = Vec3::ZERO;
+        let drawing = measure.then(Instant::now);
         for j in 0..draws {
             let draw = if draws == 1 {
                 *rng
@@ -825,6 +839,9 @@ impl Shader<'_> {
                 &mut work.bvh,
             );
             l += lj;
+            if j == 0 {
+                first = lj;
+            }
             if let (Some(choices), Some(d)) = (&choices, &drawn) {
                 let value = luminance(d.value.to_array());
                 work.moments.add(choices, value, d.technique_pdfs, d.pdf);
@@ -857,6 +874,18 @@ impl Shader<'_> {
         }
         let inv = 1.0 / draws as f64;
         let z = emitted + l * inv as f32 + indirect;
+        if let Some(started) = drawing {
+            work.split.draw_ns += elapsed_ns(started);
+            let one = emitted + first + indirect;
+            let v = &mut work.pixel_values;
+            for c in 0..3 {
+                let (z, one) = (z[c] as f64, one[c] as f64);
+                v[0][c] += z;
+                v[1][c] += z * z;
+                v[2][c] += one;
+                v[3][c] += one * one;
+            }
+        }
         let Some((a, _, _)) = control else {
             return (z, [0.0; 3]);
         };
@@ -902,6 +931,8 @@ impl Shader<'_> {
     ) {
         let seed = self.params.seed;
         work.pixel = pixel as u32;
+        work.pixel_values = [[0.0; 3]; 4];
+        let n_samples = samples.len() as u32;
         let start = Instant::now();
         let anchor = self.anchors.map(|g| self.prepare(g, pixel, work));
         let prepared = Instant::now();
@@ -964,10 +995,33 @@ impl Shader<'_> {
         let sampled = elapsed_ns(prepared);
         work.sample_ns += sampled;
         work.shading_ns += sampled;
+        if self.measure_split {
+            probe_pixel(n_samples, sampled, work);
+        }
         if let Some(a) = anchor_surface {
             flush_verdicts(a, &mut verdicts, work);
         }
     }
+}
+
+/// Adds a measured pixel (`n` samples taking `ns`, summed in `work.pixel_values`) to the
+/// band's [`split::SplitProbe`]: each channel's variance between samples, of their values
+/// and of their first draws', weighted as the pixel counts in relMSE.
+fn probe_pixel(n: u32, ns: u64, work: &mut BandWork) {
+    if n < 2 {
+        return;
+    }
+    let k = n as f64;
+    let variance = |sum: f64, squares: f64| (squares - sum * sum / k).max(0.0) / (k - 1.0);
+    let [z, zz, first, first_sq] = work.pixel_values;
+    for c in 0..3 {
+        let mean = z[c] / k;
+        let weight = 1.0 / (mean * mean + RELMSE_FLOOR);
+        work.split.all += weight * variance(z[c], zz[c]);
+        work.split.first += weight * variance(first[c], first_sq[c]);
+    }
+    work.split.sample_ns += ns;
+    work.split.samples += n as u64;
 }
 
 /// Adds a point's per-record `(misses, uses)` to the band's totals and clears them.
@@ -1112,7 +1166,9 @@ fn render_with(
     let edge_share = anchors
         .filter(|_| chooses_draws)
         .map(|g| split::edge_share(g, scene));
-    let light_samples = edge_share.map_or(params.light_samples, split::draws_for);
+    let mut light_samples = edge_share.map_or(params.light_samples, split::draws_for);
+    let mut probe_draws = None;
+    let splits = edge_share.is_some() && light_samples > 1;
     let mut schedule = PassSchedule::default();
     // Method "product" under a budget learns its mixture from the probe pass.
     let mut techniques = params.techniques();
@@ -1233,6 +1289,8 @@ fn render_with(
             choices: pilot_choices,
             pixel_techniques: pixel_techniques.as_ref(),
             light_samples,
+            // A view that splits lets its probe choose how many draws the passes take.
+            measure_split: probe && splits,
             normal_products: normal_products.as_ref(),
         };
         let work = run_with_progress(
@@ -1294,6 +1352,12 @@ fn render_with(
             pass.samples += w.samples;
             pass.anchor_ns += w.anchor_ns;
             pass.sample_ns += w.sample_ns;
+        }
+        if probe && splits {
+            let mut measured = split::SplitProbe::default();
+            work.iter().for_each(|w| measured += w.split);
+            probe_draws = split::draws_from(&measured, light_samples);
+            light_samples = split::draws_after_probe(&measured, light_samples);
         }
         if probe && learn {
             // Each draw counts as its pixel counts in relMSE: 1 / (mean² + 10⁻²).
@@ -1389,6 +1453,7 @@ fn render_with(
         pixel_techniques: pixel_techniques.as_ref().map(PixelTechniques::counts),
         light_samples,
         edge_share,
+        probe_draws,
         ..RenderStats::default()
     };
     if cv {

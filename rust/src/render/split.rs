@@ -19,6 +19,16 @@
 //! them per pixel from the anchors starved the silhouettes of scenes whose edges want
 //! draws too: benches/HISTORY.md).
 //!
+//! How many, where the view splits, its probe pass decides ([`draws_after_probe`]): from
+//! the variance of its samples' values, of their first draws alone and the draws' share
+//! of the samples' CPU time, the two-stage optimum `sqrt((c₀ / c₁)(V_w / V_b))`, at most
+//! [`SPLIT_DRAWS`]. Where a draw is dear beside the rest of a sample and the hits vary
+//! (the Cornell box: two shadow rays a draw, a primary ray into 1,262 triangles, the
+//! light's edge on the ceiling), fewer; where nearly all of a sample's variance is the
+//! light's (garage, panels, dynamics, blob), all eight. Deciding after the pilot pass
+//! instead, on every pixel, mixed counts within the pixels and lost 1.1-1.5x
+//! (benches/HISTORY.md).
+//!
 //! Measured at 1 s on the suite, 160x120, eight draws everywhere against one
 //! (`benches/peer_mitsuba.py --methods product product:8`, relMSE over Mitsuba's, edge
 //! share in brackets): garage (0.11) 0.22 → 0.14, panels (0.11) 0.47 → 0.38, room (0.13)
@@ -93,6 +103,59 @@ pub fn draws_for(share: f64) -> u32 {
     }
 }
 
+/// What the probe pass of a render that splits measures of its samples, for
+/// [`draws_from`]: relMSE-weighted variances between a pixel's samples (each pixel's
+/// channels weighted by `1 / (mean² + 10⁻²)`, summed over the probed pixels) and CPU time.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SplitProbe {
+    /// Of the samples' values, the mean of their `k` light draws.
+    pub all: f64,
+    /// Of the samples' values had they stopped after their first draw (a one-draw
+    /// estimate of the same pixel, drawn from the same samples).
+    pub first: f64,
+    /// CPU nanoseconds of the samples' light draws, and of the samples in all.
+    pub draw_ns: u64,
+    pub sample_ns: u64,
+    /// Samples measured.
+    pub samples: u64,
+}
+
+impl std::ops::AddAssign for SplitProbe {
+    fn add_assign(&mut self, o: Self) {
+        self.all += o.all;
+        self.first += o.first;
+        self.draw_ns += o.draw_ns;
+        self.sample_ns += o.sample_ns;
+        self.samples += o.samples;
+    }
+}
+
+/// The light draws per sample that the probe's `k`-draw samples say cost least for
+/// their variance: `sqrt((c₀ / c₁) · (V_w / V_b))`, the optimum of two-stage sampling
+/// (Cochran, *Sampling Techniques*, 3rd ed., 1977, §10.6) for a sample of variance
+/// `V_b + V_w / k` (`V_b` what the jittered hit decides, `V_w` one draw's noise about it)
+/// and cost `c₀ + k c₁` (`c₁` a draw with its shadow rays, `c₀` the rest: primary ray,
+/// hit, mixture set-up). From the variances of one draw (`V_b + V_w`) and of `k`:
+/// `V_w = (first − all) k / (k − 1)`. Stratified draws make `all` smaller than `V_w / k`
+/// alone would, which overstates `V_w` and errs toward more draws. `None` when the probe
+/// cannot tell (no variance left to the hits, no time measured): keep `k`.
+pub fn draws_from(probe: &SplitProbe, k: u32) -> Option<f64> {
+    if k < 2 || probe.samples == 0 || probe.draw_ns == 0 {
+        return None;
+    }
+    let kf = k as f64;
+    let v_w = (probe.first - probe.all) * kf / (kf - 1.0);
+    let v_b = probe.first - v_w;
+    let c1 = probe.draw_ns as f64 / kf;
+    let c0 = probe.sample_ns.saturating_sub(probe.draw_ns) as f64;
+    (v_b > 0.0 && v_w > 0.0 && c0 > 0.0).then(|| ((c0 / c1) * (v_w / v_b)).sqrt())
+}
+
+/// [`draws_from`] as a count in `1..=k` (`k` when the probe cannot tell).
+pub fn draws_after_probe(probe: &SplitProbe, k: u32) -> u32 {
+    draws_from(probe, k).map_or(k, |d| (d.round() as u32).clamp(1, k))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -134,6 +197,50 @@ mod tests {
         };
         let err = both.validate().unwrap_err().to_string();
         assert!(err.contains("light_samples"), "{err}");
+    }
+
+    #[test]
+    fn the_probe_takes_the_two_stage_optimum() {
+        // One draw: V_b + V_w = 2.5; eight: V_b + V_w / 8 = 0.75. So V_w = 2, V_b = 0.5;
+        // a draw costs 100 ns, the rest of a sample 200: sqrt(2 · 4) = 2.83.
+        let probe = SplitProbe {
+            all: 0.75,
+            first: 2.5,
+            draw_ns: 800,
+            sample_ns: 1000,
+            samples: 1,
+        };
+        let k = draws_from(&probe, 8).unwrap();
+        assert!((k - 8f64.sqrt()).abs() < 1e-12, "{k}");
+        assert_eq!(draws_after_probe(&probe, 8), 3);
+        // Dearer primary work: more draws, never more than the view's count.
+        let dear = SplitProbe {
+            sample_ns: 100_000,
+            ..probe
+        };
+        assert_eq!(draws_after_probe(&dear, 8), 8);
+        // Draws that explain all of the variance (or more, when stratified) leave nothing
+        // to the hits: the probe cannot tell, the count stays.
+        let light_only = SplitProbe { all: 0.2, ..probe };
+        assert_eq!(draws_from(&light_only, 8), None);
+        assert_eq!(draws_after_probe(&light_only, 8), 8);
+        // Draws that cost nothing beside the rest: all of them, though the hits make
+        // nearly all of the variance; a rest that costs nothing: one.
+        let free = SplitProbe {
+            draw_ns: 1,
+            sample_ns: 1_000_000,
+            all: 2.4,
+            ..probe
+        };
+        assert_eq!(draws_after_probe(&free, 8), 8);
+        let cheap_rest = SplitProbe {
+            draw_ns: 1_000_000,
+            sample_ns: 1_000_001,
+            ..probe
+        };
+        assert_eq!(draws_after_probe(&cheap_rest, 8), 1);
+        assert_eq!(draws_from(&SplitProbe::default(), 8), None);
+        assert_eq!(draws_from(&probe, 1), None);
     }
 
     #[test]
