@@ -48,7 +48,7 @@
 //! `max(⟨V⟩, 1 − ⟨V⟩)`. The effective sample count does not see this: the samples that
 //! kept weight agree with each other. Without the term the bound held on 79-82% of
 //! pixels after a map rotation or swap; with it, on 96-100% (`viscache experiment
-//! relight`, 2026-11-27).
+//! relight`, 2026-11-26, seventh session).
 //!
 //! ## Determinism
 //! Every random number is a pure function of `(seed, pixel, stream, sample, dimension)`;
