@@ -171,9 +171,10 @@ pub struct RenderParams {
     /// take them evenly.
     pub adaptive: bool,
     /// The product methods under a time budget: the light draws per sample are chosen from
-    /// the anchors ([`split`]: several where the view is mostly smooth surfaces, one
-    /// where jittered hits leave their anchor's surface) instead of
-    /// [`Self::light_samples`], which must then be 1.
+    /// the anchors and the probe pass ([`split`]: up to [`split::SPLIT_DRAWS`] where the
+    /// view is mostly smooth surfaces, as many as the probe measures best; one where
+    /// jittered hits leave their anchor's surface) instead of [`Self::light_samples`],
+    /// which must then be 1.
     pub auto_light_samples: bool,
 }
 
@@ -565,7 +566,8 @@ struct Shader<'a> {
     pixel_techniques: Option<&'a PixelTechniques>,
     /// Light draws per sample.
     light_samples: u32,
-    /// Whether the samples measure their draws' spread and cost ([`split::SplitProbe`]).
+    /// Whether the samples measure their variance with all draws and with the first
+    /// alone, and the draws' time ([`split::SplitProbe`]).
     measure_split: bool,
     /// Products by normal for diffuse hits off their anchor's surface.
     normal_products: Option<&'a NormalProducts<'a>>,
@@ -1008,6 +1010,8 @@ impl Shader<'_> {
 /// band's [`split::SplitProbe`]: each channel's variance between samples, of their values
 /// and of their first draws', weighted as the pixel counts in relMSE.
 fn probe_pixel(n: u32, ns: u64, work: &mut BandWork) {
+    work.split.sample_ns += ns;
+    work.split.samples += n as u64;
     if n < 2 {
         return;
     }
@@ -1020,8 +1024,6 @@ fn probe_pixel(n: u32, ns: u64, work: &mut BandWork) {
         work.split.all += weight * variance(z[c], zz[c]);
         work.split.first += weight * variance(first[c], first_sq[c]);
     }
-    work.split.sample_ns += ns;
-    work.split.samples += n as u64;
 }
 
 /// Adds a point's per-record `(misses, uses)` to the band's totals and clears them.
