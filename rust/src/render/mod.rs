@@ -456,7 +456,7 @@ struct BandWork {
     draws: Vec<(u32, f64, [f64; 4], f64)>,
     /// The pixel's draws for [`PixelTechniques`] (the adaptive pilot).
     moments: DrawMoments,
-    /// What the probe measures for [`split::draws_after_probe`], and the pixel's sums, over
+    /// What the probe measures for [`split::draws_from`], and the pixel's sums, over
     /// its samples of the pass, of their values and first-draw values and of their
     /// squares (per channel).
     split: split::SplitProbe,
@@ -933,7 +933,9 @@ impl Shader<'_> {
     ) {
         let seed = self.params.seed;
         work.pixel = pixel as u32;
-        work.pixel_values = [[0.0; 3]; 4];
+        if self.measure_split {
+            work.pixel_values = [[0.0; 3]; 4];
+        }
         let n_samples = samples.len() as u32;
         let start = Instant::now();
         let anchor = self.anchors.map(|g| self.prepare(g, pixel, work));
@@ -1359,7 +1361,7 @@ fn render_with(
             let mut measured = split::SplitProbe::default();
             work.iter().for_each(|w| measured += w.split);
             probe_draws = split::draws_from(&measured, light_samples);
-            light_samples = split::draws_after_probe(&measured, light_samples);
+            light_samples = split::draws_after_probe(probe_draws, light_samples);
         }
         if probe && learn {
             // Each draw counts as its pixel counts in relMSE: 1 / (mean² + 10⁻²).

@@ -151,9 +151,10 @@ pub fn draws_from(probe: &SplitProbe, k: u32) -> Option<f64> {
     (v_b > 0.0 && v_w > 0.0 && c0 > 0.0).then(|| ((c0 / c1) * (v_w / v_b)).sqrt())
 }
 
-/// [`draws_from`] as a count in `1..=k` (`k` when the probe cannot tell).
-pub fn draws_after_probe(probe: &SplitProbe, k: u32) -> u32 {
-    draws_from(probe, k).map_or(k, |d| (d.round() as u32).clamp(1, k))
+/// The count in `1..=k` for an optimum of [`draws_from`] (`k` when the probe could not
+/// tell).
+pub fn draws_after_probe(optimum: Option<f64>, k: u32) -> u32 {
+    optimum.map_or(k, |d| (d.round() as u32).clamp(1, k))
 }
 
 #[cfg(test)]
@@ -212,18 +213,18 @@ mod tests {
         };
         let k = draws_from(&probe, 8).unwrap();
         assert!((k - 8f64.sqrt()).abs() < 1e-12, "{k}");
-        assert_eq!(draws_after_probe(&probe, 8), 3);
+        assert_eq!(draws_after_probe(draws_from(&probe, 8), 8), 3);
         // Dearer primary work: more draws, never more than the view's count.
         let dear = SplitProbe {
             sample_ns: 100_000,
             ..probe
         };
-        assert_eq!(draws_after_probe(&dear, 8), 8);
+        assert_eq!(draws_after_probe(draws_from(&dear, 8), 8), 8);
         // Draws that explain all of the variance (or more, when stratified) leave nothing
         // to the hits: the probe cannot tell, the count stays.
         let light_only = SplitProbe { all: 0.2, ..probe };
         assert_eq!(draws_from(&light_only, 8), None);
-        assert_eq!(draws_after_probe(&light_only, 8), 8);
+        assert_eq!(draws_after_probe(draws_from(&light_only, 8), 8), 8);
         // Draws that cost nothing beside the rest: all of them, though the hits make
         // nearly all of the variance; a rest that costs nothing: one.
         let free = SplitProbe {
@@ -232,13 +233,13 @@ mod tests {
             all: 2.4,
             ..probe
         };
-        assert_eq!(draws_after_probe(&free, 8), 8);
+        assert_eq!(draws_after_probe(draws_from(&free, 8), 8), 8);
         let cheap_rest = SplitProbe {
             draw_ns: 1_000_000,
             sample_ns: 1_000_001,
             ..probe
         };
-        assert_eq!(draws_after_probe(&cheap_rest, 8), 1);
+        assert_eq!(draws_after_probe(draws_from(&cheap_rest, 8), 8), 1);
         assert_eq!(draws_from(&SplitProbe::default(), 8), None);
         assert_eq!(draws_from(&probe, 1), None);
     }

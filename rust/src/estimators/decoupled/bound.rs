@@ -26,15 +26,7 @@ pub fn uniform_error_bound(area: f64, var_lb: f64, var_v: f64) -> f64 {
 /// channel so `t = 1 − ε` (SBF §4: a relative error there costs little absolute error).
 /// `threshold = 0` gives `t = 0`: the unbiased estimator alone.
 pub fn blend_factor(err: [f64; 3], lb: [f64; 3], threshold: f64, epsilon: f64) -> f64 {
-    let rel = (0..3)
-        .map(|c| {
-            if lb[c].abs() > f64::MIN_POSITIVE && err[c] > 0.0 {
-                err[c] / lb[c].abs()
-            } else {
-                0.0
-            }
-        })
-        .fold(0.0f64, f64::max);
+    let rel = relative_error(err, lb);
     let t = if rel > 0.0 {
         threshold / rel
     } else {
@@ -44,6 +36,20 @@ pub fn blend_factor(err: [f64; 3], lb: [f64; 3], threshold: f64, epsilon: f64) -
         return 0.0;
     }
     t.clamp(0.0, 1.0 - epsilon)
+}
+
+/// SBF eq. 10 over the channels: the largest `err / ⟨LB⟩`, a channel whose `⟨LB⟩` or
+/// bound is (near) zero counting as zero ([`blend_factor`]).
+pub fn relative_error(err: [f64; 3], lb: [f64; 3]) -> f64 {
+    (0..3)
+        .map(|c| {
+            if lb[c].abs() > f64::MIN_POSITIVE && err[c] > 0.0 {
+                err[c] / lb[c].abs()
+            } else {
+                0.0
+            }
+        })
+        .fold(0.0f64, f64::max)
 }
 
 /// SBF eq. 9: `(1 − t) ⟨LBV⟩ + t ⟨LB⟩ ⟨V⟩`.

@@ -64,7 +64,7 @@ use std::time::Instant;
 use glam::{DVec2, Vec3};
 use rayon::prelude::*;
 
-use self::bound::{binary_variance, blend, blend_factor, error_bound};
+use self::bound::{binary_variance, blend, blend_factor, error_bound, relative_error};
 use super::control_variate::Interpolant;
 use super::direct::{ProductDistribution, ProductLevel, ShadingPoint};
 use super::indirect::shading_point_at;
@@ -967,15 +967,7 @@ impl RelightPass<'_> {
                     error_bound(s.lb[c].variance(), var_v) + lb_mean[c].abs() * v_error
                 });
                 (0..3).for_each(|c| out.error_bound[c] += err[c]);
-                let rel = (0..3)
-                    .map(|c| {
-                        if lb_mean[c] > 0.0 {
-                            err[c] / lb_mean[c]
-                        } else {
-                            0.0
-                        }
-                    })
-                    .fold(0.0f64, f64::max);
+                let rel = relative_error(err, lb_mean);
                 let t = if s.lbv[0].count == 0 {
                     1.0
                 } else {
