@@ -151,10 +151,12 @@ def test_visibility_form_is_measured(garage):
     assert view.transfer_info["nearest"] is True
 
 
-def test_sun_is_judged_per_lighting(garage):
-    """A truncated transfer adds a sun's cells per pixel, with visibility in the form that
-    shadow rays at the sample pixels judge best for that lighting; the rays it traces are
-    the only ones after preparation, at most one per sample pixel and cell."""
+def test_sun_traces_rays_where_records_disagree(garage):
+    """A truncated transfer adds a sun's cells per pixel: where a pixel's records disagree
+    on the sun it traces shadow rays toward it (at most four a cell, at most `edge_rays`
+    per pixel of the view a change), elsewhere it takes their answer; those rays are the
+    only ones after preparation, and the image is the same for any thread count. Where
+    the budget runs out the rays' sample judges the form of the rest; 0 traces none."""
     setup, cache = garage
     view = vc.LightingPreview(setup.scene, setup.camera)
     sky = vc.envmaps.sky(sun_dir=(0.4, 0.6, -0.5), resolution=128)
@@ -167,15 +169,20 @@ def test_sun_is_judged_per_lighting(garage):
             one = view.render(cache, sky, rotation=degrees, threads=1)
             rays = setup.scene.counters()["rays"]
             b = view.last_bright
-            assert b["cells"] >= 1 and b["errors"] is not None
-            assert b["nearest"] == (b["errors"]["nearest"] < b["errors"]["blend"])
-            assert rays == b["errors"]["rays"] and 0 < rays <= 40 * 30 * b["cells"]
+            assert b["cells"] >= 1 and b["rays"] == rays
+            assert b["pixels"] <= rays <= min(4 * b["pixels"] * b["cells"], 40 * 30 / 16)
+            assert 0 < b["pixels"] < 40 * 30
+            if b["errors"] is not None:
+                e = b["errors"]
+                assert e["pixels"] >= 1 and b["nearest"] == (e["nearest"] < e["blend"])
             assert np.array_equal(view.render(cache, sky, rotation=degrees, threads=2), one)
+        view.prepare(cache, sky, basis="haar", budget_mb=40 * 30 * 300 / 1e6, edge_rays=0)
+        setup.scene.reset_counters()
+        view.render(cache, sky, rotation=90.0)
+        assert setup.scene.counters()["rays"] == 0
+        assert view.last_bright["rays"] is None
     finally:
         setup.scene.counting = False
-    view.prepare(cache, sky, basis="haar", budget_mb=40 * 30 * 300 / 1e6, nearest=True)
-    view.render(cache, sky)
-    assert view.last_bright["nearest"] is True and view.last_bright["errors"] is None
 
 
 def test_bad_input_names_the_argument(garage):
@@ -193,6 +200,9 @@ def test_bad_input_names_the_argument(garage):
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="^budget_mb"):
             view.prepare(cache, budget_mb=bad)
+    for bad in (-1.0, -1e-9, float("nan"), float("inf"), "many"):
+        with pytest.raises((ValueError, TypeError), match="^edge_rays"):
+            view.prepare(cache, edge_rays=bad)
     with pytest.raises(ValueError, match="^basis"):
         view.prepare(cache, basis="wavelets")
     with pytest.raises(ValueError, match="^obj"):

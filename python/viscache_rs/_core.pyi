@@ -321,6 +321,7 @@ class LightingPreview:
         budget_mb: float | None = None,
         product_level: int | str | None = None,
         nearest: bool | None = None,
+        edge_rays: float | None = None,
         threads: int | None = None,
     ) -> dict[str, Any]: ...
     @property

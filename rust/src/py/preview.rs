@@ -143,7 +143,9 @@ impl PyLightingPreview {
     }
 
     /// `J` per pixel as an (H, W, 3) float32 image under `envmap` turned by `rotation`
-    /// (None, degrees about +y, or a 3x3 matrix) with `cache`'s records; traces no rays.
+    /// (None, degrees about +y, or a 3x3 matrix) with `cache`'s records; traces no rays
+    /// but, from a truncated transfer, shadow rays toward a sun where a pixel's records
+    /// disagree on it (at most `edge_rays` per pixel, see `prepare`).
     /// By default from the kept transfer (built on the first call for a cache, rebuilt
     /// when the cache changes); `direct=True` integrates every pixel from scratch
     /// (no rotation then). `product_level`: the level of `B~`'s cells; None is "auto" (per
@@ -192,11 +194,13 @@ impl PyLightingPreview {
     /// "haar" or "sh". `nearest`: True takes visibility from each pixel's heaviest record
     /// only, False from the cache's blend of records, None (default) the one whose `J` lies
     /// closer to exact visibility at 1024 pixels (a record traced at each) — and, for a
-    /// truncated basis, visibility toward each lighting's bright cells (a sun) in the form
-    /// that shadow rays at up to 16384 pixels judge best for that lighting (see
-    /// `last_bright`). Returns a dict: basis, terms, basis_level or order, level, seconds,
-    /// bytes, pixels, measured, nearest, visibility_measured.
-    #[pyo3(signature = (cache, envmap=None, basis="auto", budget_mb=None, product_level=None, nearest=None, threads=None))]
+    /// truncated basis, visibility toward each lighting's bright cells (a sun) where a
+    /// pixel's records disagree on them by shadow rays, at most `edge_rays` (default 1/16)
+    /// per pixel of the view a lighting change, and in the form that those rays judge
+    /// best where the budget runs out (see `last_bright`; 0 traces none). Returns a dict:
+    /// basis, terms, basis_level or order, level, seconds, bytes, pixels, measured,
+    /// nearest, visibility_measured.
+    #[pyo3(signature = (cache, envmap=None, basis="auto", budget_mb=None, product_level=None, nearest=None, edge_rays=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn prepare<'py>(
         &self,
@@ -207,9 +211,19 @@ impl PyLightingPreview {
         budget_mb: Option<&Bound<'py, PyAny>>,
         product_level: Option<&Bound<'py, PyAny>>,
         nearest: Option<bool>,
+        edge_rays: Option<&Bound<'py, PyAny>>,
         threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let basis = BasisChoice::parse(basis).py()?;
+        let edge_rays = match edge_rays {
+            Some(r) => f64_arg(r, "edge_rays")?,
+            None => TransferRequest::DEFAULT.edge_rays,
+        };
+        if !(edge_rays.is_finite() && edge_rays >= 0.0) {
+            return Err(PyValueError::new_err(format!(
+                "edge_rays: must be a finite number of rays per pixel >= 0, got {edge_rays}"
+            )));
+        }
         let budget = match budget_mb {
             Some(b) => f64_arg(b, "budget_mb")?,
             None => TransferRequest::DEFAULT.budget_bytes as f64 * 1e-6,
@@ -230,6 +244,7 @@ impl PyLightingPreview {
                 nearest: nearest.unwrap_or(false),
             },
             choose_visibility: nearest.is_none(),
+            edge_rays,
         };
         let threads = threads_arg(threads)?;
         let cache = cache.bound(py)?;
@@ -253,10 +268,13 @@ impl PyLightingPreview {
 
     /// How the last transfer render added the map's bright cells (a sun's), or None (no
     /// render yet, no bright cell, or a whole transfer, which needs none): a dict with
-    /// `cells`, `nearest` (visibility toward them from each pixel's heaviest record, else
-    /// the cache's blend) and `errors` (`{"blend", "nearest", "rays"}`: each form's error
-    /// against shadow rays at 1024 pixels, which chose it; None when `prepare` fixed
-    /// `nearest`).
+    /// `cells`, `rays` (shadow rays traced toward them from the pixels whose records
+    /// disagree on them; None when the render had no scene), `pixels` (how many pixels
+    /// traced), `nearest` (where no ray was traced, visibility from each pixel's heaviest
+    /// record, else the cache's blend: the two differ only where the records disagree)
+    /// and `errors` (`{"blend", "nearest", "pixels"}`: when the ray budget left some
+    /// disagreeing pixels untraced, each form's error against the rays on a spread sample
+    /// of them, which chose `nearest`; else None).
     #[getter]
     fn last_bright<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
         let Some(choice) = self.get().last_bright() else {
@@ -265,12 +283,14 @@ impl PyLightingPreview {
         let d = PyDict::new(py);
         d.set_item("cells", choice.cells)?;
         d.set_item("nearest", choice.nearest)?;
+        d.set_item("rays", choice.rays)?;
+        d.set_item("pixels", choice.pixels)?;
         match choice.errors {
             Some(e) => {
                 let errors = PyDict::new(py);
                 errors.set_item("blend", e.blend)?;
                 errors.set_item("nearest", e.nearest)?;
-                errors.set_item("rays", e.rays)?;
+                errors.set_item("pixels", e.pixels)?;
                 d.set_item("errors", errors)?;
             }
             None => d.set_item("errors", py.None())?,

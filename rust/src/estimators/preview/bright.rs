@@ -10,16 +10,22 @@
 //! `Σ_s l_c(s) B(ω_s) cos θ_s Ṽ(ω_s)` for them: the BSDF at the light's centroid direction
 //! `ω_s` in the cell and the cache's `Ṽ = Σ β_i V_i` from the pixel's kept records.
 
-use glam::{DVec3, Vec3};
+use glam::{DMat3, DVec3, UVec2, Vec3};
 
 use super::transfer::TransferPoint;
 use crate::bsdf::Material;
-use crate::lights::envmap::LUMINANCE;
+use crate::lights::envmap::{EnvMap, LUMINANCE};
+use crate::sampling::octahedral::{
+    morton_decode, morton_encode, square_to_sphere, texel_center, texel_of,
+};
 use crate::visibility::cache::CacheState;
 use crate::visibility::params::CacheParams;
 
 /// Most cells taken out of the projection.
 pub const MAX_BRIGHT: usize = 8;
+
+/// Shadow rays a pixel traces toward a bright cell ([`BrightCells::aim`]).
+pub const AIMS: usize = 4;
 
 /// A cell is bright when its luminance is at least this many times the mean cell's (it
 /// holds at least `BRIGHT_FACTOR / 4^L` of the map's power).
@@ -32,6 +38,9 @@ pub struct BrightCells {
     pub cells: Vec<u32>,
     pub rgb: Vec<[f64; 3]>,
     pub dirs: Vec<Vec3>,
+    /// Per cell, the directions of its shadow rays and how many of the [`AIMS`] equal
+    /// shares of its light each stands for ([`Self::aim`]; empty before).
+    pub aims: Vec<Vec<(Vec3, u8)>>,
 }
 
 fn luminance(c: &[f64; 3]) -> f64 {
@@ -65,6 +74,94 @@ impl BrightCells {
             cells[i as usize] = [0.0; 3];
         }
         out
+    }
+
+    /// Chooses the directions of each cell's shadow rays ([`super::edges`]): the map's
+    /// light in the cell, taken at the quantiles `(k + ½) / AIMS` of its luminance in
+    /// texel order, each with the number of those `AIMS` shares it stands for (more than
+    /// one where a direction is taken twice: a sun of one texel costs one ray).
+    ///
+    /// The light in a cell: texels at least as bright as the map's mean (the others hold
+    /// under `1 / BRIGHT_FACTOR` of a bright cell's light), whole at their centres, or
+    /// with `rotation` near a bright cell as 4x4 sub-texels at their turned directions, so
+    /// that a turned sun's texel straddling two cells lends each its own part (as the
+    /// projection splits it).
+    pub fn aim(&mut self, env: &EnvMap, level: u32, rotation: Option<&DMat3>) {
+        const SUB: u32 = 4;
+        let res = env.resolution();
+        let cells = 1u32 << level;
+        let shift = 2 * (res.trailing_zeros() - level);
+        let lums: Vec<f64> = env
+            .texels()
+            .iter()
+            .map(|t| t.iter().zip(LUMINANCE).map(|(&c, w)| c as f64 * w).sum())
+            .collect();
+        let mean = lums.iter().sum::<f64>() / lums.len() as f64;
+        let at: Vec<UVec2> = self.cells.iter().map(|&c| morton_decode(c)).collect();
+        let bright_cell = |d: Vec3| {
+            let t = texel_of(d, cells);
+            self.cells
+                .iter()
+                .position(|&c| c == morton_encode(t.x, t.y))
+        };
+        let mut texels: Vec<Vec<(Vec3, f64)>> = vec![Vec::new(); self.cells.len()];
+        for (i, &lum) in lums.iter().enumerate() {
+            if lum < mean || lum <= 0.0 {
+                continue;
+            }
+            let texel = UVec2::new(i as u32 % res, i as u32 / res);
+            let centre = texel_center(texel, res);
+            let Some(r) = rotation else {
+                let cell = morton_encode(texel.x, texel.y) >> shift;
+                if let Some(s) = self.cells.iter().position(|&c| c == cell) {
+                    texels[s].push((centre, lum));
+                }
+                continue;
+            };
+            let d = (*r * centre.as_dvec3()).as_vec3();
+            let t = texel_of(d, cells);
+            let near = at
+                .iter()
+                .any(|c| c.x.abs_diff(t.x) <= 1 && c.y.abs_diff(t.y) <= 1);
+            if !near {
+                continue;
+            }
+            for k in 0..SUB * SUB {
+                let sub = glam::Vec2::new(
+                    texel.x as f32 + ((k % SUB) as f32 + 0.5) / SUB as f32,
+                    texel.y as f32 + ((k / SUB) as f32 + 0.5) / SUB as f32,
+                ) / res as f32;
+                let d = (*r * square_to_sphere(sub).as_dvec3()).as_vec3();
+                if let Some(s) = bright_cell(d) {
+                    texels[s].push((d, lum / (SUB * SUB) as f64));
+                }
+            }
+        }
+        self.aims = texels
+            .iter()
+            .zip(&self.dirs)
+            .map(|(list, &centroid)| {
+                let total: f64 = list.iter().map(|t| t.1).sum();
+                if total <= 0.0 {
+                    // Only split shares of texels centred elsewhere: the centroid.
+                    return vec![(centroid, AIMS as u8)];
+                }
+                let mut out: Vec<(Vec3, u8)> = Vec::with_capacity(AIMS);
+                let (mut k, mut below) = (0, 0.0);
+                for (j, &(d, lum)) in list.iter().enumerate() {
+                    below += lum;
+                    let last = j + 1 == list.len();
+                    while k < AIMS && ((k as f64 + 0.5) / AIMS as f64 * total <= below || last) {
+                        match out.last_mut() {
+                            Some(o) if o.0 == d => o.1 += 1,
+                            _ => out.push((d, 1)),
+                        }
+                        k += 1;
+                    }
+                }
+                out
+            })
+            .collect();
     }
 
     /// True without bright cells.
@@ -134,7 +231,7 @@ impl PixelRecords {
 
     /// `Ṽ` of pixel `i` toward bright cell `s`: the blend `Σ β_k V_k`, or with `nearest`
     /// the heaviest record's `V`.
-    fn visibility(&self, i: usize, s: usize, masks: &[u8], nearest: bool) -> f64 {
+    pub fn visibility(&self, i: usize, s: usize, masks: &[u8], nearest: bool) -> f64 {
         let slots = i * self.per_pixel..(i + 1) * self.per_pixel;
         let (ids, betas) = (&self.ids[slots.clone()], &self.betas[slots]);
         let sees = |k: usize| betas[k] > 0.0 && masks[ids[k] as usize] >> s & 1 == 1;
@@ -145,6 +242,33 @@ impl PixelRecords {
             .filter(|&k| sees(k))
             .map(|k| betas[k] as f64)
             .sum()
+    }
+
+    /// `V` of pixel `i` toward bright cell `s` when its kept records agree on it (all see
+    /// it: 1, none: 0); `None` where they disagree or the pixel kept none.
+    pub fn agreed(&self, i: usize, s: usize, masks: &[u8]) -> Option<f64> {
+        let (any, all) = self.seen(i, masks)?;
+        match (any >> s & 1, all >> s & 1) {
+            (_, 1) => Some(1.0),
+            (0, _) => Some(0.0),
+            _ => None,
+        }
+    }
+
+    /// What pixel `i`'s kept records say of every bright cell at once: bit `s` of the
+    /// first mask set where some record sees cell `s`, of the second where all do; `None`
+    /// where the pixel kept no record.
+    pub fn seen(&self, i: usize, masks: &[u8]) -> Option<(u8, u8)> {
+        let slots = i * self.per_pixel..(i + 1) * self.per_pixel;
+        let (ids, betas) = (&self.ids[slots.clone()], &self.betas[slots]);
+        let (mut any, mut all, mut kept) = (0u8, u8::MAX, false);
+        for (id, &beta) in ids.iter().zip(betas) {
+            if beta > 0.0 {
+                let m = masks[*id as usize];
+                (any, all, kept) = (any | m, all & m, true);
+            }
+        }
+        kept.then_some((any, all))
     }
 
     /// `Σ_s l_c(s) B(ω_s) cos θ_s Ṽ(ω_s)` of pixel `i`, shaded `at` (module docs), with
@@ -173,33 +297,36 @@ pub struct Shading {
 
 impl BrightCells {
     /// `Σ_s l_c(s) B(ω_s) cos θ_s V(s)` shaded `at`, `V(s)` from `visibility` (called only
-    /// for cells above the surface).
+    /// for cells above the surface, and only where it returns > 0 is the BSDF evaluated).
     pub fn light(&self, at: &Shading, mut visibility: impl FnMut(usize) -> f64) -> [f64; 3] {
-        let Shading {
-            normal,
-            wo,
-            ref material,
-        } = *at;
         let mut out = [0.0f64; 3];
-        for (s, (dir, rgb)) in self.dirs.iter().zip(&self.rgb).enumerate() {
-            let cos = normal.dot(*dir);
-            if cos <= 0.0 {
+        for s in 0..self.cells.len() {
+            if at.normal.dot(self.dirs[s]) <= 0.0 {
                 continue;
             }
             let v = visibility(s);
-            if v <= 0.0 {
-                continue;
-            }
-            let b = material.eval(normal, wo, *dir) * cos;
-            let f = v
-                * (LUMINANCE[0] * b.x as f64
-                    + LUMINANCE[1] * b.y as f64
-                    + LUMINANCE[2] * b.z as f64);
-            for c in 0..3 {
-                out[c] += rgb[c] * f;
+            if v > 0.0 {
+                let l = self.light_of(at, s);
+                for c in 0..3 {
+                    out[c] += l[c] * v;
+                }
             }
         }
         out
+    }
+
+    /// `l_c(s) B(ω_s) cos θ_s` shaded `at` (0 below the surface): cell `s`'s light where
+    /// wholly visible. The BSDF enters by its luminance: the channel ratios scale `J`
+    /// afterwards, as in the control variate.
+    pub fn light_of(&self, at: &Shading, s: usize) -> [f64; 3] {
+        let dir = self.dirs[s];
+        let cos = at.normal.dot(dir);
+        if cos <= 0.0 {
+            return [0.0; 3];
+        }
+        let b = at.material.eval(at.normal, at.wo, dir) * cos;
+        let y = LUMINANCE[0] * b.x as f64 + LUMINANCE[1] * b.y as f64 + LUMINANCE[2] * b.z as f64;
+        self.rgb[s].map(|c| c * y)
     }
 }
 
@@ -233,5 +360,44 @@ mod tests {
         let flat = crate::lights::envmap::EnvMap::constant([1.0; 3], 64).unwrap();
         let (mut cells, centroids) = cell_integrals_and_centroids(&flat, 6, None).unwrap();
         assert!(BrightCells::split(&mut cells, &centroids).is_empty());
+    }
+
+    /// A sun's shadow rays aim at its own texels: at most [`AIMS`] directions per cell,
+    /// shares summing to one, each inside its cell and within the sun's disc, also when
+    /// the map is turned; a light of one texel takes one ray.
+    #[test]
+    fn aims_share_each_cells_light() {
+        let sun = Vec3::new(0.3, 0.7, -0.4).normalize();
+        let env = sky(sun, [5e4; 3], 2.0, [0.3, 0.5, 1.0], [0.9; 3], 256).unwrap();
+        for turn in [
+            None,
+            Some(crate::estimators::preview::light::rotation_about_y(70.0).unwrap()),
+        ] {
+            let (mut cells, centroids) =
+                cell_integrals_and_centroids(&env, 6, turn.as_ref()).unwrap();
+            let mut bright = BrightCells::split(&mut cells, &centroids);
+            bright.aim(&env, 6, turn.as_ref());
+            let turned = turn.map_or(sun, |r| (r * sun.as_dvec3()).as_vec3());
+            assert_eq!(bright.aims.len(), bright.cells.len());
+            for (aims, &cell) in bright.aims.iter().zip(&bright.cells) {
+                assert!(!aims.is_empty() && aims.len() <= AIMS);
+                assert_eq!(aims.iter().map(|a| a.1 as usize).sum::<usize>(), AIMS);
+                for &(d, _) in aims {
+                    let at = texel_of(d, 64);
+                    assert_eq!(morton_encode(at.x, at.y), cell);
+                    assert!(d.dot(turned) > 3f32.to_radians().cos(), "{d} vs {turned}");
+                }
+            }
+        }
+        let mut one = vec![[0.1f32; 3]; 64 * 64];
+        one[64 * 20 + 30] = [1e5; 3];
+        let env = EnvMap::from_octahedral(64, one).unwrap();
+        let (mut cells, centroids) = cell_integrals_and_centroids(&env, 6, None).unwrap();
+        let mut bright = BrightCells::split(&mut cells, &centroids);
+        bright.aim(&env, 6, None);
+        assert_eq!(
+            bright.aims,
+            vec![vec![(texel_center(UVec2::new(30, 20), 64), AIMS as u8)]]
+        );
     }
 }

@@ -6,7 +6,8 @@
 //! [`LightingPreview::new`] traces the primary rays once and keeps the first hits; every
 //! [`LightingPreview::render`] after that — with another environment map, a rotated one,
 //! or a cache that has grown — looks the records up again and integrates `J`, but traces
-//! no ray at all. Channel `c` is scaled by the material's
+//! no ray at all (the cached transfer below traces a few toward a sun, [`edges`]).
+//! Channel `c` is scaled by the material's
 //! [`crate::bsdf::Material::channel_ratios`], as in the control variate.
 //!
 //! [`LightingPreview::render`] integrates `J` per pixel from scratch (the product's cells
@@ -17,9 +18,9 @@
 //! with one projection of the map and a dot product per pixel.
 
 pub mod bright;
+pub mod edges;
 pub mod haar;
 pub mod light;
-pub mod sample;
 pub mod transfer;
 
 use std::sync::{Arc, Mutex};
@@ -28,6 +29,7 @@ use std::time::Instant;
 use glam::{DMat3, Vec3};
 use rayon::prelude::*;
 
+use edges::BrightLight;
 use transfer::{Basis, Transfer, TransferPoint, TransferSettings};
 
 use super::control_variate::{ControlTables, Interpolant, MapChroma};
@@ -95,11 +97,18 @@ pub struct LightingPreview {
 pub struct BrightChoice {
     /// Bright cells taken out of the projection.
     pub cells: usize,
-    /// `Ṽ` toward them from the heaviest record alone (else the cache's blend).
+    /// `Ṽ` toward them where no ray was traced from the heaviest record alone (else the
+    /// cache's blend; the two differ only where a pixel's records disagree).
     pub nearest: bool,
-    /// The measurement that chose it ([`sample::judge`]); `None` where the form was fixed
-    /// at preparation (or no scene was given).
-    pub errors: Option<sample::BrightErrors>,
+    /// Shadow rays traced toward them where a pixel's records disagree ([`edges`]);
+    /// `None` without a scene.
+    pub rays: Option<u64>,
+    /// Pixels that traced them.
+    pub pixels: usize,
+    /// When the ray budget left disagreeing pixels untraced: the two forms' errors on the
+    /// traced sample, which chose `nearest` ([`edges::FormErrors`]); else the form is
+    /// the one prepared.
+    pub errors: Option<edges::FormErrors>,
 }
 
 impl Clone for LightingPreview {
@@ -169,17 +178,17 @@ pub struct TransferRequest {
     /// Decide `settings.nearest` by measurement: at up to [`VISIBILITY_SAMPLE`] pixels,
     /// trace a record at the pixel (twice the cache's resolution) and compare `J` with the
     /// cache's blend of records and with the heaviest record alone against it; the
-    /// lower mean error wins ([`VisibilityErrors::prefers_nearest`]). A truncated
-    /// transfer's bright cells are then judged per lighting ([`sample`]). Needs the
-    /// scene; without it the blend is kept.
+    /// lower mean error wins ([`VisibilityErrors::prefers_nearest`]). Needs the scene;
+    /// without it the blend is kept. (A truncated transfer's bright cells take shadow
+    /// rays where a pixel's records disagree on them, [`edges`], whatever the form.)
     pub choose_visibility: bool,
+    /// Shadow rays a lighting change may trace toward the bright cells, per pixel of the
+    /// view, where a pixel's records disagree on them ([`edges`]; 0: none). Finite, `>= 0`.
+    pub edge_rays: f64,
 }
 
 /// Pixels [`TransferRequest::choose_visibility`] traces a record at.
 pub const VISIBILITY_SAMPLE: usize = 1024;
-
-/// Pixels at which each lighting's bright cells are judged ([`sample`]).
-pub const JUDGE_SAMPLE: usize = 16384;
 
 impl TransferRequest {
     /// `"auto"` within 200 MB, the renderer's product levels, interpolated `Ṽ`.
@@ -188,8 +197,14 @@ impl TransferRequest {
         budget_bytes: 200_000_000,
         settings: TransferSettings::DEFAULT,
         choose_visibility: true,
+        edge_rays: EDGE_RAYS,
     };
 }
+
+/// [`TransferRequest::edge_rays`] by default: one ray per sixteen pixels, 19,200 at
+/// 640x480, which keeps every suite scene's change near the 33 ms of a frame at 30 Hz
+/// (`benches/README.md`, "Lighting preview").
+pub const EDGE_RAYS: f64 = 1.0 / 16.0;
 
 /// A built transfer and what it was built from.
 #[derive(Clone, Debug)]
@@ -203,18 +218,13 @@ struct Prepared {
     /// Each pixel's records, for the bright cells a truncated basis leaves out
     /// ([`bright`]); `None` with the whole transfer.
     records: Option<bright::PixelRecords>,
-    /// With `records` and [`TransferRequest::choose_visibility`], the pixels at which each
-    /// lighting's bright cells are judged ([`sample`]); else their form is `settings`'.
-    sample: Option<Vec<usize>>,
     info: TransferInfo,
 }
 
 impl Prepared {
-    /// Bytes the transfer, the pixels' records and the traced sample hold.
+    /// Bytes the transfer and the pixels' records hold.
     fn bytes(&self) -> usize {
-        self.transfer.memory_bytes()
-            + self.records.as_ref().map_or(0, |r| r.memory_bytes())
-            + self.sample.as_ref().map_or(0, |s| 8 * s.len())
+        self.transfer.memory_bytes() + self.records.as_ref().map_or(0, |r| r.memory_bytes())
     }
 }
 
@@ -395,18 +405,13 @@ impl LightingPreview {
         )?;
         // A truncated basis also keeps each pixel's records (for the bright cells).
         let records_bytes = bright::PixelRecords::bytes_per_pixel(cache.params());
-        let judged = request.choose_visibility && scene.is_some();
-        let sample_bytes = match judged {
-            true => 8 * VISIBILITY_SAMPLE.min(covered),
-            false => 0,
-        };
-        let per_pixel = |extra: usize, fixed: usize| {
+        let per_pixel = |extra: usize| {
             request
                 .budget_bytes
-                .saturating_sub((4 + extra) * points.len() + fixed)
+                .saturating_sub((4 + extra) * points.len())
                 / covered
         };
-        let (whole, truncated) = (per_pixel(0, 0), per_pixel(records_bytes, sample_bytes));
+        let (whole, truncated) = (per_pixel(0), per_pixel(records_bytes));
         let candidates = candidates(level, whole, truncated, request.basis);
         if candidates.is_empty() {
             let needed = match request.basis {
@@ -467,7 +472,6 @@ impl LightingPreview {
             cache: version,
             request,
             settings,
-            sample: (judged && records.is_some()).then(|| spread_indices(&points, JUDGE_SAMPLE)),
             transfer,
             records,
             info: TransferInfo {
@@ -529,8 +533,9 @@ impl LightingPreview {
     /// `J` per pixel (row-major RGB) under `env` turned by `rotation` (a feature at `ω`
     /// moves to `R ω`), from the kept transfer of `cache` — built first when there is
     /// none or the cache changed since (with `scene`, the scene as posed when the view was
-    /// traced, for [`TransferRequest::choose_visibility`]). Escaped pixels show the turned map, emitters their
-    /// emission. Traces no rays.
+    /// traced, for [`TransferRequest::choose_visibility`] and for the shadow rays toward a
+    /// truncated transfer's bright cells, [`edges`], at most [`TransferRequest::edge_rays`]
+    /// per pixel). Escaped pixels show the turned map, emitters their emission.
     pub fn render_lighting(
         &self,
         scene: Option<&Scene>,
@@ -545,40 +550,45 @@ impl LightingPreview {
         cache.bind_fingerprint(self.scene)?;
         let prepared = self.prepared(scene, cache, env, threads)?;
         let transfer = &prepared.transfer;
-        let (cells, bright) =
+        let (cells, mut bright) =
             split_light(env, transfer.level(), rotation, prepared.records.is_some())?;
         let masks = match bright.is_empty() {
             true => Vec::new(),
             false => bright.record_masks(&cache.read(), transfer.level()),
         };
         let light = transfer.light_for(env, rotation, cells, &bright)?;
-        let errors = match (
-            scene,
-            &prepared.records,
-            &prepared.sample,
-            bright.is_empty(),
-        ) {
-            (Some(scene), Some(records), Some(pixels), false) => {
-                let shading = |i: usize| {
-                    self.points[i]
-                        .as_ref()
-                        .ok()
-                        .map(|p| (p.position, p.shading()))
+        let gathered = match (&prepared.records, bright.is_empty()) {
+            (Some(records), false) => {
+                let budget = (prepared.request.edge_rays * self.points.len() as f64).round();
+                let scene = scene.filter(|_| budget > 0.0);
+                if scene.is_some() {
+                    bright.aim(env, transfer.level(), rotation);
+                }
+                let view = edges::View {
+                    pixels: self.points.len(),
+                    point: |i: usize| match &self.points[i] {
+                        Ok(p) if transfer.has_row(i) => Some((p.position, p.shading())),
+                        _ => None,
+                    },
+                    smooth: |i: usize| transfer.eval(i, &light),
+                    records,
+                    bright: &bright,
+                    masks: &masks,
                 };
-                let smooth = |i: usize| transfer.has_row(i).then(|| transfer.eval(i, &light));
-                Some(with_threads(threads, || {
-                    sample::judge(scene, pixels, shading, records, &bright, &masks, smooth)
-                })?)
+                Some(BrightLight::gather(scene, &view, budget as usize, threads)?)
             }
             _ => None,
         };
-        let choice = (!bright.is_empty()).then(|| BrightChoice {
+        let judged = gathered.as_ref().and_then(|g| g.judged);
+        let nearest = judged.map_or(prepared.settings.nearest, |e| e.prefers_nearest());
+        *lock(&self.last_bright) = (!bright.is_empty()).then(|| BrightChoice {
             cells: bright.cells.len(),
-            nearest: errors.map_or(prepared.settings.nearest, |e| e.prefers_nearest()),
-            errors,
+            nearest,
+            // Aimed only when rays were to be traced.
+            rays: (!bright.aims.is_empty()).then(|| gathered.as_ref().map_or(0, |g| g.rays)),
+            pixels: gathered.as_ref().map_or(0, |g| g.traced_pixels),
+            errors: judged,
         });
-        *lock(&self.last_bright) = choice;
-        let bright_nearest = choice.is_some_and(|c| c.nearest);
         let inverse = rotation.map(|r| r.transpose());
         with_threads(threads, || {
             self.points
@@ -594,14 +604,12 @@ impl LightingPreview {
                         env.eval(d).to_array()
                     }
                     Ok(p) => {
-                        let mut j = transfer.eval(i, &light);
-                        if let (Some(records), false) = (&prepared.records, bright.is_empty()) {
-                            if transfer.has_row(i) {
-                                let at = p.shading();
-                                let b = records.eval(i, &at, &bright, &masks, bright_nearest);
-                                j = std::array::from_fn(|c| j[c] + b[c]);
+                        let j = match (&prepared.records, &gathered) {
+                            (Some(records), Some(gathered)) => {
+                                gathered.eval(i, || p.shading(), &bright, records, &masks, nearest)
                             }
-                        }
+                            _ => transfer.eval(i, &light),
+                        };
                         let ratios = p.material.channel_ratios();
                         std::array::from_fn(|c| p.emitted[c] + (ratios[c] as f64 * j[c]) as f32)
                     }
@@ -786,8 +794,8 @@ fn sample_level(level: u32) -> u32 {
 /// records and with the heaviest record alone, against `J` with a record traced now at the
 /// pixel ([`sample_level`]); returns both errors in the relMSE of the images
 /// (`Σ (Δ c J)² / ((c J)² + 0.01)` over pixels and channels, `c` the channel ratio). The
-/// bright cells enter every `J` exactly (a shadow ray each): their form is judged per
-/// lighting ([`sample`]), so this measurement decides the rest.
+/// bright cells enter every `J` exactly (a shadow ray each): where the records disagree on
+/// them each lighting traces rays ([`edges`]), so this measurement decides the rest.
 fn measure_visibility(
     scene: &Scene,
     points: &[Option<TransferPoint>],

@@ -419,14 +419,15 @@ fn visibility_form_is_chosen_by_measurement() {
     assert!(info.visibility_measured.is_none() && !info.nearest);
 }
 
-/// Each lighting's bright cells are judged at the sample pixels against shadow rays: on a
-/// view whose sample holds every pixel, the judge's two errors are the whole image's
-/// (recomputed here from rays and both forms), the lower one picks the form the render
-/// used, the rays are one per pixel and cell above its surface, and the render equals
-/// the transfer plus the bright cells in that form. Without the scene the form stays
-/// the one prepared.
+/// Each lighting's bright cells take shadow rays from the pixels whose records disagree
+/// on them: with a budget that takes them all, recomputed here pixel by pixel, those
+/// pixels (and only those, above the cell's horizon) trace one ray per aim, which decide
+/// their visibility; the others keep the records' agreed answer; the render equals the
+/// transfer plus the bright cells so formed, the same for any thread count. A budget
+/// that takes some traces at most its rays and judges the form of the rest on its
+/// sample; a budget of 0, or no scene, traces none and keeps the form prepared.
 #[test]
-fn bright_cells_are_judged_per_lighting() {
+fn bright_cells_trace_rays_where_records_disagree() {
     let v = view("dynamics", 32, 24);
     let scene = &v.setup.scene;
     let preview = LightingPreview::new(scene, &v.camera, Some(2)).unwrap();
@@ -436,15 +437,14 @@ fn bright_cells_are_judged_per_lighting() {
     let request = TransferRequest {
         basis: BasisChoice::Haar,
         budget_bytes: 32 * 24 * (4 + 64 + 300 + 8),
+        edge_rays: 100.0,
         ..TransferRequest::DEFAULT
     };
     preview
         .prepare(Some(scene), &v.cache, Some(&env), request, Some(2))
         .unwrap();
     let prepared = lock(&preview.transfer).clone().unwrap();
-    let pixels = prepared.sample.clone().expect("judged");
-    let covered = preview.points.iter().filter(|p| p.is_ok()).count();
-    assert_eq!(pixels.len(), covered);
+    let (mut traced_pixels, mut agreed_pixels, mut all_rays) = (0, 0, 0);
     for turn in [0.0, 135.0] {
         let r = light::rotation_about_y(turn).unwrap();
         let img = preview
@@ -455,74 +455,99 @@ fn bright_cells_are_judged_per_lighting() {
             .unwrap();
         assert_eq!(img, again, "threads");
         let choice = preview.last_bright().expect("a sun");
-        let errors = choice.errors.expect("judged");
-        // The whole image's errors, from rays traced here.
         let transfer = &prepared.transfer;
-        let (cells, bright) = split_light(&env, transfer.level(), Some(&r), true).unwrap();
+        let (cells, mut bright) = split_light(&env, transfer.level(), Some(&r), true).unwrap();
+        bright.aim(&env, transfer.level(), Some(&r));
         let light = transfer.light_for(&env, Some(&r), cells, &bright).unwrap();
         let state = v.cache.read();
         let masks = bright.record_masks(&state, transfer.level());
         let records = prepared.records.as_ref().unwrap();
-        let (mut e, mut rays) = ([0.0f64; 2], 0u64);
+        let (mut rays, mut pixels) = (0u64, 0usize);
         for (i, p) in preview.points.iter().enumerate() {
             let Ok(p) = p else { continue };
             if !transfer.has_row(i) {
                 continue;
             }
-            let smooth = transfer.eval(i, &light);
             let origin = scene.offset_point(p.position, p.normal);
-            let mut exact = [0.0f64; 3];
-            for (dir, rgb) in bright.dirs.iter().zip(&bright.rgb) {
-                let cos = p.normal.dot(*dir);
-                if cos <= 0.0 {
-                    continue;
+            let mut traced = false;
+            let want_bright = bright.light(&p.shading(), |s| {
+                if let Some(v) = records.agreed(i, s, &masks) {
+                    agreed_pixels += 1;
+                    return v;
                 }
-                rays += 1;
-                let mut counters = crate::geometry::TraversalCounters::default();
-                if scene.occluded1(origin, *dir, f32::INFINITY, &mut counters) {
-                    continue;
+                traced = true;
+                let mut open = 0.0;
+                for &(d, share) in &bright.aims[s] {
+                    rays += 1;
+                    let mut c = crate::geometry::TraversalCounters::default();
+                    if !scene.occluded1(origin, d, f32::INFINITY, &mut c) {
+                        open += f64::from(share) / bright::AIMS as f64;
+                    }
                 }
-                let b = p.material.eval(p.normal, p.wo, *dir) * cos;
-                let y = 0.2126 * b.x as f64 + 0.7152 * b.y as f64 + 0.0722 * b.z as f64;
-                for c in 0..3 {
-                    exact[c] += rgb[c] * y;
-                }
-            }
+                open
+            });
+            pixels += usize::from(traced);
+            traced_pixels += usize::from(traced);
+            let smooth = transfer.eval(i, &light);
             let ratios = p.material.channel_ratios();
-            for (k, nearest) in [false, true].into_iter().enumerate() {
-                let b = records.eval(i, &p.shading(), &bright, &masks, nearest);
-                for c in 0..3 {
-                    let r = ratios[c] as f64;
-                    let j = r * (smooth[c] + exact[c]);
-                    e[k] += (r * (b[c] - exact[c])).powi(2) / (j * j + 1e-2);
-                }
-            }
-            let shown = img[i];
-            let b = records.eval(i, &p.shading(), &bright, &masks, choice.nearest);
             for c in 0..3 {
-                let want = p.emitted[c] + (ratios[c] as f64 * (smooth[c] + b[c])) as f32;
+                let r = ratios[c] as f64;
+                let want = p.emitted[c] + (r * (smooth[c] + want_bright[c])) as f32;
                 assert!(
-                    (shown[c] - want).abs() <= 1e-5 * want.abs().max(1e-3),
-                    "pixel {i}"
+                    (img[i][c] - want).abs() <= 1e-5 * want.abs().max(1e-3),
+                    "pixel {i}: {} against {want}",
+                    img[i][c]
                 );
             }
         }
-        assert!(e[0] > 0.0 && e[1] > 0.0 && e[0] != e[1], "{e:?}");
-        assert!(
-            (errors.blend - e[0]).abs() <= 1e-9 * e[0],
-            "{errors:?} vs {e:?}"
-        );
-        assert!(
-            (errors.nearest - e[1]).abs() <= 1e-9 * e[1],
-            "{errors:?} vs {e:?}"
-        );
-        assert_eq!(errors.rays, rays);
-        assert_eq!(choice.nearest, e[1] < e[0]);
+        assert_eq!(choice.rays, Some(rays));
+        assert_eq!(choice.pixels, pixels);
         assert_eq!(choice.cells, bright.cells.len());
+        assert_eq!(choice.nearest, prepared.settings.nearest);
+        assert!(choice.errors.is_none());
+        all_rays = all_rays.max(rays);
     }
+    assert!(
+        traced_pixels > 0 && agreed_pixels > 0,
+        "{traced_pixels} {agreed_pixels}"
+    );
     preview
         .render_lighting(None, &v.cache, &env, None, Some(2))
         .unwrap();
     let fixed = preview.last_bright().unwrap();
-    assert!(fixed.errors.is_none() && fixed.nearest == prepared.settings.nearest);
+    assert!(fixed.rays.is_none() && fixed.pixels == 0);
+    assert_eq!(fixed.nearest, prepared.settings.nearest);
+    // A budget of a quarter of the rays wanted.
+    let budget = all_rays as usize / 4;
+    let tight = TransferRequest {
+        edge_rays: budget as f64 / (32.0 * 24.0),
+        ..request
+    };
+    preview
+        .prepare(Some(scene), &v.cache, Some(&env), tight, Some(2))
+        .unwrap();
+    let r = light::rotation_about_y(135.0).unwrap();
+    let one = preview
+        .render_lighting(Some(scene), &v.cache, &env, Some(&r), Some(1))
+        .unwrap();
+    let two = preview
+        .render_lighting(Some(scene), &v.cache, &env, Some(&r), Some(2))
+        .unwrap();
+    assert_eq!(one, two, "threads");
+    let choice = preview.last_bright().unwrap();
+    let errors = choice.errors.expect("judged");
+    assert!(choice.rays.unwrap() as usize <= budget && errors.pixels >= 1);
+    assert_eq!(choice.nearest, errors.prefers_nearest());
+    let none = TransferRequest {
+        edge_rays: 0.0,
+        ..request
+    };
+    preview
+        .prepare(Some(scene), &v.cache, Some(&env), none, Some(2))
+        .unwrap();
+    preview
+        .render_lighting(Some(scene), &v.cache, &env, Some(&r), Some(2))
+        .unwrap();
+    let choice = preview.last_bright().unwrap();
+    assert!(choice.rays.is_none() && choice.errors.is_none());
 }
