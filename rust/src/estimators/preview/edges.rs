@@ -17,7 +17,9 @@
 //! budget runs out, the pixels left untraced take the form of `Ṽ` (the blend or the
 //! heaviest record) that the rays of a spread sample of them judge closer: with the
 //! blend alone there, strands' sky was 2.6x. The rays replace a judge that traced a
-//! sample of all pixels for that choice: both forms agree wherever the records do.
+//! sample of all pixels for that choice: both forms agree wherever the records do. With
+//! the default budget ([`super::EDGE_RAYS`]) every one of the suite's 44 cases is at
+//! most the direct preview's relMSE (worst garden 135°, 0.995; 18 were above before).
 
 use rayon::prelude::*;
 
