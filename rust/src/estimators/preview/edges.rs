@@ -102,8 +102,9 @@ impl BrightLight {
     /// order), which judges the two forms of `Ṽ` against the rays for the pixels left
     /// untraced, and the rest to the pixels whose light the records leave most in doubt
     /// (the cells' light times the blend's distance from all or nothing, all of it with
-    /// no record, relative to the pixel's `J` as in the relMSE). Rays leave in pixel order, a pixel's consecutive from one origin
-    /// (packets), so the answers are the same for any thread count.
+    /// no record, relative to the pixel's `J` as in the relMSE). Rays leave in pixel
+    /// order, a pixel's consecutive from one origin (packets), so the answers are the
+    /// same for any thread count.
     pub fn gather<P, S>(
         scene: Option<&Scene>,
         view: &View<'_, P, S>,
