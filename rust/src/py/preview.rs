@@ -219,11 +219,6 @@ impl PyLightingPreview {
             Some(r) => f64_arg(r, "edge_rays")?,
             None => TransferRequest::DEFAULT.edge_rays,
         };
-        if !(edge_rays.is_finite() && edge_rays >= 0.0) {
-            return Err(PyValueError::new_err(format!(
-                "edge_rays: must be a finite number of rays per pixel >= 0, got {edge_rays}"
-            )));
-        }
         let budget = match budget_mb {
             Some(b) => f64_arg(b, "budget_mb")?,
             None => TransferRequest::DEFAULT.budget_bytes as f64 * 1e-6,

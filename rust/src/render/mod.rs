@@ -99,6 +99,7 @@ use crate::estimators::normal_products::NormalProducts;
 use crate::geometry::bvh::PACKET;
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::{luminance, EnvMap};
+use crate::moments::Moments;
 use crate::parallel::{run_with_progress, with_threads};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
@@ -456,11 +457,11 @@ struct BandWork {
     draws: Vec<(u32, f64, [f64; 4], f64)>,
     /// The pixel's draws for [`PixelTechniques`] (the adaptive pilot).
     moments: DrawMoments,
-    /// What the probe measures for [`split::draws_from`], and the pixel's sums, over
-    /// its samples of the pass, of their values and first-draw values and of their
-    /// squares (per channel).
+    /// What the probe measures for [`split::draws_from`], and the pixel's moments, over
+    /// its samples of the pass, of their values and of their first-draw values (per
+    /// channel).
     split: split::SplitProbe,
-    pixel_values: [[f64; 3]; 4],
+    pixel_values: [[Moments; 3]; 2],
 }
 
 /// A lookup, the point it was made for, and the interpolant made of it there.
@@ -879,14 +880,9 @@ impl Shader<'_> {
         if let Some(started) = drawing {
             work.split.draw_ns += elapsed_ns(started);
             let one = emitted + first + indirect;
-            let v = &mut work.pixel_values;
-            for c in 0..3 {
-                let (z, one) = (z[c] as f64, one[c] as f64);
-                v[0][c] += z;
-                v[1][c] += z * z;
-                v[2][c] += one;
-                v[3][c] += one * one;
-            }
+            let [all, first] = &mut work.pixel_values;
+            Moments::push_each(all, z.as_dvec3().to_array());
+            Moments::push_each(first, one.as_dvec3().to_array());
         }
         let Some((a, _, _)) = control else {
             return (z, [0.0; 3]);
@@ -934,7 +930,7 @@ impl Shader<'_> {
         let seed = self.params.seed;
         work.pixel = pixel as u32;
         if self.measure_split {
-            work.pixel_values = [[0.0; 3]; 4];
+            work.pixel_values = Default::default();
         }
         let n_samples = samples.len() as u32;
         let start = Instant::now();
@@ -1008,23 +1004,17 @@ impl Shader<'_> {
     }
 }
 
-/// Adds a measured pixel (`n` samples taking `ns`, summed in `work.pixel_values`) to the
-/// band's [`split::SplitProbe`]: each channel's variance between samples, of their values
-/// and of their first draws', weighted as the pixel counts in relMSE.
+/// Adds a measured pixel (`n` samples taking `ns`, their moments in `work.pixel_values`)
+/// to the band's [`split::SplitProbe`]: each channel's variance between samples, of their
+/// values and of their first draws', weighted as the pixel counts in relMSE.
 fn probe_pixel(n: u32, ns: u64, work: &mut BandWork) {
     work.split.sample_ns += ns;
     work.split.samples += n as u64;
-    if n < 2 {
-        return;
-    }
-    let k = n as f64;
-    let variance = |sum: f64, squares: f64| (squares - sum * sum / k).max(0.0) / (k - 1.0);
-    let [z, zz, first, first_sq] = work.pixel_values;
-    for c in 0..3 {
-        let mean = z[c] / k;
-        let weight = 1.0 / (mean * mean + RELMSE_FLOOR);
-        work.split.all += weight * variance(z[c], zz[c]);
-        work.split.first += weight * variance(first[c], first_sq[c]);
+    let [all, first] = &work.pixel_values;
+    for (all, first) in all.iter().zip(first) {
+        let weight = 1.0 / (all.mean * all.mean + RELMSE_FLOOR);
+        work.split.all += weight * all.variance();
+        work.split.first += weight * first.variance();
     }
 }
 

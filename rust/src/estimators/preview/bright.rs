@@ -245,7 +245,9 @@ impl PixelRecords {
     }
 
     /// `V` of pixel `i` toward bright cell `s` when its kept records agree on it (all see
-    /// it: 1, none: 0); `None` where they disagree or the pixel kept none.
+    /// it: 1, none: 0); `None` where they disagree or the pixel kept none. (The tests'
+    /// view of [`Self::seen`].)
+    #[cfg(test)]
     pub fn agreed(&self, i: usize, s: usize, masks: &[u8]) -> Option<f64> {
         let (any, all) = self.seen(i, masks)?;
         match (any >> s & 1, all >> s & 1) {

@@ -38,8 +38,8 @@ pub struct BrightLight {
     /// Per pixel, three bits per bright cell: [`DECIDED`], [`UNTRACED`] or the number of
     /// its [`AIMS`] shares the rays found open.
     codes: Vec<u32>,
-    /// Rays traced.
-    pub rays: u64,
+    /// Rays traced; `None` when the gathering was given no scene to trace in.
+    pub rays: Option<u64>,
     /// Pixels that traced rays.
     pub traced_pixels: usize,
     /// When the budget left pixels untraced: how each form of `Ṽ` fared on the spread
@@ -96,8 +96,9 @@ fn luminance(c: [f64; 3]) -> f64 {
 impl BrightLight {
     /// `J` at every pixel of `view`: its smooth part, the light of the cells above its
     /// surface that its records agree on, and of those they leave undecided (they
-    /// disagree, or the pixel kept no record). With `scene`, the undecided cells trace
-    /// rays: all of them when their rays number at most `budget`; else half the budget
+    /// disagree, or the pixel kept no record). With `scene` and a `budget` of at least
+    /// one ray (`scene` must be the one the records were traced in, [`BrightCells::aim`]
+    /// called), the undecided cells trace rays: all of them when their rays number at most `budget`; else half the budget
     /// goes to a spread sample of the pixels with undecided cells (every so many in pixel
     /// order), which judges the two forms of `Ṽ` against the rays for the pixels left
     /// untraced, and the rest to the pixels whose light the records leave most in doubt
@@ -123,6 +124,7 @@ impl BrightLight {
             bright,
             masks,
         } = *view;
+        let scene = scene.filter(|_| budget > 0);
         let n = bright.cells.len();
         debug_assert!(n <= 8 && CODE_BITS as usize * n <= 32);
         let every_cell = (1u16 << n).wrapping_sub(1) as u8;
@@ -174,7 +176,7 @@ impl BrightLight {
         };
         // Pixels with undecided cells, their rays and risk, in pixel order.
         let undecided: Vec<(u32, usize, f32)> = match scene {
-            Some(_) if budget > 0 => with_threads(threads, || {
+            Some(_) => with_threads(threads, || {
                 codes
                     .par_iter()
                     .enumerate()
@@ -188,7 +190,7 @@ impl BrightLight {
         let mut out = Self {
             base,
             codes: codes.into_iter().map(|c| c.0).collect(),
-            rays: 0,
+            rays: scene.map(|_| 0),
             traced_pixels: 0,
             judged: None,
         };
@@ -249,7 +251,7 @@ impl BrightLight {
             }
         }
         let occluded = scene.occluded(&RayBatch::new(&origins, &directions), threads)?;
-        out.rays = occluded.len() as u64;
+        out.rays = Some(occluded.len() as u64);
         out.traced_pixels = traced.len();
         let mut answers = occluded.iter();
         for &i in &traced {

@@ -393,6 +393,15 @@ impl LightingPreview {
         if let Some(level) = request.settings.product_level {
             level.validate()?;
         }
+        if !(request.edge_rays.is_finite() && request.edge_rays >= 0.0) {
+            return Err(crate::error::Error::invalid(
+                "edge_rays",
+                format!(
+                    "must be a finite number of rays per pixel >= 0, got {}",
+                    request.edge_rays
+                ),
+            ));
+        }
         cache.bind_fingerprint(self.scene)?;
         let start = Instant::now();
         let version = cache.version();
@@ -560,7 +569,8 @@ impl LightingPreview {
         let gathered = match (&prepared.records, bright.is_empty()) {
             (Some(records), false) => {
                 let budget = (prepared.request.edge_rays * self.points.len() as f64).round();
-                let scene = scene.filter(|_| budget > 0.0);
+                // Rays only with a scene to trace in and a budget for them.
+                let scene = scene.filter(|_| budget >= 1.0);
                 if scene.is_some() {
                     bright.aim(env, transfer.level(), rotation);
                 }
@@ -584,8 +594,7 @@ impl LightingPreview {
         *lock(&self.last_bright) = (!bright.is_empty()).then(|| BrightChoice {
             cells: bright.cells.len(),
             nearest,
-            // Aimed only when rays were to be traced.
-            rays: (!bright.aims.is_empty()).then(|| gathered.as_ref().map_or(0, |g| g.rays)),
+            rays: gathered.as_ref().and_then(|g| g.rays),
             pixels: gathered.as_ref().map_or(0, |g| g.traced_pixels),
             errors: judged,
         });
