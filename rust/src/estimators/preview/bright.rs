@@ -11,6 +11,7 @@
 //! `ω_s` in the cell and the cache's `Ṽ = Σ β_i V_i` from the pixel's kept records.
 
 use glam::{DMat3, DVec3, UVec2, Vec3};
+use rayon::prelude::*;
 
 use super::transfer::TransferPoint;
 use crate::bsdf::Material;
@@ -174,6 +175,8 @@ impl BrightCells {
         let store = state.store();
         let shift = 2 * (level - store.m());
         (0..store.len())
+            .into_par_iter()
+            .with_min_len(4096)
             .map(|i| {
                 let bits = store.bits(i);
                 self.cells.iter().enumerate().fold(0u8, |m, (s, &c)| {

@@ -78,7 +78,10 @@ fn project(
     let res = env.resolution();
     let omega = texel_solid_angle(res);
     let depth = res.trailing_zeros();
-    let corners = rotation.map(|r| Corners::new(r, res, cells as u32));
+    let grid = rotation.map(|_| GridDirections::of(res));
+    let corners = rotation
+        .zip(grid.as_ref())
+        .map(|(r, grid)| Corners::new(r, grid, cells as u32));
     // Fixed bands of rows, each summed on its own and the bands added in order: the same
     // sums for any thread count.
     let band = res.div_ceil(PROJECTION_BANDS).max(1);
@@ -91,7 +94,11 @@ fn project(
                 let t = &texels[(y * res + x) as usize];
                 // The texel's (turned) direction times its luminance, for the centroids.
                 let weighted = if centroids {
-                    let centre = texel_center(UVec2::new(x, y), res).as_dvec3();
+                    let centre = match &grid {
+                        Some(grid) => grid.centres[(y * res + x) as usize],
+                        None => texel_center(UVec2::new(x, y), res),
+                    }
+                    .as_dvec3();
                     let lum: f64 = t.iter().zip(LUMINANCE).map(|(&c, w)| c as f64 * w).sum();
                     rotation.map_or(centre, |r| *r * centre) * lum
                 } else {
@@ -139,6 +146,52 @@ const PROJECTION_BANDS: u32 = 8;
 /// Sub-texel points per axis where a turned texel straddles a cell border.
 const SPLIT: u32 = 4;
 
+/// The unturned directions of an octahedral grid of side `res`: its `(res + 1)²` texel
+/// corners and `res²` texel centres, row-major. Every turned projection of a map at that
+/// resolution needs them, and computing them (a sine and a cosine each) cost a third of a
+/// projection, so the last few grids asked for are kept for the process.
+struct GridDirections {
+    res: u32,
+    corners: Vec<glam::Vec3>,
+    centres: Vec<glam::Vec3>,
+}
+
+impl GridDirections {
+    /// Grids kept (a 512² grid holds 6 MB).
+    const KEPT: usize = 4;
+
+    fn of(res: u32) -> std::sync::Arc<Self> {
+        use std::sync::{Arc, Mutex};
+        static KEPT: Mutex<Vec<Arc<GridDirections>>> = Mutex::new(Vec::new());
+        let lock = || KEPT.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(grid) = lock().iter().find(|g| g.res == res) {
+            return grid.clone();
+        }
+        let n = res + 1;
+        let corners = (0..n * n)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|i| square_to_sphere(glam::Vec2::new((i % n) as f32, (i / n) as f32) / res as f32))
+            .collect();
+        let centres = (0..res * res)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|i| texel_center(UVec2::new(i % res, i / res), res))
+            .collect();
+        let grid = Arc::new(Self {
+            res,
+            corners,
+            centres,
+        });
+        let mut kept = lock();
+        if kept.len() == Self::KEPT {
+            kept.remove(0);
+        }
+        kept.push(grid.clone());
+        grid
+    }
+}
+
 /// The map's texel corners turned by a rotation, in the cells' octahedral square (units of
 /// one cell): where a turned texel lands among the cells. A texel whose four corners
 /// fall in one cell goes there whole; one that straddles a border is split into `SPLIT²`
@@ -154,29 +207,32 @@ struct Corners {
 }
 
 impl Corners {
-    fn new(r: &DMat3, res: u32, cells: u32) -> Self {
-        let n = res + 1;
-        let points = (0..n * n)
-            .into_par_iter()
-            .map(|i| {
-                let p = glam::Vec2::new((i % n) as f32, (i / n) as f32) / res as f32;
-                let d = *r * square_to_sphere(p).as_dvec3();
-                sphere_to_square(d.as_vec3()) * cells as f32
-            })
+    fn new(r: &DMat3, grid: &GridDirections, cells: u32) -> Self {
+        let points = grid
+            .corners
+            .par_iter()
+            .with_min_len(4096)
+            .map(|c| sphere_to_square((*r * c.as_dvec3()).as_vec3()) * cells as f32)
             .collect();
-        Self { res, cells, points }
+        Self {
+            res: grid.res,
+            cells,
+            points,
+        }
     }
 
-    fn cell_of(&self, q: glam::Vec2) -> usize {
+    /// The cell (column, row) a point of the square falls in.
+    #[inline]
+    fn cell_of(&self, q: glam::Vec2) -> (u32, u32) {
         let max = self.cells - 1;
-        let (x, y) = (
+        (
             (q.x.max(0.0) as u32).min(max),
             (q.y.max(0.0) as u32).min(max),
-        );
-        morton_encode(x, y) as usize
+        )
     }
 
-    /// Calls `add(cell, share)` for the cells texel `(x, y)` covers once turned.
+    /// Calls `add(cell, share)` for the cells texel `(x, y)` covers once turned (`cell` a
+    /// Morton index), once per cell.
     fn split(&self, x: u32, y: u32, r: &DMat3, mut add: impl FnMut(usize, f64)) {
         let n = (self.res + 1) as usize;
         let (x, y) = (x as usize, y as usize);
@@ -188,13 +244,16 @@ impl Corners {
         ];
         let first = self.cell_of(c[0]);
         if c[1..].iter().all(|&q| self.cell_of(q) == first) {
-            return add(first, 1.0);
+            return add(morton_encode(first.0, first.1) as usize, 1.0);
         }
         let (lo, hi) = c[1..]
             .iter()
             .fold((c[0], c[0]), |(lo, hi), &q| (lo.min(q), hi.max(q)));
         let folded = (hi - lo).max_element() > 4.0 * self.cells as f32 / self.res as f32;
-        let share = 1.0 / (SPLIT * SPLIT) as f64;
+        // The sub-points per cell, in the order the cells are first met (a straddling
+        // texel covers two to four cells, a folded one a few more).
+        let mut covered = [((0u32, 0u32), 0u32); (SPLIT * SPLIT) as usize];
+        let mut distinct = 0;
         for sy in 0..SPLIT {
             for sx in 0..SPLIT {
                 let (u, v) = (
@@ -208,8 +267,19 @@ impl Corners {
                 } else {
                     c[0].lerp(c[1], u).lerp(c[2].lerp(c[3], u), v)
                 };
-                add(self.cell_of(q), share);
+                let cell = self.cell_of(q);
+                match covered[..distinct].iter_mut().find(|(c, _)| *c == cell) {
+                    Some((_, count)) => *count += 1,
+                    None => {
+                        covered[distinct] = (cell, 1);
+                        distinct += 1;
+                    }
+                }
             }
+        }
+        let share = 1.0 / (SPLIT * SPLIT) as f64;
+        for &((cx, cy), count) in &covered[..distinct] {
+            add(morton_encode(cx, cy) as usize, count as f64 * share);
         }
     }
 }

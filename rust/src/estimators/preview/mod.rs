@@ -18,6 +18,7 @@
 //! with one projection of the map and a dot product per pixel.
 
 pub mod bright;
+pub mod dot;
 pub mod edges;
 pub mod haar;
 pub mod light;
@@ -563,7 +564,9 @@ impl LightingPreview {
             split_light(env, transfer.level(), rotation, prepared.records.is_some())?;
         let masks = match bright.is_empty() {
             true => Vec::new(),
-            false => bright.record_masks(&cache.read(), transfer.level()),
+            false => with_threads(threads, || {
+                bright.record_masks(&cache.read(), transfer.level())
+            })?,
         };
         let light = transfer.light_for(env, rotation, cells, &bright)?;
         let gathered = match (&prepared.records, bright.is_empty()) {

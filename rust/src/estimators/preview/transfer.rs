@@ -22,8 +22,8 @@ use rayon::prelude::*;
 use std::sync::Arc;
 
 use super::bright::BrightCells;
-use super::haar;
 use super::light::cell_integrals;
+use super::{dot, haar};
 use crate::bsdf::Material;
 use crate::error::{Error, Result};
 use crate::estimators::direct::ProductLevel;
@@ -264,8 +264,11 @@ pub const NO_ROW: u32 = u32::MAX;
 pub struct LightCoefficients {
     basis: Basis,
     values: Vec<[f64; 3]>,
-    /// `values` as `f32` RGB plus a zero lane, for the Haar rows' inner loop.
+    /// `values` as `f32` RGB plus a zero lane, for the Haar rows' inner loop
+    /// ([`dot::haar_sums`]).
     packed: Vec<[f32; 4]>,
+    /// `values` by channel, for the dense rows' inner loop ([`dot::dense_sums`]).
+    dense: [Vec<f64>; 3],
 }
 
 impl LightCoefficients {
@@ -530,17 +533,24 @@ impl Transfer {
                 coeffs
             }
         };
-        let packed = match self.basis {
-            Basis::Haar { .. } => values
-                .iter()
-                .map(|v| [v[0] as f32, v[1] as f32, v[2] as f32, 0.0])
-                .collect(),
-            _ => Vec::new(),
+        let (packed, dense) = match self.basis {
+            Basis::Haar { .. } => (
+                values
+                    .iter()
+                    .map(|v| [v[0] as f32, v[1] as f32, v[2] as f32, 0.0])
+                    .collect(),
+                Default::default(),
+            ),
+            _ => (
+                Vec::new(),
+                std::array::from_fn(|c| values.iter().map(|v| v[c]).collect()),
+            ),
         };
         Ok(LightCoefficients {
             basis: self.basis,
             values,
             packed,
+            dense,
         })
     }
 
@@ -564,45 +574,14 @@ impl Transfer {
         }
         let r = row as usize * self.stride;
         let words = &self.words[r..r + self.stride];
-        let l = &light.values;
-        let mut acc = [0.0f64; 3];
-        let mut add = |v: f64, c: &[f64; 3]| {
-            acc = [acc[0] + v * c[0], acc[1] + v * c[1], acc[2] + v * c[2]];
-        };
         match self.basis {
             Basis::Texels { .. } | Basis::Sh { .. } => {
-                for (&w, c) in words.iter().zip(l) {
-                    add(f32::from_bits(w) as f64, c);
-                }
-                acc
+                let [r, g, b] = &light.dense;
+                dot::dense_sums(words, [r, g, b])
             }
             Basis::Haar { .. } => {
-                // f32 lanes: the sum's rounding stays far below the values' 15 bits. Four
-                // sums, one per term of each group of four, so that the additions do not
-                // wait on each other.
-                let packed = &light.packed;
-                let term = |w: u32| {
-                    let (index, value) = unpack(w);
-                    let l = &packed[index];
-                    let v = value as f32;
-                    [v * l[0], v * l[1], v * l[2], v * l[3]]
-                };
-                let add = |a: &mut [f32; 4], b: [f32; 4]| {
-                    for k in 0..4 {
-                        a[k] += b[k];
-                    }
-                };
-                let mut sums = [[0.0f32; 4]; 4];
-                let terms = &words[1..];
-                let mut groups = terms.chunks_exact(4);
-                for g in &mut groups {
-                    for (sum, &w) in sums.iter_mut().zip(g) {
-                        add(sum, term(w));
-                    }
-                }
-                for (sum, &w) in sums.iter_mut().zip(groups.remainder()) {
-                    add(sum, term(w));
-                }
+                // f32 lanes: the sum's rounding stays far below the values' 15 bits.
+                let sums = dot::haar_sums(&words[1..], &light.packed);
                 let scale = f32::from_bits(words[0]) as f64 / QUANTUM;
                 std::array::from_fn(|c| {
                     let total = (sums[0][c] + sums[1][c]) + (sums[2][c] + sums[3][c]);
@@ -615,12 +594,6 @@ impl Transfer {
 
 /// Largest magnitude of a quantised Haar value: a row's largest term.
 const QUANTUM: f64 = i16::MAX as f64;
-
-/// A Haar word's coefficient index and quantised value.
-#[inline(always)]
-fn unpack(w: u32) -> (usize, i16) {
-    ((w >> 16) as usize, w as u16 as i16)
-}
 
 /// Turns a dense `T` into one row of a basis.
 struct Encoder {
