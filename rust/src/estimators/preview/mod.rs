@@ -560,8 +560,9 @@ impl LightingPreview {
         cache.bind_fingerprint(self.scene)?;
         let prepared = self.prepared(scene, cache, env, threads)?;
         let transfer = &prepared.transfer;
-        let (cells, mut bright) =
-            split_light(env, transfer.level(), rotation, prepared.records.is_some())?;
+        let (cells, mut bright) = with_threads(threads, || {
+            split_light(env, transfer.level(), rotation, prepared.records.is_some())
+        })??;
         let masks = match bright.is_empty() {
             true => Vec::new(),
             false => with_threads(threads, || {
