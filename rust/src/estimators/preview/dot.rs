@@ -1,16 +1,19 @@
 //! The inner loops of a lighting change: one pixel's transfer row against the map's
 //! projection. They are most of a change's time (for each of 307,200 pixels at 640x480,
 //! 154–219 Haar terms or 64 dense ones), so each carries AVX2 and AVX-512 forms, chosen
-//! by [`crate::simd::dispatch`]. Both sum in four partial sums, term `k` of each group of
-//! four into sum `k`, so that the additions do not wait on each other; every form adds
-//! the same products in the same order, the same sums bit for bit.
+//! by [`crate::simd::dispatch`]. Both sum in independent partial sums so that the
+//! additions do not wait on each other, and every form adds the same products in the
+//! same order: the same sums bit for bit.
 //!
 //! - [`haar_sums`]: the kept terms of a Haar row (a coefficient index and a quantised
-//!   value each) against the light's coefficients in `f32`. The vector forms put the four
-//!   sums side by side in one register, which the compiler does not find (it splits each
-//!   `[f32; 4]` into halves).
+//!   value each) against the light's coefficients in `f32`, term `k` of each group of four
+//!   into partial sum `k`. The vector forms put the four sums side by side in one
+//!   register, which the compiler did not find (it split each `[f32; 4]` into halves,
+//!   with a bounds check per term: twice the time).
 //! - [`dense_sums`]: a dense row (texel or SH coefficients, `f32`) against the light in
-//!   `f64`; the compiler vectorises the portable body for each instruction set.
+//!   `f64`, one run per channel, term `k` into lane `k mod 8` of its channel. Left to the
+//!   compiler, the loop over `[f64; 4]` lanes was masked and permuted, and fixed-size
+//!   arrays of eight became copies.
 
 use crate::simd::{Kernel, Level, SimdLevel};
 
