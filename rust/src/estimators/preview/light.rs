@@ -78,10 +78,8 @@ fn project(
     let res = env.resolution();
     let omega = texel_solid_angle(res);
     let depth = res.trailing_zeros();
-    let grid = rotation.map(|_| GridDirections::of(res));
-    let corners = rotation
-        .zip(grid.as_ref())
-        .map(|(r, grid)| Corners::new(r, grid, cells as u32));
+    let grid = rotation.and_then(|_| GridDirections::of(res));
+    let corners = rotation.map(|r| Corners::new(r, res, grid.as_deref(), cells as u32));
     // Fixed bands of rows, each summed on its own and the bands added in order: the same
     // sums for any thread count.
     let band = res.div_ceil(PROJECTION_BANDS).max(1);
@@ -149,7 +147,8 @@ const SPLIT: u32 = 4;
 /// The unturned directions of an octahedral grid of side `res`: its `(res + 1)²` texel
 /// corners and `res²` texel centres, row-major. Every turned projection of a map at that
 /// resolution needs them, and computing them (a sine and a cosine each) cost a third of a
-/// projection, so the last few grids asked for are kept for the process.
+/// projection, so the last few grids asked for are kept for the process, up to
+/// [`Self::MAX_RES`] (larger maps are turned as before, a direction at a time).
 struct GridDirections {
     res: u32,
     corners: Vec<glam::Vec3>,
@@ -157,16 +156,31 @@ struct GridDirections {
 }
 
 impl GridDirections {
-    /// Grids kept (a 512² grid holds 6 MB).
+    /// Grids kept.
     const KEPT: usize = 4;
+    /// The largest side kept: a 512² grid holds 6 MB, a 4096² one would hold 400 MB.
+    const MAX_RES: u32 = 512;
 
-    fn of(res: u32) -> std::sync::Arc<Self> {
+    fn of(res: u32) -> Option<std::sync::Arc<Self>> {
         use std::sync::{Arc, Mutex};
+        if res > Self::MAX_RES {
+            return None;
+        }
         static KEPT: Mutex<Vec<Arc<GridDirections>>> = Mutex::new(Vec::new());
         let lock = || KEPT.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(grid) = lock().iter().find(|g| g.res == res) {
-            return grid.clone();
+            return Some(grid.clone());
         }
+        let grid = Arc::new(Self::build(res));
+        let mut kept = lock();
+        if kept.len() == Self::KEPT {
+            kept.remove(0);
+        }
+        kept.push(grid.clone());
+        Some(grid)
+    }
+
+    fn build(res: u32) -> Self {
         let n = res + 1;
         let corners = (0..n * n)
             .into_par_iter()
@@ -178,17 +192,11 @@ impl GridDirections {
             .with_min_len(4096)
             .map(|i| texel_center(UVec2::new(i % res, i / res), res))
             .collect();
-        let grid = Arc::new(Self {
+        Self {
             res,
             corners,
             centres,
-        });
-        let mut kept = lock();
-        if kept.len() == Self::KEPT {
-            kept.remove(0);
         }
-        kept.push(grid.clone());
-        grid
     }
 }
 
@@ -207,18 +215,29 @@ struct Corners {
 }
 
 impl Corners {
-    fn new(r: &DMat3, grid: &GridDirections, cells: u32) -> Self {
-        let points = grid
-            .corners
-            .par_iter()
-            .with_min_len(4096)
-            .map(|c| sphere_to_square((*r * c.as_dvec3()).as_vec3()) * cells as f32)
-            .collect();
-        Self {
-            res: grid.res,
-            cells,
-            points,
-        }
+    /// The corners of a grid of side `res` turned by `r`; `grid` holds their unturned
+    /// directions when kept.
+    fn new(r: &DMat3, res: u32, grid: Option<&GridDirections>, cells: u32) -> Self {
+        let turn = |c: glam::Vec3| sphere_to_square((*r * c.as_dvec3()).as_vec3()) * cells as f32;
+        let n = res + 1;
+        let points = match grid {
+            Some(grid) => grid
+                .corners
+                .par_iter()
+                .with_min_len(4096)
+                .map(|&c| turn(c))
+                .collect(),
+            None => (0..n * n)
+                .into_par_iter()
+                .with_min_len(4096)
+                .map(|i| {
+                    turn(square_to_sphere(
+                        glam::Vec2::new((i % n) as f32, (i / n) as f32) / res as f32,
+                    ))
+                })
+                .collect(),
+        };
+        Self { res, cells, points }
     }
 
     /// The cell (column, row) a point of the square falls in.
@@ -289,6 +308,22 @@ mod tests {
     use super::*;
     use crate::sampling::octahedral::texel_of;
     use glam::Vec3;
+
+    /// A kept grid turns the same corners as directions computed on the spot, and holds
+    /// the texels' centres.
+    #[test]
+    fn kept_grids_give_the_same_corners() {
+        let r = rotation_about_y(37.0).unwrap() * DMat3::from_rotation_x(0.3);
+        let grid = GridDirections::build(32);
+        let kept = Corners::new(&r, 32, Some(&grid), 8);
+        let fresh = Corners::new(&r, 32, None, 8);
+        assert_eq!(kept.points, fresh.points);
+        for (i, c) in grid.centres.iter().enumerate() {
+            let t = UVec2::new(i as u32 % 32, i as u32 / 32);
+            assert_eq!(*c, texel_center(t, 32));
+        }
+        assert!(GridDirections::of(GridDirections::MAX_RES * 2).is_none());
+    }
 
     fn sun_map(dir: Vec3) -> EnvMap {
         let res = 64;
