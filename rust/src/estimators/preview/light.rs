@@ -185,7 +185,7 @@ impl GridDirections {
         let corners = (0..n * n)
             .into_par_iter()
             .with_min_len(4096)
-            .map(|i| square_to_sphere(glam::Vec2::new((i % n) as f32, (i / n) as f32) / res as f32))
+            .map(|i| corner_direction(i, res))
             .collect();
         let centres = (0..res * res)
             .into_par_iter()
@@ -198,6 +198,13 @@ impl GridDirections {
             centres,
         }
     }
+}
+
+/// The unturned direction of corner `i` (row-major, `res + 1` a row) of the octahedral
+/// grid of side `res`.
+fn corner_direction(i: u32, res: u32) -> glam::Vec3 {
+    let n = res + 1;
+    square_to_sphere(glam::Vec2::new((i % n) as f32, (i / n) as f32) / res as f32)
 }
 
 /// The map's texel corners turned by a rotation, in the cells' octahedral square (units of
@@ -230,11 +237,7 @@ impl Corners {
             None => (0..n * n)
                 .into_par_iter()
                 .with_min_len(4096)
-                .map(|i| {
-                    turn(square_to_sphere(
-                        glam::Vec2::new((i % n) as f32, (i / n) as f32) / res as f32,
-                    ))
-                })
+                .map(|i| turn(corner_direction(i, res)))
                 .collect(),
         };
         Self { res, cells, points }
