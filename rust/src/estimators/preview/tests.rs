@@ -444,16 +444,20 @@ fn bright_cells_trace_rays_where_records_disagree() {
         .prepare(Some(scene), &v.cache, Some(&env), request, Some(2))
         .unwrap();
     let prepared = lock(&preview.transfer).clone().unwrap();
+    // The image turned by `r` on 1 thread, after checking it is the one of 2 threads.
+    let on_both_thread_counts = |r: &glam::DMat3| {
+        let [one, two] = [1, 2].map(|threads| {
+            preview
+                .render_lighting(Some(scene), &v.cache, &env, Some(r), Some(threads))
+                .unwrap()
+        });
+        assert_eq!(one, two, "threads");
+        one
+    };
     let (mut traced_pixels, mut agreed_pixels, mut all_rays) = (0, 0, 0);
     for turn in [0.0, 135.0] {
         let r = light::rotation_about_y(turn).unwrap();
-        let img = preview
-            .render_lighting(Some(scene), &v.cache, &env, Some(&r), Some(1))
-            .unwrap();
-        let again = preview
-            .render_lighting(Some(scene), &v.cache, &env, Some(&r), Some(2))
-            .unwrap();
-        assert_eq!(img, again, "threads");
+        let img = on_both_thread_counts(&r);
         let choice = preview.last_bright().expect("a sun");
         let transfer = &prepared.transfer;
         let (cells, mut bright) = split_light(&env, transfer.level(), Some(&r), true).unwrap();
@@ -527,13 +531,7 @@ fn bright_cells_trace_rays_where_records_disagree() {
         .prepare(Some(scene), &v.cache, Some(&env), tight, Some(2))
         .unwrap();
     let r = light::rotation_about_y(135.0).unwrap();
-    let one = preview
-        .render_lighting(Some(scene), &v.cache, &env, Some(&r), Some(1))
-        .unwrap();
-    let two = preview
-        .render_lighting(Some(scene), &v.cache, &env, Some(&r), Some(2))
-        .unwrap();
-    assert_eq!(one, two, "threads");
+    on_both_thread_counts(&r);
     let choice = preview.last_bright().unwrap();
     let errors = choice.errors.expect("judged");
     assert!(choice.rays.unwrap() as usize <= budget && errors.pixels >= 1);
