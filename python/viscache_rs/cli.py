@@ -228,8 +228,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--envmap", default="scene", metavar="NAME",
                    help=f"the map: {', '.join(design.MAPS)} (viscache_rs.design.MAPS says "
                    "what each is) or the path of an .exr file; default: the scene's own")
-    p.add_argument("--basis", default="auto", choices=["auto", "full", "texels", "haar"],
-                   help="of the transfer (default auto: the most accurate that fits the budget)")
+    p.add_argument("--basis", default="auto", choices=["auto", "full", "texels", "haar", "sh"],
+                   help="of the transfer (default auto: the cheapest to update within 1.25x of the "
+                   "least error among those that fit the budget)")
     p.add_argument("--budget-mb", type=_positive(float), default=200.0,
                    help="memory for the transfer in MB (default 200)")
     p.add_argument("--threads", type=int, default=None)

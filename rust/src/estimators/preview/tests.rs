@@ -259,12 +259,23 @@ fn truncated_bases_and_auto() {
         .prepare(None, &v.cache, Some(env), req, Some(2))
         .unwrap();
     assert_eq!(info.measured.len(), 3);
-    let best = info
+    let least = info
         .measured
         .iter()
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .unwrap();
-    assert_eq!(info.basis, best.0);
+        .map(|m| m.1)
+        .fold(f64::INFINITY, f64::min);
+    let kept = info.measured.iter().find(|m| m.0 == info.basis).unwrap();
+    assert!(kept.1 <= super::AUTO_SLACK * least, "{info:?}");
+    for m in info
+        .measured
+        .iter()
+        .filter(|m| m.1 <= super::AUTO_SLACK * least)
+    {
+        assert!(
+            kept.0.bytes_per_pixel() <= m.0.bytes_per_pixel(),
+            "{info:?}"
+        );
+    }
     let e = preview
         .prepare(
             None,
@@ -278,6 +289,31 @@ fn truncated_bases_and_auto() {
         )
         .unwrap_err();
     assert!(e.to_string().contains("budget_mb"), "{e}");
+}
+
+/// `"auto"` keeps the cheapest basis within the slack of the least error, the lesser
+/// error among equally cheap ones, and a much better basis however dear.
+#[test]
+fn auto_keeps_the_cheapest_basis_within_the_slack() {
+    use super::cheapest_within_slack as pick;
+    let (haar, sh, texels) = (
+        Basis::Haar { terms: 152 },
+        Basis::Sh { order: 8 },
+        Basis::Texels { level: 3 },
+    );
+    assert!(sh.bytes_per_pixel() < haar.bytes_per_pixel());
+    assert_eq!(pick(&[(haar, 1.0e-4), (sh, 1.2e-4), (texels, 3e-4)]), sh);
+    assert_eq!(pick(&[(texels, 1.3e-4), (haar, 1.0e-4), (sh, 1.2e-4)]), sh);
+    assert_eq!(
+        pick(&[(texels, 1.1e-4), (haar, 1.0e-4), (sh, 1.2e-4)]),
+        texels
+    );
+    assert_eq!(
+        pick(&[(haar, 1.36e-4), (sh, 3.65e-3), (texels, 6.4e-3)]),
+        haar
+    );
+    assert_eq!(pick(&[(haar, 1.0e-4), (sh, 1.26e-4)]), haar);
+    assert_eq!(pick(&[(haar, 0.0), (texels, 0.0), (sh, 0.0)]), texels);
 }
 
 /// A material edit rebuilds the edited object's rows: the result equals a transfer
