@@ -170,13 +170,13 @@ impl BrightCells {
         self.cells.is_empty()
     }
 
-    /// Per record of `state`, bit `s` set when it sees bright cell `s` (level `level`).
+    /// Per record of `state`, bit `s` set when it sees bright cell `s` (level `level`),
+    /// read record by record: the reference [`RecordColumns::masks`] is tested against.
+    #[cfg(test)]
     pub fn record_masks(&self, state: &CacheState, level: u32) -> Vec<u8> {
         let store = state.store();
         let shift = 2 * (level - store.m());
         (0..store.len())
-            .into_par_iter()
-            .with_min_len(4096)
             .map(|i| {
                 let bits = store.bits(i);
                 self.cells.iter().enumerate().fold(0u8, |m, (s, &c)| {
@@ -184,6 +184,78 @@ impl BrightCells {
                 })
             })
             .collect()
+    }
+}
+
+/// The cache's visibility bits by direction: per block of 64 records, one word per
+/// direction of the records' grid (bit `r` of the word: record `64 b + r` sees it).
+///
+/// A lighting change asks every record whether it sees each bright cell. Read record by
+/// record that touches a cache line per record (garden's 295k records: 19 MB, 1.7 ms a
+/// change); read by direction it touches one word per block and cell.
+#[derive(Clone, Debug)]
+pub struct RecordColumns {
+    /// Resolution exponent of the records' grid.
+    m: u32,
+    /// Records covered.
+    records: usize,
+    /// `4^m` words per block of 64 records, blocks in record order.
+    words: Vec<u64>,
+}
+
+impl RecordColumns {
+    /// Bytes the columns of `records` records at resolution exponent `m` take.
+    pub fn bytes_for(records: usize, m: u32) -> usize {
+        8 * records.div_ceil(64) * (1 << (2 * m))
+    }
+
+    /// The columns of `state`'s records.
+    pub fn of(state: &CacheState) -> Self {
+        let store = state.store();
+        let (m, records) = (store.m(), store.len());
+        let directions = 1usize << (2 * m);
+        let mut words = vec![0u64; records.div_ceil(64) * directions];
+        words
+            .par_chunks_mut(directions)
+            .enumerate()
+            .for_each(|(b, block)| {
+                for i in 64 * b..(64 * b + 64).min(records) {
+                    let record = 1u64 << (i % 64);
+                    for (k, &w) in store.bits(i).bit_words().iter().enumerate() {
+                        let mut w = w;
+                        while w != 0 {
+                            block[64 * k + w.trailing_zeros() as usize] |= record;
+                            w &= w - 1;
+                        }
+                    }
+                }
+            });
+        Self { m, records, words }
+    }
+
+    /// Bytes held.
+    pub fn memory_bytes(&self) -> usize {
+        8 * self.words.len()
+    }
+
+    /// Per record, bit `s` set when it sees `bright`'s cell `s` (level `level` >= the
+    /// records' `m`).
+    pub fn masks(&self, bright: &BrightCells, level: u32) -> Vec<u8> {
+        let shift = 2 * (level - self.m);
+        let directions = 1usize << (2 * self.m);
+        let mut out = vec![0u8; self.records];
+        out.par_chunks_mut(64)
+            .zip(self.words.par_chunks(directions))
+            .with_min_len(64)
+            .for_each(|(masks, block)| {
+                for (s, &c) in bright.cells.iter().enumerate() {
+                    let w = block[(c >> shift) as usize];
+                    for (r, m) in masks.iter_mut().enumerate() {
+                        *m |= ((w >> r) as u8 & 1) << s;
+                    }
+                }
+            });
+        out
     }
 }
 

@@ -35,6 +35,8 @@ pub struct BrightLight {
     /// Per pixel, `J` but for its undecided cells: the truncated transfer's and the light
     /// of the cells its records agree on (RGB).
     base: Vec<[f64; 3]>,
+    /// Per pixel, [`View::finish`] of `base`: the image where no cell is undecided.
+    image: Vec<[f32; 3]>,
     /// Per pixel, three bits per bright cell: [`DECIDED`], [`UNTRACED`] or the number of
     /// its [`AIMS`] shares the rays found open.
     codes: Vec<u32>,
@@ -53,6 +55,11 @@ const DECIDED: u32 = 7;
 const UNTRACED: u32 = 5;
 /// Bits per cell in a pixel's code.
 const CODE_BITS: u32 = 3;
+
+/// The code of a pixel whose `n` cells are all [`DECIDED`].
+fn decided_code(n: usize) -> u32 {
+    (0..n).fold(0u32, |c, s| c | DECIDED << (CODE_BITS * s as u32))
+}
 
 fn cell_code(code: u32, s: usize) -> u32 {
     code >> (CODE_BITS * s as u32) & 7
@@ -77,12 +84,14 @@ impl FormErrors {
 }
 
 /// What [`BrightLight::gather`] needs of the view.
-pub struct View<'a, P, S> {
+pub struct View<'a, P, S, F> {
     pub pixels: usize,
     /// A pixel's position and shading; `None` for pixels without a transfer.
     pub point: P,
     /// A pixel's `J` without the bright cells (its truncated transfer's).
     pub smooth: S,
+    /// A pixel's colour from its `J` (zero where `point` is `None`).
+    pub finish: F,
     pub records: &'a PixelRecords,
     pub bright: &'a BrightCells,
     /// [`BrightCells::record_masks`].
@@ -106,20 +115,22 @@ impl BrightLight {
     /// no record, relative to the pixel's `J` as in the relMSE). Rays leave in pixel
     /// order, a pixel's consecutive from one origin (packets), so the answers are the
     /// same for any thread count.
-    pub fn gather<P, S>(
+    pub fn gather<P, S, F>(
         scene: Option<&Scene>,
-        view: &View<'_, P, S>,
+        view: &View<'_, P, S, F>,
         budget: usize,
         threads: Option<usize>,
     ) -> Result<Self>
     where
         P: Fn(usize) -> Option<(glam::Vec3, Shading)> + Sync,
         S: Fn(usize) -> [f64; 3] + Sync,
+        F: Fn(usize, [f64; 3]) -> [f32; 3] + Sync,
     {
         let View {
             pixels,
             ref point,
             ref smooth,
+            ref finish,
             records,
             bright,
             masks,
@@ -128,18 +139,20 @@ impl BrightLight {
         let n = bright.cells.len();
         debug_assert!(n <= 8 && CODE_BITS as usize * n <= 32);
         let every_cell = (1u16 << n).wrapping_sub(1) as u8;
-        let decided_code = (0..n).fold(0u32, |c, s| c | DECIDED << (CODE_BITS * s as u32));
+        let decided_code = decided_code(n);
         // Per pixel: `J` but for the undecided cells, its code, and the error the
         // records' blend risks on those cells (their light times the blend's distance
         // from all or nothing, all of it with no record), squared over `J`'s square plus
-        // 0.01 as the images' relMSE counts it.
-        let (base, codes): (Vec<[f64; 3]>, Vec<(u32, f32)>) = with_threads(threads, || {
+        // 0.01 as the images' relMSE counts it. The pixel's colour from the base too, final
+        // where no cell is left undecided (most pixels: one pass over the view less).
+        type Pass = (Vec<[f64; 3]>, (Vec<[f32; 3]>, Vec<(u32, f32)>));
+        let (base, (image, codes)): Pass = with_threads(threads, || {
             (0..pixels)
                 .into_par_iter()
                 .with_min_len(1024)
                 .map(|i| {
                     let Some((_, at)) = point(i) else {
-                        return ([0.0; 3], (decided_code, 0.0));
+                        return ([0.0; 3], (finish(i, [0.0; 3]), (decided_code, 0.0)));
                     };
                     let seen = records.seen(i, masks);
                     let (lit, open) = seen.map_or((0, every_cell), |(any, all)| (all, any & !all));
@@ -164,7 +177,7 @@ impl BrightLight {
                         risk += l * doubt;
                     }
                     let risk = risk * risk / (j * j + 1e-2);
-                    (base, (code, risk as f32))
+                    (base, (finish(i, base), (code, risk as f32)))
                 })
                 .unzip()
         })?;
@@ -189,6 +202,7 @@ impl BrightLight {
         };
         let mut out = Self {
             base,
+            image,
             codes: codes.into_iter().map(|c| c.0).collect(),
             rays: scene.map(|_| 0),
             traced_pixels: 0,
@@ -305,6 +319,41 @@ impl BrightLight {
             });
         }
         Ok(out)
+    }
+
+    /// The image of `view`: every pixel's [`View::finish`] of its `J` ([`Self::eval`]),
+    /// computed again only where a cell was left undecided.
+    pub fn image<P, S, F>(
+        self,
+        view: &View<'_, P, S, F>,
+        nearest: bool,
+        threads: Option<usize>,
+    ) -> Result<Vec<[f32; 3]>>
+    where
+        P: Fn(usize) -> Option<(glam::Vec3, Shading)> + Sync,
+        S: Fn(usize) -> [f64; 3] + Sync,
+        F: Fn(usize, [f64; 3]) -> [f32; 3] + Sync,
+    {
+        let n = view.bright.cells.len();
+        let decided_code = decided_code(n);
+        let patched: Vec<(usize, [f32; 3])> = with_threads(threads, || {
+            self.codes
+                .par_iter()
+                .enumerate()
+                .with_min_len(4096)
+                .filter(|(_, &code)| code != decided_code)
+                .filter_map(|(i, _)| {
+                    let (_, at) = (view.point)(i)?;
+                    let j = self.eval(i, || at, view.bright, view.records, view.masks, nearest);
+                    Some((i, (view.finish)(i, j)))
+                })
+                .collect()
+        })?;
+        let mut image = self.image;
+        for (i, colour) in patched {
+            image[i] = colour;
+        }
+        Ok(image)
     }
 
     /// Pixel `i`'s `J` (shaded `at`, asked for only where needed): the transfer's and the

@@ -220,13 +220,18 @@ struct Prepared {
     /// Each pixel's records, for the bright cells a truncated basis leaves out
     /// ([`bright`]); `None` with the whole transfer.
     records: Option<bright::PixelRecords>,
+    /// The cache's bits by direction, for the records' masks toward the bright cells;
+    /// `None` with the whole transfer.
+    columns: Option<bright::RecordColumns>,
     info: TransferInfo,
 }
 
 impl Prepared {
-    /// Bytes the transfer and the pixels' records hold.
+    /// Bytes the transfer, the pixels' records and the records' columns hold.
     fn bytes(&self) -> usize {
-        self.transfer.memory_bytes() + self.records.as_ref().map_or(0, |r| r.memory_bytes())
+        self.transfer.memory_bytes()
+            + self.records.as_ref().map_or(0, |r| r.memory_bytes())
+            + self.columns.as_ref().map_or(0, |c| c.memory_bytes())
     }
 }
 
@@ -421,15 +426,20 @@ impl LightingPreview {
             points.iter().flatten().map(|p| &p.material),
             &request.settings,
         )?;
-        // A truncated basis also keeps each pixel's records (for the bright cells).
+        // A truncated basis also keeps each pixel's records and the records' columns
+        // (for the bright cells).
         let records_bytes = bright::PixelRecords::bytes_per_pixel(cache.params());
-        let per_pixel = |extra: usize| {
+        let columns_bytes = {
+            let state = cache.read();
+            bright::RecordColumns::bytes_for(state.store().len(), state.store().m())
+        };
+        let per_pixel = |extra: usize, fixed: usize| {
             request
                 .budget_bytes
-                .saturating_sub((4 + extra) * points.len())
+                .saturating_sub((4 + extra) * points.len() + fixed)
                 / covered
         };
-        let (whole, truncated) = (per_pixel(0), per_pixel(records_bytes));
+        let (whole, truncated) = (per_pixel(0, 0), per_pixel(records_bytes, columns_bytes));
         let candidates = candidates(level, whole, truncated, request.basis);
         if candidates.is_empty() {
             let needed = match request.basis {
@@ -452,6 +462,9 @@ impl LightingPreview {
                 ),
             ));
         }
+        let columns = (candidates != [Basis::Texels { level }])
+            .then(|| with_threads(threads, || bright::RecordColumns::of(&cache.read())))
+            .transpose()?;
         let probe;
         let env = match env {
             Some(env) if !env.is_black() => env,
@@ -477,7 +490,10 @@ impl LightingPreview {
             if candidates.len() == 1 {
                 Ok((candidates[0], Vec::new()))
             } else {
-                measure(&points, cache, &settings, level, &candidates, env, split)
+                let columns = columns.as_ref().expect("several candidates are truncated");
+                let masks = columns.masks(&bright, level);
+                let light = (&residual[..], &bright, &masks[..]);
+                measure(&points, cache, &settings, level, &candidates, env, light)
             }
         })??;
         let weights = transfer::level_weights(&residual);
@@ -486,12 +502,14 @@ impl LightingPreview {
         })??;
         let records = (!transfer.is_whole())
             .then(|| bright::PixelRecords::gather(&points, &cache.read(), cache.params()));
+        let columns = columns.filter(|_| !transfer.is_whole());
         let mut prepared = Prepared {
             cache: version,
             request,
             settings,
             transfer,
             records,
+            columns,
             info: TransferInfo {
                 basis,
                 level,
@@ -571,72 +589,70 @@ impl LightingPreview {
         let (cells, mut bright) = with_threads(threads, || {
             split_light(env, transfer.level(), rotation, prepared.records.is_some())
         })??;
-        let masks = match bright.is_empty() {
-            true => Vec::new(),
-            false => with_threads(threads, || {
-                bright.record_masks(&cache.read(), transfer.level())
-            })?,
+        let masks = match (&prepared.columns, bright.is_empty()) {
+            (Some(columns), false) => {
+                with_threads(threads, || columns.masks(&bright, transfer.level()))?
+            }
+            _ => Vec::new(),
         };
         let light = transfer.light_for(env, rotation, cells, &bright)?;
-        let gathered = match (&prepared.records, bright.is_empty()) {
-            (Some(records), false) => {
-                let budget = (prepared.request.edge_rays * self.points.len() as f64).round();
-                // Rays only with a scene to trace in and a budget for them.
-                let scene = scene.filter(|_| budget >= 1.0);
-                if scene.is_some() {
-                    bright.aim(env, transfer.level(), rotation);
+        let inverse = rotation.map(|r| r.transpose());
+        // A pixel's colour from its `J`: escaped pixels show the turned map.
+        let finish = |i: usize, j: [f64; 3]| -> [f32; 3] {
+            match &self.points[i] {
+                Err(dir) => {
+                    let d = match &inverse {
+                        Some(r) => (*r * dir.as_dvec3()).as_vec3(),
+                        None => *dir,
+                    };
+                    env.eval(d).to_array()
                 }
-                let view = edges::View {
-                    pixels: self.points.len(),
-                    point: |i: usize| match &self.points[i] {
-                        Ok(p) if transfer.has_row(i) => Some((p.position, p.shading())),
-                        _ => None,
-                    },
-                    smooth: |i: usize| transfer.eval(i, &light),
-                    records,
-                    bright: &bright,
-                    masks: &masks,
-                };
-                Some(BrightLight::gather(scene, &view, budget as usize, threads)?)
+                Ok(p) => {
+                    let ratios = p.material.channel_ratios();
+                    std::array::from_fn(|c| p.emitted[c] + (ratios[c] as f64 * j[c]) as f32)
+                }
             }
-            _ => None,
         };
-        let judged = gathered.as_ref().and_then(|g| g.judged);
-        let nearest = judged.map_or(prepared.settings.nearest, |e| e.prefers_nearest());
-        *lock(&self.last_bright) = (!bright.is_empty()).then(|| BrightChoice {
+        let Some(records) = prepared.records.as_ref().filter(|_| !bright.is_empty()) else {
+            *lock(&self.last_bright) = None;
+            return with_threads(threads, || {
+                (0..self.points.len())
+                    .into_par_iter()
+                    .with_min_len(1024)
+                    .map(|i| finish(i, transfer.eval(i, &light)))
+                    .collect()
+            });
+        };
+        let budget = (prepared.request.edge_rays * self.points.len() as f64).round();
+        // Rays only with a scene to trace in and a budget for them.
+        let scene = scene.filter(|_| budget >= 1.0);
+        if scene.is_some() {
+            bright.aim(env, transfer.level(), rotation);
+        }
+        let view = edges::View {
+            pixels: self.points.len(),
+            point: |i: usize| match &self.points[i] {
+                Ok(p) if transfer.has_row(i) => Some((p.position, p.shading())),
+                _ => None,
+            },
+            smooth: |i: usize| transfer.eval(i, &light),
+            finish,
+            records,
+            bright: &bright,
+            masks: &masks,
+        };
+        let gathered = BrightLight::gather(scene, &view, budget as usize, threads)?;
+        let nearest = gathered
+            .judged
+            .map_or(prepared.settings.nearest, |e| e.prefers_nearest());
+        *lock(&self.last_bright) = Some(BrightChoice {
             cells: bright.cells.len(),
             nearest,
-            rays: gathered.as_ref().and_then(|g| g.rays),
-            pixels: gathered.as_ref().map_or(0, |g| g.traced_pixels),
-            errors: judged,
+            rays: gathered.rays,
+            pixels: gathered.traced_pixels,
+            errors: gathered.judged,
         });
-        let inverse = rotation.map(|r| r.transpose());
-        with_threads(threads, || {
-            self.points
-                .par_iter()
-                .enumerate()
-                .with_min_len(1024)
-                .map(|(i, point)| match point {
-                    Err(dir) => {
-                        let d = match &inverse {
-                            Some(r) => (*r * dir.as_dvec3()).as_vec3(),
-                            None => *dir,
-                        };
-                        env.eval(d).to_array()
-                    }
-                    Ok(p) => {
-                        let j = match (&prepared.records, &gathered) {
-                            (Some(records), Some(gathered)) => {
-                                gathered.eval(i, || p.shading(), &bright, records, &masks, nearest)
-                            }
-                            _ => transfer.eval(i, &light),
-                        };
-                        let ratios = p.material.channel_ratios();
-                        std::array::from_fn(|c| p.emitted[c] + (ratios[c] as f64 * j[c]) as f32)
-                    }
-                })
-                .collect()
-        })
+        gathered.image(&view, nearest, threads)
     }
 
     /// Gives `object` the material `material` in this view: its pixels shade with it from
@@ -729,7 +745,7 @@ fn probe_map() -> Result<EnvMap> {
 
 /// [`BasisChoice::Auto`]'s measurement: the error of each candidate on up to
 /// [`AUTO_SAMPLE`] pixels spread over the view, against the untruncated transfer under
-/// `env`; returns the best and every figure.
+/// `env`; returns the one to keep ([`cheapest_within_slack`]) and every figure.
 fn measure(
     points: &[Option<TransferPoint>],
     cache: &VisibilityCache,
@@ -737,7 +753,7 @@ fn measure(
     level: u32,
     candidates: &[Basis],
     env: &EnvMap,
-    (cells, bright): (&[[f64; 3]], &bright::BrightCells),
+    (cells, bright, masks): (&[[f64; 3]], &bright::BrightCells, &[u8]),
 ) -> Result<(Basis, Vec<(Basis, f64)>)> {
     let sample = spread(points, AUTO_SAMPLE);
     let full = Transfer::build(
@@ -754,10 +770,7 @@ fn measure(
         .collect();
     let power: [f64; 3] =
         std::array::from_fn(|c| reference.iter().map(|j| j[c] * j[c]).sum::<f64>());
-    let state = cache.read();
-    let masks = bright.record_masks(&state, level);
-    let records = bright::PixelRecords::gather(&sample, &state, cache.params());
-    drop(state);
+    let records = bright::PixelRecords::gather(&sample, &cache.read(), cache.params());
     let weights = transfer::level_weights(cells);
     let mut measured = Vec::new();
     for &basis in candidates {
@@ -774,7 +787,7 @@ fn measure(
         for (i, r) in reference.iter().enumerate() {
             let mut j = t.eval(i, &light);
             if let (Some(p), true) = (&sample[i], t.has_row(i)) {
-                let b = records.eval(i, &p.shading(), bright, &masks, settings.nearest);
+                let b = records.eval(i, &p.shading(), bright, masks, settings.nearest);
                 j = std::array::from_fn(|c| j[c] + b[c]);
             }
             for c in 0..3 {

@@ -410,9 +410,13 @@ fn sh_transfer_is_exact_under_a_constant_map() {
     let whole = preview
         .render_lighting(None, &v.cache, &env, None, Some(2))
         .unwrap();
+    let columns = {
+        let state = v.cache.read();
+        bright::RecordColumns::bytes_for(state.store().len(), state.store().m())
+    };
     let req = TransferRequest {
         basis: BasisChoice::Sh,
-        budget_bytes: 24 * 18 * (4 + 64 + 256),
+        budget_bytes: 24 * 18 * (4 + 64 + 256) + columns,
         ..TransferRequest::DEFAULT
     };
     let info = preview
@@ -584,4 +588,31 @@ fn bright_cells_trace_rays_where_records_disagree() {
         .unwrap();
     let choice = preview.last_bright().unwrap();
     assert!(choice.rays.is_none() && choice.errors.is_none());
+}
+
+/// The records' masks read by direction equal those read record by record, for cells of
+/// every level from the records' own up and any number of cells.
+#[test]
+fn columns_give_the_records_masks() {
+    let v = view("dynamics", 48, 36);
+    let state = v.cache.read();
+    let columns = bright::RecordColumns::of(&state);
+    let (m, records) = (state.store().m(), state.store().len());
+    assert!(records > 64 && records % 64 != 0, "{records} records");
+    assert_eq!(
+        columns.memory_bytes(),
+        bright::RecordColumns::bytes_for(records, m)
+    );
+    for level in [m, m + 1, 6] {
+        let all: Vec<u32> = (0..1u32 << (2 * level)).step_by(5).collect();
+        for (k, cells) in all.chunks(bright::MAX_BRIGHT).enumerate() {
+            let cells = &cells[..1 + k % cells.len()];
+            let bright = bright::BrightCells {
+                cells: cells.to_vec(),
+                ..Default::default()
+            };
+            let masks = columns.masks(&bright, level);
+            assert_eq!(masks, bright.record_masks(&state, level), "level {level}");
+        }
+    }
 }
