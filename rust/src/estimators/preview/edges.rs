@@ -35,7 +35,7 @@ pub struct BrightLight {
     /// Per pixel, `J` but for its undecided cells: the truncated transfer's and the light
     /// of the cells its records agree on (RGB).
     base: Vec<[f64; 3]>,
-    /// Per pixel, [`View::finish`] of `base`: the image where no cell is undecided.
+    /// Per pixel where no cell is undecided, [`View::finish`] of `base`: the image there.
     image: Vec<[f32; 3]>,
     /// Per pixel, three bits per bright cell: [`DECIDED`], [`UNTRACED`] or the number of
     /// its [`AIMS`] shares the rays found open.
@@ -145,14 +145,21 @@ impl BrightLight {
         // from all or nothing, all of it with no record), squared over `J`'s square plus
         // 0.01 as the images' relMSE counts it. The pixel's colour from the base too, final
         // where no cell is left undecided (most pixels: one pass over the view less).
-        type Pass = (Vec<[f64; 3]>, (Vec<[f32; 3]>, Vec<(u32, f32)>));
-        let (base, (image, codes)): Pass = with_threads(threads, || {
-            (0..pixels)
+        let mut base = vec![[0.0f64; 3]; pixels];
+        let mut image = vec![[0.0f32; 3]; pixels];
+        let mut codes = vec![decided_code; pixels];
+        let mut risks = vec![0.0f32; pixels];
+        with_threads(threads, || {
+            let slots = (&mut base, &mut image, &mut codes, &mut risks);
+            slots
                 .into_par_iter()
+                .enumerate()
                 .with_min_len(1024)
-                .map(|i| {
+                .for_each(|(i, slot)| {
+                    let (base_out, image_out, code_out, risk_out) = slot;
                     let Some((_, at)) = point(i) else {
-                        return ([0.0; 3], (finish(i, [0.0; 3]), (decided_code, 0.0)));
+                        *image_out = finish(i, [0.0; 3]);
+                        return;
                     };
                     let seen = records.seen(i, masks);
                     let (lit, open) = seen.map_or((0, every_cell), |(any, all)| (all, any & !all));
@@ -176,10 +183,12 @@ impl BrightLight {
                         };
                         risk += l * doubt;
                     }
-                    let risk = risk * risk / (j * j + 1e-2);
-                    (base, (finish(i, base), (code, risk as f32)))
+                    if code == decided_code {
+                        *image_out = finish(i, base);
+                    }
+                    (*base_out, *code_out) = (base, code);
+                    *risk_out = (risk * risk / (j * j + 1e-2)) as f32;
                 })
-                .unzip()
         })?;
         let rays_of = |code: u32| -> usize {
             (0..n)
@@ -192,10 +201,11 @@ impl BrightLight {
             Some(_) => with_threads(threads, || {
                 codes
                     .par_iter()
+                    .zip(&risks)
                     .enumerate()
                     .with_min_len(4096)
-                    .filter(|(_, c)| c.0 != decided_code)
-                    .map(|(i, &(code, risk))| (i as u32, rays_of(code), risk))
+                    .filter(|(_, (&code, _))| code != decided_code)
+                    .map(|(i, (&code, &risk))| (i as u32, rays_of(code), risk))
                     .collect()
             })?,
             _ => Vec::new(),
@@ -203,7 +213,7 @@ impl BrightLight {
         let mut out = Self {
             base,
             image,
-            codes: codes.into_iter().map(|c| c.0).collect(),
+            codes,
             rays: scene.map(|_| 0),
             traced_pixels: 0,
             judged: None,
@@ -324,7 +334,7 @@ impl BrightLight {
     /// The image of `view`: every pixel's [`View::finish`] of its `J` ([`Self::eval`]),
     /// computed again only where a cell was left undecided.
     pub fn image<P, S, F>(
-        self,
+        mut self,
         view: &View<'_, P, S, F>,
         nearest: bool,
         threads: Option<usize>,
@@ -334,25 +344,22 @@ impl BrightLight {
         S: Fn(usize) -> [f64; 3] + Sync,
         F: Fn(usize, [f64; 3]) -> [f32; 3] + Sync,
     {
-        let n = view.bright.cells.len();
-        let decided_code = decided_code(n);
-        let patched: Vec<(usize, [f32; 3])> = with_threads(threads, || {
-            self.codes
-                .par_iter()
+        let decided_code = decided_code(view.bright.cells.len());
+        let mut image = std::mem::take(&mut self.image);
+        with_threads(threads, || {
+            image
+                .par_iter_mut()
+                .zip(&self.codes)
                 .enumerate()
-                .with_min_len(4096)
-                .filter(|(_, &code)| code != decided_code)
-                .filter_map(|(i, _)| {
-                    let (_, at) = (view.point)(i)?;
-                    let j = self.eval(i, || at, view.bright, view.records, view.masks, nearest);
-                    Some((i, (view.finish)(i, j)))
+                .with_min_len(1024)
+                .filter(|(_, (_, &code))| code != decided_code)
+                .for_each(|(i, (colour, _))| {
+                    if let Some((_, at)) = (view.point)(i) {
+                        let j = self.eval(i, || at, view.bright, view.records, view.masks, nearest);
+                        *colour = (view.finish)(i, j);
+                    }
                 })
-                .collect()
         })?;
-        let mut image = self.image;
-        for (i, colour) in patched {
-            image[i] = colour;
-        }
         Ok(image)
     }
 
