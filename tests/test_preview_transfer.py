@@ -117,7 +117,7 @@ def test_truncated_bases_and_auto(garage):
         errors[basis] = float(((img - exact) ** 2).sum() / (exact ** 2).sum())
     assert errors["haar"] < errors["texels"] and errors["haar"] < 0.01, errors
     info = view.prepare(cache, env, budget_mb=budget)
-    assert {k.rstrip("0123456789") for k in info["measured"]} == {"haar", "sh", "texels"}
+    assert sorted(k.rstrip("0123456789") for k in info["measured"]) == ["haar", "sh", "texels"]
     kept = next(v for k, v in info["measured"].items() if k.startswith(info["basis"]))
     assert kept <= 1.25 * min(info["measured"].values())
     assert info["basis"] == "haar"  # its window edges need all frequencies

@@ -189,10 +189,9 @@ impl PyLightingPreview {
     }
 
     /// Builds and keeps the transfer of `cache` for this view: `basis` "auto" (the
-    /// candidates that fit `budget_mb`, each family also at a smaller size, measured
-    /// against the untruncated transfer under `envmap` or a sun-and-sky probe; kept: the
-    /// one that reads the fewest bytes a change within 1.25x of the least error;
-    /// `budget_mb` None is 200), "full", "texels",
+    /// candidates that fit `budget_mb` measured against the untruncated transfer under
+    /// `envmap`, or a sun-and-sky probe, and the one that reads the fewest bytes a change
+    /// kept among those within 1.25x of the least error; `budget_mb` None is 200), "full", "texels",
     /// "haar" or "sh". `nearest`: True takes visibility from each pixel's heaviest record
     /// only, False from the cache's blend of records, None (default) the one whose `J` lies
     /// closer to exact visibility at 1024 pixels (a record traced at each) — and, for a

@@ -134,10 +134,9 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 /// Which basis [`LightingPreview::prepare`] keeps the transfer in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BasisChoice {
-    /// The candidates that fit the budget, each family also at a smaller size, measured
-    /// on a sample of pixels against the untruncated transfer; the cheapest to read per
-    /// change among those within [`AUTO_SLACK`] of the least error wins (the whole
-    /// transfer when it fits).
+    /// The candidates that fit the budget, measured on a sample of pixels against the
+    /// untruncated transfer; the cheapest to read per change among those within
+    /// [`AUTO_SLACK`] of the least error wins (the whole transfer when it fits).
     Auto,
     /// The untruncated transfer (cell values at the full level): today's `J`, exactly.
     Full,
@@ -265,10 +264,8 @@ const AUTO_SAMPLE: usize = 1024;
 /// How much more truncation error than the least [`BasisChoice::Auto`] accepts for a
 /// basis that reads fewer bytes a change. Where the bases differ by this little
 /// (relative squared errors of 1e-5 to 1e-3 on the suite), the preview's error is the
-/// cache's and the bright cells': the kept bases (mostly SH of order 4, 64 bytes a
-/// pixel against Haar's 612) moved the images' relMSE at 320x240 by -2% to +16% against
-/// order 8 (worst: panels under the sky, 0.0037 to 0.0043). Where a basis truly fits
-/// better (Haar on garage's window edges: 27x less than SH) it stays.
+/// cache's and the bright cells', and the images agree to 0.1% relMSE; where a basis
+/// truly fits better (Haar on garage's window edges: 27x less than SH) it stays.
 pub const AUTO_SLACK: f64 = 1.25;
 
 impl LightingPreview {
@@ -709,9 +706,7 @@ impl LightingPreview {
 
 /// The bases [`LightingPreview::prepare`] may keep for `choice` at full level `level`,
 /// with `whole` bytes a pixel for the whole transfer and `truncated` for a truncated one
-/// (which keeps the pixel's records too); the largest of each family that fits first
-/// (`"auto"` then adds each at a smaller size: a texel level coarser, half the Haar
-/// terms, SH two and four orders lower), empty when none fits.
+/// (which keeps the pixel's records too); finest first, empty when none fits.
 fn candidates(level: u32, whole: usize, truncated: usize, choice: BasisChoice) -> Vec<Basis> {
     let full = Basis::Texels { level };
     let full = (full.bytes_per_pixel() <= whole).then_some(full);
@@ -731,35 +726,7 @@ fn candidates(level: u32, whole: usize, truncated: usize, choice: BasisChoice) -
         BasisChoice::Haar => haar.into_iter().collect(),
         BasisChoice::Sh => sh.into_iter().collect(),
         BasisChoice::Auto if full.is_some() => full.into_iter().collect(),
-        BasisChoice::Auto => {
-            // Each family also at a smaller size, so that a view whose error lies in its
-            // records, not in the basis, reads less a change.
-            let smaller = [
-                texels.and_then(|b| match b {
-                    Basis::Texels { level } if level > 1 => {
-                        Some(Basis::Texels { level: level - 1 })
-                    }
-                    _ => None,
-                }),
-                haar.and_then(|b| match b {
-                    Basis::Haar { terms } if terms > 1 => Some(Basis::Haar { terms: terms / 2 }),
-                    _ => None,
-                }),
-                sh.and_then(|b| match b {
-                    Basis::Sh { order } if order > 2 => Some(Basis::Sh { order: order - 2 }),
-                    _ => None,
-                }),
-                sh.and_then(|b| match b {
-                    Basis::Sh { order } if order > 4 => Some(Basis::Sh { order: order - 4 }),
-                    _ => None,
-                }),
-            ];
-            [texels, haar, sh]
-                .into_iter()
-                .chain(smaller)
-                .flatten()
-                .collect()
-        }
+        BasisChoice::Auto => texels.into_iter().chain(haar).chain(sh).collect(),
     }
 }
 
