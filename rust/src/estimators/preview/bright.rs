@@ -349,7 +349,7 @@ impl PixelRecords {
     }
 
     /// `Σ_s l_c(s) B(ω_s) cos θ_s Ṽ(ω_s)` of pixel `i`, shaded `at` (module docs), with
-    /// `Ṽ` in the form `nearest` names, `masks` from [`BrightCells::record_masks`].
+    /// `Ṽ` in the form `nearest` names, `masks` from [`RecordColumns::masks`].
     pub fn eval(
         &self,
         i: usize,

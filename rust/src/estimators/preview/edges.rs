@@ -94,7 +94,7 @@ pub struct View<'a, P, S, F> {
     pub finish: F,
     pub records: &'a PixelRecords,
     pub bright: &'a BrightCells,
-    /// [`BrightCells::record_masks`].
+    /// [`super::bright::RecordColumns::masks`].
     pub masks: &'a [u8],
 }
 
@@ -144,7 +144,7 @@ impl BrightLight {
         // records' blend risks on those cells (their light times the blend's distance
         // from all or nothing, all of it with no record), squared over `J`'s square plus
         // 0.01 as the images' relMSE counts it. The pixel's colour from the base too, final
-        // where no cell is left undecided (most pixels: one pass over the view less).
+        // where no cell is left undecided (no second pass over those pixels).
         let mut base = vec![[0.0f64; 3]; pixels];
         let mut image = vec![[0.0f32; 3]; pixels];
         let mut codes = vec![decided_code; pixels];
