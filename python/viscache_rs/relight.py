@@ -23,15 +23,17 @@ sample) and takes ``<V>``, the expected visibility under the same density, from:
 
 ``render(envmap=None, materials=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1,
 seed=0, camera=None, threads=None, time_budget=None, progress=False)`` returns SBF eq. 9's
-blend
-``(1 - t) <LBV> + t <LB> <V>`` per light, with ``t`` from the estimated relative error
-bound ``sqrt(Var(LB/p) Var(V)) / <LB>`` (eq. 7, 10) against ``threshold`` (eq. 11; the
-worst channel decides, ``t <= 1 - epsilon``; ``threshold=0`` is the unbiased ``<LBV>``
-alone). ``materials`` is a dict of object id -> :class:`Material` overriding the scene's;
-area-light radiance and textures are edited on the scene (``scene.set_emission``,
-``scene.set_emission_texture``). With ``time_budget`` (seconds), passes of further
-``LBV``-samples follow the first while at least one more per pixel fits (SBF's later
-frames: ``Var(LB/p)`` is known, a sample costs what a classical one does);
+blend ``(1 - t) <LBV> + t <LB> <V>`` per light, with ``t`` from the estimated relative error
+bound ``sqrt(Var(LB/p) Var(V)) / <LB>`` (eq. 7, 10) against ``threshold`` (eq. 11; the worst
+channel decides, ``t <= 1 - epsilon``; ``threshold=0`` is the unbiased ``<LBV>`` alone), and
+never above the share that minimises the blend's expected squared error for the bias
+``<LB><V>`` and ``<LBV>`` measurably differ by: where they differ, ``t`` falls as
+``LBV``-samples accumulate and the blend converges to ``<LBV>`` (eq. 11 alone keeps the bias
+however many are taken). ``materials`` is a dict of object id -> :class:`Material`
+overriding the scene's; area-light radiance and textures are edited on the scene
+(``scene.set_emission``, ``scene.set_emission_texture``). With ``time_budget`` (seconds),
+passes of further ``LBV``-samples follow the first while at least one more per pixel fits
+(SBF's later frames: ``Var(LB/p)`` is known, a sample costs what a classical one does);
 ``stats["lbv_spp"]`` is the count taken, and the image equals a run without a budget asked
 for that count. Results are bit-identical for any ``threads``.
 """

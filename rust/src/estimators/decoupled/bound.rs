@@ -52,6 +52,19 @@ pub fn relative_error(err: [f64; 3], lb: [f64; 3]) -> f64 {
         .fold(0.0f64, f64::max)
 }
 
+/// The `t` that minimises the blend's expected squared error in one channel, beyond SBF:
+/// with `⟨LBV⟩` unbiased of variance `var_unbiased` and `⟨LB⟩⟨V⟩` off by `bias` with
+/// variance `var_decoupled`, eq. 9's error is `(1 − t)² var_unbiased + t² (bias² +
+/// var_decoupled)` (the two taken as uncorrelated), least at `t = var_unbiased /
+/// (var_unbiased + bias² + var_decoupled)`. As `LBV`-samples accumulate, `var_unbiased`
+/// falls and so does `t` wherever there is a bias: the blend converges to the unbiased
+/// estimator, where eq. 11's `t` keeps the bias however many samples are taken (SBF: "not
+/// even consistent"). `None` where nothing weighs (all three zero or not finite).
+pub fn least_error_factor(var_unbiased: f64, bias: f64, var_decoupled: f64) -> Option<f64> {
+    let total = var_unbiased + bias * bias + var_decoupled;
+    (total > 0.0 && total.is_finite()).then(|| (var_unbiased / total).clamp(0.0, 1.0))
+}
+
 /// SBF eq. 9: `(1 − t) ⟨LBV⟩ + t ⟨LB⟩ ⟨V⟩`.
 pub fn blend(lbv: f64, lb: f64, v: f64, t: f64) -> f64 {
     (1.0 - t) * lbv + t * lb * v
@@ -126,6 +139,13 @@ mod tests {
         assert_eq!(blend_factor([1e-3; 3], [1.0; 3], 0.25, 0.1), 0.9);
         // Threshold 0: the unbiased estimator alone.
         assert_eq!(blend_factor([1.0; 3], [1.0; 3], 0.0, 0.1), 0.0);
+        // The least-error factor: variances 1 and bias 0 weigh the two alike; a bias of 3
+        // against an unbiased variance of 1 leaves a tenth to the decoupled part.
+        assert_eq!(least_error_factor(1.0, 0.0, 1.0), Some(0.5));
+        assert_eq!(least_error_factor(1.0, 3.0, 0.0), Some(0.1));
+        assert_eq!(least_error_factor(0.0, 2.0, 1.0), Some(0.0));
+        assert_eq!(least_error_factor(0.0, 0.0, 0.0), None);
+        assert_eq!(least_error_factor(f64::INFINITY, 1.0, 0.0), None);
         assert_eq!(blend(2.0, 3.0, 0.5, 0.0), 2.0);
         assert_eq!(blend(2.0, 3.0, 0.5, 1.0), 1.5);
     }

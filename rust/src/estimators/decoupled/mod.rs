@@ -50,6 +50,19 @@
 //! pixels after a map rotation or swap; with it, on 96-100% (`viscache experiment
 //! relight`, 2026-11-26, seventh session).
 //!
+//! ## The blend beyond eq. 11: consistent
+//! Eq. 11 sets `t` from the bound alone, so `⟨LB⟩⟨V⟩` keeps its share however many
+//! `LBV`-samples later frames add, and so does its bias (SBF: the estimator "is not even
+//! consistent"). Here `t` is at most eq. 11's and at most the share that minimises the
+//! blend's expected squared error given the bias the two estimates measurably differ by
+//! (`least_error_t`): where they agree it stays eq. 11's, where they differ it falls as the
+//! unbiased part's variance does, and the blend converges to `⟨LBV⟩`. The threshold still
+//! holds (a smaller `t` only lowers `t · Err_rel`), and so does `1 − ε`. Measured with
+//! `viscache experiment relight` (160x120, threshold 0.25, 2026-11-27): first frames within
+//! ±7% of eq. 11's relMSE but meshes with cache visibility (0.63x) and pixel visibility
+//! after map edits (0.46-0.73x); given 0.5 s, garage 0.45-0.57x and meshes 0.06x (cache);
+//! one run of each.
+//!
 //! ## Determinism
 //! Every random number is a pure function of `(seed, pixel, stream, sample, dimension)`;
 //! pixels are independent and their statistics accumulate in sample order, so results
@@ -64,7 +77,9 @@ use std::time::Instant;
 use glam::{DVec2, Vec3};
 use rayon::prelude::*;
 
-use self::bound::{binary_variance, blend, blend_factor, error_bound, relative_error};
+use self::bound::{
+    binary_variance, blend, blend_factor, error_bound, least_error_factor, relative_error,
+};
 use super::control_variate::Interpolant;
 use super::direct::{ProductDistribution, ProductLevel, ShadingPoint};
 use super::indirect::shading_point_at;
@@ -971,7 +986,8 @@ impl RelightPass<'_> {
                 let t = if s.lbv[0].count == 0 {
                     1.0
                 } else {
-                    blend_factor(err, lb_mean, params.threshold, params.epsilon)
+                    let sbf = blend_factor(err, lb_mean, params.threshold, params.epsilon);
+                    sbf.min(least_error_t(s, v, &err))
                 };
                 (t, rel)
             };
@@ -988,6 +1004,35 @@ impl RelightPass<'_> {
         }
         out
     }
+}
+
+/// The least-error `t` of a pixel and light ([`least_error_factor`], module docs) over the
+/// channels whose bound `err` allows a bias, the smallest deciding as in eq. 11; 1 (no
+/// limit) where no channel's bound is above zero, so that fully lit and fully blocked
+/// points keep eq. 11's `1 − ε`.
+///
+/// The squared bias is measured, not taken from the bound: `(⟨LB⟩⟨V⟩ − ⟨LBV⟩)²` less both
+/// estimates' variances (unbiased for the square when the two are independent), within
+/// `[0, err²]`. The bound, an upper bound that SBF §4.1 finds loose in penumbrae and on
+/// glossy surfaces, put in its place cost the first frames: relMSE 1.3-1.6x on garage at
+/// threshold 0.25 (`viscache experiment relight`, 2026-11-27). The unbiased part's variance
+/// per sample is at least what `⟨V⟩` predicts for a binary `V` independent of `LB/p`,
+/// `⟨V⟩ Var(LB/p) + ⟨V⟩(1 − ⟨V⟩)⟨LB⟩²`: eight `LBV`-samples that all missed a sun visible
+/// one time in twenty would otherwise report no variance, and the blend would take their
+/// zero alone.
+fn least_error_t(s: &LightSums, v: f64, err: &[f64; 3]) -> f64 {
+    (0..3)
+        .filter(|&c| err[c] > 0.0)
+        .filter_map(|c| {
+            let (lb, lbv) = (&s.lb[c], &s.lbv[c]);
+            let predicted = v * lb.variance() + binary_variance(v) * lb.mean * lb.mean;
+            let var_unbiased = lbv.variance().max(predicted) / lbv.count.max(1) as f64;
+            let var_decoupled = v * v * lb.variance_of_mean();
+            let d = v * lb.mean - lbv.mean;
+            let bias2 = (d * d - var_unbiased - var_decoupled).clamp(0.0, err[c] * err[c]);
+            least_error_factor(var_unbiased, bias2.sqrt(), var_decoupled)
+        })
+        .fold(1.0, f64::min)
 }
 
 /// The product distribution of the map at `sp` (`None`: nothing to sample).
