@@ -288,12 +288,18 @@ def test_time_budget_and_stopping():
 
 def test_a_time_budget_adds_passes_of_lbv_samples(garage):
     # SBF's later frames: after the first pass, passes of LBV-samples (their LB values
-    # count too) fill the budget; the image is the one a run asked for that many gives.
+    # count too) fill the budget; with even counts the image is the one a run asked for
+    # that many gives.
     setup, cam, rl = garage
-    budgeted = rl.render(threshold=0.25, lb_spp=16, lbv_spp=4, seed=2, time_budget=0.2)
+    budgeted = rl.render(threshold=0.25, lb_spp=16, lbv_spp=4, seed=2, time_budget=0.2,
+                         adaptive=False)
     taken = budgeted.stats["lbv_spp"]
     assert budgeted.stats["passes"] >= 2 and taken > 4
     assert 0 < budgeted.stats["first_pass_seconds"] < budgeted.stats["seconds"]
+    surface = np.isfinite(budgeted.t[..., 0])
+    assert np.all(budgeted.lbv_counts[surface] == taken)
+    assert np.all(budgeted.lbv_counts[~surface] == 0)
+    assert budgeted.stats["lbv_spp_mean"] == taken
     asked = rl.render(threshold=0.25, lb_spp=16, lbv_spp=taken, seed=2)
     assert asked.stats["passes"] == 1 and asked.stats["lbv_spp"] == taken
     for key in ("image", "variance", "error_bound", "t", "bound", "visibility"):
@@ -302,3 +308,19 @@ def test_a_time_budget_adds_passes_of_lbv_samples(garage):
     # Without LBV-samples there is no unbiased part to add to: one pass.
     alone = rl.render(lbv_spp=0, lb_spp=16, time_budget=0.2)
     assert alone.stats["passes"] == 1 and alone.stats["lbv_spp"] == 0
+
+
+def test_adaptive_passes_go_where_the_blend_leans_on_lbv(garage):
+    # The default shares later passes' LBV-samples by each pixel's (1 - t)^2 Var(LBV/p)
+    # over mean^2 + 1e-2, pooled over its neighbours: pixels whose t fell (penumbrae)
+    # take more than those that lean on <LB><V>; pixels without a surface take none.
+    setup, cam, rl = garage
+    r = rl.render(threshold=0.25, lb_spp=16, lbv_spp=4, seed=2, time_budget=0.2)
+    assert r.stats["adaptive"] and r.stats["passes"] >= 2
+    counts, t = r.lbv_counts, r.t[..., 0]
+    surface = np.isfinite(t)
+    assert np.all(counts[~surface] == 0) and np.all(counts[surface] >= 4)
+    assert r.stats["lbv_spp"] == counts.max() > 1.5 * r.stats["lbv_spp_mean"]
+    assert r.stats["lbv_spp_mean"] == pytest.approx(counts[surface].mean())
+    # Measured: 1536 against 874 on average.
+    assert counts[surface & (t < 0.5)].mean() > 1.2 * counts[surface & (t >= 0.85)].mean()

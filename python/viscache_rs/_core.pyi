@@ -368,6 +368,7 @@ class Relighter:
         product_level: int | str | None = None,
         threads: int | None = None,
         time_budget: float | None = None,
+        adaptive: bool = True,
         callback: Callable[[int, int], Any] | None = None,
     ) -> dict[str, Any]: ...
 

@@ -34,8 +34,13 @@ overriding the scene's; area-light radiance and textures are edited on the scene
 (``scene.set_emission``, ``scene.set_emission_texture``). With ``time_budget`` (seconds),
 passes of further ``LBV``-samples follow the first while at least one more per pixel fits
 (SBF's later frames: ``Var(LB/p)`` is known, a sample costs what a classical one does);
-``stats["lbv_spp"]`` is the count taken, and the image equals a run without a budget asked
-for that count. Results are bit-identical for any ``threads``.
+with ``adaptive`` (the default) each pixel takes them in proportion to the square root of
+its blend's relative variance per sample, ``(1 - t)^2 Var(LBV/p) / (mean^2 + 1e-2)`` pooled
+over its neighbours (the renderer's adaptive counts: relMSE's optimum), so pixels that lean on
+``<LB><V>`` take few; ``adaptive=False`` gives every pixel the same count, and the image then
+equals a run without a budget asked for that count. ``stats["lbv_spp"]`` is the most a pixel
+took, ``stats["lbv_spp_mean"]`` the mean over the pixels that see a surface. Results are
+bit-identical for any ``threads`` (under a budget, for the same passes).
 """
 
 from __future__ import annotations
@@ -59,7 +64,9 @@ class RelightResult:
     of the new density they missed, ``1 - mean(p'/p)``, times ``max(<V>, 1 - <V>)``). Per
     pixel and light (H, W, L), light 0 the map, then the area lights: ``t`` (the blend
     factor), ``bound`` (estimated relative error bound, worst channel), ``visibility``
-    (``<V>``) and ``effective_samples``; NaN where a pixel has no surface or a light no ``<V>``."""
+    (``<V>``) and ``effective_samples``; NaN where a pixel has no surface or a light no ``<V>``.
+    ``lbv_counts`` (H, W) uint32: the ``LBV``-samples per light each pixel took (0 where it
+    sees no surface)."""
 
     image: np.ndarray
     variance: np.ndarray
@@ -68,6 +75,7 @@ class RelightResult:
     bound: np.ndarray
     visibility: np.ndarray
     effective_samples: np.ndarray
+    lbv_counts: np.ndarray
     stats: dict[str, Any] = field(default_factory=dict)
 
 
@@ -114,7 +122,7 @@ class Relighter:
     def render(self, envmap=None, materials: dict[int, Any] | None = None, lb_spp: int = 64,
                lbv_spp: int = 8, threshold: float = 0.25, epsilon: float = 0.1, seed: int = 0,
                camera=None, threads: int | None = None, time_budget: float | None = None,
-               progress: bool = False) -> RelightResult:
+               adaptive: bool = True, progress: bool = False) -> RelightResult:
         """Relights the view; see the module docstring."""
         envmap = self.setup.envmap if envmap is None else envmap
         threads = self.threads if threads is None else threads
@@ -129,10 +137,12 @@ class Relighter:
             out = self._core.render(envmap, materials=materials, cache=self.cache,
                                     lb_spp=lb_spp, lbv_spp=lbv_spp, threshold=threshold,
                                     epsilon=epsilon, seed=seed, threads=threads,
-                                    time_budget=time_budget, callback=bar)
+                                    time_budget=time_budget, adaptive=adaptive,
+                                    callback=bar)
         return RelightResult(out["image"], out["variance"], out["error_bound"], out["t"],
                              out["bound"],
-                             out["visibility"], out["effective_samples"], out["stats"])
+                             out["visibility"], out["effective_samples"], out["lbv_counts"],
+                             out["stats"])
 
 
 __all__ = ["RelightResult", "Relighter"]

@@ -179,9 +179,9 @@ impl PyRelighter {
     }
 
     /// Relights the view: see `viscache_rs.Relighter.render`. Returns a dict of arrays
-    /// (image, variance: (H, W, 3); t, bound, visibility, effective_samples: (H, W, L))
-    /// and stats.
-    #[pyo3(signature = (envmap, materials=None, cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, time_budget=None, callback=None))]
+    /// (image, variance: (H, W, 3); t, bound, visibility, effective_samples: (H, W, L);
+    /// lbv_counts: (H, W)) and stats.
+    #[pyo3(signature = (envmap, materials=None, cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, time_budget=None, adaptive=true, callback=None))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -197,6 +197,7 @@ impl PyRelighter {
         product_level: Option<&Bound<'py, PyAny>>,
         threads: Option<&Bound<'py, PyAny>>,
         time_budget: Option<&Bound<'py, PyAny>>,
+        adaptive: bool,
         callback: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let params = RelightParams {
@@ -210,6 +211,7 @@ impl PyRelighter {
                 Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
                 _ => None,
             },
+            adaptive,
         };
         params.validate().py()?;
         let overrides = materials_arg(materials)?;
@@ -258,6 +260,7 @@ impl PyRelighter {
             "effective_samples",
             image_array(py, out.effective_samples, h, w, Some(lights))?,
         )?;
+        d.set_item("lbv_counts", image_array(py, out.lbv_counts, h, w, None)?)?;
         let stats = PyDict::new(py);
         stats.set_item("lights", lights)?;
         stats.set_item("shadow_rays", out.shadow_rays)?;
@@ -266,6 +269,8 @@ impl PyRelighter {
         stats.set_item("passes", out.passes)?;
         stats.set_item("lb_spp", params.lb_spp)?;
         stats.set_item("lbv_spp", out.lbv_spp)?;
+        stats.set_item("lbv_spp_mean", out.lbv_spp_mean)?;
+        stats.set_item("adaptive", params.adaptive)?;
         d.set_item("stats", stats)?;
         Ok(d)
     }

@@ -121,26 +121,40 @@ impl SampleShares {
                 })
             })
             .collect();
+        Self::from_variances(&v, costs, width, height)
+    }
+
+    /// Shares from each pixel's relative variance of one sample `v` (`None`: not
+    /// measured), as [`Self::measure`] takes them from its sums: pooled over each pixel's
+    /// window, with the defensive term, kept only when their predicted gain is at least
+    /// [`MIN_GAIN`].
+    pub fn from_variances(
+        v: &[Option<f64>],
+        costs: Option<&[f32]>,
+        width: usize,
+        height: usize,
+    ) -> Self {
+        debug_assert_eq!(v.len(), width * height);
         let measured: Vec<f64> = v.iter().flatten().copied().collect();
         let mean_v = measured.iter().sum::<f64>() / measured.len().max(1) as f64;
         if !(mean_v > 0.0 && mean_v.is_finite()) {
-            return Self::even(sums.len());
+            return Self::even(v.len());
         }
         let c: Vec<Option<f64>> = match costs {
             Some(costs) => costs
                 .iter()
                 .map(|&c| (c.is_finite() && c > 0.0).then_some(c as f64))
                 .collect(),
-            None => vec![Some(1.0); sums.len()],
+            None => vec![Some(1.0); v.len()],
         };
         let measured_c: Vec<f64> = c.iter().flatten().copied().collect();
         let mean_c = match measured_c.len() {
             0 => 1.0,
             n => measured_c.iter().sum::<f64>() / n as f64,
         };
-        let pooled: Vec<(f64, f64)> = (0..sums.len())
+        let pooled: Vec<(f64, f64)> = (0..v.len())
             .map(|i| {
-                let pooled_v = window_mean(&v, i, width, height).unwrap_or(mean_v);
+                let pooled_v = window_mean(v, i, width, height).unwrap_or(mean_v);
                 let pooled_c = window_mean(&c, i, width, height).unwrap_or(mean_c);
                 (pooled_v + DEFENSIVE * mean_v, pooled_c)
             })
@@ -155,7 +169,7 @@ impl SampleShares {
         if gain.is_nan() || gain < MIN_GAIN {
             return Self {
                 gain,
-                ..Self::even(sums.len())
+                ..Self::even(v.len())
             };
         }
         let mut share: Vec<f64> = pooled.iter().map(|&(v, c)| (v / c).sqrt()).collect();
@@ -164,6 +178,17 @@ impl SampleShares {
             *s /= mean_share;
         }
         Self { share, gain }
+    }
+
+    /// These shares with the pixels where `keep(i)` is false left out: share 0, so that
+    /// they take no further sample (pixels with nothing to sample).
+    pub fn only(mut self, keep: impl Fn(usize) -> bool) -> Self {
+        for (i, s) in self.share.iter_mut().enumerate() {
+            if !keep(i) {
+                *s = 0.0;
+            }
+        }
+        self
     }
 
     /// Share 1 for each of `pixels` pixels.

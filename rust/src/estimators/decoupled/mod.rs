@@ -91,6 +91,7 @@ use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::moments::Moments;
 use crate::parallel::run_with_progress;
+use crate::render::adaptive::{sample_cap, SampleShares, RELMSE_FLOOR};
 use crate::render::schedule::{PassSchedule, PassWork as ScheduleWork};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
@@ -143,6 +144,10 @@ pub struct RelightParams {
     /// Seconds after which no further pass of `LBV`-samples starts (`None`: the first pass
     /// alone); see [`Relighter::render`].
     pub time_budget: Option<f64>,
+    /// Whether the passes after the first give each pixel the `LBV`-samples that cut the
+    /// image's relMSE most (SBF §4.1's adaptive sampling; see [`Relighter::render`]) rather
+    /// than the same to every pixel.
+    pub adaptive: bool,
 }
 
 impl RelightParams {
@@ -155,6 +160,7 @@ impl RelightParams {
         seed: 0,
         product_level: ProductLevel::PerMaterial,
         time_budget: None,
+        adaptive: true,
     };
 
     /// Fails with an error naming the first parameter out of range.
@@ -325,9 +331,13 @@ pub struct Relit {
     pub lights: usize,
     /// Shadow rays traced (`LBV`-samples).
     pub shadow_rays: u64,
-    /// `LBV`-samples per pixel and light taken: [`RelightParams::lbv_spp`], or more under
-    /// a time budget.
+    /// The most `LBV`-samples a pixel took per light: [`RelightParams::lbv_spp`], or more
+    /// under a time budget.
     pub lbv_spp: u32,
+    /// `LBV`-samples per light, on average over the pixels that see a surface.
+    pub lbv_spp_mean: f64,
+    /// `LBV`-samples per light each pixel took (row-major; 0 where it sees no surface).
+    pub lbv_counts: Vec<u32>,
     /// Passes over the pixels (1 without a time budget).
     pub passes: u32,
     /// Wall-clock seconds of the first pass (the `LB`-samples and `⟨V⟩`).
@@ -539,9 +549,18 @@ impl Relighter {
     /// With [`RelightParams::time_budget`], further passes add `LBV`-samples (whose `LB`
     /// values count as `LB`-samples too, as in the first pass) while the time the passes
     /// so far measured says at least one more per pixel fits: SBF's later frames, where
-    /// `Var(LB/p)` is known and a sample costs what a classical one does. Each pixel's
-    /// samples accumulate in sample order, so the result equals a run without a budget
-    /// asked for the `LBV`-samples taken ([`Relit::lbv_spp`]).
+    /// `Var(LB/p)` is known and a sample costs what a classical one does. With
+    /// [`RelightParams::adaptive`] (the default) each later pass shares its samples as the
+    /// renderer's adaptive passes do ([`SampleShares`], Neyman's allocation): pixel `i`
+    /// in proportion to `√v_i`, `v_i` the relative variance per `LBV`-sample of its blend,
+    /// `Σ_l (1 − t_l)² Var(LBV_l/p)` over `μ² + 10⁻²` (what relMSE weighs), pooled over its
+    /// neighbours. Pixels whose blend leans on `⟨LB⟩⟨V⟩` take few; those whose `t` fell
+    /// (penumbrae, a bias measured) take many: SBF §4.1's "number of samples ...
+    /// proportional to the blending factor", in the measure relMSE sets. Each pixel's
+    /// samples accumulate in sample order; the shares are a function of the samples so
+    /// far, so a run equals another that took the same passes, on any thread count.
+    /// Without `adaptive` every pixel takes the same count, and the result equals a run
+    /// without a budget asked for the `LBV`-samples taken ([`Relit::lbv_spp`]).
     ///
     /// `progress(done, total)` (pixels of the passes so far) is called on the calling
     /// thread about every 0.1 s; returning `false` stops with [`Error::Interrupted`].
@@ -629,18 +648,15 @@ impl Relighter {
         let (cancel, done) = (AtomicBool::new(false), AtomicU64::new(0));
         let mut schedule = PassSchedule::default();
         let mut shadow_rays = 0u64;
-        let mut taken = 0u32;
         let mut passes = 0u32;
         let mut first_pass_seconds = 0.0;
         let mut planned = pixels as u64;
-        let mut lbv_this_pass = params.lbv_spp;
+        // LBV-samples each pixel has and is brought to by the pass.
+        let mut taken = vec![0u32; pixels];
+        let mut targets = vec![params.lbv_spp; pixels];
         loop {
             let pass_start = Instant::now();
-            let (lb, lbv) = if passes == 0 {
-                (0..params.lb_spp, 0..params.lbv_spp)
-            } else {
-                (0..0, taken..taken + lbv_this_pass)
-            };
+            let lb = if passes == 0 { 0..params.lb_spp } else { 0..0 };
             let first = passes == 0;
             let work = || {
                 seen.par_iter_mut()
@@ -652,6 +668,7 @@ impl Relighter {
                             return PassWork::default();
                         }
                         done.fetch_add(1, Ordering::Relaxed);
+                        let lbv = taken[i]..targets[i];
                         pass.gather(i, seen, sums, &lb, &lbv, first, last_products)
                     })
                     .reduce(PassWork::default, PassWork::add)
@@ -674,24 +691,55 @@ impl Relighter {
             }
             shadow_rays += work.shadow_rays;
             schedule.record(wall, work.schedule);
-            taken = lbv.end;
+            taken.clone_from(&targets);
             passes += 1;
             // Without LBV-samples there is no unbiased part to add to.
             let Some(budget) = params.time_budget.filter(|_| params.lbv_spp > 0) else {
                 break;
             };
             let left = budget - start.elapsed().as_secs_f64();
-            match schedule.next_target(left, pixels as u64, taken as u64 * pixels as u64, taken) {
-                Some(target) if taken < MAX_RELIGHT_SPP => {
-                    lbv_this_pass = target.min(MAX_RELIGHT_SPP) - taken;
-                    planned += pixels as u64;
+            let total: u64 = taken.iter().map(|&n| n as u64).sum();
+            let Some(even) = schedule.next_target(left, pixels as u64, total, 0) else {
+                break;
+            };
+            let even = even.min(MAX_RELIGHT_SPP);
+            let shares = params
+                .adaptive
+                .then(|| pass.shares(&seen, &sums, self.gbuffer.width(), self.gbuffer.height()));
+            targets = match &shares {
+                Some(shares) => {
+                    // The samples an even pass would add, spread by the shares.
+                    let spend = (even as u64 * pixels as u64).saturating_sub(total) as f64;
+                    let cap = sample_cap(even, MAX_RELIGHT_SPP);
+                    let lambda = shares.scale_for(&taken, cap, spend, |_, added| added as f64);
+                    (0..pixels)
+                        .map(|i| shares.target(i, lambda, taken[i], cap))
+                        .collect()
                 }
-                _ => break,
+                None => taken.iter().map(|&n| n.max(even)).collect(),
+            };
+            if targets == taken {
+                break;
             }
+            planned += pixels as u64;
         }
+        let surfaces = seen.iter().filter(|s| s.surface).count();
+        let lbv_total: u64 = seen
+            .iter()
+            .zip(&taken)
+            .filter(|(s, _)| s.surface)
+            .map(|(_, &n)| n as u64)
+            .sum();
+        let lbv_counts: Vec<u32> = seen
+            .iter()
+            .zip(&taken)
+            .map(|(s, &n)| if s.surface { n } else { 0 })
+            .collect();
         let mut relit = Relit {
             lights: n_lights,
-            lbv_spp: taken,
+            lbv_spp: lbv_counts.iter().copied().max().unwrap_or(0),
+            lbv_spp_mean: lbv_total as f64 / surfaces.max(1) as f64,
+            lbv_counts,
             passes,
             first_pass_seconds,
             shadow_rays,
@@ -952,6 +1000,43 @@ impl RelightPass<'_> {
             sums.v = if ess > 0.0 { v } else { f64::NAN };
             sums.ess = ess;
         }
+    }
+
+    /// Each pixel's share of a later pass's `LBV`-samples ([`Relighter::render`]): from the
+    /// relative variance per sample of its blend as the passes so far give it, pooled over
+    /// its neighbours; pixels without a surface take none.
+    fn shares(
+        &self,
+        seen: &[PixelSeen],
+        sums: &[LightSums],
+        width: u32,
+        height: u32,
+    ) -> SampleShares {
+        let n_lights = self.lights.len();
+        let v: Vec<Option<f64>> = seen
+            .par_iter()
+            .zip(sums.par_chunks(n_lights))
+            .map(|(seen, sums)| {
+                if !seen.surface || sums.iter().any(|s| s.lbv[0].count < 2) {
+                    return None;
+                }
+                let blend = self.finish(seen, sums);
+                let v = (0..3)
+                    .map(|c| {
+                        let var: f64 = sums
+                            .iter()
+                            .zip(&blend.t)
+                            .map(|(s, &t)| (1.0 - t as f64).powi(2) * s.lbv[c].variance())
+                            .sum();
+                        var / (blend.rgb[c] * blend.rgb[c] + RELMSE_FLOOR)
+                    })
+                    .sum::<f64>()
+                    / 3.0;
+                Some(v)
+            })
+            .collect();
+        SampleShares::from_variances(&v, None, width as usize, height as usize)
+            .only(|i| seen[i].surface)
     }
 
     /// The pixel's blend (eq. 9) from what the passes gathered.
