@@ -369,6 +369,7 @@ class Relighter:
         threads: int | None = None,
         time_budget: float | None = None,
         adaptive: bool = True,
+        least_error: bool = True,
         callback: Callable[[int, int], Any] | None = None,
     ) -> dict[str, Any]: ...
 

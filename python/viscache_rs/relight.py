@@ -22,25 +22,27 @@ sample) and takes ``<V>``, the expected visibility under the same density, from:
   unbiased ``<LBV>`` (``t = 0``) in this mode.
 
 ``render(envmap=None, materials=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1,
-seed=0, camera=None, threads=None, time_budget=None, progress=False)`` returns SBF eq. 9's
+seed=0, camera=None, threads=None, time_budget=None, adaptive=True, least_error=True,
+progress=False)`` returns SBF eq. 9's
 blend ``(1 - t) <LBV> + t <LB> <V>`` per light, with ``t`` from the estimated relative error
 bound ``sqrt(Var(LB/p) Var(V)) / <LB>`` (eq. 7, 10) against ``threshold`` (eq. 11; the worst
 channel decides, ``t <= 1 - epsilon``; ``threshold=0`` is the unbiased ``<LBV>`` alone), and
 never above the share that minimises the blend's expected squared error for the bias
 ``<LB><V>`` and ``<LBV>`` measurably differ by: where they differ, ``t`` falls as
 ``LBV``-samples accumulate and the blend converges to ``<LBV>`` (eq. 11 alone keeps the bias
-however many are taken). ``materials`` is a dict of object id -> :class:`Material`
-overriding the scene's; area-light radiance and textures are edited on the scene
-(``scene.set_emission``, ``scene.set_emission_texture``). With ``time_budget`` (seconds),
-passes of further ``LBV``-samples follow the first while at least one more per pixel fits
-(SBF's later frames: ``Var(LB/p)`` is known, a sample costs what a classical one does);
-with ``adaptive`` (the default) each pixel takes them in proportion to the square root of
-its blend's relative variance per sample, ``(1 - t)^2 Var(LBV/p) / (mean^2 + 1e-2)`` pooled
-over its neighbours (the renderer's adaptive counts: relMSE's optimum), so pixels that lean on
-``<LB><V>`` take few; ``adaptive=False`` gives every pixel the same count, and the image then
-equals a run without a budget asked for that count. ``stats["lbv_spp"]`` is the most a pixel
-took, ``stats["lbv_spp_mean"]`` the mean over the pixels that see a surface. Results are
-bit-identical for any ``threads`` (under a budget, for the same passes).
+however many are taken; ``least_error=False`` gives eq. 11 alone). ``materials`` is a dict
+of object id -> :class:`Material` overriding the scene's; area-light radiance and textures
+are edited on the scene (``scene.set_emission``, ``scene.set_emission_texture``). With
+``time_budget`` (seconds), passes of further ``LBV``-samples follow the first while at least
+one more per pixel fits (SBF's later frames: ``Var(LB/p)`` is known, a sample costs what a
+classical one does); with ``adaptive`` (the default) each pixel takes them in proportion to
+the square root of its blend's relative variance per sample, ``(1 - t)^2 Var(LBV/p) /
+(mean^2 + 1e-2)`` pooled over its neighbours (the renderer's adaptive counts: relMSE's
+optimum), so pixels that lean on ``<LB><V>`` take few; ``adaptive=False`` gives every pixel
+the same count, and the image then equals a run without a budget asked for that count.
+``stats["lbv_spp"]`` is the most a pixel took, ``stats["lbv_spp_mean"]`` the mean over the
+pixels that see a surface. Results are bit-identical for any ``threads`` (under a budget,
+for the same passes).
 """
 
 from __future__ import annotations
@@ -122,7 +124,8 @@ class Relighter:
     def render(self, envmap=None, materials: dict[int, Any] | None = None, lb_spp: int = 64,
                lbv_spp: int = 8, threshold: float = 0.25, epsilon: float = 0.1, seed: int = 0,
                camera=None, threads: int | None = None, time_budget: float | None = None,
-               adaptive: bool = True, progress: bool = False) -> RelightResult:
+               adaptive: bool = True, least_error: bool = True,
+               progress: bool = False) -> RelightResult:
         """Relights the view; see the module docstring."""
         envmap = self.setup.envmap if envmap is None else envmap
         threads = self.threads if threads is None else threads
@@ -138,7 +141,7 @@ class Relighter:
                                     lb_spp=lb_spp, lbv_spp=lbv_spp, threshold=threshold,
                                     epsilon=epsilon, seed=seed, threads=threads,
                                     time_budget=time_budget, adaptive=adaptive,
-                                    callback=bar)
+                                    least_error=least_error, callback=bar)
         return RelightResult(out["image"], out["variance"], out["error_bound"], out["t"],
                              out["bound"],
                              out["visibility"], out["effective_samples"], out["lbv_counts"],

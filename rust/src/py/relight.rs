@@ -181,7 +181,7 @@ impl PyRelighter {
     /// Relights the view: see `viscache_rs.Relighter.render`. Returns a dict of arrays
     /// (image, variance: (H, W, 3); t, bound, visibility, effective_samples: (H, W, L);
     /// lbv_counts: (H, W)) and stats.
-    #[pyo3(signature = (envmap, materials=None, cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, time_budget=None, adaptive=true, callback=None))]
+    #[pyo3(signature = (envmap, materials=None, cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, time_budget=None, adaptive=true, least_error=true, callback=None))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -198,6 +198,7 @@ impl PyRelighter {
         threads: Option<&Bound<'py, PyAny>>,
         time_budget: Option<&Bound<'py, PyAny>>,
         adaptive: bool,
+        least_error: bool,
         callback: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let params = RelightParams {
@@ -212,6 +213,7 @@ impl PyRelighter {
                 _ => None,
             },
             adaptive,
+            least_error,
         };
         params.validate().py()?;
         let overrides = materials_arg(materials)?;

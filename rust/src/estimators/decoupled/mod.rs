@@ -148,6 +148,10 @@ pub struct RelightParams {
     /// image's relMSE most (SBF §4.1's adaptive sampling; see [`Relighter::render`]) rather
     /// than the same to every pixel.
     pub adaptive: bool,
+    /// Whether `t` is also capped by the least-error share (module docs, "The blend beyond
+    /// eq. 11"); `false` gives SBF's eq. 11 alone, so that a large `threshold` and a small
+    /// `epsilon` leave `⟨LB⟩⟨V⟩` itself.
+    pub least_error: bool,
 }
 
 impl RelightParams {
@@ -161,6 +165,7 @@ impl RelightParams {
         product_level: ProductLevel::PerMaterial,
         time_budget: None,
         adaptive: true,
+        least_error: true,
     };
 
     /// Fails with an error naming the first parameter out of range.
@@ -1072,7 +1077,11 @@ impl RelightPass<'_> {
                     1.0
                 } else {
                     let sbf = blend_factor(err, lb_mean, params.threshold, params.epsilon);
-                    sbf.min(least_error_t(s, v, &err))
+                    if params.least_error {
+                        sbf.min(least_error_t(s, v, &err))
+                    } else {
+                        sbf
+                    }
                 };
                 (t, rel)
             };
