@@ -20,6 +20,25 @@ def garage():
     return setup, cam, rl
 
 
+@pytest.fixture(scope="module")
+def sun_behind_a_wall():
+    """A ground and a wall under a sky whose low sun is then turned half round behind the
+    wall; pixel visibility converged under the first."""
+    scene = vc.Scene()
+    grey = vc.Material.lambert((0.5, 0.5, 0.5))
+    scene.add_mesh(np.array([[-20, 0, -20], [20, 0, -20], [20, 0, 20], [-20, 0, 20]], float),
+                   np.array([[0, 2, 1], [0, 3, 2]]), material=grey)
+    scene.add_mesh(np.array([[-0.5, 0, -20], [-0.5, 0, 20], [-0.5, 3, 20], [-0.5, 3, -20]],
+                            float), np.array([[0, 1, 2], [0, 2, 3]]), material=grey)
+    cam = vc.Camera.look_at((1.5, 3, 4), (1.0, 0, 0), width=16, height=12)
+    sky = vc.EnvMap.sky((0.6, 0.5, -0.62), 3e4, 1.0, (0.15, 0.3, 0.8), (0.6, 0.7, 0.9), 64)
+    turned = sky.rotated(180)
+    setup = vc.Setup(scene, cam, sky)
+    rl = vc.Relighter(setup, cam)
+    rl.converge_visibility(spp=256)
+    return setup, cam, turned, rl
+
+
 def _mean_within(a, a_var, b, b_var, n_sigma=4.0):
     """Image means of two independent estimates agree within n_sigma standard errors."""
     n = a.shape[0] * a.shape[1]
@@ -103,23 +122,12 @@ def test_reweighted_visibility_follows_a_material_edit(garage):
     assert abs(diff) <= 4 * np.sqrt((se**2).sum()) / len(a) + 1e-9, (diff, se.mean())
 
 
-def test_the_bound_covers_light_the_stored_samples_never_reached():
+def test_the_bound_covers_light_the_stored_samples_never_reached(sun_behind_a_wall):
     """A low sun turned half round behind a wall: the stored V-samples, drawn toward the
     old sun, have weight only on the sky, so the reweighted <V> is the sky's visibility.
     Their effective count stays high; the share of the new density they missed widens
     the bound instead."""
-    scene = vc.Scene()
-    grey = vc.Material.lambert((0.5, 0.5, 0.5))
-    scene.add_mesh(np.array([[-20, 0, -20], [20, 0, -20], [20, 0, 20], [-20, 0, 20]], float),
-                   np.array([[0, 2, 1], [0, 3, 2]]), material=grey)
-    scene.add_mesh(np.array([[-0.5, 0, -20], [-0.5, 0, 20], [-0.5, 3, 20], [-0.5, 3, -20]],
-                            float), np.array([[0, 1, 2], [0, 2, 3]]), material=grey)
-    cam = vc.Camera.look_at((1.5, 3, 4), (1.0, 0, 0), width=16, height=12)
-    sky = vc.EnvMap.sky((0.6, 0.5, -0.62), 3e4, 1.0, (0.15, 0.3, 0.8), (0.6, 0.7, 0.9), 64)
-    turned = sky.rotated(180)
-    setup = vc.Setup(scene, cam, sky)
-    rl = vc.Relighter(setup, cam)
-    rl.converge_visibility(spp=256)
+    setup, cam, turned, rl = sun_behind_a_wall
     ref = vc.render(setup, cam, spp=1024, method="product", jitter=False, envmap=turned,
                     progress=False, seed=4)
     actual = rl.render(envmap=turned, lb_spp=1024, lbv_spp=0, seed=1)  # <LB><V> alone
@@ -133,24 +141,13 @@ def test_the_bound_covers_light_the_stored_samples_never_reached():
     assert np.nanmedian(est.t) < 0.5  # measured 0.30: mostly the unbiased part
 
 
-def test_the_blend_converges_to_the_unbiased_estimate():
+def test_the_blend_converges_to_the_unbiased_estimate(sun_behind_a_wall):
     """SBF's eq. 11 keeps <LB><V>'s share however many LBV-samples are taken: the blend
     is not consistent. Its t is capped by the least-error share, which falls as the
     unbiased part's variance does wherever the two estimates measurably differ. The sun
     turned behind a wall leaves <LB><V> 1.3x off (the test above); with 2048 LBV-samples
     the blend must agree with a reference."""
-    scene = vc.Scene()
-    grey = vc.Material.lambert((0.5, 0.5, 0.5))
-    scene.add_mesh(np.array([[-20, 0, -20], [20, 0, -20], [20, 0, 20], [-20, 0, 20]], float),
-                   np.array([[0, 2, 1], [0, 3, 2]]), material=grey)
-    scene.add_mesh(np.array([[-0.5, 0, -20], [-0.5, 0, 20], [-0.5, 3, 20], [-0.5, 3, -20]],
-                            float), np.array([[0, 1, 2], [0, 2, 3]]), material=grey)
-    cam = vc.Camera.look_at((1.5, 3, 4), (1.0, 0, 0), width=16, height=12)
-    sky = vc.EnvMap.sky((0.6, 0.5, -0.62), 3e4, 1.0, (0.15, 0.3, 0.8), (0.6, 0.7, 0.9), 64)
-    turned = sky.rotated(180)
-    setup = vc.Setup(scene, cam, sky)
-    rl = vc.Relighter(setup, cam)
-    rl.converge_visibility(spp=256)
+    setup, cam, turned, rl = sun_behind_a_wall
     ref = vc.render(setup, cam, spp=8192, method="product", jitter=False, envmap=turned,
                     progress=False, seed=4)
     first = rl.render(envmap=turned, lb_spp=64, lbv_spp=8, seed=2)
