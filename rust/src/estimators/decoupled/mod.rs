@@ -728,18 +728,13 @@ impl Relighter {
             }
             planned += pixels as u64;
         }
-        let surfaces = seen.iter().filter(|s| s.surface).count();
-        let lbv_total: u64 = seen
-            .iter()
-            .zip(&taken)
-            .filter(|(s, _)| s.surface)
-            .map(|(_, &n)| n as u64)
-            .sum();
         let lbv_counts: Vec<u32> = seen
             .iter()
             .zip(&taken)
             .map(|(s, &n)| if s.surface { n } else { 0 })
             .collect();
+        let surfaces = seen.iter().filter(|s| s.surface).count();
+        let lbv_total: u64 = lbv_counts.iter().map(|&n| n as u64).sum();
         let mut relit = Relit {
             lights: n_lights,
             lbv_spp: lbv_counts.iter().copied().max().unwrap_or(0),
