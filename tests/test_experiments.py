@@ -187,7 +187,7 @@ def test_relight_experiment_smoke(tmp_path, monkeypatch):
     assert 0 <= rec["camera_move_bound_holds"] <= 1
     over = rec["overhead"]
     assert over["first_frame_seconds"] > 0 and over["later_lbv_spp"] >= 0
-    # Two 32-bit counts, and the map's 32 V-sample bits (one word) for its one light.
-    assert rec["overhead"]["bytes_per_pixel_and_light"] == 8 + 8
+    # Two 16-bit counts, and the map's 32 V-sample bits (one word) for its one light.
+    assert rec["overhead"]["bytes_per_pixel_and_light"] == 4 + 4
     md = (tmp_path / "relight" / "results.md").read_text()
     assert "Where the estimated bound holds" in md and "| garage_rot45 | cache | 0.25 |" in md

@@ -122,6 +122,31 @@ def test_reweighted_visibility_follows_a_material_edit(garage):
     assert abs(diff) <= 4 * np.sqrt((se**2).sum()) / len(a) + 1e-9, (diff, se.mean())
 
 
+def test_stored_visibility_is_sbfs_eight_floats_at_most():
+    """Two 16-bit counts per light, and for the map the bits of its first 224 V-samples:
+    those alone are reweighted after a map edit, the counts of all give <V> before."""
+    setup = vc.scenes.load("garage")
+    cam = setup.camera.with_resolution(W_SMALL, H_SMALL)
+    few, many = vc.Relighter(setup, cam), vc.Relighter(setup, cam)
+    assert few.converge_visibility(spp=224, progress=False)["bytes_per_pixel_and_light"] == 32
+    assert many.converge_visibility(spp=512, progress=False)["bytes_per_pixel_and_light"] == 32
+    rotated = setup.envmap.rotated(45)
+    a, b = (rl.render(envmap=rotated, lb_spp=8, seed=3) for rl in (few, many))
+    np.testing.assert_array_equal(a.visibility, b.visibility)
+    np.testing.assert_array_equal(a.effective_samples, b.effective_samples)
+    covered = np.isfinite(a.t[..., 0])
+    assert np.all(b.effective_samples[..., 0][covered] <= 224)
+    same_a, same_b = (rl.render(lb_spp=8, seed=3) for rl in (few, many))
+    assert np.all(same_b.effective_samples[..., 0][covered] > 224)
+    assert not np.array_equal(same_a.visibility, same_b.visibility)
+    box = vc.scenes.load("cornell")
+    lights = vc.Relighter(box, box.camera.with_resolution(W_SMALL, H_SMALL))
+    # The map's 64 bits (8 bytes) shared over its two lights, beside the counts.
+    assert lights.converge_visibility(spp=64, progress=False)["bytes_per_pixel_and_light"] == 8
+    with pytest.raises(ValueError, match="^spp"):
+        lights.converge_visibility(spp=65536, progress=False)
+
+
 def test_the_bound_covers_light_the_stored_samples_never_reached(sun_behind_a_wall):
     """A low sun turned half round behind a wall: the stored V-samples, drawn toward the
     old sun, have weight only on the sky, so the reweighted <V> is the sky's visibility.

@@ -112,8 +112,9 @@ class Relighter:
         setup's) and the scene's materials, in passes of 16 (with ``time_budget`` seconds,
         no pass starts once it is spent; ``["spp"]`` says how many were taken). Shows a
         progress bar unless ``progress=False``; Ctrl-C stops and leaves the relighter as it
-        was. Returns spp, shadow_rays, seconds and bytes_per_pixel_and_light (two 32-bit
-        counts per light, and a bit per V-sample of the map for reweighting)."""
+        was. Returns spp, shadow_rays, seconds and bytes_per_pixel_and_light (two 16-bit
+        counts per light, and for the map a bit for each of its first 224 V-samples, to
+        reweight them: at most 32 bytes, SBF's 8 floats)."""
         envmap = self.setup.envmap if envmap is None else envmap
         threads = self.threads if threads is None else threads
         pixels = self.camera.width * self.camera.height
