@@ -918,9 +918,8 @@ impl Lighting<'_> {
     ) -> Vec3 {
         let mut total = Vec3::ZERO;
         for (k, light) in self.scene.area_lights().iter().enumerate() {
-            let d = dims::AREA + 4 * k as u64;
-            let u = Vec2::from_array(rng.get2(d + 2));
-            if let Some(s) = light.sample(sp.origin, rng.get(d), u) {
+            let [choice, _, u, v] = rng.get_set(dims::AREA + 4 * k as u64);
+            if let Some(s) = light.sample(sp.origin, choice, Vec2::new(u, v)) {
                 let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
                 total +=
                     self.light_term(sp, s.direction, s.radiance, s.pdf, tmax, mis, counters, bvh);

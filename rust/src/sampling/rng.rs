@@ -47,6 +47,20 @@ pub trait Sampler {
     fn get2(&self, d: u64) -> [f32; 2] {
         [self.get(d), self.get(d + 1)]
     }
+
+    /// Dimensions `d .. d + 4`, `d` a multiple of 4: one set of a
+    /// [`super::sobol::PixelSampler`], made once where four calls of `get` would make it four
+    /// times.
+    #[inline]
+    fn get_set(&self, d: u64) -> [f32; 4] {
+        debug_assert!(d.is_multiple_of(4), "a set starts at a multiple of four");
+        [
+            self.get(d),
+            self.get(d + 1),
+            self.get(d + 2),
+            self.get(d + 3),
+        ]
+    }
 }
 
 impl Sampler for SampleRng {

@@ -108,6 +108,12 @@ impl Sampler for PixelSampler {
         let v = self.get4(d >> 2);
         [v[lane], v[(lane + 1).min(3)]]
     }
+
+    #[inline]
+    fn get_set(&self, d: u64) -> [f32; 4] {
+        debug_assert!(d.is_multiple_of(4), "a set starts at a multiple of four");
+        self.get4(d >> 2)
+    }
 }
 
 #[cfg(test)]

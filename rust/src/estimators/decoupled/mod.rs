@@ -240,9 +240,8 @@ impl PixelLights<'_> {
             }
             LightId::Area(k) => {
                 let light = &self.scene.area_lights()[k];
-                let d = dims::AREA + 4 * k as u64;
-                let u = glam::Vec2::from_array(rng.get2(d + 2));
-                let s = light.sample(sp.origin, rng.get(d), u)?;
+                let [choice, _, u, v] = rng.get_set(dims::AREA + 4 * k as u64);
+                let s = light.sample(sp.origin, choice, glam::Vec2::new(u, v))?;
                 let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
                 (s.direction, s.radiance, s.pdf, tmax)
             }
