@@ -97,6 +97,22 @@ def test_fully_lit_and_fully_blocked_points_are_exact():
     r = blocked.render(threshold=0.25)
     assert np.all(r.visibility == 0) and np.all(r.bound == 0)
     assert np.all(r.image == 0) and np.all(np.isfinite(r.variance))
+    np.testing.assert_allclose(r.t, 0.9, rtol=1e-6)
+    # <LB><V> is 0 there whatever <LB> is: no LB-samples are drawn.
+    assert r.stats["lb_skipped"] == 64 * 8 * 6
+
+
+def test_lb_samples_are_skipped_exactly_where_they_change_nothing(garage):
+    setup, cam, rl = garage
+    res = rl.render(lb_spp=16, seed=5)
+    blocked = int((res.visibility == 0).sum())
+    assert blocked > 0 and res.stats["lb_skipped"] == 16 * blocked
+    assert np.all(res.bound[res.visibility == 0] == 0)
+    # After a map edit a reweighted <V> of 0 still has a bound (the share of the new map
+    # the stored samples never drew), so its LB-samples are drawn.
+    rotated = rl.render(envmap=setup.envmap.rotated(90), lb_spp=16, seed=5)
+    skipped = rotated.stats["lb_skipped"]
+    assert skipped % 16 == 0 and skipped <= 16 * int((rotated.visibility == 0).sum())
 
 
 def test_reweighted_visibility_follows_a_material_edit(garage):

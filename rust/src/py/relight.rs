@@ -266,6 +266,7 @@ impl PyRelighter {
         let stats = PyDict::new(py);
         stats.set_item("lights", lights)?;
         stats.set_item("shadow_rays", out.shadow_rays)?;
+        stats.set_item("lb_skipped", out.lb_skipped)?;
         stats.set_item("seconds", out.seconds)?;
         stats.set_item("first_pass_seconds", out.first_pass_seconds)?;
         stats.set_item("passes", out.passes)?;

@@ -344,6 +344,10 @@ pub struct Relit {
     pub lights: usize,
     /// Shadow rays traced (`LBV`-samples).
     pub shadow_rays: u64,
+    /// `LB`-samples of the first pass not drawn, summed over pixels and lights: those of
+    /// a light whose `⟨V⟩` is exactly 0 with a bound of 0, where they would change
+    /// nothing (`LightSums::decoupled_is_zero`).
+    pub lb_skipped: u64,
     /// The most `LBV`-samples a pixel took per light: [`RelightParams::lbv_spp`], or more
     /// under a time budget.
     pub lbv_spp: u32,
@@ -661,6 +665,7 @@ impl Relighter {
         let (cancel, done) = (AtomicBool::new(false), AtomicU64::new(0));
         let mut schedule = PassSchedule::default();
         let mut shadow_rays = 0u64;
+        let mut lb_skipped = 0u64;
         let mut passes = 0u32;
         let mut first_pass_seconds = 0.0;
         let mut planned = pixels as u64;
@@ -703,6 +708,7 @@ impl Relighter {
                 first_pass_seconds = wall;
             }
             shadow_rays += work.shadow_rays;
+            lb_skipped += work.lb_skipped;
             schedule.record(wall, work.schedule);
             taken.clone_from(&targets);
             passes += 1;
@@ -751,6 +757,7 @@ impl Relighter {
             passes,
             first_pass_seconds,
             shadow_rays,
+            lb_skipped,
             ..Relit::default()
         };
         for (seen, sums) in seen.iter().zip(sums.chunks(n_lights)) {
@@ -790,6 +797,16 @@ struct LightSums {
     v_unseen: f64,
 }
 
+impl LightSums {
+    /// Whether `⟨V⟩` is exactly 0 with nothing to widen its bound (every `V`-sample
+    /// blocked, no reweighting blind spot, no spread of records): then `⟨LB⟩⟨V⟩` and its
+    /// bound are 0 whatever `⟨LB⟩`, `t = 1 − ε`, and the pixel's blend, variance and bound
+    /// come out the same, bit for bit, without `LB`-samples (a closed room's map).
+    fn decoupled_is_zero(&self) -> bool {
+        self.v == 0.0 && self.v_spread == 0.0 && self.v_unseen == 0.0
+    }
+}
+
 impl Default for LightSums {
     fn default() -> Self {
         Self {
@@ -808,12 +825,14 @@ impl Default for LightSums {
 struct PassWork {
     schedule: ScheduleWork,
     shadow_rays: u64,
+    lb_skipped: u64,
 }
 
 impl PassWork {
     fn add(mut self, o: Self) -> Self {
         self.schedule += o.schedule;
         self.shadow_rays += o.shadow_rays;
+        self.lb_skipped += o.lb_skipped;
         self
     }
 }
@@ -905,9 +924,14 @@ impl RelightPass<'_> {
         let mut bvh = TraversalCounters::default();
         // One sampler per sample serves every light (each reads its own dimensions); each
         // light's moments still take its samples in order.
+        let zero = sums.iter().filter(|s| s.decoupled_is_zero()).count();
+        work.lb_skipped += lb.len() as u64 * zero as u64;
         for s in lb.clone() {
             let rng = PixelSampler::new(self.params.seed, i as u64, STREAM_LB + s as u64);
             for (sums, &light) in sums.iter_mut().zip(self.lights) {
+                if sums.decoupled_is_zero() {
+                    continue;
+                }
                 let x = at.draw(light, &rng).map_or(Vec3::ZERO, |d| d.lb_over_p);
                 Moments::push_each(&mut sums.lb, x.as_dvec3().to_array());
             }
