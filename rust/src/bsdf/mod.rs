@@ -165,6 +165,36 @@ impl Material {
         }
     }
 
+    /// Per channel, each lobe's colour over its luminance, `(kd / lum(kd), ks / lum(ks))`,
+    /// for a Phong material whose two lobes differ in colour (blue paint under a clear
+    /// coat): there a channel of `f` over its luminance changes with direction, from the
+    /// paint's colour away from the lobe to the coat's inside it, which one ratio per point
+    /// ([`Self::channel_ratios`]) cannot follow. `None` for Lambert, a missing lobe, or
+    /// lobes of one colour (within 1e-6).
+    pub fn lobe_channel_ratios(&self) -> Option<([f32; 3], [f32; 3])> {
+        let Material::Phong { kd, ks, .. } = *self else {
+            return None;
+        };
+        let (ld, ls) = (luminance(kd), luminance(ks));
+        if !(ld > 0.0 && ls > 0.0) {
+            return None;
+        }
+        let (d, s) = (kd.map(|c| c / ld), ks.map(|c| c / ls));
+        let same = d
+            .iter()
+            .zip(&s)
+            .all(|(a, b)| (a - b).abs() <= 1e-6 * a.max(*b));
+        (!same).then_some((d, s))
+    }
+
+    /// The diffuse lobe alone: Lambert of albedo `kd` (`self` for Lambert).
+    pub fn diffuse_lobe(&self) -> Material {
+        match *self {
+            Material::Lambert { .. } => *self,
+            Material::Phong { kd, .. } => Material::Lambert { albedo: kd },
+        }
+    }
+
     /// Probability that [`Material::sample`] picks the specular lobe: the lobe's share of
     /// the luminance of `kd + ks` (0 for Lambert and for a black material).
     #[inline]

@@ -854,6 +854,78 @@ pub fn control_sample(
     }
 }
 
+/// The control variate of a material whose two lobes differ in colour
+/// ([`crate::bsdf::Material::lobe_channel_ratios`]: `r_d` for the diffuse lobe, `r_s` for
+/// the specular coat). Channel `c` of the control is `r_s,c g_c + (r_d,c − r_s,c) g_d,c`,
+/// with `g = κ L B~ Ṽ` as for every material and `g_d = κ L B~_d Ṽ` the part of it from the
+/// diffuse lobe's cells, `B~_d = min(B~ of the lobe, B~)`
+/// ([`ProductDistribution::lobe_part`]): the paint's colour applies away from the coat's
+/// lobe and the coat's inside it, as `f`'s channels do. With one ratio per point (the
+/// albedo's, [`crate::bsdf::Material::channel_ratios`]) the blue channel of garage's blue
+/// car under its grey coat kept 0.79x product sampling's variance, against 0.31x on the
+/// grey car. `g_d / p` is `g / p` times `B~_d / B~` of the sample's cell (exact, since
+/// `B~_d ≤ B~`), and `J_d` is its exact integral as `J` is `g`'s, so the control variate
+/// keeps `E[W] = 0`.
+#[derive(Clone, Debug)]
+pub struct LobeControl {
+    /// `r_d,c − r_s,c`.
+    diffuse_excess: [f64; 3],
+    /// `r_s,c`.
+    coat: [f64; 3],
+    /// `J_d` per channel.
+    pub j: [f64; 3],
+    /// `B~_d / B~` per product cell (Morton order; 0 where `B~` is).
+    shares: Vec<f32>,
+    /// The product's cell level.
+    level: u32,
+}
+
+impl LobeControl {
+    /// The control at `sp` with its product `product` under `env` and records `lookup`;
+    /// `None` where the material's lobes share one colour (or its diffuse part is zero).
+    pub fn new(
+        product: &ProductDistribution,
+        sp: &super::direct::ShadingPoint,
+        state: &CacheState,
+        lookup: &Lookup,
+        chroma: &MapChroma,
+        env: &EnvMap,
+    ) -> Option<Self> {
+        let (diffuse, coat) = sp.material.lobe_channel_ratios()?;
+        let part = product.lobe_part(env, &sp.material.diffuse_lobe(), sp.normal, sp.wo)?;
+        let tables = ControlTables::new(&part, chroma, state.store().m());
+        let j = Interpolant::new(state, lookup, Some((&tables, &part, env))).j;
+        let shares = part
+            .bsdf_cells()
+            .iter()
+            .zip(product.bsdf_cells())
+            .map(|(&d, &b)| if b > 0.0 { d / b } else { 0.0 })
+            .collect();
+        Some(Self {
+            diffuse_excess: std::array::from_fn(|c| (diffuse[c] - coat[c]) as f64),
+            coat: coat.map(f64::from),
+            j,
+            shares,
+            level: product.level(),
+        })
+    }
+
+    /// `g_d / g` at the sampled point `square` of a draw: `B~_d / B~` of its cell.
+    #[inline]
+    pub fn share(&self, square: DVec2) -> f64 {
+        self.shares[record_texel_code(square, self.level) as usize] as f64
+    }
+
+    /// The zero-mean term `W_c = r_s,c (g/p − J)_c + (r_d,c − r_s,c)(g_d/p − J_d)_c` from a
+    /// sample's mean `g/p` and `g_d/p` and the point's `J`.
+    pub fn w(&self, g_over_p: [f64; 3], gd_over_p: [f64; 3], j: &[f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|c| {
+            self.coat[c] * (g_over_p[c] - j[c])
+                + self.diffuse_excess[c] * (gd_over_p[c] - self.j[c])
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1221,6 +1293,82 @@ mod tests {
                 "channel {c}: {} vs {} ({z:.2} SE)",
                 mean[c],
                 interp.j[c]
+            );
+        }
+    }
+
+    #[test]
+    fn the_lobe_control_averages_to_zero_under_the_mixture() {
+        // Blue paint under a grey coat: E[g_d/p] = J_d for the renderer's mixture draws
+        // (guided, BSDF and map techniques too), so E[W] = 0 per channel, and the diffuse
+        // part's cells never exceed the product's.
+        use crate::estimators::direct::{Mixture, ShadingPoint, Techniques};
+        let env = test_sky(64);
+        let chroma = MapChroma::new(&env);
+        let mat = Material::phong([0.05, 0.1, 0.45], [0.3; 3], 30.0).unwrap();
+        assert!(Material::phong([0.2; 3], [0.4; 3], 30.0)
+            .unwrap()
+            .lobe_channel_ratios()
+            .is_none());
+        let (n, wo) = frame();
+        let bits: Vec<_> = (0..3).map(|i| random_bits(5, 29 + i)).collect();
+        let (cache, lookup) = cache_with(&bits);
+        let state = cache.read();
+        let product = ProductDistribution::new(&env, &mat, n, wo, 5).unwrap();
+        let part = product.lobe_part(&env, &mat.diffuse_lobe(), n, wo).unwrap();
+        assert!(part
+            .bsdf_cells()
+            .iter()
+            .zip(product.bsdf_cells())
+            .all(|(d, b)| d <= b));
+        let tables = ControlTables::new(&product, &chroma, 5);
+        let interp = Interpolant::new(&state, &lookup, Some((&tables, &product, &env)));
+        let guided = product.guided(interp.cell_visibility(&state, 5)).unwrap();
+        let sp = ShadingPoint {
+            origin: Vec3::ZERO,
+            normal: n,
+            wo,
+            material: mat,
+        };
+        let lobes = LobeControl::new(&product, &sp, &state, &lookup, &chroma, &env).unwrap();
+        let mixture = Mixture::new(
+            &env,
+            &sp,
+            Some(&product),
+            Some(&guided),
+            &Techniques::CONTROL_VARIATE,
+        );
+        let (mut part_sums, mut w_sums) = (CvSums::default(), CvSums::default());
+        for i in 0..300_000u64 {
+            let rng = SampleRng::new(9, i, 0);
+            let (g, gd) = match mixture.sample(rng.get2(0), rng.get(2)) {
+                Some(d) => {
+                    let g = control_sample(&state, &interp, &chroma, d.square)
+                        .value
+                        .map(|v| v * d.product_pdf / d.pdf);
+                    (g, g.map(|v| v * lobes.share(d.square)))
+                }
+                None => ([0.0; 3], [0.0; 3]),
+            };
+            part_sums.add(Vec3::ZERO, gd);
+            w_sums.add(Vec3::ZERO, lobes.w(g, gd, &interp.j));
+        }
+        let (mean, var) = part_sums.estimate([-1.0; 3]);
+        let (w_mean, w_var) = w_sums.estimate([-1.0; 3]);
+        for c in 0..3 {
+            let z = (mean[c] - lobes.j[c]) / var[c].sqrt();
+            assert!(
+                z.abs() < 4.0,
+                "channel {c}: {} vs {} ({z:.2} SE)",
+                mean[c],
+                lobes.j[c]
+            );
+            assert!(lobes.j[c] > 0.0 && lobes.j[c] < interp.j[c]);
+            let z = w_mean[c] / w_var[c].sqrt();
+            assert!(
+                z.abs() < 4.0,
+                "channel {c}: W has mean {} ({z:.2} SE)",
+                w_mean[c]
             );
         }
     }

@@ -327,6 +327,25 @@ impl ProductDistribution {
         let level = level.min(dist.depth());
         let mut bsdf_cells = vec![0.0f32; 1 << (2 * level)];
         material.product_cells(normal, wo, level, &mut bsdf_cells);
+        Self::with_cells(env, level, bsdf_cells)
+    }
+
+    /// The product of this one's cells (`B~`) capped by those of `lobe` at the same
+    /// `(normal, wo)`: `L · min(B~_lobe, B~)` per cell, zero wherever this product is. The
+    /// control variate's part for one lobe of a material (`Material::diffuse_lobe`).
+    pub fn lobe_part(&self, env: &EnvMap, lobe: &Material, normal: Vec3, wo: Vec3) -> Option<Self> {
+        let mut cells = vec![0.0f32; self.bsdf_cells.len()];
+        lobe.product_cells(normal, wo, self.level, &mut cells);
+        for (c, &b) in cells.iter_mut().zip(&self.bsdf_cells) {
+            *c = c.min(b);
+        }
+        Self::with_cells(env, self.level, cells)
+    }
+
+    /// The product of `env`'s cell sums at `level` (at most the map's depth) and
+    /// `bsdf_cells` (Morton order, `4^level` of them).
+    fn with_cells(env: &EnvMap, level: u32, bsdf_cells: Vec<f32>) -> Option<Self> {
+        let dist = env.distribution()?;
         let product: Vec<f64> = dist
             .level(level)
             .iter()

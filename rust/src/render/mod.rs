@@ -87,8 +87,8 @@ use crate::bsdf::Material;
 use crate::camera::{Camera, GBuffer, DIM_PIXEL_JITTER};
 use crate::error::{Error, Result};
 use crate::estimators::control_variate::{
-    control_sample, neighbour_alphas, AlphaRule, ControlTables, CvSums, Interpolant, MapChroma,
-    ALPHA_MAX,
+    control_sample, neighbour_alphas, AlphaRule, ControlTables, CvSums, Interpolant, LobeControl,
+    MapChroma, ALPHA_MAX,
 };
 use crate::estimators::direct::{
     DirectCounters, GuidedProduct, Lighting, Method, ProductDistribution, ProductLevel,
@@ -534,6 +534,8 @@ struct SurfacePoint {
     /// The product guided by the records' visibility (method "cv", records found).
     guided: Option<Arc<GuidedProduct>>,
     interpolant: Interpolant,
+    /// The control variate per lobe, where the material's lobes differ in colour.
+    lobes: Option<Box<LobeControl>>,
 }
 
 /// What one sample shades: the hit of its own primary ray.
@@ -658,6 +660,7 @@ impl Shader<'_> {
         }
         let mut interpolant = Interpolant::EMPTY;
         let mut guided = None;
+        let mut lobes = None;
         if let (Some((state, cache)), Some(chroma)) = (self.cache, self.chroma) {
             let start = Instant::now();
             let d_max = cache.params().d_max_scale * anchors.footprint[pixel];
@@ -691,6 +694,8 @@ impl Shader<'_> {
                             .guided(interpolant.cell_visibility(state, p.level()))
                             .map(Arc::new);
                     }
+                    lobes = LobeControl::new(p, &sp, state, &lookup, chroma, self.lighting.env)
+                        .map(Box::new);
                     interpolant
                 }
                 _ => Interpolant::new(state, &lookup, None),
@@ -727,6 +732,7 @@ impl Shader<'_> {
             product,
             guided,
             interpolant,
+            lobes,
         }))
     }
 
@@ -822,6 +828,7 @@ impl Shader<'_> {
         let draws = self.light_samples;
         let mut l = Vec3::ZERO;
         let mut g_over_p = [0.0; 3];
+        let mut gd_over_p = [0.0; 3];
         // The probe's one-draw value of the sample, and the draws' time.
         let measure = self.measure_split && draws > 1;
         let mut first = Vec3::ZERO;
@@ -873,6 +880,12 @@ impl Shader<'_> {
                 for (c, gp) in g_over_p.iter_mut().enumerate() {
                     *gp += g.value[c] * d.product_ratio;
                 }
+                if let Some(lobes) = &a.lobes {
+                    let share = lobes.share(d.square) * d.product_ratio;
+                    for (c, gp) in gd_over_p.iter_mut().enumerate() {
+                        *gp += g.value[c] * share;
+                    }
+                }
             }
         }
         let inv = 1.0 / draws as f64;
@@ -887,7 +900,12 @@ impl Shader<'_> {
         let Some((a, _, _)) = control else {
             return (z, [0.0; 3]);
         };
-        let w = std::array::from_fn(|c| a.ratios[c] * (g_over_p[c] * inv - a.interpolant.j[c]));
+        let g_over_p = g_over_p.map(|g| g * inv);
+        let j = &a.interpolant.j;
+        let w = match &a.lobes {
+            Some(l) => l.w(g_over_p, gd_over_p.map(|g| g * inv), j),
+            None => std::array::from_fn(|c| a.ratios[c] * (g_over_p[c] - j[c])),
+        };
         (z, w)
     }
 
