@@ -102,12 +102,24 @@ def test_fully_lit_and_fully_blocked_points_are_exact():
     assert r.stats["lb_skipped"] == 64 * 8 * 6
 
 
+def _unused_lb(res):
+    """Pixel-lights where LB-samples change nothing: a surface, and <V> absent or 0."""
+    covered = np.isfinite(res.t)
+    return int((covered & ((res.visibility == 0) | np.isnan(res.visibility))).sum())
+
+
 def test_lb_samples_are_skipped_exactly_where_they_change_nothing(garage):
     setup, cam, rl = garage
     res = rl.render(lb_spp=16, seed=5)
-    blocked = int((res.visibility == 0).sum())
-    assert blocked > 0 and res.stats["lb_skipped"] == 16 * blocked
+    assert (res.visibility == 0).sum() > 0 and res.stats["lb_skipped"] == 16 * _unused_lb(res)
     assert np.all(res.bound[res.visibility == 0] == 0)
+    # Cache visibility has no <V> for area lights (t = 0: <LBV> alone).
+    box = vc.scenes.load("cornell")
+    cached = vc.Relighter(box, box.camera.with_resolution(W_SMALL, H_SMALL), visibility="cache")
+    boxed = cached.render(lb_spp=16, seed=5)
+    area = boxed.t[..., 1:]
+    assert np.all(area[np.isfinite(area)] == 0) and np.isnan(boxed.visibility[..., 1:]).all()
+    assert boxed.stats["lb_skipped"] == 16 * _unused_lb(boxed) > 0
     # After a map edit a reweighted <V> of 0 still has a bound (the share of the new map
     # the stored samples never drew), so its LB-samples are drawn.
     rotated = rl.render(envmap=setup.envmap.rotated(90), lb_spp=16, seed=5)

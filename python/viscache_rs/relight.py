@@ -41,9 +41,10 @@ the square root of its blend's relative variance per sample, ``(1 - t)^2 Var(LBV
 optimum), so pixels that lean on ``<LB><V>`` take few; ``adaptive=False`` gives every pixel
 the same count, and the image then equals a run without a budget asked for that count.
 ``stats["lbv_spp"]`` is the most a pixel took, ``stats["lbv_spp_mean"]`` the mean over the
-pixels that see a surface. A light whose ``<V>`` is exactly 0 with a bound of 0 at a pixel
-(every V-sample blocked: a closed room's map) takes no ``LB``-samples there, which would
-change nothing; ``stats["lb_skipped"]`` counts them. Results are bit-identical for any
+pixels that see a surface. Where ``LB``-samples would change nothing they are not drawn
+(``stats["lb_skipped"]`` counts them): at a light without ``<V>`` (an area light with
+cache visibility: ``t = 0``), and at one whose ``<V>`` is exactly 0 with a bound of 0
+(every V-sample blocked: a closed room's map). Results are bit-identical for any
 ``threads`` (under a budget, for the same passes).
 """
 

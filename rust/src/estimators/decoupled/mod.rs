@@ -344,9 +344,9 @@ pub struct Relit {
     pub lights: usize,
     /// Shadow rays traced (`LBV`-samples).
     pub shadow_rays: u64,
-    /// `LB`-samples of the first pass not drawn, summed over pixels and lights: those of
-    /// a light whose `⟨V⟩` is exactly 0 with a bound of 0, where they would change
-    /// nothing (`LightSums::decoupled_is_zero`).
+    /// `LB`-samples of the first pass not drawn, summed over pixels and lights: where they
+    /// would change nothing, at a light without `⟨V⟩` or whose `⟨V⟩` is exactly 0 with a
+    /// bound of 0 (`LightSums::lb_changes_nothing`).
     pub lb_skipped: u64,
     /// The most `LBV`-samples a pixel took per light: [`RelightParams::lbv_spp`], or more
     /// under a time budget.
@@ -798,12 +798,14 @@ struct LightSums {
 }
 
 impl LightSums {
-    /// Whether `⟨V⟩` is exactly 0 with nothing to widen its bound (every `V`-sample
-    /// blocked, no reweighting blind spot, no spread of records): then `⟨LB⟩⟨V⟩` and its
-    /// bound are 0 whatever `⟨LB⟩`, `t = 1 − ε`, and the pixel's blend, variance and bound
-    /// come out the same, bit for bit, without `LB`-samples (a closed room's map).
-    fn decoupled_is_zero(&self) -> bool {
-        self.v == 0.0 && self.v_spread == 0.0 && self.v_unseen == 0.0
+    /// Whether `LB`-samples would change nothing, so that the pixel's blend, variance and
+    /// bound come out the same, bit for bit, without them: where there is no `⟨V⟩` (an
+    /// area light with cache visibility, a point without records: `t = 0`, `⟨LBV⟩`
+    /// alone), and where `⟨V⟩` is exactly 0 with nothing to widen its bound (every
+    /// `V`-sample blocked, no reweighting blind spot, no spread of records: `⟨LB⟩⟨V⟩` and
+    /// its bound are 0 whatever `⟨LB⟩`, `t = 1 − ε`; a closed room's map).
+    fn lb_changes_nothing(&self) -> bool {
+        self.v.is_nan() || (self.v == 0.0 && self.v_spread == 0.0 && self.v_unseen == 0.0)
     }
 }
 
@@ -924,12 +926,12 @@ impl RelightPass<'_> {
         let mut bvh = TraversalCounters::default();
         // One sampler per sample serves every light (each reads its own dimensions); each
         // light's moments still take its samples in order.
-        let zero = sums.iter().filter(|s| s.decoupled_is_zero()).count();
-        work.lb_skipped += lb.len() as u64 * zero as u64;
+        let unused = sums.iter().filter(|s| s.lb_changes_nothing()).count();
+        work.lb_skipped += lb.len() as u64 * unused as u64;
         for s in lb.clone() {
             let rng = PixelSampler::new(self.params.seed, i as u64, STREAM_LB + s as u64);
             for (sums, &light) in sums.iter_mut().zip(self.lights) {
-                if sums.decoupled_is_zero() {
+                if sums.lb_changes_nothing() {
                     continue;
                 }
                 let x = at.draw(light, &rng).map_or(Vec3::ZERO, |d| d.lb_over_p);
