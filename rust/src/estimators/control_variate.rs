@@ -1339,10 +1339,11 @@ mod tests {
         let env = test_sky(64);
         let chroma = MapChroma::new(&env);
         let mat = Material::phong([0.05, 0.1, 0.45], [0.3; 3], 30.0).unwrap();
-        assert!(Material::phong([0.2; 3], [0.4; 3], 30.0)
-            .unwrap()
-            .lobe_channel_ratios()
-            .is_none());
+        for (kd, ks) in [([0.2; 3], [0.4; 3]), ([0.4, 0.4, 0.42], [0.45; 3])] {
+            let near_grey = Material::phong(kd, ks, 30.0).unwrap();
+            assert!(near_grey.lobe_channel_ratios().is_none());
+        }
+        assert!(mat.lobe_channel_ratios().is_some());
         let (n, wo) = frame();
         let bits: Vec<_> = (0..3).map(|i| random_bits(5, 29 + i)).collect();
         let (cache, lookup) = cache_with(&bits);
