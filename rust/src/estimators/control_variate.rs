@@ -1281,90 +1281,40 @@ mod tests {
     #[test]
     fn the_control_variate_averages_to_j_under_the_mixture() {
         // E[g/p] = J for draws of the renderer's mixture (guided by these records, built
-        // for the product's point but used at another: a jittered sample's hit).
+        // for the product's point but used at another: a jittered sample's hit). The
+        // material is blue paint under a grey coat, so the lobes' part counts too: E[g_d/p]
+        // = J_d and E[W] = 0 per channel, with the diffuse part's cells never above the
+        // product's; lobes of nearly one colour are not told apart.
         use crate::estimators::direct::{Mixture, ShadingPoint, Techniques};
         let env = test_sky(64);
         let chroma = MapChroma::new(&env);
-        let mat = Material::phong([0.3; 3], [0.5; 3], 20.0).unwrap();
+        let mat = Material::phong([0.05, 0.1, 0.45], [0.3; 3], 20.0).unwrap();
+        for (kd, ks) in [([0.2; 3], [0.4; 3]), ([0.4, 0.4, 0.42], [0.45; 3])] {
+            let near_grey = Material::phong(kd, ks, 30.0).unwrap();
+            assert!(near_grey.lobe_channel_ratios().is_none());
+        }
         let (n, wo) = frame();
         let bits: Vec<_> = (0..3).map(|i| random_bits(5, 17 + i)).collect();
         let (cache, lookup) = cache_with(&bits);
         let state = cache.read();
         let product = ProductDistribution::new(&env, &mat, n, wo, 5).unwrap();
-        let tables = ControlTables::new(&product, &chroma, 5);
-        let interp = Interpolant::new(&state, &lookup, Some((&tables, &product, &env)));
-        let guided = product.guided(interp.cell_visibility(&state, 5)).unwrap();
-        let sp = ShadingPoint {
-            origin: Vec3::ZERO,
-            normal: Vec3::new(0.3, 0.9, -0.2).normalize(),
-            wo,
-            material: mat,
-        };
-        let mixture = Mixture::new(
-            &env,
-            &sp,
-            Some(&product),
-            Some(&guided),
-            &Techniques::CONTROL_VARIATE,
-        );
-        let mut sums = CvSums::default();
-        for i in 0..300_000u64 {
-            let rng = SampleRng::new(5, i, 0);
-            let value = match mixture.sample(rng.get2(0), rng.get(2)) {
-                Some(d) => control_sample(&state, &interp, &chroma, d.square)
-                    .value
-                    .map(|v| v * d.product_pdf / d.pdf),
-                None => [0.0; 3],
-            };
-            sums.add(Vec3::ZERO, value);
-        }
-        let (mean, var) = sums.estimate([-1.0; 3]);
-        for c in 0..3 {
-            let z = (mean[c] - interp.j[c]) / var[c].sqrt();
-            assert!(
-                z.abs() < 4.0,
-                "channel {c}: {} vs {} ({z:.2} SE)",
-                mean[c],
-                interp.j[c]
-            );
-        }
-    }
-
-    #[test]
-    fn the_lobe_control_averages_to_zero_under_the_mixture() {
-        // Blue paint under a grey coat: E[g_d/p] = J_d for the renderer's mixture draws
-        // (guided, BSDF and map techniques too), so E[W] = 0 per channel, and the diffuse
-        // part's cells never exceed the product's.
-        use crate::estimators::direct::{Mixture, ShadingPoint, Techniques};
-        let env = test_sky(64);
-        let chroma = MapChroma::new(&env);
-        let mat = Material::phong([0.05, 0.1, 0.45], [0.3; 3], 30.0).unwrap();
-        for (kd, ks) in [([0.2; 3], [0.4; 3]), ([0.4, 0.4, 0.42], [0.45; 3])] {
-            let near_grey = Material::phong(kd, ks, 30.0).unwrap();
-            assert!(near_grey.lobe_channel_ratios().is_none());
-        }
-        assert!(mat.lobe_channel_ratios().is_some());
-        let (n, wo) = frame();
-        let bits: Vec<_> = (0..3).map(|i| random_bits(5, 29 + i)).collect();
-        let (cache, lookup) = cache_with(&bits);
-        let state = cache.read();
-        let product = ProductDistribution::new(&env, &mat, n, wo, 5).unwrap();
         let part = product.lobe_part(&env, &mat.diffuse_lobe(), n, wo).unwrap();
-        assert!(part
-            .bsdf_cells()
-            .iter()
-            .zip(product.bsdf_cells())
-            .all(|(d, b)| d <= b));
+        let cells = part.bsdf_cells().iter().zip(product.bsdf_cells());
+        assert!(cells.into_iter().all(|(d, b)| d <= b));
         let tables = ControlTables::new(&product, &chroma, 5);
         let interp = Interpolant::new(&state, &lookup, Some((&tables, &product, &env)));
         let guided = product.guided(interp.cell_visibility(&state, 5)).unwrap();
-        let sp = ShadingPoint {
+        let anchor = ShadingPoint {
             origin: Vec3::ZERO,
             normal: n,
             wo,
             material: mat,
         };
-        let lobes = LobeControl::new(&product, &sp, &state, &lookup, &chroma, &env).unwrap();
+        let lobes = LobeControl::new(&product, &anchor, &state, &lookup, &chroma, &env).unwrap();
+        let sp = ShadingPoint {
+            normal: Vec3::new(0.3, 0.9, -0.2).normalize(),
+            ..anchor
+        };
         let mixture = Mixture::new(
             &env,
             &sp,
@@ -1372,9 +1322,10 @@ mod tests {
             Some(&guided),
             &Techniques::CONTROL_VARIATE,
         );
-        let (mut part_sums, mut w_sums) = (CvSums::default(), CvSums::default());
+        let (mut sums, mut part_sums, mut w_sums) =
+            (CvSums::default(), CvSums::default(), CvSums::default());
         for i in 0..300_000u64 {
-            let rng = SampleRng::new(9, i, 0);
+            let rng = SampleRng::new(5, i, 0);
             let (g, gd) = match mixture.sample(rng.get2(0), rng.get(2)) {
                 Some(d) => {
                     let g = control_sample(&state, &interp, &chroma, d.square)
@@ -1384,25 +1335,27 @@ mod tests {
                 }
                 None => ([0.0; 3], [0.0; 3]),
             };
+            sums.add(Vec3::ZERO, g);
             part_sums.add(Vec3::ZERO, gd);
             w_sums.add(Vec3::ZERO, lobes.w(g, gd, &interp.j));
         }
-        let (mean, var) = part_sums.estimate([-1.0; 3]);
-        let (w_mean, w_var) = w_sums.estimate([-1.0; 3]);
+        assert_mean_within_4_se(&sums, interp.j, "g/p");
+        assert_mean_within_4_se(&part_sums, lobes.j, "g_d/p");
+        assert_mean_within_4_se(&w_sums, [0.0; 3], "W");
+        assert!((0..3).all(|c| lobes.j[c] > 0.0 && lobes.j[c] < interp.j[c]));
+    }
+
+    /// The mean of the samples `sums` holds (as `W`) lies within 4 of their standard errors
+    /// of `want`, per channel.
+    fn assert_mean_within_4_se(sums: &CvSums, want: [f64; 3], what: &str) {
+        let (mean, var) = sums.estimate([-1.0; 3]);
         for c in 0..3 {
-            let z = (mean[c] - lobes.j[c]) / var[c].sqrt();
+            let z = (mean[c] - want[c]) / var[c].sqrt();
             assert!(
                 z.abs() < 4.0,
-                "channel {c}: {} vs {} ({z:.2} SE)",
+                "{what}, channel {c}: {} vs {} ({z:.2} SE)",
                 mean[c],
-                lobes.j[c]
-            );
-            assert!(lobes.j[c] > 0.0 && lobes.j[c] < interp.j[c]);
-            let z = w_mean[c] / w_var[c].sqrt();
-            assert!(
-                z.abs() < 4.0,
-                "channel {c}: W has mean {} ({z:.2} SE)",
-                w_mean[c]
+                want[c]
             );
         }
     }
@@ -1431,16 +1384,7 @@ mod tests {
                 let g = control_sample(&state, &interp, &chroma, s.square);
                 sums.add(Vec3::ZERO, g.value);
             }
-            let (mean, var) = sums.estimate([-1.0; 3]);
-            for c in 0..3 {
-                let z = (mean[c] - interp.j[c]) / var[c].sqrt();
-                assert!(
-                    z.abs() < 4.0,
-                    "M={m} channel {c}: {} vs {} ({z:.2} SE)",
-                    mean[c],
-                    interp.j[c]
-                );
-            }
+            assert_mean_within_4_se(&sums, interp.j, &format!("g/p at M = {m}"));
             // Ṽ at a sample equals Σ β_i V_i of the records' bits at its texel.
             let p = DVec2::new(0.3, 0.7);
             let z = record_texel_code(p, m) as usize;
