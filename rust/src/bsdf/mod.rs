@@ -154,7 +154,8 @@ impl Material {
     /// how a channel of `f` compares with the luminance `B~` approximates. Exact at every
     /// direction for Lambert; for Phong, where the diffuse and specular colours mix by
     /// direction, the ratio of the two lobes' combined albedos. The control variate scales
-    /// channel `c` of `L B~ Ṽ` by it, so `Z_c ≈ W_c` where the records are right.
+    /// channel `c` of `L B~ Ṽ` by it, so `Z_c ≈ W_c` where the records are right (by each
+    /// lobe's own ratio where the two differ in colour: [`Self::lobe_channel_ratios`]).
     pub fn channel_ratios(&self) -> [f32; 3] {
         let albedo = self.base_color();
         let lum = luminance(albedo);
