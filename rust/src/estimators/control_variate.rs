@@ -687,7 +687,9 @@ fn add_record_cells(state: &CacheState, id: u32, beta: f32, level: u32, out: &mu
             // A word holds 16 or 4 cells: their counts side by side in one register
             // (SWAR), a word with no visible texel skipped. The same sums as below.
             4 | 16 => {
+                // Each cell's count sits in a field `per_cell` bits wide.
                 let cells = 64 / per_cell;
+                let mask = (1u64 << per_cell) - 1;
                 for (w, &word) in words.iter().enumerate() {
                     if word == 0 {
                         continue;
@@ -699,10 +701,8 @@ fn add_record_cells(state: &CacheState, id: u32, beta: f32, level: u32, out: &mu
                         let bytes = (bytes + (bytes >> 4)) & 0x0f0f_0f0f_0f0f_0f0f;
                         (bytes + (bytes >> 8)) & 0x00ff_00ff_00ff_00ff
                     };
-                    let width = 64 / cells;
-                    let mask = (1u64 << width) - 1;
                     for (k, v) in out[w * cells..(w + 1) * cells].iter_mut().enumerate() {
-                        *v += share * ((counts >> (k * width)) & mask) as f32;
+                        *v += share * ((counts >> (k * per_cell)) & mask) as f32;
                     }
                 }
             }
