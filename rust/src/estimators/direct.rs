@@ -35,6 +35,7 @@ use glam::{DVec2, UVec2, Vec2, Vec3};
 
 use crate::bsdf::Material;
 use crate::geometry::{Scene, TraversalCounters};
+use crate::lights::area::{AreaLight, LightSample};
 use crate::lights::envmap::EnvMap;
 use crate::sampling::distribution::QuadPyramid;
 use crate::sampling::octahedral::{
@@ -100,8 +101,20 @@ pub mod dims {
     /// ... and the BSDF sample's direction (methods "bsdf" and "mis").
     pub const BSDF: u64 = 6;
     /// Area light `k` takes set `2 + k`: its triangle choice at `AREA + 4k` and the point
-    /// on it at `AREA + 4k + 2` (two dimensions).
+    /// on it at `AREA + 4k + 2` (two dimensions; [`super::sample_area_light`]).
     pub const AREA: u64 = 8;
+}
+
+/// A point of area light `k` (the scene's `k`-th) seen from `origin`, drawn by area with
+/// the sample's dimensions of that light ([`dims::AREA`]), its set made once.
+pub fn sample_area_light(
+    light: &AreaLight,
+    k: usize,
+    origin: Vec3,
+    rng: &impl Sampler,
+) -> Option<LightSample> {
+    let [choice, _, u, v] = rng.get_set(dims::AREA + 4 * k as u64);
+    light.sample(origin, choice, Vec2::new(u, v))
 }
 
 /// Least share [`Techniques::learnt`] leaves a technique that had one.
@@ -937,8 +950,7 @@ impl Lighting<'_> {
     ) -> Vec3 {
         let mut total = Vec3::ZERO;
         for (k, light) in self.scene.area_lights().iter().enumerate() {
-            let [choice, _, u, v] = rng.get_set(dims::AREA + 4 * k as u64);
-            if let Some(s) = light.sample(sp.origin, choice, Vec2::new(u, v)) {
+            if let Some(s) = sample_area_light(light, k, sp.origin, rng) {
                 let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
                 total +=
                     self.light_term(sp, s.direction, s.radiance, s.pdf, tmax, mis, counters, bvh);

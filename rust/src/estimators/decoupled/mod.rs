@@ -82,7 +82,7 @@ use self::bound::{
     binary_variance, blend, blend_factor, error_bound, least_error_factor, relative_error,
 };
 use super::control_variate::Interpolant;
-use super::direct::{ProductDistribution, ProductLevel, ShadingPoint};
+use super::direct::{sample_area_light, ProductDistribution, ProductLevel, ShadingPoint};
 use super::indirect::shading_point_at;
 use crate::bsdf::Material;
 use crate::camera::GBuffer;
@@ -240,8 +240,7 @@ impl PixelLights<'_> {
             }
             LightId::Area(k) => {
                 let light = &self.scene.area_lights()[k];
-                let [choice, _, u, v] = rng.get_set(dims::AREA + 4 * k as u64);
-                let s = light.sample(sp.origin, choice, glam::Vec2::new(u, v))?;
+                let s = sample_area_light(light, k, sp.origin, rng)?;
                 let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
                 (s.direction, s.radiance, s.pdf, tmax)
             }
