@@ -79,6 +79,15 @@ pub fn check_log2_resolution(m: u32) -> Result<()> {
 /// sphere (module docs). `iterations = 0` gives the plain stratified pattern. Bit-identical
 /// for a given `(m, seed, iterations)` on any thread count. Fails for `m` outside `1..=7`.
 pub fn record_pattern(m: u32, seed: u64, iterations: u32) -> Result<Vec<Vec3>> {
+    Ok(relaxed_square(m, seed, iterations)?
+        .into_iter()
+        .map(square_to_sphere)
+        .collect())
+}
+
+/// The points of [`record_pattern`] in the octahedral square, before they are mapped to
+/// the sphere.
+fn relaxed_square(m: u32, seed: u64, iterations: u32) -> Result<Vec<Vec2>> {
     check_log2_resolution(m)?;
     let res = 1u32 << m;
     let n = (res * res) as usize;
@@ -158,19 +167,57 @@ pub fn record_pattern(m: u32, seed: u64, iterations: u32) -> Result<Vec<Vec3>> {
                 .collect();
         }
     }
-    Ok(square.into_iter().map(square_to_sphere).collect())
+    Ok(square)
 }
 
 /// The default pattern for resolution exponent `m` ([`DEFAULT_PATTERN_SEED`],
-/// [`DEFAULT_LLOYD_ITERATIONS`]), computed once per `m` and shared. Fails for `m` outside
+/// [`DEFAULT_LLOYD_ITERATIONS`]), made once per `m` and shared. Fails for `m` outside
 /// `1..=7`.
+///
+/// The resolutions the presets and the coherence check use ([`BAKED_LOG2_RESOLUTIONS`])
+/// are read from points relaxed ahead of time (`default_patterns.bin`): the relaxation of
+/// a 64² pattern takes about 0.1 s on two cores, which a user's first control-variate
+/// render would otherwise pay, longer than a whole 10-spp render of a small view. The
+/// baked points are the relaxation's to within rounding (`sin`/`cos` may differ in the
+/// last bit between machines; a test checks 1e-6) and are the same on every machine.
 pub fn default_pattern(m: u32) -> Result<&'static [Vec3]> {
     check_log2_resolution(m)?;
     static PATTERNS: [OnceLock<Vec<Vec3>>; MAX_LOG2_RESOLUTION as usize] =
         [const { OnceLock::new() }; MAX_LOG2_RESOLUTION as usize];
     Ok(PATTERNS[(m - 1) as usize].get_or_init(|| {
-        record_pattern(m, DEFAULT_PATTERN_SEED, DEFAULT_LLOYD_ITERATIONS).expect("m was checked")
+        let square = match baked_square(m) {
+            Some(square) => square,
+            None => relaxed_square(m, DEFAULT_PATTERN_SEED, DEFAULT_LLOYD_ITERATIONS)
+                .expect("m was checked"),
+        };
+        square.into_iter().map(square_to_sphere).collect()
     }))
+}
+
+/// Resolution exponents whose default pattern is baked into the library (the coherence
+/// check's 16², the `low`/`medium`/`high` presets' 32² and `auto`'s 64²).
+pub const BAKED_LOG2_RESOLUTIONS: std::ops::RangeInclusive<u32> = 4..=6;
+
+/// The default patterns of [`BAKED_LOG2_RESOLUTIONS`] in the square, one after another
+/// in increasing `m`, each point two little-endian `f32`.
+static BAKED_SQUARES: &[u8] = include_bytes!("default_patterns.bin");
+
+/// The baked square points of the default pattern at `m`, if it is baked.
+fn baked_square(m: u32) -> Option<Vec<Vec2>> {
+    if !BAKED_LOG2_RESOLUTIONS.contains(&m) {
+        return None;
+    }
+    let skip: usize = (*BAKED_LOG2_RESOLUTIONS.start()..m)
+        .map(|k| 8 << (2 * k))
+        .sum();
+    let bytes = BAKED_SQUARES.get(skip..skip + (8 << (2 * m)))?;
+    let f = |b: &[u8]| f32::from_le_bytes(b.try_into().expect("four bytes"));
+    Some(
+        bytes
+            .chunks_exact(8)
+            .map(|p| Vec2::new(f(&p[..4]), f(&p[4..])))
+            .collect(),
+    )
 }
 
 /// The Morton indices of texel `i` and its 8 grid neighbours (across the square's folds),
@@ -267,6 +314,54 @@ pub fn nearest_neighbour_stats(dirs: &[Vec3]) -> (f64, f64) {
 
 #[cfg(test)]
 mod tests {
+    /// The baked default patterns are the relaxation's (to rounding), and the file holds
+    /// exactly them.
+    #[test]
+    fn baked_default_patterns_are_the_relaxed_ones() {
+        let expected: usize = BAKED_LOG2_RESOLUTIONS.map(|m| 8 << (2 * m)).sum();
+        assert_eq!(BAKED_SQUARES.len(), expected);
+        for m in BAKED_LOG2_RESOLUTIONS {
+            let baked = baked_square(m).unwrap();
+            let relaxed =
+                relaxed_square(m, DEFAULT_PATTERN_SEED, DEFAULT_LLOYD_ITERATIONS).unwrap();
+            assert_eq!(baked.len(), relaxed.len());
+            let worst = baked
+                .iter()
+                .zip(&relaxed)
+                .map(|(a, b)| (*a - *b).abs().max_element())
+                .fold(0.0f32, f32::max);
+            assert!(worst <= 1e-6, "m = {m}: baked points differ by {worst}");
+            let dirs = default_pattern(m).unwrap();
+            for (i, d) in dirs.iter().enumerate() {
+                assert_eq!(
+                    texel_of(*d, 1 << m),
+                    morton_decode(i as u32),
+                    "m = {m}, {i}"
+                );
+            }
+        }
+        assert!(baked_square(3).is_none() && baked_square(7).is_none());
+    }
+
+    /// Writes `default_patterns.bin` (run after a change to the relaxation:
+    /// `cargo test --release -- --ignored bake_default_patterns`).
+    #[test]
+    #[ignore]
+    fn bake_default_patterns() {
+        let mut bytes = Vec::new();
+        for m in BAKED_LOG2_RESOLUTIONS {
+            for p in relaxed_square(m, DEFAULT_PATTERN_SEED, DEFAULT_LLOYD_ITERATIONS).unwrap() {
+                bytes.extend(p.x.to_le_bytes());
+                bytes.extend(p.y.to_le_bytes());
+            }
+        }
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/rust/src/sampling/default_patterns.bin"
+        );
+        std::fs::write(path, bytes).unwrap();
+    }
+
     use super::*;
     use crate::sampling::octahedral::sphere_to_square;
 
