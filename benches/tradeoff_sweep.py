@@ -15,9 +15,10 @@ spp:
   to each render's.
 
 Efficiency is ``1 / (relMSE · seconds)`` (``vc.metrics.efficiency``) with relMSE on RGB
-(``vc.metrics.relmse``) and the seconds of the whole ``vc.render`` call (wall clock; for
-the presets plus their build). Each row is appended to ``--out`` (JSON lines) as it is measured, so
-a long run can be read while it goes on; ``--table`` prints the summary of such a file.
+(``vc.metrics.relmse``) and the seconds of the whole ``vc.render`` call (wall clock, the
+fastest of up to three calls; for the presets plus their build). Each row is appended to
+``--out`` (JSON lines) as it is measured, so a long run can be read while it goes on;
+``--table`` prints the summary of such a file.
 
     python benches/tradeoff_sweep.py [--sizes 256x192 640x480] [--spp 10 100]
         [--ref-spp 1024 256] [--out sweep.jsonl] [scene ...]
@@ -32,6 +33,8 @@ import numpy as np
 import viscache_rs as vc
 
 PRESETS = ("low", "medium", "high")
+REPEATS = 3
+REPEAT_SECONDS = 2.0
 
 
 def measure(setup, size, ladder, ref_spp, threads, emit):
@@ -54,9 +57,18 @@ def measure(setup, size, ladder, ref_spp, threads, emit):
                   efficiency=vc.metrics.efficiency(mse, total)))
 
     def timed(**extra):
-        t = time.perf_counter()
-        res = vc.render(setup, seed=1, **extra, **kw)
-        return res, time.perf_counter() - t
+        """The render and its fastest wall-clock time of up to ``REPEATS`` calls (fewer
+        once they have taken ``REPEAT_SECONDS``): a single sub-second timing moved
+        efficiencies by 20-30% between runs. Same seed, so the image is the same."""
+        best, spent = float("inf"), 0.0
+        for _ in range(REPEATS):
+            t = time.perf_counter()
+            res = vc.render(setup, seed=1, **extra, **kw)
+            seconds = time.perf_counter() - t
+            best, spent = min(best, seconds), spent + seconds
+            if spent >= REPEAT_SECONDS:
+                break
+        return res, best
 
     for spp in ladder:
         row("product", spp, *timed(spp=spp, method="product"), 0.0)

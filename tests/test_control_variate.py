@@ -7,6 +7,7 @@ the Bonferroni z for the channel count where both estimates are in their central
 regime, and the whole-image mean within 4 standard errors over every pixel.
 """
 
+import importlib
 import math
 
 import numpy as np
@@ -14,6 +15,9 @@ import pytest
 import viscache_rs as vc
 from conftest import bonferroni_z
 from viscache_rs.metrics import luminance, luminance_variance
+
+# The module, which the package's ``render`` function shadows.
+render_module = importlib.import_module("viscache_rs.render")
 
 
 @pytest.fixture(scope="module")
@@ -211,6 +215,28 @@ def test_stats_report_the_cache_work_and_misses_reach_the_records(garage):
     # Without a cache, "cv" builds one and says what it cost.
     built = _render(setup, "cv", 2, seed=3)
     assert built.stats["cache_records"] > 0 and built.stats["cache_seconds"] > 0
+
+
+def test_cv_without_a_cache_builds_no_more_records_than_its_samples_repay():
+    """The cache ``render(method="cv")`` builds for itself holds at most one record per
+    ``SAMPLES_PER_RECORD`` samples of the render (and at least the bootstrap's)."""
+    setup = vc.scenes.load("garage", detail=0.3)
+    setup.camera = setup.camera.with_resolution(128, 96)
+    pixels = 128 * 96
+    uncapped = vc.VisibilityCache(setup.scene, nearest_hits=False)
+    uncapped.build(setup.camera, seed=0, progress=False)
+    startup = uncapped.params["n_startup"]
+    assert len(uncapped) > startup
+    few = _render(setup, "cv", 2, seed=0, jitter=False)
+    assert pixels * 2 // render_module.SAMPLES_PER_RECORD < startup
+    assert few.stats["cache_records"] == startup
+    # Enough samples for every record the view asks for: the same cache as without a cap.
+    spp = -(-len(uncapped) * render_module.SAMPLES_PER_RECORD // pixels)
+    many = _render(setup, "cv", spp, seed=0, jitter=False)
+    assert many.stats["cache_records"] == len(uncapped)
+    # Under a time budget the build's share of the budget bounds it instead.
+    budget = _render(setup, "cv", None, seed=0, jitter=False, time_budget=1.0)
+    assert budget.stats["cache_records"] == len(uncapped)
 
 
 def test_no_records_means_product_sampling_and_one_pass_insertion(garage):

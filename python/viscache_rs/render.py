@@ -17,7 +17,9 @@ direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=N
 - ``"cv"``: product sampling with the visibility cache's ``L B~ V~`` as a control variate
   (CAM08 eq. 2-3): ``cache=`` a built :class:`VisibilityCache`, or None to build one for
   the view with ``preset`` (default "auto"; its cost is in ``stats["cache_seconds"]``, and
-  under a ``time_budget`` it spends at most a quarter of the budget, the render the rest).
+  under a ``time_budget`` it spends at most a quarter of the budget, the render the rest;
+  without one it holds at most one record per 400 of the render's samples, so that a
+  10-spp render does not wait on a build it cannot repay).
   ``alpha`` is a number in [0, 2] (CAM08 uses 1) or ``"estimate"``: per pixel,
   Cov(Z, W) / Var(W) pooled over the other pixels of a ``(2 alpha_radius + 1)^2`` window,
   which keeps the estimate unbiased (``res.alpha`` holds it). The records' misses go back
@@ -103,6 +105,15 @@ from .cache import VisibilityCache
 _UNBOUNDED_SPP = 1 << 20
 # Share of a time budget that method "cv" without a cache may spend building one.
 CACHE_BUDGET_SHARE = 0.25
+# Without a budget, method "cv" without a cache builds at most one record per this many of
+# the render's samples (pixels x spp), and at least the bootstrap's: a record traces about
+# 2,000 shadow rays, so the build spends at most ~5x the render's rays. Measured over the
+# suite at 10 spp (benches/README.md, "Is auto the best setting?"): uncapped, the build
+# took longer than the render on scales and meshes at 256x192 (0.71x and 0.74x product's
+# efficiency); one record per 400 samples keeps 0.9-1.0x of the uncapped cache's
+# efficiency where that one wins. From 40 spp on the share cap of the records (a tenth of
+# the view's pixels) is the lower one, so this changes only low-spp renders.
+SAMPLES_PER_RECORD = 400
 
 
 @dataclass
@@ -181,7 +192,13 @@ def render(
     if method == "cv" and cache is None:
         # The control variate never reads R_i: skip its closest-hit rays. Under a time
         # budget the build may spend a quarter of it and the render has what is left.
-        cache = VisibilityCache(setup.scene, preset=preset, nearest_hits=False)
+        overrides: dict[str, Any] = {"nearest_hits": False}
+        if time_budget is None and spp < _UNBOUNDED_SPP:
+            params = VisibilityCache(setup.scene, preset=preset).params
+            by_samples = camera.width * camera.height * spp // SAMPLES_PER_RECORD
+            overrides["max_records"] = min(params["max_records"],
+                                           max(params["n_startup"], by_samples))
+        cache = VisibilityCache(setup.scene, preset=preset, **overrides)
         t = time.perf_counter()
         # One G-buffer for the build and the render's anchors: its rays count as the
         # render's primary rays and its time as the cache's.
