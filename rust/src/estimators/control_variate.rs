@@ -20,6 +20,16 @@
 //! (0.6x with a grey map). Per region, the sun's region takes the sun's colour and the sky's
 //! the sky's.
 //!
+//! A region still mixes a sun with the sky around it: 64 regions are 25° across, and the
+//! procedural daylight's sun, four texels of a 256² map, carries 58% of its power, so its
+//! region's colour was the sun's and the blue sky beside it was scaled as yellow light.
+//! The map's *peaks* ([`MapChroma::peaks`]: texels above [`PEAK_FACTOR`] times the mean, at
+//! most [`MAX_PEAKS`]) therefore take their own colour, and each region the colour of its
+//! other texels. `J` adds `Σ_peaks (κ_c(t) − κ_c(region)) L B~ Ṽ` over the peak texels to
+//! the walk's sum (each lies inside one record texel and one product cell), so it stays
+//! exact. On the meshes' ground (256x192, 32 spp) blue's variance ratio went from 0.29 to
+//! 0.24 (red 0.13 to 0.12); 128² records, four times finer regions, give 0.23.
+//!
 //! ## Exactness of `J`
 //! `L` is piecewise constant over the map's texels, `B~` over the product's cells and every
 //! `V_i` over the record's texels, and all three grids are levels of one equal-area
@@ -98,7 +108,35 @@ pub struct MapChroma {
     depth: u32,
     /// `chroma[l][j]`: RGB over luminance of node `j` (Morton) of level `l`.
     chroma: Vec<Vec<[f64; 3]>>,
+    /// The map's peak texels ([`PEAK_FACTOR`]), by Morton code at `depth`, ascending.
+    peaks: Vec<Peak>,
+    /// As `chroma`, without the peak texels: the control variate's region colours.
+    rest: Vec<Vec<[f64; 3]>>,
 }
+
+/// A texel far brighter than the map's mean (a sun), which the control variate gives its
+/// own colour instead of its region's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Peak {
+    /// Morton code at the map's depth.
+    pub code: u32,
+    /// RGB over luminance.
+    pub colour: [f64; 3],
+    /// The texel's weight in the map's sampling pyramid (its luminance there).
+    pub weight: f64,
+}
+
+/// A texel of luminance above this many times the map's mean is a peak of [`MapChroma`].
+pub const PEAK_FACTOR: f64 = 16.0;
+
+/// Most peaks a [`MapChroma`] keeps (the brightest): each costs a few operations per
+/// point in `J`.
+pub const MAX_PEAKS: usize = 64;
+
+/// Shallowest map with peaks: texels no coarser than any record's
+/// ([`crate::sampling::pattern::MAX_LOG2_RESOLUTION`]), so that one record texel holds each
+/// peak whole.
+pub const MIN_PEAK_DEPTH: u32 = crate::sampling::pattern::MAX_LOG2_RESOLUTION;
 
 /// Finest level of regions a [`MapChroma`] keeps (`4^6` regions; the words of 512² records).
 pub const MAX_REGION_LEVEL: u32 = 6;
@@ -142,23 +180,54 @@ impl MapChroma {
             level -= 1;
         }
         levels.reverse();
-        let chroma = levels
-            .iter()
-            .map(|level| {
-                level
-                    .iter()
-                    .map(|rgb| {
-                        let y: f64 = rgb.iter().zip(LUMINANCE).map(|(c, w)| c * w).sum();
-                        if y > 0.0 {
-                            rgb.map(|c| c / y)
-                        } else {
-                            [0.0; 3]
-                        }
-                    })
-                    .collect()
-            })
-            .collect();
-        Self { depth, chroma }
+        let peaks = find_peaks(env);
+        let colours = |levels: &[Vec<[f64; 3]>]| -> Vec<Vec<[f64; 3]>> {
+            levels
+                .iter()
+                .map(|level| level.iter().map(|&rgb| over_luminance(rgb)).collect())
+                .collect()
+        };
+        let chroma = colours(&levels);
+        let rest = if peaks.is_empty() {
+            chroma.clone()
+        } else {
+            // Each region's sums without the peak texels it holds.
+            for (l, level) in levels.iter_mut().enumerate() {
+                for peak in &peaks {
+                    let region = (peak.code >> (2 * (depth - l as u32))) as usize;
+                    let rgb = env.texels()[texel_index(peak.code, res)].map(f64::from);
+                    level[region] = std::array::from_fn(|k| level[region][k] - rgb[k]);
+                }
+            }
+            colours(&levels)
+        };
+        Self {
+            depth,
+            chroma,
+            peaks,
+            rest,
+        }
+    }
+
+    /// The control variate's colour of the texel of `code` at the map's depth, read at
+    /// region level `level`: the peak's own colour if it is one, else its region's
+    /// without the peaks.
+    #[inline]
+    pub fn control_colour(&self, code: u32, level: u32) -> [f64; 3] {
+        match self.peaks.binary_search_by_key(&code, |p| p.code) {
+            Ok(i) => self.peaks[i].colour,
+            Err(_) => self.rest[level as usize][(code >> (2 * (self.depth - level))) as usize],
+        }
+    }
+
+    /// The control variate's region colours at `level` (without the peak texels).
+    pub fn control_colours(&self, level: u32) -> &[[f64; 3]] {
+        &self.rest[level as usize]
+    }
+
+    /// The map's peak texels, by code.
+    pub fn peaks(&self) -> &[Peak] {
+        &self.peaks
     }
 
     /// RGB over luminance per node of `level <= min(MAX_REGION_LEVEL, depth)`.
@@ -172,6 +241,51 @@ impl MapChroma {
     }
 }
 
+/// RGB over luminance (0 where the luminance is not positive).
+fn over_luminance(rgb: [f64; 3]) -> [f64; 3] {
+    let y: f64 = rgb.iter().zip(LUMINANCE).map(|(c, w)| c * w).sum();
+    if y > 0.0 {
+        rgb.map(|c| c / y)
+    } else {
+        [0.0; 3]
+    }
+}
+
+/// Row-major index of the texel of Morton code `code` in a map of `res` texels a side.
+fn texel_index(code: u32, res: u32) -> usize {
+    let t = crate::sampling::octahedral::morton_decode(code);
+    (t.y * res + t.x) as usize
+}
+
+/// The texels of `env` whose sampling weight exceeds [`PEAK_FACTOR`] times the mean, the
+/// [`MAX_PEAKS`] heaviest, by code; none for maps shallower than [`MIN_PEAK_DEPTH`].
+fn find_peaks(env: &EnvMap) -> Vec<Peak> {
+    let res = env.resolution();
+    let depth = res.trailing_zeros();
+    let Some(dist) = env.distribution() else {
+        return Vec::new();
+    };
+    if depth < MIN_PEAK_DEPTH || dist.depth() != depth {
+        return Vec::new();
+    }
+    let weights = dist.level(depth);
+    let mean = weights.iter().sum::<f64>() / weights.len() as f64;
+    let mut peaks: Vec<Peak> = weights
+        .iter()
+        .enumerate()
+        .filter(|&(_, &w)| w > PEAK_FACTOR * mean)
+        .map(|(code, &weight)| Peak {
+            code: code as u32,
+            colour: over_luminance(env.texels()[texel_index(code as u32, res)].map(f64::from)),
+            weight,
+        })
+        .collect();
+    peaks.sort_by(|a, b| b.weight.total_cmp(&a.weight).then(a.code.cmp(&b.code)));
+    peaks.truncate(MAX_PEAKS);
+    peaks.sort_by_key(|p| p.code);
+    peaks
+}
+
 /// What the control variate needs of one shading point besides its product distribution:
 /// the region level and colours, and the unoccluded integrals (module docs). Refilled per
 /// point by [`Self::fill`]; no allocation.
@@ -181,8 +295,11 @@ pub struct ControlTables<'c> {
     record_m: u32,
     /// Level of the colour regions ([`region_level`]).
     region_level: u32,
-    /// RGB over luminance of each region (Morton order).
+    /// RGB over luminance of each region without the map's peaks (Morton order).
     colours: &'c [[f64; 3]],
+    /// The map's peaks, which take their own colours, and its depth.
+    peaks: &'c [Peak],
+    map_depth: u32,
     /// `∫ L B~ dω` over the sphere (luminance).
     unoccluded_luminance: f64,
     /// `Σ_r κ_c(r) ∫_r L B~ dω` over the sphere, per channel.
@@ -199,7 +316,9 @@ impl<'c> ControlTables<'c> {
         let mut t = Self {
             record_m,
             region_level: 0,
-            colours: chroma.chroma(0),
+            colours: chroma.control_colours(0),
+            peaks: chroma.peaks(),
+            map_depth: chroma.depth(),
             unoccluded_luminance: 0.0,
             unoccluded: [0.0; 3],
             texel_omega: 0.0,
@@ -213,7 +332,9 @@ impl<'c> ControlTables<'c> {
         self.record_m = record_m;
         self.texel_omega = texel_solid_angle(1 << chroma.depth());
         self.region_level = region_level(record_m, product.level(), chroma.depth());
-        self.colours = chroma.chroma(self.region_level);
+        self.colours = chroma.control_colours(self.region_level);
+        self.peaks = chroma.peaks();
+        self.map_depth = chroma.depth();
         // Each region's `Σ L B~` is a node of the product's pyramid (regions are no finer
         // than its cells).
         let weights = product.pyramid().level(self.region_level);
@@ -221,8 +342,38 @@ impl<'c> ControlTables<'c> {
         for (&w, c) in weights.iter().zip(self.colours) {
             sum = std::array::from_fn(|k| sum[k] + w * c[k]);
         }
+        let peaks = self.peak_excess(product, |_| 1.0);
         self.unoccluded_luminance = product.normalization() * self.texel_omega;
-        self.unoccluded = sum.map(|s| s * self.texel_omega);
+        self.unoccluded = std::array::from_fn(|k| (sum[k] + peaks[k]) * self.texel_omega);
+    }
+
+    /// `Σ_t (κ(t) − κ(region of t)) L_lum(t) B~(t) v(t)` over the map's peak texels `t`
+    /// (`v` of a peak's record texel, at the tables' record level): what the walk over
+    /// regions, which gives every texel its region's colour, misses of the peaks' own.
+    /// In the pyramid's units (times `texel_omega`, an integral).
+    #[inline]
+    fn peak_excess(&self, product: &ProductDistribution, v: impl Fn(u32) -> f64) -> [f64; 3] {
+        let mut sum = [0.0f64; 3];
+        let p = product.level();
+        if self.peaks.is_empty() || p > self.map_depth {
+            return sum;
+        }
+        let cells = product.bsdf_cells();
+        for peak in self.peaks {
+            let b = cells[(peak.code >> (2 * (self.map_depth - p))) as usize] as f64;
+            if b == 0.0 {
+                continue;
+            }
+            let visible = v(peak.code >> (2 * (self.map_depth - self.record_m)));
+            if visible == 0.0 {
+                continue;
+            }
+            let region =
+                self.colours[(peak.code >> (2 * (self.map_depth - self.region_level))) as usize];
+            let y = b * peak.weight * visible;
+            sum = std::array::from_fn(|k| sum[k] + (peak.colour[k] - region[k]) * y);
+        }
+        sum
     }
 
     /// `Σ_r κ_c(r) ∫_r L B~ dω` over the whole sphere, per channel (`J` of a record that
@@ -298,7 +449,8 @@ impl<'c> ControlTables<'c> {
                 }
             }
         }
-        sum.map(|s| s * self.texel_omega)
+        let peaks = self.peak_excess(product, |texel| bits.get(texel as usize) as u8 as f64);
+        std::array::from_fn(|k| (sum[k] + peaks[k]) * self.texel_omega)
     }
 }
 
@@ -335,7 +487,14 @@ impl ControlTables<'_> {
             beta,
             regions,
         });
-        sum.map(|s| s * self.texel_omega)
+        let peaks = self.peak_excess(product, |texel| {
+            maps.iter()
+                .zip(beta)
+                .filter(|(map, _)| map.get(texel as usize))
+                .map(|(_, &b)| b as f64)
+                .sum()
+        });
+        std::array::from_fn(|k| (sum[k] + peaks[k]) * self.texel_omega)
     }
 }
 
@@ -878,8 +1037,10 @@ pub fn control_sample(
     square: DVec2,
 ) -> ControlSample {
     let (v, mask) = interpolant.eval(state, square);
-    let level = interpolant.region_level;
-    let colour = chroma.chroma(level)[record_texel_code(square, level) as usize];
+    let colour = chroma.control_colour(
+        record_texel_code(square, chroma.depth()),
+        interpolant.region_level,
+    );
     let scale = interpolant.unoccluded * v;
     ControlSample {
         value: colour.map(|c| c * scale),
@@ -1023,7 +1184,7 @@ mod tests {
             let cell = morton_encode(t.x >> (f - p), t.y >> (f - p));
             let b = product.bsdf_cells()[cell as usize] as f64 * omega;
             let y = crate::lights::envmap::luminance(l) * b;
-            let kappa = chroma.chroma(regions)[(code >> (2 * (f - regions))) as usize];
+            let kappa = chroma.control_colour(code >> (2 * (f - e)), regions);
             let visible = bits.get(morton_encode(t.x >> (f - m), t.y >> (f - m)) as usize);
             for c in 0..3 {
                 total[c] += kappa[c] * y;
@@ -1061,6 +1222,12 @@ mod tests {
         for (k, &(m, level, res)) in cases.iter().enumerate() {
             let env = test_sky(res);
             let chroma = MapChroma::new(&env);
+            // The sun's texels take their own colour from 128² maps on.
+            assert_eq!(
+                !chroma.peaks().is_empty(),
+                res >= 1 << MIN_PEAK_DEPTH,
+                "{res}"
+            );
             for (i, mat) in materials.iter().enumerate() {
                 let (n, wo) = frame();
                 let product = ProductDistribution::new(&env, mat, n, wo, level).unwrap();
@@ -1175,6 +1342,57 @@ mod tests {
             .all(|c| *c == [0.0; 3]));
     }
 
+    /// The sun's texels are the map's peaks, each with its own colour; the control
+    /// variate's region colours are those of the rest of each region.
+    #[test]
+    fn peaks_are_the_sun_and_regions_keep_the_rest_of_their_colour() {
+        let env = test_sky(256);
+        let c = MapChroma::new(&env);
+        let depth = c.depth();
+        let dist = env.distribution().unwrap();
+        let weights = dist.level(depth);
+        let mean = weights.iter().sum::<f64>() / weights.len() as f64;
+        let bright: Vec<u32> = (0..weights.len() as u32)
+            .filter(|&t| weights[t as usize] > PEAK_FACTOR * mean)
+            .collect();
+        assert!(!bright.is_empty() && bright.len() <= MAX_PEAKS);
+        assert_eq!(c.peaks().iter().map(|p| p.code).collect::<Vec<_>>(), bright);
+        let level = 3;
+        let rgb = |t: u32| env.texels()[texel_index(t, env.resolution())].map(f64::from);
+        for peak in c.peaks() {
+            assert!(close(peak.colour, over_luminance(rgb(peak.code)), 1e-12));
+            assert_eq!(c.control_colour(peak.code, level), peak.colour);
+            // Its region's colour is that of the region's other texels.
+            let region = peak.code >> (2 * (depth - level));
+            let others: Vec<u32> = (0..weights.len() as u32)
+                .filter(|&t| {
+                    t >> (2 * (depth - level)) == region && bright.binary_search(&t).is_err()
+                })
+                .collect();
+            let sum = others.iter().fold([0.0; 3], |a, &t| {
+                let x = rgb(t);
+                std::array::from_fn(|k| a[k] + x[k])
+            });
+            let expect = over_luminance(sum);
+            assert!(close(
+                c.control_colours(level)[region as usize],
+                expect,
+                1e-9
+            ));
+            assert_eq!(
+                c.control_colour(others[0], level),
+                c.control_colours(level)[region as usize]
+            );
+            // The sky around the sun is bluer than the region with the sun was.
+            assert!(expect[2] > c.chroma(level)[region as usize][2]);
+        }
+        // No peaks: the control colours are the regions'.
+        let grey = EnvMap::constant([0.5; 3], 256).unwrap();
+        let g = MapChroma::new(&grey);
+        assert!(g.peaks().is_empty());
+        assert_eq!(g.control_colours(3), g.chroma(3));
+    }
+
     /// A cache with three records of chosen bits around the origin, and the lookup there.
     fn cache_with(bits: &[VisibilityBits]) -> (VisibilityCache, Lookup) {
         let m = bits[0].m();
@@ -1286,7 +1504,9 @@ mod tests {
         // = J_d and E[W] = 0 per channel, with the diffuse part's cells never above the
         // product's; lobes of nearly one colour are not told apart.
         use crate::estimators::direct::{Mixture, ShadingPoint, Techniques};
-        let env = test_sky(64);
+        // 256²: the sun's texels are peaks with their own colour.
+        let env = test_sky(256);
+        assert!(!MapChroma::new(&env).peaks().is_empty());
         let chroma = MapChroma::new(&env);
         let mat = Material::phong([0.05, 0.1, 0.45], [0.3; 3], 20.0).unwrap();
         for (kd, ks) in [([0.2; 3], [0.4; 3]), ([0.4, 0.4, 0.42], [0.45; 3])] {
@@ -1364,7 +1584,8 @@ mod tests {
     fn the_control_variate_averages_to_j() {
         // E[g/p] = J: product samples of a sky against three random records. The mean of
         // g/p over N samples must lie within 4 standard errors (from the same samples).
-        let env = test_sky(64);
+        // 256²: the sun's texels are peaks with their own colour.
+        let env = test_sky(256);
         let chroma = MapChroma::new(&env);
         let mat = Material::phong([0.3; 3], [0.5; 3], 20.0).unwrap();
         let (n, wo) = frame();
