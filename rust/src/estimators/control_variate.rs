@@ -110,8 +110,9 @@ pub struct MapChroma {
     chroma: Vec<Vec<[f64; 3]>>,
     /// The map's peak texels ([`PEAK_FACTOR`]), by Morton code at `depth`, ascending.
     peaks: Vec<Peak>,
-    /// As `chroma`, without the peak texels: the control variate's region colours.
-    rest: Vec<Vec<[f64; 3]>>,
+    /// As `chroma`, without the peak texels (`None` without peaks: then `chroma`): the
+    /// control variate's region colours.
+    rest: Option<Vec<Vec<[f64; 3]>>>,
 }
 
 /// A texel far brighter than the map's mean (a sun), which the control variate gives its
@@ -154,7 +155,7 @@ pub fn region_level(record_m: u32, product_level: u32, depth: u32) -> u32 {
 }
 
 impl MapChroma {
-    /// The region colours of `env`.
+    /// The region colours of `env`, and its peaks with the regions' colours without them.
     pub fn new(env: &EnvMap) -> Self {
         let res = env.resolution();
         let depth = res.trailing_zeros();
@@ -188,19 +189,17 @@ impl MapChroma {
                 .collect()
         };
         let chroma = colours(&levels);
-        let rest = if peaks.is_empty() {
-            chroma.clone()
-        } else {
+        let rest = (!peaks.is_empty()).then(|| {
             // Each region's sums without the peak texels it holds.
-            for (l, level) in levels.iter_mut().enumerate() {
-                for peak in &peaks {
+            for peak in &peaks {
+                let rgb = env.texels()[texel_index(peak.code, res)].map(f64::from);
+                for (l, level) in levels.iter_mut().enumerate() {
                     let region = (peak.code >> (2 * (depth - l as u32))) as usize;
-                    let rgb = env.texels()[texel_index(peak.code, res)].map(f64::from);
                     level[region] = std::array::from_fn(|k| level[region][k] - rgb[k]);
                 }
             }
             colours(&levels)
-        };
+        });
         Self {
             depth,
             chroma,
@@ -216,13 +215,13 @@ impl MapChroma {
     pub fn control_colour(&self, code: u32, level: u32) -> [f64; 3] {
         match self.peaks.binary_search_by_key(&code, |p| p.code) {
             Ok(i) => self.peaks[i].colour,
-            Err(_) => self.rest[level as usize][(code >> (2 * (self.depth - level))) as usize],
+            Err(_) => self.control_colours(level)[(code >> (2 * (self.depth - level))) as usize],
         }
     }
 
     /// The control variate's region colours at `level` (without the peak texels).
     pub fn control_colours(&self, level: u32) -> &[[f64; 3]] {
-        &self.rest[level as usize]
+        &self.rest.as_ref().unwrap_or(&self.chroma)[level as usize]
     }
 
     /// The map's peak texels, by code.
