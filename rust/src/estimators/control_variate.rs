@@ -63,6 +63,7 @@
 use glam::{DVec2, UVec2, Vec3};
 
 use crate::lights::envmap::{EnvMap, LUMINANCE};
+use crate::sampling::distribution::QuadPyramid;
 use crate::sampling::octahedral::{morton_encode, texel_solid_angle};
 use crate::visibility::cache::{CacheState, Lookup};
 use crate::visibility::record::{word_level, Coverage, VisibilityView};
@@ -541,7 +542,7 @@ impl Kernel for InterpolatedKernel<'_, '_> {
 /// luminance pyramid (split evenly below its texels).
 struct LuminanceNodes<'a> {
     product: &'a ProductDistribution,
-    dist: &'a crate::sampling::distribution::QuadPyramid,
+    dist: &'a QuadPyramid,
 }
 
 impl LuminanceNodes<'_> {
@@ -754,31 +755,19 @@ impl Interpolant {
         out
     }
 
-    /// Each kept record's visibility averaged over the cells of octahedral level `level`
-    /// with the cells' `weights` (Morton order, non-negative, positive sum): `(β_i,
-    /// E_w[V_i])`, heaviest record first. Their spread around `Ṽ`'s own average says how
-    /// much the records that `Ṽ` blends disagree there.
-    pub fn record_averages(
-        &self,
-        state: &CacheState,
-        level: u32,
-        weights: &[f64],
-    ) -> Vec<(f32, f64)> {
-        let total: f64 = weights.iter().sum();
-        let mut cells = vec![0.0f32; 1 << (2 * level)];
+    /// Each kept record's visibility averaged over octahedral cells weighted by `cells`
+    /// (a pyramid of non-negative weights with a positive sum, its finest level the cells):
+    /// `(β_i, E_w[V_i])`, heaviest record first. Their spread around `Ṽ`'s own average says
+    /// how much the records that `Ṽ` blends disagree there.
+    pub fn record_averages(&self, state: &CacheState, cells: &QuadPyramid) -> Vec<(f32, f64)> {
+        let store = state.store();
+        // Cells finer than the records' texels weigh as their sums: the pyramid's level.
+        let level = cells.depth().min(store.m());
+        let texels = TexelWeights::new(cells.level(level), level, store.m());
         self.ids()
             .iter()
             .zip(self.betas())
-            .map(|(&id, &beta)| {
-                cells.fill(0.0);
-                add_record_cells(state, id, 1.0, level, &mut cells);
-                let v: f64 = weights
-                    .iter()
-                    .zip(&cells)
-                    .map(|(&w, &v)| w * v as f64)
-                    .sum();
-                (beta, v / total)
-            })
+            .map(|(&id, &beta)| (beta, texels.visible(store.bits(id as usize).bit_words())))
             .collect()
     }
 
@@ -814,6 +803,64 @@ impl Interpolant {
             }
         }
         (v, mask)
+    }
+}
+
+/// Cell weights spread over a record's texels, normalised to sum to one: a record's
+/// weighted visibility is then the sum over its set bits. Records are mostly runs of
+/// visible or blocked texels in Morton order, so most words are all ones (the word's total)
+/// or all zeros (nothing); a mixed word takes the masked sum of CAM08 §5.5's `J`.
+struct TexelWeights {
+    /// Per texel, zero-padded to whole words.
+    texel: Vec<f64>,
+    word_total: Vec<f64>,
+    /// The bits of a word that are texels (all but for `m < 3`).
+    valid: u64,
+}
+
+impl TexelWeights {
+    /// From the weights of the cells of octahedral level `level <= m` (Morton order).
+    fn new(cell_weights: &[f64], level: u32, m: u32) -> Self {
+        debug_assert!(level <= m && cell_weights.len() == 1 << (2 * level));
+        let total: f64 = cell_weights.iter().sum();
+        let scale = if total > 0.0 { 1.0 / total } else { 0.0 };
+        // A cell covers 4^(m - level) texels, a Morton range, which share its weight.
+        let shift = 2 * (m - level);
+        let each = scale / (1u64 << shift) as f64;
+        let mut texel: Vec<f64> = (0..1usize << (2 * m))
+            .map(|t| cell_weights[t >> shift] * each)
+            .collect();
+        let bits = texel.len().min(64);
+        texel.resize(texel.len().max(64), 0.0);
+        let word_total = texel.chunks(64).map(|w| w.iter().sum()).collect();
+        let valid = if bits == 64 {
+            u64::MAX
+        } else {
+            (1u64 << bits) - 1
+        };
+        Self {
+            texel,
+            word_total,
+            valid,
+        }
+    }
+
+    /// The summed weight of the texels whose bits are set in `words`, in `[0, 1]`.
+    fn visible(&self, words: &[u64]) -> f64 {
+        let mut scratch = [0.0f64; 64];
+        let mut sum = 0.0;
+        for (k, &word) in words.iter().enumerate() {
+            let word = word & self.valid;
+            sum += match word {
+                0 => continue,
+                w if w == self.valid => self.word_total[k],
+                w => {
+                    let weights = self.texel[64 * k..64 * k + 64].try_into().expect("a word");
+                    word_sum(w, WordWeights::Given(weights), &mut scratch)
+                }
+            };
+        }
+        sum.clamp(0.0, 1.0)
     }
 }
 
@@ -1446,8 +1493,24 @@ mod tests {
 
     #[test]
     fn record_averages_are_each_records_weighted_share_and_blend_to_v_tilde() {
-        for m in [3u32, 5, 6] {
-            let bits: Vec<_> = (0..3).map(|i| random_bits(m, 21 + i)).collect();
+        // Scattered bits, and long runs (whole words visible or blocked, as real records
+        // are) at odd offsets.
+        let runs = |m: u32, seed: u64| {
+            VisibilityBits::from_fn(m, move |z| {
+                !((z as u64 + 37 * seed) / 150).is_multiple_of(3)
+            })
+            .unwrap()
+        };
+        for (m, scattered) in [(2u32, true), (3, true), (5, true), (6, true), (6, false)] {
+            let bits: Vec<_> = (0..3)
+                .map(|i| {
+                    if scattered {
+                        random_bits(m, 21 + i)
+                    } else {
+                        runs(m, i)
+                    }
+                })
+                .collect();
             let (cache, lookup) = cache_with(&bits);
             let state = cache.read();
             let interp = Interpolant::new(&state, &lookup, None);
@@ -1455,7 +1518,8 @@ mod tests {
                 let cells = 1usize << (2 * level);
                 let weights: Vec<f64> = (0..cells).map(|c| 1.0 + (c % 7) as f64).collect();
                 let total: f64 = weights.iter().sum();
-                let got = interp.record_averages(&state, level, &weights);
+                let pyramid = QuadPyramid::from_morton_unchecked(weights.clone());
+                let got = interp.record_averages(&state, &pyramid);
                 assert_eq!(got.len(), interp.ids().len());
                 let mut blended = 0.0;
                 for ((&(beta, avg), &id), &b) in got.iter().zip(interp.ids()).zip(interp.betas()) {

@@ -1001,20 +1001,14 @@ impl RelightPass<'_> {
                     // E_p'[Ṽ] over the product's cells, exactly: no draws.
                     match &at.product {
                         Some(product) => {
-                            let level = product.level();
-                            let cells = interp.cell_visibility(state, level);
-                            let weights = product.pyramid().level(level);
-                            let total: f64 = weights.iter().sum();
-                            let v: f64 = weights
-                                .iter()
-                                .zip(&cells)
-                                .map(|(&w, &v)| w * v as f64)
-                                .sum::<f64>()
-                                / total;
-                            // Ṽ interpolates records that may disagree here: their
-                            // spread about it stands for its error.
-                            let records = interp.record_averages(state, level, weights);
+                            // Ṽ = Σ β_i V_i, so E_p'[Ṽ] is the β-blend of the records'
+                            // own averages; Ṽ interpolates records that may disagree
+                            // here: their spread about it stands for its error.
+                            let records = interp.record_averages(state, product.pyramid());
                             let betas: f64 = records.iter().map(|r| r.0 as f64).sum();
+                            let v = (records.iter().map(|&(b, vi)| b as f64 * vi).sum::<f64>()
+                                / betas.max(f64::MIN_POSITIVE))
+                            .clamp(0.0, 1.0);
                             let spread = records
                                 .iter()
                                 .map(|&(b, vi)| b as f64 * (vi - v).powi(2))
