@@ -182,6 +182,9 @@ def test_relight_experiment_smoke(tmp_path, monkeypatch):
             row = rec[f"equal_time_{source}_{thr}"]
             assert row["seconds"] > 0 and row["classical_spp"] >= 1 and 0 <= row["mean_t"] <= 1
             assert row["blend_lbv_spp"] == 8
+            # SBF's classical <LBV>, given the blend's seconds, takes its first pass at least.
+            assert row["lbv_spp"] >= 8 and row["relmse_lbv"] > 0
+            assert row["ratio_lbv"] == row["relmse"] / row["relmse_lbv"]
         longer = rec[f"equal_time_{source}_{relight.THRESHOLDS[-1]}_budget"]
         assert longer["blend_lbv_spp"] >= 8 and longer["seconds"] > 0
     assert 0 <= rec["camera_move_bound_holds"] <= 1

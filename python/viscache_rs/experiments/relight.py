@@ -18,7 +18,9 @@ checker after visibility converged (SBF's pattern switch, Fig. 1); ``meshes`` wi
   ``<LBV>``, with its defaults: adaptive counts and light draws per sample, so its spp is
   the mean over pixels) given the blend's seconds; and at 0.25 both given
   ``EQUAL_TIME_SECONDS``, the blend adding passes of ``LBV``-samples (adaptive counts, the
-  default; its ``lbv_spp`` is the mean over pixels): relMSE on RGB against the reference,
+  default; its ``lbv_spp`` is the mean over pixels), and SBF's own classical estimator
+  (the relighter's ``<LBV>`` alone, threshold 0, of the same density) given the same
+  seconds: relMSE on RGB against the reference,
   and the share of pixels whose relative error exceeds the threshold (target at 0.25:
   relMSE <= 0.4x classical, <= 2% of pixels over), both as ``|x - ref| / ref`` and with
   relMSE's denominator ``sqrt(ref^2 + 1e-2)`` (beside product sampling's share): near-black
@@ -148,9 +150,14 @@ def run(ctx: ExperimentContext) -> None:
                 classical = vc.render(setup, cam, method="product", jitter=False, envmap=env,
                                       time_budget=longer or sec, seed=ctx.seed + 4,
                                       threads=threads, progress=False)
+                # SBF's classical estimator: <LBV> of the same density (threshold 0; one
+                # LB-sample, the least the first pass takes), given the same seconds.
+                lbv = rl.render(envmap=env, threshold=0.0, lb_spp=1, lbv_spp=8,
+                                seed=ctx.seed + 4, time_budget=longer or sec)
                 sec = max(sec, classical.stats["seconds"]) if longer else sec
                 e_b = vc.metrics.relmse(res.image, ref.image, ref.variance)
                 e_c = vc.metrics.relmse(classical.image, ref.image, ref.variance)
+                e_l = vc.metrics.relmse(lbv.image, ref.image, ref.variance)
                 over = _over_threshold(res.image, ref, thr)
                 over_floor = _over_threshold(res.image, ref, thr, RELMSE_FLOOR)
                 over_classical = _over_threshold(classical.image, ref, thr, RELMSE_FLOOR)
@@ -158,6 +165,8 @@ def run(ctx: ExperimentContext) -> None:
                     "seconds": sec, "classical_spp": classical.stats["mean_spp"],
                     "blend_lbv_spp": res.stats["lbv_spp_mean"],
                     "relmse": e_b, "relmse_classical": e_c, "ratio": e_b / e_c,
+                    "relmse_lbv": e_l, "ratio_lbv": e_b / e_l,
+                    "lbv_spp": lbv.stats["lbv_spp_mean"],
                     "over_threshold": over, "over_threshold_floor": over_floor,
                     "over_threshold_floor_classical": over_classical,
                     "mean_t": float(np.nanmean(res.t))}
@@ -165,6 +174,8 @@ def run(ctx: ExperimentContext) -> None:
                                   f"{sec:.3f}", f"{res.stats['lbv_spp_mean']:.1f}",
                                   f"{classical.stats['mean_spp']:.1f}",
                                   f"{e_b:.4f}", f"{e_c:.4f}", f"{e_b / e_c:.2f}",
+                                  f"{lbv.stats['lbv_spp_mean']:.1f}", f"{e_l:.4f}",
+                                  f"{e_b / e_l:.2f}",
                                   f"{100 * over:.1f}%", f"{100 * over_floor:.1f}%",
                                   f"{100 * over_classical:.1f}%", f"{np.nanmean(res.t):.2f}"])
         # Overhead: the first frame (Var(LB/p) from 64 LB-samples) against a product render
@@ -218,6 +229,7 @@ def run(ctx: ExperimentContext) -> None:
               "product sampling",
               ["case", "visibility", "threshold", "seconds", "blend lbv_spp",
                "product spp (mean)", "relMSE blend", "relMSE product", "ratio",
+               "<LBV> spp", "relMSE <LBV>", "ratio to <LBV>",
                "pixels over threshold", "over (floor 1e-2)", "product over (floor 1e-2)",
                "mean t"], time_rows)
     ctx.table("Overhead (pixel visibility) and storage",
