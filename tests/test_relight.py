@@ -276,6 +276,20 @@ def test_bit_identical_for_any_thread_count(garage):
     np.testing.assert_array_equal(other.render(threshold=0.1).image, a.image)
 
 
+def test_cache_visibility_is_bit_identical_for_any_thread_count(garage):
+    # The caches each relighter builds, <V> from the records' averages, their spread and
+    # the blend, under an edited map (the map's density changed).
+    setup, cam, _ = garage
+    env = setup.envmap.rotated(45)
+    one = vc.Relighter(setup, cam, visibility="cache", threads=1)
+    two = vc.Relighter(setup, cam, visibility="cache", threads=2)
+    a = one.render(envmap=env, threshold=0.25, lbv_spp=4, threads=1)
+    b = two.render(envmap=env, threshold=0.25, lbv_spp=4, threads=2)
+    assert np.isfinite(a.visibility[..., 0]).sum() > 0
+    for key in ("image", "variance", "error_bound", "t", "bound", "visibility"):
+        np.testing.assert_array_equal(getattr(a, key), getattr(b, key))
+
+
 @pytest.mark.parametrize("kwargs, exc, name", [
     (dict(threshold=-0.1), ValueError, "threshold"),
     (dict(threshold=float("nan")), ValueError, "threshold"),
