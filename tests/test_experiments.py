@@ -183,7 +183,8 @@ def test_relight_experiment_smoke(tmp_path, monkeypatch):
             assert row["seconds"] > 0 and row["classical_spp"] >= 1 and 0 <= row["mean_t"] <= 1
             assert row["blend_lbv_spp"] == 8
             # SBF's classical <LBV>, given the blend's seconds, takes its first pass at least.
-            assert row["lbv_spp"] >= 8 and row["relmse_lbv"] > 0
+            # (relMSE less the reference's own variance share may be below 0 at this size.)
+            assert row["lbv_spp"] >= 8 and np.isfinite(row["relmse_lbv"])
             assert row["ratio_lbv"] == row["relmse"] / row["relmse_lbv"]
         longer = rec[f"equal_time_{source}_{relight.THRESHOLDS[-1]}_budget"]
         assert longer["blend_lbv_spp"] >= 8 and longer["seconds"] > 0
