@@ -64,7 +64,7 @@ use glam::{DVec2, UVec2, Vec3};
 
 use crate::lights::envmap::{EnvMap, LUMINANCE};
 use crate::sampling::distribution::QuadPyramid;
-use crate::sampling::octahedral::{morton_encode, texel_solid_angle};
+use crate::sampling::octahedral::{morton_decode, morton_encode, texel_solid_angle};
 use crate::visibility::cache::{CacheState, Lookup};
 use crate::visibility::record::{word_level, Coverage, VisibilityView};
 
@@ -193,7 +193,7 @@ impl MapChroma {
         let rest = (!peaks.is_empty()).then(|| {
             // Each region's sums without the peak texels it holds.
             for peak in &peaks {
-                let rgb = env.texels()[texel_index(peak.code, res)].map(f64::from);
+                let rgb = texel_rgb(env, peak.code);
                 for (l, level) in levels.iter_mut().enumerate() {
                     let region = (peak.code >> (2 * (depth - l as u32))) as usize;
                     level[region] = std::array::from_fn(|k| level[region][k] - rgb[k]);
@@ -251,10 +251,9 @@ fn over_luminance(rgb: [f64; 3]) -> [f64; 3] {
     }
 }
 
-/// Row-major index of the texel of Morton code `code` in a map of `res` texels a side.
-fn texel_index(code: u32, res: u32) -> usize {
-    let t = crate::sampling::octahedral::morton_decode(code);
-    (t.y * res + t.x) as usize
+/// The RGB radiance of the map's texel of Morton code `code` (at the map's depth).
+fn texel_rgb(env: &EnvMap, code: u32) -> [f64; 3] {
+    env.texel(morton_decode(code)).as_dvec3().to_array()
 }
 
 /// The texels of `env` whose sampling weight exceeds [`PEAK_FACTOR`] times the mean, the
@@ -276,7 +275,7 @@ fn find_peaks(env: &EnvMap) -> Vec<Peak> {
         .filter(|&(_, &w)| w > PEAK_FACTOR * mean)
         .map(|(code, &weight)| Peak {
             code: code as u32,
-            colour: over_luminance(env.texels()[texel_index(code as u32, res)].map(f64::from)),
+            colour: over_luminance(texel_rgb(env, code as u32)),
             weight,
         })
         .collect();
@@ -761,9 +760,7 @@ impl Interpolant {
     /// how much the records that `Ṽ` blends disagree there.
     pub fn record_averages(&self, state: &CacheState, cells: &QuadPyramid) -> Vec<(f32, f64)> {
         let store = state.store();
-        // Cells finer than the records' texels weigh as their sums: the pyramid's level.
-        let level = cells.depth().min(store.m());
-        let texels = TexelWeights::new(cells.level(level), level, store.m());
+        let texels = TexelWeights::new(cells, store.m());
         self.ids()
             .iter()
             .zip(self.betas())
@@ -819,10 +816,12 @@ struct TexelWeights {
 }
 
 impl TexelWeights {
-    /// From the weights of the cells of octahedral level `level <= m` (Morton order).
-    fn new(cell_weights: &[f64], level: u32, m: u32) -> Self {
-        debug_assert!(level <= m && cell_weights.len() == 1 << (2 * level));
-        let total: f64 = cell_weights.iter().sum();
+    /// From the weights of `cells`' finest level over the texels of `4^m`-texel records:
+    /// cells finer than the texels weigh as their sums (the pyramid's level `m`).
+    fn new(cells: &QuadPyramid, m: u32) -> Self {
+        let level = cells.depth().min(m);
+        let cell_weights = cells.level(level);
+        let total = cells.total();
         let scale = if total > 0.0 { 1.0 / total } else { 0.0 };
         // A cell covers 4^(m - level) texels, a Morton range, which share its weight.
         let shift = 2 * (m - level);
@@ -1171,7 +1170,7 @@ mod tests {
     use super::*;
     use crate::bsdf::Material;
     use crate::lights::procedural::sky;
-    use crate::sampling::octahedral::{morton_decode, square_to_sphere};
+    use crate::sampling::octahedral::square_to_sphere;
     use crate::sampling::rng::{hash4, to_unit_f64, SampleRng};
     use crate::visibility::cache::VisibilityCache;
     use crate::visibility::params::CacheParams;
@@ -1404,7 +1403,7 @@ mod tests {
         assert!(!bright.is_empty() && bright.len() <= MAX_PEAKS);
         assert_eq!(c.peaks().iter().map(|p| p.code).collect::<Vec<_>>(), bright);
         let level = 3;
-        let rgb = |t: u32| env.texels()[texel_index(t, env.resolution())].map(f64::from);
+        let rgb = |t: u32| texel_rgb(&env, t);
         for peak in c.peaks() {
             assert!(close(peak.colour, over_luminance(rgb(peak.code)), 1e-12));
             assert_eq!(c.control_colour(peak.code, level), peak.colour);
