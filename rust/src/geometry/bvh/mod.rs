@@ -23,6 +23,7 @@ use super::watertight::{Triangle4, WatertightRay};
 mod build;
 mod closest;
 mod closest_packet;
+mod interleaved;
 mod packet;
 mod shadow;
 #[cfg(test)]
@@ -34,6 +35,7 @@ pub use build::{
     BuildQuality, BvhUpdate, AUTO_ALTERNATIVE, AUTO_MARGIN, AUTO_MAX_TRIANGLES, AUTO_PROBE_RAYS,
     MAX_LEAF, NODE_COST,
 };
+pub use interleaved::LANES;
 pub use packet::PACKET;
 
 /// Traversal stack size: a fixed stack of this size serves trees of depth 18 or less (seven

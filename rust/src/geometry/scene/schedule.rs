@@ -1,12 +1,12 @@
 //! How a batch of shadow rays is traced: fixed chunks (answers never depend on the thread
-//! count), runs from one origin as packets, and large batches in an order of nearby
-//! origins.
+//! count), runs from one origin as packets, bundles in an order of nearby origins, and
+//! scattered rays several at a time where they wait on memory.
 
 use glam::{Vec3, Vec3A};
 use obvhs::ploc::morton::morton_encode_u64;
 use rayon::prelude::*;
 
-use super::{RayBatch, Scene, TMax};
+use super::{RayBatch, Scene};
 use crate::error::Result;
 use crate::geometry::bvh::{Bvh, OccluderHint, TraversalCounters, PACKET};
 use crate::parallel::with_threads;
@@ -27,7 +27,7 @@ const PACKET_COSINE_SQUARED: f32 = 0.5;
 pub(super) const SPATIAL_ORDER_MIN: usize = 1 << 16;
 
 /// Least mean number of node visits per ray, over a sample of a batch, for
-/// [`Scene::occluded`] to reorder it by origin.
+/// [`Scene::occluded`] to reorder its bundles by origin or to interleave its scattered rays.
 const SPATIAL_ORDER_NODES: f64 = 6.0;
 
 /// Whether `directions` (non-zero) lie within 45° of their sum (their mean direction when
@@ -45,13 +45,14 @@ fn coherent(directions: &[Vec3A]) -> bool {
         })
 }
 
-/// How [`Scene::occluded`] traces a batch (see [`Scene::spatial_order`]).
+/// How [`Scene::occluded`] traces a batch (see [`Scene::trace_order`]).
 #[derive(Debug, PartialEq)]
 pub(super) enum TraceOrder {
     /// In the order given.
     Given,
-    /// Ray after ray in this order (a permutation of the batch).
-    Rays(Vec<u32>),
+    /// In the order given, rays alone at their origin [`LANES`](crate::geometry::bvh::LANES) at a time in turns
+    /// ([`Bvh::occluded_interleaved_at`]).
+    Interleaved,
     /// Run after run of rays from one origin (ranges of the batch), in this order.
     Runs(Vec<std::ops::Range<u32>>),
 }
@@ -87,23 +88,26 @@ fn occluded_chunk_counting(
     base: usize,
     out: &mut [bool],
     counters: &mut TraversalCounters,
+    interleave: bool,
 ) {
     if counting {
-        occluded_chunk::<true>(bvh, rays, base, out, counters);
+        occluded_chunk::<true>(bvh, rays, base, out, counters, interleave);
     } else {
-        occluded_chunk::<false>(bvh, rays, base, out, counters);
+        occluded_chunk::<false>(bvh, rays, base, out, counters, interleave);
     }
 }
 
 /// [`Scene::occluded`] on rays `base..base + out.len()`, compiled for this CPU's
 /// instruction set with the single-ray traversal inlined into its loop (one call and one
-/// instruction-set dispatch less per ray).
+/// instruction-set dispatch less per ray). `interleave` asks for rays alone at their
+/// origin to be traced several at a time, where the tree allows it ([`Bvh::interleaves`]).
 fn occluded_chunk<const COUNT: bool>(
     bvh: &Bvh,
     rays: &RayBatch,
     base: usize,
     out: &mut [bool],
     counters: &mut TraversalCounters,
+    interleave: bool,
 ) {
     crate::simd::dispatch(OccludedChunk::<COUNT> {
         bvh,
@@ -111,6 +115,7 @@ fn occluded_chunk<const COUNT: bool>(
         base,
         out,
         counters,
+        interleave,
     });
 }
 
@@ -121,6 +126,7 @@ pub(super) struct OccludedChunk<'a, const COUNT: bool> {
     pub(super) base: usize,
     pub(super) out: &'a mut [bool],
     pub(super) counters: &'a mut TraversalCounters,
+    pub(super) interleave: bool,
 }
 
 impl<const COUNT: bool> Kernel for OccludedChunk<'_, COUNT> {
@@ -134,16 +140,17 @@ impl<const COUNT: bool> Kernel for OccludedChunk<'_, COUNT> {
             base,
             out,
             counters,
+            interleave,
         } = self;
         // No closure for the single-ray traversal: a closure takes the target features of
         // the function that defines it, which here has none, and one left as a call would
         // run the portable target's code.
-        occluded_chunk_with::<COUNT, L>(bvh, rays, base, out, counters, level);
+        occluded_chunk_with::<COUNT, L>(bvh, rays, base, out, counters, interleave, level);
     }
 }
 
 /// The loop of [`occluded_chunk`], tracing single rays with the box tests of instruction
-/// set `level` ([`Bvh::occluded_hinted_at`]).
+/// set `level` ([`Bvh::occluded_hinted_at`], [`Bvh::occluded_interleaved_at`]).
 #[inline(always)]
 fn occluded_chunk_with<const COUNT: bool, L: Level>(
     bvh: &Bvh,
@@ -151,12 +158,16 @@ fn occluded_chunk_with<const COUNT: bool, L: Level>(
     base: usize,
     out: &mut [bool],
     counters: &mut TraversalCounters,
+    interleave: bool,
     level: L,
 ) {
     let origins = &rays.origins[base..base + out.len()];
     // Origins compared bit for bit (-0.0 and 0.0 would round apart), each read once.
     let bits = |k: usize| origins.get(k).map(|o| o.map(f32::to_bits));
     let mut hint = OccluderHint::NONE;
+    // Rays alone at their origin, traced together after the loop.
+    let interleave = interleave && bvh.interleaves::<L>();
+    let mut singles = Vec::new();
     let (mut k, mut next) = (0, bits(0));
     while let Some(origin) = next {
         let i = base + k;
@@ -184,6 +195,8 @@ fn occluded_chunk_with<const COUNT: bool, L: Level>(
             for (l, slot) in out[k..k + run].iter_mut().enumerate() {
                 *slot = occluded >> l & 1 != 0;
             }
+        } else if run == 1 && interleave {
+            singles.push(k);
         } else {
             // One by one: a run too short or too wide for a packet.
             for (l, slot) in out[k..k + run].iter_mut().enumerate() {
@@ -196,6 +209,15 @@ fn occluded_chunk_with<const COUNT: bool, L: Level>(
             hint = OccluderHint::NONE;
         }
         k += run;
+    }
+    if !singles.is_empty() {
+        let ray = |s: usize| {
+            let (k, i) = (singles[s], base + singles[s]);
+            let o = Vec3A::from(origins[k]);
+            (o, Vec3A::from(rays.directions[i]), rays.tmax_of(i))
+        };
+        let answer = |s: usize, occluded: bool| out[singles[s]] = occluded;
+        bvh.occluded_interleaved_at::<COUNT, L>(singles.len(), ray, answer, counters, level);
     }
 }
 
@@ -273,56 +295,66 @@ impl Scene {
     /// packets ([`Bvh::occluded_packet`]); other rays one by one, first trying the previous
     /// ray's occluder when it shared their origin. The answers are the same either way.
     ///
-    /// Large batches of scattered rays in trees larger than a core's L2 cache, whose rays
-    /// visit many nodes (judged on every 256th ray), are traced in the Morton order of their
-    /// origins and answered in the given order: consecutive rays then reuse the same
-    /// nodes and triangles from cache (measured on garden's incoherent shadow rays). The order
-    /// depends only on the rays, so answers and counters are the same for any thread
-    /// count; the sample that decides is not counted.
+    /// Large batches in trees larger than a core's L2 cache, whose rays visit many nodes
+    /// (judged on every 256th ray), wait on memory. Their record bundles are traced in the
+    /// Morton order of their origins, so that consecutive bundles reuse the same nodes and
+    /// triangles from cache; their scattered rays [`LANES`](crate::geometry::bvh::LANES) at a time in turns, so that
+    /// the rays' waits overlap ([`Bvh::occluded_interleaved_at`]). Answers come in the given
+    /// order. The choice depends only on the rays, so answers and counters are the same for
+    /// any thread count; the sample that decides is not counted.
     pub fn occluded(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
         rays.validate_shape()?;
+        let mut interleave = false;
         if self.may_reorder(rays) {
             rays.validate()?;
-            match with_threads(threads, || self.spatial_order(rays))? {
-                TraceOrder::Rays(order) => return self.occluded_in_order(rays, &order, threads),
+            match with_threads(threads, || self.trace_order(rays))? {
                 TraceOrder::Runs(runs) => return self.occluded_by_runs(rays, &runs, threads),
+                TraceOrder::Interleaved => interleave = true,
                 TraceOrder::Given => {}
             }
         }
-        self.occluded_as_given(rays, threads)
+        self.occluded_as_given(rays, threads, interleave)
     }
 
     /// [`Scene::occluded`] on rays of checked lengths, traced in the order given. Each
     /// chunk validates its rays before tracing them, while they are in cache (a separate
     /// pass over the batch cost measurable time on cornell's incoherent shadow rays);
-    /// counters are added only when every ray is valid.
-    fn occluded_as_given(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
+    /// counters are added only when every ray is valid. `interleave`: as
+    /// [`TraceOrder::Interleaved`].
+    fn occluded_as_given(
+        &self,
+        rays: &RayBatch,
+        threads: Option<usize>,
+        interleave: bool,
+    ) -> Result<Vec<bool>> {
         let counting = self.counting_enabled();
         self.try_map_chunks(rays.len(), threads, |base, out, counters| {
             if let Some(bad) = rays.first_bad(base..base + out.len()) {
                 return Err(bad);
             }
             let bvh = self.bvh();
-            occluded_chunk_counting(counting, bvh, rays, base, out, counters);
+            occluded_chunk_counting(counting, bvh, rays, base, out, counters, interleave);
             Ok(())
         })?
         .map_err(|bad| rays.error_at(bad))
     }
 
-    /// Whether [`Self::spatial_order`] may reorder `rays`: a large batch in a tree larger
-    /// than L2.
+    /// Whether [`Self::trace_order`] may choose other than [`TraceOrder::Given`]: a large
+    /// batch in a tree larger than L2.
     fn may_reorder(&self, rays: &RayBatch) -> bool {
         rays.len() >= SPATIAL_ORDER_MIN && self.bvh().outgrows_l2()
     }
 
-    /// An order of the rays (valid ones) in which consecutive ones start near each other
-    /// (Morton order of their origins; ties in the given order), for large trees and large
-    /// batches whose rays visit many nodes; [`TraceOrder::Given`] where tracing in the
-    /// given order is as good. Runs of rays from one origin (record bundles) are coherent
-    /// already and stay whole: the runs are ordered by their origins instead, so that
-    /// consecutive bundles start near each other and share the nodes and blades they read;
-    /// runs already in that order are left as given.
-    pub(super) fn spatial_order(&self, rays: &RayBatch) -> TraceOrder {
+    /// How to trace `rays` (valid ones), for large trees and large batches whose rays
+    /// visit many nodes; [`TraceOrder::Given`] elsewhere. Runs of rays from one origin
+    /// (record bundles) are coherent already and stay whole: the runs are ordered by the
+    /// Morton order of their origins (ties in the given order), so that consecutive bundles
+    /// start near each other and share the nodes and blades they read; runs already in that
+    /// order are left as given. Scattered rays are interleaved in the given order
+    /// ([`TraceOrder::Interleaved`]): on blob and instances 1.2-1.5x faster than tracing them
+    /// one by one in the Morton order of their origins (whose sort and copies cost more
+    /// than its locality gained there), as fast on garden (benches/README.md).
+    pub(super) fn trace_order(&self, rays: &RayBatch) -> TraceOrder {
         let n = rays.len();
         let bvh = self.bvh();
         if !self.may_reorder(rays) {
@@ -358,6 +390,9 @@ impl Scene {
         if (sample.nodes as f64) < SPATIAL_ORDER_NODES * sample.rays as f64 {
             return TraceOrder::Given;
         }
+        if !bundles {
+            return TraceOrder::Interleaved;
+        }
         let b = self.bounds();
         let top = (1 << 21) as f32 - 1.0;
         let scale = Vec3::splat(top) / (b.max - b.min).max(Vec3::splat(1e-30));
@@ -365,17 +400,7 @@ impl Scene {
             let q = ((Vec3::from(*o) - b.min) * scale).clamp(Vec3::ZERO, Vec3::splat(top));
             morton_encode_u64(q.x as u32, q.y as u32, q.z as u32)
         };
-        if bundles {
-            return bundle_order(rays.origins, key).map_or(TraceOrder::Given, TraceOrder::Runs);
-        }
-        let mut keyed: Vec<(u64, u32)> = rays
-            .origins
-            .par_iter()
-            .enumerate()
-            .map(|(i, o)| (key(o), i as u32))
-            .collect();
-        keyed.par_sort_unstable();
-        TraceOrder::Rays(keyed.into_iter().map(|(_, i)| i).collect())
+        bundle_order(rays.origins, key).map_or(TraceOrder::Given, TraceOrder::Runs)
     }
 
     /// [`Scene::occluded`] on valid rays traced run after run in the order of `runs`
@@ -411,7 +436,8 @@ impl Scene {
                     let mut k = 0;
                     for run in runs {
                         let (base, slots) = (run.start as usize, &mut out[k..k + run.len()]);
-                        occluded_chunk_counting(counting, bvh, rays, base, slots, &mut counters);
+                        let c = &mut counters;
+                        occluded_chunk_counting(counting, bvh, rays, base, slots, c, false);
                         k += run.len();
                     }
                     (out, counters)
@@ -431,37 +457,5 @@ impl Scene {
             self.add_counters(counters);
             out
         })
-    }
-
-    /// [`Scene::occluded`] traced in `order` (a permutation of the rays), answered in the
-    /// given order.
-    fn occluded_in_order(
-        &self,
-        rays: &RayBatch,
-        order: &[u32],
-        threads: Option<usize>,
-    ) -> Result<Vec<bool>> {
-        let origins: Vec<[f32; 3]> = order.iter().map(|&i| rays.origins[i as usize]).collect();
-        let directions: Vec<[f32; 3]> =
-            order.iter().map(|&i| rays.directions[i as usize]).collect();
-        let per_ray: Vec<f32>;
-        let tmax = match rays.tmax {
-            TMax::Scalar(t) => TMax::Scalar(t),
-            TMax::PerRay(t) => {
-                per_ray = order.iter().map(|&i| t[i as usize]).collect();
-                TMax::PerRay(&per_ray)
-            }
-        };
-        let sorted = RayBatch {
-            origins: &origins,
-            directions: &directions,
-            tmax,
-        };
-        let answers = self.occluded_as_given(&sorted, threads)?;
-        let mut out = vec![false; rays.len()];
-        for (&i, a) in order.iter().zip(answers) {
-            out[i as usize] = a;
-        }
-        Ok(out)
     }
 }

@@ -115,8 +115,8 @@ fn batch_answers_and_counters() {
     assert_eq!(s.counters(), TraversalCounters::default());
 }
 
-/// Large batches of scattered rays in a tree larger than L2 are traced in the Morton
-/// order of their origins, and record bundles in the Morton order of their points;
+/// Large batches of scattered rays in a tree larger than L2 are interleaved, and record
+/// bundles traced in the Morton order of their points;
 /// they answer as each ray traced alone, with counters that count the batch's rays,
 /// the same on one and two threads. Batches that take that path and batches that do
 /// not (too few rays, bundles already in order) are both covered.
@@ -130,12 +130,12 @@ fn reordered_batches_answer_as_single_rays() {
     let (o, d) = crate::testing::ground_hemisphere_rays(&scene, SPATIAL_ORDER_MIN + 77, 5);
     let rays = RayBatch::new(&o, &d);
     assert!(
-        matches!(scene.spatial_order(&rays), TraceOrder::Rays(_)),
-        "this batch must be reordered"
+        scene.trace_order(&rays) == TraceOrder::Interleaved,
+        "this batch must be interleaved"
     );
     let (bo, bd) = crate::testing::record_bundle_rays(&scene, 70, 32, 5);
     let bundles = RayBatch::new(&bo, &bd);
-    let TraceOrder::Runs(order) = scene.spatial_order(&bundles) else {
+    let TraceOrder::Runs(order) = scene.trace_order(&bundles) else {
         panic!("scattered bundles are reordered")
     };
     // Each bundle is traced whole, from its first ray to its last.
@@ -147,11 +147,11 @@ fn reordered_batches_answer_as_single_rays() {
         .flat_map(|&k| (k as usize * 1024..(k as usize + 1) * 1024).map(|i| (bo[i], bd[i])))
         .unzip();
     assert!(
-        scene.spatial_order(&RayBatch::new(&so, &sd)) == TraceOrder::Given,
+        scene.trace_order(&RayBatch::new(&so, &sd)) == TraceOrder::Given,
         "bundles in order stay as given"
     );
     let few = RayBatch::new(&o[..1000], &d[..1000]);
-    assert_eq!(scene.spatial_order(&few), TraceOrder::Given);
+    assert_eq!(scene.trace_order(&few), TraceOrder::Given);
     let cycled_tmax =
         |n: usize| -> Vec<f32> { (0..n).map(|i| [f32::INFINITY, 0.05, 0.3][i % 3]).collect() };
     let tmax = cycled_tmax(o.len());
@@ -317,6 +317,7 @@ fn runs_of_any_length_answer_as_single_rays() {
             base: 0,
             out,
             counters: c,
+            interleave: false,
         };
         crate::simd::run_at(SimdLevel::Portable, kernel).expect("any CPU")
     });
@@ -329,6 +330,7 @@ fn runs_of_any_length_answer_as_single_rays() {
                 base: 0,
                 out,
                 counters: c,
+                interleave: false,
             };
             // Nothing to compare on CPUs without `simd`.
             if crate::simd::run_at(simd, kernel).is_none() {
@@ -338,6 +340,79 @@ fn runs_of_any_length_answer_as_single_rays() {
         });
         assert_eq!(vector, portable, "{simd:?}");
     }
+}
+
+/// Scattered rays traced [`crate::geometry::bvh::LANES`] at a time in turns (a tree larger
+/// than L2, under every instruction set the CPU has): each answers as traced alone, with
+/// per-ray `tmax` (some segments ending before any occluder), and the node and triangle
+/// counts are the sum of the single rays'. Batches shorter than the lanes, and empty
+/// ones, too; runs from one origin within them keep their packets and hints.
+#[test]
+fn interleaved_rays_answer_and_count_as_single_rays() {
+    let s = crate::scenes::load("garden", 0.25, 3).unwrap().scene;
+    let bvh = s.bvh();
+    assert!(bvh.outgrows_l2(), "the test needs a tree larger than L2");
+    let (mut origins, mut dirs) = crate::testing::ground_hemisphere_rays(&s, 3000, 9);
+    let mut tmax: Vec<f32> = (0..origins.len())
+        .map(|i| [f32::INFINITY, 0.05, 0.3, 2.0][i % 4])
+        .collect();
+    // A bundle of one origin among the scattered rays, traced as a packet either way.
+    let (bo, bd) = crate::testing::record_bundle_rays(&s, 1, 8, 4);
+    origins.splice(1500..1500, bo[..64].iter().copied());
+    dirs.splice(1500..1500, bd[..64].iter().copied());
+    tmax.splice(1500..1500, [f32::INFINITY; 64]);
+    s.set_counting(true);
+    // Each ray alone, and the counters of the first 1500 (scattered) ones.
+    let mut counted = TraversalCounters::default();
+    let single: Vec<bool> = (0..origins.len())
+        .map(|i| {
+            let (o, d) = (Vec3::from(origins[i]), Vec3::from(dirs[i]));
+            let mut c = TraversalCounters::default();
+            let occluded = s.occluded1(o, d, tmax[i], &mut c);
+            if i < 1500 {
+                counted += c;
+            }
+            occluded
+        })
+        .collect();
+    let occluded = single.iter().filter(|&&b| b).count();
+    assert!(occluded > 300 && occluded < 2700, "{occluded}");
+    assert_eq!(counted.rays, 1500);
+    let trace = |simd: SimdLevel, n: usize, interleave: bool| {
+        let rays = RayBatch {
+            origins: &origins[..n],
+            directions: &dirs[..n],
+            tmax: TMax::PerRay(&tmax[..n]),
+        };
+        let (mut out, mut counters) = (vec![false; n], TraversalCounters::default());
+        let kernel = OccludedChunk::<true> {
+            bvh,
+            rays: &rays,
+            base: 0,
+            out: &mut out,
+            counters: &mut counters,
+            interleave,
+        };
+        crate::simd::run_at(simd, kernel).map(|()| (out, counters))
+    };
+    let mut levels = 0;
+    for simd in [SimdLevel::Portable, SimdLevel::Avx2, SimdLevel::Avx512] {
+        for n in [0, 3, origins.len()] {
+            let Some(interleaved) = trace(simd, n, true) else {
+                continue; // a CPU without `simd`
+            };
+            levels += 1;
+            let given = trace(simd, n, false).unwrap();
+            assert_eq!(interleaved, given, "{simd:?}, {n} rays");
+        }
+        let (answers, counters) = trace(simd, 1500, true).unwrap();
+        assert_eq!(answers, single[..1500], "{simd:?}");
+        assert_eq!(counters, counted, "{simd:?}");
+        let (all, _) = trace(simd, origins.len(), true).unwrap();
+        assert_eq!(all, single, "{simd:?}");
+    }
+    assert!(levels >= 3);
+    s.set_counting(false);
 }
 
 /// `n` rays from points uniform in `b` (grown by `margin`) in uniform directions, some
