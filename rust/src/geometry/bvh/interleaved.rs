@@ -10,8 +10,9 @@
 
 use glam::Vec3A;
 
+use super::shadow::AnyHitStep;
 use super::{Bvh, LocalRay, TraversalCounters, STACK};
-use crate::geometry::bvh8::{decode, BoundedStack, BoxTest, Child, LevelBoxTest, TraversalStack};
+use crate::geometry::bvh8::{BoundedStack, LevelBoxTest, TraversalStack};
 use crate::simd::Level;
 
 /// Rays in flight: enough steps of other rays between a request and its use to cover a
@@ -73,28 +74,15 @@ impl Bvh {
         let mut j = 0;
         while !lanes.is_empty() {
             let lane = &mut lanes[j];
-            let r = &lane.ray;
             // One step: a leaf's triangles, or a node's children pushed and requested.
-            let occluded = match decode(lane.next) {
-                Child::Leaf { first, count } => {
-                    if COUNT {
-                        tests += count as u64;
-                    }
-                    let (hit, ..) = r
-                        .watertight
-                        .intersect4(&self.blocks[first as usize], r.tmax);
-                    hit != 0
-                }
-                Child::Node(node) => {
-                    let node = &self.tree.nodes[node as usize];
-                    if COUNT {
-                        nodes += 1;
-                    }
-                    let (_, mut mask) = box_test.test(node, &r.boxes, r.tmax);
+            let occluded = match self
+                .any_hit_step::<COUNT>(&lane.ray, lane.next, box_test, &mut nodes, &mut tests)
+            {
+                AnyHitStep::Leaf(hit) => hit,
+                AnyHitStep::Node(_, node, mut mask) => {
                     while mask != 0 {
-                        let i = mask.trailing_zeros() as usize;
+                        let child = node.child(mask.trailing_zeros() as usize);
                         mask &= mask - 1;
-                        let child = node.child(i);
                         self.request_child(node, child, true);
                         lane.stack.push(child);
                     }

@@ -175,25 +175,13 @@ impl Bvh {
         let mut entry = (start, NO_NODE);
         let mut occluder = None;
         loop {
-            match decode(entry.0) {
-                Child::Leaf { first, count } => {
-                    if COUNT {
-                        tests += count as u64;
-                    }
-                    let (hit, ..) = r
-                        .watertight
-                        .intersect4(&self.blocks[first as usize], r.tmax);
-                    if hit != 0 {
-                        occluder = Some(entry.1);
-                        break;
-                    }
+            match self.any_hit_step::<COUNT>(r, entry.0, box_test, &mut nodes, &mut tests) {
+                AnyHitStep::Leaf(true) => {
+                    occluder = Some(entry.1);
+                    break;
                 }
-                Child::Node(node) => {
-                    let n = &self.tree.nodes[node as usize];
-                    if COUNT {
-                        nodes += 1;
-                    }
-                    let (_, mut mask) = box_test.test(n, &r.boxes, r.tmax);
+                AnyHitStep::Leaf(false) => {}
+                AnyHitStep::Node(node, n, mut mask) => {
                     while mask != 0 {
                         let i = mask.trailing_zeros() as usize;
                         mask &= mask - 1;
@@ -214,6 +202,46 @@ impl Bvh {
             counters.triangles += tests;
         }
         occluder
+    }
+}
+
+/// What one step of an any-hit walk found at a child reference.
+pub(super) enum AnyHitStep<'a> {
+    /// A leaf, and whether one of its triangles lies on the ray's segment.
+    Leaf(bool),
+    /// A node: its index, the node, and the mask of the children whose boxes the ray
+    /// touches.
+    Node(u32, &'a Node8, u32),
+}
+
+impl Bvh {
+    /// One step of an any-hit walk at child reference `entry`: a leaf's triangle test or a
+    /// node's box test, counted in `nodes` and `tests` when `COUNT`.
+    #[inline(always)]
+    pub(super) fn any_hit_step<const COUNT: bool>(
+        &self,
+        r: &LocalRay,
+        entry: u32,
+        box_test: impl BoxTest,
+        nodes: &mut u64,
+        tests: &mut u64,
+    ) -> AnyHitStep<'_> {
+        match decode(entry) {
+            Child::Leaf { first, count } => {
+                if COUNT {
+                    *tests += count as u64;
+                }
+                let block = &self.blocks[first as usize];
+                AnyHitStep::Leaf(r.watertight.intersect4(block, r.tmax).0 != 0)
+            }
+            Child::Node(node) => {
+                let n = &self.tree.nodes[node as usize];
+                if COUNT {
+                    *nodes += 1;
+                }
+                AnyHitStep::Node(node, n, box_test.test(n, &r.boxes, r.tmax).1)
+            }
+        }
     }
 }
 
