@@ -80,26 +80,7 @@ impl Bvh {
                     if COUNT {
                         tests += count as u64;
                     }
-                    let (mut hit, t, u, v) = r
-                        .watertight
-                        .intersect4(&self.blocks[first as usize], best_t);
-                    let (t, u, v) = (t.to_array(), u.to_array(), v.to_array());
-                    // Nearest lane; the lowest lane wins ties, so the answer is deterministic.
-                    while hit != 0 {
-                        let l = hit.trailing_zeros() as usize;
-                        hit &= hit - 1;
-                        if t[l] < best_t {
-                            best_t = t[l];
-                            best = Some((
-                                first * 4 + l as u32,
-                                TriangleHit {
-                                    t: t[l],
-                                    u: u[l],
-                                    v: v[l],
-                                },
-                            ));
-                        }
-                    }
+                    self.nearest_in_leaf(r, first, &mut best_t, &mut best);
                 }
                 Child::Node(c) => {
                     let n = &self.tree.nodes[c as usize];
@@ -121,6 +102,44 @@ impl Bvh {
             counters.nodes += nodes;
             counters.triangles += tests;
         }
+        self.closest_of(r, best)
+    }
+
+    /// Tests leaf block `first` against `r` for hits nearer than `best_t`, keeping the
+    /// nearest (its slot and hit) in `best` and its distance in `best_t`.
+    #[inline(always)]
+    pub(super) fn nearest_in_leaf(
+        &self,
+        r: &LocalRay,
+        first: u32,
+        best_t: &mut f32,
+        best: &mut Option<(u32, TriangleHit)>,
+    ) {
+        let (mut hit, t, u, v) = r
+            .watertight
+            .intersect4(&self.blocks[first as usize], *best_t);
+        let (t, u, v) = (t.to_array(), u.to_array(), v.to_array());
+        // Nearest lane; the lowest lane wins ties, so the answer is deterministic.
+        while hit != 0 {
+            let l = hit.trailing_zeros() as usize;
+            hit &= hit - 1;
+            if t[l] < *best_t {
+                *best_t = t[l];
+                *best = Some((
+                    first * 4 + l as u32,
+                    TriangleHit {
+                        t: t[l],
+                        u: u[l],
+                        v: v[l],
+                    },
+                ));
+            }
+        }
+    }
+
+    /// The caller's hit for the nearest slot and hit a walk of `r` kept.
+    #[inline(always)]
+    pub(super) fn closest_of(&self, r: &LocalRay, best: Option<(u32, TriangleHit)>) -> Option<Hit> {
         best.map(|(slot, h)| Hit {
             t: h.t * r.t_to_param,
             triangle: self.triangle_ids[slot as usize],

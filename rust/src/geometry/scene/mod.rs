@@ -387,11 +387,7 @@ impl Scene {
     /// Closest hits.
     pub fn intersect(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Hits> {
         rays.validate()?;
-        let found = self.map_rays(rays.len(), threads, |i, c| {
-            let o = Vec3::from(rays.origins[i]);
-            let d = Vec3::from(rays.directions[i]);
-            self.intersect1(o, d, rays.tmax_of(i), c)
-        })?;
+        let found = self.closest_hits(rays, threads)?;
         let n = found.len();
         let mut hits = Hits {
             t: Vec::with_capacity(n),
@@ -403,7 +399,7 @@ impl Scene {
             normal: Vec::with_capacity(n),
         };
         for h in found {
-            let (t, prim, obj, u, v, p, nrm) = match h {
+            let (t, prim, obj, u, v, p, nrm) = match h.map(|h| self.surface_hit(h)) {
                 Some(h) => (
                     h.t,
                     h.prim as i32,

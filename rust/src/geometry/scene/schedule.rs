@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::{RayBatch, Scene};
 use crate::error::Result;
-use crate::geometry::bvh::{Bvh, OccluderHint, TraversalCounters, PACKET};
+use crate::geometry::bvh::{Bvh, Hit, OccluderHint, TraversalCounters, PACKET};
 use crate::parallel::with_threads;
 use crate::simd::{Kernel, Level};
 
@@ -80,53 +80,60 @@ pub(super) fn bundle_order(
     Some(runs.into_iter().map(|(_, s, e)| s..e).collect())
 }
 
-/// [`occluded_chunk`] with counters on or off.
-fn occluded_chunk_counting(
+/// Rays `base..base + out.len()` of a batch, answered into `out` by a [`Kernel`] compiled
+/// once per instruction set, with the traversal inlined into its loop (one call and one
+/// instruction-set dispatch less per ray): shadow queries into `bool`s ([`Scene::occluded`]),
+/// closest hits into `Option<Hit>`s ([`Scene::closest_hits`]). `interleave` asks for
+/// scattered rays to be traced several at a time, where the tree allows it
+/// ([`Bvh::interleaves`]).
+pub(super) struct Chunk<'a, T, const COUNT: bool> {
+    pub(super) bvh: &'a Bvh,
+    pub(super) rays: &'a RayBatch<'a>,
+    pub(super) base: usize,
+    pub(super) out: &'a mut [T],
+    pub(super) counters: &'a mut TraversalCounters,
+    pub(super) interleave: bool,
+}
+
+/// The shadow-query chunk kernel.
+pub(super) type OccludedChunk<'a, const COUNT: bool> = Chunk<'a, bool, COUNT>;
+
+/// The closest-hit chunk kernel.
+pub(super) type ClosestChunk<'a, const COUNT: bool> = Chunk<'a, Option<Hit>, COUNT>;
+
+/// Answers rays `base..base + out.len()` of `rays` into `out` ([`Chunk`]), with counters
+/// on or off.
+fn trace_chunk<T>(
     counting: bool,
     bvh: &Bvh,
     rays: &RayBatch,
     base: usize,
-    out: &mut [bool],
+    out: &mut [T],
     counters: &mut TraversalCounters,
     interleave: bool,
-) {
+) where
+    for<'a> Chunk<'a, T, true>: Kernel<Output = ()>,
+    for<'a> Chunk<'a, T, false>: Kernel<Output = ()>,
+{
     if counting {
-        occluded_chunk::<true>(bvh, rays, base, out, counters, interleave);
+        crate::simd::dispatch(Chunk::<T, true> {
+            bvh,
+            rays,
+            base,
+            out,
+            counters,
+            interleave,
+        });
     } else {
-        occluded_chunk::<false>(bvh, rays, base, out, counters, interleave);
+        crate::simd::dispatch(Chunk::<T, false> {
+            bvh,
+            rays,
+            base,
+            out,
+            counters,
+            interleave,
+        });
     }
-}
-
-/// [`Scene::occluded`] on rays `base..base + out.len()`, compiled for this CPU's
-/// instruction set with the single-ray traversal inlined into its loop (one call and one
-/// instruction-set dispatch less per ray). `interleave` asks for rays alone at their
-/// origin to be traced several at a time, where the tree allows it ([`Bvh::interleaves`]).
-fn occluded_chunk<const COUNT: bool>(
-    bvh: &Bvh,
-    rays: &RayBatch,
-    base: usize,
-    out: &mut [bool],
-    counters: &mut TraversalCounters,
-    interleave: bool,
-) {
-    crate::simd::dispatch(OccludedChunk::<COUNT> {
-        bvh,
-        rays,
-        base,
-        out,
-        counters,
-        interleave,
-    });
-}
-
-/// [`occluded_chunk`] as a [`Kernel`], compiled once per instruction set.
-pub(super) struct OccludedChunk<'a, const COUNT: bool> {
-    pub(super) bvh: &'a Bvh,
-    pub(super) rays: &'a RayBatch<'a>,
-    pub(super) base: usize,
-    pub(super) out: &'a mut [bool],
-    pub(super) counters: &'a mut TraversalCounters,
-    pub(super) interleave: bool,
 }
 
 impl<const COUNT: bool> Kernel for OccludedChunk<'_, COUNT> {
@@ -134,7 +141,7 @@ impl<const COUNT: bool> Kernel for OccludedChunk<'_, COUNT> {
 
     #[inline(always)]
     fn run<L: Level>(self, level: L) {
-        let OccludedChunk {
+        let Chunk {
             bvh,
             rays,
             base,
@@ -149,7 +156,32 @@ impl<const COUNT: bool> Kernel for OccludedChunk<'_, COUNT> {
     }
 }
 
-/// The loop of [`occluded_chunk`], tracing single rays with the box tests of instruction
+impl<const COUNT: bool> Kernel for ClosestChunk<'_, COUNT> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<L: Level>(self, level: L) {
+        let (bvh, rays, base, out, counters) =
+            (self.bvh, self.rays, self.base, self.out, self.counters);
+        let ray = |k: usize| {
+            let i = base + k;
+            let (o, d) = (rays.origins[i], rays.directions[i]);
+            (Vec3A::from(o), Vec3A::from(d), rays.tmax_of(i))
+        };
+        if self.interleave && bvh.interleaves::<L>() {
+            let n = out.len();
+            let answer = |k: usize, hit: Option<Hit>| out[k] = hit;
+            bvh.intersect_interleaved_at::<COUNT, L>(n, ray, answer, counters, level);
+        } else {
+            for (k, slot) in out.iter_mut().enumerate() {
+                let (o, d, t) = ray(k);
+                *slot = bvh.intersect::<COUNT>(o, d, t, counters);
+            }
+        }
+    }
+}
+
+/// The loop of [`OccludedChunk`], tracing single rays with the box tests of instruction
 /// set `level` ([`Bvh::occluded_hinted_at`], [`Bvh::occluded_interleaved_at`]).
 #[inline(always)]
 fn occluded_chunk_with<const COUNT: bool, L: Level>(
@@ -333,7 +365,7 @@ impl Scene {
                 return Err(bad);
             }
             let bvh = self.bvh();
-            occluded_chunk_counting(counting, bvh, rays, base, out, counters, interleave);
+            trace_chunk(counting, bvh, rays, base, out, counters, interleave);
             Ok(())
         })?
         .map_err(|bad| rays.error_at(bad))
@@ -367,27 +399,10 @@ impl Scene {
             .filter(|w| w[0] == w[1])
             .count();
         let bundles = repeated * 2 > n.div_ceil(61);
-        // Rays that leave the tree after a node or two (a small object under an open sky)
-        // gain nothing: trace a sample of every 256th ray and reorder only when rays visit
-        // many nodes, as they do in dense geometry that waits on memory.
-        let sample = (0..n)
-            .into_par_iter()
-            .step_by(256)
-            .map(|i| {
-                let mut c = TraversalCounters::default();
-                bvh.occluded::<true>(
-                    Vec3A::from(rays.origins[i]),
-                    Vec3A::from(rays.directions[i]),
-                    rays.tmax_of(i),
-                    &mut c,
-                );
-                c
-            })
-            .reduce(TraversalCounters::default, |mut a, b| {
-                a += b;
-                a
-            });
-        if (sample.nodes as f64) < SPATIAL_ORDER_NODES * sample.rays as f64 {
+        let visits_many = self.visits_many(rays, |o, d, t, c| {
+            bvh.occluded::<true>(o, d, t, c);
+        });
+        if !visits_many {
             return TraceOrder::Given;
         }
         if !bundles {
@@ -401,6 +416,55 @@ impl Scene {
             morton_encode_u64(q.x as u32, q.y as u32, q.z as u32)
         };
         bundle_order(rays.origins, key).map_or(TraceOrder::Given, TraceOrder::Runs)
+    }
+
+    /// Whether `rays` visit [`SPATIAL_ORDER_NODES`] or more nodes per ray, judged on every
+    /// 256th one traced by `trace` (origin, direction, `tmax`, counters). Rays that leave
+    /// the tree after a node or two (a small object under an open sky) gain nothing from
+    /// another order; rays in dense geometry, which wait on memory, do. The sample is not
+    /// counted.
+    fn visits_many(
+        &self,
+        rays: &RayBatch,
+        trace: impl Fn(Vec3A, Vec3A, f32, &mut TraversalCounters) + Sync,
+    ) -> bool {
+        let sample = (0..rays.len())
+            .into_par_iter()
+            .step_by(256)
+            .map(|i| {
+                let mut c = TraversalCounters::default();
+                let (o, d) = (rays.origins[i], rays.directions[i]);
+                trace(Vec3A::from(o), Vec3A::from(d), rays.tmax_of(i), &mut c);
+                c
+            })
+            .reduce(TraversalCounters::default, |mut a, b| {
+                a += b;
+                a
+            });
+        sample.nodes as f64 >= SPATIAL_ORDER_NODES * sample.rays as f64
+    }
+
+    /// Closest hits of valid `rays`, each as [`Bvh::intersect`] finds it. Large batches in
+    /// trees larger than L2 whose rays visit many nodes ([`Self::visits_many`]) are traced
+    /// [`LANES`](crate::geometry::bvh::LANES) at a time in turns
+    /// ([`Bvh::intersect_interleaved_at`]); chunks are fixed, so hits and counters are the
+    /// same for any thread count.
+    pub(super) fn closest_hits(
+        &self,
+        rays: &RayBatch,
+        threads: Option<usize>,
+    ) -> Result<Vec<Option<Hit>>> {
+        let bvh = self.bvh();
+        let interleave = self.may_reorder(rays)
+            && with_threads(threads, || {
+                self.visits_many(rays, |o, d, t, c| {
+                    bvh.intersect::<true>(o, d, t, c);
+                })
+            })?;
+        let counting = self.counting_enabled();
+        self.map_chunks(rays.len(), threads, |base, out, counters| {
+            trace_chunk(counting, bvh, rays, base, out, counters, interleave);
+        })
     }
 
     /// [`Scene::occluded`] on valid rays traced run after run in the order of `runs`
@@ -437,7 +501,7 @@ impl Scene {
                     for run in runs {
                         let (base, slots) = (run.start as usize, &mut out[k..k + run.len()]);
                         let c = &mut counters;
-                        occluded_chunk_counting(counting, bvh, rays, base, slots, c, false);
+                        trace_chunk(counting, bvh, rays, base, slots, c, false);
                         k += run.len();
                     }
                     (out, counters)

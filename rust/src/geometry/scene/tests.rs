@@ -1,4 +1,4 @@
-use super::schedule::{bundle_order, OccludedChunk, TraceOrder, CHUNK, SPATIAL_ORDER_MIN};
+use super::schedule::{bundle_order, Chunk, OccludedChunk, TraceOrder, CHUNK, SPATIAL_ORDER_MIN};
 use super::*;
 use crate::geometry::bvh::BvhUpdate;
 use crate::simd::SimdLevel;
@@ -342,6 +342,37 @@ fn runs_of_any_length_answer_as_single_rays() {
     }
 }
 
+/// The rays `(origins, directions, tmax)` answered by the chunk kernel ([`Chunk`]) at
+/// instruction set `simd`, with counters; None on a CPU without it.
+fn chunk_at<T: Clone + Default>(
+    bvh: &crate::geometry::bvh::Bvh,
+    (origins, directions, tmax): (&[[f32; 3]], &[[f32; 3]], &[f32]),
+    simd: SimdLevel,
+    interleave: bool,
+) -> Option<(Vec<T>, TraversalCounters)>
+where
+    for<'a> Chunk<'a, T, true>: crate::simd::Kernel<Output = ()>,
+{
+    let rays = RayBatch {
+        origins,
+        directions,
+        tmax: TMax::PerRay(tmax),
+    };
+    let (mut out, mut counters) = (
+        vec![T::default(); origins.len()],
+        TraversalCounters::default(),
+    );
+    let kernel = Chunk::<T, true> {
+        bvh,
+        rays: &rays,
+        base: 0,
+        out: &mut out,
+        counters: &mut counters,
+        interleave,
+    };
+    crate::simd::run_at(simd, kernel).map(|()| (out, counters))
+}
+
 /// Scattered rays traced [`crate::geometry::bvh::LANES`] at a time in turns (a tree larger
 /// than L2, under every instruction set the CPU has): each answers as traced alone, with
 /// per-ray `tmax` (some segments ending before any occluder), and the node and triangle
@@ -379,21 +410,12 @@ fn interleaved_rays_answer_and_count_as_single_rays() {
     assert!(occluded > 300 && occluded < 2700, "{occluded}");
     assert_eq!(counted.rays, 1500);
     let trace = |simd: SimdLevel, n: usize, interleave: bool| {
-        let rays = RayBatch {
-            origins: &origins[..n],
-            directions: &dirs[..n],
-            tmax: TMax::PerRay(&tmax[..n]),
-        };
-        let (mut out, mut counters) = (vec![false; n], TraversalCounters::default());
-        let kernel = OccludedChunk::<true> {
+        chunk_at::<bool>(
             bvh,
-            rays: &rays,
-            base: 0,
-            out: &mut out,
-            counters: &mut counters,
+            (&origins[..n], &dirs[..n], &tmax[..n]),
+            simd,
             interleave,
-        };
-        crate::simd::run_at(simd, kernel).map(|()| (out, counters))
+        )
     };
     let mut levels = 0;
     for simd in [SimdLevel::Portable, SimdLevel::Avx2, SimdLevel::Avx512] {
@@ -413,6 +435,73 @@ fn interleaved_rays_answer_and_count_as_single_rays() {
     }
     assert!(levels >= 3);
     s.set_counting(false);
+}
+
+/// Closest hits of scattered rays traced [`crate::geometry::bvh::LANES`] at a time in turns
+/// (a tree larger than L2, every instruction set the CPU has): each hit (distance, triangle,
+/// barycentrics) is the one the ray finds alone, with per-ray `tmax`, and the node and
+/// triangle counts are the sum of the single rays'; also for fewer rays than lanes and
+/// none. A batch large enough for [`Scene::intersect`] to interleave gives the single
+/// rays' hits on one and two threads.
+#[test]
+fn interleaved_closest_hits_are_single_rays_hits() {
+    let s = crate::scenes::load("garden", 0.25, 3).unwrap().scene;
+    let bvh = s.bvh();
+    assert!(bvh.outgrows_l2(), "the test needs a tree larger than L2");
+    let (origins, dirs) = crate::testing::ground_hemisphere_rays(&s, SPATIAL_ORDER_MIN + 5, 7);
+    let tmax: Vec<f32> = (0..origins.len())
+        .map(|i| [f32::INFINITY, 0.05, 0.3, 2.0][i % 4])
+        .collect();
+    s.set_counting(true);
+    let mut counted = TraversalCounters::default();
+    let single: Vec<Option<crate::geometry::bvh::Hit>> = (0..1500)
+        .map(|i| {
+            let (o, d) = (Vec3A::from(origins[i]), Vec3A::from(dirs[i]));
+            bvh.intersect::<true>(o, d, tmax[i], &mut counted)
+        })
+        .collect();
+    let found = single.iter().filter(|h| h.is_some()).count();
+    assert!(found > 300 && found < 1200, "{found}");
+    let trace = |simd: SimdLevel, n: usize, interleave: bool| {
+        let rays = (&origins[..n], &dirs[..n], &tmax[..n]);
+        chunk_at::<Option<crate::geometry::bvh::Hit>>(bvh, rays, simd, interleave)
+    };
+    let mut levels = 0;
+    for simd in [SimdLevel::Portable, SimdLevel::Avx2, SimdLevel::Avx512] {
+        let Some((hits, counters)) = trace(simd, 1500, true) else {
+            continue; // a CPU without `simd`
+        };
+        levels += 1;
+        assert_eq!(hits, single, "{simd:?}");
+        assert_eq!(counters, counted, "{simd:?}");
+        for n in [0, 3] {
+            assert_eq!(
+                trace(simd, n, true),
+                trace(simd, n, false),
+                "{simd:?}, {n} rays"
+            );
+        }
+    }
+    assert!(levels >= 2);
+    let rays = RayBatch {
+        origins: &origins,
+        directions: &dirs,
+        tmax: TMax::PerRay(&tmax),
+    };
+    s.reset_counters();
+    let one = s.intersect(&rays, Some(1)).unwrap();
+    let counted_one = s.counters();
+    s.reset_counters();
+    let two = s.intersect(&rays, Some(2)).unwrap();
+    assert_eq!(counted_one, s.counters());
+    assert_eq!(counted_one.rays, origins.len() as u64);
+    s.set_counting(false);
+    for (i, h) in single.iter().enumerate() {
+        let t = h.map_or(f32::INFINITY, |h| h.t);
+        let prim = h.map_or(-1, |h| h.triangle as i32);
+        assert_eq!((one.t[i], one.prim[i]), (t, prim), "ray {i}");
+        assert_eq!((two.t[i], two.prim[i]), (t, prim), "ray {i}");
+    }
 }
 
 /// `n` rays from points uniform in `b` (grown by `margin`) in uniform directions, some
