@@ -1,6 +1,7 @@
-//! How a batch of shadow rays is traced: fixed chunks (answers never depend on the thread
-//! count), runs from one origin as packets, bundles in an order of nearby origins, and
-//! scattered rays several at a time where they wait on memory.
+//! How a batch of rays is traced: fixed chunks (answers never depend on the thread count);
+//! for shadow rays, runs from one origin as packets and bundles in an order of nearby
+//! origins; scattered rays, shadow or closest-hit, several at a time where they wait on
+//! memory.
 
 use glam::{Vec3, Vec3A};
 use obvhs::ploc::morton::morton_encode_u64;
@@ -50,7 +51,8 @@ fn coherent(directions: &[Vec3A]) -> bool {
 pub(super) enum TraceOrder {
     /// In the order given.
     Given,
-    /// In the order given, rays alone at their origin [`LANES`](crate::geometry::bvh::LANES) at a time in turns
+    /// In the order given, rays alone at their origin
+    /// [`LANES`](crate::geometry::bvh::LANES) at a time in turns
     /// ([`Bvh::occluded_interleaved_at`]).
     Interleaved,
     /// Run after run of rays from one origin (ranges of the batch), in this order.
@@ -330,10 +332,11 @@ impl Scene {
     /// Large batches in trees larger than a core's L2 cache, whose rays visit many nodes
     /// (judged on every 256th ray), wait on memory. Their record bundles are traced in the
     /// Morton order of their origins, so that consecutive bundles reuse the same nodes and
-    /// triangles from cache; their scattered rays [`LANES`](crate::geometry::bvh::LANES) at a time in turns, so that
-    /// the rays' waits overlap ([`Bvh::occluded_interleaved_at`]). Answers come in the given
-    /// order. The choice depends only on the rays, so answers and counters are the same for
-    /// any thread count; the sample that decides is not counted.
+    /// triangles from cache; their scattered rays [`LANES`](crate::geometry::bvh::LANES)
+    /// at a time in turns, so that the rays' waits overlap
+    /// ([`Bvh::occluded_interleaved_at`]). Answers come in the given order. The choice
+    /// depends only on the rays, so answers and counters are the same for any thread
+    /// count; the sample that decides is not counted.
     pub fn occluded(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Vec<bool>> {
         rays.validate_shape()?;
         let mut interleave = false;
