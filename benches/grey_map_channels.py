@@ -18,7 +18,7 @@ import viscache_rs as vc
 
 def grey(env: vc.EnvMap) -> vc.EnvMap:
     """The map with every texel's RGB set to its luminance."""
-    lum = env.texels() @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+    lum = vc.metrics.luminance(env.texels()).astype(np.float32)
     return vc.EnvMap.from_octahedral(np.repeat(lum[..., None], 3, axis=-1))
 
 
