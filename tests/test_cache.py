@@ -300,6 +300,21 @@ def test_save_and_load(tmp_path, open_box):
         vc.VisibilityCache.load(tmp_path / "missing.vc", open_box)
 
 
+def test_records_that_see_emitters_save_and_load_as_such(tmp_path, cornell):
+    c = vc.VisibilityCache(cornell.scene, resolution=32, emitters_visible=True)
+    # A lit floor point sees the ceiling light through a record that sees emitters only.
+    plain = vc.VisibilityCache(cornell.scene, resolution=32)
+    i, j = c.insert((-2.0, 0.0, 2.0), (0, 1, 0)), plain.insert((-2.0, 0.0, 2.0), (0, 1, 0))
+    assert c.record_bits(i).sum() > 4 and plain.record_bits(j).sum() == 0
+    path = tmp_path / "seeing.vc"
+    c.save(path)
+    d = vc.VisibilityCache.load(path, cornell.scene)
+    assert d.params["emitters_visible"] and d.params == c.params
+    np.testing.assert_array_equal(d.record_bits(i), c.record_bits(i))
+    with pytest.raises(TypeError, match="^emitters_visible"):
+        vc.VisibilityCache(cornell.scene, emitters_visible="yes")
+
+
 def test_save_and_load_keep_the_default_radius(tmp_path, cornell):
     c = vc.VisibilityCache(cornell.scene, resolution=16)
     path = tmp_path / "empty.vc"

@@ -64,6 +64,11 @@ fn apply_overrides(p: &mut CacheParams, overrides: &Bound<'_, PyDict>) -> PyResu
                     .extract::<bool>()
                     .map_err(|_| PyTypeError::new_err("check_coherence: must be a bool"))?
             }
+            "emitters_visible" => {
+                p.emitters_visible = value
+                    .extract::<bool>()
+                    .map_err(|_| PyTypeError::new_err("emitters_visible: must be a bool"))?
+            }
             "pattern_seed" => {
                 p.pattern_seed = seed_arg(&value).map_err(|_| {
                     PyValueError::new_err("pattern_seed: must be an integer in [0, 2^64)")
@@ -79,7 +84,7 @@ fn apply_overrides(p: &mut CacheParams, overrides: &Bound<'_, PyDict>) -> PyResu
     Ok(())
 }
 
-const PARAM_NAMES: [&str; 15] = [
+const PARAM_NAMES: [&str; 16] = [
     "n_startup",
     "d_max_scale",
     "theta_max_deg",
@@ -95,6 +100,7 @@ const PARAM_NAMES: [&str; 15] = [
     "pattern_seed",
     "nearest_hits",
     "check_coherence",
+    "emitters_visible",
 ];
 
 fn params_dict<'py>(py: Python<'py>, p: &CacheParams) -> PyResult<Bound<'py, PyDict>> {
@@ -115,6 +121,7 @@ fn params_dict<'py>(py: Python<'py>, p: &CacheParams) -> PyResult<Bound<'py, PyD
     d.set_item("pattern_seed", p.pattern_seed)?;
     d.set_item("nearest_hits", p.nearest_hits)?;
     d.set_item("check_coherence", p.check_coherence)?;
+    d.set_item("emitters_visible", p.emitters_visible)?;
     Ok(d)
 }
 

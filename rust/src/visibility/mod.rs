@@ -26,5 +26,5 @@ pub use cache::{
 pub use params::CacheParams;
 pub use record::{
     bytes_per_record, Coverage, Node, NodeIter, Record, RecordHeader, RecordRays, RecordStore,
-    VisibilityBits, VisibilityView,
+    RecordTracing, VisibilityBits, VisibilityView,
 };

@@ -31,6 +31,7 @@ use crate::sampling::pattern::{
 };
 pub use crate::spatial::weight::{normal_angle, raw_weight};
 use crate::spatial::{Weighting, MAX_KEEP, MAX_NEAREST};
+use crate::visibility::record::RecordTracing;
 
 /// Largest `m` (candidates per lookup). Lookups keep candidates on the stack.
 pub const MAX_SEARCH_COUNT: u32 = MAX_NEAREST as u32;
@@ -94,6 +95,13 @@ pub struct CacheParams {
     /// inserting at [`record_cap`] records: past a tenth of the view's pixels, records
     /// barely help the control variate and cost most of the build.
     pub check_coherence: bool,
+    /// Whether a record's ray that reaches an area light before anything else counts as
+    /// unoccluded ([`crate::visibility::record::RecordTracing::emitters_visible`]): records
+    /// then hold the lights' visibility, which the relighter's area lights read
+    /// ([`crate::estimators::decoupled`]). Off (every preset), a light's own triangles
+    /// occlude like any surface: the sky's visibility, which the control variate and the
+    /// relighter's map need.
+    pub emitters_visible: bool,
 }
 
 /// Mean Jaccard distance between the visible sets of records a quarter of `d_max` apart
@@ -160,6 +168,7 @@ impl CacheParams {
         pattern_seed: DEFAULT_PATTERN_SEED,
         nearest_hits: true,
         check_coherence: false,
+        emitters_visible: false,
     };
 
     /// Complex occlusion (foliage, many small parts): dense records, strict thresholds.
@@ -183,6 +192,14 @@ impl CacheParams {
         check_coherence: true,
         ..Self::LOW
     };
+
+    /// How the cache's records trace their rays.
+    pub const fn record_tracing(&self) -> RecordTracing {
+        RecordTracing {
+            nearest_hits: self.nearest_hits,
+            emitters_visible: self.emitters_visible,
+        }
+    }
 
     /// The preset called `name` (`"auto"`, `"low"`, `"medium"`, `"high"`).
     pub fn preset(name: &str) -> Result<Self> {

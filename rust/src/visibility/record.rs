@@ -52,11 +52,13 @@
 use glam::{UVec2, Vec2, Vec3};
 
 use crate::error::{Error, Result};
-use crate::geometry::{RayBatch, Scene, TraversalCounters};
+use crate::geometry::{RayBatch, Scene, TMax, TraversalCounters};
 use crate::sampling::octahedral::{
     morton_encode, quadtree_range, sphere_to_square, square_to_sphere,
 };
 use crate::sampling::pattern::check_log2_resolution;
+
+mod emitter_stop;
 
 /// Number of `u64` words holding the `4^m` bits of a map (at least one).
 pub const fn bit_words(m: u32) -> usize {
@@ -603,6 +605,18 @@ impl VisibilityBits {
     }
 }
 
+/// How [`Record::trace_as`] traces a record's rays.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RecordTracing {
+    /// Find `R_i` with closest-hit rays on the occluded directions ([`Record::trace`]).
+    pub nearest_hits: bool,
+    /// Count a direction as unoccluded when its ray reaches an area light before anything
+    /// else (`emitter_stop`): the record then holds the visibility of the scene's lights
+    /// as well as the sky's, as the relighter needs for area lights. Off, a light's own
+    /// triangles occlude like any surface, which is the sky's visibility alone.
+    pub emitters_visible: bool,
+}
+
 /// Rays one [`Record::trace`] cast.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct RecordRays {
@@ -671,6 +685,27 @@ impl Record {
         frame: u32,
         nearest_hits: bool,
     ) -> Result<(Record, RecordRays)> {
+        let tracing = RecordTracing {
+            nearest_hits,
+            emitters_visible: false,
+        };
+        Self::trace_as(scene, position, normal, pattern, frame, tracing)
+    }
+
+    /// [`Self::trace`] as `tracing` says: with or without `R_i`, and with rays that reach
+    /// an area light counted as unoccluded or not ([`RecordTracing`]).
+    pub fn trace_as(
+        scene: &Scene,
+        position: Vec3,
+        normal: Vec3,
+        pattern: &[Vec3],
+        frame: u32,
+        tracing: RecordTracing,
+    ) -> Result<(Record, RecordRays)> {
+        let RecordTracing {
+            nearest_hits,
+            emitters_visible,
+        } = tracing;
         let m = pattern_log2_resolution(pattern.len())?;
         if !position.is_finite() {
             return Err(Error::invalid(
@@ -699,7 +734,28 @@ impl Record {
             }
         }
         let origins = vec![origin.to_array(); dirs.len()];
-        let occluded = scene.occluded(&RayBatch::new(&origins, &dirs), None)?;
+        let lights = scene.area_lights();
+        let occluded = if emitters_visible && !lights.is_empty() {
+            // Each ray stops short of the emitter plane it reaches (`emitter_stop`).
+            let slack = emitter_stop::texel_radius(m);
+            let tmax: Vec<f32> = dirs
+                .iter()
+                .map(|&d| {
+                    let t = emitter_stop::emitter_distance(lights, origin, d.into(), slack);
+                    if t.is_finite() {
+                        let at = origin + Vec3::from(d) * t;
+                        (t - 2.0 * scene.ray_epsilon(at)).max(0.0)
+                    } else {
+                        t
+                    }
+                })
+                .collect();
+            let mut batch = RayBatch::new(&origins, &dirs);
+            batch.tmax = TMax::PerRay(&tmax);
+            scene.occluded(&batch, None)?
+        } else {
+            scene.occluded(&RayBatch::new(&origins, &dirs), None)?
+        };
 
         let mut bits = vec![0u64; bit_words(m)];
         let (mut visible_cos, mut total_cos) = (0.0f64, 0.0f64);

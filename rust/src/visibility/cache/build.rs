@@ -20,7 +20,7 @@ use crate::spatial::waves::{coarse_to_fine_levels, WaveBuilder, WaveTarget};
 use crate::visibility::params::{
     record_cap, COHERENCE_LOG2_RESOLUTION, COHERENCE_PAIRS, INCOHERENCE_LIMIT,
 };
-use crate::visibility::record::{Record, RecordRays};
+use crate::visibility::record::{Record, RecordRays, RecordTracing};
 
 /// What [`VisibilityCache::build`] did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -304,7 +304,11 @@ impl VisibilityCache {
         let pattern = default_pattern(COHERENCE_LOG2_RESOLUTION)?;
         let map = |i: usize| {
             let (p, n) = (Vec3::from(g.position[i]), Vec3::from(g.normal[i]));
-            Record::trace_with(scene, p, n, pattern, 0, false)
+            let tracing = RecordTracing {
+                nearest_hits: false,
+                ..self.params.record_tracing()
+            };
+            Record::trace_as(scene, p, n, pattern, 0, tracing)
         };
         let traced: Vec<[(Record, RecordRays); 2]> = pairs
             .par_iter()

@@ -6,7 +6,7 @@
 //! |---|---|
 //! | 8 | magic `b"VISCACHE"` |
 //! | 4 | format version (`u32`, 4) |
-//! | 60 | parameters: `M`, `n_startup` (`u32`); `d_max_scale`, `theta_max_deg`, `lambda_falloff` (`f32`); `m_search`, `n_keep` (`u32`); `w_min`, `delta_max`, `epsilon_max` (`f32`); `evict_worst`, `unused_frames`, `max_records` (`u32`); `pattern_seed` (`u64`); flags (`u32`: bit 0 `nearest_hits`, bit 1 `check_coherence`, bit 2 bound to a scene) |
+//! | 60 | parameters: `M`, `n_startup` (`u32`); `d_max_scale`, `theta_max_deg`, `lambda_falloff` (`f32`); `m_search`, `n_keep` (`u32`); `w_min`, `delta_max`, `epsilon_max` (`f32`); `evict_worst`, `unused_frames`, `max_records` (`u32`); `pattern_seed` (`u64`); flags (`u32`: bit 0 `nearest_hits`, bit 1 `check_coherence`, bit 2 bound to a scene, bit 3 `emitters_visible`) |
 //! | 4 | current frame (`u32`) |
 //! | 8 | geometry fingerprint of the scene the cache is bound to (`u64`; 0 when unbound) |
 //! | 4 | default lookup radius (`f32`, world units, finite and `>= 0`; NaN when unset) |
@@ -72,7 +72,8 @@ impl VisibilityCache {
             &[
                 p.nearest_hits as u32
                     | (p.check_coherence as u32) << 1
-                    | (state.scene.is_some() as u32) << 2,
+                    | (state.scene.is_some() as u32) << 2
+                    | (p.emitters_visible as u32) << 3,
                 state.frame,
             ],
         );
@@ -137,12 +138,13 @@ impl VisibilityCache {
             p.pattern_seed = r.u64()?;
             if version >= 2 {
                 let flags = r.u32()?;
-                if flags > 7 || (version < 3 && flags > 3) {
+                if flags > 15 || (version < 3 && flags > 3) {
                     return None;
                 }
                 p.nearest_hits = flags & 1 == 1;
                 p.check_coherence = flags & 2 == 2;
                 bound = flags & 4 == 4;
+                p.emitters_visible = flags & 8 == 8;
             }
             let frame = r.u32()?;
             let scene = if version >= 3 { Some(r.u64()?) } else { None };

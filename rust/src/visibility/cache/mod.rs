@@ -385,13 +385,13 @@ impl VisibilityCache {
         normal: Vec3,
     ) -> Result<(Record, RecordRays)> {
         let frame = self.read().frame;
-        Record::trace_with(
+        Record::trace_as(
             scene,
             position,
             normal,
             &self.pattern,
             frame,
-            self.params.nearest_hits,
+            self.params.record_tracing(),
         )
     }
 

@@ -600,3 +600,64 @@ fn tracing_counts_every_ray_on_the_scene() {
         rays.shadow
     );
 }
+
+/// Records that see emitters, inside the Cornell box, against brute force: a direction is
+/// visible exactly when no surface lies before the point where its ray meets an emitter
+/// (`emitter_stop`, traced here with `occluded1` ray by ray); among those are all whose
+/// closest hit is the ceiling light itself, which plain records mark blocked. Elsewhere
+/// (walls, floor) both kinds agree.
+#[test]
+fn records_that_see_emitters_see_the_ceiling_light() {
+    let setup = scenes::load("cornell", 1.0, 0).unwrap();
+    let scene = &setup.scene;
+    let light_object = scene.area_lights()[0].object;
+    let m = 5;
+    let pattern = default_pattern(m).unwrap();
+    let seeing = RecordTracing {
+        nearest_hits: false,
+        emitters_visible: true,
+    };
+    let slack = emitter_stop::texel_radius(m);
+    let mut c = TraversalCounters::default();
+    let (mut light_dirs, mut other_dirs) = (0, 0);
+    // Lit floor points, a point in the tall block's shadow and one on the back wall.
+    for (p, n) in [
+        (Vec3::new(-2.0, 0.0, 2.0), Vec3::Y),
+        (Vec3::new(1.0, 0.0, -2.0), Vec3::Y),
+        (Vec3::new(-1.6, 0.0, -2.4), Vec3::Y),
+        (Vec3::new(0.0, 4.0, -2.75), Vec3::Z),
+    ] {
+        let (plain, _) = Record::trace_with(scene, p, n, pattern, 0, false).unwrap();
+        let (sees, _) = Record::trace_as(scene, p, n, pattern, 0, seeing).unwrap();
+        let o = scene.offset_point(p, n);
+        for (z, d) in pattern.iter().enumerate() {
+            if n.dot(*d) <= 0.0 {
+                assert!(!sees.bits.get(z));
+                continue;
+            }
+            let t = emitter_stop::emitter_distance(scene.area_lights(), o, *d, slack);
+            let tmax = if t.is_finite() {
+                (t - 2.0 * scene.ray_epsilon(o + *d * t)).max(0.0)
+            } else {
+                t
+            };
+            assert_eq!(
+                sees.bits.get(z),
+                !scene.occluded1(o, *d, tmax, &mut c),
+                "{p} {z}"
+            );
+            let first = scene.intersect1(o, *d, f32::INFINITY, &mut c);
+            if first.is_some_and(|h| h.obj == light_object) {
+                light_dirs += 1;
+                assert!(sees.bits.get(z) && !plain.bits.get(z), "{p} {z}");
+            } else if !t.is_finite() {
+                other_dirs += 1;
+                assert_eq!(sees.bits.get(z), plain.bits.get(z), "{p} {z}");
+            }
+        }
+    }
+    assert!(
+        light_dirs >= 4 && other_dirs > 1000,
+        "{light_dirs} {other_dirs}"
+    );
+}
