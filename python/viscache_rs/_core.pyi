@@ -360,6 +360,7 @@ class Relighter:
         envmap: EnvMap,
         materials: dict[int, Material] | None = None,
         cache: VisibilityCache | None = None,
+        light_cache: VisibilityCache | None = None,
         lb_spp: int | None = 64,
         lbv_spp: int | None = 8,
         threshold: float | None = 0.25,

@@ -6,7 +6,9 @@ box with a white area light under its ceiling whose texture turns into a red and
 checker after visibility converged (SBF's pattern switch, Fig. 1); ``meshes`` with its map rotated
 (when the shared meshes are found). Visibility converges under the original lighting
 (``converge_visibility``, 256 V-samples; ``visibility="pixels"``, and ``"cache"`` with a
-"medium" cache), then the edit is applied and:
+"medium" cache; where the scene has area lights, also ``"cache_lights"``: the same with a
+second "medium" cache whose records see the lights, ``light_cache``), then the edit is
+applied and:
 
 - **the bound**: per pixel, the estimated absolute error of ``<LB><V>`` (``lb_spp`` 16/64/256)
   against the actual error of ``<LB><V>`` (``lb_spp`` 1024; lights without ``<V>`` by
@@ -131,7 +133,16 @@ def run(ctx: ExperimentContext) -> None:
         ref = vc.render(setup, cam, spp=REFERENCE_SPP[ctx.quick], method="product", jitter=False,
                         envmap=env, seed=ctx.seed + 7, threads=threads, progress=ctx.progress)
         record: dict[str, Any] = {"resolution": [w, h], "converge": converge}
-        for source, rl in (("pixels", pixels), ("cache", cached)):
+        sources = [("pixels", pixels), ("cache", cached)]
+        if setup.scene.area_lights():
+            # Area lights read records that see them (not the default: measured here).
+            lights = vc.VisibilityCache(setup.scene, preset="medium", nearest_hits=False,
+                                        emitters_visible=True)
+            lights.build(gbuffer=cached.gbuffer, threads=threads, progress=False)
+            sources.append(("cache_lights", vc.Relighter(setup, cam, visibility="cache",
+                                                         cache=cached.cache, threads=threads,
+                                                         light_cache=lights)))
+        for source, rl in sources:
             actual = _decoupled(rl, env, ctx.seed + 1)
             for lb_spp in lb_ladder:
                 est = rl.render(envmap=env, lb_spp=lb_spp, lbv_spp=8, seed=ctx.seed + 2)

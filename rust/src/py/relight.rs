@@ -181,7 +181,7 @@ impl PyRelighter {
     /// Relights the view: see `viscache_rs.Relighter.render`. Returns a dict of arrays
     /// (image, variance: (H, W, 3); t, bound, visibility, effective_samples: (H, W, L);
     /// lbv_counts: (H, W)) and stats.
-    #[pyo3(signature = (envmap, materials=None, cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, time_budget=None, adaptive=true, least_error=true, callback=None))]
+    #[pyo3(signature = (envmap, materials=None, cache=None, light_cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, time_budget=None, adaptive=true, least_error=true, callback=None))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -189,6 +189,7 @@ impl PyRelighter {
         envmap: PyRef<'py, PyEnvMap>,
         materials: Option<&Bound<'py, PyAny>>,
         cache: Option<PyRef<'py, PyVisibilityCache>>,
+        light_cache: Option<PyRef<'py, PyVisibilityCache>>,
         #[pyo3(from_py_with = lb_spp_arg)] lb_spp: u32,
         #[pyo3(from_py_with = lbv_spp_arg)] lbv_spp: u32,
         #[pyo3(from_py_with = threshold_arg)] threshold: f64,
@@ -219,6 +220,7 @@ impl PyRelighter {
         let overrides = materials_arg(materials)?;
         let threads = threads_arg(threads)?;
         let cache = cache.map(|c| c.bound(py)).transpose()?;
+        let light_cache = light_cache.map(|c| c.bound(py)).transpose()?;
         let scene = self.scene.borrow(py).get();
         let env = &envmap.inner;
         let mut reporter = PyProgress::new(callback);
@@ -226,12 +228,12 @@ impl PyRelighter {
         let mut progress = |done: u64, total: u64| reporter.report(done, total);
         let out = detach_interruptible(py, &stop, || {
             let inner = self.lock();
-            let cache = cache.as_deref();
             inner.render(
                 &scene,
                 env,
                 &overrides,
-                cache,
+                cache.as_deref(),
+                light_cache.as_deref(),
                 &params,
                 threads,
                 &mut progress,
