@@ -172,7 +172,7 @@ def test_relight_experiment_smoke(tmp_path, monkeypatch):
     monkeypatch.setattr(relight, "EQUAL_TIME_SECONDS", {True: 0.05, False: 0.05})
     cases = list(relight._cases(quick=True))
     assert [c[0] for c in cases][:3] == ["garage_rot45", "garage_sky", "cornell_red_green"]
-    monkeypatch.setattr(relight, "_cases", lambda quick: iter(cases[:1]))
+    monkeypatch.setattr(relight, "_cases", lambda quick: iter([cases[0], cases[2]]))
     experiments.run("relight", quick=True, out=tmp_path, seed=1, threads=2, progress=False)
     data = json.loads((tmp_path / "relight" / "results.json").read_text())
     rec = data["garage_rot45"]
@@ -189,6 +189,12 @@ def test_relight_experiment_smoke(tmp_path, monkeypatch):
         longer = rec[f"equal_time_{source}_{relight.THRESHOLDS[-1]}_budget"]
         assert longer["blend_lbv_spp"] >= 8 and longer["seconds"] > 0
     assert 0 <= rec["camera_move_bound_holds"] <= 1
+    # The box's area lights read records that see them in the cache_lights rows, also
+    # after the camera moved (their t above 0: without <V> it would be 0).
+    box = data["cornell_red_green"]
+    assert 0 <= box["bound_holds_cache_lights_lb64"] <= 1
+    assert 0 <= box["equal_time_cache_lights_0.25"]["mean_t"] <= 1
+    assert 0 <= box["camera_move_bound_holds"] <= 1 and box["camera_move_mean_t_area"] > 0
     over = rec["overhead"]
     assert over["first_frame_seconds"] > 0 and over["later_lbv_spp"] >= 0
     # Two 16-bit counts, and the map's 32 V-sample bits (one word) for its one light.
