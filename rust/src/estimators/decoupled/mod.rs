@@ -843,8 +843,8 @@ impl LightSums {
     /// Whether `LB`-samples would change nothing, so that the pixel's blend, variance and
     /// bound come out the same, bit for bit, without them: where there is no `⟨V⟩` (a
     /// point without records, an area light with cache visibility but no `light_cache`:
-    /// `t = 0`, `⟨LBV⟩` alone), and where `⟨V⟩` is exactly 0 with nothing to widen its bound (every
-    /// `V`-sample blocked, no reweighting blind spot, no spread of records: `⟨LB⟩⟨V⟩` and
+    /// `t = 0`, `⟨LBV⟩` alone), and where `⟨V⟩` is exactly 0 with nothing to widen its
+    /// bound (every `V`-sample blocked, no reweighting blind spot, no spread of records: `⟨LB⟩⟨V⟩` and
     /// its bound are 0 whatever `⟨LB⟩`, `t = 1 − ε`; a closed room's map).
     fn lb_changes_nothing(&self) -> bool {
         self.v.is_nan() || (self.v == 0.0 && self.v_spread == 0.0 && self.v_unseen == 0.0)
@@ -1213,7 +1213,6 @@ fn least_error_t(s: &LightSums, v: f64, err: &[f64; 3]) -> f64 {
         .fold(1.0, f64::min)
 }
 
-/// The product distribution of the map at `sp` (`None`: nothing to sample).
 /// `⟨V⟩` of an area light at a pixel from records that see emitters.
 struct CachedVisibility {
     /// `E_p[Ṽ]` over the draws.
@@ -1307,6 +1306,7 @@ fn radical_inverse(mut i: u32, base: u32) -> f64 {
     out
 }
 
+/// The product distribution of the map at `sp` (`None`: nothing to sample).
 fn product_of(env: &EnvMap, sp: &ShadingPoint, level: ProductLevel) -> Option<ProductDistribution> {
     ProductDistribution::new(
         env,
