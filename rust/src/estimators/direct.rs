@@ -951,7 +951,7 @@ impl Lighting<'_> {
         let mut total = Vec3::ZERO;
         for (k, light) in self.scene.area_lights().iter().enumerate() {
             if let Some(s) = sample_area_light(light, k, sp.origin, rng) {
-                let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
+                let tmax = self.scene.segment_end(s.distance, s.point);
                 total +=
                     self.light_term(sp, s.direction, s.radiance, s.pdf, tmax, mis, counters, bvh);
             }

@@ -737,14 +737,14 @@ impl Record {
         let lights = scene.area_lights();
         let occluded = if emitters_visible && !lights.is_empty() {
             // Each ray stops short of the emitter plane it reaches (`emitter_stop`).
+            let planes = emitter_stop::EmitterPlanes::new(lights);
             let slack = emitter_stop::texel_radius(m);
             let tmax: Vec<f32> = dirs
                 .iter()
                 .map(|&d| {
-                    let t = emitter_stop::emitter_distance(lights, origin, d.into(), slack);
+                    let t = planes.distance(origin, d.into(), slack);
                     if t.is_finite() {
-                        let at = origin + Vec3::from(d) * t;
-                        (t - 2.0 * scene.ray_epsilon(at)).max(0.0)
+                        scene.segment_end(t, origin + Vec3::from(d) * t).max(0.0)
                     } else {
                         t
                     }

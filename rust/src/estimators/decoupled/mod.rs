@@ -257,7 +257,7 @@ impl PixelLights<'_> {
             LightId::Area(k) => {
                 let light = &self.scene.area_lights()[k];
                 let s = sample_area_light(light, k, sp.origin, rng)?;
-                let tmax = s.distance - 2.0 * self.scene.ray_epsilon(s.point);
+                let tmax = self.scene.segment_end(s.distance, s.point);
                 (s.direction, s.radiance, s.pdf, tmax)
             }
         };
@@ -1256,7 +1256,7 @@ fn cached_area_visibility(
         let Some(d) = light.sample(at.sp.origin, choice, point) else {
             continue;
         };
-        let reaches = d.distance > 2.0 * at.scene.ray_epsilon(d.point);
+        let reaches = at.scene.segment_end(d.distance, d.point) > 0.0;
         if !(reaches && at.sp.normal.dot(d.direction) > 0.0 && d.radiance != Vec3::ZERO) {
             continue;
         }

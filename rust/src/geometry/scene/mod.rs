@@ -290,6 +290,14 @@ impl Scene {
         (p.abs().max_element() + (b.extent() + b.max_abs()) * 2f32.powi(-5)) * 2f32.powi(-17)
     }
 
+    /// The end of a shadow segment `distance` long toward `target`, a point on a surface
+    /// (a light, an emitter's plane): short of it by twice [`Self::ray_epsilon`] there, so
+    /// that the target's own triangle is not hit. May be `<= 0` when the target is that
+    /// close.
+    pub fn segment_end(&self, distance: f32, target: Vec3) -> f32 {
+        distance - 2.0 * self.ray_epsilon(target)
+    }
+
     /// Moves `p` off the surface along `n` (which should face the side rays leave toward).
     pub fn offset_point(&self, p: Vec3, n: Vec3) -> Vec3 {
         p + n * self.ray_epsilon(p)

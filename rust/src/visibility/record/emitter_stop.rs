@@ -26,41 +26,76 @@ pub(super) fn texel_radius(m: u32) -> f32 {
     (solid_angle / std::f32::consts::PI).sqrt() * std::f32::consts::SQRT_2
 }
 
-/// The distance along unit `dir` from `origin` at which the ray crosses the plane of an
-/// emitter triangle of `lights` within angle `slack` (radians, to first order) of that
-/// triangle as seen from `origin`: inside the triangle grown in its plane by
-/// `slack · t / |cos|` (`t` the crossing's distance, `cos` between `dir` and the normal).
-/// The nearest such crossing; `inf` when there is none. Either
-/// side of a triangle counts: behind a light nothing is emitted toward the record.
-pub(super) fn emitter_distance(lights: &[AreaLight], origin: Vec3, dir: Vec3, slack: f32) -> f32 {
-    let mut nearest = f32::INFINITY;
-    for light in lights {
-        for &[a, b, c] in light.triangles() {
-            let normal = (b - a).cross(c - a);
-            let along = normal.dot(dir);
+/// One emitter triangle with what [`EmitterPlanes::distance`] tests per ray.
+struct EmitterTriangle {
+    /// A vertex, and the (unnormalised) normal the crossing's distance is taken with.
+    a: Vec3,
+    normal: Vec3,
+    unit: Vec3,
+    /// Per edge, a point on it and its in-plane normal pointing into the triangle.
+    edges: [(Vec3, Vec3); 3],
+}
+
+/// The emitter triangles of a scene's area lights (degenerate ones left out), prepared once
+/// for the rays of a record.
+pub(super) struct EmitterPlanes(Vec<EmitterTriangle>);
+
+impl EmitterPlanes {
+    pub(super) fn new(lights: &[AreaLight]) -> Self {
+        let triangles = lights
+            .iter()
+            .flat_map(|light| light.triangles())
+            .filter_map(|&[a, b, c]| {
+                let normal = (b - a).cross(c - a);
+                if normal == Vec3::ZERO {
+                    return None;
+                }
+                let unit = normal.normalize();
+                let edges =
+                    [(a, b), (b, c), (c, a)].map(|(u, v)| (u, unit.cross(v - u).normalize()));
+                Some(EmitterTriangle {
+                    a,
+                    normal,
+                    unit,
+                    edges,
+                })
+            })
+            .collect();
+        Self(triangles)
+    }
+
+    /// The distance along unit `dir` from `origin` at which the ray crosses the plane of an
+    /// emitter triangle within angle `slack` (radians, to first order) of that triangle as
+    /// seen from `origin`: inside the triangle grown in its plane by `slack · t / |cos|`
+    /// (`t` the crossing's distance, `cos` between `dir` and the normal). The nearest such
+    /// crossing; `inf` when there is none. Either side of a triangle counts: behind a light
+    /// nothing is emitted toward the record.
+    pub(super) fn distance(&self, origin: Vec3, dir: Vec3, slack: f32) -> f32 {
+        let mut nearest = f32::INFINITY;
+        for tri in &self.0 {
+            let along = tri.normal.dot(dir);
             if along == 0.0 {
                 continue;
             }
-            let t = normal.dot(a - origin) / along;
+            let t = tri.normal.dot(tri.a - origin) / along;
             if !(t > 0.0 && t < nearest) {
                 continue;
             }
             let p = origin + dir * t;
-            let unit = normal.normalize();
             // An angle `slack` off the ray spans `slack · t` across it, stretched along a
             // plane seen at a grazing angle (capped where it nears the plane's edge-on).
-            let grown = slack * t / unit.dot(dir).abs().max(MIN_COSINE);
+            let grown = slack * t / tri.unit.dot(dir).abs().max(MIN_COSINE);
             // Signed in-plane distance to each edge, positive inside.
-            let inside = [(a, b), (b, c), (c, a)].iter().all(|&(u, v)| {
-                let inward = unit.cross(v - u).normalize();
-                (p - u).dot(inward) >= -grown
-            });
-            if inside {
+            if tri
+                .edges
+                .iter()
+                .all(|&(u, inward)| (p - u).dot(inward) >= -grown)
+            {
                 nearest = t;
             }
         }
+        nearest
     }
-    nearest
 }
 
 #[cfg(test)]
@@ -81,28 +116,28 @@ mod tests {
 
     #[test]
     fn rays_stop_at_the_light_and_beside_it_within_the_slack() {
-        let lights = [ceiling_light()];
+        let planes = EmitterPlanes::new(&[ceiling_light()]);
         let o = Vec3::ZERO;
         // Straight up: through the light, 2 m away.
-        assert!((emitter_distance(&lights, o, Vec3::Y, 0.0) - 2.0).abs() < 1e-6);
+        assert!((planes.distance(o, Vec3::Y, 0.0) - 2.0).abs() < 1e-6);
         // Toward (0.6, 2, 0): 0.1 m beside the light's edge at about 2.09 m.
         let beside = Vec3::new(0.6, 2.0, 0.0).normalize();
-        assert_eq!(emitter_distance(&lights, o, beside, 0.0), f32::INFINITY);
-        assert_eq!(emitter_distance(&lights, o, beside, 0.04), f32::INFINITY);
-        let t = emitter_distance(&lights, o, beside, 0.06);
+        assert_eq!(planes.distance(o, beside, 0.0), f32::INFINITY);
+        assert_eq!(planes.distance(o, beside, 0.04), f32::INFINITY);
+        let t = planes.distance(o, beside, 0.06);
         assert!((t - Vec3::new(0.6, 2.0, 0.0).length()).abs() < 1e-5, "{t}");
         // Seen at a grazing angle, 0.1 m beyond the edge z = -0.5 is 0.008 rad away.
         let from = Vec3::new(0.0, 1.5, -3.0);
         let grazing = (Vec3::new(0.0, 2.0, -0.6) - from).normalize();
+        assert_eq!(planes.distance(from, grazing, 0.0075), f32::INFINITY);
+        assert!(planes.distance(from, grazing, 0.0095).is_finite());
+        // Away from it, and parallel to its plane.
+        assert_eq!(planes.distance(o, -Vec3::Y, 1.0), f32::INFINITY);
+        assert_eq!(planes.distance(o, Vec3::X, 1.0), f32::INFINITY);
         assert_eq!(
-            emitter_distance(&lights, from, grazing, 0.0075),
+            EmitterPlanes::new(&[]).distance(o, Vec3::Y, 1.0),
             f32::INFINITY
         );
-        assert!(emitter_distance(&lights, from, grazing, 0.0095).is_finite());
-        // Away from it, and parallel to its plane.
-        assert_eq!(emitter_distance(&lights, o, -Vec3::Y, 1.0), f32::INFINITY);
-        assert_eq!(emitter_distance(&lights, o, Vec3::X, 1.0), f32::INFINITY);
-        assert_eq!(emitter_distance(&[], o, Vec3::Y, 1.0), f32::INFINITY);
     }
 
     #[test]

@@ -618,6 +618,7 @@ fn records_that_see_emitters_see_the_ceiling_light() {
         emitters_visible: true,
     };
     let slack = emitter_stop::texel_radius(m);
+    let planes = emitter_stop::EmitterPlanes::new(scene.area_lights());
     let mut c = TraversalCounters::default();
     let (mut light_dirs, mut other_dirs) = (0, 0);
     // Lit floor points, a point in the tall block's shadow and one on the back wall.
@@ -635,9 +636,9 @@ fn records_that_see_emitters_see_the_ceiling_light() {
                 assert!(!sees.bits.get(z));
                 continue;
             }
-            let t = emitter_stop::emitter_distance(scene.area_lights(), o, *d, slack);
+            let t = planes.distance(o, *d, slack);
             let tmax = if t.is_finite() {
-                (t - 2.0 * scene.ray_epsilon(o + *d * t)).max(0.0)
+                scene.segment_end(t, o + *d * t).max(0.0)
             } else {
                 t
             };
