@@ -227,6 +227,25 @@ def test_budgeted_product_renders_choose_light_draws_from_the_view():
     assert mis.stats["light_samples"] == 1 and mis.stats["edge_share"] is None
 
 
+def test_views_of_grass_draw_from_coarser_products_and_stay_unbiased():
+    # Garden's jittered samples mostly leave their anchor's blade (edge share above 0.4):
+    # its Lambert grass draws from 16^2 products; garage's smooth surfaces keep 32^2, as
+    # do fixed points, a level given and the control variate. Either way unbiased: the
+    # coarse image agrees with MIS (independent seeds) per pixel and in its mean.
+    garden = vc.scenes.load("garden", detail=0.3)
+    garden.camera = garden.camera.with_resolution(48, 36)
+    coarse = _render(garden, "product", 64, seed=21)
+    assert coarse.stats["coarse_products"] and coarse.stats["edge_share"] is None
+    ref = _render(garden, "mis", 256, seed=5)
+    _assert_agrees(coarse, ref, coverage=0.45)
+    for kw in ({"jitter": False}, {"product_level": 5}):
+        assert not _render(garden, "product", 2, **kw).stats["coarse_products"]
+    assert not _render(garden, "cv", 2).stats["coarse_products"]
+    garage = vc.scenes.load("garage", detail=0.3)
+    garage.camera = garage.camera.with_resolution(48, 36)
+    assert not _render(garage, "product", 2).stats["coarse_products"]
+
+
 def test_the_probe_takes_fewer_draws_where_they_are_dear_and_the_hits_vary():
     # The Cornell box splits by its edge share, but a draw there traces two shadow rays
     # (the closed box's map and the ceiling light) against a primary ray into 1,262

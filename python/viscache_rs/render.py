@@ -13,7 +13,10 @@ direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=N
 - ``"mis"``: both, with the power heuristic;
 - ``"product"``: product importance sampling of map x BSDF (CAM08 sec. 5.5); area lights
   by light sampling. The product's cells are 32^2 (``product_level=5``), or with
-  ``"auto"`` (default) 32^2, 64^2 only for Phong lobes of exponent above about 650;
+  ``"auto"`` (default) 32^2, 64^2 only for Phong lobes of exponent above about 650, and
+  16^2 on Lambert surfaces of jittered views whose edge share (below) is at least 0.4,
+  where most samples leave their anchor's surface and draw from products built for their
+  own normals, so that a cheaper product pays (``stats["coarse_products"]``);
 - ``"cv"``: product sampling with the visibility cache's ``L B~ V~`` as a control variate
   (CAM08 eq. 2-3): ``cache=`` a built :class:`VisibilityCache`, or None to build one for
   the view with ``preset`` (default "auto"; its cost is in ``stats["cache_seconds"]``, and

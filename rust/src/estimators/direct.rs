@@ -755,6 +755,11 @@ pub enum ProductLevel {
     /// Each material's [`Material::product_level_hint`]: 32² cells for diffuse surfaces,
     /// 64² for Phong lobes narrower than half a 32² cell (exponents above about 650).
     PerMaterial,
+    /// [`Self::PerMaterial`] with Lambert surfaces one level coarser (16² cells). The
+    /// renderer takes it for jittered product sampling of views whose samples mostly leave
+    /// their anchor's surface (`render::COARSE_EDGE_SHARE`), where products are built
+    /// again for most samples' normals and a product four times cheaper to build pays.
+    CoarseDiffuse,
 }
 
 impl ProductLevel {
@@ -764,6 +769,10 @@ impl ProductLevel {
         match self {
             ProductLevel::Fixed(level) => level,
             ProductLevel::PerMaterial => material.product_level_hint(),
+            ProductLevel::CoarseDiffuse => match material {
+                Material::Lambert { .. } => material.product_level_hint() - 1,
+                Material::Phong { .. } => material.product_level_hint(),
+            },
         }
     }
 

@@ -212,6 +212,7 @@ pub fn render<'py>(
     stats.set_item("jitter", params.jitter)?;
     stats.set_item("light_samples", s.light_samples)?;
     stats.set_item("edge_share", s.edge_share)?;
+    stats.set_item("coarse_products", s.coarse_products)?;
     stats.set_item("probe_draws", s.probe_draws)?;
     let t = params.techniques();
     let weights = PyDict::new(py);
