@@ -229,9 +229,11 @@ def test_budgeted_product_renders_choose_light_draws_from_the_view():
 
 def test_views_of_grass_draw_from_coarser_products_and_stay_unbiased():
     # Garden's jittered samples mostly leave their anchor's blade (edge share above 0.4):
-    # its Lambert grass draws from 16^2 products; garage's smooth surfaces keep 32^2, as
-    # do fixed points, a level given and the control variate. Either way unbiased: the
-    # coarse image agrees with MIS (independent seeds) per pixel and in its mean.
+    # its Lambert grass draws from 16^2 products, also under the control variate when its
+    # "auto" cache keeps no records (the coherence check); garage's smooth surfaces keep
+    # 32^2, as do fixed points, a level given and a control variate with records. Either
+    # way unbiased: the coarse image agrees with MIS (independent seeds) per pixel and in
+    # its mean.
     garden = vc.scenes.load("garden", detail=0.3)
     garden.camera = garden.camera.with_resolution(48, 36)
     coarse = _render(garden, "product", 64, seed=21)
@@ -240,7 +242,12 @@ def test_views_of_grass_draw_from_coarser_products_and_stay_unbiased():
     _assert_agrees(coarse, ref, coverage=0.45)
     for kw in ({"jitter": False}, {"product_level": 5}):
         assert not _render(garden, "product", 2, **kw).stats["coarse_products"]
-    assert not _render(garden, "cv", 2).stats["coarse_products"]
+    no_records = _render(garden, "cv", 2)
+    assert no_records.stats["cache_records"] == 0 and no_records.stats["coarse_products"]
+    records = vc.VisibilityCache(garden.scene, preset="low", nearest_hits=False)
+    records.build(camera=garden.camera, progress=False)
+    assert len(records) > 0
+    assert not _render(garden, "cv", 2, cache=records).stats["coarse_products"]
     garage = vc.scenes.load("garage", detail=0.3)
     garage.camera = garage.camera.with_resolution(48, 36)
     assert not _render(garage, "product", 2).stats["coarse_products"]

@@ -756,9 +756,10 @@ pub enum ProductLevel {
     /// 64² for Phong lobes narrower than half a 32² cell (exponents above about 650).
     PerMaterial,
     /// [`Self::PerMaterial`] with Lambert surfaces one level coarser (16² cells). The
-    /// renderer takes it for jittered product sampling of views whose samples mostly leave
-    /// their anchor's surface (`render::COARSE_EDGE_SHARE`), where products are built
-    /// again for most samples' normals and a product four times cheaper to build pays.
+    /// renderer takes it for jittered product sampling (and control variates without
+    /// records) of views whose samples mostly leave their anchor's surface
+    /// (`render::COARSE_EDGE_SHARE`), where products are built again for most samples'
+    /// normals and a product four times cheaper to build pays.
     CoarseDiffuse,
 }
 

@@ -122,7 +122,8 @@ const BAND_ROWS: usize = 4;
 pub const MAX_SPP: u32 = 1 << 20;
 
 /// Least edge share ([`split::edge_share`]) of a view whose jittered product sampling
-/// takes [`ProductLevel::CoarseDiffuse`] when the level is left to the materials. Measured
+/// (or control variate without records) takes [`ProductLevel::CoarseDiffuse`] when the
+/// level is left to the materials. Measured
 /// at 1 s on the suite, 160x120, 16² cells on Lambert surfaces against 32² (relMSE ratio,
 /// edge share in brackets): garden (1.00) 0.83, strands (0.66) 0.87, instances (0.59)
 /// 0.96, hairball (0.44) 0.81, where the products' build fell from 0.09-0.23 to 0.03-0.09
@@ -1176,10 +1177,17 @@ fn render_with(
     };
     let anchors = anchors.or(traced.as_ref());
     // Product sampling of jittered samples that mostly leave their anchor's surface builds
-    // products for most samples' normals: cheaper ones pay there.
+    // products for most samples' normals: cheaper ones pay there. So does the control
+    // variate without records, which is product sampling (the "auto" cache's coherence
+    // check leaves such views without records).
     let edge_share_of = |g: &GBuffer| split::edge_share(g, scene);
+    let samples_products = match params.method {
+        Method::Product => true,
+        Method::ControlVariate => cache.is_none_or(|c| c.is_empty()),
+        _ => false,
+    };
     if params.product_level == ProductLevel::PerMaterial
-        && params.method == Method::Product
+        && samples_products
         && params.jitter
         && anchors.is_some_and(|g| edge_share_of(g) >= COARSE_EDGE_SHARE)
     {
