@@ -1180,17 +1180,20 @@ fn render_with(
     // products for most samples' normals: cheaper ones pay there. So does the control
     // variate without records, which is product sampling (the "auto" cache's coherence
     // check leaves such views without records).
-    let edge_share_of = |g: &GBuffer| split::edge_share(g, scene);
     let samples_products = match params.method {
         Method::Product => true,
         Method::ControlVariate => cache.is_none_or(|c| c.is_empty()),
         _ => false,
     };
-    if params.product_level == ProductLevel::PerMaterial
-        && samples_products
-        && params.jitter
-        && anchors.is_some_and(|g| edge_share_of(g) >= COARSE_EDGE_SHARE)
-    {
+    let chooses_level =
+        params.product_level == ProductLevel::PerMaterial && samples_products && params.jitter;
+    // Light draws per sample, from the anchors where the render chooses them.
+    let chooses_draws =
+        params.auto_light_samples && params.time_budget.is_some() && params.uses_product();
+    let view_edge_share = anchors
+        .filter(|_| chooses_level || chooses_draws)
+        .map(|g| split::edge_share(g, scene));
+    if chooses_level && view_edge_share.is_some_and(|share| share >= COARSE_EDGE_SHARE) {
         lighting.product_level = ProductLevel::CoarseDiffuse;
     }
     // The per-level cone tables of B~ are built once per process; build them before the
@@ -1202,10 +1205,7 @@ fn render_with(
             }
         })?;
     }
-    // Light draws per sample, from the anchors where the render chooses them.
-    let chooses_draws =
-        params.auto_light_samples && params.time_budget.is_some() && params.uses_product();
-    let edge_share = anchors.filter(|_| chooses_draws).map(edge_share_of);
+    let edge_share = view_edge_share.filter(|_| chooses_draws);
     let mut light_samples = edge_share.map_or(params.light_samples, split::draws_for);
     let mut probe_draws = None;
     let splits = edge_share.is_some() && light_samples > 1;

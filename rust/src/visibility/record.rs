@@ -735,11 +735,13 @@ impl Record {
         }
         let origins = vec![origin.to_array(); dirs.len()];
         let lights = scene.area_lights();
-        let occluded = if emitters_visible && !lights.is_empty() {
+        let tmax: Vec<f32>;
+        let mut batch = RayBatch::new(&origins, &dirs);
+        if emitters_visible && !lights.is_empty() {
             // Each ray stops short of the emitter plane it reaches (`emitter_stop`).
             let planes = emitter_stop::EmitterPlanes::new(lights);
             let slack = emitter_stop::texel_radius(m);
-            let tmax: Vec<f32> = dirs
+            tmax = dirs
                 .iter()
                 .map(|&d| {
                     let t = planes.distance(origin, d.into(), slack);
@@ -750,12 +752,9 @@ impl Record {
                     }
                 })
                 .collect();
-            let mut batch = RayBatch::new(&origins, &dirs);
             batch.tmax = TMax::PerRay(&tmax);
-            scene.occluded(&batch, None)?
-        } else {
-            scene.occluded(&RayBatch::new(&origins, &dirs), None)?
-        };
+        }
+        let occluded = scene.occluded(&batch, None)?;
 
         let mut bits = vec![0u64; bit_words(m)];
         let (mut visible_cos, mut total_cos) = (0.0f64, 0.0f64);
