@@ -371,6 +371,7 @@ class Relighter:
         time_budget: float | None = None,
         adaptive: bool = True,
         least_error: bool = True,
+        reuse: bool = True,
         callback: Callable[[int, int], Any] | None = None,
     ) -> dict[str, Any]: ...
 

@@ -21,8 +21,8 @@ applied and:
   the mean over pixels) given the blend's seconds; and at 0.25 both given
   ``EQUAL_TIME_SECONDS``, the blend adding passes of ``LBV``-samples (adaptive counts, the
   default; its ``lbv_spp`` is the mean over pixels), and SBF's own classical estimator
-  (the relighter's ``<LBV>`` alone, threshold 0, of the same density) given the same
-  seconds: relMSE on RGB against the reference,
+  (the relighter's ``<LBV>`` alone, threshold 0 and ``reuse=False``, of the same density,
+  reading no ``<V>``) given the same seconds: relMSE on RGB against the reference,
   and the share of pixels whose relative error exceeds the threshold (target at 0.25:
   relMSE <= 0.4x classical, <= 2% of pixels over), both as ``|x - ref| / ref`` and with
   relMSE's denominator ``sqrt(ref^2 + 1e-2)`` (beside product sampling's share): near-black
@@ -99,7 +99,7 @@ def _decoupled(rl, env, seed, camera=None):
     """``<LB><V>`` with 1024 LB-samples (``t`` within 1e-9 of 1: eq. 11 alone) where a light
     has ``<V>``, and 256-spp ``<LBV>`` where it has none (area lights in cache mode)."""
     return rl.render(envmap=env, lb_spp=1024, lbv_spp=256, threshold=1e12, epsilon=1e-9,
-                     seed=seed, camera=camera, least_error=False)
+                     seed=seed, camera=camera, least_error=False, reuse=False)
 
 
 def _bound_holds(est, actual_image, reference, n_sigma=NOISE_SIGMAS) -> tuple[float, int]:
@@ -164,10 +164,11 @@ def run(ctx: ExperimentContext) -> None:
                 classical = vc.render(setup, cam, method="product", jitter=False, envmap=env,
                                       time_budget=longer or sec, seed=ctx.seed + 4,
                                       threads=threads, progress=False)
-                # SBF's classical estimator: <LBV> of the same density (threshold 0; one
-                # LB-sample, the least the first pass takes), given the same seconds.
+                # SBF's classical estimator: <LBV> of the same density (threshold 0, no
+                # reuse: no <V> read; one LB-sample, the least the first pass takes),
+                # given the same seconds.
                 lbv = rl.render(envmap=env, threshold=0.0, lb_spp=1, lbv_spp=8,
-                                seed=ctx.seed + 4, time_budget=longer or sec)
+                                seed=ctx.seed + 4, time_budget=longer or sec, reuse=False)
                 sec = max(sec, classical.stats["seconds"]) if longer else sec
                 e_b = vc.metrics.relmse(res.image, ref.image, ref.variance)
                 e_c = vc.metrics.relmse(classical.image, ref.image, ref.variance)

@@ -475,6 +475,20 @@ impl ProductDistribution {
     pub fn pdf(&self, env: &EnvMap, dir: Vec3) -> f64 {
         self.texel_pdf(env, texel_of(dir, env.resolution()))
     }
+
+    /// The pdf at `dir` of the product of these cells (`B~`) with another map `other` of
+    /// the same resolution, whose product's normalization `Σ_c L_c B~_c` is
+    /// `normalization`, without building it: the relighter's density of samples drawn
+    /// under an earlier map, same material.
+    pub fn pdf_with_map(&self, other: &EnvMap, normalization: f64, dir: Vec3) -> f64 {
+        let Some(dist) = other.distribution() else {
+            return 0.0;
+        };
+        debug_assert!(other.resolution().trailing_zeros() >= self.level);
+        let texel = texel_of(dir, other.resolution());
+        let b = self.bsdf_cells[self.cell_of(other, texel)] as f64;
+        b * dist.weight(texel) / normalization / texel_solid_angle(other.resolution())
+    }
 }
 
 /// Product sampling guided by a visibility estimate per cell ([`ProductDistribution::guided`]):
@@ -1201,6 +1215,21 @@ mod tests {
                         assert!(product.pdf(&env, d) > 0.0, "{n} {wo} {d}");
                     }
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn a_products_cells_give_the_pdf_under_another_map() {
+        let (env, other) = (test_sky(64), test_sky(64).rotated(70.0));
+        let m = Material::phong([0.2; 3], [0.7; 3], 30.0).unwrap();
+        for (n, wo) in frames() {
+            let here = ProductDistribution::new(&env, &m, n, wo, 5).unwrap();
+            let there = ProductDistribution::new(&other, &m, n, wo, 5).unwrap();
+            for i in 0..10_000 {
+                let d = square_to_sphere(uniform(i).as_vec2());
+                let p = here.pdf_with_map(&other, there.normalization(), d);
+                assert_eq!(p, there.pdf(&other, d), "{n} {wo} {d}");
             }
         }
     }

@@ -169,7 +169,7 @@ impl PyRelighter {
         })?;
         reporter.finish()?;
         let (taken, rays) = out.py()?;
-        let bytes = self.lock().visibility_bytes_per_pixel_and_light(&scene);
+        let bytes = self.lock().visibility_bytes_per_pixel_and_light();
         let d = PyDict::new(py);
         d.set_item("spp", taken)?;
         d.set_item("shadow_rays", rays)?;
@@ -181,7 +181,7 @@ impl PyRelighter {
     /// Relights the view: see `viscache_rs.Relighter.render`. Returns a dict of arrays
     /// (image, variance: (H, W, 3); t, bound, visibility, effective_samples: (H, W, L);
     /// lbv_counts: (H, W)) and stats.
-    #[pyo3(signature = (envmap, materials=None, cache=None, light_cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, time_budget=None, adaptive=true, least_error=true, callback=None))]
+    #[pyo3(signature = (envmap, materials=None, cache=None, light_cache=None, lb_spp=64, lbv_spp=8, threshold=0.25, epsilon=0.1, seed=0, product_level=None, threads=None, time_budget=None, adaptive=true, least_error=true, reuse=true, callback=None))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -200,6 +200,7 @@ impl PyRelighter {
         time_budget: Option<&Bound<'py, PyAny>>,
         adaptive: bool,
         least_error: bool,
+        reuse: bool,
         callback: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let params = RelightParams {
@@ -215,6 +216,7 @@ impl PyRelighter {
             },
             adaptive,
             least_error,
+            reuse,
         };
         params.validate().py()?;
         let overrides = materials_arg(materials)?;
@@ -276,6 +278,7 @@ impl PyRelighter {
         stats.set_item("lbv_spp", out.lbv_spp)?;
         stats.set_item("lbv_spp_mean", out.lbv_spp_mean)?;
         stats.set_item("adaptive", params.adaptive)?;
+        stats.set_item("reuse", params.reuse)?;
         d.set_item("stats", stats)?;
         Ok(d)
     }

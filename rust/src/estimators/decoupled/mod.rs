@@ -25,8 +25,8 @@
 //! ## Where `⟨V⟩` comes from
 //! - [`VisibilitySource::Pixels`]: [`Relighter::converge_visibility`] traces `V`-samples at
 //!   every pixel's point and keeps, per pixel and light, their counts (for binary `V`,
-//!   its moments) and, for the map, the bits of the first [`REWEIGHT_SPP`]: 32 bytes, SBF's
-//!   8 floats. While a light's `p` is unchanged `⟨V⟩` is their mean; after an edit that
+//!   its moments) and the bits of the first [`REWEIGHT_SPP`]: 32 bytes, SBF's 8 floats.
+//!   While a light's `p` is unchanged `⟨V⟩` is their mean; after an edit that
 //!   changes the map's `p` (another map, a rotation, another material) the samples with
 //!   bits are reweighted by `p'/p` (self-normalised importance sampling; the effective
 //!   sample count `(Σw)²/Σw²` is reported), with no ray traced.
@@ -61,6 +61,29 @@
 //! pixels after a map rotation or swap; with it, on 96-100% (`viscache experiment
 //! relight`, 2026-11-26, seventh session).
 //!
+//! ## Stored samples as `LBV`-samples
+//! A stored `V`-sample is a draw of the density it was converged under with its `V`
+//! known. Redrawn (the same numbers give the same direction or point), it is an
+//! `LBV`-sample of the lighting now at no ray's cost: `LB'V/p₁`, unbiased wherever `p₁`
+//! covers `LB'`. [`RelightParams::reuse`] adds them to the unbiased part by the balance
+//! heuristic (Veach 1997, §9.2) with the `n₂ = lbv_spp` draws of the current density
+//! `p₂`: weights `w₁ = n₁p₁ / (n₁p₁ + n₂p₂)` and `w₂ = 1 − w₁`, so that where no stored
+//! sample lands (`p₁ = 0`, or `LB = 0` then, where no bit was kept) the new draws carry the
+//! integral alone, and where both densities agree the stored ones carry most of it. The
+//! two weighted means add up to `∫ LB'V` for any fixed weights summing to one, so later
+//! passes keep the first pass's `n₂`. An area light is sampled by area whatever its
+//! radiance or the materials, so its stored draws land where they did (`p₁ = p₂`); the
+//! map's are reused after an edit that changes its density, when they are redrawn for
+//! reweighting anyway. The area lights' redraws cost what an `LBV`-sample costs less its
+//! shadow ray, and the map's product draws more than that; what they buy at threshold 0
+//! (the cases of `viscache experiment relight`, 160x120, 256 `V`-samples, mean of three
+//! seeds, 2026-11-28): on the Cornell box after SBF's pattern switch, relMSE 0.0012 →
+//! 0.000012 at 0.15 → 0.44 s a frame; after a map edit, at +8-10% a frame, 1.8x (garage's
+//! map rotated: its sun moved where few stored draws went), 2.3x (garage's other sky) and
+//! 4.9x (meshes, rotated) lower. Where the unbiased part has the lower variance even
+//! without a bias (a fully lit pixel whose 64 `LB`-samples face 232 `LBV`-samples), the
+//! least-error share below weighs every channel.
+//!
 //! ## The blend beyond eq. 11: consistent
 //! Eq. 11 sets `t` from the bound alone, so `⟨LB⟩⟨V⟩` keeps its share however many
 //! `LBV`-samples later frames add, and so does its bias (SBF: the estimator "is not even
@@ -85,7 +108,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
-use glam::{DVec2, Vec2, Vec3};
+use glam::{DVec2, DVec3, Vec2, Vec3};
 use rayon::prelude::*;
 
 use self::bound::{
@@ -100,11 +123,12 @@ use crate::error::{Error, Result};
 use crate::estimators::direct::dims;
 use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
 use crate::lights::envmap::EnvMap;
+use crate::lights::AreaLight;
 use crate::moments::Moments;
 use crate::parallel::run_with_progress;
 use crate::render::adaptive::{sample_cap, SampleShares, RELMSE_FLOOR};
 use crate::render::schedule::{PassSchedule, PassWork as ScheduleWork};
-use crate::sampling::octahedral::sphere_to_square;
+use crate::sampling::octahedral::{sphere_to_square, texel_of};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
 use crate::visibility::cache::{CacheState, VisibilityCache};
@@ -113,8 +137,9 @@ use crate::visibility::cache::{CacheState, VisibilityCache};
 /// counts are 16-bit).
 pub const MAX_VISIBILITY_SPP: u32 = u16::MAX as u32;
 
-/// `V`-samples per pixel whose visibility bits are kept for reweighting the map's light
-/// (the first ones drawn): with the two 16-bit counts, 32 bytes per pixel, SBF's 8 floats.
+/// `V`-samples per pixel and light whose visibility bits are kept for reweighting the map's
+/// light and for reuse as `LBV`-samples (the first ones drawn): with the two 16-bit
+/// counts, 32 bytes per pixel and light, SBF's 8 floats.
 /// Measured against all 256 of `viscache experiment relight` (bound holds at lb_spp 64,
 /// pixel visibility, 2026-11-27): garage rotated 97.3 → 97.4%, garage's other sky 96.0 →
 /// 95.4%, meshes 99.8% both; 192 bits gave 94.5% on the sky.
@@ -177,6 +202,13 @@ pub struct RelightParams {
     /// eq. 11"); `false` gives SBF's eq. 11 alone, so that a large `threshold` and a small
     /// `epsilon` leave `⟨LB⟩⟨V⟩` itself.
     pub least_error: bool,
+    /// Whether the stored `V`-samples join the unbiased part as `LBV`-samples of the
+    /// density they were drawn from (module docs, "Stored samples as `LBV`-samples"):
+    /// every area light's, and the map's after an edit that changes its density. Pixel
+    /// visibility only. `false` gives SBF's `⟨LBV⟩` of the current density alone, and with
+    /// `threshold` 0 SBF's classical estimator, which reads no `⟨V⟩` (visibility and
+    /// bound NaN).
+    pub reuse: bool,
 }
 
 impl RelightParams {
@@ -191,6 +223,7 @@ impl RelightParams {
         time_budget: None,
         adaptive: true,
         least_error: true,
+        reuse: true,
     };
 
     /// Fails with an error naming the first parameter out of range.
@@ -235,12 +268,16 @@ struct LightDraw {
     /// The direction drawn and its solid-angle density.
     dir: Vec3,
     pdf: f64,
+    /// The point drawn on an area light (unused for the map).
+    point: Vec3,
 }
 
 /// What one pixel's light sees at render time: the lights' densities.
 struct PixelLights<'a> {
     scene: &'a Scene,
     env: &'a EnvMap,
+    /// The area lights drawn from: the scene's now, or as they were converged.
+    area_lights: &'a [AreaLight],
     sp: ShadingPoint,
     product: Option<Arc<ProductDistribution>>,
 }
@@ -248,17 +285,18 @@ struct PixelLights<'a> {
 impl PixelLights<'_> {
     fn draw(&self, light: LightId, rng: &impl Sampler) -> Option<LightDraw> {
         let sp = &self.sp;
-        let (dir, radiance, pdf, tmax) = match light {
+        let (dir, radiance, pdf, tmax, point) = match light {
             LightId::Env => {
                 let product = self.product.as_ref()?;
                 let s = product.sample_point(self.env, unit_pair(rng.get2(dims::ENV)));
-                (s.direction, self.env.texel(s.texel), s.pdf, f32::INFINITY)
+                let dir = s.direction;
+                (dir, self.env.texel(s.texel), s.pdf, f32::INFINITY, dir)
             }
             LightId::Area(k) => {
-                let light = &self.scene.area_lights()[k];
+                let light = &self.area_lights[k];
                 let s = sample_area_light(light, k, sp.origin, rng)?;
                 let tmax = self.scene.segment_end(s.distance, s.point);
-                (s.direction, s.radiance, s.pdf, tmax)
+                (s.direction, s.radiance, s.pdf, tmax, s.point)
             }
         };
         let cos = sp.normal.dot(dir);
@@ -274,6 +312,7 @@ impl PixelLights<'_> {
             ray,
             dir,
             pdf,
+            point,
         })
     }
 
@@ -312,22 +351,35 @@ impl PixelVisibility {
 struct Converged {
     env: EnvMap,
     materials: Vec<Material>,
+    /// The scene's area lights then (radiance and texture: which draws kept a bit).
+    area_lights: Vec<AreaLight>,
     spp: u32,
     seed: u64,
     product_level: ProductLevel,
     /// Per pixel, per light ([`Relighter::lights`] order).
     stats: Vec<PixelVisibility>,
-    /// Per pixel, `words` words of the visibility of the map's first
+    /// Per pixel and light, `words` words of the visibility of the first
     /// `min(spp, REWEIGHT_SPP)` samples, bit `s` for sample `s` (the samples are redrawn
-    /// from the stored density to reweight them).
+    /// from the stored density to reweight or reuse them).
     bits: Vec<u32>,
     words: usize,
 }
 
 impl Converged {
-    /// Bytes kept per pixel and light (averaged over the lights: the bits are the map's).
-    pub fn bytes_per_pixel_and_light(&self, lights: usize) -> usize {
-        std::mem::size_of::<PixelVisibility>() + 4 * self.words / lights.max(1)
+    /// Bytes kept per pixel and light.
+    pub fn bytes_per_pixel_and_light(&self) -> usize {
+        std::mem::size_of::<PixelVisibility>() + 4 * self.words
+    }
+
+    /// The stored visibility of sample `s` of light `l` (index into the lights) at `pixel`.
+    fn bit(&self, pixel: usize, l: usize, s: u32) -> bool {
+        let word = self.bits[(pixel * self.n_lights() + l) * self.words + s as usize / 32];
+        (word >> (s % 32)) & 1 == 1
+    }
+
+    /// Lights in [`Relighter::lights`] order: the map, then the area lights.
+    fn n_lights(&self) -> usize {
+        self.area_lights.len() + 1
     }
 }
 
@@ -422,12 +474,12 @@ impl Relighter {
     }
 
     /// Bytes of stored visibility per pixel and light (0 before
-    /// [`Self::converge_visibility`]): two 16-bit counts, and for the map one bit per
-    /// V-sample up to [`REWEIGHT_SPP`], averaged over the lights of `scene`: at most 32.
-    pub fn visibility_bytes_per_pixel_and_light(&self, scene: &Scene) -> usize {
-        self.converged.as_ref().map_or(0, |c| {
-            c.bytes_per_pixel_and_light(Self::lights(scene).len())
-        })
+    /// [`Self::converge_visibility`]): two 16-bit counts and one bit per V-sample up to
+    /// [`REWEIGHT_SPP`]: at most 32.
+    pub fn visibility_bytes_per_pixel_and_light(&self) -> usize {
+        self.converged
+            .as_ref()
+            .map_or(0, Converged::bytes_per_pixel_and_light)
     }
 
     /// The hit of pixel `i` and its shading point with `materials` (per object), or
@@ -479,7 +531,7 @@ impl Relighter {
         let words = (spp.min(REWEIGHT_SPP) as usize).div_ceil(32);
         let pixels = self.gbuffer.len();
         let mut stats = vec![PixelVisibility::default(); pixels * n_lights];
-        let mut bits = vec![0u32; pixels * words];
+        let mut bits = vec![0u32; pixels * n_lights * words];
         let planned = spp as u64 * pixels as u64;
         let cancel = AtomicBool::new(false);
         let done = AtomicU64::new(0);
@@ -493,7 +545,7 @@ impl Relighter {
             let work = || {
                 stats
                     .par_chunks_mut(n_lights)
-                    .zip(bits.par_chunks_mut(words))
+                    .zip(bits.par_chunks_mut(n_lights * words))
                     .enumerate()
                     .with_min_len(64)
                     .map_init(
@@ -509,6 +561,7 @@ impl Relighter {
                             let at = PixelLights {
                                 scene,
                                 env: &env,
+                                area_lights: scene.area_lights(),
                                 product: reused_product(&env, &sp, product_level, last_product),
                                 sp,
                             };
@@ -516,7 +569,9 @@ impl Relighter {
                             let mut rays = 0u64;
                             for s in pass.clone() {
                                 let rng = PixelSampler::new(seed, i as u64, STREAM_V + s as u64);
-                                for (stats, &light) in stats.iter_mut().zip(&lights) {
+                                for (l, (stats, &light)) in
+                                    stats.iter_mut().zip(&lights).enumerate()
+                                {
                                     // Draws with `LB = 0` tell nothing (module docs).
                                     let Some(d) = at.draw(light, &rng).filter(|d| d.ray.is_some())
                                     else {
@@ -526,8 +581,8 @@ impl Relighter {
                                     let visible = at.visible(&d, &mut bvh);
                                     stats.samples += 1;
                                     stats.visible += visible as u16;
-                                    if visible && light == LightId::Env && s < REWEIGHT_SPP {
-                                        bits[s as usize / 32] |= 1 << (s % 32);
+                                    if visible && s < REWEIGHT_SPP {
+                                        bits[l * words + s as usize / 32] |= 1 << (s % 32);
                                     }
                                 }
                             }
@@ -561,6 +616,7 @@ impl Relighter {
         self.converged = Some(Converged {
             env,
             materials,
+            area_lights: scene.area_lights().to_vec(),
             spp: taken,
             seed,
             product_level,
@@ -829,7 +885,20 @@ struct PixelSeen {
 #[derive(Clone, Copy, Debug)]
 struct LightSums {
     lb: [Moments; 3],
+    /// The new density's `LBV`-samples, each times its MIS weight `w₂` where stored
+    /// samples are reused (`reuse_n > 0`), else as drawn.
     lbv: [Moments; 3],
+    /// The stored `V`-samples reused as `LBV`-samples of the converged density, each
+    /// times its MIS weight `w₁` (empty without reuse): set by the first pass.
+    reused: [Moments; 3],
+    /// `n₁` of the balance heuristic: the stored samples reused (0: no reuse).
+    reuse_n: f64,
+    /// `Σ w₂` over the new `LBV`-samples (their count without reuse).
+    new_weight_sum: f64,
+    /// The map's converged product's normalization where its samples are reused (0
+    /// otherwise): with the same material and cells, its density at a direction follows
+    /// from the current product's cells ([`ProductDistribution::pdf_with_map`]).
+    then_total: f64,
     /// `⟨V⟩` (NaN without one), its effective sample count, the spread of the records
     /// it interpolates (cache mode) and the share of the density no sample reached
     /// (reweighted pixels): fixed by the first pass.
@@ -840,6 +909,17 @@ struct LightSums {
 }
 
 impl LightSums {
+    /// The unbiased part's estimate in channel `c`: `⟨LBV⟩`, plus the reused samples'
+    /// share where stored samples are reused (the two MIS-weighted means add up).
+    fn unbiased_mean(&self, c: usize) -> f64 {
+        self.lbv[c].mean + self.reused[c].mean
+    }
+
+    /// The variance of [`Self::unbiased_mean`] (its two means are independent).
+    fn unbiased_variance_of_mean(&self, c: usize) -> f64 {
+        self.lbv[c].variance_of_mean() + self.reused[c].variance_of_mean()
+    }
+
     /// Whether `LB`-samples would change nothing, so that the pixel's blend, variance and
     /// bound come out the same, bit for bit, without them: where there is no `⟨V⟩` (a
     /// point without records, an area light with cache visibility but no `light_cache`:
@@ -856,6 +936,10 @@ impl Default for LightSums {
         Self {
             lb: [Moments::default(); 3],
             lbv: [Moments::default(); 3],
+            reused: [Moments::default(); 3],
+            reuse_n: 0.0,
+            new_weight_sum: 0.0,
+            then_total: 0.0,
             v: f64::NAN,
             ess: 0.0,
             v_spread: 0.0,
@@ -953,6 +1037,7 @@ impl RelightPass<'_> {
         let at = PixelLights {
             scene: self.scene,
             env: self.env,
+            area_lights: self.scene.area_lights(),
             product: reused_product(
                 self.env,
                 &sp,
@@ -965,7 +1050,11 @@ impl RelightPass<'_> {
         if first {
             seen.radiance = self.scene.emitted(&hit, sp.wo);
             seen.surface = true;
-            self.visibility_of(i, &hit, &at, sums, &mut last_products.then);
+            // At threshold 0 without reuse the image is `⟨LBV⟩` alone: SBF's classical
+            // estimator, which reads no `⟨V⟩`.
+            if self.params.threshold > 0.0 || self.params.reuse {
+                self.visibility_of(i, &hit, &at, sums, &mut last_products.then);
+            }
         }
         let mut bvh = TraversalCounters::default();
         // One sampler per sample serves every light (each reads its own dimensions); each
@@ -983,20 +1072,56 @@ impl RelightPass<'_> {
             }
         }
         let sampled = Instant::now();
+        // The converged density, where the map's stored samples are reused: the new
+        // samples' MIS weights read it.
+        let stored = self
+            .converged
+            .filter(|_| !lbv.is_empty() && sums.iter().any(|s| s.reuse_n > 0.0))
+            .map(|c| {
+                let same_material = c.materials[hit.obj as usize] == at.sp.material;
+                // The same cells: the same material, level and map resolution (which caps
+                // the level).
+                let same_cells = same_material
+                    && c.product_level == self.params.product_level
+                    && c.env.resolution() == self.env.resolution();
+                // The map's converged product only where its stored samples are reused
+                // and it cannot be read off the current one's cells.
+                let last =
+                    (sums[0].reuse_n > 0.0 && !same_cells).then_some(&mut last_products.then);
+                StoredDensity {
+                    then: converged_lights(c, &at, hit.obj, last),
+                    converged: c,
+                    same_material,
+                    same_cells,
+                }
+            });
         for s in lbv.clone() {
             let rng = PixelSampler::new(self.params.seed, i as u64, STREAM_LBV + s as u64);
             for (sums, &light) in sums.iter_mut().zip(self.lights) {
-                let (lb_x, x) = match at.draw(light, &rng) {
+                let (lb_x, x, w2) = match at.draw(light, &rng) {
                     Some(d) => {
                         work.shadow_rays += d.ray.is_some() as u64;
                         let v = at.visible(&d, &mut bvh);
-                        (d.lb_over_p, if v { d.lb_over_p } else { Vec3::ZERO })
+                        let weights = ReuseWeights {
+                            n1: sums.reuse_n,
+                            n2: self.params.lbv_spp as f64,
+                        };
+                        let p1 = match &stored {
+                            Some(stored) if sums.reuse_n > 0.0 && d.ray.is_some() => {
+                                stored.pdf(&at, light, &d, &rng, sums.then_total)
+                            }
+                            _ => 0.0,
+                        };
+                        let w2 = 1.0 - weights.stored(p1, d.pdf);
+                        let x = if v { d.lb_over_p } else { Vec3::ZERO };
+                        (d.lb_over_p, x.as_dvec3() * w2, w2)
                     }
-                    None => (Vec3::ZERO, Vec3::ZERO),
+                    None => (Vec3::ZERO, DVec3::ZERO, 1.0),
                 };
                 // An LBV-sample is an LB-sample of the same density too.
-                Moments::push_each(&mut sums.lbv, x.as_dvec3().to_array());
+                Moments::push_each(&mut sums.lbv, x.to_array());
                 Moments::push_each(&mut sums.lb, lb_x.as_dvec3().to_array());
+                sums.new_weight_sum += w2;
             }
         }
         let ns = |a: Instant, b: Instant| b.duration_since(a).as_nanos() as u64;
@@ -1037,12 +1162,24 @@ impl RelightPass<'_> {
             let (v, ess) = match (self.converged, &lookup) {
                 (Some(c), _) => {
                     let stats = &c.stats[i * n_lights + l];
-                    if light == LightId::Env && !self.same_env_density {
-                        let r = reweighted(c, at, hit.obj, i, last_then);
-                        sums.v_unseen = r.unseen;
-                        (r.v, r.ess)
-                    } else {
-                        (stats.mean(), stats.samples as f64)
+                    let reuse = (self.params.reuse && self.params.lbv_spp > 0)
+                        .then_some(self.params.lbv_spp as f64);
+                    match light {
+                        LightId::Env if !self.same_env_density => {
+                            let r = reweighted(c, at, hit.obj, i, last_then, reuse);
+                            sums.v_unseen = r.unseen;
+                            sums.reused = r.reused;
+                            sums.reuse_n = r.reuse_n;
+                            sums.then_total = r.then_total;
+                            (r.v, r.ess)
+                        }
+                        LightId::Area(k) => {
+                            if let Some(n2) = reuse {
+                                (sums.reused, sums.reuse_n) = reused_area(c, at, (l, k), i, n2);
+                            }
+                            (stats.mean(), stats.samples as f64)
+                        }
+                        LightId::Env => (stats.mean(), stats.samples as f64),
                     }
                 }
                 // Records see an area light's own geometry as an occluder: they tell
@@ -1170,9 +1307,9 @@ impl RelightPass<'_> {
                 (t, rel)
             };
             let v_or_zero = if v.is_nan() { 0.0 } else { v };
-            for (c, (lbv, lb)) in s.lbv.iter().zip(&s.lb).enumerate() {
-                out.rgb[c] += blend(lbv.mean, lb.mean, v_or_zero, t);
-                out.variance[c] += (1.0 - t).powi(2) * lbv.variance_of_mean()
+            for (c, lb) in s.lb.iter().enumerate() {
+                out.rgb[c] += blend(s.unbiased_mean(c), lb.mean, v_or_zero, t);
+                out.variance[c] += (1.0 - t).powi(2) * s.unbiased_variance_of_mean(c)
                     + (t * v_or_zero).powi(2) * lb.variance_of_mean();
             }
             out.t[l] = t as f32;
@@ -1187,7 +1324,9 @@ impl RelightPass<'_> {
 /// The least-error `t` of a pixel and light ([`least_error_factor`], module docs) over the
 /// channels whose bound `err` allows a bias, the smallest deciding as in eq. 11; 1 (no
 /// limit) where no channel's bound is above zero, so that fully lit and fully blocked
-/// points keep eq. 11's `1 − ε`.
+/// points keep eq. 11's `1 − ε`. Where stored samples are reused, every channel weighs:
+/// their unbiased part may have far less variance than `⟨LB⟩⟨V⟩` even without a bias
+/// (a fully lit point whose 64 `LB`-samples face 232 reused ones).
 ///
 /// The squared bias is measured, not taken from the bound: `(⟨LB⟩⟨V⟩ − ⟨LBV⟩)²` less both
 /// estimates' variances (unbiased for the square when the two are independent), within
@@ -1200,13 +1339,17 @@ impl RelightPass<'_> {
 /// zero alone.
 fn least_error_t(s: &LightSums, v: f64, err: &[f64; 3]) -> f64 {
     (0..3)
-        .filter(|&c| err[c] > 0.0)
+        .filter(|&c| err[c] > 0.0 || s.reuse_n > 0.0)
         .filter_map(|c| {
             let (lb, lbv) = (&s.lb[c], &s.lbv[c]);
-            let predicted = v * lb.variance() + binary_variance(v) * lb.mean * lb.mean;
-            let var_unbiased = lbv.variance().max(predicted) / lbv.count.max(1) as f64;
+            // Reused stored samples take the weight `1 − w₂` of the new ones' values, so
+            // the floor shrinks by their mean weight squared.
+            let w2 = s.new_weight_sum / lbv.count.max(1) as f64;
+            let predicted = (v * lb.variance() + binary_variance(v) * lb.mean * lb.mean) * w2 * w2;
+            let var_unbiased = lbv.variance().max(predicted) / lbv.count.max(1) as f64
+                + s.reused[c].variance_of_mean();
             let var_decoupled = v * v * lb.variance_of_mean();
-            let d = v * lb.mean - lbv.mean;
+            let d = v * lb.mean - s.unbiased_mean(c);
             let bias2 = (d * d - var_unbiased - var_decoupled).clamp(0.0, err[c] * err[c]);
             least_error_factor(var_unbiased, bias2.sqrt(), var_decoupled)
         })
@@ -1318,7 +1461,8 @@ fn product_of(env: &EnvMap, sp: &ShadingPoint, level: ProductLevel) -> Option<Pr
 }
 
 /// `E_p'[V]` of the map's light from the converged samples (self-normalised importance
-/// sampling), with what tells how far to trust it.
+/// sampling), with what tells how far to trust it, and the samples' share of the unbiased
+/// part where they are reused.
 #[derive(Clone, Copy, Debug)]
 struct Reweighted {
     /// `Σ w V / Σ w` (NaN when no sample has weight).
@@ -1329,56 +1473,250 @@ struct Reweighted {
     /// `p'` where `p` drew no sample with a ray (`p = 0 < p'`: light where the old map was
     /// black; or a new sun far from every old draw), whose visibility is unknown.
     unseen: f64,
+    /// The stored samples as `LBV`-samples of the new lighting, MIS-weighted
+    /// ([`ReuseWeights`]; empty without reuse).
+    reused: [Moments; 3],
+    /// `n₁`: the stored samples (0 without reuse).
+    reuse_n: f64,
+    /// The normalization of the converged product (0 without one).
+    then_total: f64,
+}
+
+/// The lights at a pixel as the `V`-samples were drawn: the converged map, area lights and
+/// `object`'s material then; with `last`, the map's product too (reused through it as
+/// when they were drawn), else none (area lights only).
+fn converged_lights<'a>(
+    c: &'a Converged,
+    now: &PixelLights<'a>,
+    object: u32,
+    last: Option<&mut LastProduct>,
+) -> PixelLights<'a> {
+    let mut then_sp = now.sp;
+    then_sp.material = c.materials[object as usize];
+    PixelLights {
+        scene: now.scene,
+        env: &c.env,
+        area_lights: &c.area_lights,
+        product: last.and_then(|last| reused_product(&c.env, &then_sp, c.product_level, last)),
+        sp: then_sp,
+    }
+}
+
+/// The balance heuristic (Veach's multi-sample MIS) between the stored `V`-samples, `n₁`
+/// draws of the converged density `p₁`, and `n₂` `LBV`-samples of the new density `p₂`:
+/// `w₁ = n₁p₁ / (n₁p₁ + n₂p₂)`, `w₂ = 1 − w₁`. `p₁` counts only draws that kept a bit
+/// (`LB > 0` under the converged lighting: elsewhere `V` was never traced), so `w₂ = 1`
+/// where no stored sample can land. Any weights summing to 1 keep the sum of the two
+/// weighted means unbiased, whatever counts are then taken, so `n₂` is the first pass's
+/// nominal `lbv_spp` for every pass.
+#[derive(Clone, Copy, Debug)]
+struct ReuseWeights {
+    n1: f64,
+    n2: f64,
+}
+
+impl ReuseWeights {
+    /// `w₁` at a direction of densities `p1` (0 where no stored sample lands) and `p2`.
+    fn stored(&self, p1: f64, p2: f64) -> f64 {
+        let a = self.n1 * p1;
+        if a > 0.0 {
+            a / (a + self.n2 * p2)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The density `p₁` of a pixel's stored samples ([`ReuseWeights`]) at the draws of the
+/// current densities.
+struct StoredDensity<'a> {
+    /// The lights as converged (with the map's product where `same_cells` is false).
+    then: PixelLights<'a>,
+    converged: &'a Converged,
+    /// Whether the pixel's material is the converged one.
+    same_material: bool,
+    /// Whether, besides, the product's cells are the converged ones (the same level).
+    same_cells: bool,
+}
+
+impl StoredDensity<'_> {
+    /// `p₁` at draw `d` of `light` under `now` (from sampler `rng`; a draw with `LB > 0`):
+    /// the converged density there, 0 where `LB` was 0 then (no stored sample there kept
+    /// a bit). `then_total` is the converged product's normalization.
+    fn pdf(
+        &self,
+        now: &PixelLights,
+        light: LightId,
+        d: &LightDraw,
+        rng: &impl Sampler,
+        then_total: f64,
+    ) -> f64 {
+        let sp = &now.sp;
+        // Whether `LB` then, `f · L_then`, is non-zero, `f` the BSDF now (the same): a
+        // channel lit now and then has `f ≠ 0` by `d`'s own `LB`, others need `f`.
+        let kept = |then_radiance: Vec3| {
+            then_radiance != Vec3::ZERO
+                && (d.lb_over_p * then_radiance != Vec3::ZERO
+                    || sp.material.eval(sp.normal, sp.wo, d.dir) * then_radiance != Vec3::ZERO)
+        };
+        let c = self.converged;
+        match light {
+            LightId::Env if self.same_cells => {
+                let texel = texel_of(d.dir, c.env.resolution());
+                match &now.product {
+                    Some(p) if kept(c.env.texel(texel)) => {
+                        p.pdf_with_map(&c.env, then_total, d.dir)
+                    }
+                    _ => 0.0,
+                }
+            }
+            LightId::Env => stored_density(&self.then, d.dir),
+            // Drawn by area where the stored sample of the same numbers was: its density.
+            LightId::Area(k) if self.same_material => {
+                if kept(c.area_lights[k].radiance_at(d.point)) {
+                    d.pdf
+                } else {
+                    0.0
+                }
+            }
+            LightId::Area(_) => self
+                .then
+                .draw(light, rng)
+                .filter(|old| old.ray.is_some())
+                .map_or(0.0, |old| old.pdf),
+        }
+    }
+}
+
+/// The converged density `p₁` of the map's stored samples at `dir` (0 where the converged
+/// lighting had `LB = 0`, so no sample there kept a bit).
+fn stored_density(then: &PixelLights, dir: Vec3) -> f64 {
+    let Some(product) = then.product.as_ref() else {
+        return 0.0;
+    };
+    let sp = &then.sp;
+    let cos = sp.normal.dot(dir);
+    if cos <= 0.0 {
+        return 0.0;
+    }
+    let lb = sp.material.eval(sp.normal, sp.wo, dir)
+        * then.env.texel(texel_of(dir, then.env.resolution()));
+    if lb == Vec3::ZERO {
+        0.0
+    } else {
+        product.pdf(then.env, dir)
+    }
+}
+
+/// `LB` of the map at `dir` under the lighting of `at` (the texel's radiance, as its draws
+/// see it).
+fn env_lb(at: &PixelLights, dir: Vec3) -> Vec3 {
+    let sp = &at.sp;
+    let cos = sp.normal.dot(dir);
+    if cos <= 0.0 {
+        return Vec3::ZERO;
+    }
+    sp.material.eval(sp.normal, sp.wo, dir) * at.env.texel(texel_of(dir, at.env.resolution())) * cos
 }
 
 /// The samples with stored bits (the first [`REWEIGHT_SPP`]) redrawn from their density
 /// `p` (the converged map and `object`'s material then, its product reused through `last`
-/// as when they were drawn) and weighted by `w = p'/p` ([`Reweighted`]).
+/// as when they were drawn) and weighted by `w = p'/p` ([`Reweighted`]); with `reuse_n2`
+/// (`n₂` of [`ReuseWeights`]) also each one's `w₁ LB' V / p` under the new lighting.
 fn reweighted(
     c: &Converged,
     now: &PixelLights,
     object: u32,
     pixel: usize,
     last: &mut LastProduct,
+    reuse_n2: Option<f64>,
 ) -> Reweighted {
     let none = Reweighted {
         v: f64::NAN,
         ess: 0.0,
         unseen: 1.0,
+        reused: [Moments::default(); 3],
+        reuse_n: 0.0,
+        then_total: 0.0,
     };
-    let mut then_sp = now.sp;
-    then_sp.material = c.materials[object as usize];
-    let then = PixelLights {
-        scene: now.scene,
-        env: &c.env,
-        product: reused_product(&c.env, &then_sp, c.product_level, last),
-        sp: then_sp,
-    };
+    let then = converged_lights(c, now, object, Some(last));
     let Some(p_now) = now.product.as_ref() else {
         return none;
     };
     let (mut sum_w, mut sum_w2, mut sum_wv) = (0.0f64, 0.0f64, 0.0f64);
     let n = c.spp.min(REWEIGHT_SPP);
+    let weights = reuse_n2.map(|n2| ReuseWeights { n1: n as f64, n2 });
+    let mut reused = [Moments::default(); 3];
     for s in 0..n {
         let rng = PixelSampler::new(c.seed, pixel as u64, STREAM_V + s as u64);
         let Some(d) = then.draw(LightId::Env, &rng).filter(|d| d.ray.is_some()) else {
+            // A draw without a bit is an `LBV`-sample of value 0 (its `w₁` is 0).
+            if weights.is_some() {
+                Moments::push_each(&mut reused, [0.0; 3]);
+            }
             continue;
         };
-        let w = p_now.pdf(now.env, d.dir) / d.pdf;
-        let v = (c.bits[pixel * c.words + s as usize / 32] >> (s % 32)) & 1;
+        let p_new = p_now.pdf(now.env, d.dir);
+        let w = p_new / d.pdf;
+        let v = c.bit(pixel, 0, s) as u32;
         sum_w += w;
         sum_w2 += w * w;
         sum_wv += w * v as f64;
+        if let Some(weights) = weights {
+            let x = if v == 1 {
+                let w1 = weights.stored(d.pdf, p_new);
+                (env_lb(now, d.dir).as_dvec3() * (w1 / d.pdf)).to_array()
+            } else {
+                [0.0; 3]
+            };
+            Moments::push_each(&mut reused, x);
+        }
     }
     if sum_w > 0.0 {
         Reweighted {
             v: sum_wv / sum_w,
             ess: sum_w * sum_w / sum_w2,
             unseen: (1.0 - sum_w / n.max(1) as f64).max(0.0),
+            reused,
+            reuse_n: weights.map_or(0.0, |w| w.n1),
+            then_total: then.product.as_ref().map_or(0.0, |p| p.normalization()),
         }
     } else {
         none
     }
+}
+
+/// The stored samples of area light `k` (index `l` among the lights) at `pixel` as
+/// `LBV`-samples of the lights now (`now`), each times its `w₁`
+/// ([`ReuseWeights`] with `n₂`). An area light's density does not depend on its radiance
+/// or on materials, so a stored draw lands where it did; it kept a bit where `LB > 0`
+/// then.
+fn reused_area(
+    c: &Converged,
+    now: &PixelLights,
+    (l, k): (usize, usize),
+    pixel: usize,
+    n2: f64,
+) -> ([Moments; 3], f64) {
+    let n = c.spp.min(REWEIGHT_SPP);
+    let weights = ReuseWeights { n1: n as f64, n2 };
+    let mut reused = [Moments::default(); 3];
+    for s in 0..n {
+        // A set bit is a draw that kept one (`LB > 0` then) and saw the light; any other
+        // is an `LBV`-sample of value 0, whatever its weight.
+        let x = match c.bit(pixel, l, s) {
+            true => {
+                let rng = PixelSampler::new(c.seed, pixel as u64, STREAM_V + s as u64);
+                now.draw(LightId::Area(k), &rng).map_or([0.0; 3], |d| {
+                    let w1 = weights.stored(d.pdf, d.pdf);
+                    (d.lb_over_p.as_dvec3() * w1).to_array()
+                })
+            }
+            false => [0.0; 3],
+        };
+        Moments::push_each(&mut reused, x);
+    }
+    (reused, weights.n1)
 }
 
 /// One pixel of [`Relighter::render`].
