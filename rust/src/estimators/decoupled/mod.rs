@@ -43,10 +43,9 @@
 //!   the unbiased `⟨LBV⟩` in this mode. Measured on SBF's case (the Cornell box, a
 //!   light's texture switched; `viscache experiment relight`, 160x120, 2026-11-28): the
 //!   bound holds on 95.2% of pixels, but the interpolated `⟨V⟩` is off where the blocks'
-//!   shadows fall between records, and at threshold 0.25 the first frame has twice the
-//!   relMSE it has with pixel visibility, 0.7-1.6x that of `⟨LBV⟩` alone given its
-//!   seconds in two runs (pixel visibility: 0.84x); so the relighter takes that cache
-//!   only when given one.
+//!   shadows fall between records, and at threshold 0.25 the first frame has 3.7x the
+//!   relMSE of `⟨LBV⟩` alone given its seconds (pixel visibility with its reused
+//!   samples: 0.35x); so the relighter takes that cache only when given one.
 //!
 //! `Var(V)` is the binary variance `⟨V⟩(1 − ⟨V⟩)` in both cases. The bound adds the error of
 //! `⟨V⟩` itself, carried by `⟨LB⟩⟨V⟩`: [`V_ERROR_SIGMAS`] times its standard error (pixels),
