@@ -466,9 +466,20 @@ impl ProductDistribution {
         let dist = env
             .distribution()
             .expect("a product exists only for a lit map");
-        let cell = self.cell_of(env, texel);
-        let b = self.bsdf_cells[cell] as f64;
-        b * dist.weight(texel) / self.normalization() / texel_solid_angle(env.resolution())
+        self.texel_pdf_in(env, dist, texel, self.normalization())
+    }
+
+    /// The pdf of `texel` of `env` (whose distribution is `dist`) for these cells and
+    /// `normalization`.
+    fn texel_pdf_in(
+        &self,
+        env: &EnvMap,
+        dist: &QuadPyramid,
+        texel: UVec2,
+        normalization: f64,
+    ) -> f64 {
+        let b = self.bsdf_cells[self.cell_of(env, texel)] as f64;
+        b * dist.weight(texel) / normalization / texel_solid_angle(env.resolution())
     }
 
     /// Solid-angle pdf of [`Self::sample`] producing `dir`.
@@ -485,9 +496,12 @@ impl ProductDistribution {
             return 0.0;
         };
         debug_assert!(other.resolution().trailing_zeros() >= self.level);
-        let texel = texel_of(dir, other.resolution());
-        let b = self.bsdf_cells[self.cell_of(other, texel)] as f64;
-        b * dist.weight(texel) / normalization / texel_solid_angle(other.resolution())
+        self.texel_pdf_in(
+            other,
+            dist,
+            texel_of(dir, other.resolution()),
+            normalization,
+        )
     }
 }
 

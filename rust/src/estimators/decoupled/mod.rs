@@ -282,6 +282,18 @@ struct PixelLights<'a> {
 }
 
 impl PixelLights<'_> {
+    /// `LB` of the map at `dir` (the texel's radiance, as its draws see it).
+    fn env_lb(&self, dir: Vec3) -> Vec3 {
+        let sp = &self.sp;
+        let cos = sp.normal.dot(dir);
+        if cos <= 0.0 {
+            return Vec3::ZERO;
+        }
+        sp.material.eval(sp.normal, sp.wo, dir)
+            * self.env.texel(texel_of(dir, self.env.resolution()))
+            * cos
+    }
+
     fn draw(&self, light: LightId, rng: &impl Sampler) -> Option<LightDraw> {
         let sp = &self.sp;
         let (dir, radiance, pdf, tmax, point) = match light {
@@ -1635,32 +1647,10 @@ impl StoredDensity<'_> {
 /// The converged density `p₁` of the map's stored samples at `dir` (0 where the converged
 /// lighting had `LB = 0`, so no sample there kept a bit).
 fn stored_density(then: &PixelLights, dir: Vec3) -> f64 {
-    let Some(product) = then.product.as_ref() else {
-        return 0.0;
-    };
-    let sp = &then.sp;
-    let cos = sp.normal.dot(dir);
-    if cos <= 0.0 {
-        return 0.0;
+    match then.product.as_ref() {
+        Some(product) if then.env_lb(dir) != Vec3::ZERO => product.pdf(then.env, dir),
+        _ => 0.0,
     }
-    let lb = sp.material.eval(sp.normal, sp.wo, dir)
-        * then.env.texel(texel_of(dir, then.env.resolution()));
-    if lb == Vec3::ZERO {
-        0.0
-    } else {
-        product.pdf(then.env, dir)
-    }
-}
-
-/// `LB` of the map at `dir` under the lighting of `at` (the texel's radiance, as its draws
-/// see it).
-fn env_lb(at: &PixelLights, dir: Vec3) -> Vec3 {
-    let sp = &at.sp;
-    let cos = sp.normal.dot(dir);
-    if cos <= 0.0 {
-        return Vec3::ZERO;
-    }
-    sp.material.eval(sp.normal, sp.wo, dir) * at.env.texel(texel_of(dir, at.env.resolution())) * cos
 }
 
 /// The samples with stored bits (the first [`REWEIGHT_SPP`]) redrawn from their density
@@ -1709,7 +1699,7 @@ fn reweighted(
         if let Some(weights) = weights {
             let x = if v == 1 {
                 let w1 = weights.stored(d.pdf, p_new);
-                (env_lb(now, d.dir).as_dvec3() * (w1 / d.pdf)).to_array()
+                (now.env_lb(d.dir).as_dvec3() * (w1 / d.pdf)).to_array()
             } else {
                 [0.0; 3]
             };
