@@ -5,7 +5,7 @@
 //! spans the **vertical** axis (the image height); the horizontal one follows from the
 //! aspect ratio. Pixels are square.
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
 use crate::error::{Error, Result};
 use crate::sampling::rng::SampleRng;
@@ -138,7 +138,13 @@ impl Camera {
 
     /// Unit direction through film position `(x, y)` in pixel units (y down).
     pub fn direction(&self, x: f32, y: f32) -> Vec3 {
-        let t = self.tan_half_fov();
+        self.direction_with(self.tan_half_fov(), x, y)
+    }
+
+    /// [`Self::direction`] with `tan(fov_y / 2)` computed once by the caller: the
+    /// jittered samples of a pixel share it.
+    #[inline]
+    fn direction_with(&self, t: f32, x: f32, y: f32) -> Vec3 {
         let (w, h) = (self.width as f32, self.height as f32);
         let sx = (2.0 * x / w - 1.0) * t * (w / h);
         let sy = (1.0 - 2.0 * y / h) * t;
@@ -151,6 +157,23 @@ impl Camera {
             self.eye,
             self.direction(px as f32 + jitter[0], py as f32 + jitter[1]),
         )
+    }
+
+    /// Unit directions through pixel `(px, py)` at the jittered positions `jitters`
+    /// (each in [0,1)^2), into `out`: [`Self::pixel_ray`]'s directions, bit for bit.
+    pub fn pixel_directions(
+        &self,
+        px: u32,
+        py: u32,
+        jitters: impl IntoIterator<Item = [f32; 2]>,
+        out: &mut [Vec3A],
+    ) {
+        let t = self.tan_half_fov();
+        for (d, j) in out.iter_mut().zip(jitters) {
+            *d = self
+                .direction_with(t, px as f32 + j[0], py as f32 + j[1])
+                .into();
+        }
     }
 
     /// Primary ray of the pixel with row-major index `pixel`: through a position drawn from
@@ -201,6 +224,24 @@ mod tests {
         assert!((left.dot(c.forward).acos().to_degrees() - expect).abs() < 1e-3);
         let small = c.with_resolution(20, 10).unwrap();
         assert!((small.direction(10.0, 0.0) - top).length() < 1e-6);
+    }
+
+    #[test]
+    fn a_pixels_directions_are_its_rays_bit_for_bit() {
+        let c = cam(160, 120);
+        let jitters = [[0.0, 0.0], [0.999, 0.5], [0.25, 0.875], [0.5, 0.0001]];
+        for (px, py) in [(0, 0), (37, 91), (159, 119)] {
+            let mut out = [Vec3A::ZERO; 4];
+            c.pixel_directions(px, py, jitters, &mut out);
+            for (d, j) in out.iter().zip(jitters) {
+                let (eye, ray) = c.pixel_ray(px, py, j);
+                assert_eq!(eye, c.eye);
+                assert_eq!(
+                    Vec3::from(*d).to_array().map(f32::to_bits),
+                    ray.to_array().map(f32::to_bits)
+                );
+            }
+        }
     }
 
     #[test]

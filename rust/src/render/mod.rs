@@ -97,7 +97,7 @@ use crate::estimators::direct::{
 use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParams, MAX_BOUNCES};
 use crate::estimators::normal_products::NormalProducts;
 use crate::geometry::bvh::PACKET;
-use crate::geometry::{Scene, TraversalCounters};
+use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
 use crate::lights::envmap::{luminance, EnvMap};
 use crate::moments::Moments;
 use crate::parallel::{run_with_progress, with_threads};
@@ -551,16 +551,6 @@ struct SurfacePoint {
     lobes: Option<Box<LobeControl>>,
 }
 
-/// What one sample shades: the hit of its own primary ray.
-enum SampleHit {
-    Miss(Vec3),
-    Surface {
-        sp: ShadingPoint,
-        object: u32,
-        emitted: Vec3,
-    },
-}
-
 /// Everything a pass reads.
 struct Shader<'a> {
     lighting: Lighting<'a>,
@@ -598,50 +588,30 @@ fn elapsed_ns(since: Instant) -> u64 {
 
 impl Shader<'_> {
     /// The hits of the jittered primary rays of samples `rngs` of `pixel` (at most
-    /// [`PACKET`]), traced as one packet from the eye: a pixel's rays visit nearly the
-    /// same nodes, so together they cost a fraction of tracing them one by one.
-    fn trace_samples<'s>(
-        &'s self,
+    /// [`PACKET`]), traced as one packet from the eye (a pixel's rays visit nearly the
+    /// same nodes, so together they cost a fraction of tracing them one by one), with the
+    /// rays' directions. Lanes past `rngs.len()` hold nothing.
+    fn trace_samples(
+        &self,
         pixel: usize,
         rngs: &[PixelSampler],
         work: &mut BandWork,
-    ) -> impl Iterator<Item = SampleHit> + 's {
-        let scene = self.lighting.scene;
+    ) -> ([Option<SurfaceHit>; PACKET], [Vec3A; PACKET]) {
         let width = self.camera.width as usize;
         let (px, py) = ((pixel % width) as u32, (pixel / width) as u32);
         let n = rngs.len();
         let mut directions = [Vec3A::ZERO; PACKET];
-        for (d, rng) in directions.iter_mut().zip(rngs) {
-            *d = self
-                .camera
-                .pixel_ray(px, py, rng.get2(DIM_PIXEL_JITTER))
-                .1
-                .into();
-        }
-        let hits = scene.intersect_packet(
+        let jitters = rngs.iter().map(|rng| rng.get2(DIM_PIXEL_JITTER));
+        self.camera
+            .pixel_directions(px, py, jitters, &mut directions);
+        let hits = self.lighting.scene.intersect_packet(
             self.camera.eye,
             &directions[..n],
             &[f32::INFINITY; PACKET][..n],
             &mut work.bvh,
         );
         work.primary_rays += n as u64;
-        hits.into_iter()
-            .zip(directions)
-            .take(n)
-            .map(move |(hit, dir)| {
-                let dir = Vec3::from(dir);
-                match hit {
-                    None => SampleHit::Miss(self.lighting.env.eval(dir)),
-                    Some(hit) => {
-                        let sp = shading_point_at(scene, &hit, -dir);
-                        SampleHit::Surface {
-                            emitted: scene.emitted(&hit, sp.wo),
-                            object: hit.obj,
-                            sp,
-                        }
-                    }
-                }
-            })
+        (hits, directions)
     }
 
     /// Prepares the anchor of `pixel` at its G-buffer hit.
@@ -974,25 +944,10 @@ impl Shader<'_> {
         };
         // Record verdicts add up over the pixel and reach the band's map once.
         let mut verdicts = [(0u32, 0u32); crate::estimators::control_variate::MAX_KEPT];
-        let shade_hit = |hit: SampleHit,
-                         rng: &PixelSampler,
-                         work: &mut BandWork,
-                         verdicts: &mut [(u32, u32)]| match hit {
-            SampleHit::Miss(l) => (self.background(l), [0.0; 3]),
-            SampleHit::Surface {
-                sp,
-                object,
-                emitted,
-            } => {
-                let matched = anchor_surface.is_some_and(|a| {
-                    a.object == object && a.sp.normal.dot(sp.normal) >= a.cos_match
-                });
-                work.unmatched_samples += !matched as u64;
-                self.sample(anchor_surface, &sp, emitted, matched, rng, work, verdicts)
-            }
-        };
         if self.params.jitter {
-            // Packets of the pixel's samples, shaded in sample order.
+            let scene = self.lighting.scene;
+            // Packets of the pixel's samples, shaded in sample order straight from the
+            // packet's arrays (no hit is copied on the way).
             for first in samples.clone().step_by(PACKET) {
                 let n = (samples.end - first).min(PACKET as u32) as usize;
                 // Only the packet's own samples are made; the rest of the array repeats
@@ -1005,9 +960,29 @@ impl Shader<'_> {
                     }
                     _ => head,
                 });
-                let hits = self.trace_samples(pixel, &rngs[..n], work);
-                for (hit, rng) in hits.zip(&rngs) {
-                    let (z, w) = shade_hit(hit, rng, work, &mut verdicts);
+                let (hits, directions) = self.trace_samples(pixel, &rngs[..n], work);
+                for ((hit, dir), rng) in hits.iter().zip(directions).zip(&rngs).take(n) {
+                    let dir = Vec3::from(dir);
+                    let (z, w) = match hit {
+                        None => (self.background(self.lighting.env.eval(dir)), [0.0; 3]),
+                        Some(hit) => {
+                            let sp = shading_point_at(scene, hit, -dir);
+                            let emitted = scene.emitted(hit, sp.wo);
+                            let matched = anchor_surface.is_some_and(|a| {
+                                a.object == hit.obj && a.sp.normal.dot(sp.normal) >= a.cos_match
+                            });
+                            work.unmatched_samples += !matched as u64;
+                            self.sample(
+                                anchor_surface,
+                                &sp,
+                                emitted,
+                                matched,
+                                rng,
+                                work,
+                                &mut verdicts,
+                            )
+                        }
+                    };
                     acc.add(z, w);
                 }
             }
