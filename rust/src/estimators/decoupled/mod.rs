@@ -388,6 +388,11 @@ impl Converged {
         (word >> (s % 32)) & 1 == 1
     }
 
+    /// Samples per pixel and light whose bits are stored (the first ones drawn).
+    fn stored_samples(&self) -> u32 {
+        self.spp.min(REWEIGHT_SPP)
+    }
+
     /// Lights in [`Relighter::lights`] order: the map, then the area lights.
     fn n_lights(&self) -> usize {
         self.area_lights.len() + 1
@@ -1393,7 +1398,8 @@ fn least_error_t(s: &LightSums, v: f64, err: &[f64; 3]) -> f64 {
 /// `k / χ²₀.₀₅(k)` for `k = count − 1` degrees of freedom: the factor that lifts a sample
 /// variance of `count` normal values to its upper 95% confidence bound (the quantile from
 /// a table up to 10 degrees of freedom, then Wilson–Hilferty's approximation, within 1%
-/// there); 1 below two values.
+/// there); 1 below two values. Not statrs's `ChiSquared::inverse_cdf`, which searches the
+/// CDF iteratively, where this runs per pixel, light and channel.
 fn variance_upper_factor(count: u64) -> f64 {
     const QUANTILES: [f64; 10] = [
         0.00393, 0.103, 0.352, 0.711, 1.145, 1.635, 2.167, 2.733, 3.325, 3.940,
@@ -1678,7 +1684,7 @@ fn reweighted(
         return none;
     };
     let (mut sum_w, mut sum_w2, mut sum_wv) = (0.0f64, 0.0f64, 0.0f64);
-    let n = c.spp.min(REWEIGHT_SPP);
+    let n = c.stored_samples();
     let weights = reuse_n2.map(|n2| ReuseWeights { n1: n as f64, n2 });
     let mut reused = [Moments::default(); 3];
     for s in 0..n {
@@ -1732,7 +1738,7 @@ fn reused_area(
     pixel: usize,
     n2: f64,
 ) -> ([Moments; 3], f64) {
-    let n = c.spp.min(REWEIGHT_SPP);
+    let n = c.stored_samples();
     let weights = ReuseWeights { n1: n as f64, n2 };
     let mut reused = [Moments::default(); 3];
     for s in 0..n {
