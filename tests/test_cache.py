@@ -486,8 +486,8 @@ def test_nearest_hits_can_be_skipped_and_is_checked():
 
 def test_auto_preset_skips_incoherent_visibility_and_keeps_its_flag(tmp_path):
     # The default preset ("auto"): 64^2 records without nearest hits, and a check that
-    # records a quarter of d_max apart agree. Dense grass fails it (the build stops after
-    # the check's records); the garage passes and builds.
+    # records as far apart as the build would place them agree well enough to pay. Dense
+    # grass fails it (the build stops after the check's records); the garage passes.
     garden = vc.scenes.load("garden", detail=0.3)
     cam = garden.camera.with_resolution(64, 48)
     cache = vc.VisibilityCache(garden.scene)
@@ -527,15 +527,47 @@ def test_auto_preset_keeps_no_record_where_no_ray_sees_the_map(cornell):
     assert not report["blind"] and report["incoherence"] > 0.0
 
 
+def test_auto_weighs_the_records_cost_against_the_samples_they_serve():
+    # The check predicts the control variate's efficiency over product sampling, build
+    # included, from maps as far apart as the records will be. The 400 instances at
+    # 256x192 with a record per 400 samples of a 10-spp render: records too sparse to pay
+    # for themselves in 10 samples (product sampling was 1.7x as efficient, benches/
+    # README.md), so no records; the same records kept for renders without end pay.
+    inst = vc.scenes.load("instances")
+    g = inst.scene.gbuffer(inst.camera.with_resolution(256, 192), jitter=False)
+    cap = 256 * 192 * 10 // 400
+    few = vc.VisibilityCache(inst.scene, max_records=cap)
+    ten = few.build(gbuffer=g, progress=False, spp=10)
+    assert ten["incoherent"] and len(few) == 0 and ten["predicted_gain"] < 1
+    kept = vc.VisibilityCache(inst.scene, max_records=cap)
+    endless = kept.build(gbuffer=g, progress=False)
+    assert not endless["incoherent"] and len(kept) == cap and endless["predicted_gain"] > 1
+    # The same maps (the same cap spaces the pairs alike): the gains differ by the cost,
+    # (1.1 + (3 + 300 records per pixel) / spp) against 1.1 product samples per sample.
+    assert ten["predicted_variance_ratio"] == endless["predicted_variance_ratio"]
+    per_pixel = cap / ten["covered_pixels"]
+    cost = 1.1 + (3.0 + 300.0 * per_pixel) / 10
+    assert endless["predicted_gain"] / ten["predicted_gain"] == pytest.approx(cost / 1.1,
+                                                                            rel=1e-5)
+    # vc.render(method="cv") without a cache tells the build its spp.
+    r = vc.render(inst, camera=g.camera, spp=10, method="cv", progress=False)
+    assert r.stats["cache_incoherent"] and r.stats["cache_records"] == 0
+    assert r.stats["cache_predicted_gain"] == pytest.approx(ten["predicted_gain"], rel=1e-6)
+    for bad, err in ((0, ValueError), (1.5, TypeError), (True, TypeError)):
+        with pytest.raises(err, match="spp"):
+            vc.VisibilityCache(inst.scene).build(gbuffer=g, progress=False, spp=bad)
+
+
 def test_auto_builds_in_the_closed_room_and_caps_its_records():
     # The room seen through its windows passes the check at 160x120 (Jaccard distance
-    # 0.225, under the limit of 0.25): there the control variate has 0.36x product
-    # sampling's variance (benches/README.md).
+    # 0.225): there the control variate has 0.36x product sampling's variance
+    # (benches/README.md), and the check predicts 0.16x.
     room = vc.scenes.load("room")
     g = room.scene.gbuffer(room.camera.with_resolution(160, 120), jitter=False)
     cache = vc.VisibilityCache(room.scene)
     report = cache.build(gbuffer=g, progress=False)
     assert not report["incoherent"] and 0.2 < report["incoherence"] < 0.25
+    assert 0.1 < report["predicted_variance_ratio"] < 0.36 and report["predicted_gain"] > 1
     assert report["refined_records"] > 0
     # A checked build holds at most max(a tenth of the covered pixels, 1024) records:
     # the 400 instances at 256x192 would take three times as many.

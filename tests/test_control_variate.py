@@ -212,9 +212,15 @@ def test_stats_report_the_cache_work_and_misses_reach_the_records(garage):
     assert est.stats["alpha"] == "estimate"
     assert (est.alpha >= 0).all() and (est.alpha <= 2).all()
     assert np.allclose(est.alpha.mean(axis=(0, 1)), est.stats["mean_alpha"])
-    # Without a cache, "cv" builds one and says what it cost.
-    built = _render(setup, "cv", 2, seed=3)
+    # Without a cache, "cv" builds one and says what it cost, where its samples repay it:
+    # 500 records (the bootstrap) cost about as much as 150k product samples, which 2 spp
+    # of 40x30 pixels do not repay (the check predicts it and inserts none) and 256 do.
+    built = _render(setup, "cv", 256, seed=3)
     assert built.stats["cache_records"] > 0 and built.stats["cache_seconds"] > 0
+    assert built.stats["cache_predicted_gain"] > 1 and not built.stats["cache_incoherent"]
+    few = _render(setup, "cv", 2, seed=3)
+    assert few.stats["cache_records"] == 0 and few.stats["cache_incoherent"]
+    assert few.stats["cache_predicted_gain"] < 1
 
 
 def test_cv_without_a_cache_builds_no_more_records_than_its_samples_repay():
@@ -227,16 +233,19 @@ def test_cv_without_a_cache_builds_no_more_records_than_its_samples_repay():
     uncapped.build(setup.camera, seed=0, progress=False)
     startup = uncapped.params["n_startup"]
     assert len(uncapped) > startup
-    few = _render(setup, "cv", 2, seed=0, jitter=False)
-    assert pixels * 2 // render_module.SAMPLES_PER_RECORD < startup
+    # 16 spp: fewer records than the bootstrap's by the samples, which still repay those.
+    few = _render(setup, "cv", 16, seed=0, jitter=False)
+    assert pixels * 16 // render_module.SAMPLES_PER_RECORD < startup
     assert few.stats["cache_records"] == startup
     # Enough samples for every record the view asks for: the same cache as without a cap.
     spp = -(-len(uncapped) * render_module.SAMPLES_PER_RECORD // pixels)
     many = _render(setup, "cv", spp, seed=0, jitter=False)
     assert many.stats["cache_records"] == len(uncapped)
     # Under a time budget the build's share of the budget bounds it instead (a budget the
-    # build cannot spend on any machine; the render stops at its 4 spp).
-    budget = _render(setup, "cv", 4, seed=0, jitter=False, time_budget=20.0)
+    # build cannot spend on any machine; the render stops at its 16 spp, whose samples
+    # alone would cap the records below the view's).
+    budget = _render(setup, "cv", 16, seed=0, jitter=False, time_budget=20.0)
+    assert pixels * 16 // render_module.SAMPLES_PER_RECORD < len(uncapped)
     assert budget.stats["cache_records"] == len(uncapped)
 
 

@@ -268,6 +268,7 @@ class VisibilityCache:
         gbuffer: GBuffer | None = None,
         time_budget: float | None = None,
         callback: Callable[[int, int], Any] | None = None,
+        spp: int | None = None,
     ) -> dict[str, Any]: ...
     def insert(self, point: _ArrayLike, normal: _ArrayLike) -> int | None: ...
     def lookup(

@@ -210,12 +210,14 @@ def render(
             gbuffer = setup.scene.gbuffer(camera, jitter=False, threads=threads)
         report = cache.build(seed=seed, threads=threads, progress=progress, gbuffer=gbuffer,
                              time_budget=None if time_budget is None
-                             else CACHE_BUDGET_SHARE * time_budget)
+                             else CACHE_BUDGET_SHARE * time_budget,
+                             spp=spp if spp < _UNBOUNDED_SPP else None)
         built = time.perf_counter() - t
         cache_stats = {"cache_seconds": built,
                        "cache_records": report["records"],
                        "cache_shadow_rays": report["shadow_rays"],
                        "cache_incoherent": report["incoherent"],
+                       "cache_predicted_gain": report["predicted_gain"],
                        "cache_blind": report["blind"]}
         if time_budget is not None:
             time_budget = max(time_budget - built, 1e-3)

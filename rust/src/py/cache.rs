@@ -244,10 +244,13 @@ impl PyVisibilityCache {
     /// any `threads`. Stops after the wave that spends `time_budget` seconds (None: no
     /// budget). `callback(done, total)` (pixels), if given, is called with the GIL held
     /// after every wave; a falsy return or an exception stops the build (the exception is
-    /// then raised). Returns a dict: records, bootstrap_records,
+    /// then raised). `spp` (a positive int or None): the samples per pixel of the renders
+    /// the records will serve, which the coherence check weighs their cost against.
+    /// Returns a dict: records, bootstrap_records,
     /// refined_records, discarded_records, pixels, covered_pixels, shadow_rays,
-    /// nearest_rays, shadow_rays_per_pixel (CAM08 Table 2's last row), seconds, complete.
-    #[pyo3(signature = (camera=None, seed=0, threads=None, *, gbuffer=None, time_budget=None, callback=None))]
+    /// nearest_rays, shadow_rays_per_pixel (CAM08 Table 2's last row), seconds, complete,
+    /// incoherence, predicted_variance_ratio, predicted_gain, incoherent, blind.
+    #[pyo3(signature = (camera=None, seed=0, threads=None, *, gbuffer=None, time_budget=None, callback=None, spp=None))]
     #[allow(clippy::too_many_arguments)]
     fn build<'py>(
         &self,
@@ -258,9 +261,14 @@ impl PyVisibilityCache {
         gbuffer: Option<PyRef<'py, PyGBuffer>>,
         time_budget: Option<&Bound<'py, PyAny>>,
         callback: Option<Py<PyAny>>,
+        spp: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let view = view_arg(camera, gbuffer)?;
         let threads = threads_arg(threads)?;
+        let spp = match spp {
+            Some(s) if !s.is_none() => Some(int_arg(s, "spp", 1, u32::MAX as i128)? as u32),
+            _ => None,
+        };
         let budget = match time_budget {
             Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
             _ => None,
@@ -270,6 +278,7 @@ impl PyVisibilityCache {
         let stop = reporter.stop_flag();
         let mut callback = |done: usize, total: usize| reporter.report(done as u64, total as u64);
         let inner = self.inner.clone();
+        inner.plan_samples(spp);
         let out = detach_interruptible_with(py, &stop, &|| inner.request_stop(), || match &view {
             View::Camera(cam) => inner.build(&scene, cam, seed, threads, budget, &mut callback),
             View::GBuffer(g) => inner.build_from(&scene, g, seed, threads, budget, &mut callback),
@@ -289,6 +298,8 @@ impl PyVisibilityCache {
         d.set_item("seconds", r.seconds)?;
         d.set_item("complete", r.complete)?;
         d.set_item("incoherence", r.incoherence)?;
+        d.set_item("predicted_variance_ratio", r.predicted_variance_ratio)?;
+        d.set_item("predicted_gain", r.predicted_gain)?;
         d.set_item("incoherent", r.incoherent)?;
         d.set_item("blind", r.blind)?;
         Ok(d)

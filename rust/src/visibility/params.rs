@@ -84,11 +84,13 @@ pub struct CacheParams {
     /// occlusion's insertion criterion reads it; caches for the control variate can skip it
     /// (`R_i` is then `inf`, which that criterion ignores).
     pub nearest_hits: bool,
-    /// Whether an empty cache's build first checks that visibility is coherent at the scale
-    /// records are spaced at: it traces 16 x 16 visibility maps at pairs of pixels a
-    /// quarter of `d_max` apart, and when their visible sets differ on average by more than
-    /// [`INCOHERENCE_LIMIT`] (Jaccard distance), records could not predict the points
-    /// between them, so the build inserts none (the control variate then samples as plain
+    /// Whether an empty cache's build first checks that records would pay
+    /// ([`crate::visibility::cache::coherence`]): it traces 16 x 16 visibility maps at pairs
+    /// of pixels as far apart as the records will be (`sqrt(covered pixels / record_cap)`),
+    /// predicts from them the control variate's variance over product sampling's, weighs
+    /// that against the records' cost for the samples they will serve
+    /// ([`crate::visibility::cache::VisibilityCache::plan_samples`]), and inserts no record
+    /// when the predicted gain is below 1 (the control variate then samples as plain
     /// product sampling, for the check's few rays). Nor does it when none of the check's
     /// rays sees the map (a closed room lit by its own lights): records would all be zero
     /// and cancel nothing (`BuildReport::blind`). A build that passes the check stops
@@ -103,12 +105,6 @@ pub struct CacheParams {
     /// relighter's map need.
     pub emitters_visible: bool,
 }
-
-/// Mean Jaccard distance between the visible sets of records a quarter of `d_max` apart
-/// above which [`CacheParams::check_coherence`] stops a build. Measured over the suite at
-/// 160x120 and 256x192: the control variate's variance was 0.15-0.63x product sampling's
-/// below 0.25 (room, at 0.225, 0.36x) and 0.69-0.97x above (benches/README.md).
-pub const INCOHERENCE_LIMIT: f32 = 0.25;
 
 /// Records per covered pixel at which a checked build stops inserting ([`record_cap`]).
 pub const RECORD_SHARE_LIMIT: f64 = 0.1;

@@ -9,6 +9,7 @@ use std::time::Instant;
 use glam::Vec3;
 use rayon::prelude::*;
 
+use super::coherence::{pair_step, predicted_gain, predicted_variance_ratio, MapPair};
 use super::{check_scene_and_budget, count_rays, CacheState, VisibilityCache};
 use crate::camera::{Camera, GBuffer};
 use crate::error::{Error, Result};
@@ -17,9 +18,7 @@ use crate::parallel::with_threads;
 use crate::sampling::pattern::default_pattern;
 use crate::sampling::rng::SampleRng;
 use crate::spatial::waves::{coarse_to_fine_levels, WaveBuilder, WaveTarget};
-use crate::visibility::params::{
-    record_cap, COHERENCE_LOG2_RESOLUTION, COHERENCE_PAIRS, INCOHERENCE_LIMIT,
-};
+use crate::visibility::params::{record_cap, COHERENCE_LOG2_RESOLUTION, COHERENCE_PAIRS};
 use crate::visibility::record::{Record, RecordRays, RecordTracing};
 
 /// What [`VisibilityCache::build`] did.
@@ -53,8 +52,16 @@ pub struct BuildReport {
     /// The coherence check's mean Jaccard distance between the visible sets of its pairs
     /// of records ([`CacheParams::check_coherence`]; `None` when it did not run).
     pub incoherence: Option<f32>,
-    /// Whether the check found visibility too incoherent for records and stopped the build
-    /// after it.
+    /// The control variate's variance over product sampling's that the check predicts
+    /// ([`super::coherence::predicted_variance_ratio`]; `None` when it did not run or its
+    /// maps saw no occlusion).
+    pub predicted_variance_ratio: Option<f32>,
+    /// The control variate's efficiency over product sampling's, build included, that the
+    /// check predicts ([`super::coherence::predicted_gain`]).
+    pub predicted_gain: Option<f32>,
+    /// Whether the check predicted that records would not pay (gain below 1: visibility
+    /// too incoherent at the records' spacing for the samples they serve) and stopped the
+    /// build after it.
     pub incoherent: bool,
     /// Whether the check saw the map through none of its rays (a closed room lit by its
     /// own lights) and stopped the build after it: `Ṽ` would be zero everywhere, so the
@@ -168,10 +175,18 @@ impl VisibilityCache {
                     Some(*footprints.select_nth_unstable_by(mid, f32::total_cmp).1);
             }
             if self.is_empty() && self.params.check_coherence {
-                let check = self.coherence_check(scene, gbuffer)?;
+                let covered = report.covered_pixels;
+                let cap = record_cap(&self.params, covered);
+                let check = self.coherence_check(scene, gbuffer, pair_step(covered, cap))?;
                 count_rays(&mut self.write().counters, check.rays);
                 report.incoherence = check.incoherence;
-                if check.incoherence.is_some_and(|d| d > INCOHERENCE_LIMIT) {
+                report.predicted_variance_ratio = check.variance_ratio.map(|r| r as f32);
+                let per_pixel = cap as f64 / covered.max(1) as f64;
+                let gain = check
+                    .variance_ratio
+                    .map(|r| predicted_gain(r, self.planned_samples(), per_pixel));
+                report.predicted_gain = gain.map(|g| g as f32);
+                if gain.is_some_and(|g| g < 1.0) {
                     report.incoherent = true;
                     return Ok(());
                 }
@@ -273,14 +288,14 @@ impl VisibilityCache {
 
     /// [`CacheParams::check_coherence`]: visibility maps of [`COHERENCE_LOG2_RESOLUTION`]
     /// (16 x 16 directions, a sixteenth of a 64² record's rays; not inserted) at
-    /// [`COHERENCE_PAIRS`] pixels on a grid over the image and at their partners a quarter
-    /// of `d_max` to the side (both surface hits); returns the mean Jaccard distance
-    /// `|A ⊕ B| / |A ∪ B|` of the pairs' visible sets (`None` without pairs), the visible
-    /// directions summed over all maps and the rays traced. The pairs are fixed by the
-    /// image, so the check is deterministic.
-    fn coherence_check(&self, scene: &Scene, g: &GBuffer) -> Result<CoherenceCheck> {
+    /// [`COHERENCE_PAIRS`] pixels on a grid over the image and at their partners `step`
+    /// pixels to the side (both surface hits); returns the mean Jaccard distance
+    /// `|A ⊕ B| / |A ∪ B|` of the pairs' visible sets and the predicted variance ratio
+    /// ([`predicted_variance_ratio`]; both `None` without pairs), the visible directions
+    /// summed over all maps and the rays traced. The pairs are fixed by the image and
+    /// `step`, so the check is deterministic.
+    fn coherence_check(&self, scene: &Scene, g: &GBuffer, step: usize) -> Result<CoherenceCheck> {
         let (w, h) = (g.width() as usize, g.height() as usize);
-        let step = ((self.params.d_max_scale / 4.0).round() as usize).max(1);
         let side = (COHERENCE_PAIRS as f64).sqrt().ceil() as usize;
         let mut pairs = Vec::new();
         for gy in 0..side {
@@ -316,16 +331,24 @@ impl VisibilityCache {
             .collect::<Result<_>>()?;
         let mut distance = 0.0f64;
         let mut check = CoherenceCheck::default();
+        let mut shares = Vec::with_capacity(traced.len());
         for [(a, ra), (b, rb)] in &traced {
             let (a, b) = (a.bits.view(), b.bits.view());
             let union = (a.popcount() + b.popcount() + a.xor_popcount(&b)) / 2;
             if union > 0 {
                 distance += a.xor_popcount(&b) as f64 / union as f64;
             }
+            let n = a.len() as f64;
+            shares.push(MapPair {
+                visible_a: a.popcount() as f64 / n,
+                visible_b: b.popcount() as f64 / n,
+                disagree: a.xor_popcount(&b) as f64 / n,
+            });
             check.visible += (a.popcount() + b.popcount()) as u64;
             check.rays.shadow += ra.shadow + rb.shadow;
         }
         check.incoherence = Some((distance / traced.len() as f64) as f32);
+        check.variance_ratio = predicted_variance_ratio(shares);
         Ok(check)
     }
 
@@ -356,6 +379,8 @@ impl VisibilityCache {
 struct CoherenceCheck {
     /// Mean Jaccard distance of the pairs (`None` without pairs).
     incoherence: Option<f32>,
+    /// [`predicted_variance_ratio`] of the pairs.
+    variance_ratio: Option<f64>,
     /// Visible directions over all the check's maps.
     visible: u64,
     rays: RecordRays,

@@ -49,7 +49,7 @@
 //! the insertion waves; `frames.rs`: §5.3 bookkeeping over frames; `io.rs`: the file
 //! format.
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use glam::Vec3;
@@ -61,6 +61,7 @@ use crate::geometry::Scene;
 use crate::sampling::pattern::{default_pattern, record_pattern, DEFAULT_LLOYD_ITERATIONS};
 
 mod build;
+pub mod coherence;
 mod frames;
 mod io;
 mod lookup;
@@ -213,6 +214,8 @@ pub struct VisibilityCache {
     lookups: AtomicU64,
     /// Set by [`VisibilityCache::request_stop`]; cleared when a build starts.
     stop: AtomicBool,
+    /// [`VisibilityCache::plan_samples`]'s samples per pixel, 0 when not given.
+    planned_spp: AtomicU32,
     /// Process-unique id of this cache object (a clone or a loaded file gets its own).
     id: u64,
     /// Bumped on every exclusive access: anything derived from the records (a preview's
@@ -231,6 +234,7 @@ impl Clone for VisibilityCache {
             state: RwLock::new(self.read().clone()),
             lookups: AtomicU64::new(self.lookups.load(Ordering::Relaxed)),
             stop: AtomicBool::new(false),
+            planned_spp: AtomicU32::new(self.planned_spp.load(Ordering::Relaxed)),
             id: NEXT_CACHE_ID.fetch_add(1, Ordering::Relaxed),
             revision: AtomicU64::new(0),
         }
@@ -253,9 +257,22 @@ impl VisibilityCache {
             state: RwLock::new(CacheState::new(m)?),
             lookups: AtomicU64::new(0),
             stop: AtomicBool::new(false),
+            planned_spp: AtomicU32::new(0),
             id: NEXT_CACHE_ID.fetch_add(1, Ordering::Relaxed),
             revision: AtomicU64::new(0),
         })
+    }
+
+    /// Declares the samples per pixel of the renders the records will serve (`None`:
+    /// unknown, as for a cache kept across frames). The coherence check of the next builds
+    /// weighs the records' cost against them ([`coherence::predicted_gain`]).
+    pub fn plan_samples(&self, spp: Option<u32>) {
+        self.planned_spp.store(spp.unwrap_or(0), Ordering::Relaxed);
+    }
+
+    /// The samples per pixel given to [`Self::plan_samples`], if any.
+    pub fn planned_samples(&self) -> Option<u32> {
+        Some(self.planned_spp.load(Ordering::Relaxed)).filter(|&s| s > 0)
     }
 
     /// The parameters.
