@@ -64,7 +64,7 @@ use glam::{DVec2, UVec2, Vec3};
 
 use crate::lights::envmap::{EnvMap, LUMINANCE};
 use crate::sampling::distribution::QuadPyramid;
-use crate::sampling::octahedral::{morton_decode, morton_encode, texel_solid_angle};
+use crate::sampling::octahedral::{morton_decode, morton_encode, texel_center, texel_solid_angle};
 use crate::visibility::cache::{CacheState, Lookup};
 use crate::visibility::record::{word_level, Coverage, VisibilityView};
 
@@ -114,6 +114,8 @@ pub struct MapChroma {
     /// As `chroma`, without the peak texels (`None` without peaks: then `chroma`): the
     /// control variate's region colours.
     rest: Option<Vec<Vec<[f64; 3]>>>,
+    /// The peaks' weighted mean direction when they form one small disc ([`sun_of`]).
+    sun: Option<Vec3>,
 }
 
 /// A texel far brighter than the map's mean (a sun), which the control variate gives its
@@ -134,6 +136,11 @@ pub const PEAK_FACTOR: f64 = 16.0;
 /// Most peaks a [`MapChroma`] keeps (the brightest): each costs a few operations per
 /// point in `J`.
 pub const MAX_PEAKS: usize = 64;
+
+/// Largest angle (degrees) between a map's peaks and their mean direction for them to be
+/// one sun ([`MapChroma::sun`]): the procedural daylight's sun is four texels of a 256² map,
+/// about 1° across.
+pub const SUN_RADIUS_DEG: f32 = 5.0;
 
 /// Shallowest map with peaks: texels no coarser than any record's
 /// ([`crate::sampling::pattern::MAX_LOG2_RESOLUTION`]), so that one record texel holds each
@@ -201,11 +208,13 @@ impl MapChroma {
             }
             colours(&levels)
         });
+        let sun = sun_of(&peaks, res);
         Self {
             depth,
             chroma,
             peaks,
             rest,
+            sun,
         }
     }
 
@@ -214,10 +223,25 @@ impl MapChroma {
     /// without the peaks.
     #[inline]
     pub fn control_colour(&self, code: u32, level: u32) -> [f64; 3] {
-        match self.peaks.binary_search_by_key(&code, |p| p.code) {
-            Ok(i) => self.peaks[i].colour,
-            Err(_) => self.control_colours(level)[(code >> (2 * (self.depth - level))) as usize],
+        match self.peak_index(code) {
+            Some(i) => self.peaks[i].colour,
+            None => self.control_colours(level)[(code >> (2 * (self.depth - level))) as usize],
         }
+    }
+
+    /// The index in [`Self::peaks`] of the texel of `code` (at the map's depth), if it is
+    /// a peak.
+    #[inline]
+    pub fn peak_index(&self, code: u32) -> Option<usize> {
+        self.peaks.binary_search_by_key(&code, |p| p.code).ok()
+    }
+
+    /// The direction of the map's sun: the peaks' mean direction weighted by their
+    /// luminance, when every peak lies within [`SUN_RADIUS_DEG`] of it (`None` without
+    /// peaks or where they are spread: a bright horizon, two suns). The control variate
+    /// takes `Ṽ` on the peaks from one shadow ray toward it ([`Interpolant::with_sun`]).
+    pub fn sun(&self) -> Option<Vec3> {
+        self.sun
     }
 
     /// The control variate's region colours at `level` (without the peak texels).
@@ -239,6 +263,18 @@ impl MapChroma {
     pub fn depth(&self) -> u32 {
         self.depth
     }
+}
+
+/// [`MapChroma::sun`] of `peaks` on a map of `res` texels a side.
+fn sun_of(peaks: &[Peak], res: u32) -> Option<Vec3> {
+    let direction = |p: &Peak| texel_center(morton_decode(p.code), res);
+    let sum: Vec3 = peaks.iter().map(|p| direction(p) * p.weight as f32).sum();
+    let mean = sum.try_normalize()?;
+    let cos_max = SUN_RADIUS_DEG.to_radians().cos();
+    peaks
+        .iter()
+        .all(|p| direction(p).dot(mean) >= cos_max)
+        .then_some(mean)
 }
 
 /// RGB over luminance (0 where the luminance is not positive).
@@ -352,6 +388,37 @@ impl<'c> ControlTables<'c> {
     /// In the pyramid's units (times `texel_omega`, an integral).
     #[inline]
     fn peak_excess(&self, product: &ProductDistribution, v: impl Fn(u32) -> f64) -> [f64; 3] {
+        self.sum_over_peaks(product, |peak, region, texel| {
+            let visible = v(texel);
+            std::array::from_fn(|k| (peak.colour[k] - region[k]) * visible)
+        })
+    }
+
+    /// `Σ_t κ(t) L_lum(t) B~(t) (sun − v(t))` over the map's peak texels `t`, times
+    /// `texel_omega`: how `J` changes when `Ṽ` on the peaks is `sun` instead of the
+    /// records' `v` (of a peak's record texel; [`Interpolant::with_sun`]).
+    pub fn sun_change(
+        &self,
+        product: &ProductDistribution,
+        v: impl Fn(u32) -> f64,
+        sun: f64,
+    ) -> [f64; 3] {
+        let sum = self.sum_over_peaks(product, |peak, _, texel| {
+            let change = sun - v(texel);
+            peak.colour.map(|c| c * change)
+        });
+        sum.map(|s| s * self.texel_omega)
+    }
+
+    /// `Σ_t L_lum(t) B~(t) term(peak, κ(region of t), record texel of t)` over the map's
+    /// peak texels `t` with `B~ > 0` (none where the product's cells are finer than the
+    /// map's texels).
+    #[inline]
+    fn sum_over_peaks(
+        &self,
+        product: &ProductDistribution,
+        term: impl Fn(&Peak, [f64; 3], u32) -> [f64; 3],
+    ) -> [f64; 3] {
         let mut sum = [0.0f64; 3];
         let p = product.level();
         if self.peaks.is_empty() || p > self.map_depth {
@@ -363,14 +430,12 @@ impl<'c> ControlTables<'c> {
             if b == 0.0 {
                 continue;
             }
-            let visible = v(peak.code >> (2 * (self.map_depth - self.record_m)));
-            if visible == 0.0 {
-                continue;
-            }
+            let texel = peak.code >> (2 * (self.map_depth - self.record_m));
             let region =
                 self.colours[(peak.code >> (2 * (self.map_depth - self.region_level))) as usize];
-            let y = b * peak.weight * visible;
-            sum = std::array::from_fn(|k| sum[k] + (peak.colour[k] - region[k]) * y);
+            let y = b * peak.weight;
+            let t = term(peak, region, texel);
+            sum = std::array::from_fn(|k| sum[k] + t[k] * y);
         }
         sum
     }
@@ -698,6 +763,8 @@ pub struct Interpolant {
     pub unoccluded: f64,
     /// Level of the colour regions `κ` is read at ([`region_level`]).
     pub region_level: u32,
+    /// `Ṽ` on the map's peaks, where [`Self::with_sun`] set it (else the records').
+    pub sun: Option<f64>,
 }
 
 /// Most records an interpolant keeps (the cache's `n_keep` cap).
@@ -712,6 +779,7 @@ impl Interpolant {
         j: [0.0; 3],
         unoccluded: 0.0,
         region_level: 0,
+        sun: None,
     };
 
     /// The interpolant of `lookup`, with `J = Σ β_i J_i` integrated against `tables` for
@@ -738,6 +806,43 @@ impl Interpolant {
                 tables.interpolated_integral(&maps[..out.len], &out.beta[..out.len], product, env);
         }
         out
+    }
+
+    /// The interpolant with `Ṽ = sun` on the map's peak texels (the shadow ray of the
+    /// shading point toward [`MapChroma::sun`], 0 or 1) instead of the records' blend there,
+    /// and `J` changed to match ([`ControlTables::sun_change`], exact as `J` is). The records
+    /// each give the sun one texel whose single ray passes up to a texel's width beside it,
+    /// so near a shadow's edge their blend misjudges the sun that carries most of a daylight
+    /// map's power; the point's own ray does not. `sun` depends on the point alone, not on
+    /// the samples, so the estimate stays unbiased. `tables` and `product` must be the ones
+    /// `J` was integrated with. Without records (`J = 0`, plain product sampling) nothing
+    /// changes.
+    pub fn with_sun(
+        mut self,
+        state: &CacheState,
+        tables: &ControlTables,
+        product: &ProductDistribution,
+        sun: f64,
+    ) -> Self {
+        if self.len == 0 {
+            return self;
+        }
+        let store = state.store();
+        let change = tables.sun_change(
+            product,
+            |texel| {
+                self.ids()
+                    .iter()
+                    .zip(self.betas())
+                    .filter(|(&id, _)| store.bits(id as usize).get(texel as usize))
+                    .map(|(_, &b)| b as f64)
+                    .sum()
+            },
+            sun,
+        );
+        self.j = std::array::from_fn(|k| self.j[k] + change[k]);
+        self.sun = Some(sun);
+        self
     }
 
     /// `Ṽ` over each cell of octahedral level `level` (Morton order): per cell, the `β`-
@@ -1081,11 +1186,17 @@ pub fn control_sample(
     chroma: &MapChroma,
     square: DVec2,
 ) -> ControlSample {
-    let (v, mask) = interpolant.eval(state, square);
-    let colour = chroma.control_colour(
-        record_texel_code(square, chroma.depth()),
-        interpolant.region_level,
-    );
+    let (mut v, mask) = interpolant.eval(state, square);
+    let code = record_texel_code(square, chroma.depth());
+    let colour = match chroma.peak_index(code) {
+        Some(i) => {
+            if let Some(sun) = interpolant.sun {
+                v = sun;
+            }
+            chroma.peaks()[i].colour
+        }
+        None => chroma.control_colour(code, interpolant.region_level),
+    };
     let scale = interpolant.unoccluded * v;
     ControlSample {
         value: colour.map(|c| c * scale),
@@ -1120,20 +1231,25 @@ pub struct LobeControl {
 }
 
 impl LobeControl {
-    /// The control at `sp` with its product `product` under `env` and records `lookup`;
-    /// `None` where the material's lobes share one colour (or its diffuse part is zero).
+    /// The control at `sp` with its product `product` under `env` and records `lookup`,
+    /// with `Ṽ = sun` on the map's peaks where given ([`Interpolant::with_sun`]); `None`
+    /// where the material's lobes share one colour (or its diffuse part is zero).
     pub fn new(
         product: &ProductDistribution,
         sp: &super::direct::ShadingPoint,
-        state: &CacheState,
-        lookup: &Lookup,
+        (state, lookup): (&CacheState, &Lookup),
         chroma: &MapChroma,
         env: &EnvMap,
+        sun: Option<f64>,
     ) -> Option<Self> {
         let (diffuse, coat) = sp.material.lobe_channel_ratios()?;
         let part = product.lobe_part(env, &sp.material.diffuse_lobe(), sp.normal, sp.wo)?;
         let tables = ControlTables::new(&part, chroma, state.store().m());
-        let j = Interpolant::new(state, lookup, Some((&tables, &part, env))).j;
+        let mut interpolant = Interpolant::new(state, lookup, Some((&tables, &part, env)));
+        if let Some(sun) = sun {
+            interpolant = interpolant.with_sun(state, &tables, &part, sun);
+        }
+        let j = interpolant.j;
         let shares = part
             .bsdf_cells()
             .iter()
@@ -1592,7 +1708,8 @@ mod tests {
             wo,
             material: mat,
         };
-        let lobes = LobeControl::new(&product, &anchor, &state, &lookup, &chroma, &env).unwrap();
+        let lobes =
+            LobeControl::new(&product, &anchor, (&state, &lookup), &chroma, &env, None).unwrap();
         let sp = ShadingPoint {
             normal: Vec3::new(0.3, 0.9, -0.2).normalize(),
             ..anchor
@@ -1643,6 +1760,90 @@ mod tests {
     }
 
     #[test]
+    fn the_sun_replaces_the_records_on_the_peaks_exactly() {
+        // J with the point's own sun visibility on the peaks against a plain sum over the
+        // finest grid, each texel's Ṽ the sun's where it is a peak and the records' blend
+        // elsewhere; records coarser and finer than the cells.
+        let env = test_sky(256);
+        let chroma = MapChroma::new(&env);
+        let sun = chroma.sun().expect("the test sky's peaks are one sun");
+        let sky_sun = Vec3::new(0.4, 0.6, -0.5).normalize();
+        assert!(sun.dot(sky_sun) > 1f32.to_radians().cos(), "{sun}");
+        let mat = Material::phong([0.3; 3], [0.5; 3], 20.0).unwrap();
+        let (n, wo) = frame();
+        let product = ProductDistribution::new(&env, &mat, n, wo, 5).unwrap();
+        let e = env.resolution().trailing_zeros();
+        for m in [3u32, 5, 6] {
+            let bits: Vec<_> = (0..3).map(|i| random_bits(m, 31 + i)).collect();
+            let (cache, lookup) = cache_with(&bits);
+            let state = cache.read();
+            let tables = ControlTables::new(&product, &chroma, m);
+            let interp = Interpolant::new(&state, &lookup, Some((&tables, &product, &env)));
+            assert_eq!(interp.sun, None);
+            let p = product.level();
+            let f = e.max(p).max(m);
+            let side = 1u32 << f;
+            let omega = texel_solid_angle(side);
+            for v_sun in [0.0, 1.0] {
+                let sunny = interp.with_sun(&state, &tables, &product, v_sun);
+                assert_eq!(sunny.sun, Some(v_sun));
+                let mut want = [0.0f64; 3];
+                for code in 0..side * side {
+                    let t = morton_decode(code);
+                    let map_code = code >> (2 * (f - e));
+                    let l = env.texel(morton_decode(map_code));
+                    let cell = morton_encode(t.x >> (f - p), t.y >> (f - p));
+                    let b = product.bsdf_cells()[cell as usize] as f64 * omega;
+                    let y = crate::lights::envmap::luminance(l.into()) * b;
+                    let kappa = chroma.control_colour(map_code, interp.region_level);
+                    let z = morton_encode(t.x >> (f - m), t.y >> (f - m)) as usize;
+                    let v = match chroma.peak_index(map_code) {
+                        Some(_) => v_sun,
+                        None => interp
+                            .ids()
+                            .iter()
+                            .zip(interp.betas())
+                            .filter(|(&id, _)| state.store().bits(id as usize).get(z))
+                            .map(|(_, &b)| b as f64)
+                            .sum(),
+                    };
+                    want = std::array::from_fn(|c| want[c] + kappa[c] * y * v);
+                }
+                assert!(
+                    close(sunny.j, want, 1e-9),
+                    "M = {m}, sun {v_sun}: {:?} vs {want:?}",
+                    sunny.j
+                );
+            }
+        }
+        // Without records nothing changes: J stays 0 and the samples' Ṽ too.
+        let empty = Interpolant::EMPTY;
+        let state = cache_with(&[random_bits(5, 1)]).0;
+        let tables = ControlTables::new(&product, &chroma, 5);
+        let same = empty.with_sun(&state.read(), &tables, &product, 1.0);
+        assert_eq!((same.j, same.sun), ([0.0; 3], None));
+    }
+
+    #[test]
+    fn peaks_apart_are_no_sun() {
+        let res = 256;
+        let peak = |x: u32, y: u32| Peak {
+            code: morton_encode(x, y),
+            colour: [1.0; 3],
+            weight: 1.0,
+        };
+        // Two texels side by side are one sun at their mean.
+        let near = [peak(100, 40), peak(101, 40)];
+        let d = sun_of(&near, res).unwrap();
+        let a = texel_center(UVec2::new(100, 40), res);
+        let b = texel_center(UVec2::new(101, 40), res);
+        assert!((d - (a + b).normalize()).length() < 1e-6);
+        // A quarter of the sky apart: two suns, or a bright horizon.
+        assert_eq!(sun_of(&[peak(100, 40), peak(40, 100)], res), None);
+        assert_eq!(sun_of(&[], res), None);
+    }
+
+    #[test]
     fn the_control_variate_averages_to_j() {
         // E[g/p] = J: product samples of a sky against three random records. The mean of
         // g/p over N samples must lie within 4 standard errors (from the same samples).
@@ -1668,6 +1869,20 @@ mod tests {
                 sums.add(Vec3::ZERO, g.value);
             }
             assert_mean_within_4_se(&sums, interp.j, &format!("g/p at M = {m}"));
+            // The same with the point's sun visibility on the peaks.
+            for v_sun in [0.0, 1.0] {
+                let sunny = interp.with_sun(&state, &tables, &product, v_sun);
+                let mut sums = CvSums::default();
+                for i in 0..count {
+                    let rng = SampleRng::new(5, i, 0);
+                    let u = DVec2::new(rng.get(0) as f64, rng.get(1) as f64);
+                    let s = product.sample_point(&env, u);
+                    let g = control_sample(&state, &sunny, &chroma, s.square);
+                    sums.add(Vec3::ZERO, g.value);
+                }
+                let what = format!("g/p at M = {m}, sun {v_sun}");
+                assert_mean_within_4_se(&sums, sunny.j, &what);
+            }
             // Ṽ at a sample equals Σ β_i V_i of the records' bits at its texel.
             let p = DVec2::new(0.3, 0.7);
             let z = record_texel_code(p, m) as usize;

@@ -263,6 +263,7 @@ pub fn render<'py>(
         stats.set_item("mean_alpha", s.mean_alpha.to_vec())?;
         stats.set_item("cache_points", s.cache_points)?;
         stats.set_item("points_without_records", s.points_without_records)?;
+        stats.set_item("sun_rays", s.sun_rays)?;
         stats.set_item("records_per_point", s.records_used as f64 / points)?;
         stats.set_item("shared_lookups", s.shared_lookups)?;
         stats.set_item("reused_integrals", s.reused_integrals)?;

@@ -385,6 +385,9 @@ pub struct RenderStats {
     pub cache_points: u64,
     /// ... and found no record (plain product sampling there).
     pub points_without_records: u64,
+    /// Shadow rays of the shading points toward the map's sun
+    /// ([`crate::estimators::control_variate::Interpolant::with_sun`]).
+    pub sun_rays: u64,
     /// Records kept, summed over the points that looked up.
     pub records_used: u64,
     /// Points that shared their left neighbour's lookup instead of making one.
@@ -447,6 +450,8 @@ struct BandWork {
     unmatched_samples: u64,
     cache_points: u64,
     points_without_records: u64,
+    /// Shadow rays toward the map's sun.
+    sun_rays: u64,
     records_used: u64,
     /// Per record id: (misses, uses).
     verdicts: BTreeMap<u32, (u32, u32)>,
@@ -512,6 +517,7 @@ impl BandWork {
         self.unmatched_samples += o.unmatched_samples;
         self.cache_points += o.cache_points;
         self.points_without_records += o.points_without_records;
+        self.sun_rays += o.sun_rays;
         self.records_used += o.records_used;
         self.shared_lookups += o.shared_lookups;
         self.reused_integrals += o.reused_integrals;
@@ -614,6 +620,18 @@ impl Shader<'_> {
         (hits, directions)
     }
 
+    /// The anchor's `Ṽ` on the map's sun ([`Interpolant::with_sun`]): 1 when a shadow ray
+    /// from `sp` toward `sun` (a unit direction) escapes, 0 when it is blocked or `sun` lies
+    /// below the surface.
+    fn sun_visibility(&self, sp: &ShadingPoint, sun: Vec3, work: &mut BandWork) -> f64 {
+        if sp.normal.dot(sun) <= 0.0 {
+            return 0.0;
+        }
+        work.sun_rays += 1;
+        let scene = self.lighting.scene;
+        !scene.occluded1(sp.origin, sun, f32::INFINITY, &mut work.bvh) as u8 as f64
+    }
+
     /// Prepares the anchor of `pixel` at its G-buffer hit.
     fn prepare(&self, anchors: &GBuffer, pixel: usize, work: &mut BandWork) -> Point {
         let dir = Vec3::from(anchors.direction[pixel]);
@@ -670,15 +688,19 @@ impl Shader<'_> {
                 }
                 (Some(p), _) if !lookup.neighbours().is_empty() => {
                     let tables = ControlTables::new(p, chroma, state.store().m());
-                    let interpolant =
-                        Interpolant::new(state, &lookup, Some((&tables, p, self.lighting.env)));
+                    let env = self.lighting.env;
+                    let mut interpolant = Interpolant::new(state, &lookup, Some((&tables, p, env)));
+                    let sun = chroma.sun().map(|d| self.sun_visibility(&sp, d, work));
+                    if let Some(sun) = sun {
+                        interpolant = interpolant.with_sun(state, &tables, p, sun);
+                    }
                     if self.techniques.guided > 0.0 {
                         guided = p
                             .guided(interpolant.cell_visibility(state, p.level()))
                             .map(Arc::new);
                     }
-                    lobes = LobeControl::new(p, &sp, state, &lookup, chroma, self.lighting.env)
-                        .map(Box::new);
+                    lobes =
+                        LobeControl::new(p, &sp, (state, &lookup), chroma, env, sun).map(Box::new);
                     interpolant
                 }
                 _ => Interpolant::new(state, &lookup, None),
@@ -1456,6 +1478,7 @@ fn render_with(
         },
         cache_points: total.cache_points,
         points_without_records: total.points_without_records,
+        sun_rays: total.sun_rays,
         records_used: total.records_used,
         shared_lookups: total.shared_lookups,
         reused_integrals: total.reused_integrals,
