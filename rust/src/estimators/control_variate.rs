@@ -1859,29 +1859,25 @@ mod tests {
             let product = ProductDistribution::new(&env, &mat, n, wo, 5).unwrap();
             let tables = ControlTables::new(&product, &chroma, m);
             let interp = Interpolant::new(&state, &lookup, Some((&tables, &product, &env)));
-            let mut sums = CvSums::default();
-            let count = 200_000u64;
-            for i in 0..count {
-                let rng = SampleRng::new(3, i, 0);
-                let u = DVec2::new(rng.get(0) as f64, rng.get(1) as f64);
-                let s = product.sample_point(&env, u);
-                let g = control_sample(&state, &interp, &chroma, s.square);
-                sums.add(Vec3::ZERO, g.value);
-            }
+            // g/p of 200k product samples of seed `seed`.
+            let sample_sums = |interp: &Interpolant, seed: u64| {
+                let mut sums = CvSums::default();
+                for i in 0..200_000u64 {
+                    let rng = SampleRng::new(seed, i, 0);
+                    let u = DVec2::new(rng.get(0) as f64, rng.get(1) as f64);
+                    let s = product.sample_point(&env, u);
+                    let g = control_sample(&state, interp, &chroma, s.square);
+                    sums.add(Vec3::ZERO, g.value);
+                }
+                sums
+            };
+            let sums = sample_sums(&interp, 3);
             assert_mean_within_4_se(&sums, interp.j, &format!("g/p at M = {m}"));
             // The same with the point's sun visibility on the peaks.
             for v_sun in [0.0, 1.0] {
                 let sunny = interp.with_sun(&state, &tables, &product, v_sun);
-                let mut sums = CvSums::default();
-                for i in 0..count {
-                    let rng = SampleRng::new(5, i, 0);
-                    let u = DVec2::new(rng.get(0) as f64, rng.get(1) as f64);
-                    let s = product.sample_point(&env, u);
-                    let g = control_sample(&state, &sunny, &chroma, s.square);
-                    sums.add(Vec3::ZERO, g.value);
-                }
                 let what = format!("g/p at M = {m}, sun {v_sun}");
-                assert_mean_within_4_se(&sums, sunny.j, &what);
+                assert_mean_within_4_se(&sample_sums(&sunny, 5), sunny.j, &what);
             }
             // Ṽ at a sample equals Σ β_i V_i of the records' bits at its texel.
             let p = DVec2::new(0.3, 0.7);
