@@ -223,9 +223,18 @@ impl MapChroma {
     /// without the peaks.
     #[inline]
     pub fn control_colour(&self, code: u32, level: u32) -> [f64; 3] {
+        self.control_colour_of(code, level).0
+    }
+
+    /// [`Self::control_colour`], and whether the texel is a peak.
+    #[inline]
+    pub fn control_colour_of(&self, code: u32, level: u32) -> ([f64; 3], bool) {
         match self.peak_index(code) {
-            Some(i) => self.peaks[i].colour,
-            None => self.control_colours(level)[(code >> (2 * (self.depth - level))) as usize],
+            Some(i) => (self.peaks[i].colour, true),
+            None => {
+                let region = (code >> (2 * (self.depth - level))) as usize;
+                (self.control_colours(level)[region], false)
+            }
         }
     }
 
@@ -827,19 +836,7 @@ impl Interpolant {
         if self.len == 0 {
             return self;
         }
-        let store = state.store();
-        let change = tables.sun_change(
-            product,
-            |texel| {
-                self.ids()
-                    .iter()
-                    .zip(self.betas())
-                    .filter(|(&id, _)| store.bits(id as usize).get(texel as usize))
-                    .map(|(_, &b)| b as f64)
-                    .sum()
-            },
-            sun,
-        );
+        let change = tables.sun_change(product, |texel| self.eval_texel(state, texel).0, sun);
         self.j = std::array::from_fn(|k| self.j[k] + change[k]);
         self.sun = Some(sun);
         self
@@ -895,11 +892,16 @@ impl Interpolant {
         if self.len == 0 {
             return (0.0, 0);
         }
+        self.eval_texel(state, record_texel_code(square, state.store().m()))
+    }
+
+    /// [`Self::eval`] at record texel `texel` (Morton code at the records' level).
+    #[inline]
+    pub fn eval_texel(&self, state: &CacheState, texel: u32) -> (f64, u32) {
         let store = state.store();
-        let z = record_texel_code(square, store.m()) as usize;
         let (mut v, mut mask) = (0.0f64, 0u32);
         for i in 0..self.len {
-            if store.bits(self.ids[i] as usize).get(z) {
+            if store.bits(self.ids[i] as usize).get(texel as usize) {
                 v += self.beta[i] as f64;
                 mask |= 1 << i;
             }
@@ -1188,15 +1190,10 @@ pub fn control_sample(
 ) -> ControlSample {
     let (mut v, mask) = interpolant.eval(state, square);
     let code = record_texel_code(square, chroma.depth());
-    let colour = match chroma.peak_index(code) {
-        Some(i) => {
-            if let Some(sun) = interpolant.sun {
-                v = sun;
-            }
-            chroma.peaks()[i].colour
-        }
-        None => chroma.control_colour(code, interpolant.region_level),
-    };
+    let (colour, peak) = chroma.control_colour_of(code, interpolant.region_level);
+    if let (true, Some(sun)) = (peak, interpolant.sun) {
+        v = sun;
+    }
     let scale = interpolant.unoccluded * v;
     ControlSample {
         value: colour.map(|c| c * scale),

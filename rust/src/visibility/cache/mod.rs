@@ -46,8 +46,8 @@
 //! ## Files
 //! `mod.rs`: the cache, its locked state and insertion; `lookup.rs`: §5.1 lookups;
 //! `nearest.rs`: the `m` nearest for ambient occlusion; `build.rs`: builds for a view and
-//! the insertion waves; `frames.rs`: §5.3 bookkeeping over frames; `io.rs`: the file
-//! format.
+//! the insertion waves; `coherence.rs`: the check that predicts whether records repay
+//! their build; `frames.rs`: §5.3 bookkeeping over frames; `io.rs`: the file format.
 
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
