@@ -256,12 +256,24 @@ def test_cv_without_a_cache_builds_no_more_records_than_its_samples_repay():
     spp = -(-len(uncapped) * render_module.SAMPLES_PER_RECORD // pixels)
     many = _render(setup, "cv", spp, seed=0, jitter=False)
     assert many.stats["cache_records"] == len(uncapped)
-    # Under a time budget the build's share of the budget bounds it instead (a budget the
-    # build cannot spend on any machine; the render stops at its 16 spp, whose samples
-    # alone would cap the records below the view's).
+    # A time budget beside spp: the spp still caps the records (a budget the build cannot
+    # spend on any machine; the render stops at its 16 spp).
     budget = _render(setup, "cv", 16, seed=0, jitter=False, time_budget=20.0)
-    assert pixels * 16 // render_module.SAMPLES_PER_RECORD < len(uncapped)
-    assert budget.stats["cache_records"] == len(uncapped)
+    assert budget.stats["cache_planned_spp"] == few.stats["cache_planned_spp"] == 16
+    assert budget.stats["cache_records"] == startup
+    # A budget alone: a pilot of product sampling estimates the samples it allows, and
+    # the records' cap and the coherence check's predicted gain are those of that spp.
+    open_ended = vc.render(setup, method="cv", time_budget=0.5, seed=0, jitter=False,
+                           progress=False)
+    planned = open_ended.stats["cache_planned_spp"]
+    assert isinstance(planned, int) and planned >= 1
+    cap = min(uncapped.params["max_records"],
+              max(startup, pixels * planned // render_module.SAMPLES_PER_RECORD))
+    assert open_ended.stats["cache_records"] <= cap
+    alike = vc.VisibilityCache(setup.scene, nearest_hits=False, max_records=cap)
+    check = alike.build(setup.camera, seed=0, progress=False, spp=planned, time_budget=1e-9)
+    assert open_ended.stats["cache_predicted_gain"] == pytest.approx(check["predicted_gain"],
+                                                                     rel=1e-6)
 
 
 def test_no_records_means_product_sampling_and_one_pass_insertion(garage):
