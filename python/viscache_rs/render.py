@@ -24,8 +24,9 @@ direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=N
   it holds at most one record per 400 of the render's samples, so that a 10-spp render
   does not wait on a build it cannot repay, and its coherence check keeps no records
   where the predicted gain over product sampling, build included, is below 1. Under a
-  budget alone the samples are estimated by a pilot of product sampling at a quarter of
-  the resolution, 2 spp (``stats["cache_planned_spp"]``).
+  budget alone the samples are estimated from two short pilots of product sampling (8
+  and 32 spp over at most 1,200 pixels; ``stats["cache_planned_spp"]``), so that, as the
+  number of passes, the records kept depend on the machine's speed.
   ``alpha`` is a number in [0, 2] (CAM08 uses 1) or ``"estimate"``: per pixel,
   Cov(Z, W) / Var(W) pooled over the other pixels of a ``(2 alpha_radius + 1)^2`` window,
   which keeps the estimate unbiased (``res.alpha`` holds it). The records' misses go back
@@ -286,6 +287,9 @@ def _samples_within(setup, envmap, camera, time_budget, seed, threads, jitter) -
     scale = math.sqrt(min(pixels / 16, _PILOT_PIXELS) / pixels)
     pilot = camera.with_resolution(max(1, round(camera.width * scale)),
                                    max(1, round(camera.height * scale)))
+    # A process's first render sets up what later ones reuse (tens of ms on hairball).
+    _core.render(setup.scene, envmap, camera.with_resolution(1, 1), 1, "product",
+                 threads=threads, jitter=jitter)
     seconds = []
     for pilot_spp in _PILOT_SPP:
         t = time.perf_counter()
@@ -293,7 +297,9 @@ def _samples_within(setup, envmap, camera, time_budget, seed, threads, jitter) -
                      threads=threads, jitter=jitter)
         seconds.append((time.perf_counter() - t) / (pilot.width * pilot.height))
     (few, many), (t_few, t_many) = _PILOT_SPP, seconds
-    per_sample = max((t_many - t_few) / (many - few), 1e-3 * t_many / many)
+    # A pixel's own work is at most ~3x its samples' at the larger pilot (12 samples'
+    # worth on hairball): the floor keeps a noisy difference from promising endless spp.
+    per_sample = max((t_many - t_few) / (many - few), 0.25 * t_many / many)
     per_pixel = max(t_few - few * per_sample, 0.0)
     left = (1.0 - CACHE_BUDGET_SHARE) * max(time_budget, 0.0) / pixels - per_pixel
     return int(min(max(left / per_sample, 1), _UNBOUNDED_SPP - 1))
