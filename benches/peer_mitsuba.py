@@ -178,7 +178,10 @@ def main(argv=None) -> int:
                              "ratio_to_mitsuba": e / e_mi,
                              "efficiency": metrics.efficiency(e, sec),
                              "mean_ratio": ratio, "mean_z": z,
-                             "cache_seconds": r.stats.get("cache_seconds", 0.0)})
+                             "cache_seconds": r.stats.get("cache_seconds", 0.0),
+                             "cache_records": r.stats.get("cache_records"),
+                             "cache_planned_spp": r.stats.get("cache_planned_spp"),
+                             "cache_predicted_gain": r.stats.get("cache_predicted_gain")})
             print_rows([r for r in rows if r["scene"] == name and r["budget"] == b])
     print_summary(rows, budgets, args.methods)
     if args.out:
