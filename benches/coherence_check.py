@@ -24,14 +24,17 @@ import math
 import time
 
 import viscache_rs as vc
-from viscache_rs.render import SAMPLES_PER_RECORD
+from viscache_rs.render import record_cap
+
+# A checked build stops at a tenth of the covered pixels, at least 1,024 records
+# (`visibility::params::record_cap`); the forced cache is given the same cap.
+SHARE_LIMIT, MIN_SHARE_CAP = 0.1, 1024
 
 
-def record_cap(scene, pixels, covered, spp):
-    """The cap ``vc.render(method="cv")`` gives its own build, and the check's share cap."""
-    params = vc.VisibilityCache(scene).params
-    cap = min(params["max_records"], max(params["n_startup"], pixels * spp // SAMPLES_PER_RECORD))
-    return min(cap, max(math.ceil(0.1 * covered), 1024))
+def forced_cap(scene, pixels, covered, spp):
+    """The cap of ``vc.render(method="cv")``'s own build at ``spp``, checked."""
+    return min(record_cap(scene, pixels, spp), max(math.ceil(SHARE_LIMIT * covered),
+                                                   MIN_SHARE_CAP))
 
 
 def measure(setup, size, ladder, threads, emit):
@@ -41,7 +44,7 @@ def measure(setup, size, ladder, threads, emit):
     # Per-pixel denominators of the relative variance (any fixed image does).
     denominator = vc.render(setup, spp=64, method="product", seed=7, **kw).image
     for spp in ladder:
-        cap = record_cap(scene, size[0] * size[1], g.covered_pixels, spp)
+        cap = forced_cap(scene, size[0] * size[1], g.covered_pixels, spp)
         checked = vc.VisibilityCache(scene, nearest_hits=False, max_records=cap)
         check = checked.build(seed=1, threads=threads, progress=False, gbuffer=g, spp=spp,
                               time_budget=1e-9)

@@ -116,11 +116,11 @@ def run(scene_name: str, repeats: int) -> dict:
         if name == "camera":
             def query(o=o, d=d):
                 return scene.intersect(o, d, threads=2)["t"].astype(np.float64)
-            peer, agree = embree_distance, same_hits
+            peer, agree, hit = embree_distance, same_hits, np.isfinite
         else:
             def query(o=o, d=d):
                 return scene.occluded(o, d, threads=2)
-            peer, agree = embree_occluded, np.equal
+            peer, agree, hit = embree_occluded, np.equal, np.asarray
         ours = query()
         fns = {"ours": query}
         for robust, (es, _) in embree.items():
@@ -128,8 +128,7 @@ def run(scene_name: str, repeats: int) -> dict:
             fns[key] = lambda es=es, o=o, d=d, peer=peer: peer(es, o, d, pool)
         times = interleaved_times(fns, repeats)
         t_ours = min(times["ours"])
-        hit = np.isfinite(ours) if name == "camera" else ours
-        row = {"rays": len(o), "occluded_fraction": float(hit.mean()),
+        row = {"rays": len(o), "occluded_fraction": float(hit(ours).mean()),
                "ours_rays_per_s": len(o) / t_ours, "ours_s": t_ours}
         for robust, (es, build) in embree.items():
             theirs = peer(es, o, d, pool)

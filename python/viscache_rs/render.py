@@ -210,21 +210,19 @@ def render(
         traced = gbuffer is None
         if traced:
             gbuffer = setup.scene.gbuffer(camera, jitter=False, threads=threads)
-        planned = spp
-        if time_budget is not None and spp >= _UNBOUNDED_SPP:
+        planned: int | None = spp if spp < _UNBOUNDED_SPP else None
+        if planned is None and time_budget is not None:
             planned = _samples_within(setup, envmap, camera,
                                       time_budget - (time.perf_counter() - t), seed, threads,
                                       jitter)
-        if planned < _UNBOUNDED_SPP:
-            params = VisibilityCache(setup.scene, preset=preset).params
-            by_samples = camera.width * camera.height * planned // SAMPLES_PER_RECORD
-            overrides["max_records"] = min(params["max_records"],
-                                           max(params["n_startup"], by_samples))
+        if planned is not None:
+            overrides["max_records"] = record_cap(setup.scene, camera.width * camera.height,
+                                                  planned, preset)
         cache = VisibilityCache(setup.scene, preset=preset, **overrides)
         report = cache.build(seed=seed, threads=threads, progress=progress, gbuffer=gbuffer,
                              time_budget=None if time_budget is None
                              else CACHE_BUDGET_SHARE * time_budget,
-                             spp=planned if planned < _UNBOUNDED_SPP else None)
+                             spp=planned)
         built = time.perf_counter() - t
         cache_stats = {"cache_seconds": built,
                        "cache_records": report["records"],
@@ -232,7 +230,7 @@ def render(
                        "cache_incoherent": report["incoherent"],
                        "cache_predicted_gain": report["predicted_gain"],
                        "cache_blind": report["blind"],
-                       "cache_planned_spp": planned if planned < _UNBOUNDED_SPP else None}
+                       "cache_planned_spp": planned}
         if time_budget is not None:
             time_budget = max(time_budget - built, 1e-3)
     elif cache is not None and method != "cv":
@@ -271,6 +269,15 @@ def render(
     stats.update(cache_stats)
     return RenderResult(out["image"], out["variance"], stats, out["alpha"],
                         out["sample_counts"])
+
+
+def record_cap(scene, pixels: int, spp: int, preset: str = "auto") -> int:
+    """Records the cache ``render(method="cv")`` builds for itself may hold for ``pixels``
+    pixels at ``spp``: one per ``SAMPLES_PER_RECORD`` samples, at least the bootstrap's,
+    at most the preset's ``max_records`` (a checked build also stops at a tenth of the
+    covered pixels)."""
+    params = VisibilityCache(scene, preset=preset).params
+    return min(params["max_records"], max(params["n_startup"], pixels * spp // SAMPLES_PER_RECORD))
 
 
 def _samples_within(setup, envmap, camera, time_budget, seed, threads, jitter) -> int:
