@@ -34,9 +34,10 @@ pub enum BuildQuality {
     /// on `meshes`, where PLOC traces faster); the traversal work of sample rays does.
     #[default]
     Auto,
-    /// Top-down binned SAH whose cost counts four-triangle blocks ([`crate::geometry::binned_sah`]).
-    /// Fewer node visits and block tests per ray than any PLOC preset below on the
-    /// built-in scenes, at about the build time of `Medium` (benches/README.md).
+    /// Top-down binned SAH whose cost counts four-triangle blocks, slivers halved by early
+    /// split clipping first ([`crate::geometry::binned_sah`]). Fewer node visits and block
+    /// tests per ray than any PLOC preset below on the built-in scenes, at about the build
+    /// time of `Medium` (benches/README.md).
     Sah,
     /// PLOC with search radius 1, no reinsertion; fastest build, slowest traversal.
     Fastest,
