@@ -165,19 +165,55 @@ impl<const COUNT: bool> Kernel for ClosestChunk<'_, COUNT> {
     fn run<L: Level>(self, level: L) {
         let (bvh, rays, base, out, counters) =
             (self.bvh, self.rays, self.base, self.out, self.counters);
-        let ray = |k: usize| {
+        let origins = &rays.origins[base..base + out.len()];
+        // Origins compared bit for bit, as in `occluded_chunk_with`.
+        let bits = |k: usize| origins.get(k).map(|o| o.map(f32::to_bits));
+        let interleave = self.interleave && bvh.interleaves::<L>();
+        // Rays not in a packet, traced after the loop (in turns where that pays).
+        let mut singles = Vec::new();
+        let (mut k, mut next) = (0, bits(0));
+        while let Some(origin) = next {
             let i = base + k;
+            // A run of rays from one origin (up to a packet): a camera's rays.
+            let mut run = 1;
+            next = bits(k + 1);
+            while run < PACKET && next == Some(origin) {
+                run += 1;
+                next = bits(k + run);
+            }
+            let direction = |l: usize| Vec3A::from(rays.directions[i + l]);
+            let packet = (run >= MIN_PACKET)
+                .then(|| std::array::from_fn::<_, PACKET, _>(|l| direction(l.min(run - 1))))
+                .filter(|directions| coherent(&directions[..run]));
+            match packet {
+                Some(directions) => {
+                    let tmax: [f32; PACKET] =
+                        std::array::from_fn(|l| rays.tmax_of(i + l.min(run - 1)));
+                    let o = Vec3A::from(origins[k]);
+                    let hits = bvh.intersect_packet::<COUNT>(
+                        o,
+                        &directions[..run],
+                        &tmax[..run],
+                        counters,
+                    );
+                    out[k..k + run].copy_from_slice(&hits[..run]);
+                }
+                None => singles.extend(k..k + run),
+            }
+            k += run;
+        }
+        let ray = |s: usize| {
+            let i = base + singles[s];
             let (o, d) = (rays.origins[i], rays.directions[i]);
             (Vec3A::from(o), Vec3A::from(d), rays.tmax_of(i))
         };
-        if self.interleave && bvh.interleaves::<L>() {
-            let n = out.len();
-            let answer = |k: usize, hit: Option<Hit>| out[k] = hit;
-            bvh.intersect_interleaved_at::<COUNT, L>(n, ray, answer, counters, level);
+        if interleave {
+            let answer = |s: usize, hit: Option<Hit>| out[singles[s]] = hit;
+            bvh.intersect_interleaved_at::<COUNT, L>(singles.len(), ray, answer, counters, level);
         } else {
-            for (k, slot) in out.iter_mut().enumerate() {
-                let (o, d, t) = ray(k);
-                *slot = bvh.intersect::<COUNT>(o, d, t, counters);
+            for s in 0..singles.len() {
+                let (o, d, t) = ray(s);
+                out[singles[s]] = bvh.intersect::<COUNT>(o, d, t, counters);
             }
         }
     }
@@ -447,11 +483,15 @@ impl Scene {
         sample.nodes as f64 >= SPATIAL_ORDER_NODES * sample.rays as f64
     }
 
-    /// Closest hits of valid `rays`, each as [`Bvh::intersect`] finds it. Large batches in
-    /// trees larger than L2 whose rays visit many nodes ([`Self::visits_many`]) are traced
-    /// [`LANES`](crate::geometry::bvh::LANES) at a time in turns
-    /// ([`Bvh::intersect_interleaved_at`]); chunks are fixed, so hits and counters are the
-    /// same for any thread count.
+    /// Closest hits of valid `rays`, each at the distance [`Bvh::intersect`] finds for it.
+    /// Runs of at least [`MIN_PACKET`] consecutive rays from one origin within 45° of their
+    /// mean (a camera's rays) are traced in packets ([`Bvh::intersect_packet`], which may
+    /// name the other triangle where two are hit at exactly that distance): camera rays at
+    /// 160x120 through garden 1.5x faster than one by one. Of the other rays, large
+    /// batches in trees larger than L2 whose rays visit many nodes
+    /// ([`Self::visits_many`]) are traced [`LANES`](crate::geometry::bvh::LANES) at a time
+    /// in turns ([`Bvh::intersect_interleaved_at`]); chunks are fixed, so hits and
+    /// counters are the same for any thread count.
     pub(super) fn closest_hits(
         &self,
         rays: &RayBatch,

@@ -773,3 +773,60 @@ fn moving_an_emitter_moves_its_light_and_an_empty_object_is_fine() {
     }
     assert_eq!(s.bounds().min.z, -9.0);
 }
+
+/// Camera rays (runs of one origin, traced as packets) mixed with scattered rays, short
+/// runs and a run too wide for a packet: [`Scene::intersect`] gives each ray the distance
+/// it finds alone, bit for bit, and the same hits on one and two threads; a packet may name
+/// the other triangle only where two are hit at exactly that distance.
+#[test]
+fn camera_rays_in_a_batch_find_the_single_rays_hits() {
+    use crate::sampling::rng::{hash4, to_unit_f32};
+    let setup = crate::scenes::load("garden", 0.25, 3).unwrap();
+    let (s, cam) = (&setup.scene, setup.camera.with_resolution(64, 48).unwrap());
+    let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 29));
+    let (mut origins, mut dirs) = (Vec::new(), Vec::new());
+    for py in 0..48 {
+        for px in 0..64 {
+            let k = (py * 64 + px) as u64;
+            let (o, d) = cam.pixel_ray(px, py, [unit(1, k), unit(2, k)]);
+            origins.push(o.to_array());
+            dirs.push(d.to_array());
+        }
+    }
+    let camera_rays = origins.len();
+    let (so, sd) = crate::testing::ground_hemisphere_rays(s, 1000, 5);
+    // Scattered rays, runs of 2 and 3 from one point, and a run of 20 over a hemisphere.
+    origins.extend(&so);
+    dirs.extend(&sd);
+    for (k, run) in [(0usize, 2usize), (1, 3), (2, 20)] {
+        for l in 0..run {
+            origins.push(so[k]);
+            dirs.push(sd[(k + 7 * l) % sd.len()]);
+        }
+    }
+    let tmax: Vec<f32> = (0..origins.len())
+        .map(|i| [f32::INFINITY, f32::INFINITY, 0.3, 5.0][i % 4])
+        .collect();
+    let rays = RayBatch {
+        origins: &origins,
+        directions: &dirs,
+        tmax: TMax::PerRay(&tmax),
+    };
+    let one = s.intersect(&rays, Some(1)).unwrap();
+    let two = s.intersect(&rays, Some(2)).unwrap();
+    assert_eq!((&one.t, &one.prim), (&two.t, &two.prim));
+    let (mut found, mut ties) = (0, 0);
+    let mut c = TraversalCounters::default();
+    for i in 0..origins.len() {
+        let (o, d) = (Vec3::from(origins[i]), Vec3::from(dirs[i]));
+        let alone = s.intersect1(o, d, tmax[i], &mut c);
+        let t = alone.map_or(f32::INFINITY, |h| h.t);
+        assert_eq!(one.t[i].to_bits(), t.to_bits(), "ray {i}");
+        if let Some(h) = alone {
+            found += (i < camera_rays) as usize;
+            ties += (one.prim[i] != h.prim as i32) as usize;
+        }
+    }
+    assert!(found > camera_rays / 2, "{found}");
+    assert!(ties * 100 < found, "{ties} ties");
+}
