@@ -46,6 +46,64 @@ fn coherent(directions: &[Vec3A]) -> bool {
         })
 }
 
+/// A run of consecutive rays of a chunk from one origin (compared bit for bit: -0.0 and
+/// 0.0 would round apart), at most [`PACKET`] long.
+#[derive(Clone, Copy)]
+struct OriginRun {
+    /// Index of its first ray in the chunk.
+    first: usize,
+    len: usize,
+    /// Whether the next run starts from the same origin.
+    origin_continues: bool,
+}
+
+impl OriginRun {
+    /// The run's directions and `tmax` as a packet (lanes past `len` repeat its last ray),
+    /// when it is long enough ([`MIN_PACKET`]) and narrow enough ([`coherent`]); `base` is
+    /// the chunk's first ray in `rays`.
+    #[inline(always)]
+    fn packet(&self, rays: &RayBatch, base: usize) -> Option<([Vec3A; PACKET], [f32; PACKET])> {
+        if self.len < MIN_PACKET {
+            return None;
+        }
+        let lane = |l: usize| base + self.first + l.min(self.len - 1);
+        let directions: [Vec3A; PACKET] =
+            std::array::from_fn(|l| Vec3A::from(rays.directions[lane(l)]));
+        coherent(&directions[..self.len])
+            .then(|| (directions, std::array::from_fn(|l| rays.tmax_of(lane(l)))))
+    }
+}
+
+/// Ray `i` of `rays`: origin, direction and `tmax`.
+#[inline(always)]
+fn ray_at(rays: &RayBatch, i: usize) -> (Vec3A, Vec3A, f32) {
+    let (o, d) = (rays.origins[i], rays.directions[i]);
+    (Vec3A::from(o), Vec3A::from(d), rays.tmax_of(i))
+}
+
+/// The runs of `origins` (a chunk's) from one origin, in order; each origin is read once.
+#[inline(always)]
+fn origin_runs(origins: &[[f32; 3]]) -> impl Iterator<Item = OriginRun> + '_ {
+    let bits = |k: usize| origins.get(k).map(|o| o.map(f32::to_bits));
+    let (mut first, mut next) = (0, bits(0));
+    std::iter::from_fn(move || {
+        let origin = next?;
+        let mut len = 1;
+        next = bits(first + 1);
+        while len < PACKET && next == Some(origin) {
+            len += 1;
+            next = bits(first + len);
+        }
+        let run = OriginRun {
+            first,
+            len,
+            origin_continues: next == Some(origin),
+        };
+        first += len;
+        Some(run)
+    })
+}
+
 /// How [`Scene::occluded`] traces a batch (see [`Scene::trace_order`]).
 #[derive(Debug, PartialEq)]
 pub(super) enum TraceOrder {
@@ -165,48 +223,23 @@ impl<const COUNT: bool> Kernel for ClosestChunk<'_, COUNT> {
     fn run<L: Level>(self, level: L) {
         let (bvh, rays, base, out, counters) =
             (self.bvh, self.rays, self.base, self.out, self.counters);
-        let origins = &rays.origins[base..base + out.len()];
-        // Origins compared bit for bit, as in `occluded_chunk_with`.
-        let bits = |k: usize| origins.get(k).map(|o| o.map(f32::to_bits));
         let interleave = self.interleave && bvh.interleaves::<L>();
         // Rays not in a packet, traced after the loop (in turns where that pays).
         let mut singles = Vec::new();
-        let (mut k, mut next) = (0, bits(0));
-        while let Some(origin) = next {
-            let i = base + k;
-            // A run of rays from one origin (up to a packet): a camera's rays.
-            let mut run = 1;
-            next = bits(k + 1);
-            while run < PACKET && next == Some(origin) {
-                run += 1;
-                next = bits(k + run);
-            }
-            let direction = |l: usize| Vec3A::from(rays.directions[i + l]);
-            let packet = (run >= MIN_PACKET)
-                .then(|| std::array::from_fn::<_, PACKET, _>(|l| direction(l.min(run - 1))))
-                .filter(|directions| coherent(&directions[..run]));
-            match packet {
-                Some(directions) => {
-                    let tmax: [f32; PACKET] =
-                        std::array::from_fn(|l| rays.tmax_of(i + l.min(run - 1)));
-                    let o = Vec3A::from(origins[k]);
-                    let hits = bvh.intersect_packet::<COUNT>(
-                        o,
-                        &directions[..run],
-                        &tmax[..run],
-                        counters,
-                    );
-                    out[k..k + run].copy_from_slice(&hits[..run]);
+        // Runs from one origin, a camera's rays, go as packets.
+        for run in origin_runs(&rays.origins[base..base + out.len()]) {
+            let (k, n) = (run.first, run.len);
+            match run.packet(rays, base) {
+                Some((directions, tmax)) => {
+                    let o = Vec3A::from(rays.origins[base + k]);
+                    let hits =
+                        bvh.intersect_packet::<COUNT>(o, &directions[..n], &tmax[..n], counters);
+                    out[k..k + n].copy_from_slice(&hits[..n]);
                 }
-                None => singles.extend(k..k + run),
+                None => singles.extend(k..k + n),
             }
-            k += run;
         }
-        let ray = |s: usize| {
-            let i = base + singles[s];
-            let (o, d) = (rays.origins[i], rays.directions[i]);
-            (Vec3A::from(o), Vec3A::from(d), rays.tmax_of(i))
-        };
+        let ray = |s: usize| ray_at(rays, base + singles[s]);
         if interleave {
             let answer = |s: usize, hit: Option<Hit>| out[singles[s]] = hit;
             bvh.intersect_interleaved_at::<COUNT, L>(singles.len(), ray, answer, counters, level);
@@ -231,61 +264,35 @@ fn occluded_chunk_with<const COUNT: bool, L: Level>(
     interleave: bool,
     level: L,
 ) {
-    let origins = &rays.origins[base..base + out.len()];
-    // Origins compared bit for bit (-0.0 and 0.0 would round apart), each read once.
-    let bits = |k: usize| origins.get(k).map(|o| o.map(f32::to_bits));
     let mut hint = OccluderHint::NONE;
     // Rays alone at their origin, traced together after the loop.
     let interleave = interleave && bvh.interleaves::<L>();
     let mut singles = Vec::new();
-    let (mut k, mut next) = (0, bits(0));
-    while let Some(origin) = next {
-        let i = base + k;
-        // A run of rays from one origin (up to a packet).
-        let mut run = 1;
-        next = bits(k + 1);
-        while run < PACKET && next == Some(origin) {
-            run += 1;
-            next = bits(k + run);
-        }
-        let o = Vec3A::from(origins[k]);
-        let direction = |l: usize| Vec3A::from(rays.directions[i + l]);
-        let packet = (run >= MIN_PACKET)
-            .then(|| std::array::from_fn::<_, PACKET, _>(|l| direction(l.min(run - 1))))
-            .filter(|directions| coherent(&directions[..run]));
-        if let Some(directions) = packet {
-            let tmax: [f32; PACKET] = std::array::from_fn(|l| rays.tmax_of(i + l.min(run - 1)));
-            let occluded = bvh.occluded_packet::<COUNT>(
-                o,
-                &directions[..run],
-                &tmax[..run],
-                &mut hint,
-                counters,
-            );
-            for (l, slot) in out[k..k + run].iter_mut().enumerate() {
+    for run in origin_runs(&rays.origins[base..base + out.len()]) {
+        let (k, n, i) = (run.first, run.len, base + run.first);
+        let o = Vec3A::from(rays.origins[i]);
+        if let Some((directions, tmax)) = run.packet(rays, base) {
+            let occluded =
+                bvh.occluded_packet::<COUNT>(o, &directions[..n], &tmax[..n], &mut hint, counters);
+            for (l, slot) in out[k..k + n].iter_mut().enumerate() {
                 *slot = occluded >> l & 1 != 0;
             }
-        } else if run == 1 && interleave {
+        } else if n == 1 && interleave {
             singles.push(k);
         } else {
             // One by one: a run too short or too wide for a packet.
-            for (l, slot) in out[k..k + run].iter_mut().enumerate() {
-                let (d, t) = (direction(l), rays.tmax_of(i + l));
+            for (l, slot) in out[k..k + n].iter_mut().enumerate() {
+                let (d, t) = (Vec3A::from(rays.directions[i + l]), rays.tmax_of(i + l));
                 *slot = bvh.occluded_hinted_at::<COUNT, L>(o, d, t, &mut hint, counters, level);
             }
         }
         // The hint carries over to the next run only when it shares the origin.
-        if next != Some(origin) {
+        if !run.origin_continues {
             hint = OccluderHint::NONE;
         }
-        k += run;
     }
     if !singles.is_empty() {
-        let ray = |s: usize| {
-            let (k, i) = (singles[s], base + singles[s]);
-            let o = Vec3A::from(origins[k]);
-            (o, Vec3A::from(rays.directions[i]), rays.tmax_of(i))
-        };
+        let ray = |s: usize| ray_at(rays, base + singles[s]);
         let answer = |s: usize, occluded: bool| out[singles[s]] = occluded;
         bvh.occluded_interleaved_at::<COUNT, L>(singles.len(), ray, answer, counters, level);
     }
@@ -472,8 +479,8 @@ impl Scene {
             .step_by(256)
             .map(|i| {
                 let mut c = TraversalCounters::default();
-                let (o, d) = (rays.origins[i], rays.directions[i]);
-                trace(Vec3A::from(o), Vec3A::from(d), rays.tmax_of(i), &mut c);
+                let (o, d, t) = ray_at(rays, i);
+                trace(o, d, t, &mut c);
                 c
             })
             .reduce(TraversalCounters::default, |mut a, b| {
