@@ -62,7 +62,10 @@ of their first draws alone and the draws' share of their time, the two-stage sam
 optimum ``sqrt((c0 / c1) (V_w / V_b))`` (fewer where a draw is dear beside the rest of a
 sample and the hits vary: 2 on the Cornell box at 160x120). ``stats["light_samples"]``,
 ``stats["edge_share"]`` and ``stats["probe_draws"]`` (the optimum before rounding; None
-where the probe could not tell and the count stayed 8) report the choice.
+where the probe could not tell and the count stayed 8) report the choice, with the two
+ratios it weighs: ``stats["probe_cost_ratio"]`` (``c0 / c1``, measured in CPU time, so it
+moves with the machine's load) and ``stats["probe_variance_ratio"]`` (``V_w / V_b``, a
+fixed function of the seed).
 Under a ``time_budget``, method ``"product"`` learns its mixture weights from the probe
 pass's draws (``learn_techniques=True``, default): fixed-point steps toward the weights of
 least relMSE-weighted second moment, every technique kept at a share of 0.05 at least;

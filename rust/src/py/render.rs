@@ -213,7 +213,9 @@ pub fn render<'py>(
     stats.set_item("light_samples", s.light_samples)?;
     stats.set_item("edge_share", s.edge_share)?;
     stats.set_item("coarse_products", s.coarse_products)?;
-    stats.set_item("probe_draws", s.probe_draws)?;
+    stats.set_item("probe_draws", s.probe_ratios.map(|r| r.draws()))?;
+    stats.set_item("probe_cost_ratio", s.probe_ratios.map(|r| r.cost))?;
+    stats.set_item("probe_variance_ratio", s.probe_ratios.map(|r| r.variance))?;
     let t = params.techniques();
     let weights = PyDict::new(py);
     for (name, w) in ["product", "guided", "bsdf", "env"]

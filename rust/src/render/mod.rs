@@ -355,9 +355,11 @@ pub struct RenderStats {
     /// Lambert surfaces drew from products one level coarser
     /// ([`ProductLevel::CoarseDiffuse`], chosen by [`COARSE_EDGE_SHARE`]).
     pub coarse_products: bool,
-    /// The light draws per sample its probe found best ([`split::draws_from`]), before
-    /// rounding and capping, when the view split and the probe could tell.
-    pub probe_draws: Option<f64>,
+    /// What the probe measured when the view split and the probe could tell: the ratios
+    /// whose [`split::ProbeRatios::draws`] is the light draws per sample it found best,
+    /// before rounding and capping (cost measured in time, variance a fixed function of
+    /// the seed).
+    pub probe_ratios: Option<split::ProbeRatios>,
     /// Samples every pixel received (the least, with adaptive counts).
     pub spp: u32,
     /// Passes made.
@@ -1204,7 +1206,7 @@ fn render_with(
     }
     let edge_share = view_edge_share.filter(|_| chooses_draws);
     let mut light_samples = edge_share.map_or(params.light_samples, split::draws_for);
-    let mut probe_draws = None;
+    let mut probe_ratios = None;
     let splits = edge_share.is_some() && light_samples > 1;
     let mut schedule = PassSchedule::default();
     // Method "product" under a budget learns its mixture from the probe pass.
@@ -1393,8 +1395,9 @@ fn render_with(
         if probe && splits {
             let mut measured = split::SplitProbe::default();
             work.iter().for_each(|w| measured += w.split);
-            probe_draws = split::draws_from(&measured, light_samples);
-            light_samples = split::draws_after_probe(probe_draws, light_samples);
+            probe_ratios = split::probe_ratios(&measured, light_samples);
+            let optimum = probe_ratios.map(|r| r.draws());
+            light_samples = split::draws_after_probe(optimum, light_samples);
         }
         if probe && learn {
             // Each draw counts as its pixel counts in relMSE: 1 / (mean² + 10⁻²).
@@ -1491,7 +1494,7 @@ fn render_with(
         pixel_techniques: pixel_techniques.as_ref().map(PixelTechniques::counts),
         light_samples,
         edge_share,
-        probe_draws,
+        probe_ratios,
         coarse_products: lighting.product_level == ProductLevel::CoarseDiffuse,
         ..RenderStats::default()
     };

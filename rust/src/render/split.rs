@@ -140,6 +140,29 @@ impl std::ops::AddAssign for SplitProbe {
 /// alone would, which overstates `V_w` and errs toward more draws. `None` when the probe
 /// cannot tell (no variance left to the hits, no time measured): keep `k`.
 pub fn draws_from(probe: &SplitProbe, k: u32) -> Option<f64> {
+    probe_ratios(probe, k).map(|r| r.draws())
+}
+
+/// The two ratios [`draws_from`] weighs: `c₀ / c₁`, measured in CPU time (so it varies
+/// with the machine and its load), and `V_w / V_b`, from the samples' values alone (so a
+/// fixed function of the seed). `None` where [`draws_from`] is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ProbeRatios {
+    /// The rest of a sample's cost over one draw's, `c₀ / c₁`.
+    pub cost: f64,
+    /// One draw's variance about the hit over the hit's own, `V_w / V_b`.
+    pub variance: f64,
+}
+
+impl ProbeRatios {
+    /// The two-stage optimum `sqrt((c₀ / c₁) · (V_w / V_b))`.
+    pub fn draws(&self) -> f64 {
+        (self.cost * self.variance).sqrt()
+    }
+}
+
+/// [`ProbeRatios`] of `probe`'s `k`-draw samples (see [`draws_from`]).
+pub fn probe_ratios(probe: &SplitProbe, k: u32) -> Option<ProbeRatios> {
     if k < 2 || probe.samples == 0 || probe.draw_ns == 0 {
         return None;
     }
@@ -148,7 +171,10 @@ pub fn draws_from(probe: &SplitProbe, k: u32) -> Option<f64> {
     let v_b = probe.first - v_w;
     let c1 = probe.draw_ns as f64 / kf;
     let c0 = probe.sample_ns.saturating_sub(probe.draw_ns) as f64;
-    (v_b > 0.0 && v_w > 0.0 && c0 > 0.0).then(|| ((c0 / c1) * (v_w / v_b)).sqrt())
+    (v_b > 0.0 && v_w > 0.0 && c0 > 0.0).then(|| ProbeRatios {
+        cost: c0 / c1,
+        variance: v_w / v_b,
+    })
 }
 
 /// The count in `1..=k` for an optimum of [`draws_from`] (`k` when the probe could not
