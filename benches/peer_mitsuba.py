@@ -53,6 +53,9 @@ def parse_args(argv=None):
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--ref-spp", type=int, default=2048)
     p.add_argument("--variant", default="llvm_ad_rgb")
+    p.add_argument("--equirect-width", type=int, default=None,
+                   help="width of the env map's lat-long export (default: "
+                        "vc.mitsuba.equirect_width_for the map)")
     p.add_argument("--quick", action="store_true", help="1 s budgets, 512-spp references")
     p.add_argument("--out", default=None, help="write the figures as JSON here")
     return p.parse_args(argv)
@@ -141,7 +144,7 @@ def main(argv=None) -> int:
         setup = load_setup(name)
         cam = setup.camera.with_resolution(width, height)
         setup.scene.build(threads=args.threads)
-        ms = vc.mitsuba.load(setup, camera=cam)
+        ms = vc.mitsuba.load(setup, camera=cam, equirect_width=args.equirect_width)
         for k in range(2):  # warm-up: Mitsuba compiles its kernel, we build tables
             vc.mitsuba.render(ms, MITSUBA_PASS_SPP, seed=10_000 + k)
         for m in args.methods:

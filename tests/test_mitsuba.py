@@ -65,6 +65,60 @@ def test_phong_plugin_equals_our_brdf_and_env_orientation():
         assert np.allclose(a, b, rtol=0.08, atol=0.02 * b.max())
 
 
+def test_exported_sun_lies_where_ours_does():
+    # Mitsuba reads a lat-long image's rows at theta = pi y / (H - 1), poles included, not
+    # at the rows' centres: an export that ignored this put a sun 35 degrees high 0.14 rows
+    # too high and its light 0.23% brighter near it (and the suite's image means 0.04-0.06%
+    # apart at 10 s). Mitsuba's radiance over a window around the sun, against ours: the
+    # same power and the same centroid in elevation, to a fraction of a row.
+    elevation = np.radians(35.0)
+    env = vc.envmaps.sky(sun_dir=(0.0, np.sin(elevation), -np.cos(elevation)),
+                         sun_radiance=4e4, sun_angle=2.0, resolution=128)
+    scene = vc.Scene()
+    scene.add_mesh(np.array([[0, -9, 0], [1, -9, 0], [0, -9, 1]], np.float32),
+                   np.array([[0, 1, 2]]))
+    setup = vc.Setup(scene, vc.Camera.look_at((0, 0, 3), (0, 0, 0), width=8, height=6), env)
+    width = 512
+    emitter = mi.load_dict(vc.mitsuba.to_mitsuba(setup, equirect_width=width)["environment"])
+    el, az = np.meshgrid(np.radians(np.linspace(31, 39, 81)), np.radians(np.linspace(-5, 5, 81)),
+                         indexing="ij")
+    dirs = np.stack([np.cos(el) * np.sin(az), np.sin(el), -np.cos(el) * np.cos(az)], -1)
+    dirs = dirs.reshape(-1, 3)
+    d_omega = np.cos(el).ravel()
+    ours = env.eval(dirs.astype(np.float32)).sum(axis=1)
+    si = mi.SurfaceInteraction3f()
+    theirs = np.empty(len(dirs))
+    for i, d in enumerate(dirs):
+        si.wi = mi.Vector3f(*(-d))
+        theirs[i] = sum(emitter.eval(si))
+
+    def centroid_deg(radiance):
+        return np.degrees((radiance * d_omega * el.ravel()).sum() / (radiance * d_omega).sum())
+
+    rows = (centroid_deg(theirs) - centroid_deg(ours)) / (180.0 / (width // 2))
+    assert abs(rows) < 0.08, f"Mitsuba's sun is {rows:+.3f} rows off ours"
+    power = (theirs * d_omega).sum() / (ours * d_omega).sum()
+    assert power == pytest.approx(1.0, abs=2e-4)
+
+
+def test_rows_at_mitsubas_latitudes_keep_power_and_place():
+    # A bright row of a piecewise-constant image: its power is kept exactly and lands in
+    # the two of Mitsuba's rows whose bands it overlaps, split by solid angle.
+    h, w = 64, 4
+    rgb = np.ones((h, w, 3), np.float32)
+    rgb[20] = 1000.0
+    out = vc.mitsuba.rows_at_mitsubas_latitudes(rgb)
+    ours = -np.diff(np.cos(np.pi * np.arange(h + 1) / h))
+    theirs = -np.diff(np.cos(np.pi * np.clip((np.arange(h + 1) - 0.5) / (h - 1), 0, 1)))
+    assert (out[..., 0] * theirs[:, None]).sum() == pytest.approx(
+        (rgb[..., 0] * ours[:, None]).sum(), rel=1e-6)
+    bright = np.flatnonzero(out[:, 0, 0] > 2.0)
+    # Our row 20 spans theta in [20, 21] pi / 64; Mitsuba's rows 20 and 21 sit at
+    # 20 pi / 63 and 21 pi / 63, with bands half a row either side.
+    assert bright.tolist() == [20, 21]
+    assert np.all(out[:10] == pytest.approx(1.0, rel=1e-6))
+
+
 def test_phong_plugin_evaluates_and_samples_our_brdf():
     # In the local frame (normal +z), Mitsuba's wi is our wo (toward the viewer) and its
     # wo our wi (toward the light). eval is f cos, pdf our sampling density.
