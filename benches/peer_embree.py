@@ -11,6 +11,8 @@ Workloads (identical rays for both, from ``viscache_rs.testing``):
               16 passes (``Camera.rays``), through ``Scene.intersect`` (which also returns
               hit points and normals) and embreex's ``DISTANCE`` query; answers agree
               where both miss or the distances agree to 1e-3 relative.
+  pixels      the same rays pixel after pixel, each pixel's 16 together: the order in
+              which a jittered render traces its samples' primary rays (as packets).
 
 viscache_rs runs with threads=2; embreex runs two Python threads on the two halves of the
 rays (``EmbreeScene.run(..., query='OCCLUDED')``), once with robust=False and once with its
@@ -73,11 +75,17 @@ def embree_distance(es, origins, dirs, pool) -> np.ndarray:
     return np.where(t < 1e30, t, np.inf)
 
 
-def camera_rays(setup, passes: int = 16) -> tuple[np.ndarray, np.ndarray]:
+def camera_rays(setup, passes: int = 16, by_pixel: bool = False
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """``passes`` jittered rays per pixel at 160x120, pass after pass or (``by_pixel``)
+    pixel after pixel."""
     cam = setup.camera.with_resolution(160, 120)
     rays = [cam.rays(seed=k, jitter=True) for k in range(passes)]
-    return (np.ascontiguousarray(np.concatenate([o for o, _ in rays]), np.float32),
-            np.ascontiguousarray(np.concatenate([d for _, d in rays]), np.float32))
+    origins, dirs = (np.stack([r[i] for r in rays]) for i in (0, 1))  # (pass, pixel, 3)
+    if by_pixel:
+        origins, dirs = origins.swapaxes(0, 1), dirs.swapaxes(0, 1)
+    return (np.ascontiguousarray(origins.reshape(-1, 3), np.float32),
+            np.ascontiguousarray(dirs.reshape(-1, 3), np.float32))
 
 
 def same_hits(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:
@@ -101,6 +109,7 @@ def run(scene_name: str, repeats: int) -> dict:
         "bundles": vc.testing.record_bundle_rays(scene, 1000, 32, seed=1),
         "shading": vc.testing.view_shading_rays(setup, seed=1),
         "camera": camera_rays(setup),
+        "pixels": camera_rays(setup, by_pixel=True),
     }
     result = {"scene": scene_name, "triangles": int(scene.num_triangles),
               "our_build_s": build_s, "builder": builder, "workloads": {}}
@@ -113,7 +122,7 @@ def run(scene_name: str, repeats: int) -> dict:
         es.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), query="OCCLUDED")
         embree[robust] = (es, time.perf_counter() - t)
     for name, (o, d) in workloads.items():
-        if name == "camera":
+        if name in ("camera", "pixels"):
             def query(o=o, d=d):
                 return scene.intersect(o, d, threads=2)["t"].astype(np.float64)
             peer, agree, hit = embree_distance, same_hits, np.isfinite

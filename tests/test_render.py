@@ -406,6 +406,10 @@ def test_stats_time_budget_and_progress(small_setups):
     assert _render(setup, "product", 4).stats["primary_rays"] == 5 * n
     assert s["shadow_rays"] > 0 and s["bsdf_rays"] > 0 and s["seconds"] > 0
     assert s["primary_seconds"] > 0 and s["direct_seconds"] > 0
+    # The samples' own primary rays are a part of their shading, and only jittered ones
+    # trace them.
+    assert s["sample_primary_seconds"] == 0
+    assert 0 < jittered["sample_primary_seconds"] < jittered["shading_seconds"]
     # A budget stops after the pass that spends it and says how far it got.
     r = vc.render(setup, method="env", time_budget=0.05, progress=False)
     assert 1 <= r.stats["spp"] < 1 << 20

@@ -248,6 +248,7 @@ pub fn render<'py>(
     stats.set_item("control_seconds", s.stages.control)?;
     stats.set_item("shading_seconds", s.stages.shading)?;
     stats.set_item("indirect_seconds", s.stages.indirect)?;
+    stats.set_item("sample_primary_seconds", s.stages.sample_primary)?;
     stats.set_item("reused_products", s.reused_products)?;
     stats.set_item(
         "direct_seconds",

@@ -329,6 +329,10 @@ pub struct StageSeconds {
     pub shading: f64,
     /// Of `shading`, the indirect paths ([`RenderParams::bounces`]).
     pub indirect: f64,
+    /// Of `shading`, the jittered samples' primary rays: their packets from the eye and
+    /// the hits' surfaces (0 without [`RenderParams::jitter`]). What antialiasing adds to
+    /// a sample at least (`benches/jitter_cost.py` reports it as the ratio's floor).
+    pub sample_primary: f64,
 }
 
 /// Figures of one render.
@@ -442,6 +446,7 @@ struct BandWork {
     control_ns: u64,
     shading_ns: u64,
     indirect_ns: u64,
+    sample_primary_ns: u64,
     /// Pixels shaded in this pass (each prepares its anchor) and samples taken.
     anchored_pixels: u64,
     samples: u64,
@@ -514,6 +519,7 @@ impl BandWork {
         self.control_ns += o.control_ns;
         self.shading_ns += o.shading_ns;
         self.indirect_ns += o.indirect_ns;
+        self.sample_primary_ns += o.sample_primary_ns;
         self.anchor_ns += o.anchor_ns;
         self.sample_ns += o.sample_ns;
         self.unmatched_samples += o.unmatched_samples;
@@ -612,12 +618,14 @@ impl Shader<'_> {
         let jitters = rngs.iter().map(|rng| rng.get2(DIM_PIXEL_JITTER));
         self.camera
             .pixel_directions(px, py, jitters, &mut directions);
+        let start = Instant::now();
         let hits = self.lighting.scene.intersect_packet(
             self.camera.eye,
             &directions[..n],
             &[f32::INFINITY; PACKET][..n],
             &mut work.bvh,
         );
+        work.sample_primary_ns += elapsed_ns(start);
         work.primary_rays += n as u64;
         (hits, directions)
     }
@@ -1478,6 +1486,7 @@ fn render_with(
             control: total.control_ns as f64 * 1e-9,
             shading: total.shading_ns as f64 * 1e-9,
             indirect: total.indirect_ns as f64 * 1e-9,
+            sample_primary: total.sample_primary_ns as f64 * 1e-9,
         },
         cache_points: total.cache_points,
         points_without_records: total.points_without_records,
