@@ -405,8 +405,9 @@ impl PyScene {
     /// Statistics of the BVH (built if needed): quality (the builder that made it),
     /// requested (the preset asked for, e.g. "auto"), sah_cost (expected block tests and
     /// node visits of a ray crossing the scene's box), auto_costs (node visits plus block
-    /// tests per sample shadow ray of each tree "auto" compared, else None), nodes, bytes,
-    /// build seconds.
+    /// tests per sample shadow ray of each tree "auto" compared: "sah", "slow", and
+    /// "sah_objects_apart" for a scene of several objects; else None), objects_apart
+    /// (whether each object has a subtree of its own), nodes, bytes, build seconds.
     fn bvh_stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let scene = self.get();
         let bvh = py.detach(|| scene.bvh());
@@ -415,14 +416,21 @@ impl PyScene {
         d.set_item("requested", bvh.requested_quality().name())?;
         d.set_item("sah_cost", bvh.sah_cost())?;
         match bvh.auto_costs() {
-            Some([sah, alternative]) => {
+            Some(costs) => {
                 let c = PyDict::new(py);
-                c.set_item("sah", sah)?;
-                c.set_item(crate::geometry::bvh::AUTO_ALTERNATIVE.name(), alternative)?;
+                c.set_item("sah", costs.sah)?;
+                c.set_item(
+                    crate::geometry::bvh::AUTO_ALTERNATIVE.name(),
+                    costs.alternative,
+                )?;
+                if let Some(apart) = costs.objects_apart {
+                    c.set_item("sah_objects_apart", apart)?;
+                }
                 d.set_item("auto_costs", c)?;
             }
             None => d.set_item("auto_costs", py.None())?,
         }
+        d.set_item("objects_apart", bvh.objects_apart())?;
         d.set_item("nodes", bvh.num_nodes())?;
         d.set_item("memory_bytes", bvh.memory_bytes())?;
         d.set_item("build_seconds", bvh.build_time().as_secs_f64())?;

@@ -4,6 +4,7 @@
 use std::time::{Duration, Instant};
 
 use glam::{Vec3, Vec3A};
+use obvhs::aabb::Aabb;
 use obvhs::bvh2::builder::build_bvh2_from_tris;
 use obvhs::bvh2::node::Bvh2Node;
 use obvhs::bvh2::Bvh2;
@@ -24,14 +25,18 @@ use crate::math::triangle_cross;
 /// between the two by measured cost ([`BuildQuality::Auto`], the default).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum BuildQuality {
-    /// The default: builds the [`BuildQuality::Sah`] and the [`AUTO_ALTERNATIVE`] tree and
-    /// keeps the one that does less work on [`AUTO_PROBE_RAYS`] sample shadow rays (the
-    /// PLOC tree only when it saves more than [`AUTO_MARGIN`]); meshes of more than
-    /// [`AUTO_MAX_TRIANGLES`] get the SAH tree alone. Neither builder wins on every scene:
-    /// the binned SAH on the built-ins, PLOC (with its spatial pre-splits) on mixed scales
-    /// and on small meshes over a large ground (benches/README.md). The SAH cost of the
-    /// two trees ([`Bvh::sah_cost`]) did not tell them apart on the benchmark suite (equal
-    /// on `meshes`, where PLOC traces faster); the traversal work of sample rays does.
+    /// The default: builds the [`BuildQuality::Sah`] tree, the [`AUTO_ALTERNATIVE`] tree
+    /// and, for a mesh of several objects, the SAH tree with each object in a subtree of
+    /// its own ([`AutoCosts::objects_apart`]), and keeps the one that does least work on
+    /// [`AUTO_PROBE_RAYS`] sample shadow rays (another than the plain SAH tree only when it
+    /// saves more than [`AUTO_MARGIN`]: [`AutoCosts::chosen`]); meshes of more than
+    /// [`AUTO_MAX_TRIANGLES`] get the SAH tree alone. No tree wins on every scene: the
+    /// binned SAH on most built-ins, PLOC (with its spatial pre-splits) on mixed scales,
+    /// the objects apart where rays leave a ground or a wall past objects standing on it
+    /// (`meshes`, `cornell`, `scales`: a top-down split over all triangles mixes the ground
+    /// under an object with the object, benches/README.md). The SAH cost of the trees
+    /// ([`Bvh::sah_cost`]) did not tell them apart on the benchmark suite (equal on
+    /// `meshes`, where PLOC traces faster); the traversal work of sample rays does.
     #[default]
     Auto,
     /// Top-down binned SAH whose cost counts four-triangle blocks, slivers halved by early
@@ -128,6 +133,43 @@ impl BuildQuality {
 /// The PLOC preset [`BuildQuality::Auto`] weighs against the binned SAH tree.
 pub const AUTO_ALTERNATIVE: BuildQuality = BuildQuality::Slow;
 
+/// Probe work per ray (node visits plus block tests, [`Bvh::probe_work`]) of the trees
+/// [`BuildQuality::Auto`] compared.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AutoCosts {
+    /// The binned SAH tree.
+    pub sah: f64,
+    /// The [`AUTO_ALTERNATIVE`] (PLOC) tree.
+    pub alternative: f64,
+    /// The binned SAH tree with each object in a subtree of its own, joined by the SAH
+    /// over the objects' boxes; None for a mesh of fewer than two non-empty objects.
+    pub objects_apart: Option<f64>,
+}
+
+/// The tree [`AutoCosts::chosen`] keeps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AutoChoice {
+    Sah,
+    Alternative,
+    ObjectsApart,
+}
+
+impl AutoCosts {
+    /// The plain SAH tree, unless another's work is less by more than [`AUTO_MARGIN`]:
+    /// then the one of least work (the PLOC tree on a tie).
+    pub fn chosen(&self) -> AutoChoice {
+        let (other, work) = match self.objects_apart {
+            Some(apart) if apart < self.alternative => (AutoChoice::ObjectsApart, apart),
+            _ => (AutoChoice::Alternative, self.alternative),
+        };
+        if self.sah > AUTO_MARGIN * work {
+            other
+        } else {
+            AutoChoice::Sah
+        }
+    }
+}
+
 /// Shadow rays [`BuildQuality::Auto`] traces in both trees to compare them.
 pub const AUTO_PROBE_RAYS: usize = 4096;
 
@@ -209,6 +251,53 @@ fn join_bvh2(a: Bvh2, b: Bvh2) -> Bvh2 {
     }
 }
 
+/// One tree over `trees` (each non-empty), their roots joined top-down: each set is split
+/// in two where the surface area heuristic over the subtrees' boxes is least (subtrees
+/// sorted by the centre of their box along the axis where the centres spread most,
+/// weighted by their triangles), so that many subtrees make a balanced top rather than a
+/// chain. None for no trees. A fixed function of the trees and their order.
+fn join_by_sah(mut trees: Vec<Bvh2>) -> Option<Bvh2> {
+    if trees.len() <= 1 {
+        return trees.pop();
+    }
+    let boxes: Vec<Aabb> = trees.iter().map(|t| *t.nodes[0].aabb()).collect();
+    let weights: Vec<f32> = trees
+        .iter()
+        .map(|t| t.primitive_indices.len() as f32)
+        .collect();
+    let centres = Aabb::from_points(&boxes.iter().map(|b| b.center()).collect::<Vec<_>>());
+    let axis = centres.diagonal().max_position();
+    let mut order: Vec<usize> = (0..trees.len()).collect();
+    order.sort_by(|&a, &b| {
+        let key = |i: usize| boxes[i].center()[axis];
+        key(a).total_cmp(&key(b)).then(a.cmp(&b))
+    });
+    // Cost of the split before position `k` of `order`: area times weight on either side.
+    let sweep = |indices: &mut dyn Iterator<Item = &usize>| {
+        let (mut bounds, mut weight) = (Aabb::INVALID, 0.0f32);
+        indices
+            .map(|&i| {
+                bounds = bounds.union(&boxes[i]);
+                weight += weights[i];
+                bounds.half_area() * weight
+            })
+            .collect::<Vec<f32>>()
+    };
+    let left = sweep(&mut order.iter());
+    let mut right = sweep(&mut order.iter().rev());
+    right.reverse();
+    let split = (1..order.len())
+        .min_by(|&a, &b| {
+            let cost = |k: usize| left[k - 1] + right[k];
+            cost(a).total_cmp(&cost(b))
+        })
+        .unwrap_or(1);
+    let mut slots: Vec<Option<Bvh2>> = trees.drain(..).map(Some).collect();
+    let mut take = |range: &[usize]| range.iter().filter_map(|&i| slots[i].take()).collect();
+    let (low, high) = (take(&order[..split]), take(&order[split..]));
+    Some(join_bvh2(join_by_sah(low)?, join_by_sah(high)?))
+}
+
 /// `n` shadow rays like a renderer's: origins uniform by area over `mesh`'s triangles, on
 /// the side facing up (+y, the scenes' up axis: the side a camera and the sky mostly see;
 /// vertical triangles on their winding side), lifted off the surface by a millionth of the
@@ -269,21 +358,71 @@ impl Bvh {
         quality: BuildQuality,
         groups: &[std::ops::Range<usize>],
     ) -> Self {
+        Self::build_joined(mesh, quality, groups, join_by_sah)
+    }
+
+    /// [`Bvh::build_grouped`] with the subtrees joined in a chain, one above the other: a
+    /// tree deeper than the fixed traversal stack serves, for tests of the spilling one.
+    #[cfg(test)]
+    pub(super) fn build_chained(
+        mesh: &Mesh,
+        quality: BuildQuality,
+        groups: &[std::ops::Range<usize>],
+    ) -> Self {
+        Self::build_joined(mesh, quality, groups, |trees| {
+            trees.into_iter().reduce(join_bvh2)
+        })
+    }
+
+    /// [`Bvh::build_grouped`] whose subtrees `join` puts under one root.
+    fn build_joined(
+        mesh: &Mesh,
+        quality: BuildQuality,
+        groups: &[std::ops::Range<usize>],
+        join: fn(Vec<Bvh2>) -> Option<Bvh2>,
+    ) -> Self {
         let start = Instant::now();
         if quality == BuildQuality::Auto {
             let mut kept = if mesh.triangles.len() > AUTO_MAX_TRIANGLES {
                 Self::build_grouped(mesh, BuildQuality::Sah, groups)
             } else {
-                let (sah, alternative) = rayon::join(
+                // The objects as groups (which takes in any moving ones), where there are
+                // several.
+                let objects: Vec<_> = mesh
+                    .objects
+                    .iter()
+                    .map(|o| {
+                        o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize
+                    })
+                    .filter(|r| !r.is_empty())
+                    .collect();
+                let (sah, (alternative, apart)) = rayon::join(
                     || Self::build_grouped(mesh, BuildQuality::Sah, groups),
-                    || Self::build_grouped(mesh, AUTO_ALTERNATIVE, groups),
+                    || {
+                        rayon::join(
+                            || Self::build_grouped(mesh, AUTO_ALTERNATIVE, groups),
+                            || {
+                                (objects.len() >= 2).then(|| {
+                                    let mut t =
+                                        Self::build_grouped(mesh, BuildQuality::Sah, &objects);
+                                    t.objects_apart = true;
+                                    t
+                                })
+                            },
+                        )
+                    },
                 );
                 let rays = probe_rays(mesh, AUTO_PROBE_RAYS);
-                let costs = [sah.probe_work(&rays), alternative.probe_work(&rays)];
-                let mut kept = if costs[0] > AUTO_MARGIN * costs[1] {
-                    alternative
-                } else {
-                    sah
+                let costs = AutoCosts {
+                    sah: sah.probe_work(&rays),
+                    alternative: alternative.probe_work(&rays),
+                    objects_apart: apart.as_ref().map(|t| t.probe_work(&rays)),
+                };
+                let mut kept = match (costs.chosen(), apart) {
+                    (AutoChoice::Sah, _) => sah,
+                    (AutoChoice::Alternative, _) => alternative,
+                    (AutoChoice::ObjectsApart, Some(apart)) => apart,
+                    (AutoChoice::ObjectsApart, None) => unreachable!("chosen only when built"),
                 };
                 kept.auto_costs = Some(costs);
                 kept
@@ -294,9 +433,12 @@ impl Bvh {
         }
         let non_degenerate = |&i: &u32| triangle_cross(&mesh.triangles[i as usize]) != Vec3::ZERO;
         // Kept triangles, the ungrouped first, then group after group.
-        let grouped = |i: u32| groups.iter().any(|g| g.contains(&(i as usize)));
+        let mut grouped = vec![false; mesh.triangles.len()];
+        for g in groups {
+            grouped[g.clone()].fill(true);
+        }
         let mut kept: Vec<u32> = (0..mesh.triangles.len() as u32)
-            .filter(|i| !grouped(*i))
+            .filter(|&i| !grouped[i as usize])
             .filter(non_degenerate)
             .collect();
         let mut spans = Vec::with_capacity(groups.len() + 1);
@@ -324,7 +466,7 @@ impl Bvh {
                 }
             })
             .collect();
-        let tree = spans
+        let subtrees = spans
             .into_iter()
             .filter(|span| !span.is_empty())
             .map(|span| {
@@ -334,8 +476,8 @@ impl Bvh {
                     .for_each(|p| *p += span.start as u32);
                 bvh2
             })
-            .reduce(join_bvh2)
-            .map_or_else(Bvh8::default, |bvh2| Bvh8::from_bvh2(&bvh2));
+            .collect();
+        let tree = join(subtrees).map_or_else(Bvh8::default, |bvh2| Bvh8::from_bvh2(&bvh2));
         let blocks: Vec<Triangle4> = tree
             .primitive_order
             .as_chunks::<4>()
@@ -368,6 +510,7 @@ impl Bvh {
             quality,
             requested: quality,
             auto_costs: None,
+            objects_apart: false,
             build_time: start.elapsed(),
             refit_blocks: None,
             mesh_triangles: mesh.triangles.len(),

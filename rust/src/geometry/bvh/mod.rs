@@ -32,8 +32,8 @@ mod tests;
 use build::RefitBlocks;
 
 pub use build::{
-    BuildQuality, BvhUpdate, AUTO_ALTERNATIVE, AUTO_MARGIN, AUTO_MAX_TRIANGLES, AUTO_PROBE_RAYS,
-    MAX_LEAF, NODE_COST,
+    AutoChoice, AutoCosts, BuildQuality, BvhUpdate, AUTO_ALTERNATIVE, AUTO_MARGIN,
+    AUTO_MAX_TRIANGLES, AUTO_PROBE_RAYS, MAX_LEAF, NODE_COST,
 };
 pub use interleaved::LANES;
 pub use packet::PACKET;
@@ -147,9 +147,10 @@ pub struct Bvh {
     requested: BuildQuality,
     /// [`Bvh8::sah_cost`] of the tree with [`NODE_COST`].
     sah_cost: f32,
-    /// Probe work per ray of the SAH and the PLOC tree when [`BuildQuality::Auto`]
-    /// compared them.
-    auto_costs: Option<[f64; 2]>,
+    /// Probe work per ray of the trees [`BuildQuality::Auto`] compared, when it did.
+    auto_costs: Option<AutoCosts>,
+    /// Whether each object has a subtree of its own ([`AutoCosts::objects_apart`]).
+    objects_apart: bool,
     build_time: Duration,
     /// Parent links: the refit climbs them, and shadow-ray hints widen to a parent.
     parents: Parents,
@@ -191,9 +192,15 @@ impl Bvh {
     }
 
     /// Node visits plus block tests (a quarter of the triangle tests) per probe ray of the
-    /// SAH and the PLOC tree, when [`BuildQuality::Auto`] compared them.
-    pub fn auto_costs(&self) -> Option<[f64; 2]> {
+    /// trees [`BuildQuality::Auto`] compared, when it did.
+    pub fn auto_costs(&self) -> Option<AutoCosts> {
         self.auto_costs
+    }
+
+    /// Whether each object of the mesh has a subtree of its own under the top levels
+    /// (the tree [`BuildQuality::Auto`] keeps where that does least work).
+    pub fn objects_apart(&self) -> bool {
+        self.objects_apart
     }
 
     /// Expected block tests (and node visits at [`NODE_COST`]) of a ray crossing the

@@ -163,7 +163,9 @@ fn auto_keeps_the_cheaper_tree() {
     let ploc = Bvh::build(&soup, AUTO_ALTERNATIVE);
     let auto = Bvh::build(&soup, BuildQuality::Auto);
     assert_ne!(sah.sah_cost(), ploc.sah_cost());
-    let [s, p] = auto.auto_costs().expect("compared");
+    let costs = auto.auto_costs().expect("compared");
+    let (s, p) = (costs.sah, costs.alternative);
+    assert_eq!(costs.objects_apart, None, "one object");
     let rays = probe_rays(&soup, AUTO_PROBE_RAYS);
     assert_eq!([s, p], [sah.probe_work(&rays), ploc.probe_work(&rays)]);
     assert!(s > 1.0 && p > 1.0, "{s} {p}");
@@ -377,9 +379,10 @@ fn packets_answer_as_single_rays() {
         grid.add_indexed(&quad, &[[0, 1, 2], [0, 2, 3]], Material::DEFAULT, None)
             .unwrap();
     }
-    // Each triangle of the soup a group of its own: a tree too deep for the fixed stack.
+    // Each triangle of the soup a group of its own, the groups chained: a tree too deep
+    // for the fixed stack.
     let groups: Vec<_> = (0..600).map(|i| i..i + 1).collect();
-    let deep = Bvh::build_grouped(&soup, BuildQuality::Sah, &groups);
+    let deep = Bvh::build_chained(&soup, BuildQuality::Sah, &groups);
     assert!(!deep.stack_is_bounded(), "depth {}", deep.depth());
     let mut tested = 0;
     for (bvh, centre) in [
@@ -443,7 +446,7 @@ fn closest_packets_find_the_single_rays_hits() {
     let unit = |a: u64, b: u64| to_unit_f32(hash4(a, b, 0, 21));
     let soup = triangle_soup(21);
     let groups: Vec<_> = (0..600).map(|i| i..i + 1).collect();
-    let deep = Bvh::build_grouped(&soup, BuildQuality::Sah, &groups);
+    let deep = Bvh::build_chained(&soup, BuildQuality::Sah, &groups);
     assert!(!deep.stack_is_bounded());
     let garden = crate::scenes::load("garden", 0.25, 3).unwrap().scene;
     let trees: [(&Bvh, Vec3A, f32); 4] = [
@@ -550,11 +553,11 @@ fn vector_and_portable_traversals_agree() {
         }
         (o, d, [f32::INFINITY, 1.0, 4.0][k as usize % 3])
     };
-    // The soup's first 400 triangles each as a group of its own: the groups' subtrees
-    // are joined one above the other, a chain far deeper than any SAH tree.
+    // The soup's first 400 triangles each as a group of its own, their subtrees chained
+    // one above the other: far deeper than any SAH tree.
     let groups: Vec<_> = (0..400).map(|i| i..i + 1).collect();
     for (name, groups, bounded) in [("soup", &groups[..0], true), ("deep", &groups[..], false)] {
-        let bvh = Bvh::build_grouped(&soup, BuildQuality::Sah, groups);
+        let bvh = Bvh::build_chained(&soup, BuildQuality::Sah, groups);
         assert_eq!(
             bvh.stack_is_bounded(),
             bounded,
@@ -750,4 +753,161 @@ fn grouped_builds_answer_as_whole_ones() {
             );
         }
     }
+}
+
+/// A ground grid of 0.5-unit cells with `objects` small boxes of 12 triangles just above
+/// it in a row, each box an object of its own (`meshes`' layout in miniature).
+fn ground_and_boxes(objects: usize) -> Mesh {
+    let mut m = Mesh::new();
+    let mut ground = Vec::new();
+    for i in 0..40 {
+        for j in 0..40 {
+            let p = Vec3::new(i as f32 * 0.5 - 10.0, 0.0, j as f32 * 0.5 - 10.0);
+            let (x, z) = (Vec3::X * 0.5, Vec3::Z * 0.5);
+            ground.push([p, p + x, p + x + z]);
+            ground.push([p, p + x + z, p + z]);
+        }
+    }
+    m.add_triangles(ground, Material::DEFAULT, Some("ground".into()))
+        .unwrap();
+    for k in 0..objects {
+        // Clear of the ground, so that no hit ties between a box and a ground cell.
+        let lo = Vec3::new(-8.0 + 16.0 * k as f32 / objects as f32, 0.01, 0.0);
+        let hi = lo + Vec3::new(0.4 * 16.0 / objects as f32, 1.0, 0.5);
+        let corner = |b: usize| {
+            Vec3::new(
+                [lo.x, hi.x][b & 1],
+                [lo.y, hi.y][b >> 1 & 1],
+                [lo.z, hi.z][b >> 2 & 1],
+            )
+        };
+        let faces = [
+            [0, 1, 3, 2],
+            [4, 6, 7, 5],
+            [0, 4, 5, 1],
+            [2, 3, 7, 6],
+            [0, 2, 6, 4],
+            [1, 5, 7, 3],
+        ];
+        let tris = faces.iter().flat_map(|f| {
+            let c = f.map(corner);
+            [[c[0], c[1], c[2]], [c[0], c[2], c[3]]]
+        });
+        m.add_triangles(tris, Material::DEFAULT, None).unwrap();
+    }
+    m
+}
+
+/// Closest hits and shadow answers of `a` and `b` agree on random rays over the ground.
+fn assert_same_answers(a: &Bvh, b: &Bvh) {
+    let mut c = TraversalCounters::default();
+    for i in 0..4000u32 {
+        let r = crate::sampling::rng::SampleRng::new(9, i as u64, 0);
+        let o = Vec3A::new(
+            r.get(0) * 20.0 - 10.0,
+            r.get(1) * 1.5,
+            r.get(2) * 20.0 - 10.0,
+        );
+        let [u, v] = r.get2(3);
+        let d = Vec3A::from(crate::scenes::shapes::sphere_dir(u, v));
+        let (x, y) = (
+            a.intersect::<false>(o, d, f32::INFINITY, &mut c),
+            b.intersect::<false>(o, d, f32::INFINITY, &mut c),
+        );
+        assert_eq!(
+            x.map(|h| (h.t, h.triangle)),
+            y.map(|h| (h.t, h.triangle)),
+            "{i}"
+        );
+        assert_eq!(
+            a.occluded::<false>(o, d, 3.0, &mut c),
+            b.occluded::<false>(o, d, 3.0, &mut c),
+            "{i}"
+        );
+    }
+}
+
+/// Many objects apart get a balanced top (a chain of joins would be about one level per
+/// seven objects deep) and answer as the tree over all triangles at once.
+#[test]
+fn objects_apart_are_joined_into_a_balanced_top() {
+    let m = ground_and_boxes(300);
+    let objects: Vec<_> = m
+        .objects
+        .iter()
+        .map(|o| o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize)
+        .collect();
+    let apart = Bvh::build_grouped(&m, BuildQuality::Sah, &objects);
+    let whole = Bvh::build(&m, BuildQuality::Sah);
+    // 301 subtrees need ceil(log8 301) = 3 levels above them; a box is one leaf deep.
+    assert!(
+        apart.depth() <= whole.depth() + 3,
+        "{} {}",
+        apart.depth(),
+        whole.depth()
+    );
+    assert!(apart.depth() <= 8, "{}", apart.depth());
+    assert_same_answers(&apart, &whole);
+}
+
+/// `Auto` also weighs the SAH tree with each object apart, on a mesh of several objects,
+/// and keeps it where it does 5% less probe work than the plain SAH tree and less than
+/// the PLOC tree: here, where boxes stand on a ground grid as in `meshes`. The kept tree
+/// is that build, for any thread count, and answers as the plain SAH tree does.
+#[test]
+fn auto_keeps_objects_apart_where_they_save_work() {
+    let m = ground_and_boxes(6);
+    let auto = Bvh::build(&m, BuildQuality::Auto);
+    let costs = auto.auto_costs().expect("compared");
+    let objects: Vec<_> = m
+        .objects
+        .iter()
+        .map(|o| o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize)
+        .collect();
+    let apart = Bvh::build_grouped(&m, BuildQuality::Sah, &objects);
+    let sah = Bvh::build(&m, BuildQuality::Sah);
+    let rays = probe_rays(&m, AUTO_PROBE_RAYS);
+    assert_eq!(costs.objects_apart, Some(apart.probe_work(&rays)));
+    assert_eq!(costs.sah, sah.probe_work(&rays));
+    assert!(
+        costs.sah > AUTO_MARGIN * costs.objects_apart.unwrap(),
+        "{costs:?}"
+    );
+    assert_eq!(costs.chosen(), AutoChoice::ObjectsApart, "{costs:?}");
+    assert!(auto.objects_apart() && !sah.objects_apart());
+    assert_eq!(auto.quality(), BuildQuality::Sah);
+    assert_eq!(auto.sah_cost(), apart.sah_cost());
+    assert_eq!(auto.triangle_ids, apart.triangle_ids);
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let single = one.install(|| Bvh::build(&m, BuildQuality::Auto));
+    assert_eq!(single.triangle_ids, auto.triangle_ids);
+    assert_eq!(single.auto_costs(), auto.auto_costs());
+    assert_same_answers(&auto, &sah);
+}
+
+/// The rule of [`AutoCosts::chosen`]: the plain SAH tree unless another does more than
+/// 5% less work, then the least-work one (PLOC on a tie).
+#[test]
+fn auto_choice_rule() {
+    let costs = |sah, alternative, objects_apart| AutoCosts {
+        sah,
+        alternative,
+        objects_apart,
+    };
+    assert_eq!(costs(1.0, 0.96, None).chosen(), AutoChoice::Sah);
+    assert_eq!(costs(1.0, 0.9, None).chosen(), AutoChoice::Alternative);
+    assert_eq!(
+        costs(1.0, 0.9, Some(0.8)).chosen(),
+        AutoChoice::ObjectsApart
+    );
+    assert_eq!(costs(1.0, 0.8, Some(0.9)).chosen(), AutoChoice::Alternative);
+    assert_eq!(costs(1.0, 0.8, Some(0.8)).chosen(), AutoChoice::Alternative);
+    assert_eq!(costs(1.0, 1.2, Some(0.97)).chosen(), AutoChoice::Sah);
+    assert_eq!(
+        costs(1.0, 1.2, Some(0.9)).chosen(),
+        AutoChoice::ObjectsApart
+    );
 }

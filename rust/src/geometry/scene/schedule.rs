@@ -29,7 +29,12 @@ pub(super) const SPATIAL_ORDER_MIN: usize = 1 << 16;
 
 /// Least mean number of node visits per ray, over a sample of a batch, for
 /// [`Scene::occluded`] to reorder its bundles by origin or to interleave its scattered rays.
-const SPATIAL_ORDER_NODES: f64 = 6.0;
+/// 4 rather than 6: `meshes`' incoherent rays (5 visits per ray in a 5 MB tree) 1.1x
+/// faster in turns; a better tree of `blob` (built with its objects apart: 5.7 visits
+/// against 6.5) was 1.4x slower than the worse one under 6, for falling below it, and as
+/// fast under 4. Rays that leave after a node or two (hairball, panels) stay below it,
+/// and no other suite scene moved (benches/HISTORY.md, 2026-12-02).
+const SPATIAL_ORDER_NODES: f64 = 4.0;
 
 /// Whether `directions` (non-zero) lie within 45° of their sum (their mean direction when
 /// they have one length, as record bundles' unit directions do). Squared, so that no
