@@ -32,8 +32,8 @@ mod tests;
 use build::RefitBlocks;
 
 pub use build::{
-    AutoChoice, AutoCosts, BuildQuality, BvhUpdate, AUTO_ALTERNATIVE, AUTO_MARGIN,
-    AUTO_MAX_TRIANGLES, AUTO_PROBE_RAYS, MAX_LEAF, NODE_COST,
+    AutoChoice, AutoCosts, BuildQuality, BvhUpdate, AUTO_ALTERNATIVE, AUTO_APART_LARGEST,
+    AUTO_MARGIN, AUTO_MAX_TRIANGLES, AUTO_PROBE_RAYS, MAX_LEAF, NODE_COST,
 };
 pub use interleaved::LANES;
 pub use packet::PACKET;

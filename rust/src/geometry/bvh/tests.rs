@@ -755,15 +755,17 @@ fn grouped_builds_answer_as_whole_ones() {
     }
 }
 
-/// A ground grid of 0.5-unit cells with `objects` small boxes of 12 triangles just above
-/// it in a row, each box an object of its own (`meshes`' layout in miniature).
-fn ground_and_boxes(objects: usize) -> Mesh {
+/// A 20-unit ground grid of `cells` x `cells` squares with `objects` small boxes of 12
+/// triangles just above it in a row, each box an object of its own (`meshes`' layout in
+/// miniature).
+fn ground_and_boxes(cells: usize, objects: usize) -> Mesh {
     let mut m = Mesh::new();
     let mut ground = Vec::new();
-    for i in 0..40 {
-        for j in 0..40 {
-            let p = Vec3::new(i as f32 * 0.5 - 10.0, 0.0, j as f32 * 0.5 - 10.0);
-            let (x, z) = (Vec3::X * 0.5, Vec3::Z * 0.5);
+    let side = 20.0 / cells as f32;
+    for i in 0..cells {
+        for j in 0..cells {
+            let p = Vec3::new(i as f32 * side - 10.0, 0.0, j as f32 * side - 10.0);
+            let (x, z) = (Vec3::X * side, Vec3::Z * side);
             ground.push([p, p + x, p + x + z]);
             ground.push([p, p + x + z, p + z]);
         }
@@ -831,7 +833,7 @@ fn assert_same_answers(a: &Bvh, b: &Bvh) {
 /// seven objects deep) and answer as the tree over all triangles at once.
 #[test]
 fn objects_apart_are_joined_into_a_balanced_top() {
-    let m = ground_and_boxes(300);
+    let m = ground_and_boxes(40, 300);
     let objects: Vec<_> = m
         .objects
         .iter()
@@ -853,10 +855,19 @@ fn objects_apart_are_joined_into_a_balanced_top() {
 /// `Auto` also weighs the SAH tree with each object apart, on a mesh of several objects,
 /// and keeps it where it does 5% less probe work than the plain SAH tree and less than
 /// the PLOC tree: here, where boxes stand on a ground grid as in `meshes`. The kept tree
-/// is that build, for any thread count, and answers as the plain SAH tree does.
+/// is that build, for any thread count, and answers as the plain SAH tree does. Where
+/// one object holds more than [`AUTO_APART_LARGEST`] of the triangles (a finer ground),
+/// that tree is not built.
 #[test]
 fn auto_keeps_objects_apart_where_they_save_work() {
-    let m = ground_and_boxes(6);
+    let fine = ground_and_boxes(40, 6);
+    assert!(3200.0 / fine.triangles.len() as f64 > AUTO_APART_LARGEST);
+    let costs = Bvh::build(&fine, BuildQuality::Auto)
+        .auto_costs()
+        .expect("compared");
+    assert_eq!(costs.objects_apart, None);
+    let m = ground_and_boxes(8, 6);
+    assert!(128.0 / m.triangles.len() as f64 <= AUTO_APART_LARGEST);
     let auto = Bvh::build(&m, BuildQuality::Auto);
     let costs = auto.auto_costs().expect("compared");
     let objects: Vec<_> = m
