@@ -102,7 +102,8 @@ def run(scene_name: str, repeats: int) -> dict:
     setup = vc.scenes.load(scene_name)
     scene = setup.scene
     build_s = scene.build(threads=2)
-    builder = scene.bvh_stats()["quality"]
+    stats = scene.bvh_stats()
+    builder = stats["quality"] + (" (objects apart)" if stats["objects_apart"] else "")
     tris = scene.triangles()
     workloads = {
         "incoherent": vc.testing.ground_hemisphere_rays(scene, 1 << 20, seed=1),
