@@ -20,6 +20,13 @@ pub struct Object {
     pub num_triangles: u32,
 }
 
+impl Object {
+    /// Indices of the object's triangles in [`Mesh::triangles`].
+    pub fn triangle_range(&self) -> std::ops::Range<usize> {
+        self.first_triangle as usize..(self.first_triangle + self.num_triangles) as usize
+    }
+}
+
 /// Axis-aligned bounds; the empty box has `min = +inf`, `max = -inf`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Bounds {

@@ -182,8 +182,7 @@ mod tests {
     }
 
     fn sphere_range(s: &Setup) -> std::ops::Range<usize> {
-        let o = &s.scene.mesh().objects[s.moving_object().unwrap() as usize];
-        o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize
+        s.scene.mesh().objects[s.moving_object().unwrap() as usize].triangle_range()
     }
 
     /// Smallest distance from the sphere's centre to points spread over the boxes' triangles

@@ -399,9 +399,7 @@ impl Bvh {
                 let objects: Vec<_> = mesh
                     .objects
                     .iter()
-                    .map(|o| {
-                        o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize
-                    })
+                    .map(|o| o.triangle_range())
                     .filter(|r| !r.is_empty())
                     .collect();
                 let (sah, (alternative, apart)) = rayon::join(

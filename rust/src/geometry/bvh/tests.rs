@@ -732,26 +732,8 @@ fn grouped_builds_answer_as_whole_ones() {
     ] {
         let grouped = Bvh::build_grouped(&m, BuildQuality::Medium, &groups);
         assert_eq!(grouped.triangle_ids.iter().max(), Some(&42), "{groups:?}");
-        let mut c = TraversalCounters::default();
-        for i in 0..2000u32 {
-            let r = crate::sampling::rng::SampleRng::new(5, i as u64, 0);
-            let o = Vec3A::new(r.get(0) * 4.0, r.get(1) * 2.0 - 0.5, r.get(2) * 4.0);
-            let [u, v] = r.get2(3);
-            let d = Vec3A::from(crate::scenes::shapes::sphere_dir(u, v));
-            let (a, b) = (
-                whole.intersect::<true>(o, d, f32::INFINITY, &mut c),
-                grouped.intersect::<true>(o, d, f32::INFINITY, &mut c),
-            );
-            assert_eq!(
-                a.map(|h| (h.t, h.triangle)),
-                b.map(|h| (h.t, h.triangle)),
-                "{i}"
-            );
-            assert_eq!(
-                whole.occluded::<true>(o, d, 1.0, &mut c),
-                grouped.occluded::<true>(o, d, 1.0, &mut c)
-            );
-        }
+        let origins = (vec3a(0.0, -0.5, 0.0), vec3a(4.0, 2.0, 4.0));
+        assert_same_answers(&whole, &grouped, origins, 2000, 1.0, 5);
     }
 }
 
@@ -800,21 +782,25 @@ fn ground_and_boxes(cells: usize, objects: usize) -> Mesh {
     m
 }
 
-/// Closest hits and shadow answers of `a` and `b` agree on random rays over the ground.
-fn assert_same_answers(a: &Bvh, b: &Bvh) {
+/// Closest hits and shadow answers (to `tmax`) of `a` and `b` agree on `rays` random rays
+/// (stream `seed`) from origins uniform in the box at `low` of size `extent`.
+fn assert_same_answers(
+    a: &Bvh,
+    b: &Bvh,
+    (low, extent): (Vec3A, Vec3A),
+    rays: u32,
+    tmax: f32,
+    seed: u64,
+) {
     let mut c = TraversalCounters::default();
-    for i in 0..4000u32 {
-        let r = crate::sampling::rng::SampleRng::new(9, i as u64, 0);
-        let o = Vec3A::new(
-            r.get(0) * 20.0 - 10.0,
-            r.get(1) * 1.5,
-            r.get(2) * 20.0 - 10.0,
-        );
+    for i in 0..rays {
+        let r = crate::sampling::rng::SampleRng::new(seed, i as u64, 0);
+        let o = low + Vec3A::new(r.get(0), r.get(1), r.get(2)) * extent;
         let [u, v] = r.get2(3);
         let d = Vec3A::from(crate::scenes::shapes::sphere_dir(u, v));
         let (x, y) = (
-            a.intersect::<false>(o, d, f32::INFINITY, &mut c),
-            b.intersect::<false>(o, d, f32::INFINITY, &mut c),
+            a.intersect::<true>(o, d, f32::INFINITY, &mut c),
+            b.intersect::<true>(o, d, f32::INFINITY, &mut c),
         );
         assert_eq!(
             x.map(|h| (h.t, h.triangle)),
@@ -822,23 +808,22 @@ fn assert_same_answers(a: &Bvh, b: &Bvh) {
             "{i}"
         );
         assert_eq!(
-            a.occluded::<false>(o, d, 3.0, &mut c),
-            b.occluded::<false>(o, d, 3.0, &mut c),
+            a.occluded::<true>(o, d, tmax, &mut c),
+            b.occluded::<true>(o, d, tmax, &mut c),
             "{i}"
         );
     }
 }
+
+/// Origins over [`ground_and_boxes`]' ground, up to 1.5 above it.
+const OVER_THE_GROUND: (Vec3A, Vec3A) = (vec3a(-10.0, 0.0, -10.0), vec3a(20.0, 1.5, 20.0));
 
 /// Many objects apart get a balanced top (a chain of joins would be about one level per
 /// seven objects deep) and answer as the tree over all triangles at once.
 #[test]
 fn objects_apart_are_joined_into_a_balanced_top() {
     let m = ground_and_boxes(40, 300);
-    let objects: Vec<_> = m
-        .objects
-        .iter()
-        .map(|o| o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize)
-        .collect();
+    let objects: Vec<_> = m.objects.iter().map(|o| o.triangle_range()).collect();
     let apart = Bvh::build_grouped(&m, BuildQuality::Sah, &objects);
     let whole = Bvh::build(&m, BuildQuality::Sah);
     // 301 subtrees need ceil(log8 301) = 3 levels above them; a box is one leaf deep.
@@ -849,7 +834,7 @@ fn objects_apart_are_joined_into_a_balanced_top() {
         whole.depth()
     );
     assert!(apart.depth() <= 8, "{}", apart.depth());
-    assert_same_answers(&apart, &whole);
+    assert_same_answers(&apart, &whole, OVER_THE_GROUND, 4000, 3.0, 9);
 }
 
 /// `Auto` also weighs the SAH tree with each object apart, on a mesh of several objects,
@@ -870,11 +855,7 @@ fn auto_keeps_objects_apart_where_they_save_work() {
     assert!(128.0 / m.triangles.len() as f64 <= AUTO_APART_LARGEST);
     let auto = Bvh::build(&m, BuildQuality::Auto);
     let costs = auto.auto_costs().expect("compared");
-    let objects: Vec<_> = m
-        .objects
-        .iter()
-        .map(|o| o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize)
-        .collect();
+    let objects: Vec<_> = m.objects.iter().map(|o| o.triangle_range()).collect();
     let apart = Bvh::build_grouped(&m, BuildQuality::Sah, &objects);
     let sah = Bvh::build(&m, BuildQuality::Sah);
     let rays = probe_rays(&m, AUTO_PROBE_RAYS);
@@ -896,7 +877,7 @@ fn auto_keeps_objects_apart_where_they_save_work() {
     let single = one.install(|| Bvh::build(&m, BuildQuality::Auto));
     assert_eq!(single.triangle_ids, auto.triangle_ids);
     assert_eq!(single.auto_costs(), auto.auto_costs());
-    assert_same_answers(&auto, &sah);
+    assert_same_answers(&auto, &sah, OVER_THE_GROUND, 4000, 3.0, 9);
 }
 
 /// The rule of [`AutoCosts::chosen`]: the plain SAH tree unless another does more than

@@ -232,10 +232,7 @@ impl Scene {
     fn posed_ranges(&self) -> Vec<std::ops::Range<usize>> {
         self.posed
             .keys()
-            .map(|&o| {
-                let o = &self.mesh.objects[o as usize];
-                o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize
-            })
+            .map(|&o| self.mesh.objects[o as usize].triangle_range())
             .collect()
     }
 

@@ -588,10 +588,7 @@ fn some_motion(k: f32) -> Affine3A {
 fn moving_an_object_answers_as_moving_its_vertices_and_rebuilding() {
     let (mut s, sphere) = sphere_of_dynamics();
     s.bvh();
-    let range = {
-        let o = &s.mesh().objects[sphere as usize];
-        o.first_triangle as usize..(o.first_triangle + o.num_triangles) as usize
-    };
+    let range = s.mesh().objects[sphere as usize].triangle_range();
     let rest = s.mesh().clone();
     for (k, update) in [
         (1.0, BvhUpdate::Refit),
