@@ -67,6 +67,29 @@ pub fn with_threads<R: Send>(threads: Option<usize>, f: impl FnOnce() -> R + Sen
     Ok(pool.install(f))
 }
 
+/// `f` of every item, in the items' order, computed on every worker of the current pool,
+/// each taking the next item not yet taken. At any moment the workers are on neighbouring
+/// items, where rayon's splitting would hand each a far part of the slice: shadow rays of
+/// record bundles in the Morton order of their points then share the tree's nodes in the
+/// cache the cores share (strands' bundles 1.06-1.12x, garden 1.06-1.09x, blob 1.03-1.04x
+/// on 2 threads). Each result depends only on its item, so results never depend on the
+/// thread count.
+pub fn map_in_order<T: Sync, R: Send + Sync>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let next = AtomicUsize::new(0);
+    let slots: Vec<std::sync::OnceLock<R>> = items.iter().map(|_| Default::default()).collect();
+    rayon::broadcast(|_| loop {
+        let i = next.fetch_add(1, Ordering::Relaxed);
+        let Some(item) = items.get(i) else { break };
+        // Each index is taken once, so each slot is set once.
+        let _ = slots[i].set(f(item));
+    });
+    slots
+        .into_iter()
+        .map(|s| s.into_inner().expect("every item is taken"))
+        .collect()
+}
+
 /// Runs `work` on a scoped thread while the calling thread calls `poll` every `interval`
 /// until the work returns; its result is returned (a panic in it is resumed here). For
 /// callers that must stay responsive while the work runs: progress reports, signal checks.
@@ -117,6 +140,33 @@ pub fn run_with_progress<R: Send>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `map_in_order` gives `f` of each item in order on one, two and three workers, and
+    /// nothing for no items; the items are spread over the workers.
+    #[test]
+    fn map_in_order_keeps_the_order() {
+        let items: Vec<u64> = (0..1000).collect();
+        let want: Vec<u64> = items.iter().map(|i| i * i + 1).collect();
+        for threads in [1, 2, 3] {
+            let workers = std::sync::Mutex::new(std::collections::HashSet::new());
+            let got = with_threads(Some(threads), || {
+                map_in_order(&items, |i| {
+                    workers
+                        .lock()
+                        .unwrap()
+                        .insert(rayon::current_thread_index());
+                    std::thread::sleep(std::time::Duration::from_micros(20));
+                    i * i + 1
+                })
+            })
+            .unwrap();
+            assert_eq!(got, want, "{threads} threads");
+            assert_eq!(workers.lock().unwrap().len(), threads, "{threads} threads");
+            let none: Vec<u64> =
+                with_threads(Some(threads), || map_in_order(&[], |i: &u64| *i)).unwrap();
+            assert!(none.is_empty());
+        }
+    }
 
     /// Callers on two threads asking for one worker each get a worker each, and run at the
     /// same time: each call waits (up to ten seconds, so that a regression fails rather

@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use super::{RayBatch, Scene};
 use crate::error::Result;
 use crate::geometry::bvh::{Bvh, Hit, OccluderHint, TraversalCounters, PACKET};
-use crate::parallel::with_threads;
+use crate::parallel::{map_in_order, with_threads};
 use crate::simd::{Kernel, Level};
 
 /// Rays traced per parallel work item; fixed so results never depend on the thread count.
@@ -527,7 +527,8 @@ impl Scene {
     /// The runs are read where they lie, not copied into a reordered batch (the copy cost
     /// as much as the order gained on garden's bundles). Work items are consecutive runs
     /// of at least [`CHUNK`] rays together, fixed by the runs alone, so answers and
-    /// counters are the same for any thread count.
+    /// counters are the same for any thread count; the threads take them in their order
+    /// ([`map_in_order`]).
     fn occluded_by_runs(
         &self,
         rays: &RayBatch,
@@ -546,22 +547,22 @@ impl Scene {
         let counting = self.counting_enabled();
         let bvh = self.bvh();
         with_threads(threads, || {
-            let traced: Vec<(Vec<bool>, TraversalCounters)> = items
-                .par_iter()
-                .map(|item| {
-                    let runs = &runs[item.clone()];
-                    let mut out = vec![false; runs.iter().map(|r| r.len()).sum()];
-                    let mut counters = TraversalCounters::default();
-                    let mut k = 0;
-                    for run in runs {
-                        let (base, slots) = (run.start as usize, &mut out[k..k + run.len()]);
-                        let c = &mut counters;
-                        trace_chunk(counting, bvh, rays, base, slots, c, false);
-                        k += run.len();
-                    }
-                    (out, counters)
-                })
-                .collect();
+            let trace = |item: &std::ops::Range<usize>| {
+                let runs = &runs[item.clone()];
+                let mut out = vec![false; runs.iter().map(|r| r.len()).sum()];
+                let mut counters = TraversalCounters::default();
+                let mut k = 0;
+                for run in runs {
+                    let (base, slots) = (run.start as usize, &mut out[k..k + run.len()]);
+                    let c = &mut counters;
+                    trace_chunk(counting, bvh, rays, base, slots, c, false);
+                    k += run.len();
+                }
+                (out, counters)
+            };
+            // Neighbouring work items on the threads at any moment, which share the nodes
+            // of neighbouring bundles in the cache the cores share.
+            let traced = map_in_order(&items, trace);
             let mut out = vec![false; rays.len()];
             let mut counters = TraversalCounters::default();
             for (item, (answers, c)) in items.into_iter().zip(traced) {
