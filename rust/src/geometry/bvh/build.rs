@@ -27,9 +27,10 @@ use crate::math::triangle_cross;
 pub enum BuildQuality {
     /// The default: builds the [`BuildQuality::Sah`] tree, the [`AUTO_ALTERNATIVE`] tree
     /// and, for a mesh of several objects none of which holds nearly all triangles, the SAH
-    /// tree with each object in a subtree of its own ([`AutoCosts::objects_apart`]), and keeps the one that does least work on
-    /// [`AUTO_PROBE_RAYS`] sample shadow rays (another than the plain SAH tree only when it
-    /// saves more than [`AUTO_MARGIN`]: [`AutoCosts::chosen`]); meshes of more than
+    /// tree with each object in a subtree of its own ([`AutoCosts::objects_apart`]), and
+    /// keeps the one that does least work on [`AUTO_PROBE_RAYS`] sample shadow rays
+    /// (another than the plain SAH tree only when it saves more than [`AUTO_MARGIN`]:
+    /// [`AutoCosts::chosen`]); meshes of more than
     /// [`AUTO_MAX_TRIANGLES`] get the SAH tree alone. No tree wins on every scene: the
     /// binned SAH on most built-ins, PLOC (with its spatial pre-splits) on mixed scales,
     /// the objects apart where rays leave a ground or a wall past objects standing on it
@@ -306,6 +307,21 @@ fn join_by_sah(mut trees: Vec<Bvh2>) -> Option<Bvh2> {
     Some(join_bvh2(join_by_sah(low)?, join_by_sah(high)?))
 }
 
+/// The groups of the tree [`BuildQuality::Auto`] builds with the objects apart: each
+/// non-empty object's triangles (which takes in any moving ones), where there are two or
+/// more and none holds more than [`AUTO_APART_LARGEST`] of the mesh's triangles.
+fn objects_apart_groups(mesh: &Mesh) -> Option<Vec<std::ops::Range<usize>>> {
+    let objects: Vec<_> = mesh
+        .objects
+        .iter()
+        .map(|o| o.triangle_range())
+        .filter(|r| !r.is_empty())
+        .collect();
+    let largest = objects.iter().map(|r| r.len()).max().unwrap_or(0);
+    let share = largest as f64 / mesh.triangles.len() as f64;
+    (objects.len() >= 2 && share <= AUTO_APART_LARGEST).then_some(objects)
+}
+
 /// `n` shadow rays like a renderer's: origins uniform by area over `mesh`'s triangles, on
 /// the side facing up (+y, the scenes' up axis: the side a camera and the sky mostly see;
 /// vertical triangles on their winding side), lifted off the surface by a millionth of the
@@ -394,30 +410,15 @@ impl Bvh {
             let mut kept = if mesh.triangles.len() > AUTO_MAX_TRIANGLES {
                 Self::build_grouped(mesh, BuildQuality::Sah, groups)
             } else {
-                // The objects as groups (which takes in any moving ones), where there are
-                // several and none holds nearly all triangles (`AUTO_APART_LARGEST`).
-                let objects: Vec<_> = mesh
-                    .objects
-                    .iter()
-                    .map(|o| o.triangle_range())
-                    .filter(|r| !r.is_empty())
-                    .collect();
+                let objects = objects_apart_groups(mesh);
+                let sah_over =
+                    |g: &[std::ops::Range<usize>]| Self::build_grouped(mesh, BuildQuality::Sah, g);
                 let (sah, (alternative, apart)) = rayon::join(
-                    || Self::build_grouped(mesh, BuildQuality::Sah, groups),
+                    || sah_over(groups),
                     || {
                         rayon::join(
                             || Self::build_grouped(mesh, AUTO_ALTERNATIVE, groups),
-                            || {
-                                let largest = objects.iter().map(|r| r.len()).max();
-                                let share =
-                                    largest.unwrap_or(0) as f64 / mesh.triangles.len() as f64;
-                                (objects.len() >= 2 && share <= AUTO_APART_LARGEST).then(|| {
-                                    let mut t =
-                                        Self::build_grouped(mesh, BuildQuality::Sah, &objects);
-                                    t.objects_apart = true;
-                                    t
-                                })
-                            },
+                            || objects.as_deref().map(sah_over),
                         )
                     },
                 );
@@ -519,7 +520,6 @@ impl Bvh {
             quality,
             requested: quality,
             auto_costs: None,
-            objects_apart: false,
             build_time: start.elapsed(),
             refit_blocks: None,
             mesh_triangles: mesh.triangles.len(),

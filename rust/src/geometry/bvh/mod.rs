@@ -149,8 +149,6 @@ pub struct Bvh {
     sah_cost: f32,
     /// Probe work per ray of the trees [`BuildQuality::Auto`] compared, when it did.
     auto_costs: Option<AutoCosts>,
-    /// Whether each object has a subtree of its own ([`AutoCosts::objects_apart`]).
-    objects_apart: bool,
     build_time: Duration,
     /// Parent links: the refit climbs them, and shadow-ray hints widen to a parent.
     parents: Parents,
@@ -197,10 +195,11 @@ impl Bvh {
         self.auto_costs
     }
 
-    /// Whether each object of the mesh has a subtree of its own under the top levels
-    /// (the tree [`BuildQuality::Auto`] keeps where that does least work).
+    /// Whether [`BuildQuality::Auto`] kept the tree with each object of the mesh in a
+    /// subtree of its own ([`AutoCosts::objects_apart`]).
     pub fn objects_apart(&self) -> bool {
-        self.objects_apart
+        self.auto_costs
+            .is_some_and(|c| c.chosen() == AutoChoice::ObjectsApart)
     }
 
     /// Expected block tests (and node visits at [`NODE_COST`]) of a ray crossing the
