@@ -191,6 +191,67 @@ fn reordered_batches_answer_as_single_rays() {
     scene.set_counting(false);
 }
 
+/// Batches that are reordered or interleaved check their rays as they trace them, with
+/// no pass over the batch first, and still name the first bad row of the first bad
+/// argument, as [`RayBatch::validate`] does, on any thread count; a failed call counts
+/// nothing. Bundles of 64 rays go 16 to a work item in Morton order, so one item may
+/// trace a bundle with a bad row before another bundle with a lower one.
+#[test]
+fn reordered_batches_name_the_first_bad_row() {
+    let scene = crate::scenes::load("garden", 0.25, 3).unwrap().scene;
+    let (mut bo, mut bd) = crate::testing::record_bundle_rays(&scene, 1100, 8, 5);
+    let TraceOrder::Runs(order) = scene.trace_order(&RayBatch::new(&bo, &bd)) else {
+        panic!("scattered bundles are reordered")
+    };
+    // Two bundles of the first work item, the one traced first starting at a higher row.
+    let item = &order[..CHUNK / 64];
+    let (first, second) = (1..item.len())
+        .find_map(|b| {
+            (0..b)
+                .find(|&a| item[a].start > item[b].start)
+                .map(|a| (a, b))
+        })
+        .expect("a work item whose bundles are out of the batch's order");
+    bd[item[first].start as usize + 9] = [0.0; 3];
+    bd[item[second].start as usize + 3] = [f32::NAN, 0.0, 1.0];
+    let (so, sd) = crate::testing::ground_hemisphere_rays(&scene, SPATIAL_ORDER_MIN + 77, 5);
+    let (mut so, mut sd) = (so.to_vec(), sd.to_vec());
+    sd[SPATIAL_ORDER_MIN + 70] = [0.0; 3];
+    sd[4 * CHUNK + 1] = [f32::INFINITY, 0.0, 0.0];
+    let mut failures = vec![(bo.clone(), bd.clone()), (so.clone(), sd.clone())];
+    // A bad origin, even at the last row, comes before any bad direction.
+    let last = bo.len() - 1;
+    bo[last] = [0.0, f32::NAN, 0.0];
+    so[SPATIAL_ORDER_MIN + 76] = [f32::NEG_INFINITY, 0.0, 0.0];
+    failures.extend([(bo, bd), (so, sd)]);
+    let wanted = [
+        format!("directions: row {}", item[second].start + 3),
+        format!("directions: row {}", 4 * CHUNK + 1),
+        format!("origins: row {last}"),
+        format!("origins: row {}", SPATIAL_ORDER_MIN + 76),
+    ];
+    scene.set_counting(true);
+    scene.reset_counters();
+    for ((o, d), wanted) in failures.iter().zip(wanted) {
+        let batch = RayBatch::new(o, d);
+        assert_ne!(scene.trace_order(&batch), TraceOrder::Given);
+        let message = batch.validate().unwrap_err().to_string();
+        assert!(message.starts_with(&wanted), "{message}");
+        for threads in [Some(1), Some(2)] {
+            assert_eq!(
+                scene.occluded(&batch, threads).unwrap_err().to_string(),
+                message
+            );
+        }
+    }
+    assert_eq!(
+        scene.counters(),
+        TraversalCounters::default(),
+        "failed calls count nothing"
+    );
+    scene.set_counting(false);
+}
+
 /// Runs of rays from one origin stay whole and go in the order of their origins' keys
 /// (ties in the given order); runs in that order already, or a single run, stay put.
 #[test]
