@@ -393,6 +393,16 @@ impl Scene {
     pub fn intersect(&self, rays: &RayBatch, threads: Option<usize>) -> Result<Hits> {
         rays.validate()?;
         let found = self.closest_hits(rays, threads)?;
+        // Hit points and normals read each hit's triangle, a wait on memory per hit in a
+        // large mesh: computed on the workers too, in the rays' order.
+        let surface: Vec<Option<SurfaceHit>> = crate::parallel::with_threads(threads, || {
+            use rayon::prelude::*;
+            found
+                .par_iter()
+                .with_min_len(schedule::CHUNK)
+                .map(|h| h.map(|h| self.surface_hit(h)))
+                .collect()
+        })?;
         let n = found.len();
         let mut hits = Hits {
             t: Vec::with_capacity(n),
@@ -403,8 +413,8 @@ impl Scene {
             position: Vec::with_capacity(n),
             normal: Vec::with_capacity(n),
         };
-        for h in found {
-            let (t, prim, obj, u, v, p, nrm) = match h.map(|h| self.surface_hit(h)) {
+        for h in surface {
+            let (t, prim, obj, u, v, p, nrm) = match h {
                 Some(h) => (
                     h.t,
                     h.prim as i32,
