@@ -47,14 +47,20 @@ def timed(fn) -> float:
     return time.perf_counter() - t
 
 
-def interleaved_times(fns: dict, repeats: int) -> dict:
-    """Seconds of each of ``fns`` per repeat, the functions run in turn within a repeat."""
-    for fn in fns.values():
-        fn()  # warm up
+def interleaved_times(fns: dict, repeats: int, min_seconds: float = 0.05) -> dict:
+    """Seconds per call of each of ``fns``, ``repeats`` times, the functions run in turn
+    within a repeat. A timing spans enough calls (the same count for every function) that
+    the slowest function's takes ``min_seconds``: a single call of 10 ms is at the mercy
+    of a neighbour's burst on this machine, and its ratios then spread by 2x."""
+    warm = [timed(fn) for fn in fns.values()]
+    calls = max(1, int(np.ceil(min_seconds / max(max(warm), 1e-9))))
     times = {name: [] for name in fns}
     for _ in range(repeats):
         for name, fn in fns.items():
-            times[name].append(timed(fn))
+            t = time.perf_counter()
+            for _ in range(calls):
+                fn()
+            times[name].append((time.perf_counter() - t) / calls)
     return times
 
 
