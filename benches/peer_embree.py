@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -168,7 +169,13 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--json", default="results/peer_embree.json")
     args = ap.parse_args()
-    results = [run(s, args.repeats) for s in (args.scenes or vc.scenes.suite_names())]
+    names = args.scenes or vc.scenes.suite_names()
+    results = []
+    for k, name in enumerate(names):
+        t = time.perf_counter()
+        results.append(run(name, args.repeats))
+        print(f"[{k + 1}/{len(names)}] {name}: {time.perf_counter() - t:.0f} s",
+              file=sys.stderr, flush=True)
     print(f"ratios: median over the repeats [least, greatest]; our kernels: "
           f"{vc.testing.simd_level()}")
     print(f"{'scene':<9}{'workload':<12}{'rays':>9}{'occl.':>7}{'ours Mr/s':>11}"
