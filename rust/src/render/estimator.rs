@@ -1,0 +1,95 @@
+//! What a method supplies to the pass layer ([`super::passes`]): the per-pixel sampling of
+//! one pass ([`PixelPass`]) and the few decisions it makes between passes
+//! ([`PixelEstimator`]). Everything else — which pixels a pass covers and how many samples
+//! each takes, the time budget, progress, Ctrl-C, determinism across threads and the
+//! counts in the stats — is the driver's, so a method writes none of it.
+
+use std::ops::Range;
+
+use crate::estimators::control_variate::CvSums;
+
+/// What the driver tells a method about the pass it is about to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PassPlan {
+    /// Passes made before this one.
+    pub index: u32,
+    /// The first pass of a budgeted render: a few samples in every
+    /// [`super::schedule::PassSchedule`] stride of bands, whose timing sizes the passes that
+    /// follow. A method may measure what it wants to learn here.
+    pub probe: bool,
+    /// The pilot of adaptive counts: the pixel notes ([`PixelEstimator::Note`]) of this pass
+    /// reach [`PixelEstimator::after_pilot`].
+    pub pilot: bool,
+}
+
+/// CPU time one pixel of a pass took, as the pass schedule models it: the pixel's set-up
+/// (its anchor's work, done once per pass) and its samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PixelTiming {
+    /// Nanoseconds of the pixel's set-up.
+    pub anchor_ns: u64,
+    /// Nanoseconds of its samples.
+    pub sample_ns: u64,
+}
+
+/// The counters of one band of a pass, added up over bands and passes.
+pub trait Merge: Default + Send {
+    /// Adds `other` (a band done after this one, in band order) to `self`.
+    fn merge(&mut self, other: Self);
+}
+
+impl Merge for () {
+    fn merge(&mut self, _: Self) {}
+}
+
+/// One pass's per-pixel sampling. Shared by the workers: `&self` only.
+pub trait PixelPass: Sync {
+    /// Counters and scratch of one band (a run of rows one worker shades in order).
+    type Work: Merge;
+    /// What the method keeps per pixel from the adaptive pilot.
+    type Note: Default + Clone + Send + Sync;
+
+    /// Draws samples `samples` of `pixel` (row-major index) into `acc`, in sample order.
+    /// Every random number must come from `(seed, pixel, sample, dimension)`, never from
+    /// `work`'s state, so that the image does not depend on which worker shades the pixel.
+    /// `note` is the pixel's, kept across passes.
+    fn shade_pixel(
+        &self,
+        pixel: usize,
+        samples: Range<u32>,
+        acc: &mut CvSums,
+        work: &mut Self::Work,
+        note: &mut Self::Note,
+    ) -> PixelTiming;
+}
+
+/// A method the pass layer drives: it runs passes ([`Self::pass`]) and may learn between
+/// them. The hooks have defaults, so a method with nothing to learn writes
+/// [`Self::pass`] alone.
+pub trait PixelEstimator {
+    /// [`PixelPass::Work`] of its passes.
+    type Work: Merge;
+    /// [`PixelPass::Note`] of its passes.
+    type Note: Default + Clone + Send + Sync;
+    /// One pass, borrowing what it reads for as long as the pass runs (a cache's read
+    /// lock, say).
+    type Pass<'a>: PixelPass<Work = Self::Work, Note = Self::Note>
+    where
+        Self: 'a;
+
+    /// Makes the pass `plan` describes and hands it to `run`, which shades the pixels.
+    fn pass<R>(&self, plan: &PassPlan, run: impl FnOnce(&Self::Pass<'_>) -> R) -> R;
+
+    /// After pass `plan`, with its bands' work in band order and every pixel's sums so far.
+    fn end_pass(&mut self, _plan: &PassPlan, _works: &[Self::Work], _sums: &[CvSums]) {}
+
+    /// After the adaptive pilot, with every pixel's note from it (row-major).
+    fn after_pilot(&mut self, _notes: &[Self::Note], _width: usize, _height: usize) {}
+
+    /// The weight `α` of the control term per pixel and channel: each pixel's estimate is
+    /// the mean of `Z − α W` ([`CvSums::estimate`]). Zero (the plain estimate) unless the
+    /// method has a control variate.
+    fn alphas(&self, sums: &[CvSums], _width: usize, _height: usize) -> Vec<[f64; 3]> {
+        vec![[0.0; 3]; sums.len()]
+    }
+}

@@ -1,0 +1,233 @@
+//! The pass layer drives a toy method — every sample a constant plus uniform noise whose
+//! amplitude differs between the image's halves — that writes no line of its own for
+//! budgets, progress, stopping, adaptive counts or stats: all of it comes from
+//! [`run_passes`].
+
+use std::sync::atomic::AtomicU32;
+use std::sync::Mutex;
+
+use glam::Vec3;
+
+use super::*;
+use crate::estimators::control_variate::CvSums;
+use crate::render::estimator::PixelTiming;
+use crate::sampling::rng::Sampler;
+use crate::sampling::sobol::PixelSampler;
+
+const W: usize = 24;
+const H: usize = 16;
+
+/// Radiance `level`, plus noise uniform in `[-noise, noise]` on the left half of the image
+/// (the right half is exact).
+struct Toy {
+    level: f32,
+    noise: f32,
+    /// Passes run, as the driver planned them.
+    plans: Mutex<Vec<PassPlan>>,
+    /// Notes the pilot left: samples each pixel took in it.
+    pilot_notes: Option<Vec<u32>>,
+    /// Spin this many iterations per sample (a cost to budget against).
+    spin: u32,
+}
+
+impl Toy {
+    fn new(noise: f32) -> Self {
+        Self {
+            level: 0.5,
+            noise,
+            plans: Mutex::default(),
+            pilot_notes: None,
+            spin: 0,
+        }
+    }
+}
+
+struct ToyPass<'a> {
+    toy: &'a Toy,
+}
+
+/// Samples a band shaded.
+#[derive(Default)]
+struct Count(u64);
+
+impl Merge for Count {
+    fn merge(&mut self, other: Self) {
+        self.0 += other.0;
+    }
+}
+
+impl PixelPass for ToyPass<'_> {
+    type Work = Count;
+    type Note = u32;
+
+    fn shade_pixel(
+        &self,
+        pixel: usize,
+        samples: std::ops::Range<u32>,
+        acc: &mut CvSums,
+        work: &mut Count,
+        note: &mut u32,
+    ) -> PixelTiming {
+        let noisy = pixel % W < W / 2;
+        for s in samples.clone() {
+            let u = PixelSampler::new(7, pixel as u64, s as u64).get(0);
+            let mut x = u;
+            for _ in 0..self.toy.spin {
+                x = std::hint::black_box(x * 0.999 + 1e-3);
+            }
+            let noise = if noisy {
+                self.toy.noise * (2.0 * u - 1.0)
+            } else {
+                0.0
+            };
+            acc.add(Vec3::splat(self.toy.level + noise + 0.0 * x), [0.0; 3]);
+            work.0 += 1;
+        }
+        *note += samples.len() as u32;
+        PixelTiming {
+            anchor_ns: 0,
+            sample_ns: 1 + samples.len() as u64,
+        }
+    }
+}
+
+impl PixelEstimator for Toy {
+    type Work = Count;
+    type Note = u32;
+    type Pass<'a> = ToyPass<'a>;
+
+    fn pass<R>(&self, plan: &PassPlan, run: impl FnOnce(&ToyPass<'_>) -> R) -> R {
+        self.plans.lock().unwrap().push(*plan);
+        run(&ToyPass { toy: self })
+    }
+
+    fn after_pilot(&mut self, notes: &[u32], _width: usize, _height: usize) {
+        self.pilot_notes = Some(notes.to_vec());
+    }
+}
+
+fn run(toy: &mut Toy, params: PassParams, threads: usize) -> PassRun<Count> {
+    run_passes(
+        toy,
+        W,
+        H,
+        &params,
+        Instant::now(),
+        Some(threads),
+        &mut |_, _| true,
+    )
+    .unwrap()
+}
+
+/// Even counts: one pass, every pixel `spp` samples, the constant as the estimate, the
+/// stats' counts agreeing with the sums, and the band work merged.
+#[test]
+fn even_counts_take_one_pass() {
+    let mut toy = Toy::new(0.0);
+    let params = PassParams {
+        spp: 8,
+        time_budget: None,
+        adaptive: false,
+    };
+    let run = run(&mut toy, params, 2);
+    assert_eq!(run.passes, 1);
+    assert!(run.complete);
+    assert_eq!((run.min_spp(), run.max_spp()), (8, 8));
+    assert_eq!(run.samples(), (8 * W * H) as u64);
+    assert_eq!(run.total.0, run.samples());
+    let (image, variance) = run.resolve(&vec![[0.0; 3]; W * H]);
+    assert!(image.iter().all(|p| *p == [0.5; 3]));
+    assert!(variance.iter().all(|v| *v == [0.0; 3]));
+    let plans = toy.plans.lock().unwrap();
+    assert_eq!(plans.len(), 1);
+    assert!(!plans[0].probe && !plans[0].pilot);
+}
+
+/// Adaptive counts without a budget: a pilot of a quarter of the samples evenly, whose
+/// notes reach the method, then the rest where the error is — the noisy half — at `spp`
+/// on average; and bit-identical sums on one and three threads.
+#[test]
+fn adaptive_counts_follow_the_noise() {
+    let params = PassParams {
+        spp: 16,
+        time_budget: None,
+        adaptive: true,
+    };
+    let mut toy = Toy::new(0.4);
+    let one = run(&mut toy, params, 1);
+    assert_eq!(one.passes, 2);
+    let plans = toy.plans.lock().unwrap().clone();
+    assert!(plans[0].pilot && !plans[1].pilot);
+    let pilot = toy.pilot_notes.clone().expect("the pilot's notes");
+    assert!(pilot.iter().all(|&n| n == 4), "a quarter of 16 evenly");
+    assert!(one.samples() <= 16 * (W * H) as u64);
+    assert!(one.samples() >= 15 * (W * H) as u64);
+    let counts = one.counts();
+    let (noisy, exact): (Vec<_>, Vec<_>) = (0..W * H).partition(|i| i % W < W / 2);
+    let mean =
+        |ids: &[usize]| ids.iter().map(|&i| counts[i] as f64).sum::<f64>() / ids.len() as f64;
+    assert!(
+        mean(&noisy) > 4.0 * mean(&exact),
+        "noisy {} exact {}",
+        mean(&noisy),
+        mean(&exact)
+    );
+    assert!(one.adaptive_gain.is_some_and(|g| g > 1.0));
+    let three = run(&mut Toy::new(0.4), params, 3);
+    assert_eq!(one.sums, three.sums);
+}
+
+/// A time budget: a probe pass over one band in [`PassSchedule::PROBE_STRIDE`], then passes
+/// sized by its timing until the budget is spent; every pixel ends with a sample and
+/// at most `spp`.
+#[test]
+fn a_budget_starts_with_a_probe() {
+    let mut toy = Toy::new(0.1);
+    toy.spin = 2000;
+    let params = PassParams {
+        spp: 1 << 12,
+        time_budget: Some(0.05),
+        adaptive: false,
+    };
+    let run = run(&mut toy, params, 2);
+    let plans = toy.plans.lock().unwrap().clone();
+    assert!(plans[0].probe);
+    assert!(plans.len() >= 2 && plans[1..].iter().all(|p| !p.probe));
+    assert_eq!(run.passes as usize, plans.len());
+    assert!(run.min_spp() >= 1 && run.max_spp() <= 1 << 12);
+}
+
+/// A `false` from progress stops the render after the pass under way, part-way: the
+/// result says so, and what was shaded is kept.
+#[test]
+fn progress_can_stop_the_passes() {
+    let mut toy = Toy::new(0.0);
+    toy.spin = 20_000;
+    let calls = AtomicU32::new(0);
+    let params = PassParams {
+        spp: 256,
+        time_budget: None,
+        adaptive: false,
+    };
+    let run = run_passes(
+        &mut toy,
+        W,
+        H,
+        &params,
+        Instant::now(),
+        Some(1),
+        &mut |done, planned| {
+            assert_eq!(planned, 256 * (W * H) as u64);
+            assert!(done <= planned);
+            calls.fetch_add(1, Ordering::Relaxed);
+            false
+        },
+    )
+    .unwrap();
+    assert!(calls.load(Ordering::Relaxed) >= 1);
+    assert_eq!(run.passes, 1);
+    assert!(!run.complete);
+    assert!(run.samples() < 256 * (W * H) as u64);
+    assert!(run.sums.iter().all(|s| s.n == 0 || s.n == 256));
+    assert_eq!(run.total.0, run.samples());
+}
