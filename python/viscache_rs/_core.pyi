@@ -401,6 +401,10 @@ def render(
     learn_techniques: bool = True,
     adaptive: bool | None = None,
 ) -> dict[str, Any]: ...
+def methods() -> list[dict[str, Any]]: ...
+def check_method_args(
+    method: str, given: list[str], cache: VisibilityCache | None = None
+) -> None: ...
 @final
 class VPLs:
     """Virtual point lights (``viscache_rs.vpl``)."""

@@ -114,6 +114,8 @@ from ._progress import progress_bar
 from .cache import VisibilityCache
 
 _UNBOUNDED_SPP = 1 << 20
+# The registry's many-light methods, rendered by viscache_rs.vpl.
+_MANY_LIGHT_METHODS = tuple(m["name"] for m in _core.methods() if m["estimator"] == "many_lights")
 # Share of a time budget that method "cv" without a cache may spend building one.
 CACHE_BUDGET_SHARE = 0.25
 # Without a budget, method "cv" without a cache builds at most one record per this many of
@@ -181,21 +183,22 @@ def render(
     if gbuffer is not None and not isinstance(gbuffer, _core.GBuffer):
         raise TypeError(f"gbuffer: expected a GBuffer (from Scene.gbuffer), got "
                         f"{type(gbuffer).__name__}")
+    # The registry (Rust) says what each method reads: a parameter set for a method that
+    # ignores it, or a cache it does not take, is an error naming it.
+    given = {"product_level": product_level != "auto", "cache": cache is not None,
+             "preset": preset != "auto", "alpha": alpha != 1.0, "alpha_radius": alpha_radius != 4,
+             "insert_missing": bool(insert_missing), "technique_weights": technique_weights is not None,
+             "gbuffer": gbuffer is not None, "vpls": vpls is not None, "clamp": clamp is not None,
+             "vpl_samples": vpl_samples is not None, "light_samples": light_samples is not None,
+             "learn_techniques": not learn_techniques, "adaptive": bool(adaptive)}
+    _core.check_method_args(method, [k for k, v in given.items() if v], cache)
     # Many-light methods over virtual point lights (viscache_rs.vpl).
-    from . import vpl as _vpl
-    if method in _vpl.METHODS:
-        if cache is not None:
-            raise ValueError(f"cache: only method 'cv' uses a cache, got method {method!r}")
-        if gbuffer is not None:
-            raise ValueError(f"gbuffer: method {method!r} traces the first hits of each "
-                             "sample itself")
-        if adaptive:
-            raise ValueError(f"adaptive: method {method!r} takes every pixel's samples evenly")
+    if method in _MANY_LIGHT_METHODS:
+        from . import vpl as _vpl
         return _vpl.render_vpl(setup, camera=camera, spp=spp, method=method, seed=seed,
                                threads=threads, progress=progress, time_budget=time_budget,
                                envmap=envmap, vpls=vpls, clamp=clamp, vpl_samples=vpl_samples,
                                bounces=bounces, direct=direct, jitter=jitter)
-    _vpl.check_unused(method, vpls, clamp, vpl_samples)
     if camera is None:
         camera = setup.camera if gbuffer is None else gbuffer.camera
     envmap = setup.envmap if envmap is None else envmap
@@ -236,8 +239,6 @@ def render(
                        "cache_planned_spp": planned}
         if time_budget is not None:
             time_budget = max(time_budget - built, 1e-3)
-    elif cache is not None and method != "cv":
-        raise ValueError(f"cache: only method 'cv' uses a cache, got method {method!r}")
     # The bar counts samples per pixel; without a cap (a time budget alone) its total is unknown.
     total = None if time_budget is not None and spp >= _UNBOUNDED_SPP else spp
     with progress_bar(progress, f"render ({method})", "spp", total=total,

@@ -96,13 +96,4 @@ def render_vpl(setup, camera=None, spp: int | None = None, method: str = "vpl",
     return RenderResult(out["image"], out["variance"], stats)
 
 
-def check_unused(method: str, vpls, clamp, vpl_samples) -> None:
-    """Raises ValueError when a method other than "vpl"/"vpl_sampled" is given their
-    arguments."""
-    for name, value in (("vpls", vpls), ("clamp", clamp), ("vpl_samples", vpl_samples)):
-        if value is not None:
-            raise ValueError(f"{name}: only methods 'vpl' and 'vpl_sampled' take it, "
-                             f"got method {method!r}")
-
-
 __all__ = ["VPLs", "render_vpl"]

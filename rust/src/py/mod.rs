@@ -36,6 +36,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<preview::PyLightingPreview>()?;
     m.add_class::<relight::PyRelighter>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
+    m.add_function(wrap_pyfunction!(render::methods, m)?)?;
+    m.add_function(wrap_pyfunction!(render::check_method_args, m)?)?;
     m.add_class::<vpl::PyVpls>()?;
     m.add_function(wrap_pyfunction!(vpl::render_vpl, m)?)?;
     m.add_function(wrap_pyfunction!(ambient::render_ao, m)?)?;

@@ -18,10 +18,8 @@ use super::scene::PyScene;
 use crate::estimators::control_variate::AlphaRule;
 use crate::estimators::direct::{Method, Techniques};
 use crate::estimators::indirect::MAX_BOUNCES;
+use crate::render::registry::{self, CacheKind, Estimator};
 use crate::render::{render as render_core, render_from, RenderParams, MAX_LIGHT_SAMPLES, MAX_SPP};
-
-/// The method name of the path-traced reference (direct light by MIS plus `bounces`).
-const PATH: &str = "path";
 
 /// `alpha`: a number, or "estimate" (neighbour pooling with `radius`).
 fn alpha_arg(alpha: Option<&Bound<'_, PyAny>>, radius: u32) -> PyResult<AlphaRule> {
@@ -117,25 +115,18 @@ pub fn render<'py>(
     adaptive: Option<bool>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let view = view_arg(Some(camera), gbuffer)?;
-    // "path": the unbiased reference with indirect light, MIS at every vertex.
-    let path = method == PATH;
-    let method = if path {
-        Method::Mis
-    } else {
-        Method::from_name(method).ok_or_else(|| {
-            // The many-light methods are dispatched in Python (viscache_rs.vpl).
-            let names: Vec<&str> = Method::ALL
-                .iter()
-                .map(|m| m.name())
-                .chain([PATH, "vpl", "vpl_sampled"])
-                .collect();
-            PyValueError::new_err(format!("method: expected one of {names:?}, got {method:?}"))
-        })?
+    let spec = registry::method(method).py()?;
+    let Estimator::Direct(method) = spec.estimator else {
+        return Err(PyValueError::new_err(format!(
+            "method: {:?} renders through viscache_rs.render (the many-light renderer)",
+            spec.name
+        )));
     };
-    let min_bounces = if path { 1 } else { 0 };
     let bounces = match bounces {
-        Some(b) if !b.is_none() => int_arg(b, "bounces", min_bounces, MAX_BOUNCES as i128)? as u32,
-        _ => min_bounces as u32,
+        Some(b) if !b.is_none() => {
+            int_arg(b, "bounces", spec.min_bounces as i128, MAX_BOUNCES as i128)? as u32
+        }
+        _ => spec.default_bounces,
     };
     let time_budget = match time_budget {
         Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
@@ -196,7 +187,7 @@ pub fn render<'py>(
         image_array(py, out.sample_counts, h, w, None)?,
     )?;
     let stats = PyDict::new(py);
-    stats.set_item("method", if path { PATH } else { method.name() })?;
+    stats.set_item("method", spec.name)?;
     stats.set_item("bounces", params.bounces)?;
     stats.set_item("direct", params.direct)?;
     stats.set_item("seconds", s.seconds)?;
@@ -280,4 +271,57 @@ pub fn render<'py>(
     }
     d.set_item("stats", stats)?;
     Ok(d)
+}
+
+/// The method registry ([`crate::render::registry`]): one dict per method, in order, with
+/// `name`, `about`, `estimator` ("direct" or "many_lights"), `params` (keyword parameters beyond `common`), `common`, `caches` (the
+/// cache types it accepts), `min_bounces` and `default_bounces`.
+#[pyfunction]
+pub fn methods(py: Python<'_>) -> PyResult<Vec<Bound<'_, PyDict>>> {
+    registry::METHODS
+        .iter()
+        .map(|m| {
+            let d = PyDict::new(py);
+            d.set_item("name", m.name)?;
+            d.set_item("about", m.about)?;
+            let estimator = match m.estimator {
+                Estimator::Direct(_) => "direct",
+                Estimator::ManyLights { .. } => "many_lights",
+            };
+            d.set_item("estimator", estimator)?;
+            d.set_item("params", m.params.to_vec())?;
+            d.set_item("common", registry::COMMON_PARAMS.to_vec())?;
+            let caches: Vec<&str> = m.caches.iter().map(|c| c.name()).collect();
+            d.set_item("caches", caches)?;
+            d.set_item("min_bounces", m.min_bounces)?;
+            d.set_item("default_bounces", m.default_bounces)?;
+            Ok(d)
+        })
+        .collect()
+}
+
+/// Checks `render`'s arguments against the registry: `method` must be a registered name,
+/// every name in `given` (the keyword parameters the caller set) one it reads, and
+/// `cache`, if not None, a cache it accepts. Raises ValueError naming the first argument
+/// that is not, with what the method takes.
+#[pyfunction]
+#[pyo3(signature = (method, given, cache=None))]
+pub fn check_method_args(
+    method: &str,
+    given: Vec<String>,
+    cache: Option<&Bound<'_, PyAny>>,
+) -> PyResult<()> {
+    let spec = registry::method(method).py()?;
+    let given: Vec<&str> = given.iter().map(String::as_str).collect();
+    let kind = match cache.filter(|c| !c.is_none()) {
+        None => None,
+        Some(c) if c.is_instance_of::<PyVisibilityCache>() => Some(CacheKind::Visibility),
+        Some(c) => {
+            return Err(PyTypeError::new_err(format!(
+                "cache: expected a VisibilityCache or None, got {}",
+                c.get_type().name()?
+            )))
+        }
+    };
+    spec.check_args(&given, kind).py()
 }

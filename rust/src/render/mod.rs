@@ -92,6 +92,7 @@ pub mod adaptive;
 pub mod estimator;
 pub mod frame;
 pub mod passes;
+pub mod registry;
 pub(crate) mod schedule;
 mod shade;
 pub mod split;
