@@ -580,7 +580,7 @@ def test_auto_keeps_records_where_hair_repays_them():
 def test_auto_builds_in_the_closed_room_and_caps_its_records():
     # The room seen through its windows passes the check at 160x120 (Jaccard distance
     # 0.225): there the control variate has 0.36x product sampling's variance
-    # (benches/README.md), and the check predicts 0.16x.
+    # (benches/HISTORY.md), and the check predicts 0.16x.
     room = vc.scenes.load("room")
     g = room.scene.gbuffer(room.camera.with_resolution(160, 120), jitter=False)
     cache = vc.VisibilityCache(room.scene)

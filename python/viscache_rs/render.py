@@ -121,7 +121,7 @@ CACHE_BUDGET_SHARE = 0.25
 # Without a budget, method "cv" without a cache builds at most one record per this many of
 # the render's samples (pixels x spp), and at least the bootstrap's: a record traces about
 # 2,000 shadow rays, so the build spends at most ~5x the render's rays. Measured over the
-# suite at 10 spp (benches/README.md, "Is auto the best setting?"): uncapped, the build
+# suite at 10 spp (benches/HISTORY.md, "Is auto the best setting?"): uncapped, the build
 # took longer than the render on scales and meshes at 256x192 (0.71x and 0.74x product's
 # efficiency); one record per 400 samples keeps 0.9-1.0x of the uncapped cache's
 # efficiency where that one wins. From 40 spp on the share cap of the records (a tenth of
