@@ -88,7 +88,7 @@ use crate::camera::{Camera, GBuffer, DIM_PIXEL_JITTER};
 use crate::error::{Error, Result};
 use crate::estimators::control_variate::{
     control_sample, neighbour_alphas, AlphaRule, ControlTables, CvSums, Interpolant, LobeControl,
-    MapChroma, ALPHA_MAX,
+    ALPHA_MAX,
 };
 use crate::estimators::direct::{
     DirectCounters, GuidedProduct, Lighting, Method, ProductDistribution, ProductLevel,
@@ -98,6 +98,7 @@ use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParam
 use crate::estimators::normal_products::NormalProducts;
 use crate::geometry::bvh::PACKET;
 use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
+use crate::lights::envmap::chroma::MapChroma;
 use crate::lights::envmap::{luminance, EnvMap};
 use crate::moments::Moments;
 use crate::parallel::{run_with_progress, with_threads};
