@@ -10,8 +10,8 @@ use glam::Vec3;
 
 use _core::camera::GBuffer;
 use _core::estimators::control_variate::{ControlTables, Interpolant};
-use _core::estimators::direct::ProductDistribution;
 use _core::lights::envmap::chroma::MapChroma;
+use _core::lights::envmap::product::ProductDistribution;
 use _core::visibility::cache::VisibilityCache;
 use _core::visibility::params::CacheParams;
 

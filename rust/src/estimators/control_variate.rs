@@ -70,7 +70,7 @@ use crate::sampling::octahedral::{morton_encode, texel_solid_angle};
 use crate::visibility::cache::{CacheState, Lookup};
 use crate::visibility::record::{word_level, Coverage, VisibilityView};
 
-use super::direct::ProductDistribution;
+use crate::lights::envmap::product::ProductDistribution;
 use crate::simd::{Kernel, Level, SimdLevel};
 
 mod masked_sum;
@@ -627,7 +627,7 @@ impl Interpolant {
 
     /// `Ṽ` over each cell of octahedral level `level` (Morton order): per cell, the `β`-
     /// weighted share of its record texels that the kept records see, in `[0, 1]`. What
-    /// [`super::direct::ProductDistribution::guided`] samples by.
+    /// [`ProductDistribution::guided`] samples by.
     pub fn cell_visibility(&self, state: &CacheState, level: u32) -> Vec<f32> {
         let mut out = vec![0.0f32; 1 << (2 * level)];
         for (&id, &beta) in self.ids().iter().zip(self.betas()) {

@@ -91,14 +91,14 @@ use crate::estimators::control_variate::{
     ALPHA_MAX,
 };
 use crate::estimators::direct::{
-    DirectCounters, GuidedProduct, Lighting, Method, ProductDistribution, ProductLevel,
-    ShadingPoint, Techniques,
+    DirectCounters, Lighting, Method, ProductLevel, ShadingPoint, Techniques,
 };
 use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParams, MAX_BOUNCES};
 use crate::estimators::normal_products::NormalProducts;
 use crate::geometry::bvh::PACKET;
 use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
 use crate::lights::envmap::chroma::MapChroma;
+use crate::lights::envmap::product::{GuidedProduct, ProductDistribution};
 use crate::lights::envmap::{luminance, EnvMap};
 use crate::moments::Moments;
 use crate::parallel::{run_with_progress, with_threads};

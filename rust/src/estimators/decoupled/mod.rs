@@ -114,13 +114,14 @@ use self::bound::{
     binary_variance, blend, blend_factor, error_bound, least_error_factor, relative_error,
 };
 use super::control_variate::Interpolant;
-use super::direct::{sample_area_light, ProductDistribution, ProductLevel, ShadingPoint};
+use super::direct::{sample_area_light, ProductLevel, ShadingPoint};
 use super::indirect::shading_point_at;
 use crate::bsdf::Material;
 use crate::camera::GBuffer;
 use crate::error::{Error, Result};
 use crate::estimators::direct::dims;
 use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
+use crate::lights::envmap::product::ProductDistribution;
 use crate::lights::envmap::EnvMap;
 use crate::lights::AreaLight;
 use crate::moments::Moments;
