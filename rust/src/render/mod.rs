@@ -87,8 +87,7 @@ use crate::bsdf::Material;
 use crate::camera::{Camera, GBuffer, DIM_PIXEL_JITTER};
 use crate::error::{Error, Result};
 use crate::estimators::control_variate::{
-    control_sample, neighbour_alphas, AlphaRule, ControlTables, CvSums, Interpolant, LobeControl,
-    ALPHA_MAX,
+    control_sample, neighbour_alphas, AlphaRule, CvSums, LobeControl,
 };
 use crate::estimators::direct::{
     DirectCounters, Lighting, Method, ProductLevel, ShadingPoint, Techniques,
@@ -104,6 +103,7 @@ use crate::moments::Moments;
 use crate::parallel::{run_with_progress, with_threads};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
+use crate::visibility::cache::interpolant::{ControlTables, Interpolant, ALPHA_MAX};
 use crate::visibility::cache::{CacheState, Lookup, VisibilityCache};
 
 pub mod adaptive;
@@ -393,7 +393,7 @@ pub struct RenderStats {
     /// ... and found no record (plain product sampling there).
     pub points_without_records: u64,
     /// Shadow rays of the shading points toward the map's sun
-    /// ([`crate::estimators::control_variate::Interpolant::with_sun`]).
+    /// ([`crate::visibility::cache::interpolant::Interpolant::with_sun`]).
     pub sun_rays: u64,
     /// Records kept, summed over the points that looked up.
     pub records_used: u64,
@@ -976,7 +976,7 @@ impl Shader<'_> {
             _ => None,
         };
         // Record verdicts add up over the pixel and reach the band's map once.
-        let mut verdicts = [(0u32, 0u32); crate::estimators::control_variate::MAX_KEPT];
+        let mut verdicts = [(0u32, 0u32); crate::visibility::cache::interpolant::MAX_KEPT];
         if self.params.jitter {
             let scene = self.lighting.scene;
             // Packets of the pixel's samples, shaded in sample order straight from the

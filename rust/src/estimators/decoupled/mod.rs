@@ -113,7 +113,6 @@ use rayon::prelude::*;
 use self::bound::{
     binary_variance, blend, blend_factor, error_bound, least_error_factor, relative_error,
 };
-use super::control_variate::Interpolant;
 use super::direct::{sample_area_light, ProductLevel, ShadingPoint};
 use super::indirect::shading_point_at;
 use crate::bsdf::Material;
@@ -131,6 +130,7 @@ use crate::render::schedule::{PassSchedule, PassWork as ScheduleWork};
 use crate::sampling::octahedral::{sphere_to_square, texel_of};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
+use crate::visibility::cache::interpolant::Interpolant;
 use crate::visibility::cache::{CacheState, VisibilityCache};
 
 /// Most `V`-samples per pixel and light [`Relighter::converge_visibility`] takes (its
@@ -1447,7 +1447,7 @@ fn cached_area_visibility(
 ) -> Option<CachedVisibility> {
     let light = &at.scene.area_lights()[k];
     let records = interp.ids().len();
-    let mut seen_by = [0u32; crate::estimators::control_variate::MAX_KEPT];
+    let mut seen_by = [0u32; crate::visibility::cache::interpolant::MAX_KEPT];
     let mut draws = 0u32;
     // A 3-D Hammersley set (triangle choice, point on it) turned by the pixel's own random
     // offset (Cranley-Patterson): stratified, at a fraction of a sampler's cost per draw.

@@ -33,7 +33,6 @@ use rayon::prelude::*;
 use edges::BrightLight;
 use transfer::{Basis, Transfer, TransferPoint, TransferSettings};
 
-use super::control_variate::{ControlTables, Interpolant};
 use super::direct::ProductLevel;
 use crate::bsdf::Material;
 use crate::camera::{Camera, GBuffer};
@@ -43,6 +42,7 @@ use crate::lights::envmap::chroma::MapChroma;
 use crate::lights::envmap::product::ProductDistribution;
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
+use crate::visibility::cache::interpolant::{ControlTables, Interpolant};
 use crate::visibility::cache::VisibilityCache;
 
 /// A first hit kept for previews.

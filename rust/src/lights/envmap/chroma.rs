@@ -156,7 +156,8 @@ impl MapChroma {
     /// The direction of the map's sun: the peaks' mean direction weighted by their
     /// luminance, when every peak lies within [`SUN_RADIUS_DEG`] of it (`None` without
     /// peaks or where they are spread: a bright horizon, two suns). The control variate
-    /// takes `Ṽ` on the peaks from one shadow ray toward it ([`Interpolant::with_sun`]).
+    /// takes `Ṽ` on the peaks from one shadow ray toward it
+    /// ([`Interpolant::with_sun`](crate::visibility::cache::interpolant::Interpolant::with_sun)).
     pub fn sun(&self) -> Option<Vec3> {
         self.sun
     }

@@ -63,6 +63,7 @@ use crate::sampling::pattern::{default_pattern, record_pattern, DEFAULT_LLOYD_IT
 mod build;
 pub mod coherence;
 mod frames;
+pub mod interpolant;
 mod io;
 mod lookup;
 pub mod nearest;
