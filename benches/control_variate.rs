@@ -9,8 +9,9 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use glam::Vec3;
 
 use _core::camera::GBuffer;
-use _core::estimators::control_variate::{ControlTables, Interpolant, MapChroma};
-use _core::estimators::direct::ProductDistribution;
+use _core::lights::envmap::chroma::MapChroma;
+use _core::lights::envmap::product::ProductDistribution;
+use _core::visibility::cache::interpolant::{ControlTables, Interpolant};
 use _core::visibility::cache::VisibilityCache;
 use _core::visibility::params::CacheParams;
 

@@ -10,7 +10,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use glam::{DVec2, Vec3};
 
 use _core::bsdf::Material;
-use _core::estimators::direct::ProductDistribution;
+use _core::lights::envmap::product::ProductDistribution;
 use _core::lights::envmap::EnvMap;
 use _core::sampling::rng::{hash4, to_unit_f64};
 

@@ -53,9 +53,10 @@ use crate::error::{Error, Result};
 use crate::estimators::indirect::shading_point_at;
 use crate::geometry::{RayBatch, Scene, TMax, TraversalCounters};
 use crate::lights::envmap::EnvMap;
-use crate::lights::vpl::{luminance, Receiver as VplReceiver, Vpl, VplKind, VplSet};
+use crate::lights::vpl::{luminance, Vpl, VplKind, VplSet};
 use crate::parallel::{run_polling, with_threads};
 use crate::sampling::rng::{mix64, SampleRng};
+use light_paths::Receiver as VplReceiver;
 
 /// Most samples per pixel.
 pub const MAX_SPP: u32 = 1 << 16;
@@ -309,7 +310,7 @@ impl Batch {
         self.owner.clear();
     }
 
-    fn push(&mut self, c: crate::lights::vpl::Connection, owner: usize) {
+    fn push(&mut self, c: light_paths::Connection, owner: usize) {
         self.origins.push(c.origin.to_array());
         self.directions.push(c.direction.to_array());
         self.tmax.push(c.tmax);
@@ -727,5 +728,6 @@ pub fn render_many_lights(
     })
 }
 
+pub mod light_paths;
 #[cfg(test)]
 mod tests;

@@ -26,7 +26,8 @@ use std::sync::{Arc, OnceLock};
 use glam::Vec3;
 
 use crate::bsdf::Material;
-use crate::estimators::direct::{ProductDistribution, ProductLevel};
+use crate::estimators::direct::ProductLevel;
+use crate::lights::envmap::product::ProductDistribution;
 use crate::lights::envmap::{luminance, EnvMap};
 use crate::sampling::octahedral::{texel_center, texel_of};
 

@@ -321,7 +321,7 @@ pub fn quad_triangles(v: [Vec3; 4]) -> [[Vec3; 3]; 2] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::watertight::WatertightRay;
+    use crate::geometry::bvh::watertight::WatertightRay;
     use crate::sampling::chi2::{chi2_sphere, Chi2Params};
     use crate::sampling::rng::SampleRng;
 

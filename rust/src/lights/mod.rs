@@ -1,7 +1,7 @@
 //! Light sources: the octahedral HDR environment map ([`envmap`], over batches of rows in
 //! [`envmap::rows`]), the procedural maps the built-in scenes use ([`procedural`]) and area
-//! lights made of triangles ([`area`]), and virtual point lights traced from them all
-//! ([`vpl`]).
+//! lights made of triangles ([`area`]), and sets of virtual point lights ([`vpl`]; the light
+//! paths that deposit them are traced by `estimators::many_lights::light_paths`).
 
 pub mod area;
 pub mod envmap;

@@ -79,13 +79,15 @@ use std::time::Instant;
 
 use crate::camera::{Camera, GBuffer};
 use crate::error::{Error, Result};
-use crate::estimators::control_variate::{AlphaRule, MapChroma, ALPHA_MAX};
+use crate::estimators::control_variate::AlphaRule;
 use crate::estimators::direct::{Lighting, Method, ProductLevel, Techniques};
 use crate::estimators::indirect::MAX_BOUNCES;
 use crate::estimators::normal_products::NormalProducts;
 use crate::geometry::Scene;
+use crate::lights::envmap::chroma::MapChroma;
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
+use crate::visibility::cache::interpolant::ALPHA_MAX;
 use crate::visibility::cache::VisibilityCache;
 
 pub mod adaptive;
@@ -376,7 +378,7 @@ pub struct RenderStats {
     /// ... and found no record (plain product sampling there).
     pub points_without_records: u64,
     /// Shadow rays of the shading points toward the map's sun
-    /// ([`crate::estimators::control_variate::Interpolant::with_sun`]).
+    /// ([`crate::visibility::cache::interpolant::Interpolant::with_sun`]).
     pub sun_rays: u64,
     /// Records kept, summed over the points that looked up.
     pub records_used: u64,

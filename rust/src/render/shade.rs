@@ -20,22 +20,21 @@ use crate::bsdf::Material;
 use crate::camera::{Camera, GBuffer, DIM_PIXEL_JITTER};
 use crate::error::Result;
 use crate::estimators::control_variate::{
-    control_sample, neighbour_alphas, AlphaRule, ControlTables, CvSums, Interpolant, LobeControl,
-    MapChroma,
+    control_sample, neighbour_alphas, AlphaRule, CvSums, LobeControl,
 };
-use crate::estimators::direct::{
-    DirectCounters, GuidedProduct, Lighting, ProductDistribution, ProductLevel, ShadingPoint,
-    Techniques,
-};
+use crate::estimators::direct::{DirectCounters, Lighting, ProductLevel, ShadingPoint, Techniques};
 use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParams};
 use crate::estimators::normal_products::NormalProducts;
 use crate::geometry::bvh::PACKET;
 use crate::geometry::{SurfaceHit, TraversalCounters};
+use crate::lights::envmap::chroma::MapChroma;
 use crate::lights::envmap::luminance;
+use crate::lights::envmap::product::{GuidedProduct, ProductDistribution};
 use crate::moments::Moments;
 use crate::parallel::with_threads;
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
+use crate::visibility::cache::interpolant::{ControlTables, Interpolant};
 use crate::visibility::cache::{CacheState, Lookup, VisibilityCache};
 
 /// What one band of one pass did.
@@ -571,7 +570,7 @@ impl Shader<'_> {
             _ => None,
         };
         // Record verdicts add up over the pixel and reach the band's map once.
-        let mut verdicts = [(0u32, 0u32); crate::estimators::control_variate::MAX_KEPT];
+        let mut verdicts = [(0u32, 0u32); crate::visibility::cache::interpolant::MAX_KEPT];
         if self.params.jitter {
             let scene = self.lighting.scene;
             // Packets of the pixel's samples, shaded in sample order straight from the

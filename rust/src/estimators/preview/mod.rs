@@ -33,14 +33,16 @@ use rayon::prelude::*;
 use edges::BrightLight;
 use transfer::{Basis, Transfer, TransferPoint, TransferSettings};
 
-use super::control_variate::{ControlTables, Interpolant, MapChroma};
-use super::direct::{ProductDistribution, ProductLevel};
+use super::direct::ProductLevel;
 use crate::bsdf::Material;
 use crate::camera::{Camera, GBuffer};
 use crate::error::Result;
 use crate::geometry::Scene;
+use crate::lights::envmap::chroma::MapChroma;
+use crate::lights::envmap::product::ProductDistribution;
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
+use crate::visibility::cache::interpolant::{ControlTables, Interpolant};
 use crate::visibility::cache::VisibilityCache;
 
 /// A first hit kept for previews.

@@ -13,11 +13,11 @@ use obvhs::BvhBuildParams;
 
 use super::{Bvh, TraversalCounters};
 use crate::error::{Error, Result};
-use crate::geometry::binned_sah::{self, BinnedSahParams};
-use crate::geometry::bvh8::Bvh8;
+use crate::geometry::bvh::binned_sah::{self, BinnedSahParams};
+use crate::geometry::bvh::bvh8::Bvh8;
+use crate::geometry::bvh::watertight::Triangle4;
 use crate::geometry::huge_pages::advise_huge_pages;
 use crate::geometry::mesh::Mesh;
-use crate::geometry::watertight::Triangle4;
 use crate::math::triangle_cross;
 
 /// Build presets: our binned SAH builder ([`BuildQuality::Sah`]), one of obvhs's PLOC
@@ -41,7 +41,7 @@ pub enum BuildQuality {
     #[default]
     Auto,
     /// Top-down binned SAH whose cost counts four-triangle blocks, slivers halved by early
-    /// split clipping first ([`crate::geometry::binned_sah`]). Fewer node visits and block
+    /// split clipping first ([`crate::geometry::bvh::binned_sah`]). Fewer node visits and block
     /// tests per ray than any PLOC preset below on the built-in scenes, at about the build
     /// time of `Medium` (benches/README.md).
     Sah,
@@ -196,7 +196,7 @@ pub const AUTO_MAX_TRIANGLES: usize = 1 << 18;
 pub const NODE_COST: f32 = 1.0;
 
 /// Largest leaf the builder makes: one four-lane block of [`Triangle4`].
-pub const MAX_LEAF: u32 = crate::geometry::bvh8::MAX_LEAF_TRIANGLES;
+pub const MAX_LEAF: u32 = crate::geometry::bvh::bvh8::MAX_LEAF_TRIANGLES;
 
 /// Leaf blocks holding triangles `range`, and which of those triangles the tree holds.
 #[derive(Clone, Debug)]

@@ -3,10 +3,10 @@
 use glam::Vec3A;
 
 use super::{Bvh, FarthestFirst, Hit, LocalRay, TraversalCounters, STACK};
-use crate::geometry::bvh8::{
+use crate::geometry::bvh::bvh8::{
     decode, BoundedStack, BoxTest, Child, LevelBoxTest, Stack, TraversalStack,
 };
-use crate::geometry::watertight::TriangleHit;
+use crate::geometry::bvh::watertight::TriangleHit;
 use crate::simd::{Kernel, Level, SimdLevel};
 
 impl Bvh {

@@ -10,9 +10,9 @@ use super::{Bvh, Hit, TraversalCounters};
 #[cfg(target_arch = "x86_64")]
 use super::{FarthestFirst, STACK};
 #[cfg(target_arch = "x86_64")]
-use crate::geometry::bvh8::{decode, BoundedStack, Child, Stack, TraversalStack, EXIT_SCALE};
+use crate::geometry::bvh::bvh8::{decode, BoundedStack, Child, Stack, TraversalStack, EXIT_SCALE};
 #[cfg(target_arch = "x86_64")]
-use crate::geometry::watertight::lanes;
+use crate::geometry::bvh::watertight::lanes;
 
 /// A lane's closest triangle: its block slot and barycentrics `(u, v)`.
 #[cfg(target_arch = "x86_64")]

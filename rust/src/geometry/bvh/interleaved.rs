@@ -12,8 +12,10 @@ use glam::Vec3A;
 
 use super::shadow::AnyHitStep;
 use super::{Bvh, FarthestFirst, Hit, LocalRay, TraversalCounters, STACK};
-use crate::geometry::bvh8::{decode, BoundedStack, BoxTest, Child, LevelBoxTest, TraversalStack};
-use crate::geometry::watertight::TriangleHit;
+use crate::geometry::bvh::bvh8::{
+    decode, BoundedStack, BoxTest, Child, LevelBoxTest, TraversalStack,
+};
+use crate::geometry::bvh::watertight::TriangleHit;
 use crate::simd::Level;
 
 /// Rays in flight: enough steps of other rays between a request and its use to cover a

@@ -1,6 +1,6 @@
-//! The BVH: a binary tree, built by our binned SAH builder ([`super::binned_sah`], the
+//! The BVH: a binary tree, built by our binned SAH builder ([`binned_sah`], the
 //! default) or by obvhs's PLOC presets, is collapsed into an eight-wide tree with `f32`
-//! child boxes ([`super::bvh8`]) and traversed with conservative SIMD box tests and
+//! child boxes ([`bvh8`]) and traversed with conservative SIMD box tests and
 //! watertight triangle tests. Closest-hit and early-exit shadow queries keep exact
 //! traversal counters.
 //!
@@ -9,18 +9,21 @@
 //! in the same range at any scene scale. Power-of-two scaling is exact in floating point,
 //! so it changes no vertex.
 //!
-//! Files: `build.rs` (presets, the grouped build, refits), `shadow.rs` (early-exit shadow
-//! queries and their hinted walks), `packet.rs` (packets of shadow rays from one origin),
-//! `closest.rs` (closest hits).
+//! Files: `binned_sah.rs` (the binned SAH builder), `bvh8.rs` (the eight-wide tree and its
+//! box tests), `watertight.rs` (watertight triangle tests), `build.rs` (presets, the grouped
+//! build, refits), `shadow.rs` (early-exit shadow queries and their hinted walks),
+//! `packet.rs` (packets of shadow rays from one origin), `closest.rs` (closest hits).
 
 use std::time::Duration;
 
 use glam::Vec3A;
 
-use super::bvh8::{decode, BoxRay, Bvh8, Child, Node8, Parents, TraversalStack, WIDTH};
-use super::watertight::{Triangle4, WatertightRay};
+use bvh8::{decode, BoxRay, Bvh8, Child, Node8, Parents, TraversalStack, WIDTH};
+use watertight::{Triangle4, WatertightRay};
 
+pub mod binned_sah;
 mod build;
+pub mod bvh8;
 mod closest;
 mod closest_packet;
 mod interleaved;
@@ -28,6 +31,7 @@ mod packet;
 mod shadow;
 #[cfg(test)]
 mod tests;
+pub mod watertight;
 
 use build::RefitBlocks;
 

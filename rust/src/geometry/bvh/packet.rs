@@ -7,12 +7,12 @@ use super::{Bvh, OccluderHint, TraversalCounters};
 #[cfg(target_arch = "x86_64")]
 use super::{NO_NODE, STACK};
 #[cfg(target_arch = "x86_64")]
-use crate::geometry::bvh8::{
+use crate::geometry::bvh::bvh8::{
     decode, is_leaf, slab_overlap_avx2, Avx512BoxTest, BoundedStack, Child, Node8, Stack,
     TraversalStack, EXIT_SCALE, WIDTH,
 };
 #[cfg(target_arch = "x86_64")]
-use crate::geometry::watertight::{lanes, WatertightPacket, WatertightRay};
+use crate::geometry::bvh::watertight::{lanes, WatertightPacket, WatertightRay};
 
 /// Rays of a packet reaching a leaf from which its triangles are tested against the rays
 /// all at once ([`WatertightPacket`]) rather than ray by ray (shadow and closest-hit

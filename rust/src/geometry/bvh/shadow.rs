@@ -4,7 +4,7 @@
 use glam::Vec3A;
 
 use super::{Bvh, LocalRay, OccluderHint, TraversalCounters, NO_NODE, STACK};
-use crate::geometry::bvh8::{
+use crate::geometry::bvh::bvh8::{
     decode, is_leaf, leaf_block, prefetch_lines, BoundedStack, BoxTest, Child, LevelBoxTest, Node8,
     Stack, TraversalStack,
 };
@@ -58,7 +58,7 @@ impl Bvh {
     /// with the box test of [`Node8::intersect_avx512`]; the ray's setup is compiled for it
     /// too. The vector forms take the fixed stack where the tree allows it.
     ///
-    /// [`Node8::intersect_avx512`]: crate::geometry::bvh8::Node8::intersect_avx512
+    /// [`Node8::intersect_avx512`]: crate::geometry::bvh::bvh8::Node8::intersect_avx512
     #[inline(always)]
     pub(crate) fn occluded_hinted_at<const COUNT: bool, L: Level>(
         &self,

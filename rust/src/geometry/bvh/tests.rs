@@ -5,10 +5,10 @@ use super::packet::Packet;
 use super::shadow::HintedRay;
 use super::*;
 use crate::bsdf::Material;
-use crate::geometry::bvh8::{PortableBoxTest, Stack, WIDTH};
-use crate::geometry::mesh::Mesh;
+use crate::geometry::bvh::bvh8::{PortableBoxTest, Stack, WIDTH};
 #[cfg(target_arch = "x86_64")]
-use crate::geometry::watertight::{lanes, WatertightPacket};
+use crate::geometry::bvh::watertight::{lanes, WatertightPacket};
+use crate::geometry::mesh::Mesh;
 use glam::{vec3a, Vec3};
 
 /// 600 random triangles of side about 0.6 in a 4-unit cube (`seed` picks them).

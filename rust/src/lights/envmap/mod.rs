@@ -47,8 +47,10 @@ use crate::error::{Error, Result};
 use crate::sampling::distribution::QuadPyramid;
 use crate::sampling::octahedral::{sphere_to_square, square_to_sphere, texel_of};
 
+pub mod chroma;
 mod equirect;
 mod exr;
+pub mod product;
 pub mod rows;
 #[cfg(test)]
 mod tests;

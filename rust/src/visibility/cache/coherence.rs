@@ -20,7 +20,7 @@
 //!
 //! [`CacheParams::check_coherence`]: crate::visibility::params::CacheParams::check_coherence
 
-use crate::estimators::control_variate::ALPHA_MAX;
+use super::interpolant::ALPHA_MAX;
 
 /// Least visible share a pair's relative variances are computed with: a point seeing one of
 /// the check's 256 directions would otherwise weigh 256 times a half-open one.

@@ -47,7 +47,8 @@
 //! `mod.rs`: the cache, its locked state and insertion; `lookup.rs`: §5.1 lookups;
 //! `nearest.rs`: the `m` nearest for ambient occlusion; `build.rs`: builds for a view and
 //! the insertion waves; `coherence.rs`: the check that predicts whether records repay
-//! their build; `frames.rs`: §5.3 bookkeeping over frames; `io.rs`: the file format.
+//! their build; `frames.rs`: §5.3 bookkeeping over frames; `io.rs`: the file format;
+//! `interpolant.rs`: the interpolated visibility `Ṽ` of a lookup and its integral `J`.
 
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
@@ -63,6 +64,7 @@ use crate::sampling::pattern::{default_pattern, record_pattern, DEFAULT_LLOYD_IT
 mod build;
 pub mod coherence;
 mod frames;
+pub mod interpolant;
 mod io;
 mod lookup;
 pub mod nearest;
