@@ -29,7 +29,7 @@
 //! - Every share has [`DEFENSIVE`] of the image's mean `v` added.
 //! - No pixel takes more than [`CAP_FACTOR`] times the mean.
 
-use crate::estimators::control_variate::CvSums;
+use super::sums::CvSums;
 use crate::estimators::direct::Techniques;
 
 /// The constant of relMSE's denominator `μ² + 10⁻²` (`viscache_rs.metrics`): keeps black

@@ -6,7 +6,8 @@
 
 use std::ops::Range;
 
-use crate::estimators::control_variate::CvSums;
+use super::adaptive::SampleShares;
+use super::sums::PixelSums;
 
 /// What the driver tells a method about the pass it is about to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -48,6 +49,8 @@ pub trait PixelPass: Sync {
     type Work: Merge;
     /// What the method keeps per pixel from the adaptive pilot.
     type Note: Default + Clone + Send + Sync;
+    /// A pixel's accumulator ([`super::sums::CvSums`] for most methods).
+    type Sums: PixelSums;
 
     /// Draws samples `samples` of `pixel` (row-major index) into `acc`, in sample order.
     /// Every random number must come from `(seed, pixel, sample, dimension)`, never from
@@ -57,7 +60,7 @@ pub trait PixelPass: Sync {
         &self,
         pixel: usize,
         samples: Range<u32>,
-        acc: &mut CvSums,
+        acc: &mut Self::Sums,
         work: &mut Self::Work,
         note: &mut Self::Note,
     ) -> PixelTiming;
@@ -71,9 +74,13 @@ pub trait PixelEstimator {
     type Work: Merge;
     /// [`PixelPass::Note`] of its passes.
     type Note: Default + Clone + Send + Sync;
+    /// [`PixelPass::Sums`] of its passes.
+    type Sums: PixelSums;
+    /// Whether it can take adaptive counts ([`Self::shares`]).
+    const ADAPTS: bool = false;
     /// One pass, borrowing what it reads for as long as the pass runs (a cache's read
     /// lock, say).
-    type Pass<'a>: PixelPass<Work = Self::Work, Note = Self::Note>
+    type Pass<'a>: PixelPass<Work = Self::Work, Note = Self::Note, Sums = Self::Sums>
     where
         Self: 'a;
 
@@ -81,15 +88,21 @@ pub trait PixelEstimator {
     fn pass<R>(&self, plan: &PassPlan, run: impl FnOnce(&Self::Pass<'_>) -> R) -> R;
 
     /// After pass `plan`, with its bands' work in band order and every pixel's sums so far.
-    fn end_pass(&mut self, _plan: &PassPlan, _works: &[Self::Work], _sums: &[CvSums]) {}
+    fn end_pass(&mut self, _plan: &PassPlan, _works: &[Self::Work], _sums: &[Self::Sums]) {}
 
     /// After the adaptive pilot, with every pixel's note from it (row-major).
     fn after_pilot(&mut self, _notes: &[Self::Note], _width: usize, _height: usize) {}
 
-    /// The weight `α` of the control term per pixel and channel: each pixel's estimate is
-    /// the mean of `Z − α W` ([`CvSums::estimate`]). Zero (the plain estimate) unless the
-    /// method has a control variate.
-    fn alphas(&self, sums: &[CvSums], _width: usize, _height: usize) -> Vec<[f64; 3]> {
-        vec![[0.0; 3]; sums.len()]
+    /// After the adaptive pilot (only where [`Self::ADAPTS`]): each pixel's share of the
+    /// samples to come, measured from every pixel's sums so far and, under a budget, each
+    /// pixel's CPU nanoseconds per sample in its latest pass (`costs`).
+    fn shares(
+        &self,
+        _sums: &[Self::Sums],
+        _costs: Option<&[f32]>,
+        _width: usize,
+        _height: usize,
+    ) -> Option<SampleShares> {
+        None
     }
 }

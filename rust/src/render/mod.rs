@@ -98,8 +98,8 @@ pub mod registry;
 pub(crate) mod schedule;
 mod shade;
 pub mod split;
+pub mod sums;
 
-use estimator::PixelEstimator;
 use frame::Frame;
 use passes::{run_passes, PassParams};
 use shade::DirectMethod;
@@ -576,7 +576,7 @@ fn render_with(
         progress,
     )?;
     let alpha = method.alphas(&run.sums, width, height);
-    let (image, variance) = run.resolve(&alpha);
+    let (image, variance) = sums::resolve(&run.sums, &alpha);
     let mut stats = RenderStats {
         spp: run.min_spp(),
         passes: run.passes,

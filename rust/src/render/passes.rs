@@ -25,9 +25,9 @@ use rayon::prelude::*;
 use super::adaptive::{pilot_spp, sample_cap, SampleShares};
 use super::estimator::{Merge, PassPlan, PixelEstimator, PixelPass};
 use super::schedule::{PassSchedule, PassWork};
+use super::sums::PixelSums;
 use super::MAX_SPP;
 use crate::error::Result;
-use crate::estimators::control_variate::CvSums;
 use crate::parallel::run_with_progress;
 
 /// Rows per work item of a pass with even counts: small enough to balance two to hundreds
@@ -50,9 +50,9 @@ pub struct PassParams {
 /// What the passes left: every pixel's sums, the methods' counters added up, and how the
 /// passes went.
 #[derive(Clone, Debug)]
-pub struct PassRun<W> {
+pub struct PassRun<S, W> {
     /// Row-major, one per pixel.
-    pub sums: Vec<CvSums>,
+    pub sums: Vec<S>,
     /// Every band's work of every pass, merged in pass and band order.
     pub total: W,
     /// Passes made.
@@ -64,43 +64,30 @@ pub struct PassRun<W> {
     pub adaptive_gain: Option<f64>,
 }
 
-impl<W> PassRun<W> {
+impl<S: PixelSums, W> PassRun<S, W> {
     /// Samples each pixel took, row-major.
     pub fn counts(&self) -> Vec<u32> {
-        self.sums.iter().map(|s| s.n).collect()
+        self.sums.iter().map(|s| s.samples()).collect()
     }
 
     /// The least samples any pixel took.
     pub fn min_spp(&self) -> u32 {
-        self.sums.iter().map(|s| s.n).min().unwrap_or(0)
+        self.sums.iter().map(|s| s.samples()).min().unwrap_or(0)
     }
 
     /// The most samples any pixel took.
     pub fn max_spp(&self) -> u32 {
-        self.sums.iter().map(|s| s.n).max().unwrap_or(0)
+        self.sums.iter().map(|s| s.samples()).max().unwrap_or(0)
     }
 
     /// Pixel samples taken.
     pub fn samples(&self) -> u64 {
-        self.sums.iter().map(|s| s.n as u64).sum()
+        self.sums.iter().map(|s| s.samples() as u64).sum()
     }
 
     /// Samples per pixel on average.
     pub fn mean_spp(&self) -> f64 {
-        self.sums.iter().map(|s| s.n as f64).sum::<f64>() / self.sums.len().max(1) as f64
-    }
-
-    /// Each pixel's estimate and the variance of that mean with weights `alpha`
-    /// ([`CvSums::estimate`]), as `f32`.
-    pub fn resolve(&self, alpha: &[[f64; 3]]) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
-        let mut image = Vec::with_capacity(self.sums.len());
-        let mut variance = Vec::with_capacity(self.sums.len());
-        for (s, a) in self.sums.iter().zip(alpha) {
-            let (mean, var) = s.estimate(*a);
-            image.push(mean.map(|v| v as f32));
-            variance.push(var.map(|v| v as f32));
-        }
-        (image, variance)
+        self.sums.iter().map(|s| s.samples() as f64).sum::<f64>() / self.sums.len().max(1) as f64
     }
 }
 
@@ -172,9 +159,9 @@ pub fn run_passes<E: PixelEstimator>(
     start: Instant,
     threads: Option<usize>,
     progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
-) -> Result<PassRun<E::Work>> {
+) -> Result<PassRun<E::Sums, E::Work>> {
     let pixels = width * height;
-    let mut sums = vec![CvSums::default(); pixels];
+    let mut sums = vec![E::Sums::default(); pixels];
     let mut total = E::Work::default();
     let mut passes = 0u32;
     let mut complete = true;
@@ -185,11 +172,11 @@ pub fn run_passes<E: PixelEstimator>(
     let mut taken = 0u64;
     // Adaptive renders: the shares measured after the pilot pass, the most samples a
     // pixel may take, and each pixel's CPU nanoseconds per sample in its latest pass.
-    let adapt = params.adaptive;
+    let adapt = params.adaptive && E::ADAPTS;
     let mut shares: Option<(SampleShares, u32)> = None;
     let mut pixel_state = vec![PixelState::<E::Note>::default(); pixels];
     let mut adaptive_gain = None;
-    let counts = |sums: &[CvSums]| sums.iter().map(|s| s.n).collect::<Vec<u32>>();
+    let counts = |sums: &[E::Sums]| sums.iter().map(|s| s.samples()).collect::<Vec<u32>>();
     loop {
         // Each pass brings the pixels it covers up to their target.
         let mut pilot = None;
@@ -216,7 +203,7 @@ pub fn run_passes<E: PixelEstimator>(
             }
             Some(budget) => {
                 let left = budget - start.elapsed().as_secs_f64();
-                let min = sums.iter().map(|s| s.n).min().unwrap_or(0);
+                let min = sums.iter().map(|s| s.samples()).min().unwrap_or(0);
                 let done_all = match shares {
                     Some(_) => taken >= planned,
                     None => min >= params.spp,
@@ -308,13 +295,13 @@ pub fn run_passes<E: PixelEstimator>(
                                     break;
                                 }
                                 let target = targets.of(first + i);
-                                if acc.n < target {
-                                    let added = target - acc.n;
+                                if acc.samples() < target {
+                                    let added = target - acc.samples();
                                     tally.samples += added as u64;
                                     tally.anchored_pixels += 1;
                                     let timing = shader.shade_pixel(
                                         first + i,
-                                        acc.n..target,
+                                        acc.samples()..target,
                                         acc,
                                         &mut work,
                                         &mut state.note,
@@ -355,8 +342,9 @@ pub fn run_passes<E: PixelEstimator>(
             // Under a budget, a sample's cost counts too: sky is cheap, grass is not.
             let ns: Vec<f32> = pixel_state.iter().map(|p| p.ns_per_sample).collect();
             let costs = params.time_budget.map(|_| &ns[..]);
-            let alphas = estimator.alphas(&sums, width, height);
-            let measured = SampleShares::measure(&sums, &alphas, costs, width, height);
+            let measured = estimator
+                .shares(&sums, costs, width, height)
+                .expect("a method that adapts measures shares");
             let notes: Vec<E::Note> = pixel_state.iter().map(|p| p.note.clone()).collect();
             estimator.after_pilot(&notes, width, height);
             adaptive_gain = Some(measured.gain());
@@ -369,7 +357,7 @@ pub fn run_passes<E: PixelEstimator>(
         let keep_going = progress(done.load(Ordering::Relaxed), planned);
         // Every pixel gets a sample, whatever the budget: a probe pass alone leaves most
         // of them at none.
-        let unsampled = sums.iter().any(|s| s.n == 0);
+        let unsampled = sums.iter().any(|s| s.samples() == 0);
         let over_budget = params
             .time_budget
             .is_some_and(|b| start.elapsed().as_secs_f64() >= b && !unsampled);

@@ -13,15 +13,14 @@ use std::time::Instant;
 
 use glam::{Vec3, Vec3A};
 
-use super::adaptive::{Choices, DrawMoments, PixelTechniques, RELMSE_FLOOR};
+use super::adaptive::{Choices, DrawMoments, PixelTechniques, SampleShares, RELMSE_FLOOR};
 use super::estimator::{Merge, PassPlan, PixelEstimator, PixelPass, PixelTiming};
+use super::sums::{neighbour_alphas, CvSums};
 use super::{split, RenderParams, RenderStats, StageSeconds};
 use crate::bsdf::Material;
 use crate::camera::{Camera, GBuffer, DIM_PIXEL_JITTER};
 use crate::error::Result;
-use crate::estimators::control_variate::{
-    control_sample, neighbour_alphas, AlphaRule, CvSums, LobeControl,
-};
+use crate::estimators::control_variate::{control_sample, AlphaRule, LobeControl};
 use crate::estimators::direct::{DirectCounters, Lighting, ProductLevel, ShadingPoint, Techniques};
 use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParams};
 use crate::estimators::normal_products::NormalProducts;
@@ -646,6 +645,7 @@ impl Shader<'_> {
 impl PixelPass for Shader<'_> {
     type Work = BandWork;
     type Note = DrawMoments;
+    type Sums = CvSums;
 
     fn shade_pixel(
         &self,
@@ -717,6 +717,8 @@ pub(super) struct DirectMethod<'a> {
 impl PixelEstimator for DirectMethod<'_> {
     type Work = BandWork;
     type Note = DrawMoments;
+    type Sums = CvSums;
+    const ADAPTS: bool = true;
     type Pass<'b>
         = Shader<'b>
     where
@@ -781,7 +783,21 @@ impl PixelEstimator for DirectMethod<'_> {
         }
     }
 
-    fn alphas(&self, sums: &[CvSums], width: usize, height: usize) -> Vec<[f64; 3]> {
+    fn shares(
+        &self,
+        sums: &[CvSums],
+        costs: Option<&[f32]>,
+        width: usize,
+        height: usize,
+    ) -> Option<SampleShares> {
+        let alphas = self.alphas(sums, width, height);
+        Some(SampleShares::measure(sums, &alphas, costs, width, height))
+    }
+}
+
+impl DirectMethod<'_> {
+    /// `α` per pixel and channel: the rule's for the control variate, else 0.
+    pub(super) fn alphas(&self, sums: &[CvSums], width: usize, height: usize) -> Vec<[f64; 3]> {
         match (self.cache.is_some(), self.params.alpha) {
             (true, AlphaRule::Neighbours { radius }) => {
                 neighbour_alphas(sums, width, height, radius)
@@ -790,9 +806,7 @@ impl PixelEstimator for DirectMethod<'_> {
             _ => vec![[0.0; 3]; sums.len()],
         }
     }
-}
 
-impl DirectMethod<'_> {
     /// The method's figures of the render into `stats`, with the passes' `total` work and
     /// `alpha` per pixel; the records' misses go back to the cache (CAM08 §5.3), and with
     /// [`RenderParams::insert_missing`] the points that found none get records.

@@ -1,7 +1,10 @@
 use super::*;
+use glam::Vec3;
+
 use crate::bsdf::Material;
+use crate::moments::Moments;
 use crate::sampling::octahedral::{morton_encode, square_to_sphere};
-use crate::sampling::rng::{hash4, to_unit_f64, SampleRng};
+use crate::sampling::rng::SampleRng;
 use crate::visibility::cache::interpolant::tests::{cache_with, frame, random_bits, test_sky};
 use crate::visibility::cache::interpolant::ControlTables;
 
@@ -52,8 +55,7 @@ fn the_control_variate_averages_to_j_under_the_mixture() {
         Some(&guided),
         &Techniques::CONTROL_VARIATE,
     );
-    let (mut sums, mut part_sums, mut w_sums) =
-        (CvSums::default(), CvSums::default(), CvSums::default());
+    let (mut sums, mut part_sums, mut w_sums) = <[[Moments; 3]; 3]>::default().into();
     for i in 0..300_000u64 {
         let rng = SampleRng::new(5, i, 0);
         let (g, gd) = match mixture.sample(rng.get2(0), rng.get(2)) {
@@ -65,9 +67,9 @@ fn the_control_variate_averages_to_j_under_the_mixture() {
             }
             None => ([0.0; 3], [0.0; 3]),
         };
-        sums.add(Vec3::ZERO, g);
-        part_sums.add(Vec3::ZERO, gd);
-        w_sums.add(Vec3::ZERO, lobes.w(g, gd, &interp.j));
+        Moments::push_each(&mut sums, g);
+        Moments::push_each(&mut part_sums, gd);
+        Moments::push_each(&mut w_sums, lobes.w(g, gd, &interp.j));
     }
     assert_mean_within_4_se(&sums, interp.j, "g/p");
     assert_mean_within_4_se(&part_sums, lobes.j, "g_d/p");
@@ -75,16 +77,15 @@ fn the_control_variate_averages_to_j_under_the_mixture() {
     assert!((0..3).all(|c| lobes.j[c] > 0.0 && lobes.j[c] < interp.j[c]));
 }
 
-/// The mean of the samples `sums` holds (as `W`) lies within 4 of their standard errors
-/// of `want`, per channel.
-fn assert_mean_within_4_se(sums: &CvSums, want: [f64; 3], what: &str) {
-    let (mean, var) = sums.estimate([-1.0; 3]);
-    for c in 0..3 {
-        let z = (mean[c] - want[c]) / var[c].sqrt();
+/// The mean of the samples `sums` holds lies within 4 of their standard errors of
+/// `want`, per channel.
+fn assert_mean_within_4_se(sums: &[Moments; 3], want: [f64; 3], what: &str) {
+    for (c, m) in sums.iter().enumerate() {
+        let z = (m.mean - want[c]) / m.variance_of_mean().sqrt();
         assert!(
             z.abs() < 4.0,
             "{what}, channel {c}: {} vs {} ({z:.2} SE)",
-            mean[c],
+            m.mean,
             want[c]
         );
     }
@@ -108,13 +109,13 @@ fn the_control_variate_averages_to_j() {
         let interp = Interpolant::new(&state, &lookup, Some((&tables, &product, &env)));
         // g/p of 200k product samples of seed `seed`.
         let sample_sums = |interp: &Interpolant, seed: u64| {
-            let mut sums = CvSums::default();
+            let mut sums = [Moments::default(); 3];
             for i in 0..200_000u64 {
                 let rng = SampleRng::new(seed, i, 0);
                 let u = DVec2::new(rng.get(0) as f64, rng.get(1) as f64);
                 let s = product.sample_point(&env, u);
                 let g = control_sample(&state, interp, &chroma, s.square);
-                sums.add(Vec3::ZERO, g.value);
+                Moments::push_each(&mut sums, g.value);
             }
             sums
         };
@@ -147,101 +148,4 @@ fn the_control_variate_averages_to_j() {
         let t = crate::sampling::octahedral::texel_of(d, 1 << m);
         assert_eq!(morton_encode(t.x, t.y) as usize, z);
     }
-}
-
-#[test]
-fn cv_sums_give_the_mean_and_variance_of_z_minus_alpha_w() {
-    let samples: Vec<(Vec3, [f64; 3])> = (0..50u64)
-        .map(|i| {
-            let a = to_unit_f64(hash4(1, i, 0, 0));
-            let b = to_unit_f64(hash4(1, i, 0, 1));
-            (
-                Vec3::new(a as f32, 2.0 * a as f32, 0.0),
-                [a - 0.5 + 0.1 * b, b, 0.0],
-            )
-        })
-        .collect();
-    let mut sums = CvSums::default();
-    for (z, w) in &samples {
-        sums.add(*z, *w);
-    }
-    for alpha in [0.0, 0.7, 1.0, 2.0] {
-        let (mean, var) = sums.estimate([alpha; 3]);
-        for c in 0..3 {
-            let y: Vec<f64> = samples
-                .iter()
-                .map(|(z, w)| z[c] as f64 - alpha * w[c])
-                .collect();
-            let n = y.len() as f64;
-            let m = y.iter().sum::<f64>() / n;
-            let v = y.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (n - 1.0) / n;
-            assert!((mean[c] - m).abs() < 1e-12 && (var[c] - v).abs() < 1e-12 * (1.0 + v));
-        }
-    }
-    // Channel 2: Z = 0 and W = 0, so zero variance, never negative or NaN.
-    assert_eq!(sums.estimate([1.0; 3]).1[2], 0.0);
-    let one = {
-        let mut s = CvSums::default();
-        s.add(Vec3::ONE, [1.0; 3]);
-        s
-    };
-    assert!(one.estimate([1.0; 3]).1.iter().all(|v| v.is_infinite()));
-    assert_eq!(CvSums::default().estimate([1.0; 3]).0, [0.0; 3]);
-}
-
-#[test]
-fn neighbour_alphas_pool_the_window_without_the_pixel() {
-    let (w, h) = (7usize, 5usize);
-    let sums: Vec<CvSums> = (0..w * h)
-        .map(|i| {
-            let mut s = CvSums::default();
-            for k in 0..6u64 {
-                let a = to_unit_f64(hash4(9, i as u64, k, 0));
-                let b = to_unit_f64(hash4(9, i as u64, k, 1));
-                // Z = 0.8 W + noise in channel 0; W constant in channel 1.
-                s.add(Vec3::new((0.8 * a + 0.3 * b) as f32, 1.0, 0.0), [a, 0.0, a]);
-            }
-            s
-        })
-        .collect();
-    let alphas = neighbour_alphas(&sums, w, h, 2);
-    for y in 0..h {
-        for x in 0..w {
-            let (mut cov, mut var) = (0.0, 0.0);
-            for yy in y.saturating_sub(2)..(y + 3).min(h) {
-                for xx in x.saturating_sub(2)..(x + 3).min(w) {
-                    if (xx, yy) != (x, y) {
-                        let (c, v) = sums[yy * w + xx].centred(0);
-                        cov += c;
-                        var += v;
-                    }
-                }
-            }
-            let a = alphas[y * w + x];
-            assert!((a[0] - (cov / var).clamp(0.0, ALPHA_MAX)).abs() < 1e-12);
-            assert_eq!(a[1], 1.0, "no variance in W: alpha does not matter");
-            assert_eq!(a[2], 0.0, "Z = 0 is uncorrelated with W");
-        }
-    }
-    // A pixel's own samples do not move its alpha.
-    let mut changed = sums.clone();
-    changed[2 * w + 3].add(Vec3::splat(1e6), [1e6; 3]);
-    let again = neighbour_alphas(&changed, w, h, 2);
-    assert_eq!(again[2 * w + 3], alphas[2 * w + 3]);
-    assert_ne!(again[2 * w + 4], alphas[2 * w + 4]);
-    // Clamped: perfectly anti-correlated neighbours give 0, steep ones ALPHA_MAX.
-    let steep: Vec<CvSums> = (0..9)
-        .map(|i| {
-            let mut s = CvSums::default();
-            for k in 0..3 {
-                let a = (i * 3 + k) as f64;
-                s.add(Vec3::new(10.0 * a as f32, -(a as f32), 0.0), [a, a, 0.0]);
-            }
-            s
-        })
-        .collect();
-    let a = neighbour_alphas(&steep, 3, 3, 1);
-    assert!(a
-        .iter()
-        .all(|a| a[0] == ALPHA_MAX && a[1] == 0.0 && a[2] == 1.0));
 }

@@ -9,8 +9,8 @@ use std::sync::Mutex;
 use glam::Vec3;
 
 use super::*;
-use crate::estimators::control_variate::CvSums;
 use crate::render::estimator::PixelTiming;
+use crate::render::sums::{resolve, CvSums};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
 
@@ -59,6 +59,7 @@ impl Merge for Count {
 impl PixelPass for ToyPass<'_> {
     type Work = Count;
     type Note = u32;
+    type Sums = CvSums;
 
     fn shade_pixel(
         &self,
@@ -94,6 +95,8 @@ impl PixelPass for ToyPass<'_> {
 impl PixelEstimator for Toy {
     type Work = Count;
     type Note = u32;
+    type Sums = CvSums;
+    const ADAPTS: bool = true;
     type Pass<'a> = ToyPass<'a>;
 
     fn pass<R>(&self, plan: &PassPlan, run: impl FnOnce(&ToyPass<'_>) -> R) -> R {
@@ -104,9 +107,20 @@ impl PixelEstimator for Toy {
     fn after_pilot(&mut self, notes: &[u32], _width: usize, _height: usize) {
         self.pilot_notes = Some(notes.to_vec());
     }
+
+    fn shares(
+        &self,
+        sums: &[CvSums],
+        costs: Option<&[f32]>,
+        width: usize,
+        height: usize,
+    ) -> Option<SampleShares> {
+        let plain = vec![[0.0; 3]; sums.len()];
+        Some(SampleShares::measure(sums, &plain, costs, width, height))
+    }
 }
 
-fn run(toy: &mut Toy, params: PassParams, threads: usize) -> PassRun<Count> {
+fn run(toy: &mut Toy, params: PassParams, threads: usize) -> PassRun<CvSums, Count> {
     run_passes(
         toy,
         W,
@@ -135,7 +149,7 @@ fn even_counts_take_one_pass() {
     assert_eq!((run.min_spp(), run.max_spp()), (8, 8));
     assert_eq!(run.samples(), (8 * W * H) as u64);
     assert_eq!(run.total.0, run.samples());
-    let (image, variance) = run.resolve(&vec![[0.0; 3]; W * H]);
+    let (image, variance) = resolve(&run.sums, &vec![[0.0; 3]; W * H]);
     assert!(image.iter().all(|p| *p == [0.5; 3]));
     assert!(variance.iter().all(|v| *v == [0.0; 3]));
     let plans = toy.plans.lock().unwrap();
