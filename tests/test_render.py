@@ -445,3 +445,26 @@ def test_stats_time_budget_and_progress(small_setups):
 def test_bad_arguments_name_themselves(small_setups, kwargs, exc, needle):
     with pytest.raises(exc, match=needle):
         vc.render(small_setups["cornell"], progress=False, **{"spp": 1, **kwargs})
+
+
+def test_the_registry_lists_every_method_and_refuses_what_a_method_ignores(small_setups):
+    table = {m["name"]: m for m in vc.methods()}
+    assert list(table) == ["env", "bsdf", "mis", "product", "cv", "path", "vpl", "vpl_sampled"]
+    assert table["cv"]["caches"] == ["VisibilityCache"]
+    assert all(not m["caches"] for name, m in table.items() if name != "cv")
+    assert (table["path"]["min_bounces"], table["path"]["default_bounces"]) == (1, 1)
+    assert table["vpl"]["estimator"] == "many_lights"
+    setup = small_setups["cornell"]
+    cache = vc.VisibilityCache(setup.scene, preset="low")
+    # A cache for a method that takes none; a parameter only other methods read.
+    with pytest.raises(ValueError, match=r'^cache: method "product" takes no cache'):
+        vc.render(setup, spp=1, method="product", cache=cache, progress=False)
+    with pytest.raises(ValueError, match=r'^alpha: method "mis".*methods that do: \["cv"\]'):
+        vc.render(setup, spp=1, method="mis", alpha=0.5, progress=False)
+    with pytest.raises(ValueError, match=r'^vpls: method "cv"'):
+        vc.render(setup, spp=1, method="cv", vpls=object(), progress=False)
+    with pytest.raises(TypeError, match="^cache"):
+        vc.render(setup, spp=1, method="cv", cache=object(), progress=False)
+    # Parameters at their defaults are not "given": any method accepts them.
+    r = vc.render(setup, spp=1, method="mis", alpha=1.0, product_level="auto", progress=False)
+    assert r.stats["method"] == "mis"

@@ -21,7 +21,7 @@ from ._core import (
 from .ambient import AOResult, render_ao
 from .cache import VisibilityCache
 from .relight import Relighter, RelightResult
-from .render import RenderResult, preview, render
+from .render import RenderResult, methods, preview, render
 
 __all__ = [
     "AOResult",
@@ -41,6 +41,7 @@ __all__ = [
     "analysis",
     "design",
     "envmaps",
+    "methods",
     "metrics",
     "mitsuba",
     "octahedral",

@@ -332,4 +332,13 @@ def preview(setup, cache, envmap=None, camera=None, product_level: int | str = "
     return view.render(cache, envmap, product_level=product_level, threads=threads, direct=True)
 
 
-__all__ = ["RenderResult", "preview", "render"]
+def methods() -> list[dict[str, Any]]:
+    """The method registry: one dict per ``render(method=...)`` name, in order, with
+    ``name``, ``about``, ``estimator`` ("direct" or "many_lights"), ``params`` (the keyword
+    parameters it reads beyond ``common``, which every method reads), ``caches`` (the cache
+    types ``cache=`` accepts), ``min_bounces`` and ``default_bounces``. A parameter set for
+    a method that does not read it raises ValueError naming it."""
+    return _core.methods()
+
+
+__all__ = ["RenderResult", "methods", "preview", "render"]

@@ -192,10 +192,16 @@ impl MethodSpec {
     /// (`cache_kind`).
     pub fn check_args(&self, given: &[&str], cache_kind: Option<CacheKind>) -> Result<()> {
         if let Some(bad) = given.iter().find(|p| !self.takes(p)) {
+            let takers: Vec<&str> = METHODS
+                .iter()
+                .filter(|m| m.params.contains(bad))
+                .map(|m| m.name)
+                .collect();
             return Err(Error::invalid(
                 *bad,
                 format!(
-                    "method {:?} does not take it; it takes {:?} besides {:?}",
+                    "method {:?} does not take it (methods that do: {takers:?}); it takes \
+                     {:?} besides {:?}",
                     self.name, self.params, COMMON_PARAMS
                 ),
             ));
@@ -272,6 +278,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("alpha") && e.contains("\"mis\"") && e.contains("gbuffer"));
+        assert!(e.contains("methods that do: [\"cv\"]"), "{e}");
         let e = mis
             .check_args(&[], Some(CacheKind::Visibility))
             .unwrap_err()
