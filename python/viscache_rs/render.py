@@ -186,10 +186,12 @@ def render(
     # The registry (Rust) says what each method reads: a parameter set for a method that
     # ignores it, or a cache it does not take, is an error naming it.
     given = {"product_level": product_level != "auto", "cache": cache is not None,
-             "preset": preset != "auto", "alpha": alpha != 1.0, "alpha_radius": alpha_radius != 4,
-             "insert_missing": bool(insert_missing), "technique_weights": technique_weights is not None,
-             "gbuffer": gbuffer is not None, "vpls": vpls is not None, "clamp": clamp is not None,
-             "vpl_samples": vpl_samples is not None, "light_samples": light_samples is not None,
+             "preset": preset != "auto", "alpha": alpha != 1.0,
+             "alpha_radius": alpha_radius != 4, "insert_missing": bool(insert_missing),
+             "technique_weights": technique_weights is not None,
+             "gbuffer": gbuffer is not None, "vpls": vpls is not None,
+             "clamp": clamp is not None, "vpl_samples": vpl_samples is not None,
+             "light_samples": light_samples is not None,
              "learn_techniques": not learn_techniques, "adaptive": bool(adaptive)}
     _core.check_method_args(method, [k for k, v in given.items() if v], cache)
     # Many-light methods over virtual point lights (viscache_rs.vpl).
