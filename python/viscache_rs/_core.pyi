@@ -400,8 +400,14 @@ def render(
     light_samples: int | None = None,
     learn_techniques: bool = True,
     adaptive: bool | None = None,
+    preset: str = "auto",
 ) -> dict[str, Any]: ...
 def methods() -> list[dict[str, Any]]: ...
+def own_cache_record_cap(pixels: int, spp: int, preset: str = "auto") -> int: ...
+
+OWN_CACHE_SAMPLES_PER_RECORD: int
+OWN_CACHE_BUDGET_SHARE: float
+
 def check_method_args(
     method: str, given: list[str], cache: VisibilityCache | None = None
 ) -> None: ...

@@ -102,8 +102,6 @@ and most. The result is bit-identical for any ``threads`` at a fixed seed (with
 
 from __future__ import annotations
 
-import math
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -111,25 +109,14 @@ import numpy as np
 
 from . import _core
 from ._progress import progress_bar
-from .cache import VisibilityCache
 
 _UNBOUNDED_SPP = 1 << 20
+# Method "cv" without a cache (the policy is Rust's, `render::own_cache`): the share of a
+# time budget its build may spend, and the render's samples per record it may hold.
+CACHE_BUDGET_SHARE: float = _core.OWN_CACHE_BUDGET_SHARE
+SAMPLES_PER_RECORD: int = _core.OWN_CACHE_SAMPLES_PER_RECORD
 # The registry's many-light methods, rendered by viscache_rs.vpl.
 _MANY_LIGHT_METHODS = tuple(m["name"] for m in _core.methods() if m["estimator"] == "many_lights")
-# Share of a time budget that method "cv" without a cache may spend building one.
-CACHE_BUDGET_SHARE = 0.25
-# Without a budget, method "cv" without a cache builds at most one record per this many of
-# the render's samples (pixels x spp), and at least the bootstrap's: a record traces about
-# 2,000 shadow rays, so the build spends at most ~5x the render's rays. Measured over the
-# suite at 10 spp (benches/HISTORY.md, "Is auto the best setting?"): uncapped, the build
-# took longer than the render on scales and meshes at 256x192 (0.71x and 0.74x product's
-# efficiency); one record per 400 samples keeps 0.9-1.0x of the uncapped cache's
-# efficiency where that one wins. From 40 spp on the share cap of the records (a tenth of
-# the view's pixels) is the lower one, so this changes only low-spp renders.
-SAMPLES_PER_RECORD = 400
-# The pilots that estimate a time budget's samples (`_samples_within`): spp and pixels.
-_PILOT_SPP = (8, 32)
-_PILOT_PIXELS = 1200
 
 
 @dataclass
@@ -206,41 +193,6 @@ def render(
     envmap = setup.envmap if envmap is None else envmap
     if spp is None:
         spp = _UNBOUNDED_SPP if time_budget is not None else 16
-    cache_stats: dict[str, Any] = {}
-    traced = False
-    if method == "cv" and cache is None:
-        # The control variate never reads R_i: skip its closest-hit rays. Under a time
-        # budget the build may spend a quarter of it and the render has what is left.
-        overrides: dict[str, Any] = {"nearest_hits": False}
-        t = time.perf_counter()
-        # One G-buffer for the build and the render's anchors: its rays count as the
-        # render's primary rays and its time as the cache's.
-        traced = gbuffer is None
-        if traced:
-            gbuffer = setup.scene.gbuffer(camera, jitter=False, threads=threads)
-        planned: int | None = spp if spp < _UNBOUNDED_SPP else None
-        if planned is None and time_budget is not None:
-            planned = _samples_within(setup, envmap, camera,
-                                      time_budget - (time.perf_counter() - t), seed, threads,
-                                      jitter)
-        if planned is not None:
-            overrides["max_records"] = record_cap(setup.scene, camera.width * camera.height,
-                                                  planned, preset)
-        cache = VisibilityCache(setup.scene, preset=preset, **overrides)
-        report = cache.build(seed=seed, threads=threads, progress=progress, gbuffer=gbuffer,
-                             time_budget=None if time_budget is None
-                             else CACHE_BUDGET_SHARE * time_budget,
-                             spp=planned)
-        built = time.perf_counter() - t
-        cache_stats = {"cache_seconds": built,
-                       "cache_records": report["records"],
-                       "cache_shadow_rays": report["shadow_rays"],
-                       "cache_incoherent": report["incoherent"],
-                       "cache_predicted_gain": report["predicted_gain"],
-                       "cache_blind": report["blind"],
-                       "cache_planned_spp": planned}
-        if time_budget is not None:
-            time_budget = max(time_budget - built, 1e-3)
     # The bar counts samples per pixel; without a cap (a time budget alone) its total is unknown.
     total = None if time_budget is not None and spp >= _UNBOUNDED_SPP else spp
     with progress_bar(progress, f"render ({method})", "spp", total=total,
@@ -268,11 +220,9 @@ def render(
             light_samples=light_samples,
             learn_techniques=learn_techniques,
             adaptive=adaptive,
+            preset=preset,
         )
     stats = out["stats"]
-    if traced:
-        stats["primary_rays"] += camera.width * camera.height
-    stats.update(cache_stats)
     return RenderResult(out["image"], out["variance"], stats, out["alpha"],
                         out["sample_counts"])
 
@@ -281,41 +231,9 @@ def record_cap(scene, pixels: int, spp: int, preset: str = "auto") -> int:
     """Records the cache ``render(method="cv")`` builds for itself may hold for ``pixels``
     pixels at ``spp``: one per ``SAMPLES_PER_RECORD`` samples, at least the bootstrap's,
     at most the preset's ``max_records`` (a checked build also stops at a tenth of the
-    covered pixels)."""
-    params = VisibilityCache(scene, preset=preset).params
-    return min(params["max_records"], max(params["n_startup"], pixels * spp // SAMPLES_PER_RECORD))
-
-
-def _samples_within(setup, envmap, camera, time_budget, seed, threads, jitter) -> int:
-    """Samples per pixel a product-sampling render of ``camera`` takes in the part of
-    ``time_budget`` the cache leaves. The coherence check weighs the records' cost against
-    the samples they will serve, which a budget alone does not say: without this it
-    assumed samples without end, and a 1 s render of hairball at 160x120 spent 0.9 s on
-    records it could not repay. A pixel costs ``a + b spp`` (its product, anchor and
-    camera ray are 10-20 samples' worth), so pilots at the two spp of ``_PILOT_SPP`` over
-    at most ``_PILOT_PIXELS`` (at most 1/16 of the view) give ``a`` and ``b``. At 160x120
-    and 1, 3 and 10 s on hairball, instances and strands the estimate was 0.8-1.3x the
-    samples product sampling reached in the same time, the pilots costing 12-38 ms."""
-    pixels = camera.width * camera.height
-    scale = math.sqrt(min(pixels / 16, _PILOT_PIXELS) / pixels)
-    pilot = camera.with_resolution(max(1, round(camera.width * scale)),
-                                   max(1, round(camera.height * scale)))
-    # A process's first render sets up what later ones reuse (tens of ms on hairball).
-    _core.render(setup.scene, envmap, camera.with_resolution(1, 1), 1, "product",
-                 threads=threads, jitter=jitter)
-    seconds = []
-    for pilot_spp in _PILOT_SPP:
-        t = time.perf_counter()
-        _core.render(setup.scene, envmap, pilot, pilot_spp, "product", seed=seed ^ 0x5A17,
-                     threads=threads, jitter=jitter)
-        seconds.append((time.perf_counter() - t) / (pilot.width * pilot.height))
-    (few, many), (t_few, t_many) = _PILOT_SPP, seconds
-    # A pixel's own work is at most ~3x its samples' at the larger pilot (12 samples'
-    # worth on hairball): the floor keeps a noisy difference from promising endless spp.
-    per_sample = max((t_many - t_few) / (many - few), 0.25 * t_many / many)
-    per_pixel = max(t_few - few * per_sample, 0.0)
-    left = (1.0 - CACHE_BUDGET_SHARE) * max(time_budget, 0.0) / pixels - per_pixel
-    return int(min(max(left / per_sample, 1), _UNBOUNDED_SPP - 1))
+    covered pixels). ``scene`` is not read (the cap depends on the preset alone)."""
+    del scene
+    return _core.own_cache_record_cap(pixels, spp, preset)
 
 
 def preview(setup, cache, envmap=None, camera=None, product_level: int | str = "auto",

@@ -20,6 +20,14 @@ pub fn triangle_cross(t: &[Vec3; 3]) -> Vec3 {
     (t[1] - t[0]).cross(t[2] - t[0])
 }
 
+/// The constant of relMSE's denominator `μ² + 10⁻²` (`viscache_rs.metrics`): keeps black
+/// pixels from dominating. Every weighting of a pixel "as it counts in relMSE" uses it.
+pub const RELMSE_FLOOR: f64 = 1e-2;
+
+/// Radius of the window of neighbours (the centre excluded) that measures a pixel's share
+/// of the samples and its mixture after an adaptive pilot: 5x5.
+pub const WINDOW_RADIUS: usize = 2;
+
 #[cfg(test)]
 mod tests {
     use super::*;

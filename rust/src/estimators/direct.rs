@@ -820,5 +820,9 @@ impl Lighting<'_> {
     }
 }
 
+pub mod anchored;
+pub mod light_split;
+pub mod mixture_choice;
+
 #[cfg(test)]
 mod tests;

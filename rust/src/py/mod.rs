@@ -38,6 +38,15 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(render::methods, m)?)?;
     m.add_function(wrap_pyfunction!(render::check_method_args, m)?)?;
+    m.add_function(wrap_pyfunction!(render::own_cache_record_cap, m)?)?;
+    m.add(
+        "OWN_CACHE_SAMPLES_PER_RECORD",
+        crate::render::own_cache::SAMPLES_PER_RECORD,
+    )?;
+    m.add(
+        "OWN_CACHE_BUDGET_SHARE",
+        crate::render::own_cache::CACHE_BUDGET_SHARE,
+    )?;
     m.add_class::<vpl::PyVpls>()?;
     m.add_function(wrap_pyfunction!(vpl::render_vpl, m)?)?;
     m.add_function(wrap_pyfunction!(ambient::render_ao, m)?)?;

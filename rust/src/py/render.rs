@@ -1,5 +1,5 @@
-//! `viscache_rs._core.render`: the renderer of [`crate::render`]. The Python wrapper
-//! (`viscache_rs.render`) adds the progress bar and builds a cache when asked to.
+//! `viscache_rs._core.render`: the renderer of [`crate::render`], and its method registry.
+//! The Python wrapper (`viscache_rs.render`) adds the progress bar.
 
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -20,6 +20,7 @@ use crate::estimators::direct::{Method, Techniques};
 use crate::estimators::indirect::MAX_BOUNCES;
 use crate::render::registry::{self, CacheKind, Estimator};
 use crate::render::{render as render_core, render_from, RenderParams, MAX_LIGHT_SAMPLES, MAX_SPP};
+use crate::visibility::params::CacheParams;
 
 /// `alpha`: a number, or "estimate" (neighbour pooling with `radius`).
 fn alpha_arg(alpha: Option<&Bound<'_, PyAny>>, radius: u32) -> PyResult<AlphaRule> {
@@ -84,10 +85,11 @@ fn techniques_arg(weights: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Techniq
 /// core, `time_budget` none, `product_level` "auto" (per material), `alpha` 1.0 (CAM08's),
 /// `technique_weights` the method's own, `bounces` 1 for method "path" and 0 otherwise.
 /// With `gbuffer` (traced through `camera`) its hits are the pixels' anchors. `adaptive`
-/// None: adaptive sample counts under a time budget only. Also returns `sample_counts`
-/// (H, W) uint32.
+/// None: adaptive sample counts under a time budget only. Method "cv" without `cache`
+/// builds one of `preset` for the view first (`crate::render::own_cache`; its figures are
+/// the stats' `cache_*`). Also returns `sample_counts` (H, W) uint32.
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None))]
+#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto"))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -113,6 +115,7 @@ pub fn render<'py>(
     light_samples: Option<&Bound<'py, PyAny>>,
     learn_techniques: bool,
     adaptive: Option<bool>,
+    preset: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
     let view = view_arg(Some(camera), gbuffer)?;
     let spec = registry::method(method).py()?;
@@ -155,6 +158,7 @@ pub fn render<'py>(
         learn_techniques,
         // Adaptive by default under a time budget: what the budget buys is least error.
         adaptive: adaptive.unwrap_or(time_budget.is_some()),
+        own_cache: CacheParams::preset(preset).py()?,
     };
     params.validate().py()?;
     let threads = threads_arg(threads)?;
@@ -269,6 +273,15 @@ pub fn render<'py>(
         )?;
         stats.set_item("inserted_records", s.inserted_records)?;
     }
+    if let Some(c) = &s.own_cache {
+        stats.set_item("cache_seconds", c.seconds)?;
+        stats.set_item("cache_records", c.records)?;
+        stats.set_item("cache_shadow_rays", c.shadow_rays)?;
+        stats.set_item("cache_incoherent", c.incoherent)?;
+        stats.set_item("cache_predicted_gain", c.predicted_gain)?;
+        stats.set_item("cache_blind", c.blind)?;
+        stats.set_item("cache_planned_spp", c.planned_spp)?;
+    }
     d.set_item("stats", stats)?;
     Ok(d)
 }
@@ -324,4 +337,14 @@ pub fn check_method_args(
         }
     };
     spec.check_args(&given, kind).py()
+}
+
+/// The most records the cache `render(method="cv")` builds for itself may hold for
+/// `pixels` pixels at `spp` samples per pixel with cache preset `preset`
+/// ([`crate::render::own_cache::record_cap`]).
+#[pyfunction]
+#[pyo3(signature = (pixels, spp, preset="auto"))]
+pub fn own_cache_record_cap(pixels: u64, spp: u64, preset: &str) -> PyResult<u32> {
+    let params = CacheParams::preset(preset).py()?;
+    Ok(crate::render::own_cache::record_cap(&params, pixels, spp))
 }

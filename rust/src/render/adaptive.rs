@@ -30,11 +30,8 @@
 //! - No pixel takes more than [`CAP_FACTOR`] times the mean.
 
 use super::sums::CvSums;
-use crate::estimators::direct::Techniques;
+use crate::math::{RELMSE_FLOOR, WINDOW_RADIUS};
 
-/// The constant of relMSE's denominator `μ² + 10⁻²` (`viscache_rs.metrics`): keeps black
-/// pixels from dominating.
-pub const RELMSE_FLOOR: f64 = 1e-2;
 /// Share of the samples the pilot pass spreads evenly before the shares are measured.
 /// Measured on the suite (160x120, 100 spp on average): a quarter keeps every scene at
 /// or above equal counts; an eighth lost 3-30% on room and garage, whose light the pilot
@@ -42,8 +39,6 @@ pub const RELMSE_FLOOR: f64 = 1e-2;
 pub const PILOT_SHARE: f64 = 0.25;
 /// Below this many samples per pixel on average, every pixel takes the same.
 pub const MIN_ADAPTIVE_SPP: u32 = 8;
-/// Radius of the window whose pixels (the centre excluded) measure a pixel's share.
-pub const WINDOW_RADIUS: usize = 2;
 /// Fraction of the image's mean relative variance added to every pixel's.
 pub const DEFENSIVE: f64 = 0.05;
 /// Least predicted gain ([`SampleShares::gain`]) for which the shares are kept: below,
@@ -263,162 +258,6 @@ impl SampleShares {
     }
 }
 
-/// The mixtures a pixel of method "product" may take after the pilot
-/// ([`PixelTechniques`]), besides the image's own (learnt from the probe, or given):
-/// from mostly the product to mostly BSDF sampling, two with more of the map's own
-/// distribution and three without it (where the map's peak is mostly hidden, as under
-/// panels, its draws are wasted). BSDF sampling keeps 0.05 at least, so that every one is
-/// unbiased at any hit.
-pub const CANDIDATES: [Techniques; 10] = [
-    Techniques::new(0.9, 0.0, 0.05, 0.05),
-    Techniques::new(0.7, 0.0, 0.2, 0.1),
-    Techniques::new(0.5, 0.0, 0.45, 0.05),
-    Techniques::new(0.3, 0.0, 0.6, 0.1),
-    Techniques::new(0.1, 0.0, 0.8, 0.1),
-    Techniques::new(0.5, 0.0, 0.2, 0.3),
-    Techniques::new(0.3, 0.0, 0.35, 0.35),
-    Techniques::new(0.8, 0.0, 0.2, 0.0),
-    Techniques::new(0.5, 0.0, 0.5, 0.0),
-    Techniques::new(0.2, 0.0, 0.8, 0.0),
-];
-/// The image's mixture and the [`CANDIDATES`].
-pub const CHOICES: usize = CANDIDATES.len() + 1;
-
-/// The mixtures a pixel may take after the pilot, the image's first, with each one's
-/// technique probabilities where a product can draw: made once per pass, read at every
-/// draw of the pilot ([`DrawMoments::add`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Choices {
-    options: [Techniques; CHOICES],
-    probabilities: [[f64; 4]; CHOICES],
-}
-
-impl Choices {
-    /// The image's mixture `image` and the [`CANDIDATES`].
-    pub fn new(image: Techniques) -> Self {
-        let mut options = [image; CHOICES];
-        options[1..].copy_from_slice(&CANDIDATES);
-        Self::of(options)
-    }
-
-    /// Every option with `share` of its product weight kept
-    /// ([`Techniques::with_product_share`]): the mixtures a glossy hit's diffuse product
-    /// is drawn with.
-    pub fn with_product_share(&self, share: f32) -> Self {
-        Self::of(self.options.map(|t| t.with_product_share(share)))
-    }
-
-    fn of(options: [Techniques; CHOICES]) -> Self {
-        Self {
-            options,
-            probabilities: options.map(|t| t.probabilities(true, false, true)),
-        }
-    }
-}
-/// Fewest draws a window must hold for its pixel to leave the image's mixture.
-pub const MIN_WINDOW_DRAWS: u32 = 64;
-
-/// The pilot's draws at one pixel, as the second moment each of [`CHOICES`] would give:
-/// a draw of value `f` (luminance of `f cos L V`), drawn with density `p₀`, where the
-/// techniques' own densities are `p_t`, adds `f² / (q_k p₀)` with `q_k = Σ c_kt p_t`, an
-/// unbiased estimate of mixture `k`'s `∫ f² / q_k` ([`crate::estimators::direct::Techniques::learnt`]'s
-/// objective, per pixel).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct DrawMoments {
-    sums: [f64; CHOICES],
-    draws: u32,
-}
-
-impl DrawMoments {
-    /// Adds one draw, of value `value` drawn with density `pdf`, where the techniques'
-    /// own densities are `pdfs`.
-    #[inline]
-    pub fn add(&mut self, choices: &Choices, value: f64, pdfs: [f64; 4], pdf: f64) {
-        self.draws += 1;
-        if !(value > 0.0 && pdf > 0.0) {
-            return;
-        }
-        for (sum, c) in self.sums.iter_mut().zip(&choices.probabilities) {
-            let q: f64 = c.iter().zip(&pdfs).map(|(c, p)| c * p).sum();
-            *sum += if q > 0.0 {
-                value * value / (q * pdf)
-            } else {
-                f64::INFINITY
-            };
-        }
-    }
-
-    /// Draws added.
-    pub fn draws(&self) -> u32 {
-        self.draws
-    }
-}
-
-/// Each pixel's mixture after the pilot: the choice of least second moment over the
-/// draws of its window, the pixel excluded (unbiased for the reason the shares are), or
-/// the image's where the window held fewer than [`MIN_WINDOW_DRAWS`] draws that saw light.
-/// Each neighbour counts by its moments relative to the image mixture's, so that a
-/// sunlit neighbour does not choose for a pixel in shadow (on panels, by absolute
-/// moments most of the shadowed ground kept the product-heavy mixture the sunlit
-/// ground wants).
-#[derive(Clone, Debug, PartialEq)]
-pub struct PixelTechniques {
-    options: [Techniques; CHOICES],
-    choice: Vec<u8>,
-}
-
-impl PixelTechniques {
-    /// Choices among `choices` from the pilot's `moments` of a `width x height` image
-    /// (row-major).
-    pub fn measure(
-        moments: &[DrawMoments],
-        choices: &Choices,
-        width: usize,
-        height: usize,
-    ) -> Self {
-        debug_assert_eq!(moments.len(), width * height);
-        let options = choices.options;
-        let choice = (0..moments.len())
-            .map(|i| {
-                let (x, y, r) = (i % width, i / width, WINDOW_RADIUS);
-                let (mut sums, mut draws) = ([0.0f64; CHOICES], 0u32);
-                for yy in y.saturating_sub(r)..(y + r + 1).min(height) {
-                    for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
-                        let m = &moments[yy * width + xx];
-                        if (xx, yy) != (x, y) && m.sums[0] > 0.0 {
-                            draws += m.draws;
-                            for (s, v) in sums.iter_mut().zip(&m.sums) {
-                                *s += v / m.sums[0];
-                            }
-                        }
-                    }
-                }
-                if draws < MIN_WINDOW_DRAWS {
-                    return 0;
-                }
-                // The first of the least (the image's on ties).
-                (0..CHOICES).fold(0, |best, k| if sums[k] < sums[best] { k } else { best }) as u8
-            })
-            .collect();
-        Self { options, choice }
-    }
-
-    /// Pixel `i`'s mixture.
-    #[inline]
-    pub fn get(&self, i: usize) -> &Techniques {
-        &self.options[self.choice[i] as usize]
-    }
-
-    /// How many pixels took each choice (the image's mixture first).
-    pub fn counts(&self) -> [u64; CHOICES] {
-        let mut counts = [0u64; CHOICES];
-        for &c in &self.choice {
-            counts[c as usize] += 1;
-        }
-        counts
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -517,59 +356,6 @@ mod tests {
                 }
             }
         }
-    }
-
-    #[test]
-    fn pixels_take_the_mixture_of_least_second_moment_over_their_neighbours_draws() {
-        let image = Techniques::PRODUCT;
-        let choices = Choices::new(image);
-        let q = |t: &Techniques, p: [f64; 4]| -> f64 {
-            let c = t.probabilities(true, false, true);
-            c.iter().zip(&p).map(|(c, p)| c * p).sum()
-        };
-        // One draw: f² / (q_k p₀) for every choice, p₀ the image mixture's density.
-        let pdfs = [0.2, 0.0, 3.0, 0.5];
-        let mut m = DrawMoments::default();
-        m.add(&choices, 2.0, pdfs, q(&image, pdfs));
-        m.add(&choices, 0.0, pdfs, q(&image, pdfs));
-        assert_eq!(m.draws(), 2);
-        for k in 0..CHOICES {
-            let t = if k == 0 { image } else { CANDIDATES[k - 1] };
-            let expected = 4.0 / (q(&t, pdfs) * q(&image, pdfs));
-            assert!((m.sums[k] - expected).abs() <= 1e-12 * expected);
-        }
-        // Left columns: light where BSDF sampling goes and the product does not; right
-        // columns: where the product goes. 8 draws per pixel.
-        let (w, h) = (8, 5);
-        let bsdf_light = [0.01, 0.0, 2.0, 0.1];
-        let product_light = [4.0, 0.0, 0.3, 0.1];
-        let moments: Vec<DrawMoments> = (0..w * h)
-            .map(|i| {
-                let p = if i % w < 4 { bsdf_light } else { product_light };
-                let mut m = DrawMoments::default();
-                for _ in 0..8 {
-                    m.add(&choices, 1.0, p, q(&image, p));
-                }
-                m
-            })
-            .collect();
-        let chosen = PixelTechniques::measure(&moments, &choices, w, h);
-        let bsdf_heaviest =
-            CANDIDATES
-                .iter()
-                .fold(CANDIDATES[0], |a, b| if b.bsdf > a.bsdf { *b } else { a });
-        assert_eq!(*chosen.get(2 * w), bsdf_heaviest);
-        assert_eq!(chosen.get(2 * w + 7).product, 0.9);
-        assert_eq!(chosen.counts().iter().sum::<u64>(), (w * h) as u64);
-        // A pixel's own draws do not count: the same choices with pixel 2w's replaced.
-        let mut changed = moments.clone();
-        changed[2 * w] = moments[2 * w + 7];
-        let again = PixelTechniques::measure(&changed, &choices, w, h);
-        assert_eq!(again.get(2 * w), chosen.get(2 * w));
-        // Too few draws in a window: the image's mixture.
-        let sparse = vec![moments[0]; w * h];
-        let few = PixelTechniques::measure(&sparse[..4], &choices, 2, 2);
-        assert!((0..4).all(|i| *few.get(i) == image));
     }
 
     #[test]

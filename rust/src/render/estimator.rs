@@ -15,7 +15,7 @@ pub struct PassPlan {
     /// Passes made before this one.
     pub index: u32,
     /// The first pass of a budgeted render: a few samples in every
-    /// [`super::schedule::PassSchedule`] stride of bands, whose timing sizes the passes that
+    /// pass-schedule stride of bands, whose timing sizes the passes that
     /// follow. A method may measure what it wants to learn here.
     pub probe: bool,
     /// The pilot of adaptive counts: the pixel notes ([`PixelEstimator::Note`]) of this pass

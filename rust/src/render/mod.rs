@@ -11,7 +11,7 @@
 //! anchor once per pixel and pass: the product distribution (B~ and the product pyramid), the cache lookup and `J`,
 //! as in CAM08. By default (`jitter`) every sample then traces its own primary ray
 //! through a random point of the pixel (antialiasing, box filter; the pixel's rays go as
-//! packets of [`PACKET`] from the eye, [`crate::geometry::Bvh::intersect_packet`]) and
+//! packets of [`crate::geometry::bvh::PACKET`] from the eye, [`crate::geometry::Bvh::intersect_packet`]) and
 //! shades its own hit
 //! with the anchor's work: the environment is drawn from the one-sample mixture of the
 //! anchor's product, BSDF sampling at the sample's hit and the map's own distribution
@@ -32,7 +32,7 @@
 //! directions drawn, so each sample's estimate is unbiased given its hit, while a product
 //! or a `g` that does not describe the hit adds no noise. With one anchor per pixel, a pixel in an odd
 //! column shares its left neighbour's cache lookup when the two anchors nearly coincide
-//! ([`Shader::shared_lookup`]): any `Ṽ` keeps the control variate unbiased, and the lookup
+//! ([`crate::estimators::direct::anchored::AnchoredShader`]): any `Ṽ` keeps the control variate unbiased, and the lookup
 //! is a third of what the control variate adds per pixel.
 //!
 //! ## Indirect light
@@ -49,7 +49,7 @@
 //! are spread over the image, so costs that differ between sky and geometry average out),
 //! and the main pass brings every pixel to the most samples that fit 95% of the budget
 //! left; another pass follows only when a whole sample per pixel still fits
-//! ([`PassSchedule`]). The anchors' work is redone each pass from the G-buffer's hits (it
+//! (the pass schedule). The anchors' work is redone each pass from the G-buffer's hits (it
 //! is not kept: a product distribution is kilobytes), hence so few passes. Every pixel ends with the same number
 //! of samples but the probe's, which may have up to four more.
 //! With [`RenderParams::adaptive`] the main pass is a pilot of a quarter of its samples,
@@ -63,7 +63,7 @@
 //!
 //! ## Samples
 //! Sample `s` of pixel `i` draws every random number from `(seed, i, s, dimension)`
-//! through [`PixelSampler`]: Owen-scrambled Sobol points, so the samples of a pixel are
+//! through [`crate::sampling::sobol::PixelSampler`]: Owen-scrambled Sobol points, so the samples of a pixel are
 //! stratified over the pixel and over the environment's 2D sample together, and each is
 //! uniform (unbiased). `variance` is the sample variance of the mean, which overestimates
 //! the error of stratified samples (conservative).
@@ -80,6 +80,8 @@ use std::time::Instant;
 use crate::camera::{Camera, GBuffer};
 use crate::error::{Error, Result};
 use crate::estimators::control_variate::AlphaRule;
+use crate::estimators::direct::anchored::AnchoredParams;
+use crate::estimators::direct::light_split;
 use crate::estimators::direct::{Lighting, Method, ProductLevel, Techniques};
 use crate::estimators::indirect::MAX_BOUNCES;
 use crate::estimators::normal_products::NormalProducts;
@@ -89,15 +91,16 @@ use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
 use crate::visibility::cache::interpolant::ALPHA_MAX;
 use crate::visibility::cache::VisibilityCache;
+use crate::visibility::params::CacheParams;
 
 pub mod adaptive;
 pub mod estimator;
 pub mod frame;
+pub mod own_cache;
 pub mod passes;
 pub mod registry;
 pub(crate) mod schedule;
 mod shade;
-pub mod split;
 pub mod sums;
 
 use frame::Frame;
@@ -107,7 +110,7 @@ use shade::DirectMethod;
 /// Most samples per pixel a render takes.
 pub const MAX_SPP: u32 = 1 << 20;
 
-/// Least edge share ([`split::edge_share`]) of a view whose jittered product sampling
+/// Least edge share ([`light_split::edge_share`]) of a view whose jittered product sampling
 /// (or control variate without records) takes [`ProductLevel::CoarseDiffuse`] when the
 /// level is left to the materials. Measured
 /// at 1 s on the suite, 160x120, 16² cells on Lambert surfaces against 32² (relMSE ratio,
@@ -152,14 +155,14 @@ pub struct RenderParams {
     pub direct: bool,
     /// Light draws per sample in the product methods, `1..=MAX_LIGHT_SAMPLES`: each
     /// sample's hit averages this many draws of the mixture (and of each area light), each
-    /// with its shadow ray, from a stream of its own ([`PixelSampler::light_draw`]). More
+    /// with its shadow ray, from a stream of its own ([`crate::sampling::sobol::PixelSampler::light_draw`]). More
     /// than one pays where shadow rays are cheap beside the rest of a sample and the
     /// light's noise outweighs the pixel's.
     pub light_samples: u32,
     /// Method "product" under a time budget: the passes after the probe use the mixture
     /// weights learnt from the probe's draws ([`Techniques::learnt`]) instead of the given
     /// ones; with [`Self::adaptive`] counts, every pixel then takes the mixture its
-    /// neighbours' pilot draws favour ([`adaptive::PixelTechniques`]).
+    /// neighbours' pilot draws favour ([`crate::estimators::direct::mixture_choice::PixelTechniques`]).
     pub learn_techniques: bool,
     /// Samples go where they cut the image's relMSE most ([`adaptive`]): a pilot pass
     /// takes a quarter of them evenly, the rest follow each pixel's share measured from
@@ -168,11 +171,14 @@ pub struct RenderParams {
     /// take them evenly.
     pub adaptive: bool,
     /// The product methods under a time budget: the light draws per sample are chosen from
-    /// the anchors and the probe pass ([`split`]: up to [`split::SPLIT_DRAWS`] where the
+    /// the anchors and the probe pass ([`light_split`]: up to [`light_split::SPLIT_DRAWS`] where the
     /// view is mostly smooth surfaces, as many as the probe measures best; one where
     /// jittered hits leave their anchor's surface) instead of [`Self::light_samples`],
     /// which must then be 1.
     pub auto_light_samples: bool,
+    /// Method "cv" given no cache: the parameters of the cache the render builds for its
+    /// view first ([`own_cache`]).
+    pub own_cache: CacheParams,
 }
 
 /// Most light draws per sample ([`RenderParams::light_samples`]).
@@ -197,6 +203,7 @@ impl RenderParams {
         learn_techniques: true,
         adaptive: false,
         auto_light_samples: false,
+        own_cache: CacheParams::AUTO,
     };
 
     /// The defaults with another method and sample count.
@@ -229,7 +236,19 @@ impl RenderParams {
     /// Whether the product's cells (and, for "cv", lookup and `J`) shade anything: not
     /// when only the indirect part is rendered.
     pub fn uses_product(&self) -> bool {
-        self.direct && matches!(self.method, Method::Product | Method::ControlVariate)
+        self.anchored().uses_product()
+    }
+
+    /// What the samples read of these parameters.
+    pub fn anchored(&self) -> AnchoredParams {
+        AnchoredParams {
+            method: self.method,
+            seed: self.seed,
+            jitter: self.jitter,
+            direct: self.direct,
+            bounces: self.bounces,
+            insert_missing: self.insert_missing,
+        }
     }
 
     /// Whether pixels need anchors (a G-buffer through their centres): always without
@@ -333,23 +352,23 @@ pub struct RenderStats {
     /// ([`adaptive::SampleShares::gain`]; below [`adaptive::MIN_GAIN`] the counts stayed
     /// even), when [`RenderParams::adaptive`] made a pilot.
     pub adaptive_gain: Option<f64>,
-    /// How many pixels took each mixture after the pilot ([`adaptive::PixelTechniques`]:
-    /// the image's first, then [`adaptive::CANDIDATES`]).
-    pub pixel_techniques: Option<[u64; adaptive::CHOICES]>,
+    /// How many pixels took each mixture after the pilot ([`crate::estimators::direct::mixture_choice::PixelTechniques`]:
+    /// the image's first, then [`crate::estimators::direct::mixture_choice::CANDIDATES`]).
+    pub pixel_techniques: Option<[u64; crate::estimators::direct::mixture_choice::CHOICES]>,
     /// Light draws per sample the render took ([`RenderParams::light_samples`], or the
     /// count chosen by [`RenderParams::auto_light_samples`]).
     pub light_samples: u32,
-    /// The view's edge share ([`split::edge_share`]), when the render chose its light
+    /// The view's edge share ([`light_split::edge_share`]), when the render chose its light
     /// draws from it.
     pub edge_share: Option<f64>,
     /// Lambert surfaces drew from products one level coarser
     /// ([`ProductLevel::CoarseDiffuse`], chosen by [`COARSE_EDGE_SHARE`]).
     pub coarse_products: bool,
     /// What the probe measured when the view split and the probe could tell: the ratios
-    /// whose [`split::ProbeRatios::draws`] is the light draws per sample it found best,
+    /// whose [`light_split::ProbeRatios::draws`] is the light draws per sample it found best,
     /// before rounding and capping (cost measured in time, variance a fixed function of
     /// the seed).
-    pub probe_ratios: Option<split::ProbeRatios>,
+    pub probe_ratios: Option<light_split::ProbeRatios>,
     /// Samples every pixel received (the least, with adaptive counts).
     pub spp: u32,
     /// Passes made.
@@ -402,6 +421,8 @@ pub struct RenderStats {
     pub inserted_records: u64,
     /// Mean `α` over the pixels, per channel.
     pub mean_alpha: [f64; 3],
+    /// Method "cv" given no cache: the cache the render built ([`own_cache`]).
+    pub own_cache: Option<own_cache::OwnCacheStats>,
 }
 
 /// A rendered image.
@@ -422,9 +443,10 @@ pub struct Rendered {
 
 /// Renders `camera`'s view of `scene` lit by `env` and the scene's area lights.
 ///
-/// [`Method::ControlVariate`] needs `cache` (records of this scene); its miss counts are
+/// [`Method::ControlVariate`] reads `cache` (records of this scene); its miss counts are
 /// reported to the cache afterwards (`record_misses`), and with `insert_missing` the
-/// points that found no record are given one. `progress(done, planned)` (pixel samples)
+/// points that found no record are given one. Without a cache it builds one for the view
+/// first ([`own_cache`], [`RenderParams::own_cache`]). `progress(done, planned)` (pixel samples)
 /// is called on the calling thread about every 0.1 s and after each pass; returning
 /// `false` stops. Work runs on `threads` workers (`None`: all cores). When the pixels
 /// need anchors ([`RenderParams::needs_anchors`]) their G-buffer is traced first, once;
@@ -438,6 +460,10 @@ pub fn render(
     threads: Option<usize>,
     progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
 ) -> Result<Rendered> {
+    if params.method == Method::ControlVariate && cache.is_none() {
+        let build = own_cache::render_with_own_cache;
+        return build(scene, env, camera, None, params, threads, progress);
+    }
     render_with(scene, env, camera, None, params, cache, threads, progress)
 }
 
@@ -458,6 +484,10 @@ pub fn render_from(
 ) -> Result<Rendered> {
     gbuffer.check(scene, None)?;
     let camera = &gbuffer.camera;
+    if params.method == Method::ControlVariate && cache.is_none() {
+        let build = own_cache::render_with_own_cache;
+        return build(scene, env, camera, Some(gbuffer), params, threads, progress);
+    }
     render_with(
         scene,
         env,
@@ -524,7 +554,7 @@ fn render_with(
         params.auto_light_samples && params.time_budget.is_some() && params.uses_product();
     let view_edge_share = anchors
         .filter(|_| chooses_level || chooses_draws)
-        .map(|g| split::edge_share(g, scene));
+        .map(|g| light_split::edge_share(g, scene));
     if chooses_level && view_edge_share.is_some_and(|share| share >= COARSE_EDGE_SHARE) {
         lighting.product_level = ProductLevel::CoarseDiffuse;
     }
@@ -538,7 +568,7 @@ fn render_with(
         })?;
     }
     let edge_share = view_edge_share.filter(|_| chooses_draws);
-    let light_samples = edge_share.map_or(params.light_samples, split::draws_for);
+    let light_samples = edge_share.map_or(params.light_samples, light_split::draws_for);
     let mut method = DirectMethod {
         lighting,
         camera,

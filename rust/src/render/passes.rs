@@ -8,10 +8,10 @@
 //!
 //! ## Passes
 //! Without a time budget the render is one pass of `spp` samples per pixel. With one, a
-//! probe pass takes [`PassSchedule::PROBE_SPP`] samples in every
-//! [`PassSchedule::PROBE_STRIDE`]-th band of pixels; from its timing the driver models a
+//! probe pass takes `PassSchedule::PROBE_SPP` (4) samples in every
+//! `PassSchedule::PROBE_STRIDE`-th (8th) band of pixels; from its timing the driver models a
 //! pixel's cost as its set-up plus a cost per sample, and the main pass brings every pixel
-//! to the most samples that fit the budget left ([`PassSchedule`]); another follows only
+//! to the most samples that fit the budget left (the pass schedule); another follows only
 //! when a whole sample per pixel still fits. With adaptive counts the main pass is a pilot
 //! of a quarter of its samples, after which each pixel takes a share of the rest measured
 //! from its neighbours' samples ([`super::adaptive`]); without a budget the same two passes spend

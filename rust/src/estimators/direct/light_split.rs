@@ -1,5 +1,5 @@
 //! Light draws per sample chosen from the anchors (splitting,
-//! [`super::RenderParams::auto_light_samples`]).
+//! the renderer's `RenderParams::auto_light_samples`).
 //!
 //! A sample's value is what its jittered primary ray decides (the hit) plus the noise of
 //! its light draws about it. Where a pixel's rays all land on its anchor's surface, the
