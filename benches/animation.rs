@@ -8,10 +8,10 @@ use std::time::Duration;
 
 use _core::camera::Camera;
 use _core::geometry::{Bvh, BvhUpdate, Scene, TraversalCounters};
+use _core::math::{to_world, uniform_hemisphere};
 use _core::parallel::with_threads;
 use _core::sampling::rng::SampleRng;
 use _core::scenes::{self, Animation};
-use _core::testing::{to_world, uniform_hemisphere};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3A;
 

@@ -15,6 +15,8 @@ pub mod camera;
 pub mod error;
 pub mod estimators;
 pub mod files;
+#[cfg(test)]
+mod floors;
 pub mod geometry;
 pub mod image;
 pub mod lights;

@@ -1,6 +1,8 @@
 //! Small formulas shared by geometry, lights, materials and estimators, kept here so that
 //! those modules need not import each other for them.
 
+use std::f32::consts::TAU;
+
 use glam::Vec3;
 
 /// Rec. 709 / sRGB luminance weights of linear R, G, B (they sum to 1).
@@ -27,6 +29,32 @@ pub const RELMSE_FLOOR: f64 = 1e-2;
 /// Radius of the window of neighbours (the centre excluded) that measures a pixel's share
 /// of the samples and its mixture after an adaptive pilot: 5x5.
 pub const WINDOW_RADIUS: usize = 2;
+
+/// A unit vector uniform on the hemisphere around +z for `u` in [0,1)^2 (z = u0).
+pub fn uniform_hemisphere(u: [f32; 2]) -> Vec3 {
+    let z = u[0];
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = TAU * u[1];
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// An orthonormal basis `(t, b)` completing unit `n` (Duff et al. 2017, "Building an
+/// Orthonormal Basis, Revisited").
+pub fn orthonormal_basis(n: Vec3) -> (Vec3, Vec3) {
+    let sign = 1f32.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    (
+        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
+        Vec3::new(b, sign + n.y * n.y * a, -n.y),
+    )
+}
+
+/// Maps a local direction (z along `n`) into world space.
+pub fn to_world(local: Vec3, n: Vec3) -> Vec3 {
+    let (t, b) = orthonormal_basis(n);
+    t * local.x + b * local.y + n * local.z
+}
 
 #[cfg(test)]
 mod tests {

@@ -57,8 +57,8 @@ pub fn level() -> SimdLevel {
 /// Whether [`level`] has been detected as [`SimdLevel::Avx512`]: one load, for kernels that
 /// take a straight-line AVX-512 path before anything else (false before the first
 /// [`level`] call, which such kernels' fallbacks make). Only for checks on paths of a few
-/// nanoseconds, where [`has`]'s detection branch would cost (the xor-popcount of 32² maps,
-/// the least-by-rank choice of candidates); elsewhere use [`has`] or [`dispatch`].
+/// nanoseconds, where [`has`]'s detection branch would cost (the xor-popcount of 32² maps;
+/// [`dispatch_avx512_detected`]); elsewhere use [`dispatch`] or [`dispatch_avx512`].
 #[inline]
 pub fn is_avx512() -> bool {
     LEVEL.load(std::sync::atomic::Ordering::Relaxed) == SimdLevel::Avx512 as u8
@@ -143,6 +143,32 @@ pub fn dispatch<K: Kernel>(kernel: K) -> K::Output {
         // SAFETY: the CPU has AVX2.
         SimdLevel::Avx2 => return unsafe { run_avx2(kernel) },
         _ => {}
+    }
+    kernel.run(Portable)
+}
+
+/// Runs `kernel` compiled for AVX-512 on a CPU with it ([`has`]), else its portable body
+/// inlined where this is called, as the base target compiles it: for kernels with an
+/// AVX-512 form and a portable one only, on CPUs without AVX-512 the same code as a call of
+/// the portable form ([`dispatch`] would compile that body for AVX2 on CPUs with AVX2).
+#[inline(always)]
+pub fn dispatch_avx512<K: Kernel>(kernel: K) -> K::Output {
+    #[cfg(target_arch = "x86_64")]
+    if has(SimdLevel::Avx512) {
+        // SAFETY: the CPU has AVX-512 F and VL.
+        return unsafe { run_avx512(kernel) };
+    }
+    kernel.run(Portable)
+}
+
+/// [`dispatch_avx512`] by the one-load check [`is_avx512`] (so the portable body until the
+/// level is first detected): for kernels on paths of a few nanoseconds.
+#[inline(always)]
+pub fn dispatch_avx512_detected<K: Kernel>(kernel: K) -> K::Output {
+    #[cfg(target_arch = "x86_64")]
+    if is_avx512() {
+        // SAFETY: the CPU has AVX-512 F and VL.
+        return unsafe { run_avx512(kernel) };
     }
     kernel.run(Portable)
 }

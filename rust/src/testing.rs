@@ -2,40 +2,12 @@
 //! tests, so every comparison traces exactly the same rays. All of them are pure functions
 //! of their seed.
 
-use std::f32::consts::TAU;
-
 use glam::Vec3;
 
 use crate::bsdf::Material;
 use crate::geometry::Scene;
-use crate::math::triangle_cross;
+use crate::math::{to_world, triangle_cross, uniform_hemisphere};
 use crate::sampling::rng::SampleRng;
-
-/// A unit vector uniform on the hemisphere around +z for `u` in [0,1)^2 (z = u0).
-pub fn uniform_hemisphere(u: [f32; 2]) -> Vec3 {
-    let z = u[0];
-    let r = (1.0 - z * z).max(0.0).sqrt();
-    let phi = TAU * u[1];
-    Vec3::new(r * phi.cos(), r * phi.sin(), z)
-}
-
-/// An orthonormal basis `(t, b)` completing unit `n` (Duff et al. 2017, "Building an
-/// Orthonormal Basis, Revisited").
-pub fn orthonormal_basis(n: Vec3) -> (Vec3, Vec3) {
-    let sign = 1f32.copysign(n.z);
-    let a = -1.0 / (sign + n.z);
-    let b = n.x * n.y * a;
-    (
-        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
-        Vec3::new(b, sign + n.y * n.y * a, -n.y),
-    )
-}
-
-/// Maps a local direction (z along `n`) into world space.
-pub fn to_world(local: Vec3, n: Vec3) -> Vec3 {
-    let (t, b) = orthonormal_basis(n);
-    t * local.x + b * local.y + n * local.z
-}
 
 /// `n` points uniformly distributed by area over the triangles of the objects whose name
 /// contains `object_name` (all triangles when none match or `None`), with unit normals
@@ -260,6 +232,7 @@ pub fn furnace_sphere(subdivisions: u32, material: Material) -> Scene {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::orthonormal_basis;
 
     #[test]
     fn basis_is_orthonormal_everywhere() {

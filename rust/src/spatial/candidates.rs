@@ -35,9 +35,10 @@ impl Candidates {
             return;
         }
         #[cfg(target_arch = "x86_64")]
-        if count <= 32 && crate::simd::is_avx512() {
-            // SAFETY: the CPU has AVX-512 F; `m < count <= 32`.
-            if let Some(mut least) = unsafe { least_by_rank_avx512(&self.key, m) } {
+        if count <= 32 {
+            let keys = &self.key;
+            if let Some(mut least) = crate::simd::dispatch_avx512_detected(LeastByRank { keys, m })
+            {
                 while least != 0 {
                     let i = least.trailing_zeros() as usize;
                     least &= least - 1;
@@ -62,6 +63,31 @@ impl Candidates {
     }
 }
 
+/// [`least_by_rank_avx512`] as a [`Kernel`](crate::simd::Kernel) (`m < keys.len() <= 32`):
+/// `None` without AVX-512. The AVX-512 form is never inlined into the dispatcher's
+/// function, whose feature set differs (AVX-512 VL): it stays compiled exactly for its own
+/// set.
+#[cfg(target_arch = "x86_64")]
+struct LeastByRank<'a> {
+    keys: &'a [u64],
+    m: usize,
+}
+
+#[cfg(target_arch = "x86_64")]
+impl crate::simd::Kernel for LeastByRank<'_> {
+    type Output = Option<u32>;
+
+    #[inline(always)]
+    fn run<L: crate::simd::Level>(self, _level: L) -> Option<u32> {
+        match L::LEVEL {
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here AVX-512 F; `m < keys.len() <= 32`.
+            crate::simd::SimdLevel::Avx512 => unsafe { least_by_rank_avx512(self.keys, self.m) },
+            _ => None,
+        }
+    }
+}
+
 /// Bit `i` set for the `m` least of `keys` (`m < keys.len() <= 32`), by ranks counted
 /// sixteen lanes at a time on the upper halves of the keys (the squared distances' bits).
 /// Records at equal distances rank alike there, so when they straddle the m-th place the
@@ -71,6 +97,7 @@ impl Candidates {
 /// The CPU must have AVX-512 F.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
+#[inline(never)]
 unsafe fn least_by_rank_avx512(keys: &[u64], m: usize) -> Option<u32> {
     use std::arch::x86_64::*;
     let count = keys.len();

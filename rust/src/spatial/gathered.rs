@@ -5,6 +5,8 @@
 
 use glam::Vec3;
 
+use crate::simd::{Kernel, Level, SimdLevel};
+
 /// A record as the index holds it: position, unit normal, id.
 pub(super) type Entry = (Vec3, Vec3, u32);
 
@@ -129,12 +131,14 @@ impl GatheredSites {
     /// and `n · (p_i − x)` as glam computes them, so every form (and a range query at `x`)
     /// decides and scores alike.
     pub(super) fn filter(&self, x: Vec3, n: Vec3, r2: f32, cos_lo: f32, out: &mut Passed) {
-        #[cfg(target_arch = "x86_64")]
-        if crate::simd::has(crate::simd::SimdLevel::Avx512) {
-            // SAFETY: the CPU has AVX-512 F, detected by `crate::simd`.
-            return unsafe { self.filter_avx512(x, n, r2, cos_lo, out) };
-        }
-        self.filter_portable(x, n, r2, cos_lo, out);
+        crate::simd::dispatch_avx512(FilterKernel {
+            sites: self,
+            x,
+            n,
+            r2,
+            cos_lo,
+            out,
+        });
     }
 
     /// [`Self::filter`] one record at a time (branches: on scenes where nearly every
@@ -162,6 +166,7 @@ impl GatheredSites {
     /// is microcoded and slow on some CPUs), the end advancing by the mask's popcount.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
+    #[inline(never)]
     pub(super) fn filter_avx512(&self, x: Vec3, n: Vec3, r2: f32, cos_lo: f32, out: &mut Passed) {
         use std::arch::x86_64::*;
         let padded = self.x.len();
@@ -294,6 +299,41 @@ unsafe fn store_compressed(to: *mut f32, keep: u16, v: std::arch::x86_64::__m512
     use std::arch::x86_64::*;
     // SAFETY: the caller's.
     unsafe { _mm512_storeu_ps(to, _mm512_maskz_compress_ps(keep, v)) }
+}
+
+/// [`GatheredSites::filter`] as a [`Kernel`]: its AVX-512 form, else the portable one. The
+/// AVX-512 form is never inlined into the dispatcher's function, whose feature set differs
+/// (AVX-512 VL): it stays compiled exactly for its own set.
+struct FilterKernel<'a> {
+    sites: &'a GatheredSites,
+    x: Vec3,
+    n: Vec3,
+    r2: f32,
+    cos_lo: f32,
+    out: &'a mut Passed,
+}
+
+impl Kernel for FilterKernel<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<L: Level>(self, _level: L) {
+        let Self {
+            sites,
+            x,
+            n,
+            r2,
+            cos_lo,
+            out,
+        } = self;
+        match L::LEVEL {
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here AVX-512 F.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => unsafe { sites.filter_avx512(x, n, r2, cos_lo, out) },
+            _ => sites.filter_portable(x, n, r2, cos_lo, out),
+        }
+    }
 }
 
 /// What [`GatheredSites::filter`] lets through: gathered indices with their squared

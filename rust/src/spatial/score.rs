@@ -66,6 +66,32 @@ impl Kernel for ScoreKernel<'_> {
 /// Lanes of [`Hits`]: `m <= MAX_NEAREST`, scored 16 at a time.
 pub(crate) const HIT_LANES: usize = MAX_NEAREST;
 
+/// [`Hits::heaviest`] of up to 16 records as a [`Kernel`]: its AVX-512 form, else the
+/// portable one. The AVX-512 form is never inlined into the dispatcher's function, whose
+/// feature set differs (AVX-512 VL): it stays compiled exactly for its own set.
+#[cfg(target_arch = "x86_64")]
+struct HeaviestKernel<'a> {
+    hits: &'a Hits,
+    keep: usize,
+    order: &'a mut [usize; MAX_KEEP],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Kernel for HeaviestKernel<'_> {
+    type Output = (usize, f32);
+
+    #[inline(always)]
+    fn run<L: Level>(self, _level: L) -> (usize, f32) {
+        let Self { hits, keep, order } = self;
+        match L::LEVEL {
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here AVX-512 F.
+            SimdLevel::Avx512 => unsafe { hits.heaviest_avx512(keep, order) },
+            _ => hits.heaviest_portable(keep, order),
+        }
+    }
+}
+
 impl Default for Hits {
     fn default() -> Self {
         // Lanes past `len` keep finite values: scoring runs over whole groups of 16.
@@ -96,9 +122,12 @@ impl Hits {
     /// weight (+0 when none is positive).
     pub(crate) fn heaviest(&self, keep: usize, order: &mut [usize; MAX_KEEP]) -> (usize, f32) {
         #[cfg(target_arch = "x86_64")]
-        if self.len <= 16 && crate::simd::has(crate::simd::SimdLevel::Avx512) {
-            // SAFETY: the CPU has AVX-512 F, detected by `crate::simd`.
-            return unsafe { self.heaviest_avx512(keep, order) };
+        if self.len <= 16 {
+            return crate::simd::dispatch_avx512(HeaviestKernel {
+                hits: self,
+                keep,
+                order,
+            });
         }
         self.heaviest_portable(keep, order)
     }
@@ -138,6 +167,7 @@ impl Hits {
     /// among equal ones) leaving the mask.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
+    #[inline(never)]
     fn heaviest_avx512(&self, keep: usize, order: &mut [usize; MAX_KEEP]) -> (usize, f32) {
         use std::arch::x86_64::*;
         debug_assert!(self.len <= 16);

@@ -15,6 +15,8 @@
 
 use glam::Vec3;
 
+use crate::simd::{Kernel, Level, SimdLevel};
+
 #[cfg(target_arch = "x86_64")]
 use super::gathered::offsets_avx512;
 use super::gathered::{Entry, GatheredSites};
@@ -244,6 +246,32 @@ impl SiteTree {
     }
 }
 
+/// [`Leaf::append_within`] as a [`Kernel`]: its AVX-512 form, else the portable one. The
+/// AVX-512 form is never inlined into the dispatcher's function, whose feature set differs
+/// (AVX-512 VL): it stays compiled exactly for its own set.
+struct AppendWithinKernel<'a> {
+    leaf: &'a Leaf,
+    x: Vec3,
+    r2: f32,
+    out: &'a mut GatheredSites,
+}
+
+impl Kernel for AppendWithinKernel<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<L: Level>(self, _level: L) {
+        let Self { leaf, x, r2, out } = self;
+        match L::LEVEL {
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here AVX-512 F.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => unsafe { leaf.append_within_avx512(x, r2, out) },
+            _ => leaf.append_within_portable(x, r2, out),
+        }
+    }
+}
+
 /// Working space of [`SiteTree::within`].
 #[derive(Clone, Debug, Default)]
 pub(super) struct QueryScratch {
@@ -269,12 +297,12 @@ impl Leaf {
     /// Appends to `out` the records with `|p − x|² <= r2`, in lane order.
     #[inline]
     fn append_within(&self, x: Vec3, r2: f32, out: &mut GatheredSites) {
-        #[cfg(target_arch = "x86_64")]
-        if crate::simd::has(crate::simd::SimdLevel::Avx512) {
-            // SAFETY: the CPU has AVX-512 F, detected by `crate::simd`.
-            return unsafe { self.append_within_avx512(x, r2, out) };
-        }
-        self.append_within_portable(x, r2, out);
+        crate::simd::dispatch_avx512(AppendWithinKernel {
+            leaf: self,
+            x,
+            r2,
+            out,
+        });
     }
 
     fn append_within_portable(&self, x: Vec3, r2: f32, out: &mut GatheredSites) {
@@ -291,6 +319,7 @@ impl Leaf {
     /// appended whole, without a branch per record.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
+    #[inline(never)]
     fn append_within_avx512(&self, x: Vec3, r2: f32, out: &mut GatheredSites) {
         use std::arch::x86_64::*;
         let q = [x.x, x.y, x.z].map(|v| _mm512_set1_ps(v));

@@ -329,8 +329,8 @@ fn objects_apart_groups(mesh: &Mesh) -> Option<Vec<std::ops::Range<usize>>> {
 /// mesh. Of the samplings tried on the suite (by area or by triangle, either side or the
 /// upper one), this one's work ratios came closest to the measured speed ratios.
 pub(super) fn probe_rays(mesh: &Mesh, n: usize) -> Vec<(Vec3A, Vec3A)> {
+    use crate::math::{to_world, uniform_hemisphere};
     use crate::sampling::rng::SampleRng;
-    use crate::testing::{to_world, uniform_hemisphere};
     let mut total = 0.0f64;
     let cdf: Vec<f64> = mesh
         .triangles

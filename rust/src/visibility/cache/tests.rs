@@ -7,10 +7,11 @@ use std::sync::Arc;
 
 use super::*;
 use crate::camera::{Camera, GBuffer};
+use crate::math::to_world;
 use crate::sampling::octahedral::morton_decode;
 use crate::sampling::rng::{hash4, to_unit_f32};
 use crate::scenes;
-use crate::testing::{synthetic_record, to_world};
+use crate::testing::synthetic_record;
 
 fn unit(seed: u64, k: u64) -> f32 {
     to_unit_f32(hash4(seed, k, 0, 7))
@@ -135,7 +136,7 @@ fn lookups_equal_a_linear_scan_of_eq9_with_the_geometric_term() {
     for id in [0usize, 17, 1234] {
         let h = s.store().header(id);
         queries.push((h.position(), h.normal(), 0.1));
-        let (t, _) = crate::testing::orthonormal_basis(h.normal());
+        let (t, _) = crate::math::orthonormal_basis(h.normal());
         let just_under = Quat::from_axis_angle(t, 29.9f32.to_radians()) * h.normal();
         queries.push((h.position(), just_under, 0.1));
     }

@@ -4,11 +4,12 @@
 //! open (empty scene) and closed (inside the Cornell box) records, bad arguments.
 
 use super::*;
+use crate::math::to_world;
 use crate::sampling::octahedral::{morton_decode, texel_of};
 use crate::sampling::pattern::{default_pattern, MAX_LOG2_RESOLUTION, MIN_LOG2_RESOLUTION};
 use crate::sampling::rng::{hash4, SampleRng};
 use crate::scenes;
-use crate::testing::{surface_points, to_world};
+use crate::testing::surface_points;
 
 /// The record rebuilt ray by ray with `occluded1` / `intersect1`: (bits, A, R_i, shadow rays).
 fn naive(scene: &Scene, p: Vec3, n: Vec3, pattern: &[Vec3]) -> (Vec<bool>, f64, f32, u32) {
