@@ -409,8 +409,16 @@ def test_cache_with_other_methods_is_refused(garage):
         _render(setup, "product", 1, seed=0, cache=cache)
     with pytest.raises(TypeError, match="cache"):
         vc._core.render(setup.scene, setup.envmap, setup.camera, 1, "cv", cache=setup.scene)
-    with pytest.raises(ValueError, match="cache"):
-        vc._core.render(setup.scene, setup.envmap, setup.camera, 1, "cv")
+    with pytest.raises(ValueError, match="^cache: method \"product\" takes no cache"):
+        vc._core.render(setup.scene, setup.envmap, setup.camera, 1, "product", cache=cache)
+    # Without a cache the core builds one for the view (render::own_cache), as vc.render
+    # does: a Rust caller gets the same render.
+    small = setup.camera.with_resolution(32, 24)
+    own = vc._core.render(setup.scene, setup.envmap, small, 4, "cv", jitter=False)
+    same = vc.render(setup, camera=small, spp=4, method="cv", jitter=False, progress=False)
+    assert own["stats"]["cache_planned_spp"] == same.stats["cache_planned_spp"] == 4
+    assert own["stats"]["cache_records"] == same.stats["cache_records"]
+    np.testing.assert_array_equal(own["image"], same.image)
 
 
 def test_scenes_without_drops_objects_and_names_unknown_ones():

@@ -163,6 +163,8 @@ pub fn render<'py>(
     params.validate().py()?;
     let threads = threads_arg(threads)?;
     let scene = scene.get();
+    spec.check_args(&[], cache.as_ref().map(|_| CacheKind::Visibility))
+        .py()?;
     let cache = cache.map(|c| c.bound(py)).transpose()?;
     let env: Py<PyEnvMap> = envmap.unbind();
     let mut reporter = PyProgress::new(callback);
