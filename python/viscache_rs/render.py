@@ -172,7 +172,8 @@ def render(
                         f"{type(gbuffer).__name__}")
     # The registry (Rust) says what each method reads: a parameter set for a method that
     # ignores it, or a cache it does not take, is an error naming it.
-    given = {"product_level": product_level != "auto", "cache": cache is not None,
+    # (A cache is checked by its type, against the caches the method accepts.)
+    given = {"product_level": product_level != "auto",
              "preset": preset != "auto", "alpha": alpha != 1.0,
              "alpha_radius": alpha_radius != 4, "insert_missing": bool(insert_missing),
              "technique_weights": technique_weights is not None,
