@@ -95,6 +95,7 @@ pub mod estimator;
 pub mod frame;
 pub mod passes;
 pub mod registry;
+pub mod relight;
 pub(crate) mod schedule;
 mod shade;
 pub mod split;
