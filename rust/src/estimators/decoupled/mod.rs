@@ -61,17 +61,17 @@
 //! relight`, 2026-11-26, seventh session).
 //!
 //! ## Stored samples as `LBV`-samples
-//! A stored `V`-sample is a draw of the density it was converged under with its `V`
-//! known. Redrawn (the same numbers give the same direction or point), it is an
-//! `LBV`-sample of the lighting now at no ray's cost: `LB'V/p₁`, unbiased wherever `p₁`
-//! covers `LB'`. [`RelightParams::reuse`] adds them to the unbiased part by the balance
-//! heuristic (Veach 1997, §9.2) with the `n₂ = lbv_spp` draws of the current density
-//! `p₂`: weights `w₁ = n₁p₁ / (n₁p₁ + n₂p₂)` and `w₂ = 1 − w₁`, so that where no stored
-//! sample lands (`p₁ = 0`, or `LB = 0` then, where no bit was kept) the new draws carry the
-//! integral alone, and where both densities agree the stored ones carry most of it. The
-//! two weighted means add up to `∫ LB'V` for any fixed weights summing to one, so `n₂` is
-//! the nominal `lbv_spp` however many `LBV`-samples the passes take. An area light is sampled by area whatever its
-//! radiance or the materials, so its stored draws land where they did (`p₁ = p₂`); the
+//! A stored `V`-sample is a draw of the density it was converged under with its `V` known.
+//! Redrawn (the same numbers give the same direction or point), it is an `LBV`-sample of
+//! the lighting now at no ray's cost: `LB'V/p₁`, unbiased wherever `p₁` covers `LB'`.
+//! [`RelightParams::reuse`] adds them to the unbiased part by the balance heuristic (Veach
+//! 1997, §9.2) with the `n₂ = lbv_spp` draws of the current density `p₂`: weights `w₁ =
+//! n₁p₁ / (n₁p₁ + n₂p₂)` and `w₂ = 1 − w₁`, so that where no stored sample lands (`p₁ = 0`,
+//! or `LB = 0` then, where no bit was kept) the new draws carry the integral alone, and
+//! where both densities agree the stored ones carry most of it. The two weighted means add
+//! up to `∫ LB'V` for any fixed weights summing to one, so `n₂` is the nominal `lbv_spp`
+//! however many `LBV`-samples the passes take. An area light is sampled by area whatever
+//! its radiance or the materials, so its stored draws land where they did (`p₁ = p₂`); the
 //! map's are reused after an edit that changes its density, when they are redrawn for
 //! reweighting anyway. The area lights' redraws cost what an `LBV`-sample costs less its
 //! shadow ray, and the map's product draws more than that; what they buy at threshold 0
@@ -101,10 +101,10 @@
 //! (how many `LBV`-samples each takes, a time budget, adaptive counts, progress, Ctrl-C)
 //! are the pass layer's, on the render floor (`render::relight`).
 //! [`Relighter::relight_with`] checks a render's inputs and lends what its pixels read
-//! ([`RelightPass`]);
-//! [`RelightPass::gather`] adds a pixel's samples to its [`RelightSums`] (the first visit
-//! also sets `⟨V⟩` and takes the `LB`-samples), [`RelightPass::lbv_variance`] gives what
-//! adaptive counts weigh, and [`RelightPass::resolve`] makes the images.
+//! ([`RelightPass`]); [`RelightPass::gather`] adds a pixel's samples to its
+//! [`RelightSums`] (the first visit also sets `⟨V⟩` and takes the `LB`-samples),
+//! [`RelightPass::lbv_variance`] gives what adaptive counts weigh, and
+//! [`RelightPass::resolve`] makes the images.
 //!
 //! ## Determinism
 //! Every random number is a pure function of `(seed, pixel, stream, sample, dimension)`;

@@ -457,8 +457,8 @@ impl RelightPass<'_> {
 
     /// What a pixel's share of further `LBV`-samples is measured from: per channel, the
     /// variance of one `LBV`-sample of its blend, `Σ_l (1 − t_l)² Var(LBV_l/p)` over the
-    /// lights, and the blend's estimate ([`Self::finish`]). `None` where the pixel sees no
-    /// surface or a light has fewer than two `LBV`-samples.
+    /// lights, and the blend's estimate (its pixel of [`Self::resolve`]'s image). `None`
+    /// where the pixel sees no surface or a light has fewer than two `LBV`-samples.
     pub fn lbv_variance(&self, sums: &RelightSums) -> Option<([f64; 3], [f64; 3])> {
         let lights = &sums.lights;
         if !sums.seen.surface || lights.iter().any(|s| s.lbv[0].count < 2) {
