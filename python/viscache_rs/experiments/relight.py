@@ -196,14 +196,17 @@ def run(ctx: ExperimentContext) -> None:
         # Overhead: the first frame (Var(LB/p) from 64 LB-samples) against a product render
         # of as many shadow rays per pixel, and the later frames per LBV-sample against a
         # product render of as many samples.
-        first = pixels.render(envmap=env, lb_spp=64, lbv_spp=8, seed=ctx.seed + 5)
-        first = first.stats["first_pass_seconds"]
+        first_frame = pixels.render(envmap=env, lb_spp=64, lbv_spp=8, seed=ctx.seed + 5)
+        first = first_frame.stats["first_pass_seconds"]
         blend = pixels.render(envmap=env, lb_spp=64, lbv_spp=8, seed=ctx.seed + 5,
                               time_budget=first + EQUAL_TIME_SECONDS[ctx.quick])
         same_rays = vc.render(setup, cam, spp=8, method="product", jitter=False, envmap=env,
                               seed=ctx.seed + 6, threads=threads, progress=False)
+        # The budgeted render's passes are the driver's (a probe, then passes sized by it):
+        # what it took beyond the first frame's 8 LBV-samples, against what it spent beyond
+        # the first frame's seconds.
         later_spp = round(blend.stats["lbv_spp_mean"]) - 8
-        later = (blend.stats["seconds"] - blend.stats["first_pass_seconds"]) / max(later_spp, 1)
+        later = ((blend.stats["seconds"] - first_frame.stats["seconds"]) / max(later_spp, 1))
         same_later = vc.render(setup, cam, spp=max(later_spp, 1), method="product",
                                jitter=False, envmap=env, seed=ctx.seed + 6, threads=threads,
                                progress=False)

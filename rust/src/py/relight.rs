@@ -1,5 +1,5 @@
 //! `viscache_rs._core.Relighter`: SBF's relighting with decoupled visibility
-//! ([`crate::estimators::decoupled`]). The Python wrapper (`viscache_rs.Relighter`) traces
+//! ([`crate::estimators::decoupled`], its passes [`crate::render::relight`]). The Python wrapper (`viscache_rs.Relighter`) traces
 //! the G-buffer and keeps the setup and cache.
 
 use std::sync::Mutex;
@@ -22,6 +22,7 @@ use crate::bsdf::Material;
 use crate::estimators::decoupled::{
     RelightParams, Relighter, VisibilitySource, MAX_RELIGHT_SPP, MAX_VISIBILITY_SPP,
 };
+use crate::render::relight::relight;
 
 /// Relighting with decoupled visibility (SBF) at the hits of a G-buffer:
 /// `Relighter(scene, gbuffer, visibility="pixels" | "cache")`.
@@ -230,7 +231,8 @@ impl PyRelighter {
         let mut progress = |done: u64, total: u64| reporter.report(done, total);
         let out = detach_interruptible(py, &stop, || {
             let inner = self.lock();
-            inner.render(
+            relight(
+                &inner,
                 &scene,
                 env,
                 &overrides,

@@ -52,7 +52,8 @@ pub trait PixelPass: Sync {
     /// A pixel's accumulator ([`super::sums::CvSums`] for most methods).
     type Sums: PixelSums;
 
-    /// Draws samples `samples` of `pixel` (row-major index) into `acc`, in sample order.
+    /// Draws samples `samples` of `pixel` (row-major index) into `acc`, in sample order
+    /// (none when the pixel is due at its target: [`PixelSums::due`]).
     /// Every random number must come from `(seed, pixel, sample, dimension)`, never from
     /// `work`'s state, so that the image does not depend on which worker shades the pixel.
     /// `note` is the pixel's, kept across passes.

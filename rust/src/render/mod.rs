@@ -99,6 +99,7 @@ pub mod frame;
 pub mod own_cache;
 pub mod passes;
 pub mod registry;
+pub mod relight;
 pub(crate) mod schedule;
 mod shade;
 pub mod sums;

@@ -295,20 +295,24 @@ pub fn run_passes<E: PixelEstimator>(
                                     break;
                                 }
                                 let target = targets.of(first + i);
-                                if acc.samples() < target {
-                                    let added = target - acc.samples();
+                                if acc.due(target) {
+                                    let from = acc.samples();
+                                    let added = target.saturating_sub(from);
                                     tally.samples += added as u64;
                                     tally.anchored_pixels += 1;
                                     let timing = shader.shade_pixel(
                                         first + i,
-                                        acc.samples()..target,
+                                        from..from + added,
                                         acc,
                                         &mut work,
                                         &mut state.note,
                                     );
                                     tally.anchor_ns += timing.anchor_ns;
                                     tally.sample_ns += timing.sample_ns;
-                                    state.ns_per_sample = timing.sample_ns as f32 / added as f32;
+                                    if added > 0 {
+                                        state.ns_per_sample =
+                                            timing.sample_ns as f32 / added as f32;
+                                    }
                                 }
                             }
                             done.fetch_add(tally.samples, Ordering::Relaxed);

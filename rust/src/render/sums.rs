@@ -12,6 +12,15 @@ use crate::visibility::cache::interpolant::ALPHA_MAX;
 pub trait PixelSums: Default + Clone + Send + Sync {
     /// Samples added so far.
     fn samples(&self) -> u32;
+
+    /// Whether a pass that brings the pixel to `target` samples shades it: when it has
+    /// fewer, by default. A method whose pixels have work to do once, before and apart
+    /// from their samples (the relighter's first visit: what the pixel sees, its `⟨V⟩` and
+    /// `LB`-samples), says yes at the target too until that is done; the pass then shades
+    /// the pixel with no sample.
+    fn due(&self, target: u32) -> bool {
+        self.samples() < target
+    }
 }
 
 impl PixelSums for CvSums {

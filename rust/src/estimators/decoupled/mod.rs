@@ -61,17 +61,17 @@
 //! relight`, 2026-11-26, seventh session).
 //!
 //! ## Stored samples as `LBV`-samples
-//! A stored `V`-sample is a draw of the density it was converged under with its `V`
-//! known. Redrawn (the same numbers give the same direction or point), it is an
-//! `LBV`-sample of the lighting now at no ray's cost: `LB'V/p₁`, unbiased wherever `p₁`
-//! covers `LB'`. [`RelightParams::reuse`] adds them to the unbiased part by the balance
-//! heuristic (Veach 1997, §9.2) with the `n₂ = lbv_spp` draws of the current density
-//! `p₂`: weights `w₁ = n₁p₁ / (n₁p₁ + n₂p₂)` and `w₂ = 1 − w₁`, so that where no stored
-//! sample lands (`p₁ = 0`, or `LB = 0` then, where no bit was kept) the new draws carry the
-//! integral alone, and where both densities agree the stored ones carry most of it. The
-//! two weighted means add up to `∫ LB'V` for any fixed weights summing to one, so later
-//! passes keep the first pass's `n₂`. An area light is sampled by area whatever its
-//! radiance or the materials, so its stored draws land where they did (`p₁ = p₂`); the
+//! A stored `V`-sample is a draw of the density it was converged under with its `V` known.
+//! Redrawn (the same numbers give the same direction or point), it is an `LBV`-sample of
+//! the lighting now at no ray's cost: `LB'V/p₁`, unbiased wherever `p₁` covers `LB'`.
+//! [`RelightParams::reuse`] adds them to the unbiased part by the balance heuristic (Veach
+//! 1997, §9.2) with the `n₂ = lbv_spp` draws of the current density `p₂`: weights `w₁ =
+//! n₁p₁ / (n₁p₁ + n₂p₂)` and `w₂ = 1 − w₁`, so that where no stored sample lands (`p₁ = 0`,
+//! or `LB = 0` then, where no bit was kept) the new draws carry the integral alone, and
+//! where both densities agree the stored ones carry most of it. The two weighted means add
+//! up to `∫ LB'V` for any fixed weights summing to one, so `n₂` is the nominal `lbv_spp`
+//! however many `LBV`-samples the passes take. An area light is sampled by area whatever
+//! its radiance or the materials, so its stored draws land where they did (`p₁ = p₂`); the
 //! map's are reused after an edit that changes its density, when they are redrawn for
 //! reweighting anyway. The area lights' redraws cost what an `LBV`-sample costs less its
 //! shadow ray, and the map's product draws more than that; what they buy at threshold 0
@@ -96,13 +96,23 @@
 //! after map edits (0.46-0.73x); given 0.5 s, garage 0.45-0.57x and meshes 0.06x (cache);
 //! one run of each.
 //!
+//! ## Passes
+//! This module holds the maths per pixel and light; a render's passes over the pixels
+//! (how many `LBV`-samples each takes, a time budget, adaptive counts, progress, Ctrl-C)
+//! are the pass layer's, on the render floor (`render::relight`).
+//! [`Relighter::relight_with`] checks a render's inputs and lends what its pixels read
+//! ([`RelightPass`]); [`RelightPass::gather`] adds a pixel's samples to its
+//! [`RelightSums`] (the first visit also sets `⟨V⟩` and takes the `LB`-samples),
+//! [`RelightPass::lbv_variance`] gives what adaptive counts weigh, and
+//! [`RelightPass::resolve`] makes the images.
+//!
 //! ## Determinism
 //! Every random number is a pure function of `(seed, pixel, stream, sample, dimension)`;
 //! pixels are independent and their statistics accumulate in sample order, so results
 //! are bit-identical for any thread count.
 //!
-//! Files: `bound.rs` (the error bound and the blend factor, eq. 7-11), `pass.rs` (one pass
-//! of [`Relighter::render`]), `blend.rs` (the least-error share beyond eq. 11),
+//! Files: `bound.rs` (the error bound and the blend factor, eq. 7-11), `pass.rs` (a
+//! pixel's samples and blend, eq. 9-11), `blend.rs` (the least-error share beyond eq. 11),
 //! `cached.rs` (area lights' `⟨V⟩` from a cache), `reuse.rs` (stored samples reused).
 
 mod blend;
@@ -131,11 +141,8 @@ use crate::geometry::{Scene, SurfaceHit, TraversalCounters};
 use crate::lights::envmap::product::ProductDistribution;
 use crate::lights::envmap::EnvMap;
 use crate::lights::AreaLight;
-use crate::math::RELMSE_FLOOR;
 use crate::moments::Moments;
 use crate::parallel::run_with_progress;
-use crate::render::adaptive::{sample_cap, SampleShares};
-use crate::render::schedule::{PassSchedule, PassWork as ScheduleWork};
 use crate::sampling::octahedral::{sphere_to_square, texel_of};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
@@ -143,9 +150,8 @@ use crate::visibility::cache::interpolant::Interpolant;
 use crate::visibility::cache::{CacheState, VisibilityCache};
 use blend::least_error_t;
 use cached::cached_area_visibility;
-use pass::{
-    reused_product, LastProduct, LastProducts, LightSums, PassWork, PixelSeen, RelightPass,
-};
+use pass::{reused_product, LastProduct, LightSums};
+pub use pass::{GatherTiming, GatherWork, RelightPass, RelightSums};
 use reuse::{converged_lights, reused_area, reweighted, ReuseWeights, StoredDensity};
 
 /// Most `V`-samples per pixel and light [`Relighter::converge_visibility`] takes (its
@@ -163,7 +169,10 @@ pub const REWEIGHT_SPP: u32 = 224;
 /// `V`-samples per pixel and light of one pass of [`Relighter::converge_visibility`].
 pub const VISIBILITY_PASS_SPP: u32 = 16;
 
-/// Most `LB`- or `LBV`-samples per pixel and light of one [`Relighter::render`].
+/// Most `LB`- or `LBV`-samples per pixel and light a relighting render is asked for
+/// ([`RelightParams::lb_spp`], [`RelightParams::lbv_spp`]); under a time budget, the most
+/// `LBV`-samples its even passes take (adaptive counts may give a pixel up to 16 times
+/// the mean of a pass).
 pub const MAX_RELIGHT_SPP: u32 = 1 << 16;
 
 /// Standard errors of `⟨V⟩` (or record spreads, in cache mode) added to the bound (module
@@ -180,7 +189,7 @@ const STREAM_V_CACHE: u64 = 4 << 32;
 /// emitters (no ray: a bit lookup each per record).
 pub const CACHED_AREA_DRAWS: u32 = 16;
 
-/// Where [`Relighter::render`] takes `⟨V⟩` from (module docs).
+/// Where a relighting render takes `⟨V⟩` from (module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum VisibilitySource {
     /// `V`-samples traced at the pixels by [`Relighter::converge_visibility`].
@@ -189,13 +198,16 @@ pub enum VisibilitySource {
     Cache,
 }
 
-/// Parameters of [`Relighter::render`].
+/// Parameters of a relighting render ([`Relighter::relight_with`]; its passes are the
+/// render floor's `render::relight`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RelightParams {
     /// `LB`-samples per pixel and light (no rays).
     pub lb_spp: u32,
     /// `LBV`-samples per pixel and light (one shadow ray each); 0 leaves the unbiased part
-    /// out (`t = 1`).
+    /// out (`t = 1`). Under a [`Self::time_budget`] the passes take as many as fit (at
+    /// least one per pixel), and this is the nominal `n₂` of the reused samples' MIS
+    /// weights (module docs, "Stored samples as `LBV`-samples").
     pub lbv_spp: u32,
     /// `Err_relThres` of SBF eq. 11: the largest relative error wanted (`≥ 0`; 0 gives
     /// the unbiased estimator alone).
@@ -206,12 +218,17 @@ pub struct RelightParams {
     pub seed: u64,
     /// Octahedral level of the map's product cells.
     pub product_level: ProductLevel,
-    /// Seconds after which no further pass of `LBV`-samples starts (`None`: the first pass
-    /// alone); see [`Relighter::render`].
+    /// Seconds (from the render's start) after which no further pass of `LBV`-samples
+    /// starts; `None`: one pass of [`Self::lbv_spp`]. With a budget (and `lbv_spp > 0`) a
+    /// probe pass of a few `LBV`-samples in every eighth band of pixels times them, and
+    /// passes sized by that timing bring every pixel to as many as fit (the pass layer's
+    /// schedule; every pixel visited, at least one `LBV`-sample each).
     pub time_budget: Option<f64>,
-    /// Whether the passes after the first give each pixel the `LBV`-samples that cut the
-    /// image's relMSE most (SBF §4.1's adaptive sampling; see [`Relighter::render`]) rather
-    /// than the same to every pixel.
+    /// Under a [`Self::time_budget`], whether the pass after the probe is a pilot of a
+    /// quarter of its samples after which each pixel takes the share of the rest that cuts
+    /// the image's relMSE most for its cost (SBF §4.1's adaptive sampling: `√(v/c)`, `v`
+    /// the relative variance per `LBV`-sample of its blend, `c` its cost), rather than the
+    /// same to every pixel. Without a budget it changes nothing.
     pub adaptive: bool,
     /// Whether `t` is also capped by the least-error share (module docs, "The blend beyond
     /// eq. 11"); `false` gives SBF's eq. 11 alone, so that a large `threshold` and a small
@@ -415,7 +432,7 @@ impl Converged {
     }
 }
 
-/// What [`Relighter::render`] returns: images per pixel (row-major) and per pixel and
+/// What a relighting render returns: images per pixel (row-major) and per pixel and
 /// light.
 #[derive(Clone, Debug, Default)]
 pub struct Relit {
@@ -444,20 +461,21 @@ pub struct Relit {
     pub lights: usize,
     /// Shadow rays traced (`LBV`-samples).
     pub shadow_rays: u64,
-    /// `LB`-samples of the first pass not drawn, summed over pixels and lights: where they
-    /// would change nothing, at a light without `⟨V⟩` or whose `⟨V⟩` is exactly 0 with a
-    /// bound of 0 (`LightSums::lb_changes_nothing`).
+    /// `LB`-samples of the pixels' first visits not drawn, summed over pixels and lights:
+    /// where they would change nothing, at a light without `⟨V⟩` or whose `⟨V⟩` is exactly
+    /// 0 with a bound of 0 (`LightSums::lb_changes_nothing`).
     pub lb_skipped: u64,
-    /// The most `LBV`-samples a pixel took per light: [`RelightParams::lbv_spp`], or more
-    /// under a time budget.
+    /// The most `LBV`-samples a pixel took per light: [`RelightParams::lbv_spp`], or as
+    /// the passes of a time budget gave them.
     pub lbv_spp: u32,
     /// `LBV`-samples per light, on average over the pixels that see a surface.
     pub lbv_spp_mean: f64,
     /// `LBV`-samples per light each pixel took (row-major; 0 where it sees no surface).
     pub lbv_counts: Vec<u32>,
-    /// Passes over the pixels (1 without a time budget).
+    /// Passes over the pixels (1 without a time budget; with one, the probe included).
     pub passes: u32,
-    /// Wall-clock seconds of the first pass (the `LB`-samples and `⟨V⟩`).
+    /// Wall-clock seconds of the first pass: without a time budget the only one (every
+    /// pixel's `LB`-samples, `⟨V⟩` and `LBV`-samples); with one, the probe.
     pub first_pass_seconds: f64,
     /// Wall-clock seconds.
     pub seconds: f64,
@@ -660,33 +678,17 @@ impl Relighter {
         Ok((taken, rays))
     }
 
-    /// Relights the view under `env`, the scene's area lights as they are now, and the
-    /// scene's materials with `overrides` (object id, material) applied: per pixel and
-    /// light, `LB`- and `LBV`-samples under the current densities, `⟨V⟩` from the source,
-    /// and SBF's blend (module docs). `cache` is needed for [`VisibilitySource::Cache`]
-    /// (records of this scene); [`VisibilitySource::Pixels`] needs a converged visibility.
-    ///
-    /// The first pass takes `lb_spp` `LB`- and `lbv_spp` `LBV`-samples per pixel and light.
-    /// With [`RelightParams::time_budget`], further passes add `LBV`-samples (whose `LB`
-    /// values count as `LB`-samples too, as in the first pass) while the time the passes
-    /// so far measured says at least one more per pixel fits: SBF's later frames, where
-    /// `Var(LB/p)` is known and a sample costs what a classical one does. With
-    /// [`RelightParams::adaptive`] (the default) each later pass shares its samples as the
-    /// renderer's adaptive passes do ([`SampleShares`], Neyman's allocation): pixel `i`
-    /// in proportion to `√v_i`, `v_i` the relative variance per `LBV`-sample of its blend,
-    /// `Σ_l (1 − t_l)² Var(LBV_l/p)` over `μ² + 10⁻²` (what relMSE weighs), pooled over its
-    /// neighbours. Pixels whose blend leans on `⟨LB⟩⟨V⟩` take few; those whose `t` fell
-    /// (penumbrae, a bias measured) take many: SBF §4.1's "number of samples ...
-    /// proportional to the blending factor", in the measure relMSE sets. Each pixel's
-    /// samples accumulate in sample order; the shares are a function of the samples so
-    /// far, so a run equals another that took the same passes, on any thread count.
-    /// Without `adaptive` every pixel takes the same count, and the result equals a run
-    /// without a budget asked for the `LBV`-samples taken ([`Relit::lbv_spp`]).
-    ///
-    /// `progress(done, total)` (pixels of the passes so far) is called on the calling
-    /// thread about every 0.1 s; returning `false` stops with [`Error::Interrupted`].
+    /// Checks a relighting render's inputs and hands `run` what its pixels read
+    /// ([`RelightPass`]): the view under `env`, the scene's area lights as they are now,
+    /// and the scene's materials with `overrides` (object id, material) applied; per pixel
+    /// and light, `LB`- and `LBV`-samples under the current densities, `⟨V⟩` from the
+    /// source, and SBF's blend (module docs). `cache` is needed for
+    /// [`VisibilitySource::Cache`] (records of this scene; it and `light_cache` stay
+    /// read-locked while `run` runs); [`VisibilitySource::Pixels`] needs a converged
+    /// visibility. The passes are the caller's (the render floor's `render::relight`);
+    /// errors name the argument that is wrong.
     #[allow(clippy::too_many_arguments)]
-    pub fn render(
+    pub fn relight_with<R>(
         &self,
         scene: &Scene,
         env: &EnvMap,
@@ -694,12 +696,10 @@ impl Relighter {
         cache: Option<&VisibilityCache>,
         light_cache: Option<&VisibilityCache>,
         params: &RelightParams,
-        threads: Option<usize>,
-        progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
-    ) -> Result<Relit> {
+        run: impl FnOnce(&RelightPass<'_>) -> Result<R>,
+    ) -> Result<R> {
         params.validate()?;
         self.gbuffer.check(scene, None)?;
-        let start = Instant::now();
         let mut materials: Vec<Material> =
             scene.mesh().objects.iter().map(|o| o.material).collect();
         for &(object, material) in overrides {
@@ -789,120 +789,7 @@ impl Relighter {
             light_cache: light_cache.zip(light_state.as_deref()),
             params,
         };
-        let n_lights = lights.len();
-        let pixels = self.gbuffer.len();
-        let mut seen = vec![PixelSeen::default(); pixels];
-        let mut sums = vec![LightSums::default(); pixels * n_lights];
-        let (cancel, done) = (AtomicBool::new(false), AtomicU64::new(0));
-        let mut schedule = PassSchedule::default();
-        let mut shadow_rays = 0u64;
-        let mut lb_skipped = 0u64;
-        let mut passes = 0u32;
-        let mut first_pass_seconds = 0.0;
-        let mut planned = pixels as u64;
-        // LBV-samples each pixel has and is brought to by the pass.
-        let mut taken = vec![0u32; pixels];
-        let mut targets = vec![params.lbv_spp; pixels];
-        loop {
-            let pass_start = Instant::now();
-            let lb = if passes == 0 { 0..params.lb_spp } else { 0..0 };
-            let first = passes == 0;
-            let work = || {
-                seen.par_iter_mut()
-                    .zip(sums.par_chunks_mut(n_lights))
-                    .enumerate()
-                    .with_min_len(16)
-                    .map_init(LastProducts::default, |last_products, (i, (seen, sums))| {
-                        if cancel.load(Ordering::Relaxed) {
-                            return PassWork::default();
-                        }
-                        done.fetch_add(1, Ordering::Relaxed);
-                        let lbv = taken[i]..targets[i];
-                        pass.gather(i, seen, sums, &lb, &lbv, first, last_products)
-                    })
-                    .reduce(PassWork::default, PassWork::add)
-            };
-            let work = run_with_progress(threads, work, &mut || {
-                let keep = progress(done.load(Ordering::Relaxed), planned);
-                if !keep {
-                    cancel.store(true, Ordering::Relaxed);
-                }
-                keep
-            })?;
-            if cancel.load(Ordering::Relaxed) {
-                return Err(Error::Interrupted {
-                    what: "relighting".into(),
-                });
-            }
-            let wall = pass_start.elapsed().as_secs_f64();
-            if first {
-                first_pass_seconds = wall;
-            }
-            shadow_rays += work.shadow_rays;
-            lb_skipped += work.lb_skipped;
-            schedule.record(wall, work.schedule);
-            taken.clone_from(&targets);
-            passes += 1;
-            // Without LBV-samples there is no unbiased part to add to.
-            let Some(budget) = params.time_budget.filter(|_| params.lbv_spp > 0) else {
-                break;
-            };
-            let left = budget - start.elapsed().as_secs_f64();
-            let total: u64 = taken.iter().map(|&n| n as u64).sum();
-            let Some(even) = schedule.next_target(left, pixels as u64, total, 0) else {
-                break;
-            };
-            let even = even.min(MAX_RELIGHT_SPP);
-            let shares = params
-                .adaptive
-                .then(|| pass.shares(&seen, &sums, self.gbuffer.width(), self.gbuffer.height()));
-            targets = match &shares {
-                Some(shares) => {
-                    // The samples an even pass would add, spread by the shares.
-                    let spend = (even as u64 * pixels as u64).saturating_sub(total) as f64;
-                    let cap = sample_cap(even, MAX_RELIGHT_SPP);
-                    let lambda = shares.scale_for(&taken, cap, spend, |_, added| added as f64);
-                    (0..pixels)
-                        .map(|i| shares.target(i, lambda, taken[i], cap))
-                        .collect()
-                }
-                None => taken.iter().map(|&n| n.max(even)).collect(),
-            };
-            if targets == taken {
-                break;
-            }
-            planned += pixels as u64;
-        }
-        let lbv_counts: Vec<u32> = seen
-            .iter()
-            .zip(&taken)
-            .map(|(s, &n)| if s.surface { n } else { 0 })
-            .collect();
-        let surfaces = seen.iter().filter(|s| s.surface).count();
-        let lbv_total: u64 = lbv_counts.iter().map(|&n| n as u64).sum();
-        let mut relit = Relit {
-            lights: n_lights,
-            lbv_spp: lbv_counts.iter().copied().max().unwrap_or(0),
-            lbv_spp_mean: lbv_total as f64 / surfaces.max(1) as f64,
-            lbv_counts,
-            passes,
-            first_pass_seconds,
-            shadow_rays,
-            lb_skipped,
-            ..Relit::default()
-        };
-        for (seen, sums) in seen.iter().zip(sums.chunks(n_lights)) {
-            let p = pass.finish(seen, sums);
-            relit.image.push(p.rgb.map(|v| v as f32));
-            relit.variance.push(p.variance.map(|v| v as f32));
-            relit.error_bound.push(p.error_bound.map(|v| v as f32));
-            relit.t.extend(p.t);
-            relit.bound.extend(p.bound);
-            relit.visibility.extend(p.visibility);
-            relit.effective_samples.extend(p.effective_samples);
-        }
-        relit.seconds = start.elapsed().as_secs_f64();
-        Ok(relit)
+        run(&pass)
     }
 }
 

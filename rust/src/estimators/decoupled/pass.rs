@@ -1,17 +1,52 @@
-//! One pass of [`Relighter::render`]: what every pixel of a pass reads, each pixel's sums
-//! per light, and the blend of its estimates (SBF eq. 9-11, module docs of [`super`]).
+//! The per-pixel work of a relighting render (the passes themselves are the render
+//! floor's, `render::relight`): what every pixel of the render reads ([`RelightPass`]), each
+//! pixel's sums per light ([`RelightSums`]), one pixel's samples of a pass
+//! ([`RelightPass::gather`]) and the blend of its estimates (SBF eq. 9-11, module docs of
+//! [`super`]).
 
 use super::*;
 
 /// What the camera sees at a pixel before any light is added, and whether it sees a
-/// surface (set by the first pass of [`Relighter::render`]).
+/// surface (set by the pixel's first visit).
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct PixelSeen {
     pub(super) radiance: Vec3,
     pub(super) surface: bool,
 }
 
-/// What one pixel and light gathered over the passes of [`Relighter::render`].
+/// Everything one pixel gathered over the passes of a relighting render: what it sees, its
+/// `LBV`-samples per light, and its sums per light ([`RelightPass::lights`] order). The
+/// first visit ([`RelightPass::gather`] of a pixel not [`Self::visited`]) sets what it
+/// sees, each light's `⟨V⟩` and its `LB`-samples.
+#[derive(Clone, Debug, Default)]
+pub struct RelightSums {
+    visited: bool,
+    seen: PixelSeen,
+    /// `LBV`-samples per light taken (counted at pixels without a surface too, where they
+    /// add nothing).
+    lbv: u32,
+    /// Per light, once visited.
+    lights: Vec<LightSums>,
+}
+
+impl RelightSums {
+    /// `LBV`-samples per light the pixel took (its sample count for the passes).
+    pub fn lbv_samples(&self) -> u32 {
+        self.lbv
+    }
+
+    /// Whether its first visit (what it sees, `⟨V⟩`, the `LB`-samples) was made.
+    pub fn visited(&self) -> bool {
+        self.visited
+    }
+
+    /// Whether it sees a surface (false before its first visit).
+    pub fn surface(&self) -> bool {
+        self.seen.surface
+    }
+}
+
+/// What one pixel and light gathered over the passes of a relighting render.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct LightSums {
     pub(super) lb: [Moments; 3],
@@ -19,7 +54,7 @@ pub(super) struct LightSums {
     /// samples are reused (`reuse_n > 0`), else as drawn.
     pub(super) lbv: [Moments; 3],
     /// The stored `V`-samples reused as `LBV`-samples of the converged density, each
-    /// times its MIS weight `w₁` (empty without reuse): set by the first pass.
+    /// times its MIS weight `w₁` (empty without reuse): set by the pixel's first visit.
     pub(super) reused: [Moments; 3],
     /// `n₁` of the balance heuristic: the stored samples reused (0: no reuse).
     pub(super) reuse_n: f64,
@@ -31,7 +66,7 @@ pub(super) struct LightSums {
     pub(super) then_total: f64,
     /// `⟨V⟩` (NaN without one), its effective sample count, the spread of the records
     /// it interpolates (cache mode) and the share of the density no sample reached
-    /// (reweighted pixels): fixed by the first pass.
+    /// (reweighted pixels): fixed by the pixel's first visit.
     pub(super) v: f64,
     pub(super) ess: f64,
     pub(super) v_spread: f64,
@@ -78,28 +113,34 @@ impl Default for LightSums {
     }
 }
 
-/// What one pass of [`Relighter::render`] did, for its [`PassSchedule`].
-#[derive(Clone, Copy, Debug, Default)]
-pub(super) struct PassWork {
-    pub(super) schedule: ScheduleWork,
-    pub(super) shadow_rays: u64,
-    pub(super) lb_skipped: u64,
+/// What one run of pixels (a band of a pass, shaded in order by one worker) did and keeps:
+/// its counters, and the latest product distributions, which the next pixel takes when
+/// they were built for its material and normal (exact: the answers do not depend on it).
+#[derive(Default)]
+pub struct GatherWork {
+    /// Shadow rays traced (`LBV`-samples whose `LB` is not zero by geometry).
+    pub shadow_rays: u64,
+    /// `LB`-samples not drawn where they change nothing ([`Relit::lb_skipped`]).
+    pub lb_skipped: u64,
+    products: LastProducts,
 }
 
-impl PassWork {
-    pub(super) fn add(mut self, o: Self) -> Self {
-        self.schedule += o.schedule;
-        self.shadow_rays += o.shadow_rays;
-        self.lb_skipped += o.lb_skipped;
-        self
-    }
+/// CPU time of one [`RelightPass::gather`], in nanoseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct GatherTiming {
+    /// The pixel's shading point and product distribution (every visit).
+    pub prepare_ns: u64,
+    /// The first visit's `⟨V⟩` and `LB`-samples (0 on later visits).
+    pub first_visit_ns: u64,
+    /// The `LBV`-samples.
+    pub sample_ns: u64,
 }
 
 /// A product distribution kept for the next pixel of the same material and normal (the
 /// renderer's reuse: flat diffuse surfaces share one).
 pub(super) type LastProduct = Option<((Material, Vec3), Arc<ProductDistribution>)>;
 
-/// A worker's latest products of [`Relighter::render`]: for the current map, and for
+/// A worker's latest products of a relighting render: for the current map, and for
 /// the converged one (to redraw the stored samples when reweighting).
 #[derive(Default)]
 pub(super) struct LastProducts {
@@ -126,8 +167,10 @@ pub(super) fn reused_product(
     }
 }
 
-/// What every pixel of a pass of [`Relighter::render`] reads.
-pub(super) struct RelightPass<'a> {
+/// What every pixel of a relighting render reads: the scene, the lights now, the materials
+/// with their overrides, `⟨V⟩`'s source and the parameters ([`Relighter::relight_with`]
+/// makes it).
+pub struct RelightPass<'a> {
     pub(super) relighter: &'a Relighter,
     pub(super) scene: &'a Scene,
     pub(super) env: &'a EnvMap,
@@ -142,27 +185,53 @@ pub(super) struct RelightPass<'a> {
 }
 
 impl RelightPass<'_> {
-    /// Adds `LB`-samples `lb` and `LBV`-samples `lbv` of pixel `i` to its `sums` (one per
-    /// light); the first pass also sets what the pixel sees and each light's `⟨V⟩`.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn gather(
+    /// The render's parameters.
+    pub fn params(&self) -> &RelightParams {
+        self.params
+    }
+
+    /// The G-buffer whose pixels it shades (row-major, `width x height`).
+    pub fn gbuffer(&self) -> &GBuffer {
+        &self.relighter.gbuffer
+    }
+
+    /// Lights per pixel: the map, then the scene's area lights.
+    pub fn lights(&self) -> usize {
+        self.lights.len()
+    }
+
+    /// Adds `LBV`-samples `lbv` (per light) of pixel `i` to its `sums`, in sample order;
+    /// the pixel's first visit (`sums` not [`RelightSums::visited`]) first sets what it
+    /// sees and each light's `⟨V⟩` and takes its [`RelightParams::lb_spp`] `LB`-samples.
+    /// An `LBV`-sample's `LB` value is an `LB`-sample too. Every random number comes from
+    /// `(seed, i, stream, sample, dimension)`; `work` only counts and lends product
+    /// distributions.
+    pub fn gather(
         &self,
         i: usize,
-        seen: &mut PixelSeen,
-        sums: &mut [LightSums],
-        lb: &std::ops::Range<u32>,
-        lbv: &std::ops::Range<u32>,
-        first: bool,
-        last_products: &mut LastProducts,
-    ) -> PassWork {
+        sums: &mut RelightSums,
+        lbv: std::ops::Range<u32>,
+        work: &mut GatherWork,
+    ) -> GatherTiming {
         let started = Instant::now();
-        let mut work = PassWork::default();
+        let first = !sums.visited;
+        let lb = if first { 0..self.params.lb_spp } else { 0..0 };
+        if first {
+            sums.visited = true;
+            sums.lights = vec![LightSums::default(); self.lights.len()];
+        }
+        sums.lbv += lbv.len() as u32;
+        let last_products = &mut work.products;
+        let (seen, sums) = (&mut sums.seen, &mut sums.lights[..]);
         let Some((hit, sp)) = self.relighter.point(self.scene, self.materials, i) else {
             if first {
                 let dir = Vec3::from(self.relighter.gbuffer.direction[i]);
                 seen.radiance = self.env.eval(dir);
             }
-            return work;
+            return GatherTiming {
+                prepare_ns: started.elapsed().as_nanos() as u64,
+                ..GatherTiming::default()
+            };
         };
         let at = PixelLights {
             scene: self.scene,
@@ -191,7 +260,7 @@ impl RelightPass<'_> {
         // light's moments still take its samples in order.
         let unused = sums.iter().filter(|s| s.lb_changes_nothing()).count();
         work.lb_skipped += lb.len() as u64 * unused as u64;
-        for s in lb.clone() {
+        for s in lb {
             let rng = PixelSampler::new(self.params.seed, i as u64, STREAM_LB + s as u64);
             for (sums, &light) in sums.iter_mut().zip(self.lights) {
                 if sums.lb_changes_nothing() {
@@ -256,15 +325,12 @@ impl RelightPass<'_> {
         }
         let ns = |a: Instant, b: Instant| b.duration_since(a).as_nanos() as u64;
         let end = Instant::now();
-        work.schedule = ScheduleWork {
-            anchored_pixels: 1,
-            samples: lbv.len() as u64,
-            anchor_ns: ns(started, prepared),
-            // `⟨V⟩` and the LB-samples of the first pass are not repeated.
-            once_ns: ns(prepared, sampled),
+        GatherTiming {
+            prepare_ns: ns(started, prepared),
+            // `⟨V⟩` and the LB-samples of the first visit are not repeated.
+            first_visit_ns: ns(prepared, sampled),
             sample_ns: ns(sampled, end),
-        };
-        work
+        }
     }
 
     /// Sets each light's `⟨V⟩`, its effective sample count and (cache) the records'
@@ -358,49 +424,64 @@ impl RelightPass<'_> {
         }
     }
 
-    /// Each pixel's share of a later pass's `LBV`-samples ([`Relighter::render`]): from the
-    /// relative variance per sample of its blend as the passes so far give it, pooled over
-    /// its neighbours; pixels without a surface take none.
-    pub(super) fn shares(
-        &self,
-        seen: &[PixelSeen],
-        sums: &[LightSums],
-        width: u32,
-        height: u32,
-    ) -> SampleShares {
+    /// The render's images from every pixel's sums (row-major, one per pixel of
+    /// [`Self::gbuffer`]) and its `LBV`-sample counts; the passes' own figures
+    /// ([`Relit::passes`], rays, timings) are left at their defaults for the caller.
+    pub fn resolve(&self, pixels: &[RelightSums]) -> Relit {
         let n_lights = self.lights.len();
-        let v: Vec<Option<f64>> = seen
-            .par_iter()
-            .zip(sums.par_chunks(n_lights))
-            .map(|(seen, sums)| {
-                if !seen.surface || sums.iter().any(|s| s.lbv[0].count < 2) {
-                    return None;
-                }
-                let blend = self.finish(seen, sums);
-                let v = (0..3)
-                    .map(|c| {
-                        let var: f64 = sums
-                            .iter()
-                            .zip(&blend.t)
-                            .map(|(s, &t)| (1.0 - t as f64).powi(2) * s.lbv[c].variance())
-                            .sum();
-                        var / (blend.rgb[c] * blend.rgb[c] + RELMSE_FLOOR)
-                    })
-                    .sum::<f64>()
-                    / 3.0;
-                Some(v)
-            })
+        let lbv_counts: Vec<u32> = pixels
+            .iter()
+            .map(|p| if p.seen.surface { p.lbv } else { 0 })
             .collect();
-        SampleShares::from_variances(&v, None, width as usize, height as usize)
-            .only(|i| seen[i].surface)
+        let surfaces = pixels.iter().filter(|p| p.seen.surface).count();
+        let lbv_total: u64 = lbv_counts.iter().map(|&n| n as u64).sum();
+        let mut relit = Relit {
+            lights: n_lights,
+            lbv_spp: lbv_counts.iter().copied().max().unwrap_or(0),
+            lbv_spp_mean: lbv_total as f64 / surfaces.max(1) as f64,
+            lbv_counts,
+            ..Relit::default()
+        };
+        for pixel in pixels {
+            let p = self.finish(pixel);
+            relit.image.push(p.rgb.map(|v| v as f32));
+            relit.variance.push(p.variance.map(|v| v as f32));
+            relit.error_bound.push(p.error_bound.map(|v| v as f32));
+            relit.t.extend(p.t);
+            relit.bound.extend(p.bound);
+            relit.visibility.extend(p.visibility);
+            relit.effective_samples.extend(p.effective_samples);
+        }
+        relit
+    }
+
+    /// What a pixel's share of further `LBV`-samples is measured from: per channel, the
+    /// variance of one `LBV`-sample of its blend, `Σ_l (1 − t_l)² Var(LBV_l/p)` over the
+    /// lights, and the blend's estimate (its pixel of [`Self::resolve`]'s image). `None`
+    /// where the pixel sees no surface or a light has fewer than two `LBV`-samples.
+    pub fn lbv_variance(&self, sums: &RelightSums) -> Option<([f64; 3], [f64; 3])> {
+        let lights = &sums.lights;
+        if !sums.seen.surface || lights.iter().any(|s| s.lbv[0].count < 2) {
+            return None;
+        }
+        let blend = self.finish(sums);
+        let var = std::array::from_fn(|c| {
+            lights
+                .iter()
+                .zip(&blend.t)
+                .map(|(s, &t)| (1.0 - t as f64).powi(2) * s.lbv[c].variance())
+                .sum()
+        });
+        Some((var, blend.rgb))
     }
 
     /// The pixel's blend (eq. 9) from what the passes gathered.
-    pub(super) fn finish(&self, seen: &PixelSeen, sums: &[LightSums]) -> PixelResult {
-        let mut out = PixelResult::miss(seen.radiance, sums.len());
-        if !seen.surface {
+    pub(super) fn finish(&self, pixel: &RelightSums) -> PixelResult {
+        let mut out = PixelResult::miss(pixel.seen.radiance, self.lights.len());
+        if !pixel.seen.surface {
             return out;
         }
+        let sums = &pixel.lights;
         let params = self.params;
         for (l, s) in sums.iter().enumerate() {
             let v = s.v;
@@ -451,7 +532,7 @@ impl RelightPass<'_> {
     }
 }
 
-/// One pixel of [`Relighter::render`].
+/// One pixel's blend ([`RelightPass::finish`]).
 pub(super) struct PixelResult {
     pub(super) rgb: [f64; 3],
     pub(super) variance: [f64; 3],

@@ -52,8 +52,8 @@ pub(super) fn converged_lights<'a>(
 /// `w₁ = n₁p₁ / (n₁p₁ + n₂p₂)`, `w₂ = 1 − w₁`. `p₁` counts only draws that kept a bit
 /// (`LB > 0` under the converged lighting: elsewhere `V` was never traced), so `w₂ = 1`
 /// where no stored sample can land. Any weights summing to 1 keep the sum of the two
-/// weighted means unbiased, whatever counts are then taken, so `n₂` is the first pass's
-/// nominal `lbv_spp` for every pass.
+/// weighted means unbiased, whatever counts are then taken, so `n₂` is the nominal
+/// `lbv_spp` for every pass.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct ReuseWeights {
     pub(super) n1: f64,

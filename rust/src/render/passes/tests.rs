@@ -245,3 +245,83 @@ fn progress_can_stop_the_passes() {
     assert!(run.sums.iter().all(|s| s.n == 0 || s.n == 256));
     assert_eq!(run.total.0, run.samples());
 }
+
+/// Sums with work of their own before any sample: due until their first visit
+/// ([`PixelSums::due`]).
+#[derive(Clone, Default)]
+struct Visited {
+    visits: u32,
+    n: u32,
+}
+
+impl PixelSums for Visited {
+    fn samples(&self) -> u32 {
+        self.n
+    }
+
+    fn due(&self, target: u32) -> bool {
+        self.visits == 0 || self.n < target
+    }
+}
+
+/// A method whose pixels count their visits and samples.
+struct Visits;
+
+impl PixelPass for Visits {
+    type Work = ();
+    type Note = ();
+    type Sums = Visited;
+
+    fn shade_pixel(
+        &self,
+        _pixel: usize,
+        samples: std::ops::Range<u32>,
+        acc: &mut Visited,
+        _work: &mut (),
+        _note: &mut (),
+    ) -> PixelTiming {
+        assert_eq!(samples.start, acc.n);
+        acc.visits += 1;
+        acc.n += samples.len() as u32;
+        PixelTiming::default()
+    }
+}
+
+impl PixelEstimator for Visits {
+    type Work = ();
+    type Note = ();
+    type Sums = Visited;
+    type Pass<'a> = Visits;
+
+    fn pass<R>(&self, _plan: &PassPlan, run: impl FnOnce(&Visits) -> R) -> R {
+        run(self)
+    }
+}
+
+/// A pixel due at its target is shaded with no sample: at 0 spp one pass visits every
+/// pixel once; at 3 spp, once with its samples.
+#[test]
+fn a_pixel_due_at_its_target_is_visited_without_samples() {
+    for spp in [0, 3] {
+        let params = PassParams {
+            spp,
+            time_budget: None,
+            adaptive: false,
+        };
+        let run = run_passes(
+            &mut Visits,
+            W,
+            H,
+            &params,
+            Instant::now(),
+            Some(2),
+            &mut |_, _| true,
+        )
+        .unwrap();
+        assert_eq!(
+            (run.passes, run.samples()),
+            (1, spp as u64 * (W * H) as u64)
+        );
+        assert!(run.sums.iter().all(|s| s.visits == 1 && s.n == spp));
+    }
+}
