@@ -93,6 +93,7 @@ use crate::visibility::cache::VisibilityCache;
 pub mod adaptive;
 pub mod estimator;
 pub mod frame;
+pub mod many_lights;
 pub mod passes;
 pub mod registry;
 pub(crate) mod schedule;
