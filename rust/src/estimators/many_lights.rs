@@ -1,4 +1,4 @@
-//! The many-light renderer: every pixel lit by a set of virtual point lights
+//! The many-light maths: every pixel lit by a set of virtual point lights
 //! ([`crate::lights::vpl`]), as instant radiosity does (survey `004_d2289ee9e28a0f98.txt`
 //! §6.2.1, eq. 6.1):
 //!
@@ -24,12 +24,14 @@
 //! paths lost); without (the default) the sum is unbiased for the set.
 //!
 //! ## Samples
-//! Sample `s` shades its own first hits ([`GBuffer::render`] with the seed of sample `s`,
-//! jittered: antialiased with a box filter, the same pixel integral the path tracer
-//! estimates), so the full sum costs `spp · N` shadow rays per pixel; without `jitter` every
-//! sample shades the pixel's centre. `variance` is the sample variance of the mean over the
-//! `spp` samples, or with one sample the variance of the `M` draws' mean ([`Gather::Sampled`])
-//! or infinity ([`Gather::Full`]).
+//! Sample `s` of a pixel shades its own first hit ([`Gatherer`]: the hit
+//! [`crate::camera::GBuffer::render`] gives with the seed of sample `s`, jittered:
+//! antialiased with a box filter, the same pixel integral the path tracer estimates), so
+//! the full sum costs `spp · N` shadow rays per pixel; without `jitter` every sample shades
+//! the pixel's centre. A pixel's `variance` ([`VplSums::estimate`]) is the sample variance
+//! of the mean over its samples, or with one sample the variance of the `M` draws' mean
+//! ([`Gather::Sampled`]) or infinity ([`Gather::Full`]). The passes, the time budget and
+//! progress are the render floor's (`render::many_lights`, which calls down here).
 //!
 //! ## Direct light
 //! With `direct` the image holds what the camera sees of emitters and the map, and the
@@ -38,9 +40,10 @@
 //! part that `method="path", direct=False` estimates.
 //!
 //! ## Determinism
-//! Tiles are fixed, each pixel is summed by one worker in VPL order in `f64`, and the draws
-//! of [`Gather::Sampled`] read `(seed, pixel, sample, dimension)`: images are bit-identical
-//! for any thread count.
+//! A sample's estimate at a pixel is a pure function of `(seed, pixel, sample)` and, for
+//! [`Gather::Full`], of the sample's receivers at the other pixels of its tile (tiles are
+//! fixed on the image: [`tile_of`]); the VPLs' terms are summed in VPL order in `f64`, and
+//! the draws of [`Gather::Sampled`] read `(seed, pixel, sample, dimension)`.
 
 use glam::{DVec3, Vec3};
 
@@ -75,10 +78,12 @@ pub enum Gather {
     Sampled { draws: u32 },
 }
 
-/// Parameters of [`render_many_lights`].
+/// Parameters of the many-light renderer (`render::many_lights::render_many_lights`, on
+/// the render floor).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ManyLightParams {
-    /// Samples per pixel, `1..=MAX_SPP` (each its own first hits).
+    /// Samples per pixel, `1..=MAX_SPP` (each its own first hit); with a time budget, the
+    /// most to take.
     pub spp: u32,
     pub seed: u64,
     /// Jittered first hits (antialiased) instead of the pixels' centres.
@@ -88,7 +93,9 @@ pub struct ManyLightParams {
     /// Whether the image holds direct light (module docs).
     pub direct: bool,
     pub gather: Gather,
-    /// Stop after the first sample pass that ends past this many seconds.
+    /// Seconds the render may take (from its start): passes sized by the pass driver's
+    /// schedule (a probe, then as many samples as fit, `spp` at most); none: `spp` samples
+    /// in every pixel.
     pub time_budget: Option<f64>,
 }
 

@@ -16,8 +16,8 @@ use super::envmap::PyEnvMap;
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
 use crate::estimators::many_lights::{Gather, ManyLightParams, MAX_DRAWS, MAX_SPP};
-use crate::render::many_lights::render_many_lights;
 use crate::lights::vpl::{Importance, TraceParams, VplKind, VplSet, MAX_DEPTH, MAX_VPLS};
+use crate::render::many_lights::render_many_lights;
 
 /// A set of virtual point lights: `VPLs.trace(setup, count, ...)` traces them from the
 /// setup's map and area lights, `VPLs.from_lights(scene, positions, normals, flux)` makes

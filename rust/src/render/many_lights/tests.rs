@@ -303,8 +303,8 @@ fn a_stopped_render_says_so() {
         calls += 1;
         false
     };
-    let img = render_many_lights(&scene, &env, &cam, &vpls, &params, None, Some(2), &mut stop)
-        .unwrap();
+    let img =
+        render_many_lights(&scene, &env, &cam, &vpls, &params, None, Some(2), &mut stop).unwrap();
     assert!(calls >= 1);
     assert!(!img.stats.complete);
     assert!(img.stats.samples < MAX_SPP as u64 * pixels);
