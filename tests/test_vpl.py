@@ -236,4 +236,5 @@ def test_a_time_budget_and_a_progress_bar():
                     progress=True)
     assert 1 <= res.stats["spp"] and res.stats["complete"]
     assert np.all(np.isfinite(res.variance)) or res.stats["spp"] == 1
-    assert res.stats["samples"] == res.stats["spp"] * 16 * 12
+    # Every pixel took at least stats["spp"]; the probe's bands may have taken more.
+    assert res.stats["samples"] >= res.stats["spp"] * 16 * 12

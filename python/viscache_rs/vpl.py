@@ -23,6 +23,15 @@ geometry term ``cos cos / d^2`` (1/m^2; removes the bright spots of nearby VPLs,
 ``direct=False`` keeps the surface VPLs only: the indirect light of ``method="path",
 bounces=depth, direct=False``. Without ``vpls`` a set of 4096 is traced with
 ``depth=bounces`` (default 1), without light VPLs when ``direct=False``.
+
+The render runs on the pass layer, as ``vc.render``'s other methods do. Without
+``time_budget`` every pixel takes ``spp`` samples, bit-identical for any ``threads``. With
+one, a probe pass takes a few samples in every eighth band of rows, then passes sized by
+the measured cost per sample take as many as fit (``spp`` at most, unbounded by default):
+every pixel gets at least one, and the probe's pixels may keep up to four more than the
+rest. ``stats["spp"]`` is the least samples any pixel took, ``stats["samples"]`` all of
+them, and each pixel's mean and variance are over its own samples. Ctrl-C stops the pass
+under way within a tile's sample and raises KeyboardInterrupt.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-//! The many-light renderer: every pixel lit by a set of virtual point lights
+//! The many-light maths: every pixel lit by a set of virtual point lights
 //! ([`crate::lights::vpl`]), as instant radiosity does (survey `004_d2289ee9e28a0f98.txt`
 //! §6.2.1, eq. 6.1):
 //!
@@ -24,12 +24,14 @@
 //! paths lost); without (the default) the sum is unbiased for the set.
 //!
 //! ## Samples
-//! Sample `s` shades its own first hits ([`GBuffer::render`] with the seed of sample `s`,
-//! jittered: antialiased with a box filter, the same pixel integral the path tracer
-//! estimates), so the full sum costs `spp · N` shadow rays per pixel; without `jitter` every
-//! sample shades the pixel's centre. `variance` is the sample variance of the mean over the
-//! `spp` samples, or with one sample the variance of the `M` draws' mean ([`Gather::Sampled`])
-//! or infinity ([`Gather::Full`]).
+//! Sample `s` of a pixel shades its own first hit ([`Gatherer`]: the hit
+//! [`crate::camera::GBuffer::render`] gives with the seed of sample `s`, jittered:
+//! antialiased with a box filter, the same pixel integral the path tracer estimates), so
+//! the full sum costs `spp · N` shadow rays per pixel; without `jitter` every sample shades
+//! the pixel's centre. A pixel's `variance` ([`VplSums::estimate`]) is the sample variance
+//! of the mean over its samples, or with one sample the variance of the `M` draws' mean
+//! ([`Gather::Sampled`]) or infinity ([`Gather::Full`]). The passes, the time budget and
+//! progress are the render floor's (`render::many_lights`, which calls down here).
 //!
 //! ## Direct light
 //! With `direct` the image holds what the camera sees of emitters and the map, and the
@@ -38,23 +40,19 @@
 //! part that `method="path", direct=False` estimates.
 //!
 //! ## Determinism
-//! Tiles are fixed, each pixel is summed by one worker in VPL order in `f64`, and the draws
-//! of [`Gather::Sampled`] read `(seed, pixel, sample, dimension)`: images are bit-identical
-//! for any thread count.
-
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::time::{Duration, Instant};
+//! A sample's estimate at a pixel is a pure function of `(seed, pixel, sample)` and, for
+//! [`Gather::Full`], of the sample's receivers at the other pixels of its tile (tiles are
+//! fixed on the image: [`tile_of`]); the VPLs' terms are summed in VPL order in `f64`, and
+//! the draws of [`Gather::Sampled`] read `(seed, pixel, sample, dimension)`.
 
 use glam::{DVec3, Vec3};
-use rayon::prelude::*;
 
-use crate::camera::{Camera, GBuffer};
+use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::estimators::indirect::shading_point_at;
-use crate::geometry::{RayBatch, Scene, TMax, TraversalCounters};
+use crate::geometry::{RayBatch, Scene, SurfaceHit, TMax, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::lights::vpl::{luminance, Vpl, VplKind, VplSet};
-use crate::parallel::{run_polling, with_threads};
 use crate::sampling::rng::{mix64, SampleRng};
 use light_paths::Receiver as VplReceiver;
 
@@ -65,14 +63,11 @@ pub const MAX_SPP: u32 = 1 << 16;
 pub const MAX_DRAWS: u32 = 1 << 16;
 
 /// Side of a tile in pixels: a tile's rays towards one VPL are one packet.
-const TILE: u32 = 4;
+pub const TILE: u32 = 4;
 
 /// VPLs whose rays go to [`Scene::occluded`] in one batch (16 per VPL per tile: 4096
 /// rays, a few of its chunks).
 const VPL_BLOCK: usize = 256;
-
-/// Seconds between progress reports.
-const PROGRESS_INTERVAL: Duration = Duration::from_millis(100);
 
 /// How each pixel sample gathers the VPLs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -83,10 +78,12 @@ pub enum Gather {
     Sampled { draws: u32 },
 }
 
-/// Parameters of [`render_many_lights`].
+/// Parameters of the many-light renderer (`render::many_lights::render_many_lights`, on
+/// the render floor).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ManyLightParams {
-    /// Samples per pixel, `1..=MAX_SPP` (each its own first hits).
+    /// Samples per pixel, `1..=MAX_SPP` (each its own first hit); with a time budget, the
+    /// most to take.
     pub spp: u32,
     pub seed: u64,
     /// Jittered first hits (antialiased) instead of the pixels' centres.
@@ -96,7 +93,9 @@ pub struct ManyLightParams {
     /// Whether the image holds direct light (module docs).
     pub direct: bool,
     pub gather: Gather,
-    /// Stop after the first sample pass that ends past this many seconds.
+    /// Seconds the render may take (from its start): passes sized by the pass driver's
+    /// schedule (a probe, then as many samples as fit, `spp` at most); none: `spp` samples
+    /// in every pixel.
     pub time_budget: Option<f64>,
 }
 
@@ -180,42 +179,6 @@ impl VplDistribution for Unoccluded {
     }
 }
 
-/// Figures of one render.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct ManyLightStats {
-    /// Wall-clock seconds.
-    pub seconds: f64,
-    /// Samples every pixel received.
-    pub spp: u32,
-    /// False when progress stopped a pass part-way.
-    pub complete: bool,
-    /// VPLs the gather used (all, or the surface VPLs without `direct`).
-    pub vpls: u64,
-    /// Pixel samples taken.
-    pub samples: u64,
-    pub primary_rays: u64,
-    /// Shadow rays traced (VPL pairs with a zero term take none).
-    pub shadow_rays: u64,
-    /// Wall-clock seconds spent in the gathers (shading and shadow rays).
-    pub gather_seconds: f64,
-    /// Shadow rays per second of `gather_seconds`.
-    pub shadow_rays_per_second: f64,
-    /// All rays per wall-clock second.
-    pub rays_per_second: f64,
-}
-
-/// A rendered image.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ManyLightImage {
-    pub width: u32,
-    pub height: u32,
-    /// Mean radiance per pixel, row-major, row 0 at the top.
-    pub image: Vec<[f32; 3]>,
-    /// Per-pixel variance of the mean (module docs).
-    pub variance: Vec<[f32; 3]>,
-    pub stats: ManyLightStats,
-}
-
 /// One pixel sample's receiver.
 #[derive(Clone, Copy)]
 enum Receiver {
@@ -226,13 +189,47 @@ enum Receiver {
     Surface { emitted: Vec3, r: VplReceiver },
 }
 
-/// Per-pixel sums over samples: the estimates' sum and sum of squares, and (one sample of
-/// [`Gather::Sampled`]) the draws' variance of the mean.
-#[derive(Clone, Copy, Default)]
-struct PixelSums {
-    sum: DVec3,
-    sum2: DVec3,
-    draw_variance: DVec3,
+/// One pixel's sums over its samples, in sample order: the estimates' sum and sum of
+/// squares, and the last sample's variance of its draws' mean ([`Gather::Sampled`]; zero
+/// for [`Gather::Full`] and where the sample saw no surface).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct VplSums {
+    /// Samples added.
+    pub n: u32,
+    /// Sum of the samples' estimates (radiance, W/(m² sr) per channel).
+    pub sum: DVec3,
+    /// Sum of their squares.
+    pub sum2: DVec3,
+    /// The latest sample's variance of its draws' mean.
+    pub draw_variance: DVec3,
+}
+
+impl VplSums {
+    /// Adds sample `n` (the next in sample order): its estimate `x` and its draws' variance
+    /// of the mean.
+    #[inline]
+    pub fn add(&mut self, x: DVec3, draw_variance: DVec3) {
+        self.n += 1;
+        self.sum += x;
+        self.sum2 += x * x;
+        self.draw_variance = draw_variance;
+    }
+
+    /// The pixel's mean and the variance of that mean (module docs): the sample variance
+    /// over `n >= 2` samples, or with one sample its draws' variance (`sampled`) or
+    /// infinity; no sample gives mean 0 and infinite variance.
+    pub fn estimate(&self, sampled: bool) -> ([f32; 3], [f32; 3]) {
+        let n = self.n.max(1) as f64;
+        let mean = self.sum / n;
+        let var = if self.n >= 2 {
+            ((self.sum2 / n - mean * mean) / (n - 1.0)).max(DVec3::ZERO)
+        } else if sampled && self.n == 1 {
+            self.draw_variance
+        } else {
+            DVec3::INFINITY
+        };
+        (mean.as_vec3().to_array(), var.as_vec3().to_array())
+    }
 }
 
 /// The seed of sample `s`'s first hits.
@@ -240,56 +237,33 @@ fn sample_seed(seed: u64, s: u32) -> u64 {
     mix64(seed ^ mix64(0x4d41_4e59_4c49_4748 ^ s as u64))
 }
 
-/// The receivers of sample `s`.
-fn receivers(
-    scene: &Scene,
-    env: &EnvMap,
-    camera: &Camera,
-    params: &ManyLightParams,
-    s: u32,
-) -> Result<Vec<Receiver>> {
-    let g = GBuffer::render(
-        scene,
-        camera,
-        sample_seed(params.seed, s),
-        params.jitter,
-        None,
-    )?;
-    Ok((0..g.object.len())
-        .map(|i| {
-            let dir = Vec3::from(g.direction[i]);
-            let Some(hit) = g.surface_hit(i) else {
-                let l = if params.direct {
-                    env.eval(dir)
-                } else {
-                    Vec3::ZERO
-                };
-                return Receiver::Background(l);
-            };
-            let sp = shading_point_at(scene, &hit, -dir);
-            let emitted = if params.direct {
-                scene.emitted(&hit, sp.wo)
-            } else {
-                Vec3::ZERO
-            };
-            Receiver::Surface {
-                emitted,
-                r: VplReceiver::new(scene, sp),
-            }
-        })
-        .collect())
+/// Rays and figures of the samples a worker took.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct GatherWork {
+    /// Primary rays traced for the samples' first hits.
+    pub primary_rays: u64,
+    /// Shadow rays traced (VPL pairs with a zero term take none).
+    pub shadow_rays: u64,
+    /// The rays' BVH figures.
+    pub counters: TraversalCounters,
 }
 
-/// Rays and figures of one work item.
+impl std::ops::AddAssign for GatherWork {
+    fn add_assign(&mut self, o: Self) {
+        self.primary_rays += o.primary_rays;
+        self.shadow_rays += o.shadow_rays;
+        self.counters += o.counters;
+    }
+}
+
+/// A worker's reusable buffers ([`Gatherer::full_tile`], [`Gatherer::sampled_pixel`]).
 #[derive(Default)]
-struct Work {
-    shadow_rays: u64,
-    counters: TraversalCounters,
+pub struct Scratch {
+    batch: Batch,
+    cdf: Vec<f64>,
+    shading: Vec<(usize, VplReceiver)>,
+    acc: Vec<DVec3>,
 }
-
-/// What a tile of one pass gives: (pixel, estimate, draws' variance) per pixel, and its
-/// work.
-type TileOut = (Vec<(usize, DVec3, DVec3)>, Work);
 
 /// Reusable buffers of a tile's batches.
 #[derive(Default)]
@@ -319,7 +293,7 @@ impl Batch {
     }
 
     /// Traces the batch through [`Scene::occluded`] and adds the visible terms to `sums`.
-    fn flush(&mut self, scene: &Scene, sums: &mut [DVec3], work: &mut Work) -> Result<()> {
+    fn flush(&mut self, scene: &Scene, sums: &mut [DVec3], work: &mut GatherWork) -> Result<()> {
         if self.origins.is_empty() {
             return Ok(());
         }
@@ -432,7 +406,7 @@ fn gather_full(
     clamp: Option<f32>,
     out: &mut [DVec3],
     batch: &mut Batch,
-    work: &mut Work,
+    work: &mut GatherWork,
 ) -> Result<()> {
     // Point VPLs: rays from the VPL to each receiver of the tile (one origin per run).
     let lanes = Lanes::new(points);
@@ -482,7 +456,7 @@ fn gather_sampled(
     sample: u32,
     distribution: &dyn VplDistribution,
     cdf: &mut Vec<f64>,
-    work: &mut Work,
+    work: &mut GatherWork,
 ) -> (DVec3, DVec3) {
     cdf.resize(vpls.len(), 0.0);
     distribution.weights(scene, pixel, r, vpls, disk_area, cdf);
@@ -524,208 +498,177 @@ fn gather_sampled(
     (mean, var)
 }
 
-/// Renders `camera`'s view of `scene` lit by `vpls` (module docs); `env` is what misses
-/// see (with `direct`). `distribution` replaces [`Unoccluded`] for [`Gather::Sampled`].
-/// `progress(done, planned)` (pixel samples) is called from the calling thread about every
-/// 0.1 s; `false` stops the render after the pass's tiles under way (`stats.complete`).
-/// Fails on bad parameters or a VPL set traced in other geometry.
-#[allow(clippy::too_many_arguments)]
-pub fn render_many_lights(
-    scene: &Scene,
-    env: &EnvMap,
-    camera: &Camera,
-    vpls: &VplSet,
-    params: &ManyLightParams,
-    distribution: Option<&dyn VplDistribution>,
-    threads: Option<usize>,
-    progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
-) -> Result<ManyLightImage> {
-    params.validate()?;
-    camera.check_buffers()?;
-    if vpls.fingerprint != scene.geometry_fingerprint() {
-        return Err(Error::invalid(
-            "vpls",
-            "were traced in other geometry: trace them again for this scene",
-        ));
+/// What a render's samples read: the scene, what misses see, the camera, the parameters,
+/// the VPLs the gather uses and the distribution [`Gather::Sampled`] draws them from.
+/// Every sample is a pure function of `(seed, pixel, sample)` and, for [`Gather::Full`],
+/// of the sample's receivers at the other pixels of its [`TILE`] x [`TILE`] tile.
+pub struct Gatherer<'a> {
+    scene: &'a Scene,
+    env: &'a EnvMap,
+    camera: &'a Camera,
+    params: ManyLightParams,
+    used: Vec<Vpl>,
+    disk_area: f32,
+    distribution: &'a dyn VplDistribution,
+}
+
+impl<'a> Gatherer<'a> {
+    /// The gather of `camera`'s view of `scene` lit by `vpls` (the surface VPLs only,
+    /// without `params.direct`); `env` is what misses see. Checks nothing: the caller
+    /// validates `params` and the set's geometry.
+    pub fn new(
+        scene: &'a Scene,
+        env: &'a EnvMap,
+        camera: &'a Camera,
+        vpls: &VplSet,
+        params: &ManyLightParams,
+        distribution: &'a dyn VplDistribution,
+    ) -> Self {
+        let used = vpls
+            .vpls
+            .iter()
+            .filter(|v| params.direct || v.bounce >= 1)
+            .copied()
+            .collect();
+        Self {
+            scene,
+            env,
+            camera,
+            params: *params,
+            used,
+            disk_area: vpls.disk_area,
+            distribution,
+        }
     }
-    let start = Instant::now();
-    let used: Vec<Vpl> = vpls
-        .vpls
-        .iter()
-        .filter(|v| params.direct || v.bounce >= 1)
-        .copied()
-        .collect();
-    let default = Unoccluded {
-        clamp: params.clamp,
-    };
-    let distribution = distribution.unwrap_or(&default);
-    let (width, height) = (camera.width, camera.height);
-    let pixels = camera.num_pixels();
-    let mut sums = vec![PixelSums::default(); pixels];
-    let mut stats = ManyLightStats {
-        vpls: used.len() as u64,
-        complete: true,
-        ..Default::default()
-    };
-    let tiles_x = width.div_ceil(TILE);
-    let tiles = (tiles_x * height.div_ceil(TILE)) as usize;
-    let planned = params.spp as u64 * pixels as u64;
-    let done = AtomicU64::new(0);
-    let cancel = AtomicBool::new(false);
-    with_threads(threads, || {
-        let _ = scene.bvh();
-    })?;
-    let mut counters = TraversalCounters::default();
-    for s in 0..params.spp {
-        if let Some(b) = params.time_budget {
-            if s > 0 && start.elapsed().as_secs_f64() > b {
-                break;
+
+    /// The VPLs the gather uses.
+    pub fn used(&self) -> &[Vpl] {
+        &self.used
+    }
+
+    /// The receiver of sample `s` of `pixel` (row-major): the first hit of the pixel's
+    /// primary ray with the seed of sample `s` (jittered or through the centre), exactly
+    /// as [`crate::camera::GBuffer::render`] and [`crate::camera::GBuffer::surface_hit`]
+    /// give it.
+    fn receiver(&self, pixel: usize, s: u32, work: &mut GatherWork) -> Receiver {
+        let (scene, params) = (self.scene, &self.params);
+        let seed = sample_seed(params.seed, s);
+        let (origin, dir) = self.camera.primary_ray(pixel, seed, params.jitter);
+        work.primary_rays += 1;
+        let Some(h) = scene.intersect1(origin, dir, f32::INFINITY, &mut work.counters) else {
+            let l = if params.direct {
+                self.env.eval(dir)
+            } else {
+                Vec3::ZERO
+            };
+            return Receiver::Background(l);
+        };
+        // The G-buffer's hit: the normal facing the camera, no barycentrics.
+        let normal = if h.normal.dot(dir) > 0.0 {
+            -h.normal
+        } else {
+            h.normal
+        };
+        let hit = SurfaceHit {
+            u: 0.0,
+            v: 0.0,
+            normal,
+            ..h
+        };
+        let sp = shading_point_at(scene, &hit, -dir);
+        let emitted = if params.direct {
+            scene.emitted(&hit, sp.wo)
+        } else {
+            Vec3::ZERO
+        };
+        Receiver::Surface {
+            emitted,
+            r: VplReceiver::new(scene, sp),
+        }
+    }
+
+    /// Sample `s` of [`Gather::Full`] at the pixels `tile` (row-major indices, the pixels
+    /// of one [`TILE`] x [`TILE`] tile of the image in row order, clipped to the image):
+    /// each pixel's estimate, in `tile`'s order, into `out` (cleared first). The tile's
+    /// shadow rays towards a VPL are traced together, as packets.
+    pub fn full_tile(
+        &self,
+        tile: &[usize],
+        s: u32,
+        scratch: &mut Scratch,
+        work: &mut GatherWork,
+        out: &mut Vec<DVec3>,
+    ) -> Result<()> {
+        out.clear();
+        scratch.shading.clear();
+        for &pixel in tile {
+            match self.receiver(pixel, s, work) {
+                Receiver::Background(l) => out.push(l.as_dvec3()),
+                Receiver::Surface { emitted, r } => {
+                    out.push(emitted.as_dvec3());
+                    scratch.shading.push((out.len() - 1, r));
+                }
             }
         }
-        let points = with_threads(threads, || receivers(scene, env, camera, params, s))??;
-        stats.primary_rays += pixels as u64;
-        let gather_start = Instant::now();
-        // Each tile: (pixel, estimate, draws' variance) of its pixels, or an error.
-        let tile_work = || -> Vec<Result<TileOut>> {
-            (0..tiles)
-                .into_par_iter()
-                .map_init(
-                    || (Batch::default(), Vec::new()),
-                    |(batch, cdf), t| {
-                        let mut work = Work::default();
-                        let mut out = Vec::with_capacity((TILE * TILE) as usize);
-                        if cancel.load(Ordering::Relaxed) {
-                            return Ok((out, work));
-                        }
-                        let (tx, ty) = (t as u32 % tiles_x, t as u32 / tiles_x);
-                        let mut shading: Vec<(usize, VplReceiver)> = Vec::new();
-                        for y in ty * TILE..((ty + 1) * TILE).min(height) {
-                            for x in tx * TILE..((tx + 1) * TILE).min(width) {
-                                let i = (y * width + x) as usize;
-                                match points[i] {
-                                    Receiver::Background(l) => {
-                                        out.push((i, l.as_dvec3(), DVec3::ZERO))
-                                    }
-                                    Receiver::Surface { emitted, r } => {
-                                        out.push((i, emitted.as_dvec3(), DVec3::ZERO));
-                                        shading.push((out.len() - 1, r));
-                                    }
-                                }
-                            }
-                        }
-                        match params.gather {
-                            Gather::Full => {
-                                let mut acc = vec![DVec3::ZERO; shading.len()];
-                                gather_full(
-                                    scene,
-                                    &shading,
-                                    &used,
-                                    vpls.disk_area,
-                                    params.clamp,
-                                    &mut acc,
-                                    batch,
-                                    &mut work,
-                                )?;
-                                for ((slot, _), a) in shading.iter().zip(acc) {
-                                    out[*slot].1 += a;
-                                }
-                            }
-                            Gather::Sampled { draws } => {
-                                for (slot, r) in &shading {
-                                    let pixel = out[*slot].0;
-                                    let (mean, var) = gather_sampled(
-                                        scene,
-                                        pixel,
-                                        r,
-                                        &used,
-                                        vpls.disk_area,
-                                        params,
-                                        draws,
-                                        s,
-                                        distribution,
-                                        cdf,
-                                        &mut work,
-                                    );
-                                    out[*slot].1 += mean;
-                                    out[*slot].2 = var;
-                                }
-                            }
-                        }
-                        done.fetch_add(out.len() as u64, Ordering::Relaxed);
-                        Ok((out, work))
-                    },
-                )
-                .collect()
-        };
-        let base = s as u64 * pixels as u64;
-        let results = run_polling(
-            || with_threads(threads, tile_work),
-            PROGRESS_INTERVAL,
-            &mut || {
-                if !progress(base + done.load(Ordering::Relaxed), planned) {
-                    cancel.store(true, Ordering::Relaxed);
-                }
-            },
+        scratch.acc.clear();
+        scratch.acc.resize(scratch.shading.len(), DVec3::ZERO);
+        gather_full(
+            self.scene,
+            &scratch.shading,
+            &self.used,
+            self.disk_area,
+            self.params.clamp,
+            &mut scratch.acc,
+            &mut scratch.batch,
+            work,
         )?;
-        done.store(0, Ordering::Relaxed);
-        stats.gather_seconds += gather_start.elapsed().as_secs_f64();
-        let mut tiles_done = Vec::with_capacity(results.len());
-        for r in results {
-            let (out, work) = r?;
-            stats.shadow_rays += work.shadow_rays;
-            counters += work.counters;
-            tiles_done.push(out);
+        for ((slot, _), a) in scratch.shading.iter().zip(&scratch.acc) {
+            out[*slot] += *a;
         }
-        // A stopped pass is dropped whole, so every pixel keeps the same samples.
-        if cancel.load(Ordering::Relaxed) {
-            stats.complete = false;
-            break;
-        }
-        for (i, x, var) in tiles_done.into_iter().flatten() {
-            let p = &mut sums[i];
-            p.sum += x;
-            p.sum2 += x * x;
-            p.draw_variance = var;
-        }
-        stats.spp = s + 1;
-        stats.samples += pixels as u64;
-        if !progress(stats.samples, planned) {
-            stats.complete = s + 1 == params.spp;
-            break;
+        Ok(())
+    }
+
+    /// Sample `s` of `pixel` by [`Gather::Sampled`] with `draws` VPLs: its estimate and
+    /// its draws' variance of the mean (zero where the sample sees no surface).
+    pub fn sampled_pixel(
+        &self,
+        pixel: usize,
+        s: u32,
+        draws: u32,
+        scratch: &mut Scratch,
+        work: &mut GatherWork,
+    ) -> (DVec3, DVec3) {
+        match self.receiver(pixel, s, work) {
+            Receiver::Background(l) => (l.as_dvec3(), DVec3::ZERO),
+            Receiver::Surface { emitted, r } => {
+                let (mean, var) = gather_sampled(
+                    self.scene,
+                    pixel,
+                    &r,
+                    &self.used,
+                    self.disk_area,
+                    &self.params,
+                    draws,
+                    s,
+                    self.distribution,
+                    &mut scratch.cdf,
+                    work,
+                );
+                (emitted.as_dvec3() + mean, var)
+            }
         }
     }
-    scene.add_counters(counters);
-    let n = stats.spp.max(1) as f64;
-    let sampled = matches!(params.gather, Gather::Sampled { .. });
-    let image = sums
-        .iter()
-        .map(|p| (p.sum / n).as_vec3().to_array())
-        .collect();
-    let variance = sums
-        .iter()
-        .map(|p| {
-            let v = if stats.spp >= 2 {
-                let mean = p.sum / n;
-                ((p.sum2 / n - mean * mean) / (n - 1.0)).max(DVec3::ZERO)
-            } else if sampled {
-                p.draw_variance
-            } else {
-                DVec3::INFINITY
-            };
-            v.as_vec3().to_array()
-        })
-        .collect();
-    stats.seconds = start.elapsed().as_secs_f64();
-    stats.shadow_rays_per_second = stats.shadow_rays as f64 / stats.gather_seconds.max(1e-9);
-    stats.rays_per_second =
-        (stats.shadow_rays + stats.primary_rays) as f64 / stats.seconds.max(1e-9);
-    Ok(ManyLightImage {
-        width,
-        height,
-        image,
-        variance,
-        stats,
-    })
+}
+
+/// The pixels of the [`TILE`] x [`TILE`] tile of a `width x height` image that holds
+/// `pixel` (row-major), in row order, into `out` (cleared first).
+pub fn tile_of(pixel: usize, width: u32, height: u32, out: &mut Vec<usize>) {
+    let (w, t) = (width as usize, TILE as usize);
+    let (x0, y0) = (pixel % w / t * t, pixel / w / t * t);
+    out.clear();
+    for y in y0..(y0 + t).min(height as usize) {
+        out.extend((x0..(x0 + t).min(w)).map(|x| y * w + x));
+    }
 }
 
 pub mod light_paths;

@@ -1,6 +1,6 @@
 //! `viscache_rs._core.VPLs` and `render_vpl`: virtual point lights
 //! ([`crate::lights::vpl`]) and the many-light renderer
-//! ([`crate::estimators::many_lights`]). The Python wrapper (`viscache_rs.vpl`) adds the
+//! ([`crate::render::many_lights`] over [`crate::estimators::many_lights`]). The Python wrapper (`viscache_rs.vpl`) adds the
 //! progress bar and `vc.render`'s methods "vpl" and "vpl_sampled".
 
 use pyo3::exceptions::{PyTypeError, PyValueError};
@@ -15,10 +15,9 @@ use super::convert::{
 use super::envmap::PyEnvMap;
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
-use crate::estimators::many_lights::{
-    render_many_lights, Gather, ManyLightParams, MAX_DRAWS, MAX_SPP,
-};
+use crate::estimators::many_lights::{Gather, ManyLightParams, MAX_DRAWS, MAX_SPP};
 use crate::lights::vpl::{Importance, TraceParams, VplKind, VplSet, MAX_DEPTH, MAX_VPLS};
+use crate::render::many_lights::render_many_lights;
 
 /// A set of virtual point lights: `VPLs.trace(setup, count, ...)` traces them from the
 /// setup's map and area lights, `VPLs.from_lights(scene, positions, normals, flux)` makes

@@ -43,6 +43,43 @@ impl Merge for () {
     fn merge(&mut self, _: Self) {}
 }
 
+/// One pixel of a band, as the driver hands it to [`PixelPass::shade_band`].
+#[derive(Debug)]
+pub struct BandPixel<'a, S, N> {
+    /// Row-major index in the image.
+    pub pixel: usize,
+    /// Samples the pass brings the pixel to: samples `acc.samples()..target` are due (none
+    /// when `target <= acc.samples()`).
+    pub target: u32,
+    /// The pixel's accumulator, kept across passes.
+    pub acc: &'a mut S,
+    /// The pixel's note ([`PixelPass::Note`]), kept across passes.
+    pub note: &'a mut N,
+    /// What shading the pixel took in this pass; the method fills it in (zero: nothing).
+    pub timing: PixelTiming,
+}
+
+/// [`PixelPass::shade_band`]'s default: the band's pixels one by one through
+/// [`PixelPass::shade_pixel`], in order, checking `stop` before each.
+pub fn shade_pixels<P: PixelPass + ?Sized>(
+    pass: &P,
+    pixels: &mut [BandPixel<'_, P::Sums, P::Note>],
+    work: &mut P::Work,
+    stop: &dyn Fn() -> bool,
+) {
+    for p in pixels {
+        // A band of many samples takes seconds; stop within a pixel.
+        if stop() {
+            break;
+        }
+        if p.acc.due(p.target) {
+            let current = p.acc.samples();
+            let samples = current..p.target.max(current);
+            p.timing = pass.shade_pixel(p.pixel, samples, p.acc, work, p.note);
+        }
+    }
+}
+
 /// One pass's per-pixel sampling. Shared by the workers: `&self` only.
 pub trait PixelPass: Sync {
     /// Counters and scratch of one band (a run of rows one worker shades in order).
@@ -65,6 +102,27 @@ pub trait PixelPass: Sync {
         work: &mut Self::Work,
         note: &mut Self::Note,
     ) -> PixelTiming;
+
+    /// Shades one band: `pixels` are whole rows of the image (row-major, in order; the
+    /// driver's bands start at a multiple of their rows, [`super::passes::BAND_ROWS`] with
+    /// even counts), each brought to its target in sample order with its timing filled in.
+    /// When `stop()` turns true the method stops soon (between pixels or samples); every
+    /// pixel keeps the samples it took, and the driver counts them from the sums.
+    ///
+    /// The default shades pixel by pixel ([`shade_pixels`]). A method whose samples are
+    /// cheaper together (the many-light gather traces a 4 x 4 tile's rays towards a light
+    /// as one packet) overrides it; whatever it groups, a pixel's values must be those
+    /// [`Self::shade_pixel`] would give (every random number from `(seed, pixel, sample,
+    /// dimension)`, added in sample order), so the image depends neither on the grouping
+    /// nor on the workers.
+    fn shade_band(
+        &self,
+        pixels: &mut [BandPixel<'_, Self::Sums, Self::Note>],
+        work: &mut Self::Work,
+        stop: &dyn Fn() -> bool,
+    ) {
+        shade_pixels(self, pixels, work, stop)
+    }
 }
 
 /// A method the pass layer drives: it runs passes ([`Self::pass`]) and may learn between

@@ -96,6 +96,7 @@ use crate::visibility::params::CacheParams;
 pub mod adaptive;
 pub mod estimator;
 pub mod frame;
+pub mod many_lights;
 pub mod own_cache;
 pub mod passes;
 pub mod registry;

@@ -4,7 +4,9 @@
 //! pilot), the bands the workers take, progress, Ctrl-C (a `false` from the progress
 //! callback), the figures the pass schedule and the stats need, and the determinism of the
 //! result: a pixel is shaded by one worker per pass, in sample order, and every decision
-//! between passes is made on the calling thread from sums in pixel order.
+//! between passes is made on the calling thread from sums in pixel order. A worker takes a
+//! band of whole rows and hands it to [`PixelPass::shade_band`]: pixel by pixel unless the
+//! method shades groups of pixels together (tiles), which must not change a pixel's values.
 //!
 //! ## Passes
 //! Without a time budget the render is one pass of `spp` samples per pixel. With one, a
@@ -23,7 +25,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::adaptive::{pilot_spp, sample_cap, SampleShares};
-use super::estimator::{Merge, PassPlan, PixelEstimator, PixelPass};
+use super::estimator::{BandPixel, Merge, PassPlan, PixelEstimator, PixelPass, PixelTiming};
 use super::schedule::{PassSchedule, PassWork};
 use super::sums::PixelSums;
 use super::MAX_SPP;
@@ -31,8 +33,8 @@ use crate::error::Result;
 use crate::parallel::run_with_progress;
 
 /// Rows per work item of a pass with even counts: small enough to balance two to hundreds
-/// of threads.
-const BAND_ROWS: usize = 4;
+/// of threads. A band starts at a multiple of it ([`PixelPass::shade_band`]).
+pub const BAND_ROWS: usize = 4;
 
 /// How many samples the driver takes, and for how long.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -287,32 +289,40 @@ pub fn run_passes<E: PixelEstimator>(
                                 return (work, tally);
                             }
                             let first = band * rows * width;
-                            for (i, (acc, state)) in
-                                band_sums.iter_mut().zip(band_state).enumerate()
-                            {
-                                // A band of many samples takes seconds; stop within a pixel.
-                                if cancel.load(Ordering::Relaxed) {
-                                    break;
-                                }
-                                let target = targets.of(first + i);
-                                if acc.due(target) {
-                                    let from = acc.samples();
-                                    let added = target.saturating_sub(from);
+                            let before: Vec<u32> = band_sums.iter().map(|s| s.samples()).collect();
+                            let mut band_pixels: Vec<_> = band_sums
+                                .iter_mut()
+                                .zip(band_state.iter_mut())
+                                .enumerate()
+                                .map(|(i, (acc, state))| BandPixel {
+                                    pixel: first + i,
+                                    target: targets.of(first + i),
+                                    acc,
+                                    note: &mut state.note,
+                                    timing: Default::default(),
+                                })
+                                .collect();
+                            shader.shade_band(&mut band_pixels, &mut work, &|| {
+                                cancel.load(Ordering::Relaxed)
+                            });
+                            // What each pixel took, counted from its sums.
+                            let taken: Vec<_> = band_pixels
+                                .iter()
+                                .zip(&before)
+                                .map(|(p, &n)| (p.acc.samples().saturating_sub(n), p.timing))
+                                .collect();
+                            // A pixel shaded (samples added, or a visit of its set-up alone:
+                            // [`PixelSums::due`]) counts its set-up; one that took samples
+                            // gives its cost per sample.
+                            for (state, (added, timing)) in band_state.iter_mut().zip(taken) {
+                                if added > 0 || timing != PixelTiming::default() {
                                     tally.samples += added as u64;
                                     tally.anchored_pixels += 1;
-                                    let timing = shader.shade_pixel(
-                                        first + i,
-                                        from..from + added,
-                                        acc,
-                                        &mut work,
-                                        &mut state.note,
-                                    );
                                     tally.anchor_ns += timing.anchor_ns;
                                     tally.sample_ns += timing.sample_ns;
-                                    if added > 0 {
-                                        state.ns_per_sample =
-                                            timing.sample_ns as f32 / added as f32;
-                                    }
+                                }
+                                if added > 0 {
+                                    state.ns_per_sample = timing.sample_ns as f32 / added as f32;
                                 }
                             }
                             done.fetch_add(tally.samples, Ordering::Relaxed);

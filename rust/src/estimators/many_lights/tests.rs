@@ -1,307 +1,93 @@
+//! The per-sample maths of the many-light renderer: a sample's receivers are the
+//! G-buffer's hits, tiles cover the image once, and the pixel sums' estimate.
+
 use super::*;
-use crate::bsdf::Material;
+use crate::camera::GBuffer;
 use crate::lights::vpl::TraceParams;
 
-const ALBEDO: [f32; 3] = [0.5, 0.3, 0.8];
-
-fn no_progress() -> impl FnMut(u64, u64) -> bool + Send {
-    |_, _| true
-}
-
-fn black() -> EnvMap {
-    EnvMap::constant([0.0; 3], 8).unwrap()
-}
-
-/// The furnace ([`crate::testing::furnace_sphere`]) of Lambert `ALBEDO`: one bounce of
-/// indirect light is `a²` at every point, and a VPL sum has only the tessellation's error.
-fn furnace() -> Scene {
-    crate::testing::furnace_sphere(4, Material::lambert(ALBEDO).unwrap())
-}
-
-fn camera(eye: Vec3, target: Vec3, w: u32, h: u32) -> Camera {
-    Camera::look_at(eye, target, Vec3::Z, 60.0, w, h).unwrap()
-}
-
-fn trace(scene: &Scene, count: u64, seed: u64) -> VplSet {
-    let p = TraceParams {
-        count,
-        depth: 1,
-        seed,
-        importance: None,
-        lights: true,
-    };
-    VplSet::trace(scene, &black(), None, &p, Some(2)).unwrap()
-}
-
-fn render(
-    scene: &Scene,
-    cam: &Camera,
-    vpls: &VplSet,
-    params: &ManyLightParams,
-    threads: usize,
-) -> ManyLightImage {
-    render_many_lights(
-        scene,
-        &black(),
-        cam,
-        vpls,
-        params,
-        None,
-        Some(threads),
-        &mut no_progress(),
-    )
-    .unwrap()
-}
-
-#[test]
-fn one_light_vpl_over_a_plane_gives_eq_6_1() {
-    // A Lambert floor at y = 0 lit by one cosine point light at height h facing down:
-    // L = ρ/π · Φ/π · cos θ_x cos θ_v / d² = ρ Φ h² / (π² d⁴).
-    let rho = 0.6f32;
-    let mut scene = Scene::new();
-    let v = [
-        [-5.0, 0.0, -5.0],
-        [5.0, 0.0, -5.0],
-        [5.0, 0.0, 5.0],
-        [-5.0, 0.0, 5.0],
-    ];
-    scene
-        .add_indexed(
-            &v,
-            &[[0, 2, 1], [0, 3, 2]],
-            Material::lambert([rho; 3]).unwrap(),
-            None,
-        )
-        .unwrap();
-    let (h, phi) = (1.5f32, [2.0f32, 1.0, 0.5]);
-    let vpls = VplSet::from_lights(&scene, &[[0.3, h, 0.2]], &[[0.0, -1.0, 0.0]], &[phi]).unwrap();
-    let cam = camera(Vec3::new(0.0, 4.0, 0.1), Vec3::ZERO, 24, 18);
-    let params = ManyLightParams {
-        jitter: false,
-        ..ManyLightParams::DEFAULT
-    };
-    let img = render(&scene, &cam, &vpls, &params, 2);
-    let g = GBuffer::render(&scene, &cam, 0, false, None).unwrap();
-    for (i, px) in img.image.iter().enumerate() {
-        let p = Vec3::from(g.position[i]);
-        let d2 = (p - Vec3::new(0.3, h, 0.2)).length_squared();
-        for c in 0..3 {
-            let want = rho * phi[c] * h * h / (std::f32::consts::PI.powi(2) * d2 * d2);
-            assert!((px[c] - want).abs() <= 1e-4 * want, "{i}: {px:?} vs {want}");
-        }
-    }
-    assert_eq!(img.stats.shadow_rays, 24 * 18);
-    assert_eq!(img.stats.vpls, 1);
-    // Without direct light a light VPL adds nothing.
-    let indirect = ManyLightParams {
-        direct: false,
-        ..params
-    };
-    let dark = render(&scene, &cam, &vpls, &indirect, 2);
-    assert!(dark.image.iter().all(|p| *p == [0.0; 3]));
-    // A clamp of the geometry term lowers the brightest pixels only.
-    let bound = 0.3;
-    let clamped = ManyLightParams {
-        clamp: Some(bound),
-        ..params
-    };
-    let c = render(&scene, &cam, &vpls, &clamped, 2);
-    let mut lowered = 0;
-    for (a, b) in c.image.iter().zip(&img.image) {
-        assert!(a[0] <= b[0]);
-        lowered += (a[0] < b[0]) as u32;
-    }
-    assert!(lowered > 0 && lowered < 24 * 18, "{lowered}");
-}
-
-#[test]
-fn furnace_indirect_is_a_squared() {
-    let mut scene = furnace();
-    scene.build(Default::default());
-    let vpls = trace(&scene, 4000, 1);
-    let cam = camera(Vec3::new(0.0, 0.1, 0.2), Vec3::new(0.3, -0.2, -1.0), 12, 8);
-    let params = ManyLightParams {
-        direct: false,
-        spp: 2,
-        ..ManyLightParams::DEFAULT
-    };
-    let img = render(&scene, &cam, &vpls, &params, 2);
-    for px in &img.image {
-        for c in 0..3 {
-            let want = ALBEDO[c] * ALBEDO[c];
-            // The polyhedron's G varies by a few per cent from the sphere's.
-            assert!((px[c] - want).abs() < 0.03 * want, "{px:?} vs {want}");
-        }
-    }
-    let surface = vpls.vpls.iter().filter(|v| v.bounce == 1).count() as u64;
-    assert_eq!(img.stats.vpls, surface);
-    // One ray per pair, but for the few a facet's tilt turns away (cos <= 0).
-    let pairs = surface * 96 * 2;
-    assert!(img.stats.shadow_rays <= pairs && img.stats.shadow_rays > pairs * 99 / 100);
-    assert_eq!(img.stats.spp, 2);
-}
-
-/// Cornell's room at a small size with a set of VPLs.
+/// Cornell's room at 10 x 7 with a few VPLs.
 fn cornell() -> (Scene, EnvMap, Camera, VplSet) {
     let setup = crate::scenes::load("cornell", 1.0, 0).unwrap();
     let mut scene = setup.scene;
     scene.build(Default::default());
-    let cam = setup.camera.with_resolution(16, 12).unwrap();
+    let cam = setup.camera.with_resolution(10, 7).unwrap();
     let p = TraceParams {
-        count: 600,
+        count: 200,
         depth: 1,
         seed: 5,
         importance: None,
         lights: true,
     };
-    let vpls = VplSet::trace(&scene, &setup.envmap, None, &p, Some(2)).unwrap();
+    let vpls = VplSet::trace(&scene, &setup.envmap, None, &p, Some(1)).unwrap();
     (scene, setup.envmap, cam, vpls)
 }
 
+/// Every pixel's receiver at sample `s` is the hit of the G-buffer traced with that
+/// sample's seed, jittered or not: the samples shaded one by one are those a whole image
+/// of first hits gave.
 #[test]
-fn sampled_gather_is_unbiased_for_the_full_sum() {
+fn receivers_are_the_g_buffers_hits() {
     let (scene, env, cam, vpls) = cornell();
-    let run = |gather| {
+    let unoccluded = Unoccluded::default();
+    for jitter in [true, false] {
         let params = ManyLightParams {
-            jitter: false,
-            spp: 4,
-            gather,
+            jitter,
+            seed: 3,
             ..ManyLightParams::DEFAULT
         };
-        render_many_lights(
-            &scene,
-            &env,
-            &cam,
-            &vpls,
-            &params,
-            None,
-            Some(2),
-            &mut no_progress(),
-        )
-        .unwrap()
-    };
-    let full = run(Gather::Full);
-    let sampled = run(Gather::Sampled { draws: 16 });
-    // Per channel over the image: the pixels' draws are independent.
-    for c in 0..3 {
-        let (mut diff, mut var) = (0.0f64, 0.0f64);
-        for (a, (b, v)) in full
-            .image
-            .iter()
-            .zip(sampled.image.iter().zip(&sampled.variance))
-        {
-            diff += (b[c] - a[c]) as f64;
-            var += v[c] as f64;
+        let g = Gatherer::new(&scene, &env, &cam, &vpls, &params, &unoccluded);
+        for s in [0, 5] {
+            let buffer = GBuffer::render(&scene, &cam, sample_seed(3, s), jitter, None).unwrap();
+            let mut work = GatherWork::default();
+            for i in 0..cam.num_pixels() {
+                let dir = Vec3::from(buffer.direction[i]);
+                match (g.receiver(i, s, &mut work), buffer.surface_hit(i)) {
+                    (Receiver::Background(l), None) => assert_eq!(l, env.eval(dir)),
+                    (Receiver::Surface { r, .. }, Some(hit)) => {
+                        let sp = shading_point_at(&scene, &hit, -dir);
+                        assert_eq!(r.sp.origin, sp.origin, "pixel {i}");
+                        assert_eq!(r.sp.normal, sp.normal, "pixel {i}");
+                        assert_eq!(r.sp.wo, sp.wo, "pixel {i}");
+                    }
+                    _ => panic!("pixel {i}: hit and miss disagree"),
+                }
+            }
+            assert_eq!(work.primary_rays, cam.num_pixels() as u64);
         }
-        let se = var.sqrt();
-        assert!(se > 0.0);
-        assert!(diff.abs() < 4.0 * se, "channel {c}: {diff} (SE {se})");
-    }
-    // Fixed receivers: the full sum is the same every sample.
-    assert!(full.variance.iter().all(|v| v.iter().all(|x| *x < 1e-6)));
-    assert_eq!(sampled.stats.shadow_rays, 4 * 16 * 16 * 12);
-}
-
-#[test]
-fn images_are_bit_identical_for_any_thread_count() {
-    let (scene, env, cam, vpls) = cornell();
-    for gather in [Gather::Full, Gather::Sampled { draws: 8 }] {
-        let params = ManyLightParams {
-            spp: 2,
-            gather,
-            ..ManyLightParams::DEFAULT
-        };
-        let go = |t| {
-            render_many_lights(
-                &scene,
-                &env,
-                &cam,
-                &vpls,
-                &params,
-                None,
-                Some(t),
-                &mut no_progress(),
-            )
-            .unwrap()
-        };
-        let (a, b) = (go(1), go(2));
-        assert_eq!(a.image, b.image);
-        assert_eq!(a.variance, b.variance);
     }
 }
 
+/// Tiles are fixed on the image: each pixel lies in exactly one, clipped at the sides.
 #[test]
-fn bad_parameters_are_named() {
-    let (scene, env, cam, vpls) = cornell();
-    let name = |params: ManyLightParams, vpls: &VplSet| match render_many_lights(
-        &scene,
-        &env,
-        &cam,
-        vpls,
-        &params,
-        None,
-        None,
-        &mut no_progress(),
-    ) {
-        Err(Error::InvalidArgument { name, .. }) => name,
-        other => panic!("{:?}", other.map(|i| i.stats)),
-    };
-    let d = ManyLightParams::DEFAULT;
-    assert_eq!(name(ManyLightParams { spp: 0, ..d }, &vpls), "spp");
-    assert_eq!(
-        name(
-            ManyLightParams {
-                clamp: Some(-1.0),
-                ..d
-            },
-            &vpls
-        ),
-        "clamp"
-    );
-    assert_eq!(
-        name(
-            ManyLightParams {
-                clamp: Some(f32::NAN),
-                ..d
-            },
-            &vpls
-        ),
-        "clamp"
-    );
-    let g = Gather::Sampled { draws: 0 };
-    assert_eq!(
-        name(ManyLightParams { gather: g, ..d }, &vpls),
-        "vpl_samples"
-    );
-    let other = furnace();
-    let foreign = trace(&other, 100, 0);
-    assert_eq!(name(d, &foreign), "vpls");
+fn tiles_cover_the_image_once() {
+    let (w, h) = (10u32, 7u32);
+    let mut seen = vec![0u32; (w * h) as usize];
+    let mut tile = Vec::new();
+    for i in 0..(w * h) as usize {
+        tile_of(i, w, h, &mut tile);
+        assert!(tile.contains(&i) && tile.len() <= (TILE * TILE) as usize);
+        assert!(tile.windows(2).all(|p| p[0] < p[1]));
+        if i == tile[0] {
+            tile.iter().for_each(|&p| seen[p] += 1);
+        }
+    }
+    assert!(seen.iter().all(|&n| n == 1));
+    tile_of(69, w, h, &mut tile);
+    assert_eq!(tile, vec![48, 49, 58, 59, 68, 69]);
 }
 
+/// The sums' estimate: the sample variance of the mean from two samples; one sample's
+/// draws' variance ([`Gather::Sampled`]) or infinity; none gives 0 and infinity.
 #[test]
-fn a_stopped_render_keeps_whole_passes() {
-    let (scene, env, cam, vpls) = cornell();
-    let params = ManyLightParams {
-        spp: 3,
-        ..ManyLightParams::DEFAULT
-    };
-    let mut calls = 0;
-    let mut stop_after_first = |done: u64, _| {
-        calls += 1;
-        done < (16 * 12) as u64
-    };
-    let img = render_many_lights(
-        &scene,
-        &env,
-        &cam,
-        &vpls,
-        &params,
-        None,
-        Some(2),
-        &mut stop_after_first,
-    )
-    .unwrap();
-    assert!(!img.stats.complete);
-    assert_eq!(img.stats.spp, 1);
-    assert_eq!(img.stats.samples, 16 * 12);
+fn sums_estimate_mean_and_variance() {
+    let mut p = VplSums::default();
+    assert_eq!(p.estimate(true), ([0.0; 3], [f32::INFINITY; 3]));
+    p.add(DVec3::splat(1.0), DVec3::splat(0.25));
+    assert_eq!(p.estimate(true), ([1.0; 3], [0.25; 3]));
+    assert_eq!(p.estimate(false), ([1.0; 3], [f32::INFINITY; 3]));
+    p.add(DVec3::new(3.0, 1.0, 0.0), DVec3::ZERO);
+    let (mean, var) = p.estimate(false);
+    assert_eq!(mean, [2.0, 1.0, 0.5]);
+    // Σ (x - x̄)² / (n (n - 1)): 2 / 2 and 0.5 / 2.
+    assert_eq!(var, [1.0, 0.0, 0.25]);
 }

@@ -9,7 +9,7 @@ use std::sync::Mutex;
 use glam::Vec3;
 
 use super::*;
-use crate::render::estimator::PixelTiming;
+use crate::render::estimator::{BandPixel, PixelTiming};
 use crate::render::sums::{resolve, CvSums};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
@@ -28,6 +28,10 @@ struct Toy {
     pilot_notes: Option<Vec<u32>>,
     /// Spin this many iterations per sample (a cost to budget against).
     spin: u32,
+    /// Shade each band sample-major ([`PixelPass::shade_band`]) instead of pixel by pixel.
+    banded: bool,
+    /// The bands [`PixelPass::shade_band`] was given: (first pixel, pixels).
+    bands: Mutex<Vec<(usize, usize)>>,
 }
 
 impl Toy {
@@ -38,6 +42,8 @@ impl Toy {
             plans: Mutex::default(),
             pilot_notes: None,
             spin: 0,
+            banded: false,
+            bands: Mutex::default(),
         }
     }
 }
@@ -88,6 +94,33 @@ impl PixelPass for ToyPass<'_> {
         PixelTiming {
             anchor_ns: 0,
             sample_ns: 1 + samples.len() as u64,
+        }
+    }
+
+    /// Banded: sample `s` of every pixel of the band that is due one, then `s + 1`; each
+    /// pixel still adds its samples in order, so its sums are the pixel-by-pixel ones.
+    fn shade_band(
+        &self,
+        pixels: &mut [BandPixel<'_, CvSums, u32>],
+        work: &mut Count,
+        stop: &dyn Fn() -> bool,
+    ) {
+        if let Some(p) = pixels.first() {
+            self.toy.bands.lock().unwrap().push((p.pixel, pixels.len()));
+        }
+        if !self.toy.banded {
+            return crate::render::estimator::shade_pixels(self, pixels, work, stop);
+        }
+        let lo = pixels.iter().map(|p| p.acc.n).min().unwrap_or(0);
+        let hi = pixels.iter().map(|p| p.target).max().unwrap_or(0);
+        for s in lo..hi {
+            if stop() {
+                return;
+            }
+            for p in pixels.iter_mut().filter(|p| p.acc.n == s && s < p.target) {
+                let t = self.shade_pixel(p.pixel, s..s + 1, p.acc, work, p.note);
+                p.timing.sample_ns += t.sample_ns;
+            }
         }
     }
 }
@@ -323,5 +356,39 @@ fn a_pixel_due_at_its_target_is_visited_without_samples() {
             (1, spp as u64 * (W * H) as u64)
         );
         assert!(run.sums.iter().all(|s| s.visits == 1 && s.n == spp));
+    }
+}
+
+/// A method that shades a band its own way ([`PixelPass::shade_band`], here sample-major)
+/// gets the sums, counts and work of pixel-by-pixel shading, bit for bit, with even and
+/// adaptive counts; even counts hand it whole bands of [`BAND_ROWS`] rows.
+#[test]
+fn a_band_hook_changes_nothing_but_the_order() {
+    for adaptive in [false, true] {
+        let params = PassParams {
+            spp: 16,
+            time_budget: None,
+            adaptive,
+        };
+        let mut plain = Toy::new(0.4);
+        let mut banded = Toy::new(0.4);
+        banded.banded = true;
+        let (a, b) = (run(&mut plain, params, 2), run(&mut banded, params, 2));
+        assert_eq!(a.sums, b.sums);
+        assert_eq!((a.passes, a.total.0), (b.passes, b.total.0));
+        assert_eq!(a.counts(), b.counts());
+        assert_eq!(plain.pilot_notes, banded.pilot_notes);
+        let mut bands = banded.bands.lock().unwrap().clone();
+        bands.sort();
+        if !adaptive {
+            assert_eq!(bands.len(), H.div_ceil(BAND_ROWS));
+            for (k, (first, len)) in bands.iter().enumerate() {
+                assert_eq!(*first, k * BAND_ROWS * W);
+                assert_eq!(*len, BAND_ROWS.min(H - k * BAND_ROWS) * W);
+            }
+        }
+        assert!(bands
+            .iter()
+            .all(|(first, len)| first % W == 0 && len % W == 0));
     }
 }
