@@ -48,19 +48,18 @@ of object id -> :class:`Material` overriding the scene's; area-light radiance an
 are edited on the scene (``scene.set_emission``, ``scene.set_emission_texture``). Without
 ``time_budget`` the render is one pass: every pixel's ``LB``-samples, ``<V>`` and ``lbv_spp``
 ``LBV``-samples (SBF's first frame). With ``time_budget`` (seconds, counted from the call)
-the passes are the renderer's (``vc.render``): a probe pass of a few ``LBV``-samples in every
-eighth band of pixels times them, then passes bring every pixel to as many ``LBV``-samples as
-fit the budget left, at least one each (SBF's later frames: ``Var(LB/p)`` is known, a sample
-costs what a classical one does); ``lbv_spp`` is then only the nominal count the reused
-samples' weights assume (and 0 still means no ``LBV``-samples: one pass). With ``adaptive``
-(the default; budgets only) the pass after the probe is a pilot of a quarter of its
-samples, after which each pixel takes the rest in proportion to ``sqrt(v / c)``, ``v`` its
-blend's relative variance per sample, ``(1 - t)^2 Var(LBV/p) / (mean^2 + 1e-2)``, and ``c``
-its cost per sample, both pooled over its neighbours (the renderer's adaptive counts:
-relMSE's optimum), so pixels that lean on ``<LB><V>`` take few; ``adaptive=False`` gives every pixel
+the first pass still gives every pixel its ``LB``-samples, ``<V>`` and ``lbv_spp``
+``LBV``-samples, and the passes after it are the renderer's (``vc.render``): sized by the
+first pass's timing, they bring every pixel to as many ``LBV``-samples as fit the budget
+left (SBF's later frames: ``Var(LB/p)`` is known, a sample costs what a classical one
+does; ``lbv_spp`` 0 still means no ``LBV``-samples: one pass). With ``adaptive`` (the
+default; budgets only) the pass after the first is a pilot of a quarter of its samples,
+after which each pixel takes the rest in proportion to ``sqrt(v / c)``, ``v`` its blend's
+relative variance per sample, ``(1 - t)^2 Var(LBV/p) / (mean^2 + 1e-2)``, and ``c`` its cost
+per sample, both pooled over its neighbours (the renderer's adaptive counts: relMSE's
+optimum), so pixels that lean on ``<LB><V>`` take few; ``adaptive=False`` gives every pixel
 the same count, and the image then equals a run without a budget asked for that count.
-``stats["passes"]`` counts the probe; ``stats["first_pass_seconds"]`` is the first pass's
-wall-clock time (under a budget, the probe's).
+``stats["first_pass_seconds"]`` is the first pass's wall-clock time.
 ``stats["lbv_spp"]`` is the most a pixel took, ``stats["lbv_spp_mean"]`` the mean over the
 pixels that see a surface. Where ``LB``-samples would change nothing they are not drawn
 (``stats["lb_skipped"]`` counts them): at a light without ``<V>`` (an area light with

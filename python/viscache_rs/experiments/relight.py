@@ -202,7 +202,7 @@ def run(ctx: ExperimentContext) -> None:
                               time_budget=first + EQUAL_TIME_SECONDS[ctx.quick])
         same_rays = vc.render(setup, cam, spp=8, method="product", jitter=False, envmap=env,
                               seed=ctx.seed + 6, threads=threads, progress=False)
-        # The budgeted render's passes are the driver's (a probe, then passes sized by it):
+        # The budgeted render's first pass is the first frame's; the driver's passes add:
         # what it took beyond the first frame's 8 LBV-samples, against what it spent beyond
         # the first frame's seconds.
         later_spp = round(blend.stats["lbv_spp_mean"]) - 8

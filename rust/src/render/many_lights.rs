@@ -356,6 +356,7 @@ fn render_with(
         spp: params.spp,
         time_budget: params.time_budget,
         adaptive: false,
+        first_spp: None,
     };
     let passes_start = Instant::now();
     let run = run_passes(

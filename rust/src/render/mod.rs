@@ -597,6 +597,7 @@ fn render_with(
         spp: params.spp,
         time_budget: params.time_budget,
         adaptive: params.adaptive,
+        first_spp: None,
     };
     let run = run_passes(
         &mut method,

@@ -47,6 +47,11 @@ pub struct PassParams {
     pub time_budget: Option<f64>,
     /// Adaptive per-pixel counts after a pilot ([`super::adaptive`]).
     pub adaptive: bool,
+    /// Under a time budget: a first pass that brings every pixel to this many samples,
+    /// whatever the budget, instead of the probe (the passes after it are sized by its
+    /// timing). For a method whose first samples are a minimum it promises (the
+    /// relighter's `lbv_spp`); `None`: the probe.
+    pub first_spp: Option<u32>,
 }
 
 /// What the passes left: every pixel's sums, the methods' counters added up, and how the
@@ -200,9 +205,10 @@ pub fn run_passes<E: PixelEstimator>(
                 (Targets::scaled(shares, lambda, &current, *cap), false)
             }
             None => break,
-            Some(_) if passes == 0 => {
-                (Targets::Even(PassSchedule::PROBE_SPP.min(params.spp)), true)
-            }
+            Some(_) if passes == 0 => match params.first_spp {
+                Some(first) => (Targets::Even(first.min(params.spp)), false),
+                None => (Targets::Even(PassSchedule::PROBE_SPP.min(params.spp)), true),
+            },
             Some(budget) => {
                 let left = budget - start.elapsed().as_secs_f64();
                 let min = sums.iter().map(|s| s.samples()).min().unwrap_or(0);

@@ -14,12 +14,11 @@
 //! ## Passes
 //! Without a time budget the render is one pass: every pixel visited and given `lbv_spp`
 //! `LBV`-samples (SBF's first frame). With one (and `lbv_spp > 0`; without `LBV`-samples
-//! there is no unbiased part to add to, and the render is the one pass), the passes are
-//! the driver's: a probe pass of a few `LBV`-samples in every eighth band of pixels, then
-//! passes that bring every pixel to the most `LBV`-samples the probe's timing says fit
-//! the budget left, at least one per pixel (SBF's later frames, where `Var(LB/p)` is known
-//! and a sample costs what a classical one does). `lbv_spp` is then the nominal `n₂` of
-//! the reused samples' MIS weights (the `LBV`-samples a pixel takes may be fewer or more).
+//! there is no unbiased part to add to, and the render is the one pass), that first pass
+//! still gives every pixel its `lbv_spp` (the driver's `first_spp`), and the driver's
+//! passes that follow bring every pixel to the most `LBV`-samples the first pass's timing
+//! says fit the budget left (SBF's later frames, where `Var(LB/p)` is known and a sample
+//! costs what a classical one does).
 //! With [`RelightParams::adaptive`] (budgets only) the main pass is a pilot of a quarter
 //! of its samples, after which each pixel takes a share of the rest ([`SampleShares`],
 //! Neyman's allocation) in proportion to `√(v_i / c_i)`, `v_i` the relative variance per
@@ -178,6 +177,9 @@ pub fn relight(
             },
             time_budget: budget,
             adaptive: params.adaptive && budget.is_some(),
+            // The first pass gives every pixel its `lbv_spp` (SBF's first frame), the
+            // budget's passes add to it.
+            first_spp: budget.map(|_| params.lbv_spp),
         };
         let mut stopped = false;
         let mut watched = |done: u64, planned: u64| {

@@ -205,8 +205,8 @@ pub struct RelightParams {
     /// `LB`-samples per pixel and light (no rays).
     pub lb_spp: u32,
     /// `LBV`-samples per pixel and light (one shadow ray each); 0 leaves the unbiased part
-    /// out (`t = 1`). Under a [`Self::time_budget`] the passes take as many as fit (at
-    /// least one per pixel), and this is the nominal `n₂` of the reused samples' MIS
+    /// out (`t = 1`). Under a [`Self::time_budget`] the first pass takes them all the same
+    /// and later passes add as many as fit; this is the `n₂` of the reused samples' MIS
     /// weights (module docs, "Stored samples as `LBV`-samples").
     pub lbv_spp: u32,
     /// `Err_relThres` of SBF eq. 11: the largest relative error wanted (`≥ 0`; 0 gives
@@ -219,12 +219,11 @@ pub struct RelightParams {
     /// Octahedral level of the map's product cells.
     pub product_level: ProductLevel,
     /// Seconds (from the render's start) after which no further pass of `LBV`-samples
-    /// starts; `None`: one pass of [`Self::lbv_spp`]. With a budget (and `lbv_spp > 0`) a
-    /// probe pass of a few `LBV`-samples in every eighth band of pixels times them, and
-    /// passes sized by that timing bring every pixel to as many as fit (the pass layer's
-    /// schedule; every pixel visited, at least one `LBV`-sample each).
+    /// starts; `None`: one pass of [`Self::lbv_spp`]. With a budget (and `lbv_spp > 0`) that
+    /// first pass is timed, and passes sized by its timing bring every pixel to as many as
+    /// fit (the pass layer's schedule).
     pub time_budget: Option<f64>,
-    /// Under a [`Self::time_budget`], whether the pass after the probe is a pilot of a
+    /// Under a [`Self::time_budget`], whether the pass after the first is a pilot of a
     /// quarter of its samples after which each pixel takes the share of the rest that cuts
     /// the image's relMSE most for its cost (SBF §4.1's adaptive sampling: `√(v/c)`, `v`
     /// the relative variance per `LBV`-sample of its blend, `c` its cost), rather than the
@@ -472,10 +471,10 @@ pub struct Relit {
     pub lbv_spp_mean: f64,
     /// `LBV`-samples per light each pixel took (row-major; 0 where it sees no surface).
     pub lbv_counts: Vec<u32>,
-    /// Passes over the pixels (1 without a time budget; with one, the probe included).
+    /// Passes over the pixels (1 without a time budget).
     pub passes: u32,
     /// Wall-clock seconds of the first pass: without a time budget the only one (every
-    /// pixel's `LB`-samples, `⟨V⟩` and `LBV`-samples); with one, the probe.
+    /// pixel's `LB`-samples, `⟨V⟩` and `LBV`-samples).
     pub first_pass_seconds: f64,
     /// Wall-clock seconds.
     pub seconds: f64,

@@ -175,6 +175,7 @@ fn even_counts_take_one_pass() {
         spp: 8,
         time_budget: None,
         adaptive: false,
+        first_spp: None,
     };
     let run = run(&mut toy, params, 2);
     assert_eq!(run.passes, 1);
@@ -199,6 +200,7 @@ fn adaptive_counts_follow_the_noise() {
         spp: 16,
         time_budget: None,
         adaptive: true,
+        first_spp: None,
     };
     let mut toy = Toy::new(0.4);
     let one = run(&mut toy, params, 1);
@@ -235,6 +237,7 @@ fn a_budget_starts_with_a_probe() {
         spp: 1 << 12,
         time_budget: Some(0.05),
         adaptive: false,
+        first_spp: None,
     };
     let run = run(&mut toy, params, 2);
     let plans = toy.plans.lock().unwrap().clone();
@@ -242,6 +245,24 @@ fn a_budget_starts_with_a_probe() {
     assert!(plans.len() >= 2 && plans[1..].iter().all(|p| !p.probe));
     assert_eq!(run.passes as usize, plans.len());
     assert!(run.min_spp() >= 1 && run.max_spp() <= 1 << 12);
+}
+
+/// A budget with `first_spp`: no probe; the first pass gives every pixel that many
+/// samples however short the budget, the passes after it add to them.
+#[test]
+fn a_first_pass_promises_its_samples_under_any_budget() {
+    let mut toy = Toy::new(0.1);
+    toy.spin = 2000;
+    let params = PassParams {
+        spp: 1 << 12,
+        time_budget: Some(1e-6),
+        adaptive: false,
+        first_spp: Some(6),
+    };
+    let run = run(&mut toy, params, 2);
+    let plans = toy.plans.lock().unwrap().clone();
+    assert!(plans.iter().all(|p| !p.probe));
+    assert!(run.min_spp() >= 6, "{}", run.min_spp());
 }
 
 /// A `false` from progress stops the render after the pass under way, part-way: the
@@ -255,6 +276,7 @@ fn progress_can_stop_the_passes() {
         spp: 256,
         time_budget: None,
         adaptive: false,
+        first_spp: None,
     };
     let run = run_passes(
         &mut toy,
@@ -340,6 +362,7 @@ fn a_pixel_due_at_its_target_is_visited_without_samples() {
             spp,
             time_budget: None,
             adaptive: false,
+            first_spp: None,
         };
         let run = run_passes(
             &mut Visits,
@@ -369,6 +392,7 @@ fn a_band_hook_changes_nothing_but_the_order() {
             spp: 16,
             time_budget: None,
             adaptive,
+            first_spp: None,
         };
         let mut plain = Toy::new(0.4);
         let mut banded = Toy::new(0.4);
