@@ -102,13 +102,14 @@ and most. The result is bit-identical for any ``threads`` at a fixed seed (with
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from . import _core
+from . import vpl as _vpl
 from ._progress import progress_bar
+from ._result import RenderResult
 
 _UNBOUNDED_SPP = 1 << 20
 # Method "cv" without a cache (the policy is Rust's, `render::own_cache`): the share of a
@@ -117,25 +118,6 @@ CACHE_BUDGET_SHARE: float = _core.OWN_CACHE_BUDGET_SHARE
 SAMPLES_PER_RECORD: int = _core.OWN_CACHE_SAMPLES_PER_RECORD
 # The registry's many-light methods, rendered by viscache_rs.vpl.
 _MANY_LIGHT_METHODS = tuple(m["name"] for m in _core.methods() if m["estimator"] == "many_lights")
-
-
-@dataclass
-class RenderResult:
-    """``image`` and ``variance`` (per-pixel variance of the mean) are (H, W, 3) float32;
-    ``alpha`` is the control variate's per-pixel alpha (method "cv", else None); ``stats``
-    holds seconds, spp, samples, rays, per-stage CPU seconds and, for "cv", cache figures;
-    ``sample_counts`` (H, W) uint32 the samples each pixel took."""
-
-    image: np.ndarray
-    variance: np.ndarray
-    stats: dict[str, Any] = field(default_factory=dict)
-    alpha: np.ndarray | None = None
-    sample_counts: np.ndarray | None = None
-
-    @property
-    def standard_error(self) -> np.ndarray:
-        """Per-pixel standard error of the mean, (H, W, 3)."""
-        return np.sqrt(self.variance)
 
 
 def render(
@@ -184,7 +166,6 @@ def render(
     _core.check_method_args(method, [k for k, v in given.items() if v], cache)
     # Many-light methods over virtual point lights (viscache_rs.vpl).
     if method in _MANY_LIGHT_METHODS:
-        from . import vpl as _vpl
         return _vpl.render_vpl(setup, camera=camera, spp=spp, method=method, seed=seed,
                                threads=threads, progress=progress, time_budget=time_budget,
                                envmap=envmap, vpls=vpls, clamp=clamp, vpl_samples=vpl_samples,

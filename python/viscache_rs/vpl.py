@@ -42,6 +42,7 @@ from typing import Any
 from . import _core
 from ._core import VPLs
 from ._progress import progress_bar
+from ._result import RenderResult
 
 _UNBOUNDED_SPP = 1 << 16
 DEFAULT_COUNT = 4096
@@ -66,8 +67,6 @@ def render_vpl(setup, camera=None, spp: int | None = None, method: str = "vpl",
                bounces: int | None = None, direct: bool = True, jitter: bool = True):
     """``vc.render``'s methods "vpl" and "vpl_sampled" (module docstring); returns a
     :class:`RenderResult` whose stats hold the VPL count, shadow rays, seconds and rays/s."""
-    from .render import RenderResult
-
     if method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
     camera = setup.camera if camera is None else camera
