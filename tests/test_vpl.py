@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 import viscache_rs as vc
+from viscache_rs import vpl as vpl_module
 
 ALBEDO = np.array([0.5, 0.3, 0.8])
 
@@ -238,3 +239,22 @@ def test_a_time_budget_and_a_progress_bar():
     assert np.all(np.isfinite(res.variance)) or res.stats["spp"] == 1
     # Every pixel took at least stats["spp"]; the probe's bands may have taken more.
     assert res.stats["samples"] >= res.stats["spp"] * 16 * 12
+
+
+@pytest.mark.parametrize("direct", [True, False])
+def test_a_render_given_no_vpls_traces_the_cores_default_set(direct):
+    """Without ``vpls`` the core traces ``DEFAULT_COUNT`` VPLs of depth ``bounces`` (light
+    VPLs only with ``direct``): the same image as that set given by hand, bit for bit."""
+    setup = vc.scenes.load("cornell", detail=0.3)
+    setup.camera = setup.camera.with_resolution(24, 18)
+    own = vc.render(setup, method="vpl", bounces=2, direct=direct, seed=3, threads=2,
+                    progress=False)
+    given = vc.VPLs.trace(setup, vpl_module.DEFAULT_COUNT, seed=3, depth=2, lights=direct,
+                          threads=2)
+    by_hand = vc.render(setup, method="vpl", vpls=given, direct=direct, seed=3, threads=2,
+                        progress=False)
+    np.testing.assert_array_equal(own.image, by_hand.image)
+    assert own.stats["vpls"] == by_hand.stats["vpls"] == len(given)
+    assert own.stats["bounces"] == by_hand.stats["bounces"] == int(given.bounces.max())
+    assert own.stats["vpl_trace_seconds"] > 0 and "vpl_trace_seconds" not in by_hand.stats
+    assert vpl_module.DEFAULT_COUNT == 4096 and vpl_module.DEFAULT_SAMPLES == 16

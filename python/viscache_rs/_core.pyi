@@ -23,6 +23,8 @@ __all__ = [
     "methods",
     "check_method_args",
     "own_cache_record_cap",
+    "DEFAULT_VPLS",
+    "DEFAULT_VPL_SAMPLES",
     "OWN_CACHE_SAMPLES_PER_RECORD",
     "OWN_CACHE_BUDGET_SHARE",
     "VPLs",
@@ -410,6 +412,8 @@ def render(
 def methods() -> list[dict[str, Any]]: ...
 def own_cache_record_cap(pixels: int, spp: int, preset: str = "auto") -> int: ...
 
+DEFAULT_VPLS: int
+DEFAULT_VPL_SAMPLES: int
 OWN_CACHE_SAMPLES_PER_RECORD: int
 OWN_CACHE_BUDGET_SHARE: float
 
@@ -460,7 +464,7 @@ def render_vpl(
     scene: Scene,
     envmap: EnvMap,
     camera: Camera,
-    vpls: VPLs,
+    vpls: VPLs | None,
     spp: int | None = 1,
     seed: int | None = 0,
     threads: int | None = None,
@@ -470,6 +474,7 @@ def render_vpl(
     vpl_samples: int | None = None,
     time_budget: float | None = None,
     callback: Any = None,
+    depth: int | None = None,
 ) -> dict[str, Any]: ...
 def render_ao(
     scene: Scene,

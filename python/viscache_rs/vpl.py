@@ -45,8 +45,9 @@ from ._progress import progress_bar
 from ._result import RenderResult
 
 _UNBOUNDED_SPP = 1 << 16
-DEFAULT_COUNT = 4096
-DEFAULT_SAMPLES = 16
+# The core's defaults: the VPLs traced for a render given none, the draws of "vpl_sampled".
+DEFAULT_COUNT: int = _core.DEFAULT_VPLS
+DEFAULT_SAMPLES: int = _core.DEFAULT_VPL_SAMPLES
 METHODS = ("vpl", "vpl_sampled")
 
 
@@ -72,14 +73,10 @@ def render_vpl(setup, camera=None, spp: int | None = None, method: str = "vpl",
     camera = setup.camera if camera is None else camera
     envmap = setup.envmap if envmap is None else envmap
     depth = _bounces(bounces)
-    trace_stats: dict[str, Any] = {}
-    if vpls is None:
-        vpls = VPLs.trace(setup, DEFAULT_COUNT, seed=seed, depth=depth or 1, lights=direct,
-                          camera=camera, envmap=envmap, threads=threads)
-        trace_stats = {"vpl_trace_seconds": vpls.stats["seconds"]}
-    elif not isinstance(vpls, VPLs):
+    # Without a set the core traces its default one (render::many_lights::default_vpls).
+    if vpls is not None and not isinstance(vpls, VPLs):
         raise TypeError(f"vpls: expected a VPLs set, got {type(vpls).__name__}")
-    elif depth is not None:
+    if vpls is not None and depth is not None:
         raise ValueError("bounces: a given VPL set has its own depth; pass bounces=None "
                          "or trace the set with depth=bounces")
     if method == "vpl_sampled":
@@ -95,12 +92,9 @@ def render_vpl(setup, camera=None, spp: int | None = None, method: str = "vpl",
         out = _core.render_vpl(setup.scene, envmap, camera, vpls, spp=spp, seed=seed,
                                threads=threads, clamp=clamp, direct=direct, jitter=jitter,
                                vpl_samples=vpl_samples, time_budget=time_budget,
-                               callback=callback)
+                               callback=callback, depth=depth)
     stats = out["stats"]
     stats["method"] = method
-    generations = vpls.bounces
-    stats["bounces"] = int(generations.max()) if len(generations) else 0
-    stats.update(trace_stats)
     return RenderResult(out["image"], out["variance"], stats)
 
 

@@ -43,6 +43,11 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
         "OWN_CACHE_SAMPLES_PER_RECORD",
         crate::render::own_cache::SAMPLES_PER_RECORD,
     )?;
+    m.add("DEFAULT_VPLS", crate::render::many_lights::DEFAULT_VPLS)?;
+    m.add(
+        "DEFAULT_VPL_SAMPLES",
+        crate::render::many_lights::DEFAULT_VPL_SAMPLES,
+    )?;
     m.add(
         "OWN_CACHE_BUDGET_SHARE",
         crate::render::own_cache::CACHE_BUDGET_SHARE,

@@ -17,7 +17,7 @@ use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
 use crate::estimators::many_lights::{Gather, ManyLightParams, MAX_DRAWS, MAX_SPP};
 use crate::lights::vpl::{Importance, TraceParams, VplKind, VplSet, MAX_DEPTH, MAX_VPLS};
-use crate::render::many_lights::render_many_lights;
+use crate::render::many_lights::{default_vpls, render_many_lights};
 
 /// A set of virtual point lights: `VPLs.trace(setup, count, ...)` traces them from the
 /// setup's map and area lights, `VPLs.from_lights(scene, positions, normals, flux)` makes
@@ -281,17 +281,20 @@ impl PyVpls {
 
 /// Renders `camera`'s view of `scene` lit by `vpls`: the full sum of eq. 6.1
 /// (`vpl_samples=None`) or `vpl_samples` VPLs per pixel sample drawn by their unoccluded
-/// contribution. Returns a dict with `image` and `variance` (H, W, 3) float32 and `stats`.
+/// contribution. `vpls` None: the render traces the default set
+/// ([`crate::render::many_lights::default_vpls`]) with surface VPLs of `depth` (default 1)
+/// generations, and its stats give `vpl_trace_seconds`. Returns a dict with `image` and
+/// `variance` (H, W, 3) float32 and `stats` (with `bounces`, the set's most generations).
 /// `callback(done, planned)` as for `render`.
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, vpls, spp=1, seed=0, threads=None, clamp=None, direct=true, jitter=true, vpl_samples=None, time_budget=None, callback=None))]
+#[pyo3(signature = (scene, envmap, camera, vpls, spp=1, seed=0, threads=None, clamp=None, direct=true, jitter=true, vpl_samples=None, time_budget=None, callback=None, depth=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render_vpl<'py>(
     py: Python<'py>,
     scene: PyRef<'py, PyScene>,
     envmap: Bound<'py, PyEnvMap>,
     camera: PyRef<'py, PyCamera>,
-    vpls: Bound<'py, PyVpls>,
+    vpls: Option<Bound<'py, PyVpls>>,
     #[pyo3(from_py_with = spp_arg)] spp: u32,
     #[pyo3(from_py_with = seed_or_zero)] seed: u64,
     threads: Option<&Bound<'py, PyAny>>,
@@ -301,7 +304,12 @@ pub fn render_vpl<'py>(
     vpl_samples: Option<&Bound<'py, PyAny>>,
     time_budget: Option<&Bound<'py, PyAny>>,
     callback: Option<Py<PyAny>>,
+    depth: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let depth = match depth {
+        Some(d) => depth_arg(d)?,
+        None => 1,
+    };
     let clamp = match clamp {
         Some(c) if !c.is_none() => {
             let v = f64_arg(c, "clamp")?;
@@ -334,23 +342,38 @@ pub fn render_vpl<'py>(
     let threads = threads_arg(threads)?;
     let (scene, cam) = (scene.get(), camera.inner);
     let env: Py<PyEnvMap> = envmap.unbind();
-    let vpls: Py<PyVpls> = vpls.unbind();
+    let vpls: Option<Py<PyVpls>> = vpls.map(Bound::unbind);
     let mut reporter = PyProgress::new(callback);
     let stop = reporter.stop_flag();
     let mut progress = |done: u64, planned: u64| reporter.report(done, planned);
     let out = detach_interruptible(py, &stop, || {
-        render_many_lights(
+        let env = &env.get().inner;
+        let traced = match &vpls {
+            Some(_) => None,
+            None => Some(default_vpls(
+                &scene, env, &cam, seed, depth, direct, threads,
+            )?),
+        };
+        let set = match (&vpls, &traced) {
+            (Some(v), _) => &v.get().inner,
+            (None, Some(t)) => t,
+            (None, None) => unreachable!("traced when not given"),
+        };
+        let out = render_many_lights(
             &scene,
-            &env.get().inner,
+            env,
             &cam,
-            &vpls.get().inner,
+            set,
             &params,
             None,
             threads,
             &mut progress,
-        )
+        )?;
+        let bounces = set.vpls.iter().map(|v| v.bounce).max().unwrap_or(0);
+        Ok::<_, crate::Error>((out, bounces, traced.map(|t| t.stats.seconds)))
     })?
     .py()?;
+    let (out, bounces, trace_seconds) = out;
     reporter.finish()?;
     let (w, h) = (out.width as usize, out.height as usize);
     let d = image_dict(py, out.image, out.variance, h, w)?;
@@ -376,6 +399,10 @@ pub fn render_vpl<'py>(
     stats.set_item("gather_seconds", s.gather_seconds)?;
     stats.set_item("shadow_rays_per_second", s.shadow_rays_per_second)?;
     stats.set_item("rays_per_second", s.rays_per_second)?;
+    stats.set_item("bounces", bounces)?;
+    if let Some(seconds) = trace_seconds {
+        stats.set_item("vpl_trace_seconds", seconds)?;
+    }
     d.set_item("stats", stats)?;
     Ok(d)
 }

@@ -42,7 +42,7 @@ use crate::estimators::many_lights::{
 };
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
-use crate::lights::vpl::VplSet;
+use crate::lights::vpl::{Importance, TraceParams, VplSet};
 use crate::parallel::with_threads;
 
 impl PixelSums for VplSums {
@@ -281,6 +281,34 @@ impl PixelEstimator for ManyLights<'_> {
     fn pass<R>(&self, _plan: &PassPlan, run: impl FnOnce(&ManyLights<'_>) -> R) -> R {
         run(self)
     }
+}
+
+/// VPLs a render of method "vpl" or "vpl_sampled" traces when given none.
+pub const DEFAULT_VPLS: u64 = 4096;
+/// VPLs method "vpl_sampled" draws per pixel sample when not told.
+pub const DEFAULT_VPL_SAMPLES: u32 = 16;
+
+/// The set a render given no VPLs traces: [`DEFAULT_VPLS`] by light tracing from `env`
+/// and the scene's area lights with acceptance by importance to `camera`'s view, surface
+/// VPLs of `depth` generations, and light VPLs only with `direct` (without, the set holds
+/// indirect light alone, as `direct = false` renders it).
+pub fn default_vpls(
+    scene: &Scene,
+    env: &EnvMap,
+    camera: &Camera,
+    seed: u64,
+    depth: u32,
+    direct: bool,
+    threads: Option<usize>,
+) -> Result<VplSet> {
+    let params = TraceParams {
+        count: DEFAULT_VPLS,
+        depth,
+        seed,
+        importance: Some(Importance::DEFAULT),
+        lights: direct,
+    };
+    VplSet::trace(scene, env, Some(camera), &params, threads)
 }
 
 /// Renders `camera`'s view of `scene` lit by `vpls` ([`crate::estimators::many_lights`],
