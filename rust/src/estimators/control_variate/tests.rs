@@ -2,10 +2,11 @@ use super::*;
 use glam::Vec3;
 
 use crate::bsdf::Material;
+use crate::lights::envmap::chroma::tests::test_sky;
 use crate::moments::Moments;
 use crate::sampling::octahedral::{morton_encode, square_to_sphere};
 use crate::sampling::rng::SampleRng;
-use crate::visibility::cache::interpolant::tests::{cache_with, frame, random_bits, test_sky};
+use crate::visibility::cache::interpolant::tests::{cache_with, frame, random_bits};
 use crate::visibility::cache::interpolant::ControlTables;
 
 #[test]

@@ -17,7 +17,7 @@ use super::{EnvMap, LUMINANCE};
 use crate::sampling::octahedral::{morton_decode, morton_encode, texel_center};
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 /// The colour of an environment map's regions: per quadtree node of levels
 /// `0..=min(MAX_REGION_LEVEL, depth)`, `∫ L_c dω` over its luminance (0 where black). Built

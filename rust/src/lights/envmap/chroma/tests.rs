@@ -3,7 +3,8 @@ use glam::UVec2;
 use super::*;
 use crate::lights::procedural::sky;
 
-fn test_sky(res: u32) -> EnvMap {
+/// A sky with a sun: peaks of their own colour (shared by the interpolant's tests).
+pub(crate) fn test_sky(res: u32) -> EnvMap {
     let sun = Vec3::new(0.4, 0.6, -0.5).normalize();
     sky(
         sun,
@@ -16,7 +17,8 @@ fn test_sky(res: u32) -> EnvMap {
     .unwrap()
 }
 
-fn close(a: [f64; 3], b: [f64; 3], rel: f64) -> bool {
+/// Whether `a` is within `rel` of `b` in every channel.
+pub(crate) fn close(a: [f64; 3], b: [f64; 3], rel: f64) -> bool {
     (0..3).all(|c| (a[c] - b[c]).abs() <= rel * b[c].abs().max(1e-300))
 }
 

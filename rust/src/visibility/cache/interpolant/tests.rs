@@ -2,26 +2,13 @@ use glam::{UVec2, Vec3};
 
 use super::*;
 use crate::bsdf::Material;
+use crate::lights::envmap::chroma::tests::{close, test_sky};
 use crate::lights::envmap::chroma::{MapChroma, MIN_PEAK_DEPTH};
-use crate::lights::procedural::sky;
 use crate::sampling::octahedral::{morton_decode, texel_solid_angle};
 use crate::sampling::rng::hash4;
 use crate::visibility::cache::VisibilityCache;
 use crate::visibility::params::CacheParams;
 use crate::visibility::record::{Record, VisibilityBits};
-
-pub(crate) fn test_sky(res: u32) -> EnvMap {
-    let sun = Vec3::new(0.4, 0.6, -0.5).normalize();
-    sky(
-        sun,
-        [2e3, 1.5e3, 1e3],
-        6.0,
-        [0.2, 0.3, 0.6],
-        [0.8, 0.8, 0.9],
-        res,
-    )
-    .unwrap()
-}
 
 pub(crate) fn frame() -> (Vec3, Vec3) {
     (
@@ -74,10 +61,6 @@ fn brute_force(
         lum += y;
     }
     (total, lum, j)
-}
-
-fn close(a: [f64; 3], b: [f64; 3], rel: f64) -> bool {
-    (0..3).all(|c| (a[c] - b[c]).abs() <= rel * b[c].abs().max(1e-300))
 }
 
 #[test]
