@@ -119,7 +119,9 @@ pub fn render<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let view = view_arg(Some(camera), gbuffer)?;
     let spec = registry::method(method).py()?;
-    let Estimator::Direct(method) = spec.estimator else {
+    let spp = int_arg(spp, "spp", 1, MAX_SPP as i128)? as u32;
+    // The row's method and default bounces.
+    let Some(defaults) = spec.render_params(spp) else {
         return Err(PyValueError::new_err(format!(
             "method: {:?} renders through viscache_rs.render (the many-light renderer)",
             spec.name
@@ -129,15 +131,13 @@ pub fn render<'py>(
         Some(b) if !b.is_none() => {
             int_arg(b, "bounces", spec.min_bounces as i128, MAX_BOUNCES as i128)? as u32
         }
-        _ => spec.default_bounces,
+        _ => defaults.bounces,
     };
     let time_budget = match time_budget {
         Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
         _ => None,
     };
     let params = RenderParams {
-        spp: int_arg(spp, "spp", 1, MAX_SPP as i128)? as u32,
-        method,
         seed,
         time_budget,
         product_level: product_level_arg(product_level)?,
@@ -159,6 +159,7 @@ pub fn render<'py>(
         // Adaptive by default under a time budget: what the budget buys is least error.
         adaptive: adaptive.unwrap_or(time_budget.is_some()),
         own_cache: CacheParams::preset(preset).py()?,
+        ..defaults
     };
     params.validate().py()?;
     let threads = threads_arg(threads)?;
@@ -251,7 +252,7 @@ pub fn render<'py>(
         "direct_seconds",
         s.stages.product + s.stages.lookup + s.stages.control + s.stages.shading,
     )?;
-    if method == Method::ControlVariate {
+    if params.method == Method::ControlVariate {
         let points = s.cache_points.max(1) as f64;
         stats.set_item(
             "alpha",
