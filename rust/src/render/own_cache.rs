@@ -18,6 +18,7 @@
 
 use std::time::Instant;
 
+use super::frame::Frame;
 use super::{render_with, RenderParams, Rendered, MAX_SPP};
 use crate::camera::{Camera, GBuffer};
 use crate::error::Result;
@@ -129,11 +130,8 @@ pub(super) fn render_with_own_cache(
     params.validate()?;
     let start = Instant::now();
     let pixels = camera.num_pixels() as u64;
-    let traced = match anchors {
-        Some(_) => None,
-        None => Some(GBuffer::render(scene, camera, 0, false, threads)?),
-    };
-    let anchors = anchors.or(traced.as_ref()).expect("traced or given");
+    let frame = Frame::prepare(scene, camera, anchors, true, threads)?;
+    let anchors = frame.anchors().expect("traced or given");
     // `spp` at its most stands for "as many as the budget buys".
     let planned = match params.time_budget {
         _ if params.spp < MAX_SPP => Some(params.spp),
@@ -181,9 +179,7 @@ pub(super) fn render_with_own_cache(
         progress,
     )?;
     // The G-buffer's rays are the render's primary rays, its time the cache's.
-    if traced.is_some() {
-        out.stats.primary_rays += pixels;
-    }
+    out.stats.primary_rays += frame.primary_rays;
     out.stats.own_cache = Some(OwnCacheStats {
         seconds: built,
         records: report.records,
