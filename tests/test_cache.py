@@ -300,6 +300,66 @@ def test_save_and_load(tmp_path, open_box):
         vc.VisibilityCache.load(tmp_path / "missing.vc", open_box)
 
 
+def _fnv1a64(data: bytes) -> int:
+    """The cache file's trailing checksum (FNV-1a 64), to forge files that pass it."""
+    h = 0xCBF29CE484222325
+    for b in data:
+        h = ((h ^ b) * 0x100000001B3) & 0xFFFFFFFFFFFFFFFF
+    return h
+
+
+def _forged(raw: bytes, at: int, value: bytes) -> bytes:
+    body = bytearray(raw[:-8])
+    body[at:at + len(value)] = value
+    return bytes(body) + _fnv1a64(bytes(body)).to_bytes(8, "little")
+
+
+# Offsets in a version-4 file: parameters from 12 (m_search at 32), flags at 72, frame at
+# 76, default radius at 88, record count at 92, the first record's header at 100 (its last
+# frame at 128). Each forged file has a valid checksum: only the field's range is wrong.
+FIELDS = [
+    (72, (255).to_bytes(4, "little"), "flags: 0xff"),
+    (76, (0xFFFFFFFF).to_bytes(4, "little"), "frame: 4294967295 is out of range"),
+    (32, (0).to_bytes(4, "little"), "m_search"),
+    (88, np.float32(-1).tobytes(), "default radius"),
+    (92, (1 << 40).to_bytes(8, "little"), "record count"),
+    (92, (4).to_bytes(8, "little"), "do not hold the 4 records"),
+    (100, np.float32(np.nan).tobytes(), "record 0: position"),
+    (128, (5).to_bytes(4, "little"), "record 0: last frame"),
+]
+
+
+@pytest.mark.parametrize(("at", "value", "expect"), FIELDS, ids=[f[2] for f in FIELDS])
+def test_files_with_a_field_out_of_range_name_it(tmp_path, open_box, at, value, expect):
+    c = vc.VisibilityCache(open_box, resolution=4)
+    for k in range(3):
+        c.insert((0.5 * k - 1, 0, 1.5), (0, 1, 0))
+    path = tmp_path / "cache.vc"
+    c.save(path)
+    raw = path.read_bytes()
+    (tmp_path / "forged.vc").write_bytes(_forged(raw, at, value))
+    with pytest.raises(ValueError, match="forged.vc") as e:
+        vc.VisibilityCache.load(tmp_path / "forged.vc", open_box)
+    assert expect in str(e.value) and "truncated" not in str(e.value)
+    # The same bytes with their own checksum load.
+    (tmp_path / "same.vc").write_bytes(_forged(raw, 0, raw[:1]))
+    assert len(vc.VisibilityCache.load(tmp_path / "same.vc", open_box)) == 3
+
+
+def test_end_frame_refuses_to_wrap(tmp_path, open_box):
+    c = vc.VisibilityCache(open_box, resolution=4)
+    c.insert((0, 0, 1.5), (0, 1, 0))
+    path = tmp_path / "late.vc"
+    c.save(path)
+    raw = _forged(path.read_bytes(), 76, (0xFFFFFFFE).to_bytes(4, "little"))
+    path.write_bytes(_forged(raw, 128, (0xFFFFFFFE).to_bytes(4, "little")))
+    late = vc.VisibilityCache.load(path, open_box)
+    assert late.stats()["frame"] == 0xFFFFFFFE
+    with pytest.raises(ValueError, match="^frame: the cache is at its last frame"):
+        late.end_frame()
+    assert late.stats()["frame"] == 0xFFFFFFFE and len(late) == 1
+
+
 def test_records_that_see_emitters_save_and_load_as_such(tmp_path, cornell):
     c = vc.VisibilityCache(cornell.scene, resolution=32, emitters_visible=True)
     # A lit floor point sees the ceiling light through a record that sees emitters only.

@@ -518,7 +518,7 @@ impl PyVisibilityCache {
     /// frames; ids are compacted (kept records keep their order). Returns a dict: frame,
     /// by_misses, unused, remaining.
     fn end_frame<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let r = self.inner.end_frame();
+        let r = self.inner.end_frame().py()?;
         let d = PyDict::new(py);
         d.set_item("frame", r.frame)?;
         d.set_item("by_misses", r.by_misses)?;

@@ -8,6 +8,11 @@ use crate::error::{Error, Result};
 use crate::geometry::Scene;
 use crate::parallel::with_threads;
 
+/// The last frame a cache can be at: [`VisibilityCache::end_frame`] refuses to advance past
+/// it rather than wrap to 0 (which would make every record look unused for billions of
+/// frames), and a file holding a later frame does not load.
+pub const LAST_FRAME: u32 = u32::MAX - 1;
+
 /// What [`VisibilityCache::end_frame`] removed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct EvictionReport {
@@ -121,11 +126,17 @@ impl VisibilityCache {
     /// (or, with `evict_worst = k > 0`, the `k` with the highest rate among those that
     /// missed), and records not used (nor created) during the last `F` frames; then
     /// compacts ids (kept records keep their order), clears the miss and use counters and
-    /// advances the frame.
-    pub fn end_frame(&self) -> EvictionReport {
+    /// advances the frame. At [`LAST_FRAME`] it fails, naming `frame`, and changes nothing.
+    pub fn end_frame(&self) -> Result<EvictionReport> {
         let p = self.params;
         let mut state = self.write();
         let frame = state.frame;
+        if frame >= LAST_FRAME {
+            return Err(Error::invalid(
+                "frame",
+                format!("the cache is at its last frame ({frame}) and cannot advance"),
+            ));
+        }
         let n = state.len();
         let rate = |h: &crate::visibility::record::RecordHeader| {
             if h.uses == 0 {
@@ -174,9 +185,9 @@ impl VisibilityCache {
         }
         state.counters.evicted += removed as u64;
         state.frame = frame + 1;
-        EvictionReport {
+        Ok(EvictionReport {
             remaining: state.len(),
             ..report
-        }
+        })
     }
 }

@@ -24,6 +24,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
+use super::frames::LAST_FRAME;
 use super::{CacheState, VisibilityCache};
 use crate::error::{Error, Result};
 use crate::geometry::Scene;
@@ -118,8 +119,8 @@ impl VisibilityCache {
                 "format version {version}, this build reads {FORMAT_VERSION}"
             )));
         }
-        let mut bound = false;
         let mut radius = None;
+        let mut flags = 0;
         let mut fixed = || -> Option<(CacheParams, u32, u64, Option<u64>)> {
             let mut p = CacheParams::MEDIUM;
             p.log2_resolution = r.u32()?;
@@ -137,14 +138,7 @@ impl VisibilityCache {
             p.max_records = r.u32()?;
             p.pattern_seed = r.u64()?;
             if version >= 2 {
-                let flags = r.u32()?;
-                if flags > 15 || (version < 3 && flags > 3) {
-                    return None;
-                }
-                p.nearest_hits = flags & 1 == 1;
-                p.check_coherence = flags & 2 == 2;
-                bound = flags & 4 == 4;
-                p.emitters_visible = flags & 8 == 8;
+                flags = r.u32()?;
             }
             let frame = r.u32()?;
             let scene = if version >= 3 { Some(r.u64()?) } else { None };
@@ -154,25 +148,54 @@ impl VisibilityCache {
             let n = r.u64()?;
             Some((p, frame, n, scene))
         };
-        let (params, frame, n, scene) = fixed().ok_or_else(too_short)?;
+        let (mut params, frame, n, scene) = fixed().ok_or_else(too_short)?;
+        // Every field is judged before anything is built, each error naming its field: a
+        // corrupted word must not pass for a short file or reach a cache that misbehaves
+        // later (a frame at the end of its range would wrap at the next `end_frame`).
+        let defined = if version >= 3 { 0b1111 } else { 0b11 };
+        if flags & !defined != 0 {
+            return Err(bad(format!(
+                "flags: {flags:#x} sets bits this format does not define (version {version} \
+                 defines {defined:#06b})"
+            )));
+        }
+        // Version 1 had no flags word: its caches keep the preset's (`nearest_hits` on).
+        if version >= 2 {
+            params.nearest_hits = flags & 1 == 1;
+            params.check_coherence = flags & 2 == 2;
+            params.emitters_visible = flags & 8 == 8;
+        }
+        let bound = flags & 4 == 4;
+        if frame > LAST_FRAME {
+            return Err(bad(format!(
+                "frame: {frame} is out of range (0..={LAST_FRAME})"
+            )));
+        }
         let scene = scene.filter(|_| bound);
         let default_radius = match radius {
             Some(d) if d.is_nan() => None,
             Some(d) if !(d.is_finite() && d >= 0.0) => {
-                return Err(bad(format!("default radius {d} is not finite and >= 0")))
+                return Err(bad(format!("default radius: {d} is not finite and >= 0")))
             }
             d => d,
         };
         params
             .validate()
             .map_err(|e| bad(format!("bad parameters: {e}")))?;
+        if n > params.max_records as u64 {
+            return Err(bad(format!(
+                "record count: {n} exceeds max_records ({})",
+                params.max_records
+            )));
+        }
         let words = words_per_map(params.log2_resolution);
         let record_bytes = (HEADER_BYTES + 8 * words) as u64;
         let expect = (r.at as u64 + 8).checked_add(n.saturating_mul(record_bytes));
-        if n > params.max_records as u64 || expect != Some(bytes.len() as u64) {
+        if expect != Some(bytes.len() as u64) {
             return Err(bad(format!(
-                "{} bytes do not hold the {n} records the header announces",
-                bytes.len()
+                "{} bytes do not hold the {n} records the header announces ({} expected)",
+                bytes.len(),
+                expect.unwrap_or(u64::MAX)
             )));
         }
         let body = &bytes[..bytes.len() - 8];
@@ -194,18 +217,34 @@ impl VisibilityCache {
                 bytes,
                 at: headers_at + i * HEADER_BYTES,
             };
-            let header = (|| -> Option<RecordHeader> {
-                let position = [h.f32()?, h.f32()?, h.f32()?];
-                let normal = [h.u16()?, h.u16()?];
-                let nearest = h.f32()?;
-                let counters = [h.u32()?, h.u32()?, h.u32()?];
-                let ao = h.u16()?;
-                let ok = Vec3::from(position).is_finite()
-                    && nearest >= 0.0
-                    && counters[0] <= counters[1];
-                ok.then(|| RecordHeader::from_quantised(position, normal, nearest, counters, ao))
-            })()
-            .ok_or_else(|| bad(format!("record {i}: invalid header fields")))?;
+            let position = [h.f32(), h.f32(), h.f32()].map(|v| v.expect("length checked"));
+            let normal = [h.u16(), h.u16()].map(|v| v.expect("length checked"));
+            let nearest = h.f32().expect("length checked");
+            let counters = [h.u32(), h.u32(), h.u32()].map(|v| v.expect("length checked"));
+            let ao = h.u16().expect("length checked");
+            let reserved = h.u16().expect("length checked");
+            let record = |reason: String| bad(format!("record {i}: {reason}"));
+            if !Vec3::from(position).is_finite() {
+                return Err(record(format!("position {position:?} is not finite")));
+            }
+            if nearest.is_nan() || nearest < 0.0 {
+                return Err(record(format!(
+                    "nearest-hit distance {nearest} is not >= 0"
+                )));
+            }
+            let [misses, uses, last_frame] = counters;
+            if misses > uses {
+                return Err(record(format!("misses ({misses}) exceed uses ({uses})")));
+            }
+            if last_frame > frame {
+                return Err(record(format!(
+                    "last frame ({last_frame}) is after the cache's frame ({frame})"
+                )));
+            }
+            if reserved != 0 {
+                return Err(record(format!("reserved field {reserved} is not 0")));
+            }
+            let header = RecordHeader::from_quantised(position, normal, nearest, counters, ao);
             for (k, w) in map.iter_mut().enumerate() {
                 let at = words_at + (i * words + k) * 8;
                 *w = u64::from_le_bytes(bytes[at..at + 8].try_into().expect("length checked"));

@@ -70,7 +70,7 @@ mod lookup;
 pub mod nearest;
 
 pub use build::BuildReport;
-pub use frames::EvictionReport;
+pub use frames::{EvictionReport, LAST_FRAME};
 pub use lookup::{Lookup, Neighbour};
 
 pub use crate::spatial::waves::{coarse_to_fine_levels, BUILD_WAVE, MIN_BUILD_WAVE};

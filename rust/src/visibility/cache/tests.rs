@@ -156,7 +156,7 @@ fn lookups_equal_a_linear_scan_after_eviction_rebuilds_the_index() {
     let ids: Vec<u32> = (0..3000).step_by(3).collect();
     let ones = vec![1u32; ids.len()];
     c.record_misses(&ids, &ones, &ones).unwrap();
-    assert_eq!(c.end_frame().by_misses, 1000);
+    assert_eq!(c.end_frame().unwrap().by_misses, 1000);
     assert_eq!(c.len(), 2000);
     let queries: Vec<(Vec3, Vec3, f32)> = (0..150u64)
         .map(|k| {
@@ -587,7 +587,7 @@ fn eviction_by_miss_rate_by_rank_and_by_age() {
     assert!(c.record_misses(&[50], &[0], &[1]).is_err());
     assert!(c.record_misses(&[1], &[2], &[1]).is_err());
     assert!(c.record_misses(&[1, 2], &[0], &[1]).is_err());
-    let r = c.end_frame();
+    let r = c.end_frame().unwrap();
     assert_eq!((r.frame, r.by_misses, r.unused, r.remaining), (0, 1, 0, 49));
     let after: Vec<[f32; 3]> = (0..49)
         .map(|i| c.read().store().header(i).position)
@@ -614,7 +614,7 @@ fn eviction_by_miss_rate_by_rank_and_by_age() {
     worst
         .record_misses(&[0, 1, 2, 3], &[1, 3, 2, 0], &[100, 100, 100, 100])
         .unwrap();
-    assert_eq!(worst.end_frame().by_misses, 2);
+    assert_eq!(worst.end_frame().unwrap().by_misses, 2);
     let xs: Vec<f32> = (0..3)
         .map(|i| worst.read().store().header(i).position[0])
         .collect();
@@ -633,11 +633,11 @@ fn eviction_by_miss_rate_by_rank_and_by_age() {
     let mut unused = 0;
     for _ in 0..3 {
         aging.record_misses(&[1], &[0], &[1]).unwrap();
-        unused += aging.end_frame().unused;
+        unused += aging.end_frame().unwrap().unused;
     }
     assert_eq!((unused, aging.len()), (0, 2));
     aging.record_misses(&[1], &[0], &[1]).unwrap();
-    assert_eq!(aging.end_frame().unused, 1);
+    assert_eq!(aging.end_frame().unwrap().unused, 1);
     assert_eq!(aging.read().store().header(0).position[0], 1.0);
     // Lookups still work after compaction.
     assert_matches_brute(&c, Vec3::new(0.5, 0.0, 0.5), Vec3::Y, 0.3);
@@ -698,6 +698,100 @@ fn files_round_trip_and_reject_truncation_and_corruption() {
     forged.extend(sum.to_le_bytes());
     let e = VisibilityCache::from_bytes(&forged, Path::new("forged")).unwrap_err();
     assert!(e.to_string().contains("hierarchy"), "{e}");
+}
+
+/// A file whose checksum is right but one of whose fields is out of range is refused with
+/// an error naming that field (never "truncated", never a cache that misbehaves later).
+#[test]
+fn files_with_a_field_out_of_range_name_the_field() {
+    let c = patch_cache(CacheParams::MEDIUM, 20, 4);
+    c.record_misses(&[1], &[1], &[2]).unwrap();
+    let bytes = c.to_bytes();
+    let n = c.len() as u64;
+    // Offsets of the version-4 format (io.rs): parameters from 12, flags at 72, frame at
+    // 76, fingerprint at 80, radius at 88, the record count at 92, headers from 100.
+    let forge = |at: usize, value: &[u8]| {
+        let mut v = bytes[..bytes.len() - 8].to_vec();
+        v[at..at + value.len()].copy_from_slice(value);
+        let sum = io::checksum(&v);
+        v.extend(sum.to_le_bytes());
+        VisibilityCache::from_bytes(&v, Path::new("forged.vc"))
+            .map(|_| ())
+            .unwrap_err()
+            .to_string()
+    };
+    let u = |v: u32| v.to_le_bytes().to_vec();
+    let f = |v: f32| v.to_le_bytes().to_vec();
+    let record = 100;
+    let cases: Vec<(usize, Vec<u8>, &str)> = vec![
+        (12, u(9), "log2_resolution"),
+        (20, f(f32::INFINITY), "d_max_scale"),
+        (24, f(200.0), "theta_max_deg"),
+        (28, f(-1.0), "lambda_falloff"),
+        (32, u(0), "m_search"),
+        (36, u(99), "n_keep"),
+        (40, f(2.0), "w_min"),
+        (44, f(f32::NAN), "delta_max"),
+        (48, f(-0.5), "epsilon_max"),
+        (56, u(0), "unused_frames"),
+        (60, u(0), "max_records"),
+        (72, u(255), "flags: 0xff"),
+        (72, u(16), "flags: 0x10"),
+        (76, u(u32::MAX), "frame: 4294967295 is out of range"),
+        (88, f(-1.0), "default radius"),
+        (92, (1u64 << 40).to_le_bytes().to_vec(), "record count"),
+        (92, (n + 1).to_le_bytes().to_vec(), "do not hold the"),
+        (record, f(f32::NAN), "record 0: position"),
+        (record + 16, f(-2.0), "record 0: nearest-hit distance"),
+        (
+            record + 36 + 20,
+            u(3),
+            "record 1: misses (3) exceed uses (2)",
+        ),
+        (
+            record + 28,
+            u(1),
+            "record 0: last frame (1) is after the cache's frame (0)",
+        ),
+        (
+            record + 34,
+            7u16.to_le_bytes().to_vec(),
+            "record 0: reserved",
+        ),
+    ];
+    for (at, value, expect) in cases {
+        let e = forge(at, &value);
+        assert!(
+            e.starts_with("forged.vc") && e.contains(expect),
+            "byte {at}: {e}"
+        );
+        assert!(!e.contains("truncated"), "{e}");
+    }
+}
+
+/// `end_frame` stops at [`LAST_FRAME`] with an error instead of wrapping to frame 0 (which
+/// would evict every record as unused), and changes nothing when it refuses.
+#[test]
+fn end_frame_never_wraps() {
+    let c = patch_cache(CacheParams::MEDIUM, 10, 2);
+    let mut v = c.to_bytes();
+    v.truncate(v.len() - 8);
+    v[76..80].copy_from_slice(&(LAST_FRAME - 1).to_le_bytes());
+    // Records last used at the frame before, so none is evicted as unused.
+    for i in 0..c.len() {
+        let at = 100 + 36 * i + 28;
+        v[at..at + 4].copy_from_slice(&(LAST_FRAME - 2).to_le_bytes());
+    }
+    let sum = io::checksum(&v);
+    v.extend(sum.to_le_bytes());
+    let late = VisibilityCache::from_bytes(&v, Path::new("late.vc")).unwrap();
+    let r = late.end_frame().unwrap();
+    assert_eq!((r.frame, r.remaining), (LAST_FRAME - 1, c.len()));
+    let before = late.to_bytes();
+    let e = late.end_frame().unwrap_err().to_string();
+    assert!(e.starts_with("frame:") && e.contains("last frame"), "{e}");
+    assert!(late.to_bytes() == before);
+    assert_eq!(late.read().frame(), LAST_FRAME);
 }
 
 use std::path::Path;
