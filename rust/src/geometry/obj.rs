@@ -35,38 +35,126 @@ fn material_from_mtl(m: &tobj::Material) -> Material {
     }
 }
 
-/// What tobj does not check: the text is UTF-8, and every face has at least three
-/// vertices (tobj turns `f 1 2` into a degenerate triangle). The error gives the line.
+/// What tobj does not report by line (or at all): the text is UTF-8; a vertex has three
+/// finite coordinates (four with `w`, six with a colour); a face has at least three
+/// vertices (tobj turns `f 1 2` into a degenerate triangle), each an index that is an
+/// integer, not 0, and names a vertex (texture coordinate, normal) the file has; negative
+/// indices count back from the element before the face. The error gives the line.
 fn check_text(path: &Path, bytes: &[u8]) -> Result<()> {
-    let bad = |reason: String| Error::Parse {
+    let bad = |line: usize, reason: String| Error::Parse {
         path: path.to_owned(),
-        reason,
+        reason: format!("line {line}: {reason}"),
     };
     let text = std::str::from_utf8(bytes).map_err(|e| {
         let line = 1 + bytes[..e.valid_up_to()]
             .iter()
             .filter(|&&b| b == b'\n')
             .count();
-        bad(format!("line {line}: not UTF-8 text (an OBJ file is text)"))
+        bad(line, "not UTF-8 text (an OBJ file is text)".into())
     })?;
+    // Positive indices may point forward (tobj resolves them once the file is read), so
+    // they are judged against the file's totals; negative ones against the count so far.
+    let mut total = [0usize; 3];
+    for line in text.lines() {
+        match line.split_whitespace().next() {
+            Some("v") => total[0] += 1,
+            Some("vt") => total[1] += 1,
+            Some("vn") => total[2] += 1,
+            _ => {}
+        }
+    }
+    let kinds = ["vertex", "texture coordinate", "normal"];
+    let plural = ["vertices", "texture coordinates", "normals"];
+    let mut seen = [0usize; 3];
     for (i, line) in text.lines().enumerate() {
+        let number = i + 1;
         let mut words = line.split_whitespace();
-        if words.next() == Some("f") {
-            let n = words.take_while(|w| !w.starts_with('#')).count();
-            if n < 3 {
-                return Err(bad(format!(
-                    "line {}: a face needs at least 3 vertices, got {n}",
-                    i + 1
-                )));
+        match words.next() {
+            Some("v") => {
+                let values: Vec<&str> = words.take_while(|w| !w.starts_with('#')).collect();
+                if !matches!(values.len(), 3 | 4 | 6) {
+                    return Err(bad(
+                        number,
+                        format!(
+                            "a vertex needs 3 coordinates (4 with w, 6 with a colour), got {}",
+                            values.len()
+                        ),
+                    ));
+                }
+                for w in &values[..3] {
+                    match w.parse::<f32>() {
+                        Ok(x) if x.is_finite() => {}
+                        Ok(_) => {
+                            return Err(bad(number, format!("vertex coordinate {w} is not finite")))
+                        }
+                        Err(_) => {
+                            return Err(bad(
+                                number,
+                                format!("vertex coordinate {w:?} is not a number"),
+                            ))
+                        }
+                    }
+                }
+                seen[0] += 1;
             }
+            Some("vt") => seen[1] += 1,
+            Some("vn") => seen[2] += 1,
+            Some("f") => {
+                let corners: Vec<&str> = words.take_while(|w| !w.starts_with('#')).collect();
+                if corners.len() < 3 {
+                    return Err(bad(
+                        number,
+                        format!("a face needs at least 3 vertices, got {}", corners.len()),
+                    ));
+                }
+                for corner in corners {
+                    let parts: Vec<&str> = corner.split('/').collect();
+                    if parts.len() > 3 || parts[0].is_empty() {
+                        return Err(bad(
+                            number,
+                            format!("face vertex {corner:?} is not v, v/vt, v//vn or v/vt/vn"),
+                        ));
+                    }
+                    for (k, part) in parts.iter().enumerate() {
+                        if part.is_empty() {
+                            continue;
+                        }
+                        let index: i64 = part.parse().map_err(|_| {
+                            bad(
+                                number,
+                                format!("{} index {part:?} is not an integer in range", kinds[k]),
+                            )
+                        })?;
+                        let ok = match index {
+                            0 => false,
+                            i if i > 0 => i as u64 <= total[k] as u64,
+                            i => i.unsigned_abs() <= seen[k] as u64,
+                        };
+                        if !ok {
+                            let have = if index < 0 { seen[k] } else { total[k] };
+                            let before = if index < 0 { " before this line" } else { "" };
+                            return Err(bad(
+                                number,
+                                format!(
+                                    "{} index {index} does not exist (OBJ indices start at 1; \
+                                     the file has {have} {}{before})",
+                                    kinds[k], plural[k]
+                                ),
+                            ));
+                        }
+                    }
+                }
+            }
+            _ => {}
         }
     }
     Ok(())
 }
 
-/// Loads an OBJ file. A missing file, a directory, text that is not UTF-8, a face of fewer
-/// than three vertices, a malformed file or a face that indexes a missing vertex is an
-/// error naming the path (and the line where we know it).
+/// Loads an OBJ file. A missing file, a directory, text that is not UTF-8, a malformed
+/// vertex, a face of fewer than three vertices or one that indexes a missing vertex, a
+/// malformed file, or a file without a single triangle is an error naming the path (and
+/// the line where there is one).
 pub fn load_obj(path: &Path) -> Result<Mesh> {
     // Read it ourselves first: tobj reports every open failure the same way.
     let io = |source: std::io::Error| Error::Io {
@@ -115,6 +203,13 @@ pub fn load_obj(path: &Path) -> Result<Mesh> {
                 path: path.to_owned(),
                 reason: e.to_string(),
             })?;
+    }
+    // Random text or a file of vertices only parses to nothing: that is no scene.
+    if mesh.num_triangles() == 0 {
+        return Err(Error::Parse {
+            path: path.to_owned(),
+            reason: "no faces: the file holds no triangles (is it an OBJ file?)".into(),
+        });
     }
     Ok(mesh)
 }
@@ -175,6 +270,91 @@ mod tests {
         );
         let e = load_obj(p.parent().unwrap()).unwrap_err().to_string();
         assert!(e.contains("is a directory"), "{e}");
+    }
+
+    /// Every malformed line is refused with its line number, and a file without a triangle
+    /// (empty, vertices only, or random printable text) is refused naming the file.
+    #[test]
+    fn malformed_lines_and_files_without_faces_are_refused() {
+        let tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+        let cases = [
+            ("v 1\n".to_string(), "line 1: a vertex needs 3 coordinates"),
+            (
+                format!("{tri}v 1 2 x\n"),
+                "line 4: vertex coordinate \"x\" is not a number",
+            ),
+            (
+                format!("{tri}v nan 0 0\n"),
+                "line 4: vertex coordinate nan is not finite",
+            ),
+            (
+                format!("{tri}v 1e39 0 0\n"),
+                "line 4: vertex coordinate 1e39 is not finite",
+            ),
+            (
+                format!("{tri}f 1 2 3\nf 1 2"),
+                "line 5: a face needs at least 3 vertices, got 2",
+            ),
+            (
+                format!("{tri}f 1\n"),
+                "line 4: a face needs at least 3 vertices, got 1",
+            ),
+            (
+                format!("{tri}f 1 2 99999999999999999999\n"),
+                "line 4: vertex index \"99999999999999999999\" is not an integer in range",
+            ),
+            (
+                format!("{tri}f 1 2 x\n"),
+                "line 4: vertex index \"x\" is not an integer",
+            ),
+            (
+                format!("{tri}f 0 1 2\n"),
+                "line 4: vertex index 0 does not exist",
+            ),
+            (
+                format!("{tri}f 1 2 4\n"),
+                "line 4: vertex index 4 does not exist",
+            ),
+            (
+                format!("v 0 0 0\nf -1 -2 -3\n{tri}"),
+                "line 2: vertex index -2 does not exist (OBJ indices start at 1; the file has \
+                 1 vertices before this line)",
+            ),
+            (
+                format!("{tri}vt 0 0\nf 1/2 2/1 3/1\n"),
+                "line 5: texture coordinate index 2",
+            ),
+            (
+                format!("{tri}f 1//1 2//1 3//1\n"),
+                "line 4: normal index 1 does not exist",
+            ),
+            (
+                format!("{tri}f 1/1/1/1 2 3\n"),
+                "line 4: face vertex \"1/1/1/1\" is not",
+            ),
+            (String::new(), "no faces"),
+            (tri.to_string(), "no faces"),
+            (
+                "x7 %$ q\n\t!!}{ 'w\nvt 1 1\nusemtl ~\n".to_string(),
+                "no faces",
+            ),
+        ];
+        for (k, (text, expect)) in cases.iter().enumerate() {
+            let p = write(&format!("case{k}.obj"), text);
+            let e = load_obj(&p).unwrap_err().to_string();
+            assert!(
+                e.starts_with(&p.display().to_string()) && e.contains(expect),
+                "case {k}: {e}"
+            );
+        }
+        // Forward references stay allowed (tobj resolves them), as do w and colours.
+        let p = write("forward.obj", "f 1 2 3\nv 0 0 0\nv 1 0 0 2\nv 0 1 0\n");
+        assert_eq!(load_obj(&p).unwrap().num_triangles(), 1);
+        let p = write(
+            "colours.obj",
+            "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nf 1 2 3\n",
+        );
+        assert_eq!(load_obj(&p).unwrap().num_triangles(), 1);
     }
 
     /// Bounded fuzzing: 600 damaged OBJ files load or fail with an error naming the file;
