@@ -482,7 +482,9 @@ impl PyScene {
     }
 
     /// Moves points off their surface along `normals` by an epsilon that scales with the
-    /// scene's size and the points' magnitude: where shadow rays should start.
+    /// scene's size and the points' magnitude: where shadow rays should start. A normal of
+    /// zero length or not finite (no side to move to) is a ValueError naming `normals` and
+    /// its row.
     fn offset_points<'py>(
         &self,
         py: Python<'py>,
@@ -497,6 +499,16 @@ impl PyScene {
                 "normals: has {} rows but points has {}",
                 n.len(),
                 p.len()
+            )));
+        }
+        // A zero normal would return the point unchanged: refused like zero directions.
+        if let Some(i) = n
+            .iter()
+            .position(|r| glam::Vec3::from(*r).normalize_or_zero() == glam::Vec3::ZERO)
+        {
+            return Err(PyValueError::new_err(format!(
+                "normals: row {i} is not a direction (zero length or not finite): {:?}",
+                n[i]
             )));
         }
         let out = p
