@@ -1,5 +1,8 @@
 """Built-in scenes: names, sizes, determinism, and each one's stated purpose."""
 
+import random
+import string
+
 import numpy as np
 import pytest
 import viscache_rs as vc
@@ -81,16 +84,19 @@ def test_suite_scenes_block_what_their_docs_say(name):
     assert (g["object"] >= 0).mean() > 0.5
 
 
-def test_suite_spans_open_to_closed_and_lists_the_meshes_when_present(tmp_path):
+def test_suite_spans_open_to_closed_and_lists_the_meshes(tmp_path):
     blocked = [b for _, b in SUITE.values()]
     assert min(blocked) < 0.15 and max(blocked) > 0.9
     assert set(SUITE) <= set(vc.scenes.names())
+    # Twelve, whether or not the meshes are on this machine (they are fetched on first use).
+    assert vc.scenes.suite_names() == [*vc.scenes.names(), "meshes"]
+    assert len(vc.scenes.suite_names()) == 12
     with pytest.raises(FileNotFoundError, match="models_dir"):
         vc.scenes.models_dir(tmp_path)
+    with pytest.raises(FileNotFoundError, match="models_dir"):
+        vc.scenes.meshes(tmp_path)
     if vc.scenes.models_dir(required=False) is None:
-        assert "meshes" not in vc.scenes.suite_names()
-        pytest.skip("the real meshes (../shared/models) are not on this machine")
-    assert vc.scenes.suite_names()[-1] == "meshes"
+        pytest.skip("the real meshes (../shared/models, $VISCACHE_MODELS) are not here")
     setup = vc.scenes.load("meshes")
     assert setup.scene.object_names() == ["ground", *vc.scenes.MODEL_NAMES]
     lo, hi = setup.scene.bounds
@@ -105,10 +111,89 @@ def test_read_obj_fans_polygons_and_names_bad_lines():
         b"vn 0 0 1\nf 1//1 2//1 4//1 3//1\nf -1 -2 -3\n"))
     assert v.shape == (4, 3)
     np.testing.assert_array_equal(f, [[0, 1, 3], [0, 3, 2], [3, 2, 1]])
-    with pytest.raises(ValueError, match="line 2"):
+    with pytest.raises(ValueError, match="^stream: line 2"):
         vc.scenes.read_obj(io.BytesIO(b"v 0 0 0\nv 1 x 0\n"))
     with pytest.raises(ValueError, match="vertex"):
         vc.scenes.read_obj(io.BytesIO(b"v 0 0 0\nf 1 2 3\n"))
+    # Text streams too; w divides, forward references resolve.
+    v, f = vc.scenes.read_obj(io.StringIO("f 1 2 3\nv 0 0 0\nv 2 0 0 2\nv 0 1 0\n"))
+    np.testing.assert_array_equal(v[1], [1, 0, 0])
+    np.testing.assert_array_equal(f, [[0, 1, 2]])
+
+
+TRI = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+# Damaged OBJ files, each refused with the file and the line (issue 60, 7.10).
+BAD_OBJ = {
+    "binary": (bytes(range(255, -1, -1)) * 4, "line 1: not UTF-8"),
+    "latin1": (TRI + "o caf\u00e9\nf 1 2 3\n".encode("latin-1"), "line 4: not UTF-8"),
+    "two corners": (TRI + b"f 1 2\n", "line 4: a face needs at least 3 vertices, got 2"),
+    "cut mid-face": (TRI + b"f 1 2 3\nf 3 2", "line 5: a face needs at least 3 vertices"),
+    "short vertex": (b"v 1\n", "line 1: a vertex needs 3 coordinates"),
+    "nan vertex": (TRI + b"v nan 0 0\n", "line 4: vertex coordinate"),
+    "20-digit index": (TRI + b"f 1 2 99999999999999999999\n", "line 4: vertex index"),
+    "index 0": (TRI + b"f 0 1 2\n", "line 4: vertex index 0 does not exist"),
+    "behind": (b"v 0 0 0\nf -1 -2 -3\n" + TRI, "line 2: vertex index -2 does not exist"),
+    "bad normal": (TRI + b"f 1//1 2//1 3//1\n", "line 4: normal index 1 does not exist"),
+    "not an index": (TRI + b"f 1 2 x\n", "line 4: vertex index 'x' is not an integer"),
+    "printable": ("".join(random.Random(3).choices(string.printable, k=2000)).encode(),
+                  "no faces"),
+    "empty": (b"", "no faces"),
+    "vertices only": (TRI, "no faces"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_OBJ))
+def test_read_obj_and_from_obj_refuse_damaged_files(case, tmp_path):
+    data, expect = BAD_OBJ[case]
+    path = tmp_path / "bad.obj"
+    path.write_bytes(data)
+    with pytest.raises(ValueError, match="bad.obj") as e:
+        vc.scenes.read_obj(path)
+    assert expect in str(e.value)
+    with open(path, "rb") as f, pytest.raises(ValueError, match="bad.obj"):
+        vc.scenes.read_obj(f)
+    # The native reader refuses the same files, naming the file and the same line.
+    with pytest.raises(ValueError, match="bad.obj") as e:
+        vc.Scene.from_obj(path)
+    assert expect.split(":")[0] in str(e.value)
+
+
+def test_offset_points_refuses_zero_normals():
+    setup = vc.scenes.load("cornell")
+    p = np.zeros((3, 3), np.float32)
+    n = np.array([[0, 1, 0], [0, 0, 0], [0, 1, 0]], np.float32)
+    with pytest.raises(ValueError, match="^normals: row 1 is not a direction"):
+        setup.scene.offset_points(p, n)
+    n[1] = [np.nan, 0, 0]
+    with pytest.raises(ValueError, match="^normals: row 1"):
+        setup.scene.offset_points(p, n)
+    n[1] = [0, 2, 0]
+    moved = setup.scene.offset_points(p, n)
+    assert (moved[:, 1] > 0).all() and (moved[:, [0, 2]] == 0).all()
+
+
+@pytest.mark.parametrize("command", ["preview", "demo --scene"])
+def test_the_cli_offers_the_suite(command, capsys):
+    from viscache_rs import cli
+
+    with pytest.raises(SystemExit) as e:
+        cli.main([*command.split(), "nosuch"])
+    assert e.value.code == 2
+    listed = capsys.readouterr().err.split("choose from ")[1]
+    assert [w.strip("'\n) ") for w in listed.split(", ")] == vc.scenes.suite_names()
+
+
+def test_the_readme_and_docstring_list_the_suite():
+    import pathlib
+
+    readme = pathlib.Path(__file__).resolve().parents[1] / "README.md"
+    start = readme.read_text().split("## Built-in scenes")[1]
+    rows = [line.split("|")[1].strip(" `") for line in start.splitlines()
+            if line.startswith("| `")]
+    assert rows[:12] == vc.scenes.suite_names()
+    table = [line.split()[0] for line in vc.scenes.__doc__.split("=\n")[2].splitlines()
+             if line and not line.startswith(" ") and not line.startswith("=")]
+    assert table == vc.scenes.suite_names()
 
 
 # Setups for indirect light: named variants beside the scenes above, which they leave

@@ -6,7 +6,7 @@ the core reports to, and adds built-in scenes, environment maps, I/O and the ``v
 command line.
 """
 
-from . import analysis, design, envmaps, metrics, mitsuba, octahedral, scenes, testing
+from . import analysis, design, envmaps, metrics, mitsuba, models, octahedral, scenes, testing
 from ._core import (
     Camera,
     EnvMap,
@@ -44,6 +44,7 @@ __all__ = [
     "methods",
     "metrics",
     "mitsuba",
+    "models",
     "octahedral",
     "preview",
     "render",

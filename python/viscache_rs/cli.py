@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("demo", help="equal-time product sampling vs the cache's control variate")
-    p.add_argument("--scene", default="garage", choices=scenes.names())
+    p.add_argument("--scene", default="garage", choices=scenes.suite_names())
     p.add_argument("--detail", type=float, default=1.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--width", type=int, default=512)

@@ -21,10 +21,9 @@ panels         64,010     0.61    four huge slanted panels (two triangles each) 
 scales         29,152     0.12    a 1 km ground, far towers, and centimetre parts 0.5 m from
                                   the camera.
 blob          330,880     0.31    one dense, closed, bumpy mesh on a ground.
-meshes         66,214     0.23    the six real meshes of ``../shared/models`` (teapot, spot,
-                                  cow, fandisk, rocker arm, homer), each 1.5 m, on a 20 m
-                                  ground (only where the models are found; see
-                                  :func:`meshes`).
+meshes         66,214     0.23    six real public test meshes (teapot, spot, cow, fandisk,
+                                  rocker arm, homer), each 1.5 m, on a 20 m ground; fetched
+                                  on first use (see :func:`meshes`).
 ==========  ===========  =======  ===========================================================
 
 Triangles are at ``detail=1``; ``detail`` in (0, 16] scales them roughly linearly.
@@ -32,7 +31,7 @@ Triangles are at ``detail=1``; ``detail`` in (0, 16] scales them roughly linearl
 the box's floor in ``cornell``) in uniform directions of the hemisphere that hit
 something (``vc.testing.ground_hemisphere_rays``, 200,000 rays): together the scenes span
 almost open to almost closed. :func:`names` lists the procedural scenes, :func:`suite_names`
-the whole benchmark suite available here.
+the whole benchmark suite: the twelve above.
 
 Variants for indirect light (``variants(name)``; ``load(name, variant=...)``): beside the
 scenes above, which stay exactly as they are (``names()`` and ``suite_names()`` do not list
@@ -69,13 +68,12 @@ Animated variants (``animated_names()``; ``load("dynamics", animated=True)``): t
 object id and ``setup.moving_bounds()`` its bounds at the current frame.
 """
 
-import gzip
-import io
 import os
 from pathlib import Path
 
 import numpy as np
 
+from . import models
 from ._core import (
     Scene,
     Setup,
@@ -89,8 +87,8 @@ from ._core import (
 __all__ = ["MODEL_NAMES", "Setup", "animated_names", "indirect_names", "load", "meshes",
            "models_dir", "names", "read_obj", "suite_names", "variants", "without"]
 
-#: The real meshes of ``../shared/models`` that :func:`meshes` arranges, in order.
-MODEL_NAMES = ("teapot", "spot", "cow", "fandisk", "rocker-arm", "homer")
+#: The real meshes that :func:`meshes` arranges, in order (:mod:`viscache_rs.models`).
+MODEL_NAMES = models.NAMES
 
 
 def names() -> list[str]:
@@ -119,31 +117,20 @@ def indirect_names() -> list[tuple[str, str | None]]:
 
 
 def suite_names() -> list[str]:
-    """The benchmark suite on this machine: every procedural scene, then ``"meshes"`` when
-    the real meshes are found (:func:`models_dir`)."""
-    return names() + (["meshes"] if models_dir(required=False) is not None else [])
+    """The benchmark suite: every procedural scene (:func:`names`), then ``"meshes"``, whose
+    real meshes come from a local folder or are downloaded on first use
+    (:mod:`viscache_rs.models`)."""
+    return names() + ["meshes"]
 
 
 def models_dir(path=None, required: bool = True) -> Path | None:
-    """The folder of the real meshes: ``path`` if given, else ``$VISCACHE_MODELS``, else
-    ``../shared/models`` from the current directory or from the package's source tree.
-    A folder counts when it holds ``teapot.obj.gz``. Raises FileNotFoundError naming every
-    place looked at (or returns None when ``required`` is False)."""
-    candidates = [Path(path)] if path is not None else []
-    if path is None:
-        if os.environ.get("VISCACHE_MODELS"):
-            candidates.append(Path(os.environ["VISCACHE_MODELS"]))
-        candidates.append(Path.cwd() / ".." / "shared" / "models")
-        candidates.append(Path(__file__).resolve().parents[3] / "shared" / "models")
-    for c in candidates:
-        if (c / "teapot.obj.gz").is_file():
-            return c
-    if required:
-        raise FileNotFoundError(
-            "models_dir: the real meshes (teapot.obj.gz, ...) are not in "
-            + ", ".join(str(c) for c in candidates)
-            + "; pass models_dir= or set VISCACHE_MODELS")
-    return None
+    """The local folder of the real meshes (:func:`viscache_rs.models.local_dir`): ``path``
+    if given, else ``$VISCACHE_MODELS``, else ``../shared/models`` from the current
+    directory or from the package's source tree. A folder counts when it holds the six
+    models (``NAME.obj.gz`` or ``NAME.obj``). Raises FileNotFoundError naming every place
+    looked at (or returns None when ``required`` is False). Without one, :func:`meshes`
+    downloads the models instead."""
+    return models.local_dir(path, required=required)
 
 
 def meshes(models_dir_path=None, seed: int = 0) -> Setup:
@@ -151,10 +138,15 @@ def meshes(models_dir_path=None, seed: int = 0) -> Setup:
     side is 1.5 m, standing on the ground (its lowest point at y = 0) on a ring of radius
     2.2 m around (0, 0, -1), turned by a random yaw (``seed``); the ground is 20 x 20 m (40 x
     40 cells). The camera looks down at the ring from (0, 2.4, 4.6); the environment is the
-    daylight of the procedural scenes (sun at azimuth 120 deg, elevation 40 deg). Models are
-    read from the gzipped OBJ files of :func:`models_dir` (vertices and faces only)."""
-    folder = models_dir(models_dir_path)
-    assert folder is not None  # required=True raises instead
+    daylight of the procedural scenes (sun at azimuth 120 deg, elevation 40 deg).
+
+    The models (vertices and faces only) are read from ``models_dir_path`` if given (which
+    must hold them), else from the local folder of :func:`models_dir` when there is one,
+    else from the user's cache folder, where the first call downloads them (about 2.1 MB,
+    each file checked by SHA-256; :func:`viscache_rs.models.fetch`). Without network and
+    without a local folder, OSError says how to get them by hand."""
+    if models_dir_path is not None:
+        models.local_dir(models_dir_path, required=True)
     scene = Scene()
     n = 40
     ax = np.linspace(-10.0, 10.0, n + 1, dtype=np.float32)
@@ -169,7 +161,8 @@ def meshes(models_dir_path=None, seed: int = 0) -> Setup:
                (0.6, 0.6, 0.55), (0.85, 0.75, 0.2)]
     rng = np.random.default_rng(seed)
     for k, name in enumerate(MODEL_NAMES):
-        vertices, faces = read_obj(gzip.open(folder / f"{name}.obj.gz"))
+        with models.open_model(name, models_dir_path) as stream:
+            vertices, faces = read_obj(stream)
         v = vertices.astype(np.float64)
         v = (v - v.mean(axis=0)) * (1.5 / np.ptp(v, axis=0).max())
         yaw = rng.uniform(0, 2 * np.pi)
@@ -191,30 +184,117 @@ def meshes(models_dir_path=None, seed: int = 0) -> Setup:
 
 
 def read_obj(stream) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (N, 3) and triangles (M, 3) of a Wavefront OBJ stream (bytes or text): ``v``
-    and ``f`` lines only, polygons fanned into triangles, ``v/vt/vn`` and negative indices
-    understood. Raises ValueError naming the line of anything malformed."""
+    """Vertices (N, 3) and triangles (M, 3) of a Wavefront OBJ file: ``stream`` is a path or
+    a file opened for bytes or text. ``v`` and ``f`` lines only, polygons fanned into
+    triangles, ``v/vt/vn``, negative indices and ``v x y z w`` understood.
+
+    Raises ValueError naming the file (its ``name``, else ``stream``) and the line of
+    anything malformed: text that is not UTF-8, a vertex without three finite coordinates,
+    a face of fewer than three vertices (as in a file cut mid-face) or with an index that
+    is not an integer or names an element the file does not have; and, naming the file, a
+    file without a single face."""
+    if isinstance(stream, (str, os.PathLike)):
+        with open(stream, "rb") as f:
+            return read_obj(f)
+    source = str(getattr(stream, "name", "stream"))
+    lines = _obj_lines(stream, source)
+    kinds = {"v": 0, "vt": 1, "vn": 2}
+    total = [0, 0, 0]
+    for _, parts in lines:
+        if parts[0] in kinds:
+            total[kinds[parts[0]]] += 1
+    seen = [0, 0, 0]
     vertices: list[list[float]] = []
     faces: list[list[int]] = []
-    for number, raw in enumerate(io.TextIOWrapper(stream, encoding="utf-8", errors="replace")
-                                 if not isinstance(stream, io.TextIOBase) else stream, 1):
-        parts = raw.split()
-        if not parts:
+    for number, parts in lines:
+        def bad(reason: str, number: int = number) -> ValueError:
+            return ValueError(f"{source}: line {number}: {reason}")
+
+        words = _until_comment(parts[1:])
+        if parts[0] == "v":
+            vertices.append(_obj_vertex(words, bad))
+        if parts[0] in kinds:
+            seen[kinds[parts[0]]] += 1
+        elif parts[0] == "f":
+            if len(words) < 3:
+                raise bad(f"a face needs at least 3 vertices, got {len(words)}")
+            idx = [_obj_corner(w, seen, total, bad) for w in words]
+            faces.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
+    if not faces:
+        raise ValueError(f"{source}: no faces: the file holds no triangles "
+                         "(is it an OBJ file?)")
+    return np.asarray(vertices, np.float64).reshape(-1, 3), np.asarray(faces, np.int64)
+
+
+def _obj_lines(stream, source: str) -> list[tuple[int, list[str]]]:
+    """The non-blank lines of an OBJ stream as (line number, words), decoded as UTF-8."""
+    out = []
+    number = 0
+    iterating = True
+    try:
+        for number, raw in enumerate(stream, 1):
+            iterating = False
+            line = raw.decode("utf-8") if isinstance(raw, bytes) else raw
+            iterating = True
+            parts = line.split()
+            if parts:
+                out.append((number, parts))
+    except UnicodeDecodeError as e:
+        # A text stream decodes ahead of the lines it returns: the bad byte lies after them.
+        where = f"after line {number}" if iterating else f"line {number}"
+        raise ValueError(f"{source}: {where}: not UTF-8 text (an OBJ file is text)") from e
+    return out
+
+
+def _until_comment(words: list[str]) -> list[str]:
+    for k, w in enumerate(words):
+        if w.startswith("#"):
+            return words[:k]
+    return words
+
+
+def _obj_vertex(words: list[str], bad) -> list[float]:
+    if len(words) not in (3, 4, 6):
+        raise bad(f"a vertex needs 3 coordinates (4 with w, 6 with a colour), got {len(words)}")
+    values: list[float] = []
+    for word in words[:4] if len(words) == 4 else words[:3]:
+        try:
+            x = float(word)
+        except ValueError as e:
+            raise bad(f"vertex coordinate {word!r} is not a number") from e
+        if not np.isfinite(x) or (len(values) == 3 and x == 0.0):
+            raise bad(f"vertex coordinate {word} is not finite" if len(values) < 3
+                      else "vertex w is 0")
+        values.append(x)
+    scale = values[3] if len(values) == 4 else 1.0
+    return [x / scale for x in values[:3]]
+
+
+def _obj_corner(word: str, seen: list[int], total: list[int], bad) -> int:
+    """The 0-based vertex index of a face's corner ``v``, ``v/vt``, ``v//vn`` or ``v/vt/vn``;
+    positive indices may point forward (judged against the file's totals), negative ones
+    count back from the last element before the face."""
+    parts = word.split("/")
+    if len(parts) > 3 or not parts[0]:
+        raise bad(f"face vertex {word!r} is not v, v/vt, v//vn or v/vt/vn")
+    names = ("vertex", "texture coordinate", "normal")
+    plural = ("vertices", "texture coordinates", "normals")
+    out = 0
+    for k, part in enumerate(parts):
+        if not part:
             continue
         try:
-            if parts[0] == "v":
-                vertices.append([float(x) for x in parts[1:4]])
-            elif parts[0] == "f":
-                idx = [int(p.split("/")[0]) for p in parts[1:]]
-                idx = [i - 1 if i > 0 else len(vertices) + i for i in idx]
-                faces.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
-        except (ValueError, IndexError) as e:
-            raise ValueError(f"stream: malformed OBJ line {number}: {raw.strip()!r}") from e
-    v = np.asarray(vertices, np.float64).reshape(-1, 3)
-    f = np.asarray(faces, np.int64).reshape(-1, 3)
-    if len(f) and (f.min() < 0 or f.max() >= len(v)):
-        raise ValueError("stream: a face refers to a vertex that does not exist")
-    return v, f
+            index = int(part)
+        except ValueError as e:
+            raise bad(f"{names[k]} index {part!r} is not an integer") from e
+        have = seen[k] if index < 0 else total[k]
+        if index == 0 or abs(index) > have:
+            before = " before this line" if index < 0 else ""
+            raise bad(f"{names[k]} index {index} does not exist (OBJ indices start at 1; "
+                      f"the file has {have} {plural[k]}{before})")
+        if k == 0:
+            out = index - 1 if index > 0 else seen[0] + index
+    return out
 
 
 def _lambert(albedo):
