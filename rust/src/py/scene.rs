@@ -1,5 +1,6 @@
 //! `vc.Scene`: geometry input, ray queries, counters and the G-buffer.
 
+use super::interrupt::detach_stoppable;
 use std::path::PathBuf;
 use std::sync::{Arc, RwLock};
 
@@ -132,7 +133,7 @@ impl PyScene {
             tmax: t,
         };
         let scene = self.get();
-        py.detach(|| f(&scene, &batch)).py()
+        detach_stoppable(py, || f(&scene, &batch))?.py()
     }
 }
 
@@ -551,8 +552,7 @@ impl PyScene {
         let cam = camera.inner;
         let scene = self.get();
         let scene = &*scene;
-        let g = py
-            .detach(|| GBuffer::render(scene, &cam, seed, jitter, threads))
+        let g = detach_stoppable(py, || GBuffer::render(scene, &cam, seed, jitter, threads))?
             .py()?;
         Ok(PyGBuffer { inner: Arc::new(g) })
     }
