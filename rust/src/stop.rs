@@ -166,7 +166,10 @@ mod tests {
         assert!(!a.is_set() && !child.is_set());
         assert!(a.check("x").is_ok());
         child.set();
-        assert!(child.is_set() && !a.is_set(), "a child does not set its parent");
+        assert!(
+            child.is_set() && !a.is_set(),
+            "a child does not set its parent"
+        );
         let other = a.child(None);
         b.set();
         assert!(a.is_set() && other.is_set() && other.is_requested());
@@ -211,9 +214,8 @@ mod tests {
     fn the_current_stop_follows_the_work() {
         let stop = Stop::new();
         stop.set();
-        let on_pool = stop.scope(|| {
-            crate::parallel::with_threads(Some(2), || Stop::current().is_set()).unwrap()
-        });
+        let on_pool = stop
+            .scope(|| crate::parallel::with_threads(Some(2), || Stop::current().is_set()).unwrap());
         assert!(on_pool);
         let polled = stop.scope(|| {
             crate::parallel::run_polling(

@@ -16,7 +16,7 @@ use super::convert::{
     threads_arg, unit_directions, vec3_arg, IntoPyResult,
 };
 use super::gbuffer::{view_arg, PyGBuffer, View};
-use super::interrupt::{detach_interruptible_with, PyProgress, detach_stoppable};
+use super::interrupt::{detach_interruptible_with, detach_stoppable, PyProgress};
 use super::scene::PyScene;
 use crate::sampling::octahedral::{morton_decode, morton_encode};
 use crate::visibility::cache::{Lookup, VisibilityCache};

@@ -160,8 +160,8 @@ impl PyEnvMap {
                 "rgb: sides must be at most {MAX_EQUIRECT_SIDE}, got {h} x {w}"
             )));
         }
-        let inner = detach_stoppable(py, || EnvMap::from_equirect(&pixels, w, h, resolution))?
-            .py()?;
+        let inner =
+            detach_stoppable(py, || EnvMap::from_equirect(&pixels, w, h, resolution))?.py()?;
         Ok(Self { inner })
     }
 

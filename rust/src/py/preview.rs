@@ -126,10 +126,10 @@ impl PyLightingPreview {
         let threads = threads_arg(threads)?;
         let scene = scene.get();
         let inner = detach_stoppable(py, || match &view {
-                View::Camera(cam) => LightingPreview::new(&scene, cam, threads),
-                View::GBuffer(g) => LightingPreview::from_gbuffer(&scene, g),
-            })?
-            .py()?;
+            View::Camera(cam) => LightingPreview::new(&scene, cam, threads),
+            View::GBuffer(g) => LightingPreview::from_gbuffer(&scene, g),
+        })?
+        .py()?;
         Ok(Self {
             inner: RwLock::new(inner),
             scene,

@@ -15,7 +15,7 @@ use super::convert::{
 };
 use super::envmap::PyEnvMap;
 use super::gbuffer::PyGBuffer;
-use super::interrupt::{detach_interruptible, PyProgress, detach_stoppable};
+use super::interrupt::{detach_interruptible, detach_stoppable, PyProgress};
 use super::material::PyMaterial;
 use super::scene::PyScene;
 use crate::bsdf::Material;

@@ -292,8 +292,7 @@ pub fn run_passes<E: PixelEstimator>(
                         .map(|(band, (band_sums, band_state))| {
                             let mut work = E::Work::default();
                             let mut tally = PassWork::default();
-                            if cancel.is_set()
-                                || (probe && band % PassSchedule::PROBE_STRIDE != 0)
+                            if cancel.is_set() || (probe && band % PassSchedule::PROBE_STRIDE != 0)
                             {
                                 return (work, tally);
                             }
@@ -311,9 +310,7 @@ pub fn run_passes<E: PixelEstimator>(
                                     timing: Default::default(),
                                 })
                                 .collect();
-                            shader.shade_band(&mut band_pixels, &mut work, &|| {
-                                cancel.is_set()
-                            });
+                            shader.shade_band(&mut band_pixels, &mut work, &|| cancel.is_set());
                             // What each pixel took, counted from its sums.
                             let taken: Vec<_> = band_pixels
                                 .iter()

@@ -11,8 +11,8 @@ use super::{RayBatch, Scene};
 use crate::error::Result;
 use crate::geometry::bvh::{Bvh, Hit, OccluderHint, TraversalCounters, PACKET};
 use crate::parallel::{map_in_order, with_threads};
-use crate::stop::Stop;
 use crate::simd::{Kernel, Level};
+use crate::stop::Stop;
 
 /// Rays traced per parallel work item; fixed so results never depend on the thread count.
 pub(super) const CHUNK: usize = 1024;

@@ -18,9 +18,9 @@ use crate::parallel::with_threads;
 use crate::sampling::pattern::default_pattern;
 use crate::sampling::rng::SampleRng;
 use crate::spatial::waves::{coarse_to_fine_levels, WaveBuilder, WaveTarget};
+use crate::stop::Stop;
 use crate::visibility::params::{record_cap, COHERENCE_LOG2_RESOLUTION, COHERENCE_PAIRS};
 use crate::visibility::record::{Record, RecordRays, RecordTracing};
-use crate::stop::Stop;
 
 /// What [`VisibilityCache::build`] did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -180,8 +180,7 @@ impl VisibilityCache {
             if self.is_empty() && self.params.check_coherence {
                 let covered = report.covered_pixels;
                 let cap = record_cap(&self.params, covered);
-                let check =
-                    self.coherence_check(scene, gbuffer, pair_step(covered, cap), &stop)?;
+                let check = self.coherence_check(scene, gbuffer, pair_step(covered, cap), &stop)?;
                 count_rays(&mut self.write().counters, check.rays);
                 report.incoherence = check.incoherence;
                 report.predicted_variance_ratio = check.variance_ratio.map(|r| r as f32);
