@@ -901,9 +901,9 @@ fn a_set_stop_interrupts_ray_batches() {
     for threads in [Some(1), Some(2)] {
         let before = s.counters();
         let e = stop.scope(|| s.intersect(&batch, threads)).unwrap_err();
-        assert!(matches!(e, Error::Interrupted { .. }), "{e}");
+        assert!(matches!(e, crate::Error::Interrupted { .. }), "{e}");
         let e = stop.scope(|| s.occluded(&batch, threads)).unwrap_err();
-        assert!(matches!(e, Error::Interrupted { .. }), "{e}");
+        assert!(matches!(e, crate::Error::Interrupted { .. }), "{e}");
         assert_eq!(s.counters().rays, before.rays);
     }
     assert_eq!(s.occluded(&batch, Some(2)).unwrap().len(), o.len());
