@@ -28,6 +28,7 @@ pub mod sampling;
 pub mod scenes;
 pub mod simd;
 pub mod spatial;
+pub mod stop;
 pub mod testing;
 pub mod visibility;
 

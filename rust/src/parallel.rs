@@ -7,6 +7,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use crate::error::{Error, Result};
+use crate::stop::Stop;
 
 /// Largest accepted `threads` argument.
 pub const MAX_THREADS: usize = 1024;
@@ -38,7 +39,8 @@ thread_local! {
 
 /// Runs `f` on a pool of `threads` workers (`None`: rayon's global pool, one per core).
 /// Pools are created once per calling thread and size, and kept. A call made from a
-/// worker of a pool of that size (a nested call) runs on that pool.
+/// worker of a pool of that size (a nested call) runs on that pool. The calling thread's
+/// current [`Stop`] is `f`'s current stop too.
 pub fn with_threads<R: Send>(threads: Option<usize>, f: impl FnOnce() -> R + Send) -> Result<R> {
     let Some(n) = threads else {
         return Ok(f());
@@ -64,7 +66,8 @@ pub fn with_threads<R: Send>(threads: Option<usize>, f: impl FnOnce() -> R + Sen
             .map_err(|e| Error::invalid("threads", e.to_string()))?;
         Ok(pools.entry(n).or_insert(Arc::new(p)).clone())
     })?;
-    Ok(pool.install(f))
+    let stop = Stop::installed();
+    Ok(pool.install(|| Stop::scope_opt(stop, f)))
 }
 
 /// `f` of every item, in the items' order, computed on every worker of the current pool,
@@ -93,6 +96,7 @@ pub fn map_in_order<T: Sync, R: Send + Sync>(items: &[T], f: impl Fn(&T) -> R + 
 /// Runs `work` on a scoped thread while the calling thread calls `poll` every `interval`
 /// until the work returns; its result is returned (a panic in it is resumed here). For
 /// callers that must stay responsive while the work runs: progress reports, signal checks.
+/// The calling thread's current [`Stop`] is the work's current stop too.
 pub fn run_polling<R: Send>(
     work: impl FnOnce() -> R + Send,
     interval: std::time::Duration,
@@ -100,8 +104,9 @@ pub fn run_polling<R: Send>(
 ) -> R {
     std::thread::scope(|scope| {
         let (finished, wait) = std::sync::mpsc::channel::<()>();
+        let stop = Stop::installed();
         let handle = scope.spawn(move || {
-            let out = work();
+            let out = Stop::scope_opt(stop, work);
             let _ = finished.send(());
             out
         });

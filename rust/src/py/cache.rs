@@ -16,7 +16,7 @@ use super::convert::{
     threads_arg, unit_directions, vec3_arg, IntoPyResult,
 };
 use super::gbuffer::{view_arg, PyGBuffer, View};
-use super::interrupt::{detach_interruptible_with, PyProgress};
+use super::interrupt::{detach_interruptible_with, detach_stoppable, PyProgress};
 use super::scene::PyScene;
 use crate::sampling::octahedral::{morton_decode, morton_encode};
 use crate::visibility::cache::{Lookup, VisibilityCache};
@@ -354,9 +354,8 @@ impl PyVisibilityCache {
         let radii = self.radii(radius, footprints, n)?;
         let threads = threads_arg(threads)?;
         let inner = self.inner.clone();
-        let looks: Vec<Lookup> = py
-            .detach(|| inner.lookup_batch(&pts, &nrm, &radii, threads))
-            .py()?;
+        let looks: Vec<Lookup> =
+            detach_stoppable(py, || inner.lookup_batch(&pts, &nrm, &radii, threads))?.py()?;
         let keep = self.inner.params().n_keep as usize;
         let mut ids = vec![-1i64; n * keep];
         let mut beta = vec![0f32; n * keep];
@@ -504,9 +503,8 @@ impl PyVisibilityCache {
         let threads = threads_arg(threads)?;
         let scene = self.scene.borrow(py).get();
         let inner = self.inner.clone();
-        let (rays, misses) = py
-            .detach(|| inner.validate(&scene, k, seed, threads))
-            .py()?;
+        let (rays, misses) =
+            detach_stoppable(py, || inner.validate(&scene, k, seed, threads))?.py()?;
         let d = PyDict::new(py);
         d.set_item("rays", rays)?;
         d.set_item("misses", misses)?;

@@ -1,5 +1,6 @@
 //! `vc.EnvMap`: the octahedral HDR environment map of [`crate::lights::envmap`].
 
+use super::interrupt::detach_stoppable;
 use std::path::PathBuf;
 
 use glam::Vec3;
@@ -159,9 +160,8 @@ impl PyEnvMap {
                 "rgb: sides must be at most {MAX_EQUIRECT_SIDE}, got {h} x {w}"
             )));
         }
-        let inner = py
-            .detach(|| EnvMap::from_equirect(&pixels, w, h, resolution))
-            .py()?;
+        let inner =
+            detach_stoppable(py, || EnvMap::from_equirect(&pixels, w, h, resolution))?.py()?;
         Ok(Self { inner })
     }
 
@@ -201,7 +201,7 @@ impl PyEnvMap {
             Some(o) if !o.is_none() => Some(resolution_arg(o)?),
             _ => None,
         };
-        let inner = py.detach(|| EnvMap::read_exr(&path, r)).py()?;
+        let inner = detach_stoppable(py, || EnvMap::read_exr(&path, r))?.py()?;
         Ok(Self { inner })
     }
 
@@ -284,7 +284,7 @@ impl PyEnvMap {
     ) -> PyResult<Bound<'py, PyAny>> {
         let w = side_arg(width, "width")?;
         let h = side_arg(height, "height")?;
-        let img = py.detach(|| self.inner.to_equirect(w, h));
+        let img = detach_stoppable(py, || self.inner.to_equirect(w, h))?;
         super::convert::image_array(py, img.into_flattened(), h, w, Some(3))
     }
 
@@ -296,7 +296,7 @@ impl PyEnvMap {
                 "degrees: must be finite, got {deg}"
             )));
         }
-        let inner = py.detach(|| self.inner.rotated(deg as f32));
+        let inner = detach_stoppable(py, || self.inner.rotated(deg as f32))?;
         Ok(Self { inner })
     }
 

@@ -1,38 +1,34 @@
 //! Ctrl-C during long calls. Python runs signal handlers only on its main thread, between
 //! bytecodes; a call that released the GIL and waits for the core's worker threads never
 //! gives it the chance. [`detach_interruptible`] therefore runs the core's work on a scoped
-//! thread while the calling thread checks for signals every [`POLL`], and tells the work to
-//! stop through a flag that its progress reports read ([`PyProgress`]).
+//! thread while the calling thread checks for signals every [`POLL`], and sets the work's
+//! [`Stop`] when a handler raises. The stop is the work's current stop
+//! ([`Stop::current`]), so every loop of the core polls it between chunks, whether the
+//! call reports progress or not; progress reports ([`PyProgress`]) say "stop" too.
 
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::Duration;
 
 use pyo3::prelude::*;
 
+use crate::stop::Stop;
+
 /// How often the calling thread checks for signals while the work runs.
 pub const POLL: Duration = Duration::from_millis(20);
 
-/// Set when a signal handler raised: the work should stop at its next progress report.
-#[derive(Clone, Debug, Default)]
-pub struct StopFlag(Arc<AtomicBool>);
+/// The stop that Ctrl-C sets: the core's [`Stop`].
+pub type StopFlag = Stop;
 
-impl StopFlag {
-    /// True once a stop was asked for.
-    pub fn is_set(&self) -> bool {
-        self.0.load(Ordering::Relaxed)
-    }
-
-    fn set(&self) {
-        self.0.store(true, Ordering::Relaxed);
-    }
+/// [`detach_interruptible`] with a stop of its own: for calls without a progress reporter.
+pub fn detach_stoppable<R: Send>(py: Python<'_>, work: impl FnOnce() -> R + Send) -> PyResult<R> {
+    detach_interruptible(py, &Stop::new(), work)
 }
 
 /// Runs `work` with the GIL released, on a scoped thread, while this thread runs Python's
 /// signal handlers every [`POLL`]. When one raises (`KeyboardInterrupt` for Ctrl-C), `stop`
-/// is set, the work is awaited (it stops at its next progress report) and its result is
-/// dropped: the handler's exception is returned instead. The work must leave the objects it
-/// changed usable when it stops early (the core's long calls stop between waves or passes).
+/// is set, the work is awaited (its loops poll `stop`, the work's current [`Stop`]) and its
+/// result is dropped: the handler's exception is returned instead. The work must leave the
+/// objects it changed usable when it stops early (the core's long calls stop between
+/// chunks, waves or passes, keeping or dropping a step whole).
 pub fn detach_interruptible<R: Send>(
     py: Python<'_>,
     stop: &StopFlag,
@@ -51,6 +47,7 @@ pub fn detach_interruptible_with<R: Send>(
 ) -> PyResult<R> {
     let mut raised: Option<PyErr> = None;
     let out = py.detach(|| {
+        let work = || stop.scope(work);
         crate::parallel::run_polling(work, POLL, &mut || {
             if raised.is_none() {
                 if let Err(e) = Python::attach(|py| py.check_signals()) {
@@ -78,7 +75,7 @@ type Report = Box<dyn FnMut(Python<'_>, u64, u64) -> PyResult<bool> + Send>;
 pub struct PyProgress {
     report: Option<Report>,
     failure: Option<PyErr>,
-    stop: StopFlag,
+    stop: Stop,
 }
 
 impl PyProgress {
@@ -96,12 +93,12 @@ impl PyProgress {
         Self {
             report,
             failure: None,
-            stop: StopFlag::default(),
+            stop: Stop::new(),
         }
     }
 
-    /// The flag that makes every later report say "stop".
-    pub fn stop_flag(&self) -> StopFlag {
+    /// The stop that makes every later report say "stop".
+    pub fn stop_flag(&self) -> Stop {
         self.stop.clone()
     }
 

@@ -22,9 +22,21 @@ mod vpl;
 
 use pyo3::prelude::*;
 
+/// Loads numpy's C API now. `numpy` loads it on first use, importing Python modules, and
+/// panics if that import raises: a Ctrl-C pending when a long call made the process's first
+/// array then gave a `PanicException` instead of `KeyboardInterrupt`. The modules are
+/// imported here first, so that an error at this point is raised, not a panic.
+fn load_numpy_api(py: Python<'_>) -> PyResult<()> {
+    py.import("numpy")?;
+    py.import("numpy.lib")?;
+    let _ = numpy::PyArray1::<f32>::zeros(py, 0, false);
+    Ok(())
+}
+
 /// The native module `viscache_rs._core`.
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    load_numpy_api(m.py())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<scene::PyScene>()?;
     m.add_class::<camera::PyCamera>()?;

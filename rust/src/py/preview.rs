@@ -1,6 +1,7 @@
 //! `viscache_rs._core.LightingPreview`: CAM08 §6.2's preview of `J`
 //! ([`crate::estimators::preview`]), direct or from a cached transfer.
 
+use super::interrupt::detach_stoppable;
 use std::sync::{Arc, RwLock};
 
 use glam::DMat3;
@@ -124,12 +125,11 @@ impl PyLightingPreview {
         let view = view_arg(camera, gbuffer)?;
         let threads = threads_arg(threads)?;
         let scene = scene.get();
-        let inner = py
-            .detach(|| match &view {
-                View::Camera(cam) => LightingPreview::new(&scene, cam, threads),
-                View::GBuffer(g) => LightingPreview::from_gbuffer(&scene, g),
-            })
-            .py()?;
+        let inner = detach_stoppable(py, || match &view {
+            View::Camera(cam) => LightingPreview::new(&scene, cam, threads),
+            View::GBuffer(g) => LightingPreview::from_gbuffer(&scene, g),
+        })?
+        .py()?;
         Ok(Self {
             inner: RwLock::new(inner),
             scene,
@@ -174,15 +174,16 @@ impl PyLightingPreview {
                     "rotation: not taken with direct=True; pass envmap.rotated(degrees)",
                 ));
             }
-            py.detach(|| preview.render(&cache, env, level, threads))
-                .py()?
+            detach_stoppable(py, || preview.render(&cache, env, level, threads))?.py()?
         } else {
             if product_level.is_some() {
                 preview.set_product_level(Some(level));
             }
             let scene = Some(&*self.scene);
-            py.detach(|| preview.render_lighting(scene, &cache, env, rotation.as_ref(), threads))
-                .py()?
+            detach_stoppable(py, || {
+                preview.render_lighting(scene, &cache, env, rotation.as_ref(), threads)
+            })?
+            .py()?
         };
         let (w, h) = preview.size();
         image_array(py, image.into_flattened(), h as usize, w as usize, Some(3))
@@ -247,9 +248,8 @@ impl PyLightingPreview {
         let env = envmap.as_ref().map(|e| &e.inner);
         let preview = self.get();
         let scene = Some(&*self.scene);
-        let info = py
-            .detach(|| preview.prepare(scene, &cache, env, request, threads))
-            .py()?;
+        let info =
+            detach_stoppable(py, || preview.prepare(scene, &cache, env, request, threads))?.py()?;
         info_dict(py, &info)
     }
 
@@ -310,10 +310,10 @@ impl PyLightingPreview {
         let threads = threads_arg(threads)?;
         let m = material.inner;
         let cache = cache.map(|c| c.bound(py)).transpose()?;
-        py.detach(|| {
+        detach_stoppable(py, || {
             let mut preview = self.inner.write().unwrap_or_else(|e| e.into_inner());
             preview.set_material(cache.as_deref(), obj, m, threads)
-        })
+        })?
         .py()
     }
 }

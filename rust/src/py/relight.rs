@@ -15,7 +15,7 @@ use super::convert::{
 };
 use super::envmap::PyEnvMap;
 use super::gbuffer::PyGBuffer;
-use super::interrupt::{detach_interruptible, PyProgress};
+use super::interrupt::{detach_interruptible, detach_stoppable, PyProgress};
 use super::material::PyMaterial;
 use super::scene::PyScene;
 use crate::bsdf::Material;
@@ -101,7 +101,7 @@ impl PyRelighter {
         let source = source_arg(visibility)?;
         let core = scene.borrow().get();
         let g = (*gbuffer.inner).clone();
-        let inner = py.detach(|| Relighter::new(&core, g, source)).py()?;
+        let inner = detach_stoppable(py, || Relighter::new(&core, g, source))?.py()?;
         Ok(Self {
             inner: Mutex::new(inner),
             scene: scene.unbind(),

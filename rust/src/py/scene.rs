@@ -1,5 +1,6 @@
 //! `vc.Scene`: geometry input, ray queries, counters and the G-buffer.
 
+use super::interrupt::detach_stoppable;
 use std::path::PathBuf;
 use std::sync::{Arc, RwLock};
 
@@ -132,7 +133,7 @@ impl PyScene {
             tmax: t,
         };
         let scene = self.get();
-        py.detach(|| f(&scene, &batch)).py()
+        detach_stoppable(py, || f(&scene, &batch))?.py()
     }
 }
 
@@ -385,6 +386,10 @@ impl PyScene {
     /// triangles get the SAH tree only; `bvh_stats()` says which and why), "sah" (our binned SAH
     /// builder) or one of obvhs's PLOC presets "fastest", "very_fast", "fast", "medium",
     /// "slow", "very_slow". Returns the build time in seconds.
+    ///
+    /// Ctrl-C returns at once (KeyboardInterrupt) and leaves the scene as it was: the tree
+    /// is built on a thread of its own, which the builders cannot stop part-way, so an
+    /// interrupted build runs on to its end in the background and is then dropped.
     #[pyo3(signature = (quality="auto", threads=None))]
     fn build(
         &self,
@@ -394,12 +399,44 @@ impl PyScene {
     ) -> PyResult<f64> {
         let q = BuildQuality::parse(quality).py()?;
         let threads = threads_arg(threads)?;
-        py.detach(|| {
-            self.edit(|scene| {
-                crate::parallel::with_threads(threads, || scene.build(q).build_time().as_secs_f64())
+        let snapshot = self.get();
+        let built_for = snapshot.pose_fingerprint();
+        let (sent, received) = std::sync::mpsc::channel();
+        std::thread::Builder::new()
+            .name("viscache-bvh".into())
+            .spawn(move || {
+                let bvh = crate::parallel::with_threads(threads, || snapshot.build_aside(q));
+                // The receiver is gone when the call was interrupted: the tree is dropped.
+                let _ = sent.send(bvh);
             })
-        })
-        .py()
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(format!("build: {e}")))?;
+        let bvh = detach_stoppable(py, move || {
+            let stop = crate::stop::Stop::current();
+            loop {
+                match received.recv_timeout(std::time::Duration::from_millis(10)) {
+                    Ok(bvh) => return Some(bvh),
+                    Err(std::sync::mpsc::RecvTimeoutError::Timeout) if !stop.is_set() => {}
+                    Err(_) => return None,
+                }
+            }
+        })?;
+        let bvh = bvh
+            .ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("build: the builder failed"))?
+            .py()?;
+        let seconds = bvh.build_time().as_secs_f64();
+        let installed = self.edit(|scene| scene.install_bvh(q, built_for, bvh));
+        if !installed {
+            // Edited from another thread meanwhile: build the scene as it is now.
+            return detach_stoppable(py, || {
+                self.edit(|scene| {
+                    crate::parallel::with_threads(threads, || {
+                        scene.build(q).build_time().as_secs_f64()
+                    })
+                })
+            })?
+            .py();
+        }
+        Ok(seconds)
     }
 
     /// Statistics of the BVH (built if needed): quality (the builder that made it),
@@ -563,9 +600,8 @@ impl PyScene {
         let cam = camera.inner;
         let scene = self.get();
         let scene = &*scene;
-        let g = py
-            .detach(|| GBuffer::render(scene, &cam, seed, jitter, threads))
-            .py()?;
+        let g =
+            detach_stoppable(py, || GBuffer::render(scene, &cam, seed, jitter, threads))?.py()?;
         Ok(PyGBuffer { inner: Arc::new(g) })
     }
 

@@ -3,6 +3,8 @@
 //! ([`crate::render::many_lights`] over [`crate::estimators::many_lights`]). The Python wrapper (`viscache_rs.vpl`) adds the
 //! progress bar and `vc.render`'s methods "vpl" and "vpl_sampled".
 
+use std::time::Instant;
+
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -283,7 +285,8 @@ impl PyVpls {
 /// (`vpl_samples=None`) or `vpl_samples` VPLs per pixel sample drawn by their unoccluded
 /// contribution. `vpls` None: the render traces the default set
 /// ([`crate::render::many_lights::default_vpls`]) with surface VPLs of `depth` (default 1)
-/// generations, and its stats give `vpl_trace_seconds`. Returns a dict with `image` and
+/// generations, and its stats give `vpl_trace_seconds` (within `seconds` and the
+/// `time_budget`). Returns a dict with `image` and
 /// `variance` (H, W, 3) float32 and `stats` (with `bounces`, the set's most generations).
 /// `callback(done, planned)` as for `render`.
 #[pyfunction]
@@ -347,6 +350,8 @@ pub fn render_vpl<'py>(
     let stop = reporter.stop_flag();
     let mut progress = |done: u64, planned: u64| reporter.report(done, planned);
     let out = detach_interruptible(py, &stop, || {
+        // The budget covers the default set's tracing too: the passes get what is left.
+        let start = Instant::now();
         let env = &env.get().inner;
         let traced = match &vpls {
             Some(_) => None,
@@ -359,7 +364,13 @@ pub fn render_vpl<'py>(
             (None, Some(t)) => t,
             (None, None) => unreachable!("traced when not given"),
         };
-        let out = render_many_lights(
+        let params = ManyLightParams {
+            time_budget: params
+                .time_budget
+                .map(|b| (b - start.elapsed().as_secs_f64()).max(1e-3)),
+            ..params
+        };
+        let mut out = render_many_lights(
             &scene,
             env,
             &cam,
@@ -369,6 +380,7 @@ pub fn render_vpl<'py>(
             threads,
             &mut progress,
         )?;
+        out.stats.seconds = start.elapsed().as_secs_f64();
         let bounces = set.vpls.iter().map(|v| v.bounce).max().unwrap_or(0);
         Ok::<_, crate::Error>((out, bounces, traced.map(|t| t.stats.seconds)))
     })?

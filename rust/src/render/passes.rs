@@ -19,7 +19,7 @@
 //! from its neighbours' samples ([`super::adaptive`]); without a budget the same two passes spend
 //! `spp` samples per pixel on average.
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -31,6 +31,7 @@ use super::sums::PixelSums;
 use super::MAX_SPP;
 use crate::error::Result;
 use crate::parallel::run_with_progress;
+use crate::stop::Stop;
 
 /// Rows per work item of a pass with even counts: small enough to balance two to hundreds
 /// of threads. A band starts at a multiple of it ([`PixelPass::shade_band`]).
@@ -157,7 +158,8 @@ impl<N: Default> Default for PixelState<N> {
 /// workers (`None`: all cores). `progress(done, planned)` (pixel samples) is called on the
 /// calling thread about every 0.1 s and after each pass; a `false` stops the pass under way
 /// (pixels not started keep the samples they had) and the render. `start` is when the
-/// render began: the budget counts from it.
+/// render began: the budget counts from it. Ctrl-C (the current [`Stop`]) stops the pass
+/// under way as a `false` does.
 pub fn run_passes<E: PixelEstimator>(
     estimator: &mut E,
     width: usize,
@@ -174,7 +176,8 @@ pub fn run_passes<E: PixelEstimator>(
     let mut complete = true;
     let planned = params.spp as u64 * pixels as u64;
     let done = AtomicU64::new(0);
-    let cancel = AtomicBool::new(false);
+    // Ctrl-C (the current stop) or a `false` from progress: the pass under way stops.
+    let cancel = Stop::current().child(None);
     let mut schedule = PassSchedule::default();
     let mut taken = 0u64;
     // Adaptive renders: the shares measured after the pilot pass, the most samples a
@@ -289,8 +292,7 @@ pub fn run_passes<E: PixelEstimator>(
                         .map(|(band, (band_sums, band_state))| {
                             let mut work = E::Work::default();
                             let mut tally = PassWork::default();
-                            if cancel.load(Ordering::Relaxed)
-                                || (probe && band % PassSchedule::PROBE_STRIDE != 0)
+                            if cancel.is_set() || (probe && band % PassSchedule::PROBE_STRIDE != 0)
                             {
                                 return (work, tally);
                             }
@@ -308,9 +310,7 @@ pub fn run_passes<E: PixelEstimator>(
                                     timing: Default::default(),
                                 })
                                 .collect();
-                            shader.shade_band(&mut band_pixels, &mut work, &|| {
-                                cancel.load(Ordering::Relaxed)
-                            });
+                            shader.shade_band(&mut band_pixels, &mut work, &|| cancel.is_set());
                             // What each pixel took, counted from its sums.
                             let taken: Vec<_> = band_pixels
                                 .iter()
@@ -339,7 +339,7 @@ pub fn run_passes<E: PixelEstimator>(
                 &mut || {
                     let keep = progress(done.load(Ordering::Relaxed), planned);
                     if !keep {
-                        cancel.store(true, Ordering::Relaxed);
+                        cancel.set();
                     }
                     keep
                 },
@@ -370,7 +370,7 @@ pub fn run_passes<E: PixelEstimator>(
             adaptive_gain = Some(measured.gain());
             shares = Some((measured, cap));
         }
-        if cancel.load(Ordering::Relaxed) {
+        if cancel.is_set() {
             complete = false;
             break;
         }

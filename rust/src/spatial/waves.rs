@@ -19,6 +19,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::error::Result;
+use crate::stop::Stop;
 
 /// Most points looked up per wave.
 pub const BUILD_WAVE: usize = 4096;
@@ -110,8 +111,9 @@ impl<'p> WaveBuilder<'p> {
     }
 
     /// Grows `target` over `levels` of points, `total` of them in all, level after level.
-    /// An error (such as an interrupted record constructor) drops the wave being made and
-    /// leaves the records of the waves before.
+    /// An error (such as an interrupted record constructor, or the current [`Stop`] set,
+    /// polled between waves) drops the wave being made and leaves the records of the
+    /// waves before.
     pub fn run<T: WaveTarget, L: IntoIterator<Item = u32>>(
         &mut self,
         target: &T,
@@ -122,6 +124,7 @@ impl<'p> WaveBuilder<'p> {
             complete: true,
             ..WaveReport::default()
         };
+        let stop = Stop::current();
         'levels: for level in levels {
             let mut fresh = level.into_iter().peekable();
             let mut deferred: Vec<u32> = Vec::new();
@@ -130,6 +133,7 @@ impl<'p> WaveBuilder<'p> {
                 let size = wave_size(target.records()).max(deferred.len());
                 let mut wave = std::mem::take(&mut deferred);
                 wave.extend(fresh.by_ref().take(size - wave.len()));
+                stop.check("building records")?;
                 let (inserted, discarded, later) = Self::wave(target, &wave)?;
                 report.inserted += inserted;
                 report.discarded += discarded;

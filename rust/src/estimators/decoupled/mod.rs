@@ -121,7 +121,7 @@ mod cached;
 mod pass;
 mod reuse;
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -146,6 +146,7 @@ use crate::parallel::run_with_progress;
 use crate::sampling::octahedral::{sphere_to_square, texel_of};
 use crate::sampling::rng::Sampler;
 use crate::sampling::sobol::PixelSampler;
+use crate::stop::Stop;
 use crate::visibility::cache::interpolant::Interpolant;
 use crate::visibility::cache::{CacheState, VisibilityCache};
 use blend::least_error_t;
@@ -551,8 +552,10 @@ impl Relighter {
     /// light taken and the shadow rays traced. Needed for [`VisibilitySource::Pixels`].
     ///
     /// Samples go in passes of [`VISIBILITY_PASS_SPP`] over every pixel; with
-    /// `time_budget` (seconds) no pass starts once it is spent, so fewer than `spp` may be
-    /// taken (every pixel the same number; the result equals a run asked for that many).
+    /// `time_budget` (seconds) no pass starts once it is spent and a pass after the first
+    /// that it ends part-way is dropped, so fewer than `spp` may be taken (every pixel the
+    /// same number; the result equals a run asked for that many). Ctrl-C (the current
+    /// [`Stop`]) stops as `progress` does.
     /// `progress(done, planned)` (pixel samples) is called on the calling thread about
     /// every 0.1 s; returning `false` stops: the passes completed before are kept, as
     /// under a budget, and with none completed the call fails with
@@ -583,12 +586,15 @@ impl Relighter {
         let mut stats = vec![PixelVisibility::default(); pixels * n_lights];
         let mut bits = vec![0u32; pixels * n_lights * words];
         let planned = spp as u64 * pixels as u64;
-        let cancel = AtomicBool::new(false);
         let done = AtomicU64::new(0);
         let mut rays = 0u64;
         let mut taken = 0u32;
+        let deadline = time_budget.map(|b| start + std::time::Duration::from_secs_f64(b));
         while taken < spp {
             let pass = taken..(taken + VISIBILITY_PASS_SPP).min(spp);
+            // Set by Ctrl-C (the current stop), by progress, and after the first pass by
+            // the budget's end: a pass it stops is dropped whole.
+            let cancel = Stop::current().child(deadline.filter(|_| taken > 0));
             // What the completed passes gave, kept in case this one is stopped.
             let before = (taken > 0).then(|| (stats.clone(), bits.clone()));
             let this = &*self;
@@ -601,7 +607,7 @@ impl Relighter {
                     .map_init(
                         || None,
                         |last_product, (i, (stats, bits))| {
-                            if cancel.load(Ordering::Relaxed) {
+                            if cancel.is_set() {
                                 return 0;
                             }
                             done.fetch_add(pass.len() as u64, Ordering::Relaxed);
@@ -644,11 +650,11 @@ impl Relighter {
             let pass_rays = run_with_progress(threads, work, &mut || {
                 let keep = progress(done.load(Ordering::Relaxed), planned);
                 if !keep {
-                    cancel.store(true, Ordering::Relaxed);
+                    cancel.set();
                 }
                 keep
             })?;
-            if cancel.load(Ordering::Relaxed) || !progress(done.load(Ordering::Relaxed), planned) {
+            if cancel.is_set() || !progress(done.load(Ordering::Relaxed), planned) {
                 let Some((s, b)) = before else {
                     return Err(Error::Interrupted {
                         what: "converge_visibility".into(),

@@ -73,6 +73,7 @@ use crate::lights::vpl::{
 use crate::math::{triangle_cross, LUMINANCE_F32};
 use crate::parallel::with_threads;
 use crate::sampling::rng::{mix64, SampleRng};
+use crate::stop::Stop;
 
 #[cfg(test)]
 mod tests;
@@ -629,7 +630,9 @@ struct Traced {
     rejected: u64,
 }
 
-/// Traces paths `0..paths` of stream `seed` in fixed chunks, in path order.
+/// Traces paths `0..paths` of stream `seed` in fixed chunks, in path order. Chunks poll
+/// the current [`Stop`]: once it is set the rest are skipped and the paths are refused
+/// with [`Error::Interrupted`].
 fn trace_paths(
     src: &Sources,
     paths: u64,
@@ -637,7 +640,8 @@ fn trace_paths(
     depth: u32,
     lights: bool,
     accept: &(dyn Fn(&Vpl, &mut TraversalCounters, &mut u64) -> f32 + Sync),
-) -> Traced {
+) -> Result<Traced> {
+    let stop = Stop::current();
     let chunks = paths.div_ceil(PATH_CHUNK as u64);
     let parts: Vec<Traced> = (0..chunks)
         .into_par_iter()
@@ -649,6 +653,9 @@ fn trace_paths(
                 shadow_rays: 0,
                 rejected: 0,
             };
+            if stop.is_set() {
+                return t;
+            }
             let end = ((c + 1) * PATH_CHUNK as u64).min(paths);
             for path in c * PATH_CHUNK as u64..end {
                 trace_path(
@@ -669,6 +676,7 @@ fn trace_paths(
             t
         })
         .collect();
+    stop.check("tracing VPLs")?;
     let mut all = Traced {
         vpls: Vec::with_capacity(parts.iter().map(|p| p.vpls.len()).sum()),
         counters: TraversalCounters::default(),
@@ -683,7 +691,7 @@ fn trace_paths(
         all.shadow_rays += p.shadow_rays;
         all.rejected += p.rejected;
     }
-    all
+    Ok(all)
 }
 
 /// The pilot's stream, independent of the set's.
@@ -695,7 +703,8 @@ impl VplSet {
     /// Traces a set of about `params.count` VPLs lit by `env` and the scene's area
     /// lights (module docs). `camera` is the view importance-driven acceptance aims at
     /// (needed only with [`TraceParams::importance`]). Fails on bad parameters, a scene
-    /// without triangles or a setup without light.
+    /// without triangles or a setup without light; stops with [`Error::Interrupted`]
+    /// within a chunk of paths of the current [`Stop`] being set.
     pub fn trace(
         scene: &Scene,
         env: &EnvMap,
@@ -741,7 +750,7 @@ impl VplSet {
                 params.depth,
                 true,
                 &every,
-            );
+            )?;
             stats.pilot_paths = pilot_paths;
             let pilot_src_probability: Vec<f64> = (0..src.cumulative.len())
                 .map(|k| src.probability(k))
@@ -759,6 +768,7 @@ impl VplSet {
                 }
                 Some((imp, cam)) => {
                     let points = view_points(scene, cam, imp.view_width, None)?;
+                    Stop::current().check("tracing VPLs")?;
                     let phis: Vec<(f64, u64, TraversalCounters)> = pilot
                         .vpls
                         .par_iter()
@@ -840,7 +850,7 @@ impl VplSet {
                     params.depth,
                     params.lights,
                     &every,
-                ),
+                )?,
                 Some((points, means, eps)) => {
                     // Fluxes carry `1 / paths`, the pilot's `1 / pilot_paths`: compare
                     // contributions per path.
@@ -860,7 +870,7 @@ impl VplSet {
                         params.depth,
                         params.lights,
                         &accept,
-                    )
+                    )?
                 }
             };
             counters += traced.counters;

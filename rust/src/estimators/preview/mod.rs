@@ -42,6 +42,7 @@ use crate::lights::envmap::chroma::MapChroma;
 use crate::lights::envmap::product::ProductDistribution;
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
+use crate::stop::Stop;
 use crate::visibility::cache::interpolant::{ControlTables, Interpolant};
 use crate::visibility::cache::VisibilityCache;
 
@@ -332,7 +333,8 @@ impl LightingPreview {
 
     /// `J` per pixel (row-major RGB) under `env` with `cache`'s records, product cells of
     /// `product_level`. Escaped pixels show the map, emitters their emission,
-    /// pixels without records black. Traces no rays.
+    /// pixels without records black. Traces no rays. Stops with [`Error::Interrupted`]
+    /// (`crate::Error`) within a pixel of the current [`Stop`] being set.
     pub fn render(
         &self,
         cache: &VisibilityCache,
@@ -346,11 +348,15 @@ impl LightingPreview {
         let chroma = MapChroma::new(env);
         let state = cache.read();
         let params = cache.params();
-        with_threads(threads, || {
+        let stop = Stop::current();
+        let image = with_threads(threads, || {
             self.points
                 .par_iter()
                 .with_min_len(64)
                 .map(|point| {
+                    if stop.is_set() {
+                        return [0.0; 3];
+                    }
                     let p = match point {
                         Err(dir) => return env.eval(*dir).to_array(),
                         Ok(p) => p,
@@ -374,7 +380,9 @@ impl LightingPreview {
                     std::array::from_fn(|c| p.emitted[c] + (ratios[c] as f64 * j[c]) as f32)
                 })
                 .collect()
-        })
+        })?;
+        stop.check("preview render")?;
+        Ok(image)
     }
 }
 
@@ -423,6 +431,7 @@ impl LightingPreview {
         }
         cache.bind_fingerprint(self.scene)?;
         let start = Instant::now();
+        let stop = Stop::current();
         let version = cache.version();
         let points = self.transfer_points(cache);
         let covered = points.iter().filter(|p| p.is_some()).count().max(1);
@@ -480,6 +489,7 @@ impl LightingPreview {
         };
         // The map as truncated bases see it: without its bright cells, which the pixels
         // add exactly.
+        stop.check("LightingPreview.prepare")?;
         let (residual, bright) = split_light(env, level, None, true)?;
         let split = (&residual[..], &bright);
         let mut settings = request.settings;
@@ -491,6 +501,7 @@ impl LightingPreview {
             settings.nearest = errors.prefers_nearest();
             visibility_measured = Some(errors);
         }
+        stop.check("LightingPreview.prepare")?;
         let (basis, measured) = with_threads(threads, || {
             if candidates.len() == 1 {
                 Ok((candidates[0], Vec::new()))
@@ -501,6 +512,7 @@ impl LightingPreview {
                 measure(&points, cache, &settings, level, &candidates, env, light)
             }
         })??;
+        stop.check("LightingPreview.prepare")?;
         let weights = transfer::level_weights(&residual);
         let transfer = with_threads(threads, || {
             Transfer::build(&points, cache, settings, level, basis, Some(weights))
@@ -620,13 +632,19 @@ impl LightingPreview {
         };
         let Some(records) = prepared.records.as_ref().filter(|_| !bright.is_empty()) else {
             *lock(&self.last_bright) = None;
-            return with_threads(threads, || {
+            let stop = Stop::current();
+            let image = with_threads(threads, || {
                 (0..self.points.len())
                     .into_par_iter()
                     .with_min_len(1024)
-                    .map(|i| finish(i, transfer.eval(i, &light)))
+                    .map(|i| match stop.is_set() {
+                        true => [0.0; 3],
+                        false => finish(i, transfer.eval(i, &light)),
+                    })
                     .collect()
-            });
+            })?;
+            stop.check("preview render")?;
+            return Ok(image);
         };
         let budget = (prepared.request.edge_rays * self.points.len() as f64).round();
         // Rays only with a scene to trace in and a budget for them.
@@ -662,7 +680,8 @@ impl LightingPreview {
 
     /// Gives `object` the material `material` in this view: its pixels shade with it from
     /// now on, and a kept transfer rebuilds their rows only. Returns how many pixels
-    /// changed.
+    /// changed. Stopped by the current [`Stop`] ([`crate::Error::Interrupted`]), the
+    /// material is set and the kept transfer dropped (the next render builds it again).
     pub fn set_material(
         &mut self,
         cache: Option<&VisibilityCache>,
@@ -697,9 +716,11 @@ impl LightingPreview {
                 let points = self.transfer_points(cache);
                 let p = Arc::make_mut(prepared);
                 let settings = p.settings;
+                // Stopped part-way, the transfer is dropped (`slot` is not put back): the
+                // next render builds it again for the new material.
                 with_threads(threads, || {
                     p.transfer.rebuild(&points, &pixels, cache, settings)
-                })?;
+                })??;
                 p.info.bytes = p.bytes();
                 p.info.pixels = p.transfer.rows();
                 *lock(&self.transfer) = slot;

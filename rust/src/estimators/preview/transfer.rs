@@ -29,6 +29,7 @@ use crate::error::{Error, Result};
 use crate::estimators::direct::ProductLevel;
 use crate::lights::envmap::EnvMap;
 use crate::sampling::sh::{self, CellBasis};
+use crate::stop::Stop;
 use crate::visibility::cache::{CacheState, VisibilityCache};
 use crate::visibility::params::CacheParams;
 use crate::visibility::record::VisibilityView;
@@ -352,6 +353,7 @@ impl Transfer {
         };
         let state = cache.read();
         let params = cache.params();
+        let stop = Stop::current();
         let chunks: Vec<(Vec<bool>, Vec<u32>)> = points
             .par_chunks(CHUNK)
             .map(|chunk| {
@@ -360,6 +362,10 @@ impl Transfer {
                 let mut present = Vec::with_capacity(chunk.len());
                 let mut words = Vec::new();
                 for point in chunk {
+                    // A pixel of a fine level is milliseconds: polled per pixel.
+                    if stop.is_set() {
+                        break;
+                    }
                     let ok = match point {
                         Some(p) => builder.dense(p, &mut enc.dense),
                         None => false,
@@ -372,6 +378,7 @@ impl Transfer {
                 (present, words)
             })
             .collect();
+        stop.check("building the transfer")?;
         let mut t = Self {
             basis,
             level,
@@ -393,14 +400,17 @@ impl Transfer {
     }
 
     /// Rebuilds the rows of `pixels` (indices into `points`) after an edit of their
-    /// materials; other rows stay as they are. Returns how many pixels changed.
+    /// materials; other rows stay as they are. Returns how many pixels changed. Stops
+    /// with [`Error::Interrupted`] when the current [`Stop`] is set, some rows rebuilt and
+    /// others not: the caller drops the transfer then.
     pub fn rebuild(
         &mut self,
         points: &[Option<TransferPoint>],
         pixels: &[usize],
         cache: &VisibilityCache,
         settings: TransferSettings,
-    ) -> usize {
+    ) -> Result<usize> {
+        let stop = Stop::current();
         let state = cache.read();
         let params = cache.params();
         let (level, basis, stride) = (self.level, self.basis, self.stride);
@@ -413,6 +423,7 @@ impl Transfer {
                 let mut enc = Encoder::new(level, basis, stride, weights, sh_basis);
                 chunk
                     .iter()
+                    .take_while(|_| !stop.is_set())
                     .map(|&i| {
                         let ok = points[i].is_some_and(|p| builder.dense(&p, &mut enc.dense));
                         let mut words = Vec::new();
@@ -436,7 +447,8 @@ impl Transfer {
             let r = self.row_of[i] as usize * stride;
             self.words[r..r + stride].copy_from_slice(&words);
         }
-        pixels.len()
+        stop.check("rebuilding the transfer")?;
+        Ok(pixels.len())
     }
 
     /// Pixels with a transfer (rows).

@@ -220,6 +220,26 @@ impl Scene {
         self.bvh()
     }
 
+    /// A BVH of the scene as it is now with preset `quality` (on the current rayon pool),
+    /// built aside: the scene is not changed until [`Self::install_bvh`]. For callers that
+    /// must be able to walk away from a build (the tree builders cannot be stopped
+    /// part-way).
+    pub fn build_aside(&self, quality: BuildQuality) -> Bvh {
+        Bvh::build_grouped(&self.mesh, quality, &self.posed_ranges())
+    }
+
+    /// Makes `bvh`, built by [`Self::build_aside`] with `quality` from a scene of the same
+    /// pose fingerprint ([`Self::pose_fingerprint`]) as `built_for`, this scene's tree.
+    /// Returns false, changing nothing, when the scene changed since.
+    pub fn install_bvh(&mut self, quality: BuildQuality, built_for: u64, bvh: Bvh) -> bool {
+        if self.pose_fingerprint() != built_for {
+            return false;
+        }
+        self.quality = quality;
+        self.bvh = OnceLock::from(bvh);
+        true
+    }
+
     /// The BVH, built with the scene's preset on first use. Objects that have been moved
     /// ([`Scene::set_object_transform`]) get subtrees of their own
     /// ([`Bvh::build_grouped`]), so that refits after they move keep the tree's quality.

@@ -12,6 +12,7 @@ use crate::error::Result;
 use crate::geometry::bvh::{Bvh, Hit, OccluderHint, TraversalCounters, PACKET};
 use crate::parallel::{map_in_order, with_threads};
 use crate::simd::{Kernel, Level};
+use crate::stop::Stop;
 
 /// Rays traced per parallel work item; fixed so results never depend on the thread count.
 pub(super) const CHUNK: usize = 1024;
@@ -338,6 +339,8 @@ impl Scene {
     /// [`Self::map_chunks`] whose chunks may refuse their rays: `per_chunk` returns the
     /// reason, and the least reason over the refusing chunks (whichever threads ran them)
     /// is returned instead of the results. Counters are added only when no chunk refused.
+    /// Chunks poll the current [`Stop`]: once it is set the rest are skipped and the call
+    /// fails with [`crate::Error::Interrupted`].
     pub(super) fn try_map_chunks<T: Send + Copy + Default, E: Ord + Send>(
         &self,
         n: usize,
@@ -346,12 +349,16 @@ impl Scene {
     ) -> Result<std::result::Result<Vec<T>, E>> {
         with_threads(threads, || {
             self.bvh();
+            let stop = Stop::current();
             let mut out = vec![T::default(); n];
             let (counters, refused) = out
                 .par_chunks_mut(CHUNK)
                 .enumerate()
                 .map(|(c, chunk)| {
                     let mut counters = TraversalCounters::default();
+                    if stop.is_set() {
+                        return (counters, None);
+                    }
                     let refused = per_chunk(c * CHUNK, chunk, &mut counters).err();
                     (counters, refused)
                 })
@@ -362,14 +369,15 @@ impl Scene {
                         (a, ra.into_iter().chain(rb).min())
                     },
                 );
-            match refused {
+            stop.check("tracing rays")?;
+            Ok(match refused {
                 Some(reason) => Err(reason),
                 None => {
                     self.add_counters(counters);
                     Ok(out)
                 }
-            }
-        })
+            })
+        })?
     }
 
     /// Shadow queries: `true` where something lies on the segment. Runs of at least
@@ -549,6 +557,7 @@ impl Scene {
         }
         let counting = self.counting_enabled();
         let bvh = self.bvh();
+        let stop = Stop::current();
         let traced = with_threads(threads, || {
             // Each run is checked before it is traced. After a bad one the item's other
             // runs are only checked: its least bad row is the one to report, and its runs
@@ -564,7 +573,7 @@ impl Scene {
                         .into_iter()
                         .chain(rays.first_bad(range.clone()))
                         .min();
-                    if least_bad.is_none() {
+                    if least_bad.is_none() && !stop.is_set() {
                         let (slots, c) = (&mut out[k..k + range.len()], &mut counters);
                         trace_chunk(counting, bvh, rays, range.start, slots, c, false);
                     }
@@ -576,6 +585,7 @@ impl Scene {
             // of neighbouring bundles in the cache the cores share.
             map_in_order(&items, trace)
         })?;
+        stop.check("tracing rays")?;
         // The least bad row over the items is the batch's first, as `validate` names it.
         if let Some(bad) = traced.iter().filter_map(|t| t.as_ref().err()).min() {
             return Err(rays.error_at(*bad));

@@ -888,3 +888,23 @@ fn camera_rays_in_a_batch_find_the_single_rays_hits() {
     assert!(found > camera_rays / 2, "{found}");
     assert!(ties * 100 < found, "{ties} ties");
 }
+
+/// Ray chunks poll the current stop: a set one fails the batch with `Interrupted` (on one
+/// thread and on a pool), counting nothing; outside its scope the same rays are answered.
+#[test]
+fn a_set_stop_interrupts_ray_batches() {
+    let s = unit_quad();
+    let (o, d) = random_rays(s.bounds(), 1.0, 3 * CHUNK + 5, 3);
+    let batch = RayBatch::new(&o, &d);
+    let stop = crate::stop::Stop::new();
+    stop.set();
+    for threads in [Some(1), Some(2)] {
+        let before = s.counters();
+        let e = stop.scope(|| s.intersect(&batch, threads)).unwrap_err();
+        assert!(matches!(e, crate::Error::Interrupted { .. }), "{e}");
+        let e = stop.scope(|| s.occluded(&batch, threads)).unwrap_err();
+        assert!(matches!(e, crate::Error::Interrupted { .. }), "{e}");
+        assert_eq!(s.counters().rays, before.rays);
+    }
+    assert_eq!(s.occluded(&batch, Some(2)).unwrap().len(), o.len());
+}

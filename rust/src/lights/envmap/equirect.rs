@@ -7,6 +7,7 @@ use rayon::prelude::*;
 use super::{check_resolution, first_bad, texel_angle, texel_omega, EnvMap, ONE_MINUS_EPSILON};
 use crate::error::{Error, Result};
 use crate::sampling::octahedral::square_to_sphere;
+use crate::stop::Stop;
 
 /// One lat-long sub-pixel run's contribution to a texel (see [`EnvMap::from_equirect`]).
 struct Splat {
@@ -152,7 +153,8 @@ impl EnvMap {
     /// sun, a bright window) is resampled the same way and then scaled to the image's exact
     /// power in it, so a feature of a pixel keeps its power; the total `∫ L dω` matches the
     /// image's to about 0.1%. Bad sizes and NaN/Inf/negative pixels (naming the first) are
-    /// errors.
+    /// errors. Stops with [`Error::Interrupted`] within a fraction of a second of the
+    /// current [`Stop`] being set.
     pub fn from_equirect(
         rgb: &[[f32; 3]],
         width: usize,
@@ -189,6 +191,11 @@ impl EnvMap {
                 ),
             ));
         }
+        // Polled between the passes over the image and per texel: a large image takes
+        // seconds. A stopped call returns `Error::Interrupted`.
+        const WHAT: &str = "EnvMap.from_equirect";
+        let stop = Stop::current();
+        stop.check(WHAT)?;
         let res = resolution;
         let (w, h) = (width as f64, height as f64);
         let pi = std::f64::consts::PI;
@@ -207,6 +214,7 @@ impl EnvMap {
             mean += row * row_omega(j);
         }
         let cap = mean / (4.0 * pi) * 16.0;
+        stop.check(WHAT)?;
         let base: Vec<DVec3> = rgb
             .iter()
             .map(|p| Vec3::from(*p).as_dvec3().min(cap))
@@ -227,9 +235,14 @@ impl EnvMap {
         let pixel = (pi / h).min(std::f64::consts::TAU / w);
         let sub = ((2.0 * texel_angle(res) / pixel).ceil() as usize).clamp(4, 64);
         let has_excess = source_excess.max_element() > 0.0;
+        stop.check(WHAT)?;
         let gathered: Vec<(DVec3, DVec3)> = (0..res * res)
             .into_par_iter()
             .map(|t| {
+                // A texel is at least 16 points of 4 taps: the poll costs nothing beside it.
+                if stop.is_set() {
+                    return (DVec3::ZERO, DVec3::ZERO);
+                }
                 let (x, y) = ((t % res) as f64, (t / res) as f64);
                 let (mut b, mut e) = (DVec3::ZERO, DVec3::ZERO);
                 for i in 0..sub {
@@ -252,6 +265,7 @@ impl EnvMap {
                 (b / n, e / n)
             })
             .collect();
+        stop.check(WHAT)?;
         // The excess keeps the source's power exactly (a sun of a pixel or less would
         // otherwise gain or lose what the interpolant's samples happen to see of it).
         let gathered_excess: DVec3 = gathered.iter().map(|g| g.1).sum::<DVec3>() * texel_omega(res);

@@ -191,7 +191,13 @@ impl EnvMap {
                 ))
             }
         };
-        let as_parse = |e: crate::error::Error| parse_error(path, e.to_string());
+        // The decoder above cannot be stopped part-way (the `exr` crate has no hook for
+        // it); the conversion below polls the current stop and stays an interruption.
+        let as_parse = |e: crate::error::Error| match e {
+            e @ crate::error::Error::Interrupted { .. } => e,
+            e => parse_error(path, e.to_string()),
+        };
+        crate::stop::Stop::current().check("EnvMap.from_exr")?;
         match layout {
             ExrLayout::Octahedral => {
                 if width != height || !width.is_power_of_two() || width > MAX_RESOLUTION as usize {

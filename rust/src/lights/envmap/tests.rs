@@ -620,3 +620,16 @@ fn missing_and_corrupt_exr_files_name_the_path() {
         .to_string()
         .starts_with("layout"));
 }
+
+/// `from_equirect` polls the current stop (between its passes and per texel).
+#[test]
+fn from_equirect_stops_when_asked() {
+    let rgb = vec![[1.0f32; 3]; 64 * 32];
+    let stop = crate::stop::Stop::new();
+    stop.set();
+    let e = stop
+        .scope(|| EnvMap::from_equirect(&rgb, 64, 32, 16))
+        .unwrap_err();
+    assert!(matches!(e, Error::Interrupted { .. }), "{e}");
+    assert!(EnvMap::from_equirect(&rgb, 64, 32, 16).is_ok());
+}

@@ -12,12 +12,13 @@ use rayon::prelude::*;
 use super::coherence::{pair_step, predicted_gain, predicted_variance_ratio, MapPair};
 use super::{check_scene_and_budget, count_rays, CacheState, VisibilityCache};
 use crate::camera::{Camera, GBuffer};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::geometry::Scene;
 use crate::parallel::with_threads;
 use crate::sampling::pattern::default_pattern;
 use crate::sampling::rng::SampleRng;
 use crate::spatial::waves::{coarse_to_fine_levels, WaveBuilder, WaveTarget};
+use crate::stop::Stop;
 use crate::visibility::params::{record_cap, COHERENCE_LOG2_RESOLUTION, COHERENCE_PAIRS};
 use crate::visibility::record::{Record, RecordRays, RecordTracing};
 
@@ -118,6 +119,8 @@ impl VisibilityCache {
     ) -> Result<BuildReport> {
         check_scene_and_budget(scene, time_budget)?;
         let start = Instant::now();
+        // Ctrl-C reaches the G-buffer through the current stop; `request_stop` only the
+        // phases after it.
         let gbuffer = GBuffer::render(scene, camera, seed, false, threads)?;
         self.build_at(scene, &gbuffer, seed, threads, start, time_budget, progress)
     }
@@ -153,7 +156,7 @@ impl VisibilityCache {
         progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
     ) -> Result<BuildReport> {
         self.bind_scene(scene)?;
-        self.stop.store(false, Ordering::Relaxed);
+        let stop = self.start_stop();
         let camera = &gbuffer.camera;
         let before = self.counters();
         let mut report = BuildReport {
@@ -177,7 +180,7 @@ impl VisibilityCache {
             if self.is_empty() && self.params.check_coherence {
                 let covered = report.covered_pixels;
                 let cap = record_cap(&self.params, covered);
-                let check = self.coherence_check(scene, gbuffer, pair_step(covered, cap))?;
+                let check = self.coherence_check(scene, gbuffer, pair_step(covered, cap), &stop)?;
                 count_rays(&mut self.write().counters, check.rays);
                 report.incoherence = check.incoherence;
                 report.predicted_variance_ratio = check.variance_ratio.map(|r| r as f32);
@@ -196,7 +199,7 @@ impl VisibilityCache {
                 }
             }
             if self.is_empty() {
-                report.bootstrap_records = self.bootstrap(scene, camera, seed)?;
+                report.bootstrap_records = self.bootstrap(scene, camera, seed, &stop)?;
             }
             let levels = coarse_to_fine_levels(camera.width, camera.height)
                 .into_iter()
@@ -206,8 +209,10 @@ impl VisibilityCache {
                         .filter(|&i| gbuffer.object[i as usize] >= 0)
                 });
             let k = self.params.d_max_scale;
+            stop.check(WHAT)?;
             let target = Refine {
                 cache: self,
+                stop: &stop,
                 max_records: record_cap(&self.params, report.covered_pixels),
                 scene,
                 query: |i: u32| {
@@ -243,7 +248,7 @@ impl VisibilityCache {
 
     /// `N_startup` records at the first hits of rays through jittered cells of a grid over
     /// the image (as square as the aspect allows); returns how many were inserted.
-    fn bootstrap(&self, scene: &Scene, camera: &Camera, seed: u64) -> Result<usize> {
+    fn bootstrap(&self, scene: &Scene, camera: &Camera, seed: u64, stop: &Stop) -> Result<usize> {
         let n = self.params.n_startup as usize;
         if n == 0 {
             return Ok(0);
@@ -268,10 +273,8 @@ impl VisibilityCache {
                 } else {
                     hit.normal
                 };
-                if self.stop.load(Ordering::Relaxed) {
-                    return Some(Err(Error::Interrupted {
-                        what: "cache build".into(),
-                    }));
+                if let Err(e) = stop.check(WHAT) {
+                    return Some(Err(e));
                 }
                 Some(self.trace(scene, hit.position, normal))
             })
@@ -294,7 +297,13 @@ impl VisibilityCache {
     /// ([`predicted_variance_ratio`]; both `None` without pairs), the visible directions
     /// summed over all maps and the rays traced. The pairs are fixed by the image and
     /// `step`, so the check is deterministic.
-    fn coherence_check(&self, scene: &Scene, g: &GBuffer, step: usize) -> Result<CoherenceCheck> {
+    fn coherence_check(
+        &self,
+        scene: &Scene,
+        g: &GBuffer,
+        step: usize,
+        stop: &Stop,
+    ) -> Result<CoherenceCheck> {
         let (w, h) = (g.width() as usize, g.height() as usize);
         let side = (COHERENCE_PAIRS as f64).sqrt().ceil() as usize;
         let mut pairs = Vec::new();
@@ -327,7 +336,10 @@ impl VisibilityCache {
         };
         let traced: Vec<[(Record, RecordRays); 2]> = pairs
             .par_iter()
-            .map(|&(a, b)| Ok([map(a)?, map(b)?]))
+            .map(|&(a, b)| {
+                stop.check(WHAT)?;
+                Ok([map(a)?, map(b)?])
+            })
             .collect::<Result<_>>()?;
         let mut distance = 0.0f64;
         let mut check = CoherenceCheck::default();
@@ -358,8 +370,10 @@ impl VisibilityCache {
     /// collects the points that found no record and hands them over afterwards.
     pub fn refine_points(&self, scene: &Scene, points: &[(Vec3, Vec3, f32)]) -> Result<usize> {
         self.bind_scene(scene)?;
+        let stop = self.start_stop();
         let target = Refine {
             cache: self,
+            stop: &stop,
             max_records: self.params.max_records as usize,
             scene,
             query: |i: u32| points[i as usize],
@@ -373,6 +387,9 @@ impl VisibilityCache {
         Ok(waves.inserted)
     }
 }
+
+/// What a stopped build's [`Error::Interrupted`] names.
+const WHAT: &str = "cache build";
 
 /// What [`VisibilityCache::coherence_check`] measures.
 #[derive(Clone, Copy, Debug, Default)]
@@ -392,6 +409,8 @@ struct CoherenceCheck {
 /// traced.
 struct Refine<'a, Q> {
     cache: &'a VisibilityCache,
+    /// The build's stop ([`VisibilityCache::start_stop`]), polled per record.
+    stop: &'a Stop,
     /// Records past which requests are refused ([`record_cap`] for a view's build).
     max_records: usize,
     scene: &'a Scene,
@@ -440,11 +459,7 @@ impl<Q: Fn(u32) -> (Vec3, Vec3, f32) + Sync> WaveTarget for Refine<'_, Q> {
     }
 
     fn make(&self, i: u32) -> Result<(Record, RecordRays)> {
-        if self.cache.stop.load(Ordering::Relaxed) {
-            return Err(Error::Interrupted {
-                what: "cache build".into(),
-            });
-        }
+        self.stop.check(WHAT)?;
         let (x, n, _) = (self.query)(i);
         self.cache.trace(self.scene, x, n)
     }

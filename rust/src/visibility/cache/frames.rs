@@ -7,6 +7,7 @@ use super::VisibilityCache;
 use crate::error::{Error, Result};
 use crate::geometry::Scene;
 use crate::parallel::with_threads;
+use crate::stop::Stop;
 
 /// The last frame a cache can be at: [`VisibilityCache::end_frame`] refuses to advance past
 /// it rather than wrap to 0 (which would make every record look unused for billions of
@@ -68,7 +69,8 @@ impl VisibilityCache {
     /// plane, drawn from `(seed, record, frame)`, are traced again, and each one whose
     /// answer differs from the stored bit counts as a miss; all count as uses. Returns
     /// (rays traced, misses). For animations: call after the scene changed, then
-    /// [`Self::end_frame`] evicts the records the change made wrong.
+    /// [`Self::end_frame`] evicts the records the change made wrong. Stops with
+    /// [`Error::Interrupted`] when the current [`Stop`] is set, counting nothing.
     pub fn validate(
         &self,
         scene: &Scene,
@@ -83,10 +85,14 @@ impl VisibilityCache {
         let frame = state.frame;
         let n = state.len();
         let texels = self.pattern.len() as u64;
+        let stop = Stop::current();
         let counts: Vec<(u32, u32)> = with_threads(threads, || {
             (0..n)
                 .into_par_iter()
                 .map(|i| {
+                    if stop.is_set() {
+                        return (0, 0);
+                    }
                     let (p, normal) = state.index.site(i);
                     let origin = scene.offset_point(p, normal);
                     let bits = state.store().bits(i);
@@ -112,6 +118,8 @@ impl VisibilityCache {
                 .collect()
         })?;
         drop(state);
+        // Nothing is counted unless every record was checked.
+        stop.check("cache.validate")?;
         let ids: Vec<u32> = (0..n as u32).collect();
         let misses: Vec<u32> = counts.iter().map(|c| c.0).collect();
         let uses: Vec<u32> = counts.iter().map(|c| c.1).collect();

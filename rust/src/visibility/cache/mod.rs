@@ -50,8 +50,8 @@
 //! their build; `frames.rs`: §5.3 bookkeeping over frames; `io.rs`: the file format;
 //! `interpolant.rs`: the interpolated visibility `Ṽ` of a lookup and its integral `J`.
 
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
-use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::{Mutex, RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use glam::Vec3;
 
@@ -60,6 +60,7 @@ use super::record::{Record, RecordHeader, RecordRays, RecordStore};
 use crate::error::{Error, Result};
 use crate::geometry::Scene;
 use crate::sampling::pattern::{default_pattern, record_pattern, DEFAULT_LLOYD_ITERATIONS};
+use crate::stop::Stop;
 
 mod build;
 pub mod coherence;
@@ -214,8 +215,9 @@ pub struct VisibilityCache {
     pattern: Vec<Vec3>,
     state: RwLock<CacheState>,
     lookups: AtomicU64,
-    /// Set by [`VisibilityCache::request_stop`]; cleared when a build starts.
-    stop: AtomicBool,
+    /// The running build's stop, set by [`VisibilityCache::request_stop`]; a new one
+    /// (a child of the calling thread's current stop) for every build.
+    stop: Mutex<Stop>,
     /// [`VisibilityCache::plan_samples`]'s samples per pixel, 0 when not given.
     planned_spp: AtomicU32,
     /// Process-unique id of this cache object (a clone or a loaded file gets its own).
@@ -235,7 +237,7 @@ impl Clone for VisibilityCache {
             pattern: self.pattern.clone(),
             state: RwLock::new(self.read().clone()),
             lookups: AtomicU64::new(self.lookups.load(Ordering::Relaxed)),
-            stop: AtomicBool::new(false),
+            stop: Mutex::default(),
             planned_spp: AtomicU32::new(self.planned_spp.load(Ordering::Relaxed)),
             id: NEXT_CACHE_ID.fetch_add(1, Ordering::Relaxed),
             revision: AtomicU64::new(0),
@@ -258,7 +260,7 @@ impl VisibilityCache {
             pattern,
             state: RwLock::new(CacheState::new(m)?),
             lookups: AtomicU64::new(0),
-            stop: AtomicBool::new(false),
+            stop: Mutex::default(),
             planned_spp: AtomicU32::new(0),
             id: NEXT_CACHE_ID.fetch_add(1, Ordering::Relaxed),
             revision: AtomicU64::new(0),
@@ -373,7 +375,15 @@ impl VisibilityCache {
     /// rays: the wave being traced is dropped, the build returns [`Error::Interrupted`]
     /// and the cache keeps the records of the waves before. A later build clears it.
     pub fn request_stop(&self) {
-        self.stop.store(true, Ordering::Relaxed);
+        self.stop.lock().unwrap_or_else(|e| e.into_inner()).set();
+    }
+
+    /// A stop for a build starting now: set by [`Self::request_stop`] or the calling
+    /// thread's current [`Stop`] (Ctrl-C).
+    pub(super) fn start_stop(&self) -> Stop {
+        let stop = Stop::current().child(None);
+        *self.stop.lock().unwrap_or_else(|e| e.into_inner()) = stop.clone();
+        stop
     }
 
     /// The fingerprint of the scene the cache is bound to ([`Self::bind_scene`]), if any.

@@ -1044,3 +1044,38 @@ fn request_stop_interrupts_a_build_between_records() {
         .unwrap();
     assert!(done.complete && c.len() > after_two);
 }
+
+/// The calling thread's current stop (Ctrl-C) reaches every phase of a build: set before
+/// it, the build fails with `Interrupted` and the cache stays empty; set by a progress
+/// report after the first wave, the records of the waves before are kept. A later build
+/// outside the scope runs to the end.
+#[test]
+fn the_current_stop_interrupts_a_build() {
+    let setup = scenes::load("garage", 0.3, 0).unwrap();
+    let cam = setup.camera.with_resolution(64, 48).unwrap();
+    let c = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
+    let stop = crate::stop::Stop::new();
+    stop.set();
+    let e = stop
+        .scope(|| c.build(&setup.scene, &cam, 0, Some(2), None, &mut |_, _| true))
+        .unwrap_err();
+    assert!(matches!(e, Error::Interrupted { .. }), "{e}");
+    assert_eq!(c.len(), 0);
+    let stop = crate::stop::Stop::new();
+    let mut kept = 0;
+    let e = stop
+        .scope(|| {
+            c.build(&setup.scene, &cam, 0, Some(2), None, &mut |_, _| {
+                kept = c.len();
+                stop.set();
+                true
+            })
+        })
+        .unwrap_err();
+    assert!(matches!(e, Error::Interrupted { .. }), "{e}");
+    assert!(kept > 0 && c.len() == kept);
+    let done = c
+        .build(&setup.scene, &cam, 0, Some(2), None, &mut |_, _| true)
+        .unwrap();
+    assert!(done.complete && c.len() > kept);
+}
