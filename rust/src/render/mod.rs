@@ -94,6 +94,7 @@ use crate::visibility::cache::VisibilityCache;
 use crate::visibility::params::CacheParams;
 
 pub mod adaptive;
+pub mod ambient;
 pub mod estimator;
 pub mod frame;
 pub mod many_lights;
