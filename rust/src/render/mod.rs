@@ -95,9 +95,11 @@ use crate::visibility::params::CacheParams;
 
 pub mod adaptive;
 pub mod ambient;
+pub mod direct;
 pub mod estimator;
 pub mod frame;
 pub mod many_lights;
+pub mod output;
 pub mod own_cache;
 pub mod passes;
 pub mod registry;
