@@ -28,7 +28,6 @@ __all__ = [
     "OWN_CACHE_SAMPLES_PER_RECORD",
     "OWN_CACHE_BUDGET_SHARE",
     "VPLs",
-    "render_vpl",
     "render_ao",
     "write_exr",
     "scene_names",
@@ -388,8 +387,8 @@ def render(
     scene: Scene,
     envmap: EnvMap,
     camera: Camera,
-    spp: int,
-    method: str,
+    spp: int | None = None,
+    method: str = "mis",
     seed: int | None = 0,
     threads: int | None = None,
     time_budget: float | None = None,
@@ -408,6 +407,9 @@ def render(
     learn_techniques: bool = True,
     adaptive: bool | None = None,
     preset: str = "auto",
+    vpls: VPLs | None = None,
+    clamp: float | None = None,
+    vpl_samples: int | None = None,
 ) -> dict[str, Any]: ...
 def methods() -> list[dict[str, Any]]: ...
 def own_cache_record_cap(pixels: int, spp: int, preset: str = "auto") -> int: ...
@@ -460,22 +462,6 @@ class VPLs:
     @property
     def stats(self) -> dict[str, Any]: ...
 
-def render_vpl(
-    scene: Scene,
-    envmap: EnvMap,
-    camera: Camera,
-    vpls: VPLs | None,
-    spp: int | None = 1,
-    seed: int | None = 0,
-    threads: int | None = None,
-    clamp: float | None = None,
-    direct: bool = True,
-    jitter: bool = True,
-    vpl_samples: int | None = None,
-    time_budget: float | None = None,
-    callback: Any = None,
-    depth: int | None = None,
-) -> dict[str, Any]: ...
 def render_ao(
     scene: Scene,
     camera: Camera | None = None,

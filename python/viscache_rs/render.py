@@ -107,17 +107,15 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from . import vpl as _vpl
 from ._progress import progress_bar
 from ._result import RenderResult
 
-_UNBOUNDED_SPP = 1 << 20
 # Method "cv" without a cache (the policy is Rust's, `render::own_cache`): the share of a
 # time budget its build may spend, and the render's samples per record it may hold.
 CACHE_BUDGET_SHARE: float = _core.OWN_CACHE_BUDGET_SHARE
 SAMPLES_PER_RECORD: int = _core.OWN_CACHE_SAMPLES_PER_RECORD
-# The registry's many-light methods, rendered by viscache_rs.vpl.
-_MANY_LIGHT_METHODS = tuple(m["name"] for m in _core.methods() if m["estimator"] == "many_lights")
+# The registry's rows by name: default and most samples per pixel, for the progress bar.
+_METHODS = {m["name"]: m for m in _core.methods()}
 
 
 def render(
@@ -164,19 +162,13 @@ def render(
              "light_samples": light_samples is not None,
              "learn_techniques": not learn_techniques, "adaptive": bool(adaptive)}
     _core.check_method_args(method, [k for k, v in given.items() if v], cache)
-    # Many-light methods over virtual point lights (viscache_rs.vpl).
-    if method in _MANY_LIGHT_METHODS:
-        return _vpl.render_vpl(setup, camera=camera, spp=spp, method=method, seed=seed,
-                               threads=threads, progress=progress, time_budget=time_budget,
-                               envmap=envmap, vpls=vpls, clamp=clamp, vpl_samples=vpl_samples,
-                               bounces=bounces, direct=direct, jitter=jitter)
     if camera is None:
         camera = setup.camera if gbuffer is None else gbuffer.camera
     envmap = setup.envmap if envmap is None else envmap
-    if spp is None:
-        spp = _UNBOUNDED_SPP if time_budget is not None else 16
-    # The bar counts samples per pixel; without a cap (a time budget alone) its total is unknown.
-    total = None if time_budget is not None and spp >= _UNBOUNDED_SPP else spp
+    # The bar counts samples per pixel; without a cap (a time budget alone) its total is
+    # unknown. The core takes the method's default without spp.
+    row = _METHODS[method]
+    total = spp if spp is not None else (None if time_budget is not None else row["default_spp"])
     with progress_bar(progress, f"render ({method})", "spp", total=total,
                       per_unit=camera.width * camera.height) as callback:
         out = _core.render(
@@ -203,6 +195,9 @@ def render(
             learn_techniques=learn_techniques,
             adaptive=adaptive,
             preset=preset,
+            vpls=vpls,
+            clamp=clamp,
+            vpl_samples=vpl_samples,
         )
     stats = out["stats"]
     return RenderResult(out["image"], out["variance"], stats, out["alpha"],

@@ -24,7 +24,8 @@ geometry term ``cos cos / d^2`` (1/m^2; removes the bright spots of nearby VPLs,
 bounces=depth, direct=False``. Without ``vpls`` a set of 4096 is traced with
 ``depth=bounces`` (default 1), without light VPLs when ``direct=False``.
 
-The render runs on the pass layer, as ``vc.render``'s other methods do. Without
+``vc.render`` renders these methods through the method registry (Rust) on the pass
+layer, as it does the others. Without
 ``time_budget`` every pixel takes ``spp`` samples, bit-identical for any ``threads``. With
 one, a probe pass takes a few samples in every eighth band of rows, then passes sized by
 the measured cost per sample take as many as fit (``spp`` at most, unbounded by default):
@@ -36,66 +37,13 @@ under way within a tile's sample and raises KeyboardInterrupt.
 
 from __future__ import annotations
 
-import numbers
-from typing import Any
-
 from . import _core
 from ._core import VPLs
-from ._progress import progress_bar
-from ._result import RenderResult
 
-_UNBOUNDED_SPP = 1 << 16
 # The core's defaults: the VPLs traced for a render given none, the draws of "vpl_sampled".
 DEFAULT_COUNT: int = _core.DEFAULT_VPLS
 DEFAULT_SAMPLES: int = _core.DEFAULT_VPL_SAMPLES
-METHODS = ("vpl", "vpl_sampled")
+# The registry's many-light methods (``vc.render(method=...)``).
+METHODS = tuple(m["name"] for m in _core.methods() if m["estimator"] == "many_lights")
 
-
-def _bounces(bounces: Any) -> int | None:
-    if bounces is None:
-        return None
-    if isinstance(bounces, bool) or not isinstance(bounces, numbers.Integral):
-        raise TypeError(f"bounces: expected an integer, got {type(bounces).__name__}")
-    if bounces < 1:
-        raise ValueError(f"bounces: must be >= 1 (the VPLs' depth), got {bounces}")
-    return int(bounces)
-
-
-def render_vpl(setup, camera=None, spp: int | None = None, method: str = "vpl",
-               seed: int = 0, threads: int | None = None, progress: bool = True,
-               time_budget: float | None = None, envmap=None, vpls: VPLs | None = None,
-               clamp: float | None = None, vpl_samples: int | None = None,
-               bounces: int | None = None, direct: bool = True, jitter: bool = True):
-    """``vc.render``'s methods "vpl" and "vpl_sampled" (module docstring); returns a
-    :class:`RenderResult` whose stats hold the VPL count, shadow rays, seconds and rays/s."""
-    if method not in METHODS:
-        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
-    camera = setup.camera if camera is None else camera
-    envmap = setup.envmap if envmap is None else envmap
-    depth = _bounces(bounces)
-    # Without a set the core traces its default one (render::many_lights::default_vpls).
-    if vpls is not None and not isinstance(vpls, VPLs):
-        raise TypeError(f"vpls: expected a VPLs set, got {type(vpls).__name__}")
-    if vpls is not None and depth is not None:
-        raise ValueError("bounces: a given VPL set has its own depth; pass bounces=None "
-                         "or trace the set with depth=bounces")
-    if method == "vpl_sampled":
-        vpl_samples = DEFAULT_SAMPLES if vpl_samples is None else vpl_samples
-    elif vpl_samples is not None:
-        raise ValueError("vpl_samples: only method 'vpl_sampled' draws VPLs; "
-                         "method 'vpl' sums them all")
-    if spp is None:
-        spp = _UNBOUNDED_SPP if time_budget is not None else 1
-    total = None if time_budget is not None and spp >= _UNBOUNDED_SPP else spp
-    with progress_bar(progress, f"render ({method})", "spp", total=total,
-                      per_unit=camera.width * camera.height) as callback:
-        out = _core.render_vpl(setup.scene, envmap, camera, vpls, spp=spp, seed=seed,
-                               threads=threads, clamp=clamp, direct=direct, jitter=jitter,
-                               vpl_samples=vpl_samples, time_budget=time_budget,
-                               callback=callback, depth=depth)
-    stats = out["stats"]
-    stats["method"] = method
-    return RenderResult(out["image"], out["variance"], stats)
-
-
-__all__ = ["VPLs", "render_vpl"]
+__all__ = ["VPLs", "DEFAULT_COUNT", "DEFAULT_SAMPLES", "METHODS"]

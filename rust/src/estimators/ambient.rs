@@ -31,7 +31,9 @@
 //! RMSE 3.4% instead of 4.5% of the mean (`viscache experiment ao --quick`).
 //!
 //! The build is deterministic for any thread count, in waves like
-//! [`VisibilityCache::build`] (the same [`WaveBuilder`], with §6.1's insertion test): pixels coarse to fine ([`coarse_to_fine_levels`]); a wave looks
+//! [`crate::visibility::cache::VisibilityCache::build`] (the same
+//! [`crate::spatial::waves::WaveBuilder`], with §6.1's insertion test; the renderers are
+//! in [`crate::render::ambient`]): pixels coarse to fine ([`crate::spatial::waves::coarse_to_fine_levels`]); a wave looks
 //! up in parallel, traces its requests in parallel, then inserts them in pixel order,
 //! re-checking each against the records inserted before it. Requests closer than
 //! `d_max / 2` to an earlier request of their wave (normals within `θ_max`) wait for the
@@ -45,20 +47,13 @@
 //! distributed with pdf `cos/π` over its cell's image and the cells have equal measure.
 
 use glam::Vec3;
-use rayon::prelude::*;
-use std::ops::{Deref, DerefMut};
-use std::time::Instant;
 
-use crate::camera::{Camera, GBuffer};
 use crate::error::{Error, Result};
 use crate::geometry::Scene;
-use crate::parallel::with_threads;
 use crate::sampling::rng::SampleRng;
-use crate::spatial::waves::{coarse_to_fine_levels, WaveBuilder, WaveTarget};
 use crate::visibility::cache::nearest::Nearest;
-use crate::visibility::cache::{check_scene_and_budget, CacheState, VisibilityCache};
+use crate::visibility::cache::{check_scene_and_budget, CacheState};
 use crate::visibility::params::CacheParams;
-use crate::visibility::record::{Record, RecordRays};
 
 /// Random dimensions of a reference AO ray (dimensions 0–1 belong to the pixel jitter).
 pub const DIM_AO: u64 = 2;
@@ -77,15 +72,6 @@ pub const DEFAULT_SIGMA_SCALE: f32 = 3.0;
 pub const DEFAULT_MIN_RADIUS_SCALE: f32 = 40.0;
 /// Default `w_min` of §6.1's criterion (see [`DEFAULT_SIGMA_SCALE`]).
 pub const DEFAULT_AO_W_MIN: f32 = 0.45;
-/// Rays per step of the reference render: progress, Ctrl-C and the time budget are checked
-/// between steps (about 0.1 s of work on two cores), and results do not depend on it.
-const REFERENCE_STEP_RAYS: usize = 1 << 19;
-
-/// Points per step of the reference render at `rays` rays per point.
-fn reference_step_points(rays: u32) -> usize {
-    (REFERENCE_STEP_RAYS / rays.max(1) as usize).clamp(8, 4096)
-}
-
 /// Parameters of cache AO on top of the cache's own.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AoParams {
@@ -131,66 +117,6 @@ impl AoParams {
             ));
         }
         Ok(())
-    }
-}
-
-/// What an AO render did.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct AoStats {
-    /// Pixels of the camera.
-    pub pixels: usize,
-    /// Pixels whose primary ray hit something (the shading points).
-    pub covered_pixels: usize,
-    /// Covered pixels that got a value (cache: some record within reach; reference: traced
-    /// before the time budget ran out).
-    pub resolved_pixels: usize,
-    /// AO shadow rays this call traced (cache: record rays, including discarded records).
-    pub shadow_rays: u64,
-    /// Closest-hit rays this call traced for `R_i` (0 for the reference).
-    pub nearest_rays: u64,
-    /// `(shadow_rays + nearest_rays) / covered_pixels`; primary rays are not counted.
-    pub rays_per_point: f64,
-    /// Records in the cache afterwards (0 for the reference).
-    pub records: usize,
-    /// Records this call inserted.
-    pub records_inserted: usize,
-    /// Records traced but found unneeded on re-check (their rays are counted).
-    pub records_discarded: usize,
-    /// Wall-clock seconds of the whole call (G-buffer included).
-    pub seconds: f64,
-    /// Seconds of the cache build (0 for the reference).
-    pub build_seconds: f64,
-    /// False when the time budget or the progress callback stopped the work early.
-    pub complete: bool,
-}
-
-/// An AO image and how it was made.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct AoImage {
-    /// Image width, pixels.
-    pub width: u32,
-    /// Image height, pixels.
-    pub height: u32,
-    /// Row-major `A` in `[0, 1]`; NaN where the primary ray hit nothing or no value was
-    /// computed (see [`AoStats::resolved_pixels`]).
-    pub ao: Vec<f32>,
-    /// Figures of the run.
-    pub stats: AoStats,
-}
-
-impl AoImage {
-    /// `camera`'s image with no pixel resolved yet (all NaN).
-    fn unresolved(camera: &Camera) -> Self {
-        AoImage {
-            width: camera.width,
-            height: camera.height,
-            ao: vec![f32::NAN; camera.num_pixels()],
-            stats: AoStats {
-                pixels: camera.num_pixels(),
-                complete: true,
-                ..AoStats::default()
-            },
-        }
     }
 }
 
@@ -308,7 +234,8 @@ pub fn reference_ao_at(
     visible as f32 / rays as f32
 }
 
-fn check_rays(rays: u32) -> Result<()> {
+/// Fails naming `reference_rays` unless `1 <= rays <= MAX_AO_RAYS`.
+pub(crate) fn check_rays(rays: u32) -> Result<()> {
     if rays == 0 || rays > MAX_AO_RAYS {
         return Err(Error::invalid(
             "reference_rays",
@@ -345,282 +272,5 @@ pub fn reference_ao_points(
     })
 }
 
-/// Ray-traced AO with `rays` rays per shading point. `progress(done, total)` (covered
-/// pixels) is called after every step; returning false stops, as does `time_budget`
-/// (seconds); pixels not reached stay NaN.
-pub fn render_reference_ao(
-    scene: &Scene,
-    camera: &Camera,
-    rays: u32,
-    seed: u64,
-    threads: Option<usize>,
-    time_budget: Option<f64>,
-    progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
-) -> Result<AoImage> {
-    check_rays(rays)?;
-    check_scene_and_budget(scene, time_budget)?;
-    let start = Instant::now();
-    let g = GBuffer::render(scene, camera, seed, false, threads)?;
-    reference_ao_at_gbuffer(scene, &g, rays, seed, threads, start, time_budget, progress)
-}
-
-/// [`render_reference_ao`] at the hits of `gbuffer` (which must describe `scene` as posed
-/// now), through its camera.
-pub fn render_reference_ao_from(
-    scene: &Scene,
-    gbuffer: &GBuffer,
-    rays: u32,
-    seed: u64,
-    threads: Option<usize>,
-    time_budget: Option<f64>,
-    progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
-) -> Result<AoImage> {
-    check_rays(rays)?;
-    check_scene_and_budget(scene, time_budget)?;
-    gbuffer.check(scene, None)?;
-    let start = Instant::now();
-    reference_ao_at_gbuffer(
-        scene,
-        gbuffer,
-        rays,
-        seed,
-        threads,
-        start,
-        time_budget,
-        progress,
-    )
-}
-
-#[allow(clippy::too_many_arguments)]
-fn reference_ao_at_gbuffer(
-    scene: &Scene,
-    g: &GBuffer,
-    rays: u32,
-    seed: u64,
-    threads: Option<usize>,
-    start: Instant,
-    time_budget: Option<f64>,
-    progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
-) -> Result<AoImage> {
-    let mut image = AoImage::unresolved(&g.camera);
-    with_threads(threads, || -> Result<()> {
-        let covered: Vec<usize> = (0..g.object.len()).filter(|&i| g.object[i] >= 0).collect();
-        image.stats.covered_pixels = covered.len();
-        let mut done = 0;
-        for step in covered.chunks(reference_step_points(rays)) {
-            let values = scene.map_rays(step.len(), None, |k, c| {
-                let i = step[k];
-                reference_ao_at(
-                    scene,
-                    Vec3::from(g.position[i]),
-                    Vec3::from(g.normal[i]),
-                    rays,
-                    seed,
-                    i as u64,
-                    c,
-                )
-            })?;
-            for (&i, v) in step.iter().zip(values) {
-                image.ao[i] = v;
-            }
-            done += step.len();
-            let over = time_budget.is_some_and(|b| start.elapsed().as_secs_f64() >= b);
-            if !progress(done, covered.len()) || (over && done < covered.len()) {
-                image.stats.complete = done == covered.len();
-                break;
-            }
-        }
-        image.stats.resolved_pixels = done;
-        image.stats.shadow_rays = done as u64 * rays as u64;
-        Ok(())
-    })??;
-    let s = &mut image.stats;
-    s.rays_per_point = s.shadow_rays as f64 / s.covered_pixels.max(1) as f64;
-    s.seconds = start.elapsed().as_secs_f64();
-    Ok(image)
-}
-
-/// Cache AO (§6.1): grows `cache` for the view with the §6.1 criterion (module docs), then
-/// interpolates every covered pixel. Records already in `cache` are used and kept.
-/// Deterministic for any `threads`. `progress(done, total)` (covered pixels) is called after
-/// every wave; returning false stops the build, as does `time_budget` (seconds, checked
-/// between waves); the image is then made from the records so far.
-#[allow(clippy::too_many_arguments)]
-pub fn render_cache_ao(
-    scene: &Scene,
-    camera: &Camera,
-    cache: &VisibilityCache,
-    ao: &AoParams,
-    seed: u64,
-    threads: Option<usize>,
-    time_budget: Option<f64>,
-    progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
-) -> Result<AoImage> {
-    ao.validate()?;
-    check_scene_and_budget(scene, time_budget)?;
-    cache.bind_scene(scene)?;
-    let start = Instant::now();
-    let g = GBuffer::render(scene, camera, seed, false, threads)?;
-    cache_ao_at_gbuffer(scene, &g, cache, ao, threads, start, time_budget, progress)
-}
-
-/// [`render_cache_ao`] at the hits of `gbuffer` (which must describe `scene` as posed
-/// now), through its camera: with the buffer a cache was built from, the points its
-/// records were placed for.
-#[allow(clippy::too_many_arguments)]
-pub fn render_cache_ao_from(
-    scene: &Scene,
-    gbuffer: &GBuffer,
-    cache: &VisibilityCache,
-    ao: &AoParams,
-    threads: Option<usize>,
-    time_budget: Option<f64>,
-    progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
-) -> Result<AoImage> {
-    ao.validate()?;
-    check_scene_and_budget(scene, time_budget)?;
-    gbuffer.check(scene, None)?;
-    cache.bind_scene(scene)?;
-    let start = Instant::now();
-    cache_ao_at_gbuffer(
-        scene,
-        gbuffer,
-        cache,
-        ao,
-        threads,
-        start,
-        time_budget,
-        progress,
-    )
-}
-
-#[allow(clippy::too_many_arguments)]
-fn cache_ao_at_gbuffer(
-    scene: &Scene,
-    g: &GBuffer,
-    cache: &VisibilityCache,
-    ao: &AoParams,
-    threads: Option<usize>,
-    start: Instant,
-    time_budget: Option<f64>,
-    progress: &mut (dyn FnMut(usize, usize) -> bool + Send),
-) -> Result<AoImage> {
-    let before = cache.counters();
-    let params = *cache.params();
-    let camera = &g.camera;
-    let mut image = AoImage::unresolved(camera);
-    with_threads(threads, || -> Result<()> {
-        let query = |i: u32| {
-            let i = i as usize;
-            (
-                Vec3::from(g.position[i]),
-                Vec3::from(g.normal[i]),
-                g.footprint[i],
-            )
-        };
-        let total = g.object.iter().filter(|&&o| o >= 0).count();
-        image.stats.covered_pixels = total;
-        let levels = coarse_to_fine_levels(camera.width, camera.height)
-            .into_iter()
-            .map(|level| level.into_iter().filter(|&i| g.object[i as usize] >= 0));
-        let target = AoRefine {
-            cache,
-            scene,
-            params: &params,
-            ao,
-            query: &query,
-        };
-        let waves = WaveBuilder::new(start, time_budget, progress).run(&target, levels, total)?;
-        image.stats.records_inserted += waves.inserted;
-        image.stats.records_discarded += waves.discarded;
-        image.stats.complete = waves.complete;
-        image.stats.build_seconds = start.elapsed().as_secs_f64();
-        let state = cache.read();
-        let values: Vec<Option<f32>> = (0..g.object.len())
-            .into_par_iter()
-            .with_min_len(256)
-            .map(|i| {
-                if g.object[i] < 0 {
-                    return None;
-                }
-                let (x, n, f) = query(i as u32);
-                cache_ao_at(&state, &params, ao, x, n, f)
-            })
-            .collect();
-        for (px, v) in image.ao.iter_mut().zip(&values) {
-            if let Some(a) = v {
-                *px = *a;
-                image.stats.resolved_pixels += 1;
-            }
-        }
-        Ok(())
-    })??;
-    let after = cache.counters();
-    let s = &mut image.stats;
-    s.records = cache.len();
-    s.shadow_rays = after.shadow_rays - before.shadow_rays;
-    s.nearest_rays = after.nearest_rays - before.nearest_rays;
-    s.rays_per_point = (s.shadow_rays + s.nearest_rays) as f64 / s.covered_pixels.max(1) as f64;
-    s.seconds = start.elapsed().as_secs_f64();
-    Ok(image)
-}
-
-/// The cache as [`WaveBuilder`] grows it for AO: §6.1's criterion ([`needs_ao_record`])
-/// at the points `query(i) = (position, unit normal, footprint)`.
-struct AoRefine<'a, Q> {
-    cache: &'a VisibilityCache,
-    scene: &'a Scene,
-    params: &'a CacheParams,
-    ao: &'a AoParams,
-    query: Q,
-}
-
-impl<Q: Fn(u32) -> (Vec3, Vec3, f32) + Sync> WaveTarget for AoRefine<'_, Q> {
-    type State = CacheState;
-    type Record = (Record, RecordRays);
-
-    fn read(&self) -> impl Deref<Target = CacheState> + '_ {
-        self.cache.read()
-    }
-
-    fn write(&self) -> impl DerefMut<Target = CacheState> + '_ {
-        self.cache.write()
-    }
-
-    fn records(&self) -> usize {
-        self.cache.len()
-    }
-
-    fn point(&self, i: u32) -> (Vec3, Vec3, f32) {
-        let (x, n, f) = (self.query)(i);
-        (x, n, self.params.d_max_scale * f)
-    }
-
-    fn cos_max(&self) -> f32 {
-        self.params.theta_max().cos()
-    }
-
-    fn wants(&self, state: &CacheState, i: u32) -> bool {
-        let (x, n, f) = (self.query)(i);
-        let nearest = state.nearest(self.params, x, n, self.params.d_max_scale * f);
-        needs_ao_record(state, self.ao, &nearest, self.ao.min_radius_scale * f)
-    }
-
-    fn make(&self, i: u32) -> Result<(Record, RecordRays)> {
-        let (x, n, _) = (self.query)(i);
-        self.cache.trace(self.scene, x, n)
-    }
-
-    fn insert(
-        &self,
-        state: &mut CacheState,
-        i: u32,
-        (record, rays): &(Record, RecordRays),
-    ) -> Result<bool> {
-        let id = state.insert_traced_if(self.params, record, *rays, |s| self.wants(s, i))?;
-        Ok(id.is_some())
-    }
-}
-
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -1,4 +1,4 @@
-//! `viscache_rs._core.render_ao`: ambient occlusion of [`crate::estimators::ambient`],
+//! `viscache_rs._core.render_ao`: ambient occlusion of [`crate::render::ambient`],
 //! from a visibility cache or ray traced. The Python wrapper (`viscache_rs.render_ao`) makes
 //! the cache and the progress bar.
 
@@ -12,9 +12,9 @@ use super::convert::{f64_arg, image_array, int_arg, seed_or_zero, threads_arg, I
 use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
-use crate::estimators::ambient::{
-    render_cache_ao, render_cache_ao_from, render_reference_ao, render_reference_ao_from, AoParams,
-    AoStats, MAX_AO_RAYS,
+use crate::estimators::ambient::{AoParams, MAX_AO_RAYS};
+use crate::render::ambient::{
+    render_cache_ao, render_cache_ao_from, render_reference_ao, render_reference_ao_from, AoStats,
 };
 
 /// AO of `scene` seen through `camera` (or at the hits of `gbuffer`): with `reference_rays=N`, ray traced with N rays per

@@ -65,7 +65,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
         crate::render::own_cache::CACHE_BUDGET_SHARE,
     )?;
     m.add_class::<vpl::PyVpls>()?;
-    m.add_function(wrap_pyfunction!(vpl::render_vpl, m)?)?;
     m.add_function(wrap_pyfunction!(ambient::render_ao, m)?)?;
     m.add_function(wrap_pyfunction!(image::write_exr, m)?)?;
     m.add_function(wrap_pyfunction!(setup::scene_names, m)?)?;

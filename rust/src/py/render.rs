@@ -1,4 +1,4 @@
-//! `viscache_rs._core.render`: the renderer of [`crate::render`], and its method registry.
+//! `viscache_rs._core.render`: every method of [`crate::render::registry`], and the registry.
 //! The Python wrapper (`viscache_rs.render`) adds the progress bar.
 
 use pyo3::exceptions::{PyTypeError, PyValueError};
@@ -15,11 +15,14 @@ use super::envmap::PyEnvMap;
 use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
+use super::vpl::PyVpls;
 use crate::estimators::control_variate::AlphaRule;
-use crate::estimators::direct::{Method, Techniques};
+use crate::estimators::direct::Techniques;
 use crate::estimators::indirect::MAX_BOUNCES;
-use crate::render::registry::{self, CacheKind, Estimator};
-use crate::render::{render as render_core, render_from, RenderParams, MAX_LIGHT_SAMPLES, MAX_SPP};
+use crate::estimators::many_lights::MAX_DRAWS;
+use crate::render::output::{Stat, Stats, View as CoreView};
+use crate::render::registry::{self, CacheKind, MethodInputs};
+use crate::render::{RenderParams, MAX_LIGHT_SAMPLES};
 use crate::visibility::params::CacheParams;
 
 /// `alpha`: a number, or "estimate" (neighbour pooling with `radius`).
@@ -77,26 +80,54 @@ fn techniques_arg(weights: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Techniq
     Ok(Some(Techniques::new(w[0], w[1], w[2], w[3])))
 }
 
-/// Renders direct illumination; returns a dict with `image` and `variance` (H, W, 3)
-/// float32, `alpha` (H, W, 3) float32 for method "cv" (else None) and `stats` (a dict).
+/// `clamp`: a positive, finite bound of the geometry term (1/m²), or None.
+fn clamp_arg(clamp: Option<&Bound<'_, PyAny>>) -> PyResult<Option<f32>> {
+    match clamp {
+        Some(c) if !c.is_none() => {
+            let v = f64_arg(c, "clamp")?;
+            if !(v.is_finite() && v > 0.0) {
+                return Err(PyValueError::new_err(format!(
+                    "clamp: must be a positive, finite bound of the geometry term cos cos / d² \
+                     (1/m²) or None, got {v}"
+                )));
+            }
+            Ok(Some(v as f32))
+        }
+        _ => Ok(None),
+    }
+}
+
+/// An optional integer argument in `[lo, hi]`.
+fn opt_int(obj: Option<&Bound<'_, PyAny>>, name: &str, lo: u32, hi: u32) -> PyResult<Option<u32>> {
+    match obj {
+        Some(o) if !o.is_none() => Ok(Some(int_arg(o, name, lo as i128, hi as i128)? as u32)),
+        _ => Ok(None),
+    }
+}
+
+/// Renders by any registered method (`methods()`); returns a dict with `image` and
+/// `variance` (H, W, 3) float32, `alpha` (H, W, 3) float32 for the control variate (else
+/// None), `sample_counts` (H, W) uint32 and `stats` (a dict of the method's figures).
 /// `callback(done, planned)` (pixel samples), if given, is called about every 0.1 s and
 /// after every pass with the GIL held; a falsy return or an exception stops the render
-/// (the exception is then raised). None stands for the core's defaults: `threads` every
-/// core, `time_budget` none, `product_level` "auto" (per material), `alpha` 1.0 (CAM08's),
-/// `technique_weights` the method's own, `bounces` 1 for method "path" and 0 otherwise.
-/// With `gbuffer` (traced through `camera`) its hits are the pixels' anchors. `adaptive`
-/// None: adaptive sample counts under a time budget only. Method "cv" without `cache`
-/// builds one of `preset` for the view first (`crate::render::own_cache`; its figures are
-/// the stats' `cache_*`). Also returns `sample_counts` (H, W) uint32.
+/// (the exception is then raised). None stands for the defaults, which are the
+/// registry's and the core's: `spp` the method's (16, or 1 for the many-light methods;
+/// as many as fit with a time budget), `threads` every core, `time_budget` none,
+/// `product_level` "auto" (per material), `alpha` 1.0 (CAM08's), `technique_weights` the
+/// method's own, `bounces` the method's (1 for "path", "vpl" and "vpl_sampled", else 0),
+/// `adaptive` under a time budget only, `vpls` a default set traced for the view. With
+/// `gbuffer` (traced through `camera`) its hits are the pixels' anchors. Method "cv"
+/// without `cache` builds one of `preset` for the view first
+/// (`crate::render::own_cache`; its figures are the stats' `cache_*`).
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp, method, seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto"))]
+#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
     scene: PyRef<'py, PyScene>,
     envmap: Bound<'py, PyEnvMap>,
     camera: PyRef<'py, PyCamera>,
-    spp: &Bound<'py, PyAny>,
+    spp: Option<&Bound<'py, PyAny>>,
     method: &str,
     #[pyo3(from_py_with = seed_or_zero)] seed: u64,
     threads: Option<&Bound<'py, PyAny>>,
@@ -116,23 +147,14 @@ pub fn render<'py>(
     learn_techniques: bool,
     adaptive: Option<bool>,
     preset: &str,
+    vpls: Option<Bound<'py, PyVpls>>,
+    clamp: Option<&Bound<'py, PyAny>>,
+    vpl_samples: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let view = view_arg(Some(camera), gbuffer)?;
     let spec = registry::method(method).py()?;
-    let spp = int_arg(spp, "spp", 1, MAX_SPP as i128)? as u32;
-    // The row's method and default bounces.
-    let Some(defaults) = spec.render_params(spp) else {
-        return Err(PyValueError::new_err(format!(
-            "method: {:?} renders through viscache_rs.render (the many-light renderer)",
-            spec.name
-        )));
-    };
-    let bounces = match bounces {
-        Some(b) if !b.is_none() => {
-            int_arg(b, "bounces", spec.min_bounces as i128, MAX_BOUNCES as i128)? as u32
-        }
-        _ => defaults.bounces,
-    };
+    let spp = opt_int(spp, "spp", 1, spec.max_spp)?;
+    let bounces = opt_int(bounces, "bounces", 0, MAX_BOUNCES)?;
     let time_budget = match time_budget {
         Some(b) if !b.is_none() => Some(f64_arg(b, "time_budget")?),
         _ => None,
@@ -145,40 +167,41 @@ pub fn render<'py>(
         techniques: techniques_arg(technique_weights)?,
         alpha: alpha_arg(alpha, alpha_radius)?,
         insert_missing,
-        bounces,
         direct,
-        light_samples: match light_samples {
-            Some(n) if !n.is_none() => {
-                int_arg(n, "light_samples", 1, MAX_LIGHT_SAMPLES as i128)? as u32
-            }
-            _ => 1,
-        },
-        // Without a count, budgeted product renders choose one from the view.
-        auto_light_samples: light_samples.is_none_or(|n| n.is_none()),
         learn_techniques,
-        // Adaptive by default under a time budget: what the budget buys is least error.
-        adaptive: adaptive.unwrap_or(time_budget.is_some()),
         own_cache: CacheParams::preset(preset).py()?,
-        ..defaults
+        ..RenderParams::DEFAULT
     };
-    params.validate().py()?;
+    let light_samples = opt_int(light_samples, "light_samples", 1, MAX_LIGHT_SAMPLES)?;
+    let vpl_samples = opt_int(vpl_samples, "vpl_samples", 1, MAX_DRAWS)?;
+    let clamp = clamp_arg(clamp)?;
     let threads = threads_arg(threads)?;
     let scene = scene.get();
-    spec.check_args(&[], cache.as_ref().map(|_| CacheKind::Visibility))
-        .py()?;
     let cache = cache.map(|c| c.bound(py)).transpose()?;
     let env: Py<PyEnvMap> = envmap.unbind();
+    let vpls: Option<Py<PyVpls>> = vpls.map(Bound::unbind);
     let mut reporter = PyProgress::new(callback);
     let stop = reporter.stop_flag();
     let mut progress = |done: u64, planned: u64| reporter.report(done, planned);
     let out = detach_interruptible(py, &stop, || {
-        let (env, cache) = (&env.get().inner, cache.as_deref());
-        match &view {
-            View::Camera(cam) => {
-                render_core(&scene, env, cam, &params, cache, threads, &mut progress)
-            }
-            View::GBuffer(g) => render_from(&scene, env, g, &params, cache, threads, &mut progress),
-        }
+        let view = match &view {
+            View::Camera(cam) => CoreView::Camera(cam),
+            View::GBuffer(g) => CoreView::GBuffer(g),
+        };
+        let inputs = MethodInputs {
+            threads,
+            spp,
+            bounces,
+            adaptive,
+            light_samples,
+            params,
+            cache: cache.as_deref(),
+            vpls: vpls.as_ref().map(|v| &v.get().inner),
+            clamp,
+            vpl_samples,
+            ..MethodInputs::new(&scene, &env.get().inner, view)
+        };
+        spec.render(&inputs, &mut progress)
     })?
     .py()?;
     reporter.finish()?;
@@ -188,110 +211,43 @@ pub fn render<'py>(
         Some(a) => d.set_item("alpha", image_array(py, a.into_flattened(), h, w, Some(3))?)?,
         None => d.set_item("alpha", py.None())?,
     }
-    let s = &out.stats;
     d.set_item(
         "sample_counts",
         image_array(py, out.sample_counts, h, w, None)?,
     )?;
-    let stats = PyDict::new(py);
-    stats.set_item("method", spec.name)?;
-    stats.set_item("bounces", params.bounces)?;
-    stats.set_item("direct", params.direct)?;
-    stats.set_item("seconds", s.seconds)?;
-    stats.set_item("spp", s.spp)?;
-    stats.set_item("mean_spp", s.mean_spp)?;
-    stats.set_item("max_spp", s.max_spp)?;
-    stats.set_item("adaptive", params.adaptive)?;
-    stats.set_item("adaptive_gain", s.adaptive_gain)?;
-    stats.set_item("pixel_mixtures", s.pixel_techniques.map(|c| c.to_vec()))?;
-    stats.set_item("unmatched_samples", s.unmatched_samples)?;
-    stats.set_item("passes", s.passes)?;
-    stats.set_item("complete", s.complete)?;
-    stats.set_item("jitter", params.jitter)?;
-    stats.set_item("light_samples", s.light_samples)?;
-    stats.set_item("edge_share", s.edge_share)?;
-    stats.set_item("coarse_products", s.coarse_products)?;
-    stats.set_item("probe_draws", s.probe_ratios.map(|r| r.draws()))?;
-    stats.set_item("probe_cost_ratio", s.probe_ratios.map(|r| r.cost))?;
-    stats.set_item("probe_variance_ratio", s.probe_ratios.map(|r| r.variance))?;
-    let t = params.techniques();
-    let weights = PyDict::new(py);
-    for (name, w) in ["product", "guided", "bsdf", "env"]
-        .iter()
-        .zip(t.to_array())
-    {
-        weights.set_item(name, w)?;
-    }
-    stats.set_item("technique_weights", weights)?;
-    match s.learnt_techniques {
-        Some(w) => {
-            let learnt = PyDict::new(py);
-            for (name, v) in ["product", "guided", "bsdf", "env"].iter().zip(w) {
-                learnt.set_item(name, v)?;
+    d.set_item("stats", stats_dict(py, &out.stats)?)?;
+    Ok(d)
+}
+
+/// A render's figures as a dict, in their order.
+fn stats_dict<'py>(py: Python<'py>, stats: &Stats) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    for (name, value) in stats.iter() {
+        let v = match value {
+            Stat::None => py.None().into_bound(py),
+            Stat::Bool(b) => b.into_pyobject(py)?.to_owned().into_any(),
+            Stat::Int(i) => i.into_pyobject(py)?.into_any(),
+            Stat::Float(f) => f.into_pyobject(py)?.into_any(),
+            Stat::Text(t) => t.into_pyobject(py)?.into_any(),
+            Stat::Ints(v) => v.into_pyobject(py)?.into_any(),
+            Stat::Floats(v) => v.into_pyobject(py)?.into_any(),
+            Stat::Named(pairs) => {
+                let named = PyDict::new(py);
+                for (k, v) in pairs {
+                    named.set_item(k, v)?;
+                }
+                named.into_any()
             }
-            stats.set_item("learnt_weights", learnt)?;
-        }
-        None => stats.set_item("learnt_weights", py.None())?,
+        };
+        d.set_item(name, v)?;
     }
-    stats.set_item("samples", s.samples)?;
-    stats.set_item("primary_rays", s.primary_rays)?;
-    stats.set_item("shadow_rays", s.shadow_rays)?;
-    stats.set_item("bsdf_rays", s.bsdf_rays)?;
-    stats.set_item("bounce_rays", s.bounce_rays)?;
-    stats.set_item("rays_per_second", s.rays_per_second)?;
-    stats.set_item("samples_per_second", s.samples as f64 / s.seconds.max(1e-9))?;
-    stats.set_item("primary_seconds", s.stages.primary)?;
-    stats.set_item("product_seconds", s.stages.product)?;
-    stats.set_item("lookup_seconds", s.stages.lookup)?;
-    stats.set_item("control_seconds", s.stages.control)?;
-    stats.set_item("shading_seconds", s.stages.shading)?;
-    stats.set_item("indirect_seconds", s.stages.indirect)?;
-    stats.set_item("sample_primary_seconds", s.stages.sample_primary)?;
-    stats.set_item("reused_products", s.reused_products)?;
-    stats.set_item(
-        "direct_seconds",
-        s.stages.product + s.stages.lookup + s.stages.control + s.stages.shading,
-    )?;
-    if params.method == Method::ControlVariate {
-        let points = s.cache_points.max(1) as f64;
-        stats.set_item(
-            "alpha",
-            match params.alpha {
-                AlphaRule::Fixed(a) => a.into_pyobject(py)?.into_any(),
-                AlphaRule::Neighbours { .. } => "estimate".into_pyobject(py)?.into_any(),
-            },
-        )?;
-        stats.set_item("mean_alpha", s.mean_alpha.to_vec())?;
-        stats.set_item("cache_points", s.cache_points)?;
-        stats.set_item("points_without_records", s.points_without_records)?;
-        stats.set_item("sun_rays", s.sun_rays)?;
-        stats.set_item("records_per_point", s.records_used as f64 / points)?;
-        stats.set_item("shared_lookups", s.shared_lookups)?;
-        stats.set_item("reused_integrals", s.reused_integrals)?;
-        stats.set_item("record_misses", s.record_misses)?;
-        stats.set_item("record_uses", s.record_uses)?;
-        stats.set_item(
-            "miss_rate",
-            s.record_misses as f64 / s.record_uses.max(1) as f64,
-        )?;
-        stats.set_item("inserted_records", s.inserted_records)?;
-    }
-    if let Some(c) = &s.own_cache {
-        stats.set_item("cache_seconds", c.seconds)?;
-        stats.set_item("cache_records", c.records)?;
-        stats.set_item("cache_shadow_rays", c.shadow_rays)?;
-        stats.set_item("cache_incoherent", c.incoherent)?;
-        stats.set_item("cache_predicted_gain", c.predicted_gain)?;
-        stats.set_item("cache_blind", c.blind)?;
-        stats.set_item("cache_planned_spp", c.planned_spp)?;
-    }
-    d.set_item("stats", stats)?;
     Ok(d)
 }
 
 /// The method registry ([`crate::render::registry`]): one dict per method, in order, with
-/// `name`, `about`, `estimator` ("direct" or "many_lights"), `params` (keyword parameters beyond `common`), `common`, `caches` (the
-/// cache types it accepts), `min_bounces` and `default_bounces`.
+/// `name`, `about`, `estimator` (its family: "direct" or "many_lights"), `params` (keyword
+/// parameters beyond `common`), `common`, `caches` (the cache types it accepts),
+/// `min_bounces`, `default_bounces`, `default_spp` and `max_spp`.
 #[pyfunction]
 pub fn methods(py: Python<'_>) -> PyResult<Vec<Bound<'_, PyDict>>> {
     registry::METHODS
@@ -300,17 +256,15 @@ pub fn methods(py: Python<'_>) -> PyResult<Vec<Bound<'_, PyDict>>> {
             let d = PyDict::new(py);
             d.set_item("name", m.name)?;
             d.set_item("about", m.about)?;
-            let estimator = match m.estimator {
-                Estimator::Direct(_) => "direct",
-                Estimator::ManyLights { .. } => "many_lights",
-            };
-            d.set_item("estimator", estimator)?;
+            d.set_item("estimator", m.renderer.family())?;
             d.set_item("params", m.params.to_vec())?;
             d.set_item("common", registry::COMMON_PARAMS.to_vec())?;
             let caches: Vec<&str> = m.caches.iter().map(|c| c.name()).collect();
             d.set_item("caches", caches)?;
             d.set_item("min_bounces", m.min_bounces)?;
             d.set_item("default_bounces", m.default_bounces)?;
+            d.set_item("default_spp", m.default_spp)?;
+            d.set_item("max_spp", m.max_spp)?;
             Ok(d)
         })
         .collect()

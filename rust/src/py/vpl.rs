@@ -1,25 +1,20 @@
-//! `viscache_rs._core.VPLs` and `render_vpl`: virtual point lights
-//! ([`crate::lights::vpl`]) and the many-light renderer
-//! ([`crate::render::many_lights`] over [`crate::estimators::many_lights`]). The Python wrapper (`viscache_rs.vpl`) adds the
-//! progress bar and `vc.render`'s methods "vpl" and "vpl_sampled".
+//! `viscache_rs._core.VPLs`: virtual point lights ([`crate::lights::vpl`]). The
+//! many-light methods "vpl" and "vpl_sampled" render through `_core.render` and the
+//! registry ([`crate::render::many_lights`]).
 
-use std::time::Instant;
-
-use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, finite_rows, image_dict, int_arg, or_default, rows3_array, rows_array, seed_or_zero,
-    threads_arg, IntoPyResult,
+    f64_arg, finite_rows, int_arg, or_default, rows3_array, rows_array, seed_or_zero, threads_arg,
+    IntoPyResult,
 };
 use super::envmap::PyEnvMap;
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
-use crate::estimators::many_lights::{Gather, ManyLightParams, MAX_DRAWS, MAX_SPP};
 use crate::lights::vpl::{Importance, TraceParams, VplKind, VplSet, MAX_DEPTH, MAX_VPLS};
-use crate::render::many_lights::{default_vpls, render_many_lights};
 
 /// A set of virtual point lights: `VPLs.trace(setup, count, ...)` traces them from the
 /// setup's map and area lights, `VPLs.from_lights(scene, positions, normals, flux)` makes
@@ -49,23 +44,6 @@ fn attribute<'py, T: pyo3::PyClass>(
         })
 }
 
-/// An optional positive float argument (None: none).
-fn positive_or_none(obj: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Option<f64>> {
-    match obj {
-        Some(o) if !o.is_none() => {
-            let v = f64_arg(o, name)?;
-            if v.is_finite() && v > 0.0 {
-                Ok(Some(v))
-            } else {
-                Err(PyValueError::new_err(format!(
-                    "{name}: must be a positive, finite number or None, got {v}"
-                )))
-            }
-        }
-        _ => Ok(None),
-    }
-}
-
 /// Extractor of `depth=1`.
 fn depth_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
     or_default(obj, 1, |o| {
@@ -83,15 +61,6 @@ fn pilot_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
     or_default(obj, 4000, |o| {
         Ok(int_arg(o, "pilot_paths", 1, 1 << 24)? as u32)
     })
-}
-
-/// Extractor of `spp=1`.
-fn spp_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
-    or_default(
-        obj,
-        1,
-        |o| Ok(int_arg(o, "spp", 1, MAX_SPP as i128)? as u32),
-    )
 }
 
 #[pymethods]
@@ -279,142 +248,4 @@ impl PyVpls {
         d.set_item("seconds", s.seconds)?;
         Ok(d)
     }
-}
-
-/// Renders `camera`'s view of `scene` lit by `vpls`: the full sum of eq. 6.1
-/// (`vpl_samples=None`) or `vpl_samples` VPLs per pixel sample drawn by their unoccluded
-/// contribution. `vpls` None: the render traces the default set
-/// ([`crate::render::many_lights::default_vpls`]) with surface VPLs of `depth` (default 1)
-/// generations, and its stats give `vpl_trace_seconds` (within `seconds` and the
-/// `time_budget`). Returns a dict with `image` and
-/// `variance` (H, W, 3) float32 and `stats` (with `bounces`, the set's most generations).
-/// `callback(done, planned)` as for `render`.
-#[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, vpls, spp=1, seed=0, threads=None, clamp=None, direct=true, jitter=true, vpl_samples=None, time_budget=None, callback=None, depth=None))]
-#[allow(clippy::too_many_arguments)]
-pub fn render_vpl<'py>(
-    py: Python<'py>,
-    scene: PyRef<'py, PyScene>,
-    envmap: Bound<'py, PyEnvMap>,
-    camera: PyRef<'py, PyCamera>,
-    vpls: Option<Bound<'py, PyVpls>>,
-    #[pyo3(from_py_with = spp_arg)] spp: u32,
-    #[pyo3(from_py_with = seed_or_zero)] seed: u64,
-    threads: Option<&Bound<'py, PyAny>>,
-    clamp: Option<&Bound<'py, PyAny>>,
-    direct: bool,
-    jitter: bool,
-    vpl_samples: Option<&Bound<'py, PyAny>>,
-    time_budget: Option<&Bound<'py, PyAny>>,
-    callback: Option<Py<PyAny>>,
-    depth: Option<&Bound<'py, PyAny>>,
-) -> PyResult<Bound<'py, PyDict>> {
-    let depth = match depth {
-        Some(d) => depth_arg(d)?,
-        None => 1,
-    };
-    let clamp = match clamp {
-        Some(c) if !c.is_none() => {
-            let v = f64_arg(c, "clamp")?;
-            if !(v.is_finite() && v > 0.0) {
-                return Err(PyValueError::new_err(format!(
-                    "clamp: must be a positive, finite bound of the geometry term cos cos / d² \
-                     (1/m²) or None, got {v}"
-                )));
-            }
-            Some(v as f32)
-        }
-        _ => None,
-    };
-    let gather = match vpl_samples {
-        Some(m) if !m.is_none() => Gather::Sampled {
-            draws: int_arg(m, "vpl_samples", 1, MAX_DRAWS as i128)? as u32,
-        },
-        _ => Gather::Full,
-    };
-    let params = ManyLightParams {
-        spp,
-        seed,
-        jitter,
-        clamp,
-        direct,
-        gather,
-        time_budget: positive_or_none(time_budget, "time_budget")?,
-    };
-    params.validate().py()?;
-    let threads = threads_arg(threads)?;
-    let (scene, cam) = (scene.get(), camera.inner);
-    let env: Py<PyEnvMap> = envmap.unbind();
-    let vpls: Option<Py<PyVpls>> = vpls.map(Bound::unbind);
-    let mut reporter = PyProgress::new(callback);
-    let stop = reporter.stop_flag();
-    let mut progress = |done: u64, planned: u64| reporter.report(done, planned);
-    let out = detach_interruptible(py, &stop, || {
-        // The budget covers the default set's tracing too: the passes get what is left.
-        let start = Instant::now();
-        let env = &env.get().inner;
-        let traced = match &vpls {
-            Some(_) => None,
-            None => Some(default_vpls(
-                &scene, env, &cam, seed, depth, direct, threads,
-            )?),
-        };
-        let set = match (&vpls, &traced) {
-            (Some(v), _) => &v.get().inner,
-            (None, Some(t)) => t,
-            (None, None) => unreachable!("traced when not given"),
-        };
-        let params = ManyLightParams {
-            time_budget: params
-                .time_budget
-                .map(|b| (b - start.elapsed().as_secs_f64()).max(1e-3)),
-            ..params
-        };
-        let mut out = render_many_lights(
-            &scene,
-            env,
-            &cam,
-            set,
-            &params,
-            None,
-            threads,
-            &mut progress,
-        )?;
-        out.stats.seconds = start.elapsed().as_secs_f64();
-        let bounces = set.vpls.iter().map(|v| v.bounce).max().unwrap_or(0);
-        Ok::<_, crate::Error>((out, bounces, traced.map(|t| t.stats.seconds)))
-    })?
-    .py()?;
-    let (out, bounces, trace_seconds) = out;
-    reporter.finish()?;
-    let (w, h) = (out.width as usize, out.height as usize);
-    let d = image_dict(py, out.image, out.variance, h, w)?;
-    let s = &out.stats;
-    let stats = PyDict::new(py);
-    stats.set_item("seconds", s.seconds)?;
-    stats.set_item("spp", s.spp)?;
-    stats.set_item("complete", s.complete)?;
-    stats.set_item("jitter", jitter)?;
-    stats.set_item("direct", direct)?;
-    stats.set_item("clamp", clamp)?;
-    stats.set_item(
-        "vpl_samples",
-        match gather {
-            Gather::Sampled { draws } => Some(draws),
-            Gather::Full => None,
-        },
-    )?;
-    stats.set_item("vpls", s.vpls)?;
-    stats.set_item("samples", s.samples)?;
-    stats.set_item("primary_rays", s.primary_rays)?;
-    stats.set_item("shadow_rays", s.shadow_rays)?;
-    stats.set_item("gather_seconds", s.gather_seconds)?;
-    stats.set_item("shadow_rays_per_second", s.shadow_rays_per_second)?;
-    stats.set_item("rays_per_second", s.rays_per_second)?;
-    stats.set_item("bounces", bounces)?;
-    if let Some(seconds) = trace_seconds {
-        stats.set_item("vpl_trace_seconds", seconds)?;
-    }
-    d.set_item("stats", stats)?;
-    Ok(d)
 }

@@ -32,7 +32,9 @@ use glam::DVec3;
 use super::estimator::{
     shade_pixels, BandPixel, Merge, PassPlan, PixelEstimator, PixelPass, PixelTiming,
 };
+use super::output::{RenderOutput, Stats, View};
 use super::passes::{run_passes, PassParams};
+use super::registry::{MethodInputs, MethodRenderer, MethodSpec};
 use super::sums::PixelSums;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -87,6 +89,8 @@ pub struct ManyLightImage {
     pub image: Vec<[f32; 3]>,
     /// Per-pixel variance of the mean ([`VplSums::estimate`]).
     pub variance: Vec<[f32; 3]>,
+    /// Samples each pixel took, row-major.
+    pub sample_counts: Vec<u32>,
     pub stats: ManyLightStats,
 }
 
@@ -283,6 +287,130 @@ impl PixelEstimator for ManyLights<'_> {
     }
 }
 
+/// Samples per pixel of the many-light methods without `spp` or a time budget.
+pub const DEFAULT_VPL_SPP: u32 = 1;
+
+/// The registry's renderer of methods "vpl" (`sampled` false: every VPL summed) and
+/// "vpl_sampled" (VPLs drawn per sample): without `vpls` it traces the default set for the
+/// view ([`default_vpls`], `bounces` generations), then renders ([`render_many_lights`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ManyLightsRenderer {
+    pub sampled: bool,
+}
+
+impl MethodRenderer for ManyLightsRenderer {
+    fn family(&self) -> &'static str {
+        "many_lights"
+    }
+
+    fn render(
+        &self,
+        spec: &MethodSpec,
+        inputs: &MethodInputs<'_>,
+        progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
+    ) -> Result<RenderOutput> {
+        let View::Camera(camera) = inputs.view else {
+            return Err(Error::invalid(
+                "gbuffer",
+                format!("method {:?} traces its own first hits", spec.name),
+            ));
+        };
+        if inputs.vpls.is_some() && inputs.bounces.is_some() {
+            return Err(Error::invalid(
+                "bounces",
+                "a given VPL set has its own depth; pass bounces=None or trace the set with \
+                 depth=bounces",
+            ));
+        }
+        let depth = inputs.bounces_for(spec)?;
+        let gather = match (self.sampled, inputs.vpl_samples) {
+            (true, draws) => Gather::Sampled {
+                draws: draws.unwrap_or(DEFAULT_VPL_SAMPLES),
+            },
+            (false, None) => Gather::Full,
+            (false, Some(_)) => {
+                return Err(Error::invalid(
+                    "vpl_samples",
+                    format!(
+                        "method {:?} sums every VPL; \"vpl_sampled\" draws them",
+                        spec.name
+                    ),
+                ))
+            }
+        };
+        let p = &inputs.params;
+        let params = ManyLightParams {
+            spp: inputs.spp_for(spec),
+            seed: p.seed,
+            jitter: p.jitter,
+            clamp: inputs.clamp,
+            direct: p.direct,
+            gather,
+            time_budget: p.time_budget,
+        };
+        params.validate()?;
+        let (scene, env, threads) = (inputs.scene, inputs.env, inputs.threads);
+        // The budget covers the default set's tracing too: the passes get what is left.
+        let start = Instant::now();
+        let traced = match inputs.vpls {
+            Some(_) => None,
+            None => Some(default_vpls(
+                scene, env, camera, p.seed, depth, p.direct, threads,
+            )?),
+        };
+        let vpls = inputs
+            .vpls
+            .or(traced.as_ref())
+            .expect("traced when not given");
+        let params = ManyLightParams {
+            time_budget: params
+                .time_budget
+                .map(|b| (b - start.elapsed().as_secs_f64()).max(1e-3)),
+            ..params
+        };
+        let out = render_many_lights(scene, env, camera, vpls, &params, None, threads, progress)?;
+        let s = &out.stats;
+        let mut d = Stats::default();
+        d.set("method", spec.name);
+        d.set("seconds", start.elapsed().as_secs_f64());
+        d.set("spp", s.spp);
+        d.set("complete", s.complete);
+        d.set("jitter", params.jitter);
+        d.set("direct", params.direct);
+        d.set("clamp", params.clamp);
+        d.set(
+            "vpl_samples",
+            match gather {
+                Gather::Sampled { draws } => Some(draws),
+                Gather::Full => None,
+            },
+        );
+        d.set("vpls", s.vpls);
+        d.set("samples", s.samples);
+        d.set("primary_rays", s.primary_rays);
+        d.set("shadow_rays", s.shadow_rays);
+        d.set("gather_seconds", s.gather_seconds);
+        d.set("shadow_rays_per_second", s.shadow_rays_per_second);
+        d.set("rays_per_second", s.rays_per_second);
+        d.set(
+            "bounces",
+            vpls.vpls.iter().map(|v| v.bounce).max().unwrap_or(0),
+        );
+        if let Some(t) = &traced {
+            d.set("vpl_trace_seconds", t.stats.seconds);
+        }
+        Ok(RenderOutput {
+            width: out.width,
+            height: out.height,
+            image: out.image,
+            variance: out.variance,
+            alpha: None,
+            sample_counts: out.sample_counts,
+            stats: d,
+        })
+    }
+}
+
 /// VPLs a render of method "vpl" or "vpl_sampled" traces when given none.
 pub const DEFAULT_VPLS: u64 = 4096;
 /// VPLs method "vpl_sampled" draws per pixel sample when not told.
@@ -422,6 +550,7 @@ fn render_with(
         height,
         image,
         variance,
+        sample_counts: run.counts(),
         stats,
     })
 }

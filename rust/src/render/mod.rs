@@ -94,9 +94,12 @@ use crate::visibility::cache::VisibilityCache;
 use crate::visibility::params::CacheParams;
 
 pub mod adaptive;
+pub mod ambient;
+pub mod direct;
 pub mod estimator;
 pub mod frame;
 pub mod many_lights;
+pub mod output;
 pub mod own_cache;
 pub mod passes;
 pub mod registry;

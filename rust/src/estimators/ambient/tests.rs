@@ -6,9 +6,10 @@ use super::*;
 use crate::bsdf::Material;
 use crate::scenes::shapes::{quad, BoxGrid, Tri};
 use crate::visibility::cache::tests::brute_m_nearest;
+use crate::visibility::cache::VisibilityCache;
 use crate::visibility::params::CacheParams;
 
-fn scene_of(tris: &[Tri]) -> Scene {
+pub(crate) fn scene_of(tris: &[Tri]) -> Scene {
     let vertices: Vec<[f32; 3]> = tris.iter().flatten().map(|v| v.to_array()).collect();
     let faces: Vec<[i64; 3]> = (0..tris.len() as i64)
         .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
@@ -26,7 +27,7 @@ fn scene_of(tris: &[Tri]) -> Scene {
 
 /// A floor `y = 0` of half-size `10·scale` and, with `wall`, a wall `x = h` of height `H`
 /// running `±100·h` along z (all lengths times `scale`).
-fn floor_and_wall(scale: f32, h: f32, height: f32, wall: bool) -> Scene {
+pub(crate) fn floor_and_wall(scale: f32, h: f32, height: f32, wall: bool) -> Scene {
     let s = scale;
     let mut t = Vec::new();
     quad(
@@ -51,12 +52,12 @@ fn floor_and_wall(scale: f32, h: f32, height: f32, wall: bool) -> Scene {
 
 /// Cosine-weighted visible fraction at distance `h` from an infinitely long wall of
 /// height `H`: one minus the view factor `(1 − h/√(h² + H²))/2` (Nusselt's analogue in 2D).
-fn wall_ao(h: f32, height: f32) -> f64 {
+pub(crate) fn wall_ao(h: f32, height: f32) -> f64 {
     let (h, height) = (h as f64, height as f64);
     0.5 * (1.0 + h / (h * h + height * height).sqrt())
 }
 
-fn no_progress() -> impl FnMut(usize, usize) -> bool + Send {
+pub(crate) fn no_progress() -> impl FnMut(usize, usize) -> bool + Send {
     |_, _| true
 }
 
@@ -155,84 +156,11 @@ fn bad_input_names_the_argument() {
     let empty = Scene::new();
     let e = reference_ao_points(&empty, &[Vec3::ZERO], &[Vec3::Y], 4, 0, None).unwrap_err();
     assert!(msg(e).starts_with("scene"));
-    let cam = Camera::look_at(Vec3::new(0.0, 3.0, 5.0), Vec3::ZERO, Vec3::Y, 45.0, 8, 6).unwrap();
-    let cache = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
-    let e = render_cache_ao(
-        &empty,
-        &cam,
-        &cache,
-        &AoParams::default(),
-        0,
-        None,
-        None,
-        &mut no_progress(),
-    )
-    .unwrap_err();
-    assert!(msg(e).starts_with("scene"));
-    for (bad, name) in [
-        (
-            AoParams {
-                sigma_scale: 0.0,
-                ..AoParams::default()
-            },
-            "sigma_scale",
-        ),
-        (
-            AoParams {
-                sigma_scale: f32::NAN,
-                ..AoParams::default()
-            },
-            "sigma_scale",
-        ),
-        (
-            AoParams {
-                min_radius_scale: -1.0,
-                ..AoParams::default()
-            },
-            "min_radius_scale",
-        ),
-        (
-            AoParams {
-                w_min: 1.5,
-                ..AoParams::default()
-            },
-            "w_min",
-        ),
-    ] {
-        let e = render_cache_ao(
-            &scene,
-            &cam,
-            &cache,
-            &bad,
-            0,
-            None,
-            None,
-            &mut no_progress(),
-        )
-        .unwrap_err();
-        assert!(msg(e).starts_with(name));
-    }
-    let e =
-        render_reference_ao(&scene, &cam, 4, 0, None, Some(-1.0), &mut no_progress()).unwrap_err();
-    assert!(msg(e).starts_with("time_budget"));
-    let e = render_cache_ao(
-        &scene,
-        &cam,
-        &cache,
-        &AoParams::default(),
-        0,
-        Some(0),
-        None,
-        &mut no_progress(),
-    )
-    .unwrap_err();
-    assert!(msg(e).starts_with("threads"));
-    assert!(cache.is_empty(), "a failed call left records behind");
 }
 
 /// A cache with records traced at scattered points on the floor beside the wall (some
 /// near its foot, so that `R_i` is finite and small).
-fn wall_cache(params: CacheParams) -> (Scene, VisibilityCache) {
+pub(crate) fn wall_cache(params: CacheParams) -> (Scene, VisibilityCache) {
     let scene = floor_and_wall(1.0, 1.0, 1.5, true);
     let cache = VisibilityCache::new(params).unwrap();
     for i in 0..60u64 {
@@ -246,7 +174,7 @@ fn wall_cache(params: CacheParams) -> (Scene, VisibilityCache) {
     (scene, cache)
 }
 
-fn query_points() -> Vec<(Vec3, Vec3)> {
+pub(crate) fn query_points() -> Vec<(Vec3, Vec3)> {
     (0..200u64)
         .map(|i| {
             let u = crate::scenes::shapes::uniform(9, i, 0, 0);
@@ -347,133 +275,4 @@ fn cache_ao_is_the_gaussian_average_and_the_criterion_its_formula() {
         );
     }
     assert!(finite_radii > 0, "no record saw the wall");
-}
-
-#[test]
-fn nearest_hit_distance_makes_the_cache_denser_near_geometry() {
-    // The floor by the wall, with R_i as the paper has it (r = 0) and with R_i switched off
-    // (clamped to infinity): R_i must make the cache denser by the wall, and every covered
-    // pixel of a complete build must satisfy the criterion it was built with.
-    let cam = Camera::look_at(
-        Vec3::new(-3.0, 2.0, 0.0),
-        Vec3::new(0.0, 0.0, 0.0),
-        Vec3::Y,
-        60.0,
-        48,
-        32,
-    )
-    .unwrap();
-    let scene = floor_and_wall(1.0, 1.0, 1.5, true);
-    let count = |min_radius_scale: f32| {
-        let ao = AoParams {
-            min_radius_scale,
-            ..AoParams::default()
-        };
-        let cache = VisibilityCache::new(CacheParams::MEDIUM.with_log2_resolution(3)).unwrap();
-        let r =
-            render_cache_ao(&scene, &cam, &cache, &ao, 0, None, None, &mut no_progress()).unwrap();
-        // Every covered pixel of a complete build is covered by some record.
-        assert!(r.stats.complete);
-        assert_eq!(r.stats.resolved_pixels, r.stats.covered_pixels);
-        let state = cache.read();
-        let g = GBuffer::render(&scene, &cam, 0, false, None).unwrap();
-        for i in 0..g.object.len() {
-            if g.object[i] < 0 {
-                assert!(r.ao[i].is_nan());
-                continue;
-            }
-            let (x, n, f) = (
-                Vec3::from(g.position[i]),
-                Vec3::from(g.normal[i]),
-                g.footprint[i],
-            );
-            let nearest = state.nearest(cache.params(), x, n, cache.params().d_max_scale * f);
-            let r_min = ao.min_radius_scale * f;
-            assert!(!needs_ao_record(&state, &ao, &nearest, r_min), "pixel {i}");
-            assert!((0.0..=1.0).contains(&r.ao[i]));
-        }
-        r.stats.records_inserted
-    };
-    let (with_r, without_r) = (count(0.0), count(f32::INFINITY));
-    assert!(
-        with_r > without_r,
-        "{with_r} records with R_i vs {without_r} without"
-    );
-}
-
-#[test]
-fn renders_are_identical_for_any_thread_count() {
-    let setup = crate::scenes::load("cornell", 0.5, 0).unwrap();
-    let cam = setup.camera.with_resolution(40, 30).unwrap();
-    let run = |threads| {
-        let cache = VisibilityCache::new(CacheParams::MEDIUM.with_log2_resolution(3)).unwrap();
-        let r = render_cache_ao(
-            &setup.scene,
-            &cam,
-            &cache,
-            &AoParams::default(),
-            0,
-            Some(threads),
-            None,
-            &mut no_progress(),
-        )
-        .unwrap();
-        let reference = render_reference_ao(
-            &setup.scene,
-            &cam,
-            16,
-            4,
-            Some(threads),
-            None,
-            &mut no_progress(),
-        )
-        .unwrap();
-        (r.ao, r.stats.records, r.stats.shadow_rays, reference.ao)
-    };
-    let (a, b) = (run(1), run(2));
-    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-    assert_eq!(bits(&a.0), bits(&b.0));
-    assert_eq!((a.1, a.2), (b.1, b.2));
-    assert_eq!(bits(&a.3), bits(&b.3));
-}
-
-#[test]
-fn stopping_early_reports_incomplete_and_no_records_give_nan() {
-    let scene = floor_and_wall(1.0, 1.0, 1.5, true);
-    let cam =
-        Camera::look_at(Vec3::new(-3.0, 2.0, 0.0), Vec3::ZERO, Vec3::Y, 60.0, 32, 24).unwrap();
-    let cache = VisibilityCache::new(CacheParams::MEDIUM.with_log2_resolution(3)).unwrap();
-    let mut stop = |_: usize, _: usize| false;
-    let r = render_cache_ao(
-        &scene,
-        &cam,
-        &cache,
-        &AoParams::default(),
-        0,
-        None,
-        None,
-        &mut stop,
-    )
-    .unwrap();
-    assert!(!r.stats.complete);
-    assert!(r.stats.records_inserted > 0);
-    let reference = render_reference_ao(&scene, &cam, 4, 0, None, None, &mut stop).unwrap();
-    assert_eq!(
-        reference.stats.complete,
-        reference.stats.covered_pixels <= reference_step_points(4)
-    );
-    // No records within reach: the cache has nothing to say.
-    let empty = VisibilityCache::new(CacheParams::MEDIUM).unwrap();
-    let state = empty.read();
-    assert_eq!(
-        cache_ao_at(
-            &state,
-            empty.params(),
-            &AoParams::default(),
-            Vec3::ZERO,
-            Vec3::Y,
-            0.1
-        ),
-        None
-    );
 }
