@@ -16,15 +16,13 @@ def check_setup(setup: Any, camera: bool = True, envmap: bool = True,
     """Raises TypeError naming ``name`` unless ``setup.scene`` is a Scene and, where the
     call reads them (``camera``, ``envmap``), ``setup.camera`` a Camera and
     ``setup.envmap`` an EnvMap."""
-    wanted = [("scene", Scene)]
+    wanted: list[tuple[str, type]] = [("scene", Scene)]
     wanted += [("camera", Camera)] if camera else []
     wanted += [("envmap", EnvMap)] if envmap else []
     for attr, cls in wanted:
         if not isinstance(getattr(setup, attr, None), cls):
-            raise TypeError(f"{name}: expected {_SETUP}, got {type(setup).__name__}"
-                            f" (its .{attr} is not a {cls.__name__})"
-                            if hasattr(setup, attr) else
-                            f"{name}: expected {_SETUP}, got {type(setup).__name__}")
+            why = f" (its .{attr} is not a {cls.__name__})" if hasattr(setup, attr) else ""
+            raise TypeError(f"{name}: expected {_SETUP}, got {type(setup).__name__}{why}")
 
 
 def check_optional(value: Any, name: str, cls: type, what: str) -> None:
