@@ -241,3 +241,70 @@ def test_listings_are_plain_text(capsys):
     assert "variance-table" in experiments
     assert cli.plain("see :func:`names` and ``load(name)``, :data:`MAPS`") == \
         "see names() and load(name), MAPS"
+
+
+@pytest.fixture
+def umask():
+    """Sets the process's umask for a test and puts the old one back."""
+    import os
+
+    old = os.umask(0o022)
+    yield os.umask
+    os.umask(old)
+
+
+def test_saved_files_follow_the_umask(tmp_path, umask):
+    """PNG, JSON and Markdown outputs (the Python writer) were saved with mode 0600, the
+    private mode of their temporary file; EXR files and caches (the Rust writer) with
+    0666 less the umask. All follow the umask now, as any tool's files do."""
+    import os
+    import stat
+
+    setup = vc.scenes.load("cornell", detail=0.3)
+    cache = vc.VisibilityCache(setup.scene)
+    img = np.zeros((2, 3, 3), np.float32)
+    for mask in (0o022, 0o077, 0o002, 0o027):
+        umask(mask)
+        out = tmp_path / f"{mask:o}"
+        files = [write_png(out / "a.png", to_srgb8(img)),
+                 vc.io.write_bytes(out / "results.json", b"{}\n"),
+                 vc.io.write_bytes(out / "results.md", b"# x\n"),
+                 vc.io.write_exr(out / "a.exr", img)]
+        cache.save(out / "view.vc")
+        files.append(out / "view.vc")
+        for path in files:
+            assert stat.S_IMODE(os.stat(path).st_mode) == 0o666 & ~mask, (path, oct(mask))
+        assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in files)
+
+
+def _dead_pid():
+    """The pid of a process that has ended (and been waited for)."""
+    import subprocess
+    import sys
+
+    child = subprocess.Popen([sys.executable, "-c", ""])
+    child.wait()
+    return child.pid
+
+
+@pytest.mark.parametrize("writer", ["png", "exr"])
+def test_a_save_removes_temporaries_that_killed_saves_left(tmp_path, writer):
+    """A process killed mid-save (SIGKILL) leaves ``.NAME.PID.N.tmp`` beside the target;
+    the next save of that target removes those of processes that no longer run, and never
+    a file of a running process (this one's, or its parent's) nor another target's."""
+    import os
+
+    img = np.zeros((2, 3, 3), np.float32)
+    name = f"a.{writer}"
+    dead = _dead_pid()
+    stale = [f".{name}.{dead}.0.tmp", f".{name}.{dead}.17.tmp"]
+    kept = [f".{name}.{os.getppid()}.0.tmp", f".{name}.{os.getpid()}.99999.tmp",
+            f".b.{writer}.{dead}.0.tmp", f".{name}.x.tmp", f".{name}.{dead}.tmp"]
+    for n in stale + kept:
+        (tmp_path / n).write_bytes(b"half a file")
+    if writer == "png":
+        write_png(tmp_path / name, to_srgb8(img))
+    else:
+        vc.io.write_exr(tmp_path / name, img)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, *kept])
+    assert vc.io.remove_stale_temporaries(tmp_path / name) == 0
