@@ -1,18 +1,22 @@
-"""The ``viscache`` command line.
+"""The viscache command line.
 
-``viscache demo``   build the visibility cache for garage's view, render it by product
+viscache demo       build the visibility cache for garage's view, render it by product
                     sampling with the cache's control variate (CAM08) and by plain product
-                    sampling at equal time, print the table and write the images side
-                    by side.
-``viscache preview SCENE --rotate A:B:STEP --out DIR``
+                    sampling at equal time, print the table and write three PNGs to
+                    results/demo/: SCENE_product_vs_cv.png (side by side),
+                    SCENE_product.png and SCENE_cv.png.
+viscache preview SCENE --rotate A:B:STEP --out DIR
                     lighting design (CAM08 §6.2): prepare the cached transfer of SCENE's
                     view, render one preview frame per rotation of the map about +y (A,
                     A+STEP, ... below B, in degrees) into DIR/SCENE_000.png, ... and print
                     the preparation's cost and the milliseconds per frame.
-``viscache scenes`` list the built-in scenes.
-``viscache experiment NAME [--quick]``
-                    run an experiment (``viscache experiment --list``) and write
-                    ``results/NAME/``: JSON of every figure, markdown tables, images, plots.
+viscache scenes     list the built-in scenes.
+viscache experiment NAME [--quick]
+                    run an experiment (viscache experiment --list) and write
+                    results/NAME/: JSON of every figure, markdown tables, images, plots.
+viscache --version  the version.
+
+Every option is checked before any work, against the library's own ranges.
 """
 
 from __future__ import annotations
