@@ -194,3 +194,47 @@ def test_fuzz_render_arguments(tiny, spp, seed, threads, time_budget, product_le
         assert str(e).split(":")[0] in names, e
         return
     assert np.isfinite(r["image"]).all()
+
+
+class _NotASetup:
+    """Has a scene but a camera and map of the wrong types, as a hand-made setup might."""
+
+    def __init__(self, setup):
+        self.scene, self.camera, self.envmap = setup.scene, "cam", setup.envmap
+
+
+def test_entry_points_name_a_setup_camera_map_or_cache_of_the_wrong_type(tiny):
+    """``vc.render(S, camera="cam")`` and ``vc.render("setup")`` raised AttributeError deep
+    inside the call; every entry point that takes a setup, camera, map or cache now raises
+    TypeError naming the argument, before any work."""
+    cache = vc.VisibilityCache(tiny.scene)
+    calls = {
+        "render": lambda **kw: vc.render(**{"setup": tiny, "spp": 1, "progress": False, **kw}),
+        "render vpl": lambda **kw: vc.render(**{"setup": tiny, "spp": 1, "method": "vpl",
+                                                "progress": False, **kw}),
+        "render_ao": lambda **kw: vc.render_ao(**{"setup": tiny, "progress": False, **kw}),
+        "preview": lambda **kw: vc.preview(**{"setup": tiny, "cache": cache, **kw}),
+        "Relighter": lambda **kw: vc.Relighter(**{"setup": tiny, **kw}),
+    }
+    for name, call in calls.items():
+        for kw, argument in (({"setup": "setup"}, "setup"), ({"setup": 3}, "setup"),
+                             ({"setup": _NotASetup(tiny)}, "setup"),
+                             ({"camera": "cam"}, "camera"), ({"camera": tiny}, "camera")):
+            with pytest.raises(TypeError, match=f"^{argument}: expected "):
+                call(**kw)
+        if name not in ("render_ao", "Relighter"):
+            with pytest.raises(TypeError, match="^envmap: expected an EnvMap"):
+                call(envmap="sky")
+    with pytest.raises(TypeError, match="^cache: expected a VisibilityCache"):
+        vc.render(tiny, method="cv", cache="cache", progress=False)
+    with pytest.raises(TypeError, match="^cache: expected a VisibilityCache"):
+        vc.preview(tiny, "cache")
+    with pytest.raises(TypeError, match="^cache: expected a VisibilityCache"):
+        vc.render_ao(tiny, cache=tiny, progress=False)
+    with pytest.raises(TypeError, match="^cache: expected a VisibilityCache"):
+        vc.Relighter(tiny, visibility="cache", cache="cache")
+    with pytest.raises(TypeError, match="^gbuffer: expected a GBuffer"):
+        vc.render(tiny, gbuffer="g", progress=False)
+    # A setup of the right types renders, hand-made or built in.
+    own = vc.Setup(tiny.scene, tiny.camera, tiny.envmap)
+    assert vc.render(own, spp=1, progress=False).image.shape == (4, 6, 3)

@@ -1,6 +1,8 @@
-"""The command line runs end to end."""
+"""The command line runs end to end, and refuses bad options before any work."""
 
 import numpy as np
+import pytest
+import viscache_rs as vc
 from viscache_rs import cli
 from viscache_rs.io import to_srgb8, write_png
 
@@ -110,13 +112,199 @@ def test_preview_refuses_bad_arguments_clearly(tmp_path, capsys):
         (["garage", "--rotate", "90:0:15"], "is empty"),
         (["garage", "--rotate", "0:inf:15"], "finite"),
         (["atlantis"], "invalid choice: 'atlantis'"),
-        (["garage", "--width", "0"], "argument --width: must be positive"),
+        (["garage", "--width", "0"], "argument --width: must be an integer in 1..16384"),
         (["garage", "--budget-mb", "nan"], "argument --budget-mb: must be positive"),
     ):
         with pytest.raises(SystemExit) as e:
             cli.main(["preview", *args, "--out", str(tmp_path / "x")])
         assert e.value.code == 2
         assert message in capsys.readouterr().err, args
-    assert cli.main(["preview", "garage", "--envmap", "moon", "--out", str(tmp_path / "x")]) == 2
-    assert "envmap: unknown map 'moon'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        cli.main(["preview", "garage", "--envmap", "moon", "--out", str(tmp_path / "x")])
+    assert e.value.code == 2
+    assert "argument --envmap: unknown map 'moon'" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def _refused(argv, capsys):
+    """Runs ``viscache argv`` and returns its error line, after checking that it exited with
+    status 2 and printed one usage line, that error line and no traceback."""
+    with pytest.raises(SystemExit) as e:
+        cli.main(argv)
+    assert e.value.code == 2, argv
+    err = capsys.readouterr().err
+    lines = err.splitlines()
+    assert len(lines) == 2 and lines[0].startswith("usage: viscache"), err
+    assert "Traceback" not in err
+    return lines[1]
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Every subcommand's work fails the test: a refusal must come before it."""
+    def work(args):
+        raise AssertionError(f"ran with {args}")
+
+    for name in ("demo", "preview", "experiment", "list_scenes"):
+        monkeypatch.setattr(cli, name, work)
+
+
+LIMITS = vc._core.LIMITS
+SIDE = LIMITS["image_side"][1]
+SPP = LIMITS["spp"][1]
+THREADS = LIMITS["threads"][1]
+SEED = LIMITS["seed"][1]
+
+# Every option of every subcommand given a bad value, and what the error line must say:
+# the option's name and what it accepts, the ranges being the library's own.
+BAD = [
+    (["demo", "--spp", "-4"], f"argument --spp: must be an integer in 1..{SPP}, got '-4'"),
+    (["demo", "--spp", "0"], f"argument --spp: must be an integer in 1..{SPP}"),
+    (["demo", "--spp", "1.5"], f"argument --spp: must be an integer in 1..{SPP}"),
+    (["demo", "--spp", str(SPP + 1)], "argument --spp: must be an integer"),
+    (["demo", "--width", "-5"], f"argument --width: must be an integer in 1..{SIDE}"),
+    (["demo", "--width", str(SIDE + 1)], f"argument --width: must be an integer in 1..{SIDE}"),
+    (["demo", "--height", "0"], f"argument --height: must be an integer in 1..{SIDE}"),
+    (["demo", "--threads", "0"], f"argument --threads: must be an integer in 1..{THREADS}"),
+    (["demo", "--threads", str(THREADS + 1)], "argument --threads: must be an integer"),
+    (["demo", "--alpha", "3"], "argument --alpha: must be a number in [0, 2] or 'estimate'"),
+    (["demo", "--alpha", "-0.5"], "argument --alpha: must be a number in [0, 2]"),
+    (["demo", "--alpha", "nan"], "argument --alpha: must be a number in [0, 2]"),
+    (["demo", "--alpha", "high"], "argument --alpha: must be a number in [0, 2]"),
+    (["demo", "--resolution", "1"], "argument --resolution: must be a power of two in 2..128"),
+    (["demo", "--resolution", "48"], "argument --resolution: must be a power of two in 2..128"),
+    (["demo", "--resolution", "256"], "argument --resolution: must be a power of two"),
+    (["demo", "--detail", "0"], "argument --detail: must be a number in (0, 16]"),
+    (["demo", "--detail", "17"], "argument --detail: must be a number in (0, 16]"),
+    (["demo", "--detail", "inf"], "argument --detail: must be a number in (0, 16]"),
+    (["demo", "--seed", "-1"], f"argument --seed: must be an integer in 0..{SEED}"),
+    (["demo", "--seed", str(SEED + 1)], f"argument --seed: must be an integer in 0..{SEED}"),
+    (["demo", "--scene", "atlantis"], "argument --scene: invalid choice: 'atlantis'"),
+    (["demo", "--preset", "extreme"], "argument --preset: invalid choice: 'extreme'"),
+    (["demo", "--nosuch"], "unrecognized arguments: --nosuch"),
+    (["experiment", "nosuch"], "argument name: invalid choice: 'nosuch' (choose from "),
+    (["experiment", "ao", "--seed", "x"], "argument --seed: must be an integer in 0.."),
+    (["experiment", "ao", "--threads", "0"], "argument --threads: must be an integer in 1.."),
+    (["preview", "garage", "--height", "-1"], "argument --height: must be an integer in 1.."),
+    (["preview", "garage", "--threads", "0"], "argument --threads: must be an integer in 1.."),
+    (["preview", "garage", "--basis", "wavelets"], "argument --basis: invalid choice"),
+    (["preview", "garage", "--budget-mb", "0"], "argument --budget-mb: must be positive"),
+    (["preview", "garage", "--envmap", "sky.exr"], "argument --envmap: no such EXR file"),
+    (["nosuch"], "argument command: invalid choice: 'nosuch'"),
+]
+
+
+@pytest.mark.parametrize("argv, message", BAD, ids=[" ".join(a) for a, _ in BAD])
+def test_a_bad_option_is_refused_before_any_work(argv, message, no_work, tmp_path, capsys,
+                                                 monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert message in _refused(argv, capsys)
+
+
+def test_an_output_folder_that_is_a_file_is_refused(no_work, tmp_path, capsys):
+    file = tmp_path / "taken"
+    file.write_text("")
+    for argv in (["demo"], ["experiment", "ao"], ["preview", "garage"]):
+        line = _refused([*argv, "--out", str(file)], capsys)
+        assert f"argument --out: must be a folder, but {str(file)!r} is a file" in line
+
+
+def test_every_option_is_checked_by_its_type_or_choices():
+    """An option that takes a value and has neither would reach the work unchecked."""
+    import argparse
+
+    parser = cli.build_parser()
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for command, sub in subparsers.choices.items():
+        for action in sub._actions:
+            if action.nargs == 0 or isinstance(action, argparse._HelpAction):
+                continue
+            assert action.type is not None or action.choices is not None, \
+                (command, action.dest)
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out.strip() == f"viscache {vc.__version__}"
+
+
+def test_listings_are_plain_text(capsys):
+    assert cli.main(["scenes"]) == 0
+    scenes = capsys.readouterr().out
+    assert cli.main(["experiment", "--list"]) == 0
+    experiments = capsys.readouterr().out
+    for text in (scenes, experiments):
+        assert "``" not in text and ":func:" not in text and ":mod:" not in text, text
+    assert "garage" in scenes and "detail=1" in scenes
+    assert "variance-table" in experiments
+    assert cli.plain("see :func:`names` and ``load(name)``, :data:`MAPS`") == \
+        "see names() and load(name), MAPS"
+
+
+@pytest.fixture
+def umask():
+    """Sets the process's umask for a test and puts the old one back."""
+    import os
+
+    old = os.umask(0o022)
+    yield os.umask
+    os.umask(old)
+
+
+def test_saved_files_follow_the_umask(tmp_path, umask):
+    """PNG, JSON and Markdown outputs (the Python writer) were saved with mode 0600, the
+    private mode of their temporary file; EXR files and caches (the Rust writer) with
+    0666 less the umask. All follow the umask now, as any tool's files do."""
+    import os
+    import stat
+
+    setup = vc.scenes.load("cornell", detail=0.3)
+    cache = vc.VisibilityCache(setup.scene)
+    img = np.zeros((2, 3, 3), np.float32)
+    for mask in (0o022, 0o077, 0o002, 0o027):
+        umask(mask)
+        out = tmp_path / f"{mask:o}"
+        files = [write_png(out / "a.png", to_srgb8(img)),
+                 vc.io.write_bytes(out / "results.json", b"{}\n"),
+                 vc.io.write_bytes(out / "results.md", b"# x\n"),
+                 vc.io.write_exr(out / "a.exr", img)]
+        cache.save(out / "view.vc")
+        files.append(out / "view.vc")
+        for path in files:
+            assert stat.S_IMODE(os.stat(path).st_mode) == 0o666 & ~mask, (path, oct(mask))
+        assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in files)
+
+
+def _dead_pid():
+    """The pid of a process that has ended (and been waited for)."""
+    import subprocess
+    import sys
+
+    child = subprocess.Popen([sys.executable, "-c", ""])
+    child.wait()
+    return child.pid
+
+
+@pytest.mark.parametrize("writer", ["png", "exr"])
+def test_a_save_removes_temporaries_that_killed_saves_left(tmp_path, writer):
+    """A process killed mid-save (SIGKILL) leaves ``.NAME.PID.N.tmp`` beside the target;
+    the next save of that target removes those of processes that no longer run, and never
+    a file of a running process (this one's, or its parent's) nor another target's."""
+    import os
+
+    img = np.zeros((2, 3, 3), np.float32)
+    name = f"a.{writer}"
+    dead = _dead_pid()
+    stale = [f".{name}.{dead}.0.tmp", f".{name}.{dead}.17.tmp"]
+    kept = [f".{name}.{os.getppid()}.0.tmp", f".{name}.{os.getpid()}.99999.tmp",
+            f".b.{writer}.{dead}.0.tmp", f".{name}.x.tmp", f".{name}.{dead}.tmp"]
+    for n in stale + kept:
+        (tmp_path / n).write_bytes(b"half a file")
+    if writer == "png":
+        write_png(tmp_path / name, to_srgb8(img))
+    else:
+        vc.io.write_exr(tmp_path / name, img)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, *kept])
+    assert vc.io.remove_stale_temporaries(tmp_path / name) == 0

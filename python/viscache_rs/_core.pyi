@@ -27,6 +27,7 @@ __all__ = [
     "DEFAULT_VPL_SAMPLES",
     "OWN_CACHE_SAMPLES_PER_RECORD",
     "OWN_CACHE_BUDGET_SHARE",
+    "LIMITS",
     "VPLs",
     "render_ao",
     "write_exr",
@@ -418,6 +419,9 @@ DEFAULT_VPLS: int
 DEFAULT_VPL_SAMPLES: int
 OWN_CACHE_SAMPLES_PER_RECORD: int
 OWN_CACHE_BUDGET_SHARE: float
+#: name -> (low, high) of the core's own checks: spp, threads, seed, detail (low excluded),
+#: image_side (camera width and height), record_resolution (powers of two), alpha.
+LIMITS: dict[str, tuple[Any, Any]]
 
 def check_method_args(
     method: str, given: list[str], cache: VisibilityCache | None = None

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
+from ._checks import check_call
 from ._progress import progress_bar
 from .cache import VisibilityCache
 
@@ -65,6 +66,7 @@ def render_ao(
     **cache_overrides,
 ) -> AOResult:
     """Ambient occlusion of a setup; see the module docstring."""
+    check_call(setup, camera=camera, gbuffer=gbuffer, lit=False)
     if camera is None and gbuffer is None:
         camera = setup.camera
     if reference_rays is None and cache is None:

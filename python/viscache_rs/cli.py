@@ -1,18 +1,22 @@
-"""The ``viscache`` command line.
+"""The viscache command line.
 
-``viscache demo``   build the visibility cache for garage's view, render it by product
+viscache demo       build the visibility cache for garage's view, render it by product
                     sampling with the cache's control variate (CAM08) and by plain product
-                    sampling at equal time, print the table and write the images side
-                    by side.
-``viscache preview SCENE --rotate A:B:STEP --out DIR``
+                    sampling at equal time, print the table and write three PNGs to
+                    results/demo/: SCENE_product_vs_cv.png (side by side),
+                    SCENE_product.png and SCENE_cv.png.
+viscache preview SCENE --rotate A:B:STEP --out DIR
                     lighting design (CAM08 §6.2): prepare the cached transfer of SCENE's
                     view, render one preview frame per rotation of the map about +y (A,
                     A+STEP, ... below B, in degrees) into DIR/SCENE_000.png, ... and print
                     the preparation's cost and the milliseconds per frame.
-``viscache scenes`` list the built-in scenes.
-``viscache experiment NAME [--quick]``
-                    run an experiment (``viscache experiment --list``) and write
-                    ``results/NAME/``: JSON of every figure, markdown tables, images, plots.
+viscache scenes     list the built-in scenes.
+viscache experiment NAME [--quick]
+                    run an experiment (viscache experiment --list) and write
+                    results/NAME/: JSON of every figure, markdown tables, images, plots.
+viscache --version  the version.
+
+Every option is checked before any work, against the library's own ranges.
 """
 
 from __future__ import annotations
@@ -29,7 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from . import design, metrics, scenes
+from . import __version__, design, metrics, scenes
+from ._core import LIMITS
 from .io import auto_exposure, to_srgb8, write_png
 
 
@@ -61,8 +66,7 @@ def demo(args: argparse.Namespace) -> int:
           f"{cache.resolution} ({cache.memory_bytes() / 1e6:.2f} MB), "
           f"{b['shadow_rays_per_pixel']:.1f} shadow rays per pixel, built in "
           f"{b['seconds']:.2f} s")
-    alpha = args.alpha if args.alpha == "estimate" else float(args.alpha)
-    cv = render(setup, spp=args.spp, method="cv", cache=cache, alpha=alpha, seed=args.seed,
+    cv = render(setup, spp=args.spp, method="cv", cache=cache, alpha=args.alpha, seed=args.seed,
                 threads=args.threads, progress=not quiet, gbuffer=gbuffer)
     cv_total = cv.stats["seconds"] + b["seconds"]
     same = render(setup, spp=args.spp, method="product", seed=args.seed + 3,
@@ -158,8 +162,103 @@ def _positive(kind: type) -> Callable[[str], Any]:
     return parse
 
 
+def _integer(limit: str) -> Callable[[str], int]:
+    """An argparse type: an integer within the core's own range ``LIMITS[limit]``, so the
+    command refuses before any work what the library would refuse after it."""
+    low, high = LIMITS[limit]
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or not low <= value <= high:
+            raise argparse.ArgumentTypeError(
+                f"must be an integer in {low}..{high}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _number(limit: str, open_low: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite number within ``LIMITS[limit]`` (above its low end when
+    ``open_low``)."""
+    low, high = LIMITS[limit]
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        inside = (low < value if open_low else low <= value) and value <= high
+        if not inside:  # NaN is never inside
+            interval = f"{'(' if open_low else '['}{low:g}, {high:g}]"
+            raise argparse.ArgumentTypeError(f"must be a number in {interval}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _record_resolution(text: str) -> int:
+    low, high = LIMITS["record_resolution"]
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not (low <= value <= high and value & (value - 1) == 0):
+        raise argparse.ArgumentTypeError(
+            f"must be a power of two in {low}..{high}, got {text!r}")
+    return value
+
+
+def _alpha(text: str) -> str | float:
+    if text == "estimate":
+        return text
+    low, high = LIMITS["alpha"]
+    try:
+        return _number("alpha")(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(
+            f"must be a number in [{low:g}, {high:g}] or 'estimate', got {text!r}") from None
+
+
+def _folder(text: str) -> str:
+    """An output folder: refused when it names an existing file, before any work."""
+    if Path(text).exists() and not Path(text).is_dir():
+        raise argparse.ArgumentTypeError(f"must be a folder, but {text!r} is a file")
+    return text
+
+
+def _envmap(text: str) -> str:
+    if text in design.MAPS or (text.lower().endswith(".exr") and Path(text).is_file()):
+        return text
+    if text.lower().endswith(".exr"):
+        raise argparse.ArgumentTypeError(f"no such EXR file: {text}")
+    raise argparse.ArgumentTypeError(
+        f"unknown map {text!r}; expected one of {', '.join(design.MAPS)} or the path of an "
+        ".exr file")
+
+
+def _experiment(text: str) -> str:
+    from . import experiments
+
+    known = experiments.names()
+    if text not in known:
+        raise argparse.ArgumentTypeError(
+            f"invalid choice: {text!r} (choose from {', '.join(known)})")
+    return text
+
+
+def plain(text: str) -> str:
+    """``text`` (a docstring) without its reStructuredText markup, for a terminal: roles such
+    as :func:`name` become ``name()``, other roles and double backticks their bare text."""
+    text = re.sub(r":(?:func|meth):`~?([^`]+?)(?:\(\))?`", r"\1()", text)
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", text)
+    return text.replace("``", "")
+
+
 def list_scenes(_args: argparse.Namespace) -> int:
-    print(scenes.__doc__)
+    print(plain(scenes.__doc__ or "").strip())
     return 0
 
 
@@ -168,7 +267,7 @@ def experiment(args: argparse.Namespace) -> int:
 
     if args.list or args.name is None:
         for name in experiments.names():
-            text = " ".join(experiments.describe(name).split())
+            text = " ".join(plain(experiments.describe(name)).split())
             first = re.split(r"(?<=[a-z0-9)]\.)\s+(?=[A-Z])", text, maxsplit=1)[0]
             print(textwrap.fill(first, width=88, initial_indent=f"{name:<16}",
                                 subsequent_indent=" " * 16))
@@ -187,45 +286,66 @@ def experiment(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="viscache", description=__doc__,
+    """Runs the ``viscache`` command with ``argv`` (default: the process's arguments) and
+    returns its exit status. Every option is checked by its argparse type or choices before
+    any work, against the ranges the library itself checks (``viscache_rs._core.LIMITS``):
+    a bad one exits with status 2 and a usage line naming it and what it accepts."""
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``viscache`` command's parser, with its subcommands."""
+    parser = argparse.ArgumentParser(prog="viscache", description=plain(__doc__ or ""),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("demo", help="equal-time product sampling vs the cache's control variate")
-    p.add_argument("--scene", default="garage", choices=scenes.suite_names())
-    p.add_argument("--detail", type=float, default=1.0)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--width", type=int, default=512)
-    p.add_argument("--height", type=int, default=384)
-    p.add_argument("--threads", type=int, default=None)
-    p.add_argument("--spp", type=int, default=16, help="samples per pixel of the cv render")
-    p.add_argument("--resolution", type=int, default=None,
+    suite = scenes.suite_names()
+    spp, threads, seed = _integer("spp"), _integer("threads"), _integer("seed")
+    side = _integer("image_side")
+    p = sub.add_parser("demo", help="equal-time product sampling vs the cache's control variate",
+                       usage="%(prog)s [options]")
+    p.add_argument("--scene", default="garage", choices=suite, metavar="SCENE",
+                   help=f"one of {', '.join(suite)} (default garage)")
+    p.add_argument("--detail", type=_number("detail", open_low=True), default=1.0,
+                   help="scene detail (default 1)")
+    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument("--width", type=side, default=512, help="pixels (default 512)")
+    p.add_argument("--height", type=side, default=384, help="pixels (default 384)")
+    p.add_argument("--threads", type=threads, default=None, help="default: every core")
+    p.add_argument("--spp", type=spp, default=16, help="samples per pixel of the cv render")
+    p.add_argument("--resolution", type=_record_resolution, default=None,
                    help="record resolution (2..128; default: the preset's, 64 for auto)")
     p.add_argument("--preset", default="auto", choices=["auto", "low", "medium", "high"])
-    p.add_argument("--alpha", default="estimate",
+    p.add_argument("--alpha", type=_alpha, default="estimate",
                    help="control-variate alpha: a number in [0, 2] or 'estimate'")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument("--out", default="results/demo")
+    p.add_argument("--out", type=_folder, default="results/demo",
+                   help="folder of the three PNGs (created)")
     p.set_defaults(func=demo)
-    p = sub.add_parser("experiment", help="run an experiment and write results/NAME/")
-    p.add_argument("name", nargs="?", help="the experiment (--list shows them)")
+    p = sub.add_parser("experiment", help="run an experiment and write results/NAME/",
+                       usage="%(prog)s NAME [options] | --list")
+    p.add_argument("name", nargs="?", type=_experiment,
+                   help="the experiment (--list shows them)")
     p.add_argument("--list", action="store_true", help="list the experiments")
     p.add_argument("--quick", action="store_true", help="minutes on 2 cores")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument("--threads", type=threads, default=None, help="default: every core")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument("--out", default="results", help="parent directory of results/NAME/")
+    p.add_argument("--out", type=_folder, default="results",
+                   help="parent folder of results/NAME/")
     p.set_defaults(func=experiment)
     p = sub.add_parser("preview", help="preview frames of a rotating map from the cached "
-                       "transfer, with timings")
-    p.add_argument("scene", choices=scenes.suite_names(), metavar="SCENE",
-                   help=f"one of {', '.join(scenes.suite_names())}")
+                       "transfer, with timings", usage="%(prog)s SCENE [options]")
+    p.add_argument("scene", choices=suite, metavar="SCENE", help=f"one of {', '.join(suite)}")
     p.add_argument("--rotate", type=_rotations, default=_rotations("0:360:15"),
                    metavar="A:B:STEP",
                    help="degrees about +y: A, A+STEP, ... below B (default 0:360:15)")
-    p.add_argument("--out", default="frames", help="directory of the frames (created)")
-    p.add_argument("--width", type=_positive(int), default=640, help="pixels (default 640)")
-    p.add_argument("--height", type=_positive(int), default=480, help="pixels (default 480)")
-    p.add_argument("--envmap", default="scene", metavar="NAME",
+    p.add_argument("--out", type=_folder, default="frames",
+                   help="folder of the frames (created)")
+    p.add_argument("--width", type=side, default=640, help="pixels (default 640)")
+    p.add_argument("--height", type=side, default=480, help="pixels (default 480)")
+    p.add_argument("--envmap", type=_envmap, default="scene", metavar="NAME",
                    help=f"the map: {', '.join(design.MAPS)} (viscache_rs.design.MAPS says "
                    "what each is) or the path of an .exr file; default: the scene's own")
     p.add_argument("--basis", default="auto", choices=["auto", "full", "texels", "haar", "sh"],
@@ -233,13 +353,12 @@ def main(argv: list[str] | None = None) -> int:
                    "least error among those that fit the budget)")
     p.add_argument("--budget-mb", type=_positive(float), default=200.0,
                    help="memory for the transfer in MB (default 200)")
-    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--threads", type=threads, default=None, help="default: every core")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=preview)
-    p = sub.add_parser("scenes", help="list the built-in scenes")
+    p = sub.add_parser("scenes", help="list the built-in scenes", usage="%(prog)s")
     p.set_defaults(func=list_scenes)
-    args = parser.parse_args(argv)
-    return args.func(args)
+    return parser
 
 
 if __name__ == "__main__":

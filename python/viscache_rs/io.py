@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
+import re
 import struct
-import tempfile
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,22 +16,40 @@ import numpy as np
 from .metrics import luminance
 
 __all__ = [
-    "atomic_path", "auto_exposure", "encode_png", "to_srgb8", "write_bytes", "write_exr",
-    "write_png",
+    "atomic_path", "auto_exposure", "encode_png", "remove_stale_temporaries", "to_srgb8",
+    "write_bytes", "write_exr", "write_png",
 ]
+
+
+#: Numbers the temporary files of this process (``.<name>.<pid>.<n>.tmp``).
+_NEXT_TEMPORARY = itertools.count()
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yields a temporary path beside ``path`` to write; on leaving without an exception it
     is flushed and renamed over ``path`` in one step, otherwise removed. A process killed
-    while writing leaves the previous ``path`` whole. Creates missing parent folders."""
+    while writing leaves the previous ``path`` whole. Creates missing parent folders.
+
+    The temporary file, ``.<name>.<pid>.<n>.tmp``, is created as any new file is (mode 0666
+    less the umask), so the saved file has the permissions the user's other tools give
+    theirs. Temporary files of ``path`` left by processes that no longer run (killed
+    mid-save) are removed first (:func:`remove_stale_temporaries`); the Rust writers (EXR,
+    caches) name and clean theirs the same way."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
+    remove_stale_temporaries(path)
+    while True:
+        temp = path.with_name(f".{path.name}.{os.getpid()}.{next(_NEXT_TEMPORARY)}.tmp")
+        try:
+            # Exclusive: the name may be taken by a Rust writer of this process, which
+            # counts its own n.
+            os.close(os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            break
+        except FileExistsError:
+            continue
     try:
-        yield Path(temp)
+        yield temp
         with open(temp, "rb+") as f:
             os.fsync(f.fileno())
         os.replace(temp, path)
@@ -38,6 +57,44 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             os.unlink(temp)
         raise
+
+
+def _process_is_gone(pid: int) -> bool:
+    """Whether no process ``pid`` runs. Where that cannot be told without side effects
+    (Windows, whose ``os.kill`` would end the process) it answers False: keep the file."""
+    if os.name != "posix" or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)  # signal 0: only checks that the process exists
+    except ProcessLookupError:
+        return True
+    except (PermissionError, OverflowError):
+        return False  # another user's process, or no valid pid: keep the file
+    return False
+
+
+def remove_stale_temporaries(path: str | Path) -> int:
+    """Removes the temporary files of ``path`` (``.<name>.<pid>.<n>.tmp`` beside it, as
+    :func:`atomic_path` and the Rust writers name them) whose process no longer runs, and
+    returns how many it removed. A file whose process runs is never touched: it may be a
+    save under way. Failures to list or remove are ignored."""
+    path = Path(path)
+    pattern = re.compile(re.escape(f".{path.name}.") + r"([0-9]+)\.[0-9]+\.tmp")
+    removed = 0
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return 0
+    for entry in entries:
+        match = pattern.fullmatch(entry.name)
+        if not match:
+            continue
+        pid = int(match[1])
+        if pid != os.getpid() and _process_is_gone(pid):
+            with contextlib.suppress(OSError):
+                os.unlink(entry.path)
+                removed += 1
+    return removed
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:

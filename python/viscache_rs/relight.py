@@ -77,6 +77,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
+from ._checks import check_call, check_optional
 from ._progress import progress_bar
 from .cache import VisibilityCache
 
@@ -110,6 +111,8 @@ class Relighter:
 
     def __init__(self, setup, camera=None, visibility: str = "pixels", cache=None,
                  threads: int | None = None, light_cache=None):
+        check_call(setup, camera=camera, cache=cache)
+        check_optional(light_cache, "light_cache", _core.VisibilityCache, "a VisibilityCache")
         if visibility not in ("pixels", "cache"):
             raise ValueError(f"visibility: expected 'pixels' or 'cache', got {visibility!r}")
         if cache is not None and visibility != "cache":

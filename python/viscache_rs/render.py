@@ -107,6 +107,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
+from ._checks import check_call
 from ._progress import progress_bar
 from ._result import RenderResult
 
@@ -147,12 +148,10 @@ def render(
     adaptive: bool | None = None,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
-    if gbuffer is not None and not isinstance(gbuffer, _core.GBuffer):
-        raise TypeError(f"gbuffer: expected a GBuffer (from Scene.gbuffer), got "
-                        f"{type(gbuffer).__name__}")
+    # (A cache is checked by the registry below, against the caches the method accepts.)
+    check_call(setup, camera=camera, envmap=envmap, gbuffer=gbuffer)
     # The registry (Rust) says what each method reads: a parameter set for a method that
     # ignores it, or a cache it does not take, is an error naming it.
-    # (A cache is checked by its type, against the caches the method accepts.)
     given = {"product_level": product_level != "auto",
              "preset": preset != "auto", "alpha": alpha != 1.0,
              "alpha_radius": alpha_radius != 4, "insert_missing": bool(insert_missing),
@@ -222,6 +221,9 @@ def preview(setup, cache, envmap=None, camera=None, product_level: int | str = "
     view, make a :class:`LightingPreview` once (it keeps the hits) and call its
     ``render(cache, envmap, rotation=...)``: it traces no ray and, after a first call that
     caches each pixel's transfer, answers a swap or rotation of the map in milliseconds."""
+    check_call(setup, camera=camera, envmap=envmap, gbuffer=gbuffer)
+    if not isinstance(cache, _core.VisibilityCache):
+        raise TypeError(f"cache: expected a VisibilityCache, got {type(cache).__name__}")
     if camera is None and gbuffer is None:
         camera = setup.camera
     envmap = setup.envmap if envmap is None else envmap

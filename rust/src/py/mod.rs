@@ -64,6 +64,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
         "OWN_CACHE_BUDGET_SHARE",
         crate::render::own_cache::CACHE_BUDGET_SHARE,
     )?;
+    m.add("LIMITS", limits(m.py())?)?;
     m.add_class::<vpl::PyVpls>()?;
     m.add_function(wrap_pyfunction!(ambient::render_ao, m)?)?;
     m.add_function(wrap_pyfunction!(image::write_exr, m)?)?;
@@ -92,4 +93,26 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     analysis.add_function(wrap_pyfunction!(analysis::local_correlation, &analysis)?)?;
     m.add_submodule(&analysis)?;
     Ok(())
+}
+
+/// The ranges the core's own checks accept, as `name -> (low, high)` (both ends included,
+/// except `detail`'s 0), so that front ends such as the command line refuse a value before
+/// any work with the same bounds instead of copies of them.
+fn limits(py: Python<'_>) -> PyResult<Bound<'_, pyo3::types::PyDict>> {
+    use crate::sampling::pattern::{MAX_LOG2_RESOLUTION, MIN_LOG2_RESOLUTION};
+    let d = pyo3::types::PyDict::new(py);
+    d.set_item("spp", (1u32, crate::render::MAX_SPP))?;
+    d.set_item("threads", (1usize, crate::parallel::MAX_THREADS))?;
+    d.set_item("seed", (0u64, u64::MAX))?;
+    d.set_item("detail", (0.0f64, f64::from(crate::scenes::MAX_DETAIL)))?;
+    d.set_item("image_side", (1u32, crate::camera::MAX_RESOLUTION))?;
+    d.set_item(
+        "record_resolution",
+        (1u32 << MIN_LOG2_RESOLUTION, 1u32 << MAX_LOG2_RESOLUTION),
+    )?;
+    d.set_item(
+        "alpha",
+        (0.0f64, crate::visibility::cache::interpolant::ALPHA_MAX),
+    )?;
+    Ok(d)
 }
