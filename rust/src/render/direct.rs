@@ -84,6 +84,7 @@ fn stats(spec: &MethodSpec, params: &RenderParams, s: &RenderStats) -> Stats {
     d.set("unmatched_samples", s.unmatched_samples);
     d.set("passes", s.passes);
     d.set("complete", s.complete);
+    d.set("first_sample_seconds", s.first_sample_seconds);
     d.set("jitter", params.jitter);
     d.set("light_samples", s.light_samples);
     d.set("edge_share", s.edge_share);

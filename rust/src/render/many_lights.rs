@@ -63,6 +63,11 @@ pub struct ManyLightStats {
     pub spp: u32,
     /// False when progress stopped a pass part-way.
     pub complete: bool,
+    /// Passes made.
+    pub passes: u32,
+    /// Seconds until every pixel had a sample, where the budget could not buy that
+    /// ([`super::passes::PassRun::first_sample_seconds`]).
+    pub first_sample_seconds: Option<f64>,
     /// VPLs the gather used (all, or the surface VPLs without `direct`).
     pub vpls: u64,
     /// Pixel samples taken.
@@ -375,6 +380,13 @@ impl MethodRenderer for ManyLightsRenderer {
         d.set("seconds", start.elapsed().as_secs_f64());
         d.set("spp", s.spp);
         d.set("complete", s.complete);
+        d.set("passes", s.passes);
+        // From the call's start: the default set's tracing comes first.
+        let before_passes = start.elapsed().as_secs_f64() - s.seconds;
+        d.set(
+            "first_sample_seconds",
+            s.first_sample_seconds.map(|t| t + before_passes),
+        );
         d.set("jitter", params.jitter);
         d.set("direct", params.direct);
         d.set("clamp", params.clamp);
@@ -537,6 +549,8 @@ fn render_with(
         seconds,
         spp: run.min_spp(),
         complete: run.complete,
+        passes: run.passes,
+        first_sample_seconds: run.first_sample_seconds,
         vpls: method.gatherer.used().len() as u64,
         samples: run.samples(),
         primary_rays: work.primary_rays,

@@ -357,6 +357,9 @@ pub struct RenderStats {
     /// ([`adaptive::SampleShares::gain`]; below [`adaptive::MIN_GAIN`] the counts stayed
     /// even), when [`RenderParams::adaptive`] made a pilot.
     pub adaptive_gain: Option<f64>,
+    /// Seconds until every pixel had a sample, where the budget could not buy that
+    /// ([`passes::PassRun::first_sample_seconds`]).
+    pub first_sample_seconds: Option<f64>,
     /// How many pixels took each mixture after the pilot ([`crate::estimators::direct::mixture_choice::PixelTechniques`]:
     /// the image's first, then [`crate::estimators::direct::mixture_choice::CANDIDATES`]).
     pub pixel_techniques: Option<[u64; crate::estimators::direct::mixture_choice::CHOICES]>,
@@ -622,6 +625,7 @@ fn render_with(
         max_spp: run.max_spp(),
         primary_rays: frame.primary_rays,
         adaptive_gain: run.adaptive_gain,
+        first_sample_seconds: run.first_sample_seconds,
         edge_share,
         ..RenderStats::default()
     };

@@ -178,8 +178,11 @@ pub(super) fn render_with_own_cache(
         threads,
         progress,
     )?;
-    // The G-buffer's rays are the render's primary rays, its time the cache's.
+    // The G-buffer's rays are the render's primary rays, its time the cache's; the
+    // render's seconds are the call's, the build's included.
     out.stats.primary_rays += frame.primary_rays;
+    out.stats.seconds = start.elapsed().as_secs_f64();
+    out.stats.first_sample_seconds = out.stats.first_sample_seconds.map(|t| t + built);
     out.stats.own_cache = Some(OwnCacheStats {
         seconds: built,
         records: report.records,

@@ -20,7 +20,7 @@
 //! `spp` samples per pixel on average.
 
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
@@ -70,6 +70,12 @@ pub struct PassRun<S, W> {
     /// The predicted gain of adaptive counts measured after the pilot
     /// ([`SampleShares::gain`]), when there was one.
     pub adaptive_gain: Option<f64>,
+    /// Under a time budget that could not buy every pixel a sample: seconds from `start`
+    /// to the end of the pass that gave every pixel its first sample anyway (the
+    /// schedule found that none fitted). A budget shorter than this is overrun by the
+    /// difference: a pixel's sample is the one step it cannot divide. `None` when every
+    /// pixel's first sample fitted.
+    pub first_sample_seconds: Option<f64>,
 }
 
 impl<S: PixelSums, W> PassRun<S, W> {
@@ -186,10 +192,13 @@ pub fn run_passes<E: PixelEstimator>(
     let mut shares: Option<(SampleShares, u32)> = None;
     let mut pixel_state = vec![PixelState::<E::Note>::default(); pixels];
     let mut adaptive_gain = None;
+    let mut first_sample_seconds = None;
     let counts = |sums: &[E::Sums]| sums.iter().map(|s| s.samples()).collect::<Vec<u32>>();
     loop {
         // Each pass brings the pixels it covers up to their target.
         let mut pilot = None;
+        // The pass that gives every pixel a sample though the budget fits none.
+        let mut forced = false;
         let (targets, probe) = match params.time_budget {
             None if passes == 0 => match pilot_spp(params.spp).filter(|_| adapt) {
                 Some(p) => {
@@ -259,7 +268,10 @@ pub fn run_passes<E: PixelEstimator>(
                             }
                         }
                         // Every pixel gets a sample, whatever the budget.
-                        None if min == 0 => (Targets::Even(1), false),
+                        None if min == 0 => {
+                            forced = true;
+                            (Targets::Even(1), false)
+                        }
                         None => break,
                     },
                 }
@@ -277,6 +289,12 @@ pub fn run_passes<E: PixelEstimator>(
             pilot: pilot.is_some(),
         };
         let pass_start = Instant::now();
+        // The probe spends at most its share of the budget left: a method whose samples
+        // are dear (thousands of VPLs each) would spend more on the probe than the budget.
+        let probe_deadline = params.time_budget.filter(|_| probe).map(|b| {
+            let left = (b - start.elapsed().as_secs_f64()).max(0.0);
+            pass_start + Duration::from_secs_f64(PassSchedule::PROBE_SHARE * left)
+        });
         let bands = estimator.pass(&plan, |shader| {
             run_with_progress(
                 threads,
@@ -292,7 +310,9 @@ pub fn run_passes<E: PixelEstimator>(
                         .map(|(band, (band_sums, band_state))| {
                             let mut work = E::Work::default();
                             let mut tally = PassWork::default();
-                            if cancel.is_set() || (probe && band % PassSchedule::PROBE_STRIDE != 0)
+                            if cancel.is_set()
+                                || (probe && band % PassSchedule::PROBE_STRIDE != 0)
+                                || probe_deadline.is_some_and(|d| Instant::now() >= d)
                             {
                                 return (work, tally);
                             }
@@ -357,6 +377,9 @@ pub fn run_passes<E: PixelEstimator>(
         }
         passes += 1;
         taken += pass.samples;
+        if forced {
+            first_sample_seconds = Some(start.elapsed().as_secs_f64());
+        }
         schedule.record(pass_start.elapsed().as_secs_f64(), pass);
         if let Some(cap) = pilot {
             // Under a budget, a sample's cost counts too: sky is cheap, grass is not.
@@ -391,6 +414,7 @@ pub fn run_passes<E: PixelEstimator>(
         passes,
         complete,
         adaptive_gain,
+        first_sample_seconds,
     })
 }
 

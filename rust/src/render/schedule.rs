@@ -43,6 +43,9 @@ impl PassSchedule {
     /// of one sample would overestimate them).
     pub(super) const PROBE_STRIDE: usize = 8;
     pub(super) const PROBE_SPP: u32 = 4;
+    /// Most of the budget left that the probe spends: its bands start only until then
+    /// (bands under way finish).
+    pub(super) const PROBE_SHARE: f64 = 0.1;
     /// Share of the budget left that a pass aims to spend (the rest absorbs the model's
     /// error).
     const SHARE: f64 = 0.95;

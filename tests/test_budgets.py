@@ -1,0 +1,69 @@
+"""Time budgets hold for every method of the registry and the other calls that take one:
+a call ends within 10% of its budget (plus a fixed allowance for what follows the last
+pass: resolving the image, converting it), or, where the budget could not buy every pixel
+a sample, at the moment every pixel had one (``stats["first_sample_seconds"]``: the one
+step a budget cannot divide). A watchdog, not a speed target: each call is long enough
+without its budget to overrun it many times."""
+
+import time
+
+import pytest
+import viscache_rs as vc
+
+BUDGET = 0.6
+# What follows the last pass (the image resolved and converted, the stats), and the
+# scheduler's slack on a loaded machine.
+ALLOWANCE = 0.35
+
+
+@pytest.fixture(scope="module")
+def garage():
+    setup = vc.scenes.load("garage", detail=0.5)
+    return setup, setup.camera.with_resolution(64, 48)
+
+
+def _within(seconds, stats):
+    bound = 1.1 * BUDGET
+    if stats.get("first_sample_seconds") is not None:
+        bound = max(bound, stats["first_sample_seconds"])
+    return seconds <= bound + ALLOWANCE, bound
+
+
+@pytest.mark.parametrize("method", [m["name"] for m in vc.methods()])
+def test_every_method_keeps_its_budget(garage, method):
+    setup, cam = garage
+    start = time.perf_counter()
+    r = vc.render(setup, camera=cam, method=method, time_budget=BUDGET, progress=False)
+    wall = time.perf_counter() - start
+    ok, bound = _within(wall, r.stats)
+    assert ok, (method, wall, bound, r.stats["seconds"], r.stats.get("first_sample_seconds"))
+    assert r.stats["seconds"] <= wall
+    # The budget, not a sample count, ended it: unbounded samples were asked for.
+    assert r.stats["complete"]
+
+
+def test_reference_ao_keeps_its_budget(garage):
+    setup, cam = garage
+    start = time.perf_counter()
+    r = vc.render_ao(setup, camera=cam, reference_rays=8192, time_budget=BUDGET,
+                     progress=False)
+    wall = time.perf_counter() - start
+    assert wall <= 1.1 * BUDGET + ALLOWANCE, wall
+    # 8192 rays a pixel do not fit: the budget stopped it.
+    assert not r.stats["complete"]
+
+
+def test_cache_build_and_relighter_keep_their_budgets(garage):
+    setup, cam = garage
+    cache = vc.VisibilityCache(setup.scene, resolution=32)
+    start = time.perf_counter()
+    built = cache.build(cam.with_resolution(1024, 768), time_budget=BUDGET, progress=False)
+    wall = time.perf_counter() - start
+    assert wall <= 1.1 * BUDGET + ALLOWANCE, wall
+    assert not built["complete"]
+    relighter = vc.Relighter(setup, camera=cam)
+    start = time.perf_counter()
+    out = relighter.converge_visibility(spp=1 << 14, time_budget=BUDGET, progress=False)
+    wall = time.perf_counter() - start
+    assert wall <= 1.1 * BUDGET + ALLOWANCE, (wall, out)
+    assert out["spp"] < 1 << 14
