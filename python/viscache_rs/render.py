@@ -86,8 +86,14 @@ buffer given to ``VisibilityCache.build(gbuffer=...)`` places the records at exa
 points, and no primary ray through a pixel centre is traced again (``camera`` then defaults
 to the buffer's; another camera is refused). Method "cv" without a cache traces one G-buffer
 and builds the cache and renders from it.
-``spp`` defaults to 16; with a ``time_budget`` (seconds) the render runs passes of growing
-size until the budget is spent (at most ``spp`` samples per pixel on average if given).
+``spp`` defaults to the method's (16; 1 for "vpl" and "vpl_sampled"; ``vc.methods()``
+lists it); with a ``time_budget`` (seconds, counted from the call's start, the default
+VPLs' tracing and method "cv"'s own cache included) the render runs passes of growing size
+until the budget is spent (at most ``spp`` samples per pixel on average if given). Every
+pixel gets at least one sample: where the budget cannot buy that (thousands of VPLs per
+sample at a large size), the render takes it anyway and ``stats["first_sample_seconds"]``
+says when every pixel had one; pass fewer ``vpls`` or use "vpl_sampled" to fit a shorter
+budget.
 
 ``adaptive`` (default: on under a ``time_budget``, off otherwise) spends the samples where
 they cut the image's relMSE most: a pilot pass takes a quarter of them evenly, then every
