@@ -454,7 +454,18 @@ def test_the_registry_lists_every_method_and_refuses_what_a_method_ignores(small
     assert all(not m["caches"] for name, m in table.items() if name != "cv")
     assert (table["path"]["min_bounces"], table["path"]["default_bounces"]) == (1, 1)
     assert table["vpl"]["estimator"] == "many_lights"
+    assert (table["mis"]["default_spp"], table["vpl"]["default_spp"]) == (16, 1)
     setup = small_setups["cornell"]
+    # The core serves every row, and checks what a row does not read itself: a Rust
+    # caller gets the same refusals as vc.render.
+    cam = setup.camera.with_resolution(8, 6)
+    out = vc._core.render(setup.scene, setup.envmap, cam, method="vpl")
+    assert (out["sample_counts"] == 1).all() and out["stats"]["method"] == "vpl"
+    assert out["stats"]["vpls"] > 0 and out["alpha"] is None
+    with pytest.raises(ValueError, match=r'^clamp: method "mis"'):
+        vc._core.render(setup.scene, setup.envmap, cam, method="mis", clamp=1.0)
+    with pytest.raises(ValueError, match=r"^bounces"):
+        vc._core.render(setup.scene, setup.envmap, cam, method="path", bounces=0)
     cache = vc.VisibilityCache(setup.scene, preset="low")
     # A cache for a method that takes none; a parameter only other methods read.
     with pytest.raises(ValueError, match=r'^cache: method "product" takes no cache'):

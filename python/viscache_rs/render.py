@@ -241,7 +241,8 @@ def methods() -> list[dict[str, Any]]:
     """The method registry: one dict per ``render(method=...)`` name, in order, with
     ``name``, ``about``, ``estimator`` ("direct" or "many_lights"), ``params`` (the keyword
     parameters it reads beyond ``common``, which every method reads), ``caches`` (the cache
-    types ``cache=`` accepts), ``min_bounces`` and ``default_bounces``. A parameter set for
+    types ``cache=`` accepts), ``min_bounces``, ``default_bounces``, ``default_spp`` and
+    ``max_spp``. A parameter set for
     a method that does not read it raises ValueError naming it."""
     return _core.methods()
 

@@ -27,7 +27,8 @@ bounces=depth, direct=False``. Without ``vpls`` a set of 4096 is traced with
 ``vc.render`` renders these methods through the method registry (Rust) on the pass
 layer, as it does the others. Without
 ``time_budget`` every pixel takes ``spp`` samples, bit-identical for any ``threads``. With
-one, a probe pass takes a few samples in every eighth band of rows, then passes sized by
+one, a probe pass takes a few samples in every eighth band of rows (its bands start within a
+tenth of the budget), then passes sized by
 the measured cost per sample take as many as fit (``spp`` at most, unbounded by default):
 every pixel gets at least one, and the probe's pixels may keep up to four more than the
 rest. ``stats["spp"]`` is the least samples any pixel took, ``stats["samples"]`` all of

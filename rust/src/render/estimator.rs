@@ -137,6 +137,11 @@ pub trait PixelEstimator {
     type Sums: PixelSums;
     /// Whether it can take adaptive counts ([`Self::shares`]).
     const ADAPTS: bool = false;
+    /// Whether it learns from the probe pass of a budgeted render ([`Self::end_pass`] on a
+    /// probe): its probe then runs whole, so that what it learns is a function of the seed
+    /// alone, whatever the timing. Otherwise the probe starts bands only within a share of
+    /// the budget, so a method whose samples are dear does not spend the budget on it.
+    const LEARNS_FROM_PROBE: bool = false;
     /// One pass, borrowing what it reads for as long as the pass runs (a cache's read
     /// lock, say).
     type Pass<'a>: PixelPass<Work = Self::Work, Note = Self::Note, Sums = Self::Sums>

@@ -291,7 +291,11 @@ pub fn run_passes<E: PixelEstimator>(
         let pass_start = Instant::now();
         // The probe spends at most its share of the budget left: a method whose samples
         // are dear (thousands of VPLs each) would spend more on the probe than the budget.
-        let probe_deadline = params.time_budget.filter(|_| probe).map(|b| {
+        // A method that learns from it takes it whole (PixelEstimator::LEARNS_FROM_PROBE).
+        let probe_deadline = params
+            .time_budget
+            .filter(|_| probe && !E::LEARNS_FROM_PROBE);
+        let probe_deadline = probe_deadline.map(|b| {
             let left = (b - start.elapsed().as_secs_f64()).max(0.0);
             pass_start + Duration::from_secs_f64(PassSchedule::PROBE_SHARE * left)
         });

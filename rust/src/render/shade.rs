@@ -90,6 +90,8 @@ impl PixelEstimator for DirectMethod<'_> {
     type Note = DrawMoments;
     type Sums = CvSums;
     const ADAPTS: bool = true;
+    // The product methods learn their mixture and light draws from the probe.
+    const LEARNS_FROM_PROBE: bool = true;
     type Pass<'b>
         = AnchoredShader<'b>
     where
