@@ -164,6 +164,7 @@ pub fn render<'py>(
     params.validate().py()?;
     let threads = threads_arg(threads)?;
     let scene = scene.get();
+    scene.check_bvh_memory().py()?;
     spec.check_args(&[], cache.as_ref().map(|_| CacheKind::Visibility))
         .py()?;
     let cache = cache.map(|c| c.bound(py)).transpose()?;
