@@ -48,7 +48,7 @@ CASES = {
         expect_memory_error(lambda: env.to_equirect(32768, 16384), "to_equirect")
     """,
     "from_equirect": """
-        rgb = np.ones((2048, 8192, 3), "f4")
+        rgb = np.ones((4096, 8192, 3), "f4")
         limit()
         expect_memory_error(lambda: vc.EnvMap.from_equirect(rgb, 64), "rgb")
     """,
@@ -95,7 +95,7 @@ CASES = {
         cam = vc.Camera.look_at((0.5, 0.5, 3), (0.5, 0.5, 0), width=8, height=8)
         env = vc.EnvMap.constant(1.0, resolution=8)
         limit()
-        call = lambda: vc.render(vc.scenes.Setup(s, cam, env), spp=1, method="direct",
+        call = lambda: vc.render(vc.scenes.Setup(s, cam, env), spp=1, method="env",
                                  progress=False)
         expect_memory_error(call, "scene")
     """,

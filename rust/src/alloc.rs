@@ -85,14 +85,23 @@ mod tests {
         assert!(check_memory(usize::MAX, "probe").is_err());
         // A count whose byte size overflows reports the saturated size.
         let e = try_with_capacity::<u64>(usize::MAX, "rays").unwrap_err();
-        assert!(matches!(e, Error::OutOfMemory { bytes: usize::MAX, .. }));
+        assert!(matches!(
+            e,
+            Error::OutOfMemory {
+                bytes: usize::MAX,
+                ..
+            }
+        ));
     }
 
     #[test]
     fn possible_sizes_give_the_values() {
         assert_eq!(try_filled(3, 7u32, "x").unwrap(), vec![7, 7, 7]);
         assert_eq!(try_copy(&[1, 2], "x").unwrap(), vec![1, 2]);
-        assert_eq!(try_collect((0..4).map(|i| i * i), "x").unwrap(), [0, 1, 4, 9]);
+        assert_eq!(
+            try_collect((0..4).map(|i| i * i), "x").unwrap(),
+            [0, 1, 4, 9]
+        );
         let v = try_with_capacity::<f64>(1000, "x").unwrap();
         assert!(v.is_empty() && v.capacity() >= 1000);
         check_memory(1 << 20, "x").unwrap();

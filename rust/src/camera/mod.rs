@@ -310,8 +310,16 @@ mod tests {
         for gap in [1e-29, 1e-38, 1e-45] {
             down_z(Vec3::new(0.0, 0.0, gap), Vec3::ZERO, Vec3::Y);
         }
-        down_z(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::new(0.0, 1e-40, 0.0));
-        down_z(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::new(0.0, 1e30, 0.0));
+        down_z(
+            Vec3::new(0.0, 0.0, 5.0),
+            Vec3::ZERO,
+            Vec3::new(0.0, 1e-40, 0.0),
+        );
+        down_z(
+            Vec3::new(0.0, 0.0, 5.0),
+            Vec3::ZERO,
+            Vec3::new(0.0, 1e30, 0.0),
+        );
     }
 
     #[test]
@@ -324,7 +332,11 @@ mod tests {
         let eye = Vec3::new(1.0, 2.0, 3.0);
         assert!(e(eye, eye, Vec3::Y).starts_with("target: must differ from eye"));
         assert_eq!(e(eye, Vec3::ZERO, Vec3::ZERO), "up: must be non-zero");
-        let along = e(Vec3::ZERO, Vec3::new(0.0, 1e-30, 0.0), Vec3::new(0.0, -1e-40, 0.0));
+        let along = e(
+            Vec3::ZERO,
+            Vec3::new(0.0, 1e-30, 0.0),
+            Vec3::new(0.0, -1e-40, 0.0),
+        );
         assert!(along.starts_with("up: must not be parallel"), "{along}");
     }
 }

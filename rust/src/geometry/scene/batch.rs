@@ -164,7 +164,7 @@ fn bad_origin(r: &[f32; 3]) -> bool {
 #[inline(always)]
 fn bad_direction(r: &[f32; 3]) -> bool {
     let l2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-    !(l2 >= f32::MIN_POSITIVE && l2 <= f32::MAX)
+    !(f32::MIN_POSITIVE..=f32::MAX).contains(&l2)
 }
 
 /// A segment end that is NaN or negative.
