@@ -7,8 +7,9 @@
 //! reads it in place (checked, then read again without the GIL) would change answers
 //! silently or break what the checks established (a direction zeroed after it was checked).
 //! A Python thread writes only while it holds the GIL, so a copy taken under it is a
-//! consistent snapshot. The copy is a memcpy, a few percent of the cheapest call on the
-//! same rows (see `benches/README.md`). Copies are allocated fallibly
+//! consistent snapshot. The copy is a memcpy of 24 MB per 1M rays: `occluded` with
+//! `tmax=0` (conversion, checks and output only) measured 28-40 ms before and 43-47 ms
+//! after, against 220-270 ms for `intersect` on the same rays. Copies are allocated fallibly
 //! ([`crate::alloc`]): an input too large to copy is a `MemoryError` naming it.
 
 use numpy::{
