@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import itertools
 import math
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -659,3 +661,72 @@ def test_auto_builds_in_the_closed_room_and_caps_its_records():
     assert capped.stats()["refused_full"] > 0
     unchecked = vc.VisibilityCache(inst.scene, check_coherence=False, max_records=5000)
     assert unchecked.build(gbuffer=g, progress=False)["records"] == 5000
+
+
+def _two_identical_caches(setup, cam):
+    caches = []
+    for _ in range(2):
+        c = vc.VisibilityCache(setup.scene, resolution=16, n_startup=50, unused_frames=1,
+                               check_coherence=False)
+        c.build(cam, seed=1, progress=False)
+        caches.append(c)
+    return caches
+
+
+def test_end_frame_from_another_thread_waits_for_a_render_reading_the_cache():
+    """A render holds its cache for the whole call: end_frame from another thread (which
+    evicts and renumbers records) waits for it, so the render gives the image it gives
+    without the race and its misses reach the records that earned them. Before, the
+    render failed ("ids: record 0 does not exist") or mixed two caches."""
+    setup = vc.scenes.without(vc.scenes.load("cornell"), ("ceiling", "light"))
+    cam = setup.camera.with_resolution(32, 24)
+    quiet, raced = _two_identical_caches(setup, cam)
+    assert len(quiet) == len(raced) > 0
+
+    def render(cache, callback=None):
+        return vc._core.render(setup.scene, setup.envmap, cam, 4, "cv", seed=3, threads=2,
+                               cache=cache, callback=callback)
+
+    want = render(quiet)
+    want_reports = [quiet.end_frame() for _ in range(3)]
+    started, calling = threading.Event(), threading.Event()
+    reports = []
+
+    def end_frames():
+        started.wait(30)
+        calling.set()
+        reports.extend(raced.end_frame() for _ in range(3))
+
+    def callback(done, total):
+        if not started.is_set():
+            started.set()
+            # Hands the GIL to the other thread until its end_frame calls are under way.
+            calling.wait(30)
+            time.sleep(0.05)
+        return True
+
+    t = threading.Thread(target=end_frames)
+    t.start()
+    try:
+        got = render(raced, callback)
+    finally:
+        started.set()
+        t.join()
+    np.testing.assert_array_equal(got["image"], want["image"])
+    assert got["stats"]["record_misses"] == want["stats"]["record_misses"]
+    assert reports == want_reports
+    assert len(raced) == len(quiet)
+
+
+def test_end_frame_inside_a_render_of_the_same_cache_is_an_error_not_a_deadlock():
+    setup = vc.scenes.without(vc.scenes.load("cornell"), ("ceiling", "light"))
+    cam = setup.camera.with_resolution(16, 12)
+    cache, _ = _two_identical_caches(setup, cam)
+
+    def callback(done, total):
+        cache.end_frame()
+        return True
+
+    with pytest.raises(RuntimeError, match="end_frame"):
+        vc._core.render(setup.scene, setup.envmap, cam, 2, "cv", cache=cache, callback=callback)
+    assert cache.end_frame()["frame"] == 0, "the failed call changed nothing"

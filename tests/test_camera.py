@@ -80,3 +80,37 @@ def test_gbuffer_misses():
     g = s.gbuffer(cam)
     assert np.all(g["object"] == -1) and np.all(np.isinf(g["depth"]))
     assert np.all(np.isinf(g["footprint"])) and np.all(np.isnan(g["position"]))
+
+
+@pytest.mark.parametrize(
+    "eye, target, up",
+    [
+        ((0, 0, 1e20), (0, 0, 0), (0, 1, 0)),
+        ((0, 0, 1e30), (0, 0, 0), (0, 1, 0)),
+        ((0, 0, 3.4e38), (0, 0, 0), (0, 1, 0)),
+        ((0, 0, 3.4e38), (0, 0, -3.4e38), (0, 1, 0)),
+        ((0, 0, 1e-29), (0, 0, 0), (0, 1, 0)),
+        ((0, 0, 5), (0, 0, 0), (0, 1e-40, 0)),
+        ((0, 0, 5), (0, 0, 0), (0, 1e30, 0)),
+    ],
+)
+def test_extreme_but_valid_cameras_are_formed(eye, target, up):
+    """Normalised in f64, then judged: lengths that over- or underflow in float32 still
+    give the camera looking down -z."""
+    cam = vc.Camera.look_at(eye, target, up=up, width=4, height=4)
+    np.testing.assert_array_equal(cam.forward, (0, 0, -1))
+    np.testing.assert_array_equal(cam.right, (1, 0, 0))
+    np.testing.assert_array_equal(cam.up, (0, 1, 0))
+
+
+@pytest.mark.parametrize(
+    "eye, target, up, message",
+    [
+        ((1, 2, 3), (1, 2, 3), (0, 1, 0), "^target: must differ from eye"),
+        ((0, 0, 5), (0, 0, 0), (0, 0, 0), "^up: must be non-zero"),
+        ((0, 0, 0), (0, 1e-30, 0), (0, -1e-40, 0), "^up: must not be parallel"),
+    ],
+)
+def test_impossible_cameras_say_why(eye, target, up, message):
+    with pytest.raises(ValueError, match=message):
+        vc.Camera.look_at(eye, target, up=up, width=4, height=4)

@@ -1,5 +1,8 @@
 """Ray queries against a numpy brute force, Embree, closed meshes, scales and thread counts."""
 
+import threading
+import time
+
 import numpy as np
 import pytest
 import trimesh
@@ -248,3 +251,79 @@ def test_view_shading_rays_leave_the_seen_surfaces_toward_the_viewer_side():
     assert (np.sum((o - p) * n, axis=1) > 0).all()
     a, b = vc.testing.view_shading_rays(setup, width=16, height=12, passes=passes, seed=seed)
     assert np.array_equal(a, o) and np.array_equal(b, d)
+
+
+def test_directions_of_no_representable_length_are_refused(cornell):
+    """t is measured in units of a direction's length: a subnormal direction put every hit
+    beyond float32 (it reported a hit at t = inf). Its squared length must be a normal
+    float32, as for the tracer's own normalisations; a short but normal one still hits."""
+    scene = cornell.scene
+    origin = np.array([[0.0, 0.5, 3.0]], np.float32)
+    for d in ([0, 0, -1e-40], [0, 0, -1e-20], [0, 0, -3e19], [1e-40, 1e-40, 1e-40]):
+        for call in (scene.intersect, scene.occluded):
+            with pytest.raises(ValueError, match=r"^directions: row 0 must be finite with a len"):
+                call(origin, np.array([d], np.float32))
+    unit = scene.intersect(origin, [[0, 0, -1]])
+    for length in (1e-18, 1e18):
+        h = scene.intersect(origin, [[0, 0, -length]])
+        assert h["prim"][0] == unit["prim"][0] >= 0
+        assert h["t"][0] == pytest.approx(unit["t"][0] / length, rel=1e-5)
+        assert np.isfinite(h["t"][0])
+
+
+def test_directions_are_normalised_in_f64_where_only_the_direction_matters():
+    """Entry points that take directions only (octahedral maps, env maps) normalise in f64:
+    a subnormal or huge row has a direction."""
+    tiny = np.array([[0, 1e-40, 0], [3e38, 0, 0]], np.float32)
+    unit = np.array([[0, 1, 0], [1, 0, 0]], np.float32)
+    np.testing.assert_array_equal(vc.octahedral.sphere_to_square(tiny),
+                                  vc.octahedral.sphere_to_square(unit))
+    env = vc.EnvMap.sky((0.3, 1, 0.2), 1e3, 1.0, (0.2, 0.3, 0.8), (0.8, 0.8, 0.8), resolution=32)
+    np.testing.assert_array_equal(env.eval(tiny), env.eval(unit))
+
+
+class _SlowArray:
+    """A per-ray `tmax` whose conversion, the last of the call's, hands the GIL to the
+    scribbler for a while: origins and directions have been read by then."""
+
+    def __init__(self, values, started):
+        self.values, self.started = values, started
+
+    def __array__(self, dtype=None, copy=None):
+        self.started.set()
+        time.sleep(0.05)
+        return self.values if dtype is None else self.values.astype(dtype)
+
+
+def _scribble(origins, dirs, started, done):
+    started.wait(10)
+    while not done.is_set():
+        np.negative(dirs, out=dirs)
+        np.add(origins, 0.25, out=origins)
+
+
+def test_a_thread_writing_the_inputs_during_the_call_cannot_change_the_answer(cornell):
+    """Inputs are copied under the GIL before it is released: another thread writing them
+    meanwhile (flipping the directions, moving the origins) changes nothing."""
+    scene = cornell.scene
+    origins, dirs = random_rays(np.random.default_rng(3), 20_000, *scene.bounds)
+    tmax = np.full(len(origins), np.inf, np.float32)
+    expected = scene.intersect(origins.copy(), dirs.copy(), tmax)
+    expected_occ = scene.occluded(origins.copy(), dirs.copy(), tmax)
+    for call, want in ((scene.intersect, expected), (scene.occluded, expected_occ)):
+        o, d = origins.copy(), dirs.copy()
+        started, done = threading.Event(), threading.Event()
+        t = threading.Thread(target=_scribble, args=(o, d, started, done))
+        t.start()
+        try:
+            got = call(o, d, _SlowArray(tmax, started))
+        finally:
+            started.set()
+            done.set()
+            t.join()
+        assert not np.array_equal(d, dirs) or not np.array_equal(o, origins), "never scribbled"
+        if isinstance(want, dict):
+            for key in want:
+                np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+        else:
+            np.testing.assert_array_equal(got, want)

@@ -43,20 +43,8 @@ impl Error {
     }
 }
 
-/// Fails with [`Error::OutOfMemory`] when `bytes` cannot be allocated now. Calls whose
-/// buffers grow with their input (pixels, rays) check their total before starting, so that
-/// running out of memory (or of address space under `RLIMIT_AS`) is an error the caller can
-/// handle instead of an abort in the middle of the work. The probe is a fallible allocation
-/// of that size, freed at once, never touched (so it costs no memory).
-pub fn check_memory(bytes: usize, what: &str) -> Result<()> {
-    let mut probe: Vec<u8> = Vec::new();
-    probe
-        .try_reserve_exact(bytes)
-        .map_err(|_| Error::OutOfMemory {
-            what: what.into(),
-            bytes,
-        })
-}
+/// Kept here for the callers that check a total before starting; see [`crate::alloc`].
+pub use crate::alloc::check_memory;
 
 /// Bytes per pixel a call's buffers take at most: the G-buffer and its per-ray staging
 /// (about 120 B), per-pixel sums of a render (128 B) and its RGB outputs (36 B), rounded up.

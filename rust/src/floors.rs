@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 /// The floors, bottom up: a module may import its own floor and the floors below it. The
 /// order is DESIGN.md's listing with what it leaves out filled in and one departure:
 /// - Floor 0 holds the small shared modules DESIGN names (`math`, `error`, `simd`) and the
-///   others like them (`files`, `image`, `moments`, `parallel`, `stop`).
+///   others like them (`alloc`, `files`, `image`, `moments`, `parallel`, `stop`).
 /// - `camera` sits above `geometry`, not beside `bsdf` as DESIGN lists it: its G-buffer
 ///   traces the camera's rays through the scene's BVH.
 /// - `testing` (ray sets and helpers shared by benches, peer scripts and tests) builds
@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 /// - `py` is the top floor and may import anything.
 const FLOORS: &[&[&str]] = &[
     &[
-        "error", "math", "simd", "files", "image", "moments", "parallel", "stop",
+        "alloc", "error", "math", "simd", "files", "image", "moments", "parallel", "stop",
     ],
     &["spatial"],
     &["sampling"],

@@ -10,6 +10,7 @@
 //! maps that light them, [`visibility`] holds the visibility cache's records, and the
 //! estimators consume them.
 
+pub mod alloc;
 pub mod bsdf;
 pub mod camera;
 pub mod error;

@@ -5,7 +5,7 @@
 //! spans the **vertical** axis (the image height); the horizontal one follows from the
 //! aspect ratio. Pixels are square.
 
-use glam::{Vec3, Vec3A};
+use glam::{DVec3, Vec3, Vec3A};
 
 use crate::error::{Error, Result};
 use crate::sampling::rng::SampleRng;
@@ -62,6 +62,37 @@ fn check_resolution(width: u32, height: u32) -> Result<()> {
     Ok(())
 }
 
+/// The camera's orthonormal frame `(forward, right, up)` for `look_at`, computed in f64:
+/// in f32 the length of `target - eye` overflows for an eye at 1e20 and underflows for
+/// points 1e-29 apart, and a subnormal `up` has no length, though each is a valid camera.
+/// Normalising first and judging after leaves only cameras that truly cannot be formed, and
+/// their messages say why.
+fn frame(eye: Vec3, target: Vec3, up: Vec3) -> Result<(Vec3, Vec3, Vec3)> {
+    let (e, t, u) = (eye.as_dvec3(), target.as_dvec3(), up.as_dvec3());
+    let forward = (t - e).normalize_or_zero();
+    if forward == DVec3::ZERO {
+        return Err(Error::invalid(
+            "target",
+            format!("must differ from eye, both are {eye:?}"),
+        ));
+    }
+    let up_unit = u.normalize_or_zero();
+    if up_unit == DVec3::ZERO {
+        return Err(Error::invalid("up", "must be non-zero"));
+    }
+    let right = forward.cross(up_unit);
+    // The sine of the angle between up and the view: below 1e-6 the roll is undefined.
+    if right.length() < 1e-6 {
+        return Err(Error::invalid(
+            "up",
+            format!("must not be parallel to target - eye, got up {up:?} along {forward:?}"),
+        ));
+    }
+    let right = right.normalize();
+    let up = right.cross(forward);
+    Ok((forward.as_vec3(), right.as_vec3(), up.as_vec3()))
+}
+
 impl Camera {
     /// A camera at `eye` looking at `target`, `up` fixing the roll. `fov_deg` is the
     /// vertical field of view in degrees.
@@ -83,18 +114,7 @@ impl Camera {
                 format!("must lie in (0, 180), got {fov_deg}"),
             ));
         }
-        let forward = (target - eye).normalize_or_zero();
-        if forward == Vec3::ZERO {
-            return Err(Error::invalid("target", "must differ from eye"));
-        }
-        let right = forward.cross(up).normalize_or_zero();
-        if right == Vec3::ZERO || forward.cross(up.normalize_or_zero()).length() < 1e-6 {
-            return Err(Error::invalid(
-                "up",
-                "must be non-zero and not parallel to target - eye",
-            ));
-        }
-        let up = right.cross(forward);
+        let (forward, right, up) = frame(eye, target, up)?;
         Ok(Self {
             eye,
             forward,
@@ -273,5 +293,50 @@ mod tests {
         );
         assert!(e(Camera::look_at(Vec3::ZERO, Vec3::X, Vec3::Y, 45.0, 0, 4)).starts_with("width"));
         assert!(e(Camera::look_at(Vec3::NAN, Vec3::X, Vec3::Y, 45.0, 4, 4)).starts_with("eye"));
+    }
+
+    #[test]
+    fn extreme_but_valid_cameras_are_formed() {
+        // An eye far away (the length of target - eye overflows f32) or a hair's breadth
+        // from the target (it underflows), and a subnormal up: each a valid camera.
+        let down_z = |eye: Vec3, target: Vec3, up: Vec3| {
+            let c = Camera::look_at(eye, target, up, 45.0, 4, 4).unwrap();
+            assert_eq!((c.forward, c.right, c.up), (Vec3::NEG_Z, Vec3::X, Vec3::Y));
+        };
+        for z in [1e20, 1e30, 3.4e38, f32::MAX] {
+            down_z(Vec3::new(0.0, 0.0, z), Vec3::ZERO, Vec3::Y);
+            down_z(Vec3::new(0.0, 0.0, z), Vec3::new(0.0, 0.0, -z), Vec3::Y);
+        }
+        for gap in [1e-29, 1e-38, 1e-45] {
+            down_z(Vec3::new(0.0, 0.0, gap), Vec3::ZERO, Vec3::Y);
+        }
+        down_z(
+            Vec3::new(0.0, 0.0, 5.0),
+            Vec3::ZERO,
+            Vec3::new(0.0, 1e-40, 0.0),
+        );
+        down_z(
+            Vec3::new(0.0, 0.0, 5.0),
+            Vec3::ZERO,
+            Vec3::new(0.0, 1e30, 0.0),
+        );
+    }
+
+    #[test]
+    fn impossible_cameras_say_why() {
+        let e = |eye: Vec3, target: Vec3, up: Vec3| {
+            Camera::look_at(eye, target, up, 45.0, 4, 4)
+                .unwrap_err()
+                .to_string()
+        };
+        let eye = Vec3::new(1.0, 2.0, 3.0);
+        assert!(e(eye, eye, Vec3::Y).starts_with("target: must differ from eye"));
+        assert_eq!(e(eye, Vec3::ZERO, Vec3::ZERO), "up: must be non-zero");
+        let along = e(
+            Vec3::ZERO,
+            Vec3::new(0.0, 1e-30, 0.0),
+            Vec3::new(0.0, -1e-40, 0.0),
+        );
+        assert!(along.starts_with("up: must not be parallel"), "{along}");
     }
 }

@@ -3,10 +3,11 @@
 //! equal-area square), not the core's Morton order.
 
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, Condvar, Mutex};
+use std::thread::ThreadId;
 
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods};
-use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyType};
 
@@ -32,6 +33,170 @@ pub struct PyVisibilityCache {
     /// The scene records are traced in (read at each call, so edits are seen).
     #[pyo3(get)]
     pub(super) scene: Py<PyScene>,
+    /// Calls that read the records for their whole length (renders, previews, relighting)
+    /// against calls that change or renumber them (see [`CallGate`]).
+    gate: Arc<CallGate>,
+}
+
+/// Who holds a cache: the threads of the calls reading it, or the one changing it.
+#[derive(Default)]
+struct GateState {
+    readers: Vec<ThreadId>,
+    writer: Option<(ThreadId, &'static str)>,
+}
+
+/// Keeps a cache still while a call reads it. A render reads the records pass after pass
+/// and reports their misses by id at the end; `end_frame` from another thread in between
+/// evicted and renumbered them, so the render failed ("ids: record 0 does not exist") or
+/// mixed two caches. Calls that read take the gate shared for their whole length; calls
+/// that change the records (`end_frame`, `build`, `insert`, `record_misses`) take it alone
+/// and wait for the readers to finish, and readers that arrive meanwhile wait for them.
+/// Renders then give the image they give without the race, and their misses reach the
+/// records that earned them. The cost is an uncontended mutex per call. Waits release the
+/// GIL (a reader's progress callback needs it). A progress callback that would have to
+/// wait (calling `end_frame` on the cache its own render reads) gets an error instead.
+#[derive(Default)]
+struct CallGate {
+    state: Mutex<GateState>,
+    changed: Condvar,
+}
+
+impl CallGate {
+    fn lock(&self) -> std::sync::MutexGuard<'_, GateState> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn wait<'a>(
+        &self,
+        guard: std::sync::MutexGuard<'a, GateState>,
+    ) -> std::sync::MutexGuard<'a, GateState> {
+        self.changed.wait(guard).unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Enters as a reader once no call changes the cache.
+    fn read(self: &Arc<Self>, py: Python<'_>) -> PyResult<CacheRead> {
+        let me = std::thread::current().id();
+        py.detach(|| {
+            let mut state = self.lock();
+            loop {
+                match state.writer {
+                    Some((id, call)) if id == me || InCallback::active() => {
+                        return Err(PyRuntimeError::new_err(format!(
+                            "cache: being changed by {call}; a progress callback cannot wait \
+                             for it (it may be its own call's)"
+                        )))
+                    }
+                    Some(_) => state = self.wait(state),
+                    None => break,
+                }
+            }
+            state.readers.push(me);
+            Ok(())
+        })?;
+        Ok(CacheRead { gate: self.clone() })
+    }
+
+    /// Enters as the only call on the cache once the readers have left; `call` names it in
+    /// errors. The cache is free again when the returned value is dropped.
+    fn hold(self: &Arc<Self>, py: Python<'_>, call: &'static str) -> PyResult<CacheChange> {
+        let me = std::thread::current().id();
+        py.detach(|| {
+            let mut state = self.lock();
+            loop {
+                let busy = !state.readers.is_empty() || state.writer.is_some();
+                if state.readers.contains(&me)
+                    || state.writer.is_some_and(|(id, _)| id == me)
+                    || (busy && InCallback::active())
+                {
+                    return Err(PyRuntimeError::new_err(format!(
+                        "cache: {call} must wait for the calls using the cache, which a \
+                         progress callback cannot do (it may be its own call's)"
+                    )));
+                }
+                if state.writer.is_none() && state.readers.is_empty() {
+                    break;
+                }
+                state = self.wait(state);
+            }
+            state.writer = Some((me, call));
+            Ok(())
+        })?;
+        Ok(CacheChange { gate: self.clone() })
+    }
+}
+
+/// The one call changing a cache (see [`CallGate::hold`]).
+struct CacheChange {
+    gate: Arc<CallGate>,
+}
+
+impl Drop for CacheChange {
+    fn drop(&mut self) {
+        self.gate.lock().writer = None;
+        self.gate.changed.notify_all();
+    }
+}
+
+thread_local! {
+    static IN_CALLBACK: std::cell::Cell<u32> = const { std::cell::Cell::new(0) };
+}
+
+/// Marks the current thread as running a Python progress callback: a call's callback runs
+/// on the thread doing its work, not the one that entered the gate, so a callback that
+/// waited on the gate could wait for its own call. Calls on the gate from a callback
+/// that would have to wait fail instead.
+pub struct InCallback(());
+
+impl InCallback {
+    /// Marks the thread until the returned value is dropped.
+    pub fn enter() -> Self {
+        IN_CALLBACK.with(|c| c.set(c.get() + 1));
+        InCallback(())
+    }
+
+    fn active() -> bool {
+        IN_CALLBACK.with(|c| c.get() > 0)
+    }
+}
+
+impl Drop for InCallback {
+    fn drop(&mut self) {
+        IN_CALLBACK.with(|c| c.set(c.get() - 1));
+    }
+}
+
+/// The core cache for a call that reads it throughout (see [`CallGate`]); calls that change
+/// the records wait until it is dropped.
+pub struct CacheRead {
+    gate: Arc<CallGate>,
+}
+
+impl Drop for CacheRead {
+    fn drop(&mut self) {
+        let me = std::thread::current().id();
+        let mut state = self.gate.lock();
+        if let Some(k) = state.readers.iter().position(|&id| id == me) {
+            state.readers.swap_remove(k);
+        } else {
+            // Dropped on another thread than it was taken on: leave as someone.
+            state.readers.pop();
+        }
+        drop(state);
+        self.gate.changed.notify_all();
+    }
+}
+
+/// A cache bound to its scene, held still for the call that asked for it.
+pub struct BoundCache {
+    cache: Arc<VisibilityCache>,
+    _read: CacheRead,
+}
+
+impl std::ops::Deref for BoundCache {
+    type Target = VisibilityCache;
+    fn deref(&self) -> &VisibilityCache {
+        &self.cache
+    }
 }
 
 /// Applies keyword overrides to `p`, naming unknown or out-of-range ones.
@@ -128,13 +293,18 @@ fn params_dict<'py>(py: Python<'py>, p: &CacheParams) -> PyResult<Bound<'py, PyD
 impl PyVisibilityCache {
     /// The core cache, bound to the geometry of the scene it was made with if nothing bound
     /// it before (`VisibilityCache::bind_scene`): a cache passed to a call on another scene
-    /// is then refused by the core even before its first build.
-    pub fn bound(&self, py: Python<'_>) -> PyResult<Arc<VisibilityCache>> {
+    /// is then refused by the core even before its first build. Calls that change the
+    /// records (`end_frame` and the like) wait until the returned value is dropped: keep it
+    /// for the length of the call that reads the cache.
+    pub fn bound(&self, py: Python<'_>) -> PyResult<BoundCache> {
         if self.inner.scene_fingerprint().is_none() {
             let scene = self.scene.borrow(py).get();
             self.inner.bind_scene(&scene).py()?;
         }
-        Ok(self.inner.clone())
+        Ok(BoundCache {
+            _read: self.gate.read(py)?,
+            cache: self.inner.clone(),
+        })
     }
 
     fn record_id(&self, id: &Bound<'_, PyAny>) -> PyResult<usize> {
@@ -173,6 +343,7 @@ impl PyVisibilityCache {
         Ok(Self {
             inner: Arc::new(VisibilityCache::new(p).py()?),
             scene,
+            gate: Arc::default(),
         })
     }
 
@@ -279,6 +450,7 @@ impl PyVisibilityCache {
         let mut callback = |done: usize, total: usize| reporter.report(done as u64, total as u64);
         let inner = self.inner.clone();
         inner.plan_samples(spp);
+        let _alone = self.gate.hold(py, "build")?;
         let out = detach_interruptible_with(py, &stop, &|| inner.request_stop(), || match &view {
             View::Camera(cam) => inner.build(&scene, cam, seed, threads, budget, &mut callback),
             View::GBuffer(g) => inner.build_from(&scene, g, seed, threads, budget, &mut callback),
@@ -317,6 +489,7 @@ impl PyVisibilityCache {
         let n = vec3_arg(normal, "normal")?;
         let scene = self.scene.borrow(py).get();
         let inner = self.inner.clone();
+        let _alone = self.gate.hold(py, "insert")?;
         py.detach(|| inner.insert(&scene, p.into(), n.into())).py()
     }
 
@@ -477,6 +650,7 @@ impl PyVisibilityCache {
     /// `uses` (N,) non-negative integers with misses <= uses. Nothing changes on error.
     fn record_misses(
         &self,
+        py: Python<'_>,
         ids: &Bound<'_, PyAny>,
         misses: &Bound<'_, PyAny>,
         uses: &Bound<'_, PyAny>,
@@ -484,6 +658,7 @@ impl PyVisibilityCache {
         let ids = counts(ids, "ids")?;
         let misses = counts(misses, "misses")?;
         let uses = counts(uses, "uses")?;
+        let _alone = self.gate.hold(py, "record_misses")?;
         self.inner.record_misses(&ids, &misses, &uses).py()
     }
 
@@ -516,6 +691,7 @@ impl PyVisibilityCache {
     /// frames; ids are compacted (kept records keep their order). Returns a dict: frame,
     /// by_misses, unused, remaining.
     fn end_frame<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let _alone = self.gate.hold(py, "end_frame")?;
         let r = self.inner.end_frame().py()?;
         let d = PyDict::new(py);
         d.set_item("frame", r.frame)?;

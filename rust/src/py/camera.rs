@@ -133,13 +133,17 @@ impl PyCamera {
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
         let c = self.inner;
         let n = c.num_pixels();
-        let dirs: Vec<[f32; 3]> = (0..n)
-            .map(|i| c.primary_ray(i, seed, jitter).1.into())
-            .collect();
-        Ok((
-            rows3_array(py, vec![c.eye.into(); n])?,
-            rows3_array(py, dirs)?,
-        ))
+        // Both arrays are checked together before either is filled: a size that cannot be
+        // met is a MemoryError at once.
+        let what = "rays";
+        crate::alloc::check_memory(crate::alloc::bytes_of::<[[f32; 3]; 2]>(n), what).py()?;
+        let origins = crate::alloc::try_filled(n, c.eye.into(), what).py()?;
+        let dirs: Vec<[f32; 3]> = crate::alloc::try_collect(
+            (0..n).map(|i| c.primary_ray(i, seed, jitter).1.into()),
+            what,
+        )
+        .py()?;
+        Ok((rows3_array(py, origins)?, rows3_array(py, dirs)?))
     }
 
     pub fn __repr__(&self) -> String {

@@ -65,20 +65,22 @@ fn rgb_arg(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f32; 3]> {
     Ok(v)
 }
 
-/// Directions `(N, 3)`, each finite and non-zero.
+/// Directions `(N, 3)`, each finite and non-zero, normalised in f64 (as
+/// `convert::unit_directions`: a subnormal or huge row still has a direction).
 fn dirs_arg(obj: &Bound<'_, PyAny>) -> PyResult<Vec<Vec3>> {
     let rows = rows3_f32(obj, "dirs")?;
     let rows = rows.rows()?;
+    let unit = |r: &[f32; 3]| Vec3::from(*r).as_dvec3().normalize_or_zero().as_vec3();
     if let Some(i) = rows
         .iter()
-        .position(|r| !(r.iter().all(|c| c.is_finite()) && Vec3::from(*r).length() > 0.0))
+        .position(|r| !r.iter().all(|c| c.is_finite()) || unit(r) == Vec3::ZERO)
     {
         return Err(PyValueError::new_err(format!(
             "dirs: row {i} is {:?}; directions must be finite and non-zero",
             rows[i]
         )));
     }
-    Ok(rows.iter().map(|r| Vec3::from(*r)).collect())
+    crate::alloc::try_collect(rows.iter().map(unit), "dirs").py()
 }
 
 fn black_error() -> PyErr {
@@ -284,6 +286,10 @@ impl PyEnvMap {
     ) -> PyResult<Bound<'py, PyAny>> {
         let w = side_arg(width, "width")?;
         let h = side_arg(height, "height")?;
+        // The image and its per-pixel sums (f64 base, excess and solid angle): at most 80
+        // bytes a pixel, checked up front so that a size that cannot be met is a
+        // MemoryError before any work.
+        crate::alloc::check_memory(w.saturating_mul(h).saturating_mul(80), "to_equirect").py()?;
         let img = detach_stoppable(py, || self.inner.to_equirect(w, h))?;
         super::convert::image_array(py, img.into_flattened(), h, w, Some(3))
     }
@@ -350,12 +356,8 @@ impl PyEnvMap {
         py: Python<'py>,
         u: &Bound<'py, PyAny>,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-        let arr = rows2_f64(u, "u")?;
-        let rows = arr
-            .as_slice()
-            .map_err(|e| PyValueError::new_err(e.to_string()))?
-            .as_chunks::<2>()
-            .0;
+        let rows = rows2_f64(u, "u")?;
+        let rows = &rows[..];
         let (mut dirs, mut pdf) = (vec![[0.0f32; 3]; rows.len()], vec![0.0f64; rows.len()]);
         py.detach(|| envmap_rows::sample_rows(&self.inner, rows, &mut dirs, &mut pdf))
             .py()?;

@@ -110,6 +110,7 @@ impl PyProgress {
         let Some(report) = &mut self.report else {
             return true;
         };
+        let _inside = super::cache::InCallback::enter();
         Python::attach(|py| match report(py, done, total) {
             Ok(go_on) => go_on,
             Err(e) => {

@@ -177,6 +177,7 @@ pub fn render<'py>(
     let clamp = clamp_arg(clamp)?;
     let threads = threads_arg(threads)?;
     let scene = scene.get();
+    scene.check_bvh_memory().py()?;
     let cache = cache.map(|c| c.bound(py)).transpose()?;
     let env: Py<PyEnvMap> = envmap.unbind();
     let vpls: Option<Py<PyVpls>> = vpls.map(Bound::unbind);

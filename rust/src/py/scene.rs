@@ -4,14 +4,14 @@ use super::interrupt::detach_stoppable;
 use std::path::PathBuf;
 use std::sync::{Arc, RwLock};
 
-use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
+use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    as_rows, f64_arg, finite_rows, image3_f32, int_arg, rows3_array, rows3_f32, rows3_i64,
+    f32_vector, f64_arg, finite_rows, image3_f32, int_arg, rows3_array, rows3_f32, rows3_i64,
     seed_or_zero, threads_arg, vec3_arg, IntoPyResult,
 };
 use super::gbuffer::PyGBuffer;
@@ -34,12 +34,12 @@ pub struct PyScene {
 }
 
 /// The upper ends of the ray segments: None (unbounded), a number, or one per ray.
-enum TMaxArg<'py> {
+enum TMaxArg {
     Scalar(f32),
-    PerRay(PyReadonlyArray1<'py, f32>),
+    PerRay(Vec<f32>),
 }
 
-fn tmax_arg<'py>(obj: Option<&Bound<'py, PyAny>>, n: usize) -> PyResult<TMaxArg<'py>> {
+fn tmax_arg(obj: Option<&Bound<'_, PyAny>>, n: usize) -> PyResult<TMaxArg> {
     let Some(obj) = obj.filter(|o| !o.is_none()) else {
         return Ok(TMaxArg::Scalar(f32::INFINITY));
     };
@@ -63,10 +63,7 @@ fn tmax_arg<'py>(obj: Option<&Bound<'py, PyAny>>, n: usize) -> PyResult<TMaxArg<
             "tmax: expected a number or shape ({n},), got shape {shape:?}"
         )));
     }
-    Ok(TMaxArg::PerRay(
-        np.call_method1("ascontiguousarray", (arr, "float32"))?
-            .extract()?,
-    ))
+    Ok(TMaxArg::PerRay(f32_vector(&arr, "tmax")?))
 }
 
 impl PyScene {
@@ -122,10 +119,7 @@ impl PyScene {
         let t = tmax_arg(tmax, o.len())?;
         let t = match &t {
             TMaxArg::Scalar(v) => TMax::Scalar(*v),
-            TMaxArg::PerRay(a) => TMax::PerRay(
-                a.as_slice()
-                    .map_err(|e| PyValueError::new_err(e.to_string()))?,
-            ),
+            TMaxArg::PerRay(a) => TMax::PerRay(a),
         };
         let batch = RayBatch {
             origins: o,
@@ -160,13 +154,13 @@ impl PyScene {
     ) -> PyResult<u32> {
         let v = rows3_f32(vertices, "vertices")?;
         let f = rows3_i64(faces, "faces")?;
-        let (v, f) = (v.rows()?, as_rows(&f)?);
+        let v = v.rows()?;
         let material = material.map_or(Material::DEFAULT, |m| m.inner);
         let name = name.unwrap_or_else(|| format!("object{}", self.get().num_objects()));
         // Validate against a scratch mesh first, so a failure leaves the scene untouched and
         // a shared scene is only copied when the mesh is good.
         let mut part = Mesh::new();
-        py.detach(|| part.add_indexed(v, f, material, Some(name)))
+        py.detach(|| part.add_indexed(v, &f, material, Some(name)))
             .py()?;
         Ok(py.detach(|| {
             self.edit(|scene| {
@@ -399,6 +393,7 @@ impl PyScene {
     ) -> PyResult<f64> {
         let q = BuildQuality::parse(quality).py()?;
         let threads = threads_arg(threads)?;
+        self.get().check_bvh_memory().py()?;
         let snapshot = self.get();
         let built_for = snapshot.pose_fingerprint();
         let (sent, received) = std::sync::mpsc::channel();

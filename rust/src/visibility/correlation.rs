@@ -165,7 +165,7 @@ impl VisibilityMaps {
         let pattern = default_pattern(m)?;
         let normals = check_points(points, normals)?;
         let nw = bit_words(m);
-        let mut words = Vec::with_capacity(points.len() * nw);
+        let mut words = crate::alloc::try_with_capacity(points.len().saturating_mul(nw), "points")?;
         for start in (0..points.len()).step_by(TRACE_BLOCK) {
             let end = (start + TRACE_BLOCK).min(points.len());
             let block: Vec<Vec<u64>> = with_threads(threads, || {

@@ -514,6 +514,9 @@ impl LightingPreview {
         })??;
         stop.check("LightingPreview.prepare")?;
         let weights = transfer::level_weights(&residual);
+        // The transfer is the one buffer that grows with the budget: a size that cannot be
+        // allocated is an error before its work, not an abort part-way.
+        crate::alloc::check_memory(basis.bytes_per_pixel().saturating_mul(covered), "budget_mb")?;
         let transfer = with_threads(threads, || {
             Transfer::build(&points, cache, settings, level, basis, Some(weights))
         })??;

@@ -49,7 +49,8 @@ impl<'a> RayBatch<'a> {
         }
     }
 
-    /// Checks lengths, finiteness, non-zero directions and `tmax >= 0` (NaN rejected).
+    /// Checks lengths, finiteness, directions of a representable length (see
+    /// [`MIN_DIRECTION_LENGTH`]) and `tmax >= 0` (NaN rejected).
     /// Costs a few percent of tracing the batch: fixed chunks are scanned in parallel with
     /// a branch-free test and only a failing chunk is searched for its first bad row.
     pub fn validate(&self) -> Result<()> {
@@ -118,7 +119,8 @@ impl<'a> RayBatch<'a> {
             (BadArgument::Directions, _) => Error::invalid(
                 "directions",
                 format!(
-                    "row {i} must be finite and non-zero, got {:?}",
+                    "row {i} must be finite with a length in [{MIN_DIRECTION_LENGTH:e}, \
+                     {MAX_DIRECTION_LENGTH:e}] (t is measured in units of it), got {:?}",
                     self.directions[i]
                 ),
             ),
@@ -131,6 +133,13 @@ impl<'a> RayBatch<'a> {
         }
     }
 }
+
+/// The shortest direction a ray may have: its squared length must be a normal `f32`
+/// (see `bad_direction`).
+pub const MIN_DIRECTION_LENGTH: f32 = 1.0842022e-19;
+
+/// The longest direction a ray may have: its squared length must be finite.
+pub const MAX_DIRECTION_LENGTH: f32 = 1.8446743e19;
 
 /// The argument of a [`RayBatch`] that holds a bad row, in the order errors are reported.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
@@ -146,10 +155,16 @@ fn bad_origin(r: &[f32; 3]) -> bool {
     !(r[0].is_finite() & r[1].is_finite() & r[2].is_finite())
 }
 
-/// A direction with a non-finite coordinate or of zero length (branch-free).
+/// A direction whose squared length is not a normal `f32` (branch-free): a non-finite
+/// coordinate, zero, or a length outside about [1.1e-19, 1.8e19]. `t` is measured in
+/// units of the direction's length, so a subnormal direction such as `(0, 0, -1e-40)`
+/// would put every hit beyond `f32`'s range (it reported a hit at `t = inf`), and the
+/// tracer's normalisations and coherence tests square it. Rays are not renormalised:
+/// that would change what `t` means for every caller.
 #[inline(always)]
 fn bad_direction(r: &[f32; 3]) -> bool {
-    bad_origin(r) | ((r[0] == 0.0) & (r[1] == 0.0) & (r[2] == 0.0))
+    let l2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+    !(f32::MIN_POSITIVE..=f32::MAX).contains(&l2)
 }
 
 /// A segment end that is NaN or negative.

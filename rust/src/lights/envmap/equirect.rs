@@ -215,15 +215,23 @@ impl EnvMap {
         }
         let cap = mean / (4.0 * pi) * 16.0;
         stop.check(WHAT)?;
-        let base: Vec<DVec3> = rgb
-            .iter()
-            .map(|p| Vec3::from(*p).as_dvec3().min(cap))
-            .collect();
-        let excess: Vec<DVec3> = rgb
-            .iter()
-            .zip(&base)
-            .map(|(p, b)| Vec3::from(*p).as_dvec3() - *b)
-            .collect();
+        // The texels' buffers (the gathered pairs, the texels, the map's weights and
+        // distribution: under 96 bytes a texel) are checked with the image's, so that a
+        // size that cannot be met fails here rather than part-way.
+        crate::alloc::check_memory(
+            (res as usize * res as usize).saturating_mul(96),
+            "resolution",
+        )?;
+        let base: Vec<DVec3> = crate::alloc::try_collect(
+            rgb.iter().map(|p| Vec3::from(*p).as_dvec3().min(cap)),
+            "rgb",
+        )?;
+        let excess: Vec<DVec3> = crate::alloc::try_collect(
+            rgb.iter()
+                .zip(&base)
+                .map(|(p, b)| Vec3::from(*p).as_dvec3() - *b),
+            "rgb",
+        )?;
         let source_excess: DVec3 = (0..height)
             .map(|j| excess[j * width..(j + 1) * width].iter().sum::<DVec3>() * row_omega(j))
             .sum();
