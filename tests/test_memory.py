@@ -87,6 +87,19 @@ CASES = {
         limit()
         expect_memory_error(s.build, "scene")
     """,
+    "add_mesh": """
+        s = vc.Scene()
+        # 36 bytes of triangle and 4 of object id per face, beyond the headroom.
+        faces = np.zeros((40_000_000, 3), "i8")
+        limit()
+        verts = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+        try:
+            s.add_mesh(verts, faces)
+        except MemoryError:
+            # Nothing half-added.
+            assert s.num_triangles == 0, s.num_triangles
+        expect_memory_error(lambda: s.add_mesh(verts, faces), "faces")
+    """,
     "render_unbuilt": """
         s = vc.Scene()
         n = 4_000_000

@@ -151,6 +151,15 @@ impl Mesh {
                 format!("face {i} = {f:?} indexes outside the {n} vertices"),
             ));
         }
+        // The mesh grows by the faces' triangles and object ids: reserved first, so that a
+        // size that cannot be met is an error (MemoryError), not an abort part-way.
+        let oom = |bytes| crate::alloc::out_of_memory("faces", bytes);
+        self.triangles
+            .try_reserve(faces.len())
+            .map_err(|_| oom(crate::alloc::bytes_of::<[Vec3; 3]>(faces.len())))?;
+        self.object_ids
+            .try_reserve(faces.len())
+            .map_err(|_| oom(crate::alloc::bytes_of::<u32>(faces.len())))?;
         let tris = faces
             .iter()
             .map(|f| f.map(|k| Vec3::from(vertices[k as usize])));
