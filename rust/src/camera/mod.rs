@@ -62,12 +62,22 @@ fn check_resolution(width: u32, height: u32) -> Result<()> {
     Ok(())
 }
 
-/// The camera's orthonormal frame `(forward, right, up)` for `look_at`, computed in f64:
-/// in f32 the length of `target - eye` overflows for an eye at 1e20 and underflows for
+/// The camera's orthonormal frame `(forward, right, up)` for `look_at`; where f32 cannot
+/// form it, computed in f64: in f32 the length of `target - eye` overflows for an eye at 1e20 and underflows for
 /// points 1e-29 apart, and a subnormal `up` has no length, though each is a valid camera.
 /// Normalising first and judging after leaves only cameras that truly cannot be formed, and
 /// their messages say why.
 fn frame(eye: Vec3, target: Vec3, up: Vec3) -> Result<(Vec3, Vec3, Vec3)> {
+    // Where the f32 frame is well defined it is the camera's, as it always was: every
+    // image and cache of an ordinary camera stays bit for bit what it was.
+    let forward = (target - eye).normalize_or_zero();
+    let right = forward.cross(up).normalize_or_zero();
+    if forward != Vec3::ZERO
+        && right != Vec3::ZERO
+        && forward.cross(up.normalize_or_zero()).length() >= 1e-6
+    {
+        return Ok((forward, right, right.cross(forward)));
+    }
     let (e, t, u) = (eye.as_dvec3(), target.as_dvec3(), up.as_dvec3());
     let forward = (t - e).normalize_or_zero();
     if forward == DVec3::ZERO {
