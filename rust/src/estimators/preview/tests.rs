@@ -295,7 +295,7 @@ fn truncated_bases_and_auto() {
 /// error among equally cheap ones, and a much better basis however dear.
 #[test]
 fn auto_keeps_the_cheapest_basis_within_the_slack() {
-    use super::cheapest_within_slack as pick;
+    use super::choose::cheapest_within_slack as pick;
     let (haar, sh, texels) = (
         Basis::Haar { terms: 152 },
         Basis::Sh { order: 8 },
