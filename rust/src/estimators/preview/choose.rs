@@ -1,7 +1,8 @@
 //! How [`super::LightingPreview::prepare`] chooses what to keep: the bases that fit the
 //! budget ([`candidates`]), measured against the untruncated transfer on a sample of
 //! pixels ([`measure`]), and the form of `Ṽ` measured against records traced at a sample
-//! of pixels ([`measure_visibility`]).
+//! of pixels ([`measure_visibility`]). Both poll the current [`Stop`]: per pixel (a
+//! record traced at a fine level is a quarter of a million rays) and per candidate.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -11,9 +12,10 @@ use super::{bright, BasisChoice, AUTO_SAMPLE, AUTO_SLACK, VISIBILITY_SAMPLE};
 use crate::error::Result;
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
+use crate::stop::Stop;
 use crate::visibility::cache::VisibilityCache;
 
-/// The bases [`LightingPreview::prepare`] may keep for `choice` at full level `level`,
+/// The bases [`super::LightingPreview::prepare`] may keep for `choice` at full level `level`,
 /// with `whole` bytes a pixel for the whole transfer and `truncated` for a truncated one
 /// (which keeps the pixel's records too); finest first, empty when none fits.
 pub(super) fn candidates(
@@ -59,7 +61,8 @@ pub(super) fn probe_map() -> Result<EnvMap> {
 
 /// [`BasisChoice::Auto`]'s measurement: the error of each candidate on up to
 /// [`AUTO_SAMPLE`] pixels spread over the view, against the untruncated transfer under
-/// `env`; returns the one to keep ([`cheapest_within_slack`]) and every figure.
+/// `env`; returns the one to keep ([`cheapest_within_slack`]) and every figure. Stops with
+/// [`crate::Error::Interrupted`] once the current [`Stop`] is set.
 pub(super) fn measure(
     points: &[Option<TransferPoint>],
     cache: &VisibilityCache,
@@ -69,6 +72,7 @@ pub(super) fn measure(
     env: &EnvMap,
     (cells, bright, masks): (&[[f64; 3]], &bright::BrightCells, &[u8]),
 ) -> Result<(Basis, Vec<(Basis, f64)>)> {
+    let stop = Stop::current();
     let sample = spread(points, AUTO_SAMPLE);
     let full = Transfer::build(
         &sample,
@@ -84,10 +88,11 @@ pub(super) fn measure(
         .collect();
     let power: [f64; 3] =
         std::array::from_fn(|c| reference.iter().map(|j| j[c] * j[c]).sum::<f64>());
-    let records = bright::PixelRecords::gather(&sample, &cache.read(), cache.params());
+    let records = bright::PixelRecords::gather(&sample, &cache.read(), cache.params())?;
     let weights = transfer::level_weights(cells);
     let mut measured = Vec::new();
     for &basis in candidates {
+        stop.check(WHAT)?;
         let t = Transfer::build(
             &sample,
             cache,
@@ -137,6 +142,9 @@ pub(super) fn cheapest_within_slack(measured: &[(Basis, f64)]) -> Basis {
         .expect("at least one candidate")
 }
 
+/// What a stopped measurement names.
+const WHAT: &str = "LightingPreview.prepare";
+
 /// The level of the records [`measure_visibility`] traces for a transfer of `level`:
 /// twice the resolution (four rays a cell: a record of the cache's own resolution would
 /// make a record at the pixel look exact when one ray a cell is itself a noisy estimate).
@@ -144,13 +152,15 @@ pub(super) fn sample_level(level: u32) -> u32 {
     (level + 1).min(crate::sampling::pattern::MAX_LOG2_RESOLUTION)
 }
 
-/// [`TransferRequest::choose_visibility`]'s measurement: at up to [`VISIBILITY_SAMPLE`]
+/// [`super::TransferRequest::choose_visibility`]'s measurement: at up to [`VISIBILITY_SAMPLE`]
 /// pixels with records, the whole transfer's `J` under `env` with the cache's blend of
 /// records and with the heaviest record alone, against `J` with a record traced now at the
 /// pixel ([`sample_level`]); returns both errors in the relMSE of the images
 /// (`Σ (Δ c J)² / ((c J)² + 0.01)` over pixels and channels, `c` the channel ratio). The
 /// bright cells enter every `J` exactly (a shadow ray each): where the records disagree on
-/// them each lighting traces rays ([`edges`]), so this measurement decides the rest.
+/// them each lighting traces rays ([`super::edges`]), so this measurement decides the rest.
+/// Stops with [`crate::Error::Interrupted`] within a pixel of the current [`Stop`] being
+/// set.
 pub(super) fn measure_visibility(
     scene: &Scene,
     points: &[Option<TransferPoint>],
@@ -173,9 +183,13 @@ pub(super) fn measure_visibility(
         nearest: true,
         ..*settings
     };
+    let stop = Stop::current();
     let per_point: Vec<Result<Option<[f64; 2]>>> = pixels
         .par_iter()
         .map(|&i| {
+            if stop.is_set() {
+                return Ok(None);
+            }
             let p = points[i].as_ref().expect("spread picks covered pixels");
             let (record, _) = crate::visibility::record::Record::trace_with(
                 scene, p.position, p.normal, pattern, frame, false,
@@ -218,6 +232,7 @@ pub(super) fn measure_visibility(
             Ok(Some([err(j_blend), err(j_nearest)]))
         })
         .collect();
+    stop.check(WHAT)?;
     let mut errors = Vec::new();
     for r in per_point {
         if let Some(e) = r? {

@@ -195,6 +195,10 @@ pub struct TransferRequest {
     pub edge_rays: f64,
 }
 
+/// Pixels a task of the view's per-pixel loops takes between polls of the current
+/// [`Stop`] (each pixel is tens of nanoseconds there).
+const POINT_CHUNK: usize = 4096;
+
 /// Pixels [`TransferRequest::choose_visibility`] traces a record at.
 pub const VISIBILITY_SAMPLE: usize = 1024;
 
@@ -287,11 +291,20 @@ impl LightingPreview {
 
     /// The preview of `gbuffer`'s hits (which must describe `scene` as posed now): with the
     /// buffer a cache was built from, exactly the points its records were placed for.
+    /// Stops with [`crate::Error::Interrupted`] within a chunk of pixels of the current
+    /// [`Stop`] being set (16M pixels take seconds on one core).
     pub fn from_gbuffer(scene: &Scene, g: &GBuffer) -> Result<Self> {
         g.check(scene, None)?;
         let objects = &scene.mesh().objects;
+        let stop = Stop::current();
         let points = (0..g.object.len())
+            .into_par_iter()
+            .with_min_len(POINT_CHUNK)
             .map(|i| {
+                let dir = Vec3::from(g.direction[i]);
+                if stop.is_set() {
+                    return Err(dir);
+                }
                 let dir = Vec3::from(g.direction[i]);
                 if g.object[i] < 0 {
                     return Err(dir);
@@ -317,6 +330,7 @@ impl LightingPreview {
                 })
             })
             .collect();
+        stop.check("LightingPreview")?;
         Ok(Self {
             width: g.width(),
             height: g.height(),
@@ -390,12 +404,19 @@ impl LightingPreview {
 }
 
 impl LightingPreview {
-    /// The transfer inputs of every pixel (`None` where the ray escaped).
-    fn transfer_points(&self, cache: &VisibilityCache) -> Vec<Option<TransferPoint>> {
+    /// The transfer inputs of every pixel (`None` where the ray escaped). Stops with
+    /// [`crate::Error::Interrupted`] once the current [`Stop`] is set.
+    fn transfer_points(&self, cache: &VisibilityCache) -> Result<Vec<Option<TransferPoint>>> {
         let scale = cache.params().d_max_scale;
-        self.points
-            .iter()
+        let stop = Stop::current();
+        let points = self
+            .points
+            .par_iter()
+            .with_min_len(POINT_CHUNK)
             .map(|p| {
+                if stop.is_set() {
+                    return None;
+                }
                 p.as_ref().ok().map(|p| TransferPoint {
                     position: p.position,
                     normal: p.normal,
@@ -404,7 +425,34 @@ impl LightingPreview {
                     material: p.material,
                 })
             })
-            .collect()
+            .collect();
+        stop.check("LightingPreview")?;
+        Ok(points)
+    }
+
+    /// The full level of a transfer of this view's materials ([`Transfer::full_level`]),
+    /// polling the current [`Stop`] between chunks of pixels.
+    fn full_level(&self, cache: &VisibilityCache, settings: &TransferSettings) -> Result<u32> {
+        let stop = Stop::current();
+        let materials: Vec<Material> = self
+            .points
+            .par_chunks(POINT_CHUNK)
+            .map(|chunk| {
+                let mut distinct: Vec<Material> = Vec::new();
+                if stop.is_set() {
+                    return distinct;
+                }
+                for p in chunk.iter().flatten() {
+                    if distinct.last() != Some(&p.material) && !distinct.contains(&p.material) {
+                        distinct.push(p.material);
+                    }
+                }
+                distinct
+            })
+            .flatten_iter()
+            .collect();
+        stop.check("LightingPreview")?;
+        Transfer::full_level(cache, materials.iter(), settings)
     }
 
     /// Builds and keeps the transfer of `cache`'s records for this view as `request` asks
@@ -433,16 +481,16 @@ impl LightingPreview {
             ));
         }
         cache.bind_fingerprint(self.scene)?;
+        // Every phase polls the current stop: the pixel loops per chunk, the measurements
+        // per pixel, the build per pixel; between phases too.
+        const WHAT: &str = "LightingPreview.prepare";
         let start = Instant::now();
         let stop = Stop::current();
         let version = cache.version();
-        let points = self.transfer_points(cache);
-        let covered = points.iter().filter(|p| p.is_some()).count().max(1);
-        let level = Transfer::full_level(
-            cache,
-            points.iter().flatten().map(|p| &p.material),
-            &request.settings,
-        )?;
+        let points = self.transfer_points(cache)?;
+        let covered = points.par_iter().filter(|p| p.is_some()).count().max(1);
+        let level = self.full_level(cache, &request.settings)?;
+        stop.check(WHAT)?;
         // A truncated basis also keeps each pixel's records and the records' columns
         // (for the bright cells).
         let records_bytes = bright::PixelRecords::bytes_per_pixel(cache.params());
@@ -481,6 +529,7 @@ impl LightingPreview {
         }
         let columns = (candidates != [Basis::Texels { level }])
             .then(|| with_threads(threads, || bright::RecordColumns::of(&cache.read())))
+            .transpose()?
             .transpose()?;
         let probe;
         let env = match env {
@@ -492,8 +541,8 @@ impl LightingPreview {
         };
         // The map as truncated bases see it: without its bright cells, which the pixels
         // add exactly.
-        stop.check("LightingPreview.prepare")?;
-        let (residual, bright) = split_light(env, level, None, true)?;
+        stop.check(WHAT)?;
+        let (residual, bright) = with_threads(threads, || split_light(env, level, None, true))??;
         let split = (&residual[..], &bright);
         let mut settings = request.settings;
         let mut visibility_measured = None;
@@ -504,7 +553,7 @@ impl LightingPreview {
             settings.nearest = errors.prefers_nearest();
             visibility_measured = Some(errors);
         }
-        stop.check("LightingPreview.prepare")?;
+        stop.check(WHAT)?;
         let (basis, measured) = with_threads(threads, || {
             if candidates.len() == 1 {
                 Ok((candidates[0], Vec::new()))
@@ -515,7 +564,7 @@ impl LightingPreview {
                 measure(&points, cache, &settings, level, &candidates, env, light)
             }
         })??;
-        stop.check("LightingPreview.prepare")?;
+        stop.check(WHAT)?;
         let weights = transfer::level_weights(&residual);
         // The transfer is the one buffer that grows with the budget: a size that cannot be
         // allocated is an error before its work, not an abort part-way.
@@ -524,7 +573,13 @@ impl LightingPreview {
             Transfer::build(&points, cache, settings, level, basis, Some(weights))
         })??;
         let records = (!transfer.is_whole())
-            .then(|| bright::PixelRecords::gather(&points, &cache.read(), cache.params()));
+            .then(|| {
+                with_threads(threads, || {
+                    bright::PixelRecords::gather(&points, &cache.read(), cache.params())
+                })
+            })
+            .transpose()?
+            .transpose()?;
         let columns = columns.filter(|_| !transfer.is_whole());
         let mut prepared = Prepared {
             cache: version,
@@ -713,13 +768,9 @@ impl LightingPreview {
         let mut slot = lock(&self.transfer).take();
         if let (Some(prepared), Some(cache)) = (slot.as_mut(), cache) {
             let still_valid = prepared.cache == cache.version()
-                && Transfer::full_level(
-                    cache,
-                    self.points.iter().flatten().map(|p| &p.material),
-                    &prepared.settings,
-                )? == prepared.transfer.level();
+                && self.full_level(cache, &prepared.settings)? == prepared.transfer.level();
             if still_valid {
-                let points = self.transfer_points(cache);
+                let points = self.transfer_points(cache)?;
                 let p = Arc::make_mut(prepared);
                 let settings = p.settings;
                 // Stopped part-way, the transfer is dropped (`slot` is not put back): the
