@@ -247,36 +247,43 @@ impl EnvMap {
         let pixel = (pi / h).min(std::f64::consts::TAU / w);
         let sub = ((2.0 * texel_angle(res) / pixel).ceil() as usize).clamp(4, 64);
         let has_excess = source_excess.max_element() > 0.0;
-        stop.check(WHAT)?;
-        let gathered: Vec<(DVec3, DVec3)> = (0..res * res)
-            .into_par_iter()
-            .map(|t| {
-                // A texel is at least 16 points of 4 taps: the poll costs nothing beside it.
-                if stop.is_set() {
-                    return (DVec3::ZERO, DVec3::ZERO);
-                }
-                let (x, y) = ((t % res) as f64, (t / res) as f64);
-                let (mut b, mut e) = (DVec3::ZERO, DVec3::ZERO);
-                for i in 0..sub {
-                    for k in 0..sub {
-                        let p = DVec2::new(
-                            (x + (k as f64 + 0.5) / sub as f64) / res as f64,
-                            (y + (i as f64 + 0.5) / sub as f64) / res as f64,
-                        );
-                        let st = dir_to_latlong(square_to_sphere(p.as_vec2()).as_dvec3());
-                        let (taps, weights) = bilinear_taps(st, width, height);
-                        for (&tap, &wt) in taps.iter().zip(&weights) {
-                            b += base[tap] * wt;
-                            if has_excess {
-                                e += excess[tap] * wt;
+        // Filled block by block, so that a stop leaves the later blocks untouched: writing
+        // the rest of 16M texels (768 MB) after one took 0.5 s.
+        const BLOCK: u32 = 1 << 18;
+        let mut gathered: Vec<(DVec3, DVec3)> = Vec::with_capacity((res * res) as usize);
+        for start in (0..res * res).step_by(BLOCK as usize) {
+            stop.check(WHAT)?;
+            gathered.par_extend(
+                (start..(start + BLOCK).min(res * res))
+                    .into_par_iter()
+                    .map(|t| {
+                        // A texel is at least 16 points of 4 taps: a poll costs nothing beside.
+                        if stop.is_set() {
+                            return (DVec3::ZERO, DVec3::ZERO);
+                        }
+                        let (x, y) = ((t % res) as f64, (t / res) as f64);
+                        let (mut b, mut e) = (DVec3::ZERO, DVec3::ZERO);
+                        for i in 0..sub {
+                            for k in 0..sub {
+                                let p = DVec2::new(
+                                    (x + (k as f64 + 0.5) / sub as f64) / res as f64,
+                                    (y + (i as f64 + 0.5) / sub as f64) / res as f64,
+                                );
+                                let st = dir_to_latlong(square_to_sphere(p.as_vec2()).as_dvec3());
+                                let (taps, weights) = bilinear_taps(st, width, height);
+                                for (&tap, &wt) in taps.iter().zip(&weights) {
+                                    b += base[tap] * wt;
+                                    if has_excess {
+                                        e += excess[tap] * wt;
+                                    }
+                                }
                             }
                         }
-                    }
-                }
-                let n = (sub * sub) as f64;
-                (b / n, e / n)
-            })
-            .collect();
+                        let n = (sub * sub) as f64;
+                        (b / n, e / n)
+                    }),
+            );
+        }
         stop.check(WHAT)?;
         // The excess keeps the source's power exactly (a sun of a pixel or less would
         // otherwise gain or lose what the interpolant's samples happen to see of it).
