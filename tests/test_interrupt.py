@@ -5,8 +5,10 @@ generous so that a loaded machine cannot fail it by chance), the call did not fi
 the objects it used still work. Time budgets: each method ends within 10% of its budget
 plus a small constant, and its stats say how long it took.
 
-Sizes are chosen so that each call runs for seconds when not interrupted: the signal lands
-inside it, and the test asserts that it did."""
+Sizes are chosen so that each call runs for a second or more when not interrupted: the
+signal lands inside it, and the test asserts that it did. Interrupted calls return at
+once, so the file takes a few seconds; nothing left running in the background (a BVH
+build the builders cannot stop) outlives its test by more than a second of one core."""
 
 from __future__ import annotations
 
@@ -66,10 +68,10 @@ def garage():
     return vc.scenes.load("garage")
 
 
-@pytest.mark.parametrize("at", [0.05, 0.3, 1.0])
+@pytest.mark.parametrize("at", [0.05, 0.4, 1.0])
 def test_cache_build_stops_in_every_phase(garage, at):
-    # The G-buffer of 4M pixels, the coherence check and bootstrap, then the waves.
-    cam = garage.camera.with_resolution(2400, 1800)
+    # The G-buffer, the coherence check and bootstrap (0.3 s), then the waves: 2.3 s.
+    cam = garage.camera.with_resolution(640, 480)
     cache = vc.VisibilityCache(garage.scene, preset="medium", resolution=64)
     interrupt(lambda: cache.build(cam, progress=False), at)
     small = garage.camera.with_resolution(16, 12)
@@ -79,20 +81,26 @@ def test_cache_build_stops_in_every_phase(garage, at):
     assert np.isfinite(r.image).all()
 
 
-@pytest.mark.parametrize("at", [0.1, 0.5])
-def test_gbuffer_and_intersect_stop(garage, at):
+@pytest.fixture(scope="module")
+def rays(garage):
+    """4M rays from the garage's eye (0.9 s of intersect on 2 cores)."""
+    n = 4_000_000
+    o = np.broadcast_to(np.asarray(garage.camera.eye, np.float32), (n, 3))
+    d = np.random.default_rng(0).random((n, 3), dtype=np.float32) - 0.5
+    return np.ascontiguousarray(o), d
+
+
+@pytest.mark.parametrize("at", [0.1, 0.3])
+def test_gbuffer_and_intersect_stop(garage, rays, at):
     cam = garage.camera.with_resolution(3072, 3072)
     interrupt(lambda: garage.scene.gbuffer(cam), at)
-    rng = np.random.default_rng(0)
-    n = 6_000_000
-    o = np.tile(np.asarray(garage.camera.eye, np.float32), (n, 1))
-    d = rng.normal(size=(n, 3)).astype(np.float32)
+    o, d = rays
     interrupt(lambda: garage.scene.intersect(o, d), at)
     hits = garage.scene.intersect(o[:100], d[:100])
     assert hits["t"].shape == (100,)
 
 
-@pytest.mark.parametrize("at", [0.1, 0.6])
+@pytest.mark.parametrize("at", [0.1, 0.4])
 def test_vpl_trace_stops(garage, at):
     interrupt(lambda: vc.VPLs.trace(garage, 1_000_000, depth=8), at)
     assert len(vc.VPLs.trace(garage, 64)) > 0
@@ -101,22 +109,32 @@ def test_vpl_trace_stops(garage, at):
 @pytest.mark.parametrize("method", ["path", "vpl"])
 def test_renders_stop(garage, method):
     cam = garage.camera.with_resolution(320, 240)
-    interrupt(lambda: vc.render(garage, cam, spp=10_000, method=method, progress=False), 0.4)
+    interrupt(lambda: vc.render(garage, cam, spp=10_000, method=method, progress=False), 0.25)
     r = vc.render(garage, cam.with_resolution(8, 6), spp=1, method=method, progress=False)
     assert r.image.shape == (6, 8, 3)
 
 
 def test_envmap_from_equirect_stops():
-    rgb = np.ones((2048, 4096, 3), np.float32)
+    # 24 s when not interrupted (16M texels of 64 points each).
+    rgb = np.ones((1024, 2048, 3), np.float32)
     interrupt(lambda: vc.EnvMap.from_equirect(rgb, resolution=4096), 0.3)
     assert vc.EnvMap.from_equirect(rgb[:64, :128], resolution=16).resolution == 16
 
 
+def test_envmap_to_equirect_stops():
+    # Pixels far smaller than texels (the gathered path): 2.4 s when not interrupted.
+    env = vc.EnvMap.constant(1.0, resolution=256)
+    interrupt(lambda: env.to_equirect(8192, 4096), 0.2)
+    assert env.to_equirect(64, 32).shape == (32, 64, 3)
+
+
 def test_slow_bvh_build_returns_at_once_and_keeps_the_scene():
-    setup = vc.scenes.load("hairball", detail=4)
+    # 375k triangles: the "slow" builder takes 0.9 s on one thread, and runs on to its end
+    # in the background once interrupted (it cannot stop part-way).
+    setup = vc.scenes.load("hairball", detail=0.25)
     scene = setup.scene
     before = scene.bvh_stats()["quality"]
-    interrupt(lambda: scene.build(quality="slow"), 0.3)
+    interrupt(lambda: scene.build(quality="slow", threads=1), 0.2)
     assert scene.bvh_stats()["quality"] == before
     r = vc.render(setup, setup.camera.with_resolution(8, 6), spp=1, method="product",
                   progress=False)
@@ -132,27 +150,38 @@ def preview_setup(garage):
 
 def test_preview_calls_stop(garage, preview_setup):
     cache = preview_setup
-    interrupt(lambda: vc.LightingPreview(garage.scene, garage.camera.with_resolution(2048,
-                                                                                     2048)), 0.1)
+    cam = garage.camera.with_resolution(2048, 1536)
+    # Tracing the G-buffer, then (from a traced one) the step after it: 0.2 s at 3M pixels.
+    interrupt(lambda: vc.LightingPreview(garage.scene, cam), 0.1)
+    g = garage.scene.gbuffer(cam)
+    interrupt(lambda: vc.LightingPreview(garage.scene, gbuffer=g), 0.03)
     view = vc.LightingPreview(garage.scene, garage.camera.with_resolution(640, 480))
     interrupt(lambda: view.render(cache, garage.envmap, direct=True), 0.2)
-    small_view = vc.LightingPreview(garage.scene, garage.camera.with_resolution(320, 240))
-    # While the transfer is built. Its first phases (choosing the level and basis) do not
-    # poll yet: SIGINT 0.2 s in took 2-4 s on a loaded machine.
-    interrupt(lambda: small_view.prepare(cache, product_level=6), 1.5)
+
+
+@pytest.mark.parametrize("at", [0.02, 0.1, 0.3])
+def test_prepare_stops_in_every_phase(garage, preview_setup, at):
+    """Early in the call: its first phases (the points, the level, the map's cells, the
+    measurements that choose the form of visibility and the basis) come before the
+    transfer's build, 1.5 s in all; they polled nothing, and SIGINT 0.02 s in took 0.46 s."""
+    cache = preview_setup
+    view = vc.LightingPreview(garage.scene, garage.camera.with_resolution(320, 240))
+    interrupt(lambda: view.prepare(cache, product_level=6), at)
+    assert view.transfer_info is None
     small = vc.LightingPreview(garage.scene, garage.camera.with_resolution(16, 12))
     small.prepare(cache, basis="full")
     assert np.isfinite(small.render(cache, garage.envmap)).all()
 
 
-def test_validate_and_converge_visibility_stop(garage):
-    cache = vc.VisibilityCache(garage.scene, preset="medium", resolution=64)
-    cache.build(garage.camera.with_resolution(320, 240), progress=False)
-    interrupt(lambda: cache.validate(rays_per_record=4096), 0.3)
+def test_validate_and_converge_visibility_stop(garage, preview_setup):
+    cache = preview_setup
+    # About 1,100 records: 1.6 s of rays.
+    interrupt(lambda: cache.validate(rays_per_record=16384), 0.3)
     assert cache.validate(rays_per_record=1)["rays"] > 0
-    rl = vc.Relighter(garage, garage.camera.with_resolution(640, 480))
+    rl = vc.Relighter(garage, garage.camera.with_resolution(320, 240))
+    # 64 samples take 2.2 s.
     interrupt(lambda: rl.converge_visibility(spp=4096, progress=False), 0.3)
-    rl.converge_visibility(spp=4, progress=False)
+    assert rl.converge_visibility(spp=1, progress=False)["spp"] == 1
 
 
 FIRST_ARRAY = textwrap.dedent(
@@ -177,4 +206,4 @@ def test_sigint_during_the_first_array_gives_keyboard_interrupt():
     out = subprocess.run([sys.executable, "-c", FIRST_ARRAY], capture_output=True, text=True,
                          timeout=120)
     assert "PanicException" not in out.stderr, out.stderr
-    assert out.stdout.strip() in ("interrupted", "finished"), out.stderr
+    assert out.stdout.strip() == "interrupted", out.stderr

@@ -77,20 +77,32 @@ pub fn with_threads<R: Send>(threads: Option<usize>, f: impl FnOnce() -> R + Sen
 /// cache the cores share (strands' bundles 1.06-1.12x, garden 1.06-1.09x, blob 1.03-1.04x
 /// on 2 threads). Each result depends only on its item, so results never depend on the
 /// thread count.
-pub fn map_in_order<T: Sync, R: Send + Sync>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+///
+/// No item is taken once the calling thread's current [`Stop`] is set: the call then
+/// returns [`Error::Interrupted`] when the items under way are done (an item that runs
+/// long polls the stop itself, as ray runs do).
+pub fn map_in_order<T: Sync, R: Send + Sync>(
+    items: &[T],
+    f: impl Fn(&T) -> R + Sync,
+) -> Result<Vec<R>> {
     use std::sync::atomic::{AtomicUsize, Ordering};
     let next = AtomicUsize::new(0);
+    let stop = Stop::current();
     let slots: Vec<std::sync::OnceLock<R>> = items.iter().map(|_| Default::default()).collect();
     rayon::broadcast(|_| loop {
+        if stop.is_set() {
+            break;
+        }
         let i = next.fetch_add(1, Ordering::Relaxed);
         let Some(item) = items.get(i) else { break };
         // Each index is taken once, so each slot is set once.
         let _ = slots[i].set(f(item));
     });
-    slots
+    stop.check("work in order")?;
+    Ok(slots
         .into_iter()
         .map(|s| s.into_inner().expect("every item is taken"))
-        .collect()
+        .collect())
 }
 
 /// Runs `work` on a scoped thread while the calling thread calls `poll` every `interval`
@@ -164,12 +176,50 @@ mod tests {
                     i * i + 1
                 })
             })
+            .unwrap()
             .unwrap();
             assert_eq!(got, want, "{threads} threads");
             assert_eq!(workers.lock().unwrap().len(), threads, "{threads} threads");
-            let none: Vec<u64> =
-                with_threads(Some(threads), || map_in_order(&[], |i: &u64| *i)).unwrap();
+            let none: Vec<u64> = with_threads(Some(threads), || map_in_order(&[], |i: &u64| *i))
+                .unwrap()
+                .unwrap();
             assert!(none.is_empty());
+        }
+    }
+
+    /// Once the current stop is set no further item is taken and the call says so. Item
+    /// 100 sets the stop and later items wait for it (up to ten seconds, so that a
+    /// regression fails rather than hangs): each worker then finishes at most the one item
+    /// it holds.
+    #[test]
+    fn map_in_order_stops_taking_items() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        use std::time::{Duration, Instant};
+        let items: Vec<usize> = (0..10_000).collect();
+        for threads in [1, 2, 3] {
+            let stop = Stop::new();
+            let ran = AtomicUsize::new(0);
+            let out = stop.scope(|| {
+                with_threads(Some(threads), || {
+                    map_in_order(&items, |&i| {
+                        ran.fetch_add(1, Ordering::Relaxed);
+                        if i == 100 {
+                            stop.set();
+                        }
+                        let t = Instant::now();
+                        while i > 100 && !stop.is_set() && t.elapsed() < Duration::from_secs(10) {
+                            std::thread::yield_now();
+                        }
+                    })
+                })
+            });
+            let e = out.unwrap().unwrap_err();
+            assert!(matches!(e, Error::Interrupted { .. }), "{e}");
+            let ran = ran.into_inner();
+            assert!(
+                (101..=100 + threads).contains(&ran),
+                "{threads} threads: {ran} ran"
+            );
         }
     }
 

@@ -290,7 +290,7 @@ impl PyEnvMap {
         // bytes a pixel, checked up front so that a size that cannot be met is a
         // MemoryError before any work.
         crate::alloc::check_memory(w.saturating_mul(h).saturating_mul(80), "to_equirect").py()?;
-        let img = detach_stoppable(py, || self.inner.to_equirect(w, h))?;
+        let img = detach_stoppable(py, || self.inner.to_equirect(w, h))?.py()?;
         super::convert::image_array(py, img.into_flattened(), h, w, Some(3))
     }
 

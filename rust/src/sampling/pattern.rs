@@ -42,6 +42,7 @@ use crate::sampling::octahedral::{
     morton_decode, morton_encode, square_to_sphere, texel_of, wrap_texel,
 };
 use crate::sampling::rng::{hash4, to_unit_f32};
+use crate::stop::Stop;
 
 /// Smallest record resolution exponent `M` (a 2 x 2 grid).
 pub const MIN_LOG2_RESOLUTION: u32 = 1;
@@ -118,7 +119,10 @@ fn relaxed_square(m: u32, seed: u64, iterations: u32) -> Result<Vec<Vec2>> {
         let neighbours: Vec<[u32; 9]> = (0..n).map(|i| neighbour_texels(i as u32, res)).collect();
         let per = (k * k) as usize;
         let mut owner = vec![0u32; fine.len()];
+        // An iteration at 128² is tens of milliseconds: a first use polls between them.
+        let stop = Stop::current();
         for _ in 0..iterations {
+            stop.check("relaxing the records' direction pattern")?;
             let dirs: Vec<Vec3> = square.iter().map(|&p| square_to_sphere(p)).collect();
             // 1. Nearest generator of every fine point.
             owner
@@ -172,7 +176,8 @@ fn relaxed_square(m: u32, seed: u64, iterations: u32) -> Result<Vec<Vec2>> {
 
 /// The default pattern for resolution exponent `m` ([`DEFAULT_PATTERN_SEED`],
 /// [`DEFAULT_LLOYD_ITERATIONS`]), made once per `m` and shared. Fails for `m` outside
-/// `1..=7`.
+/// `1..=7`, and with [`Error::Interrupted`] when the current [`Stop`] is set while a
+/// pattern that is not baked is relaxed on its first use (then the next use relaxes it).
 ///
 /// The resolutions the presets and the coherence check use ([`BAKED_LOG2_RESOLUTIONS`])
 /// are read from points relaxed ahead of time (`default_patterns.bin`): the relaxation of
@@ -184,14 +189,18 @@ pub fn default_pattern(m: u32) -> Result<&'static [Vec3]> {
     check_log2_resolution(m)?;
     static PATTERNS: [OnceLock<Vec<Vec3>>; MAX_LOG2_RESOLUTION as usize] =
         [const { OnceLock::new() }; MAX_LOG2_RESOLUTION as usize];
-    Ok(PATTERNS[(m - 1) as usize].get_or_init(|| {
-        let square = match baked_square(m) {
-            Some(square) => square,
-            None => relaxed_square(m, DEFAULT_PATTERN_SEED, DEFAULT_LLOYD_ITERATIONS)
-                .expect("m was checked"),
-        };
-        square.into_iter().map(square_to_sphere).collect()
-    }))
+    let slot = &PATTERNS[(m - 1) as usize];
+    if let Some(pattern) = slot.get() {
+        return Ok(pattern);
+    }
+    // Made outside the lock, so that a stopped relaxation ([`Stop`]) fails this call and
+    // leaves the slot empty; callers racing here make the same points, and one is kept.
+    let square = match baked_square(m) {
+        Some(square) => square,
+        None => relaxed_square(m, DEFAULT_PATTERN_SEED, DEFAULT_LLOYD_ITERATIONS)?,
+    };
+    let pattern = square.into_iter().map(square_to_sphere).collect();
+    Ok(slot.get_or_init(|| pattern))
 }
 
 /// Resolution exponents whose default pattern is baked into the library (the coherence
@@ -341,6 +350,18 @@ mod tests {
             }
         }
         assert!(baked_square(3).is_none() && baked_square(7).is_none());
+    }
+
+    /// A relaxation polls the current stop between iterations: set, it fails with
+    /// `Interrupted`; the unrelaxed points (no iteration) are made whatever the stop.
+    #[test]
+    fn a_set_stop_interrupts_a_relaxation() {
+        let stop = crate::stop::Stop::new();
+        stop.set();
+        let e = stop.scope(|| relaxed_square(3, 1, 2)).unwrap_err();
+        assert!(matches!(e, Error::Interrupted { .. }), "{e}");
+        assert_eq!(stop.scope(|| relaxed_square(3, 1, 0)).unwrap().len(), 64);
+        assert_eq!(relaxed_square(3, 1, 2).unwrap().len(), 64);
     }
 
     /// Writes `default_patterns.bin` (run after a change to the relaxation:

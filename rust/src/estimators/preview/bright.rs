@@ -15,10 +15,12 @@ use rayon::prelude::*;
 
 use super::transfer::TransferPoint;
 use crate::bsdf::Material;
+use crate::error::Result;
 use crate::lights::envmap::{EnvMap, LUMINANCE};
 use crate::sampling::octahedral::{
     morton_decode, morton_encode, square_to_sphere, texel_center, texel_of,
 };
+use crate::stop::Stop;
 use crate::visibility::cache::CacheState;
 use crate::visibility::params::CacheParams;
 
@@ -209,16 +211,21 @@ impl RecordColumns {
         8 * records.div_ceil(64) * (1 << (2 * m))
     }
 
-    /// The columns of `state`'s records.
-    pub fn of(state: &CacheState) -> Self {
+    /// The columns of `state`'s records. Stops with [`crate::Error::Interrupted`] within a
+    /// block of 64 records of the current [`Stop`] being set.
+    pub fn of(state: &CacheState) -> Result<Self> {
         let store = state.store();
         let (m, records) = (store.m(), store.len());
         let directions = 1usize << (2 * m);
         let mut words = vec![0u64; records.div_ceil(64) * directions];
+        let stop = Stop::current();
         words
             .par_chunks_mut(directions)
             .enumerate()
             .for_each(|(b, block)| {
+                if stop.is_set() {
+                    return;
+                }
                 for i in 64 * b..(64 * b + 64).min(records) {
                     let record = 1u64 << (i % 64);
                     for (k, &w) in store.bits(i).bit_words().iter().enumerate() {
@@ -230,7 +237,8 @@ impl RecordColumns {
                     }
                 }
             });
-        Self { m, records, words }
+        stop.check("the records' columns")?;
+        Ok(Self { m, records, words })
     }
 
     /// Bytes held.
@@ -270,28 +278,44 @@ pub struct PixelRecords {
 }
 
 impl PixelRecords {
-    /// The lookups of `points` (the transfer's).
+    /// The lookups of `points` (the transfer's), in parallel chunks of pixels (each pixel's
+    /// slots are its own: the same for any thread count). Stops with
+    /// [`crate::Error::Interrupted`] within a chunk of the current [`Stop`] being set.
     pub fn gather(
         points: &[Option<TransferPoint>],
         state: &CacheState,
         params: &CacheParams,
-    ) -> Self {
+    ) -> Result<Self> {
+        /// Pixels a task looks up between polls (a lookup is microseconds).
+        const CHUNK: usize = 1024;
         let per_pixel = params.n_keep as usize;
         let mut ids = vec![0u32; per_pixel * points.len()];
         let mut betas = vec![0.0f32; per_pixel * points.len()];
-        for (i, p) in points.iter().enumerate() {
-            let Some(p) = p else { continue };
-            let lookup = state.lookup_records(params, p.position, p.normal, p.radius);
-            for (k, n) in lookup.neighbours().iter().enumerate() {
-                ids[i * per_pixel + k] = n.id;
-                betas[i * per_pixel + k] = n.beta;
-            }
+        let stop = Stop::current();
+        if per_pixel > 0 {
+            ids.par_chunks_mut(per_pixel * CHUNK)
+                .zip(betas.par_chunks_mut(per_pixel * CHUNK))
+                .zip(points.par_chunks(CHUNK))
+                .for_each(|((ids, betas), points)| {
+                    if stop.is_set() {
+                        return;
+                    }
+                    for (i, p) in points.iter().enumerate() {
+                        let Some(p) = p else { continue };
+                        let lookup = state.lookup_records(params, p.position, p.normal, p.radius);
+                        for (k, n) in lookup.neighbours().iter().enumerate() {
+                            ids[i * per_pixel + k] = n.id;
+                            betas[i * per_pixel + k] = n.beta;
+                        }
+                    }
+                });
         }
-        Self {
+        stop.check("the pixels' records")?;
+        Ok(Self {
             per_pixel,
             ids,
             betas,
-        }
+        })
     }
 
     /// Bytes held.

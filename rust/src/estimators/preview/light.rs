@@ -11,6 +11,7 @@ use crate::lights::envmap::{EnvMap, LUMINANCE};
 use crate::sampling::octahedral::{
     morton_encode, sphere_to_square, square_to_sphere, texel_center, texel_solid_angle,
 };
+use crate::stop::Stop;
 
 /// `R` as a checked rotation: finite, orthonormal to `1e-4` and of determinant `+1`; the
 /// error names `rotation`.
@@ -46,6 +47,8 @@ pub fn rotation_about_y(degrees: f64) -> Result<DMat3> {
 /// each texel of the map — split first to at least 4 x 4 per cell — goes whole to the cell
 /// it lands in, or where it straddles a border is split over the cells it covers
 /// ([`Corners`]): one pass over the texels, in parallel bands summed in a fixed order.
+/// Stops with [`Error::Interrupted`] within a row of texels of the current [`Stop`] being
+/// set (the pass reads every texel, 16M of them at the largest resolution).
 pub fn cell_integrals(env: &EnvMap, level: u32, rotation: Option<&DMat3>) -> Result<Vec<[f64; 3]>> {
     Ok(project(env, level, rotation, false)?.0)
 }
@@ -83,11 +86,15 @@ fn project(
     // Fixed bands of rows, each summed on its own and the bands added in order: the same
     // sums for any thread count.
     let band = res.div_ceil(PROJECTION_BANDS).max(1);
+    let stop = Stop::current();
     let partial = |rows: std::ops::Range<u32>| {
         let mut out = vec![[0.0f64; 3]; cells * cells];
         let mut dirs = vec![DVec3::ZERO; if centroids { cells * cells } else { 0 }];
         let texels = env.texels();
         for y in rows {
+            if stop.is_set() {
+                break;
+            }
             for x in 0..res {
                 let t = &texels[(y * res + x) as usize];
                 // The texel's (turned) direction times its luminance, for the centroids.
@@ -123,6 +130,7 @@ fn project(
         .into_par_iter()
         .map(|b| partial(b * band..((b + 1) * band).min(res)))
         .collect();
+    stop.check("projecting the map")?;
     let mut parts = parts.into_iter();
     let (mut out, mut dirs) = parts.next().expect("at least one band");
     for (o, d) in parts {

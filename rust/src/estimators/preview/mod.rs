@@ -18,6 +18,7 @@
 //! with one projection of the map and a dot product per pixel.
 
 pub mod bright;
+mod choose;
 pub mod dot;
 pub mod edges;
 pub mod haar;
@@ -30,6 +31,8 @@ use std::time::Instant;
 use glam::{DMat3, Vec3};
 use rayon::prelude::*;
 
+pub use choose::VisibilityErrors;
+use choose::{candidates, measure, measure_visibility, probe_map};
 use edges::BrightLight;
 use transfer::{Basis, Transfer, TransferPoint, TransferSettings};
 
@@ -192,6 +195,41 @@ pub struct TransferRequest {
     pub edge_rays: f64,
 }
 
+/// Pixels a task of the view's per-pixel loops takes at least (each pixel is tens of
+/// nanoseconds there).
+const POINT_CHUNK: usize = 4096;
+
+/// Pixels [`map_pixels`] fills between polls of the current [`Stop`].
+const POINT_BLOCK: usize = 1 << 18;
+
+/// `f(i)` for every pixel `i` of `0..n`, in order, in parallel, filled block by block
+/// ([`POINT_BLOCK`]) into one vector. Polls the current [`Stop`] between blocks and per
+/// pixel (`idle` then stands in for the block's rest): stopped, it returns
+/// [`crate::Error::Interrupted`] naming `what` without touching the later blocks. (A
+/// vector of 16M points is more than a gigabyte; filling all of it after a stop took 0.7 s.)
+fn map_pixels<T: Send + Sync + Clone>(
+    n: usize,
+    what: &str,
+    idle: T,
+    f: impl Fn(usize) -> T + Sync,
+) -> Result<Vec<T>> {
+    let stop = Stop::current();
+    let mut out = Vec::with_capacity(n);
+    for start in (0..n).step_by(POINT_BLOCK) {
+        stop.check(what)?;
+        let block = start..(start + POINT_BLOCK).min(n);
+        out.par_extend(block.into_par_iter().with_min_len(POINT_CHUNK).map(|i| {
+            if stop.is_set() {
+                idle.clone()
+            } else {
+                f(i)
+            }
+        }));
+    }
+    stop.check(what)?;
+    Ok(out)
+}
+
 /// Pixels [`TransferRequest::choose_visibility`] traces a record at.
 pub const VISIBILITY_SAMPLE: usize = 1024;
 
@@ -284,36 +322,37 @@ impl LightingPreview {
 
     /// The preview of `gbuffer`'s hits (which must describe `scene` as posed now): with the
     /// buffer a cache was built from, exactly the points its records were placed for.
+    /// Stops with [`crate::Error::Interrupted`] within a pixel of the current [`Stop`]
+    /// being set (per block of pixels, no later block touched; 16M pixels took 0.96 s on two
+    /// cores).
     pub fn from_gbuffer(scene: &Scene, g: &GBuffer) -> Result<Self> {
         g.check(scene, None)?;
         let objects = &scene.mesh().objects;
-        let points = (0..g.object.len())
-            .map(|i| {
-                let dir = Vec3::from(g.direction[i]);
-                if g.object[i] < 0 {
-                    return Err(dir);
+        let points = map_pixels(g.object.len(), "LightingPreview", Err(Vec3::ZERO), |i| {
+            let dir = Vec3::from(g.direction[i]);
+            if g.object[i] < 0 {
+                return Err(dir);
+            }
+            let obj = g.object[i] as u32;
+            let normal = Vec3::from(g.normal[i]);
+            let emitted = match scene.emitter(obj) {
+                Some(light) => {
+                    let first = objects[obj as usize].first_triangle;
+                    let y = Vec3::from(g.position[i]);
+                    light.emitted((g.prim[i] as u32 - first) as usize, y, -dir)
                 }
-                let obj = g.object[i] as u32;
-                let normal = Vec3::from(g.normal[i]);
-                let emitted = match scene.emitter(obj) {
-                    Some(light) => {
-                        let first = objects[obj as usize].first_triangle;
-                        let y = Vec3::from(g.position[i]);
-                        light.emitted((g.prim[i] as u32 - first) as usize, y, -dir)
-                    }
-                    None => Vec3::ZERO,
-                };
-                Ok(PreviewPoint {
-                    position: Vec3::from(g.position[i]),
-                    normal,
-                    wo: -dir,
-                    footprint: g.footprint[i],
-                    material: objects[obj as usize].material,
-                    object: obj,
-                    emitted,
-                })
+                None => Vec3::ZERO,
+            };
+            Ok(PreviewPoint {
+                position: Vec3::from(g.position[i]),
+                normal,
+                wo: -dir,
+                footprint: g.footprint[i],
+                material: objects[obj as usize].material,
+                object: obj,
+                emitted,
             })
-            .collect();
+        })?;
         Ok(Self {
             width: g.width(),
             height: g.height(),
@@ -387,21 +426,44 @@ impl LightingPreview {
 }
 
 impl LightingPreview {
-    /// The transfer inputs of every pixel (`None` where the ray escaped).
-    fn transfer_points(&self, cache: &VisibilityCache) -> Vec<Option<TransferPoint>> {
+    /// The transfer inputs of every pixel (`None` where the ray escaped). Stops with
+    /// [`crate::Error::Interrupted`] once the current [`Stop`] is set.
+    fn transfer_points(&self, cache: &VisibilityCache) -> Result<Vec<Option<TransferPoint>>> {
         let scale = cache.params().d_max_scale;
-        self.points
-            .iter()
-            .map(|p| {
-                p.as_ref().ok().map(|p| TransferPoint {
-                    position: p.position,
-                    normal: p.normal,
-                    wo: p.wo,
-                    radius: scale * p.footprint,
-                    material: p.material,
-                })
+        map_pixels(self.points.len(), "LightingPreview", None, |i| {
+            self.points[i].as_ref().ok().map(|p| TransferPoint {
+                position: p.position,
+                normal: p.normal,
+                wo: p.wo,
+                radius: scale * p.footprint,
+                material: p.material,
             })
-            .collect()
+        })
+    }
+
+    /// The full level of a transfer of this view's materials ([`Transfer::full_level`]),
+    /// polling the current [`Stop`] between chunks of pixels.
+    fn full_level(&self, cache: &VisibilityCache, settings: &TransferSettings) -> Result<u32> {
+        let stop = Stop::current();
+        let materials: Vec<Material> = self
+            .points
+            .par_chunks(POINT_CHUNK)
+            .map(|chunk| {
+                let mut distinct: Vec<Material> = Vec::new();
+                if stop.is_set() {
+                    return distinct;
+                }
+                for p in chunk.iter().flatten() {
+                    if distinct.last() != Some(&p.material) && !distinct.contains(&p.material) {
+                        distinct.push(p.material);
+                    }
+                }
+                distinct
+            })
+            .flatten_iter()
+            .collect();
+        stop.check("LightingPreview")?;
+        Transfer::full_level(cache, materials.iter(), settings)
     }
 
     /// Builds and keeps the transfer of `cache`'s records for this view as `request` asks
@@ -430,16 +492,16 @@ impl LightingPreview {
             ));
         }
         cache.bind_fingerprint(self.scene)?;
+        // Every phase polls the current stop: the pixel loops per chunk, the measurements
+        // per pixel, the build per pixel; between phases too.
+        const WHAT: &str = "LightingPreview.prepare";
         let start = Instant::now();
         let stop = Stop::current();
         let version = cache.version();
-        let points = self.transfer_points(cache);
-        let covered = points.iter().filter(|p| p.is_some()).count().max(1);
-        let level = Transfer::full_level(
-            cache,
-            points.iter().flatten().map(|p| &p.material),
-            &request.settings,
-        )?;
+        let points = self.transfer_points(cache)?;
+        let covered = points.par_iter().filter(|p| p.is_some()).count().max(1);
+        let level = self.full_level(cache, &request.settings)?;
+        stop.check(WHAT)?;
         // A truncated basis also keeps each pixel's records and the records' columns
         // (for the bright cells).
         let records_bytes = bright::PixelRecords::bytes_per_pixel(cache.params());
@@ -478,6 +540,7 @@ impl LightingPreview {
         }
         let columns = (candidates != [Basis::Texels { level }])
             .then(|| with_threads(threads, || bright::RecordColumns::of(&cache.read())))
+            .transpose()?
             .transpose()?;
         let probe;
         let env = match env {
@@ -489,8 +552,8 @@ impl LightingPreview {
         };
         // The map as truncated bases see it: without its bright cells, which the pixels
         // add exactly.
-        stop.check("LightingPreview.prepare")?;
-        let (residual, bright) = split_light(env, level, None, true)?;
+        stop.check(WHAT)?;
+        let (residual, bright) = with_threads(threads, || split_light(env, level, None, true))??;
         let split = (&residual[..], &bright);
         let mut settings = request.settings;
         let mut visibility_measured = None;
@@ -501,7 +564,7 @@ impl LightingPreview {
             settings.nearest = errors.prefers_nearest();
             visibility_measured = Some(errors);
         }
-        stop.check("LightingPreview.prepare")?;
+        stop.check(WHAT)?;
         let (basis, measured) = with_threads(threads, || {
             if candidates.len() == 1 {
                 Ok((candidates[0], Vec::new()))
@@ -512,7 +575,7 @@ impl LightingPreview {
                 measure(&points, cache, &settings, level, &candidates, env, light)
             }
         })??;
-        stop.check("LightingPreview.prepare")?;
+        stop.check(WHAT)?;
         let weights = transfer::level_weights(&residual);
         // The transfer is the one buffer that grows with the budget: a size that cannot be
         // allocated is an error before its work, not an abort part-way.
@@ -521,7 +584,13 @@ impl LightingPreview {
             Transfer::build(&points, cache, settings, level, basis, Some(weights))
         })??;
         let records = (!transfer.is_whole())
-            .then(|| bright::PixelRecords::gather(&points, &cache.read(), cache.params()));
+            .then(|| {
+                with_threads(threads, || {
+                    bright::PixelRecords::gather(&points, &cache.read(), cache.params())
+                })
+            })
+            .transpose()?
+            .transpose()?;
         let columns = columns.filter(|_| !transfer.is_whole());
         let mut prepared = Prepared {
             cache: version,
@@ -710,13 +779,9 @@ impl LightingPreview {
         let mut slot = lock(&self.transfer).take();
         if let (Some(prepared), Some(cache)) = (slot.as_mut(), cache) {
             let still_valid = prepared.cache == cache.version()
-                && Transfer::full_level(
-                    cache,
-                    self.points.iter().flatten().map(|p| &p.material),
-                    &prepared.settings,
-                )? == prepared.transfer.level();
+                && self.full_level(cache, &prepared.settings)? == prepared.transfer.level();
             if still_valid {
-                let points = self.transfer_points(cache);
+                let points = self.transfer_points(cache)?;
                 let p = Arc::make_mut(prepared);
                 let settings = p.settings;
                 // Stopped part-way, the transfer is dropped (`slot` is not put back): the
@@ -733,265 +798,8 @@ impl LightingPreview {
     }
 }
 
-/// The bases [`LightingPreview::prepare`] may keep for `choice` at full level `level`,
-/// with `whole` bytes a pixel for the whole transfer and `truncated` for a truncated one
-/// (which keeps the pixel's records too); finest first, empty when none fits.
-fn candidates(level: u32, whole: usize, truncated: usize, choice: BasisChoice) -> Vec<Basis> {
-    let full = Basis::Texels { level };
-    let full = (full.bytes_per_pixel() <= whole).then_some(full);
-    let texels = (1..level)
-        .rev()
-        .map(|l| Basis::Texels { level: l })
-        .find(|b| b.bytes_per_pixel() <= truncated);
-    let terms = (truncated.saturating_sub(4) / 4).min(1 << (2 * level)) as u32;
-    let haar = (terms >= 1).then_some(Basis::Haar { terms });
-    let sh = (1..=transfer::MAX_SH_ORDER)
-        .rev()
-        .map(|order| Basis::Sh { order })
-        .find(|b| b.bytes_per_pixel() <= truncated);
-    match choice {
-        BasisChoice::Full => full.into_iter().collect(),
-        BasisChoice::Texels => texels.into_iter().collect(),
-        BasisChoice::Haar => haar.into_iter().collect(),
-        BasisChoice::Sh => sh.into_iter().collect(),
-        BasisChoice::Auto if full.is_some() => full.into_iter().collect(),
-        BasisChoice::Auto => texels.into_iter().chain(haar).chain(sh).collect(),
-    }
-}
-
-/// A sun-and-sky map to measure candidates under when the caller gives none: both a
-/// smooth sky and a sharp, bright sun (a third of the power).
-fn probe_map() -> Result<EnvMap> {
-    crate::lights::procedural::sky(
-        Vec3::new(0.5, 0.6, 0.3),
-        [2000.0, 1800.0, 1500.0],
-        2.0,
-        [0.3, 0.45, 0.9],
-        [0.8, 0.85, 0.9],
-        128,
-    )
-}
-
-/// [`BasisChoice::Auto`]'s measurement: the error of each candidate on up to
-/// [`AUTO_SAMPLE`] pixels spread over the view, against the untruncated transfer under
-/// `env`; returns the one to keep ([`cheapest_within_slack`]) and every figure.
-fn measure(
-    points: &[Option<TransferPoint>],
-    cache: &VisibilityCache,
-    settings: &TransferSettings,
-    level: u32,
-    candidates: &[Basis],
-    env: &EnvMap,
-    (cells, bright, masks): (&[[f64; 3]], &bright::BrightCells, &[u8]),
-) -> Result<(Basis, Vec<(Basis, f64)>)> {
-    let sample = spread(points, AUTO_SAMPLE);
-    let full = Transfer::build(
-        &sample,
-        cache,
-        *settings,
-        level,
-        Basis::Texels { level },
-        None,
-    )?;
-    let full_light = full.light(env, None)?;
-    let reference: Vec<[f64; 3]> = (0..sample.len())
-        .map(|i| full.eval(i, &full_light))
-        .collect();
-    let power: [f64; 3] =
-        std::array::from_fn(|c| reference.iter().map(|j| j[c] * j[c]).sum::<f64>());
-    let records = bright::PixelRecords::gather(&sample, &cache.read(), cache.params());
-    let weights = transfer::level_weights(cells);
-    let mut measured = Vec::new();
-    for &basis in candidates {
-        let t = Transfer::build(
-            &sample,
-            cache,
-            *settings,
-            level,
-            basis,
-            Some(weights.clone()),
-        )?;
-        let light = t.light_for(env, None, cells.to_vec(), bright)?;
-        let mut err = [0.0f64; 3];
-        for (i, r) in reference.iter().enumerate() {
-            let mut j = t.eval(i, &light);
-            if let (Some(p), true) = (&sample[i], t.has_row(i)) {
-                let b = records.eval(i, &p.shading(), bright, masks, settings.nearest);
-                j = std::array::from_fn(|c| j[c] + b[c]);
-            }
-            for c in 0..3 {
-                err[c] += (j[c] - r[c]).powi(2);
-            }
-        }
-        let worst = (0..3)
-            .map(|c| {
-                if power[c] > 0.0 {
-                    err[c] / power[c]
-                } else {
-                    0.0
-                }
-            })
-            .fold(0.0, f64::max);
-        measured.push((basis, worst));
-    }
-    Ok((cheapest_within_slack(&measured), measured))
-}
-
-/// The basis with the fewest bytes a pixel (what a change reads) among `measured`'s whose
-/// error is within [`AUTO_SLACK`] of the least; the lesser error breaks a tie.
-fn cheapest_within_slack(measured: &[(Basis, f64)]) -> Basis {
-    let least = measured.iter().map(|m| m.1).fold(f64::INFINITY, f64::min);
-    measured
-        .iter()
-        .filter(|m| m.1 <= AUTO_SLACK * least)
-        .min_by(|a, b| {
-            let bytes = |m: &(Basis, f64)| m.0.bytes_per_pixel();
-            bytes(a).cmp(&bytes(b)).then(a.1.total_cmp(&b.1))
-        })
-        .map(|m| m.0)
-        .expect("at least one candidate")
-}
-
 #[cfg(test)]
 mod tests;
-
-/// The level of the records [`measure_visibility`] traces for a transfer of `level`:
-/// twice the resolution (four rays a cell: a record of the cache's own resolution would
-/// make a record at the pixel look exact when one ray a cell is itself a noisy estimate).
-fn sample_level(level: u32) -> u32 {
-    (level + 1).min(crate::sampling::pattern::MAX_LOG2_RESOLUTION)
-}
-
-/// [`TransferRequest::choose_visibility`]'s measurement: at up to [`VISIBILITY_SAMPLE`]
-/// pixels with records, the whole transfer's `J` under `env` with the cache's blend of
-/// records and with the heaviest record alone, against `J` with a record traced now at the
-/// pixel ([`sample_level`]); returns both errors in the relMSE of the images
-/// (`Σ (Δ c J)² / ((c J)² + 0.01)` over pixels and channels, `c` the channel ratio). The
-/// bright cells enter every `J` exactly (a shadow ray each): where the records disagree on
-/// them each lighting traces rays ([`edges`]), so this measurement decides the rest.
-fn measure_visibility(
-    scene: &Scene,
-    points: &[Option<TransferPoint>],
-    cache: &VisibilityCache,
-    settings: &TransferSettings,
-    level: u32,
-    (light, bright): (&[[f64; 3]], &bright::BrightCells),
-) -> Result<VisibilityErrors> {
-    const FLOOR: f64 = 1e-2;
-    let pixels = spread_indices(points, VISIBILITY_SAMPLE);
-    let pattern = crate::sampling::pattern::default_pattern(sample_level(level))?;
-    let state = cache.read();
-    let frame = state.frame();
-    let params = cache.params();
-    let blend = TransferSettings {
-        nearest: false,
-        ..*settings
-    };
-    let nearest = TransferSettings {
-        nearest: true,
-        ..*settings
-    };
-    let per_point: Vec<Result<Option<[f64; 2]>>> = pixels
-        .par_iter()
-        .map(|&i| {
-            let p = points[i].as_ref().expect("spread picks covered pixels");
-            let (record, _) = crate::visibility::record::Record::trace_with(
-                scene, p.position, p.normal, pattern, frame, false,
-            )?;
-            let n = 1usize << (2 * level);
-            let mut dense = vec![0.0; n];
-            let ratios = p.material.channel_ratios();
-            let origin = scene.offset_point(p.position, p.normal);
-            let mut counters = crate::geometry::TraversalCounters::default();
-            let sun = bright.light(&p.shading(), |s| {
-                let blocked = scene.occluded1(origin, bright.dirs[s], f32::INFINITY, &mut counters);
-                if blocked {
-                    0.0
-                } else {
-                    1.0
-                }
-            });
-            scene.add_counters(counters);
-            let j = |dense: &[f64]| -> [f64; 3] {
-                std::array::from_fn(|c| {
-                    let smooth = dense.iter().zip(light).map(|(t, l)| t * l[c]).sum::<f64>();
-                    ratios[c] as f64 * (smooth + sun[c])
-                })
-            };
-            let mut builder = transfer::PixelTransfer::new(&state, params, blend, level);
-            if !builder.dense(p, &mut dense) {
-                return Ok(None);
-            }
-            let j_blend = j(&dense);
-            let mut builder = transfer::PixelTransfer::new(&state, params, nearest, level);
-            builder.dense(p, &mut dense);
-            let j_nearest = j(&dense);
-            builder.dense_with(p, &[(record.bits.view(), 1.0)], &mut dense);
-            let exact = j(&dense);
-            let err = |x: [f64; 3]| -> f64 {
-                (0..3)
-                    .map(|c| (x[c] - exact[c]).powi(2) / (exact[c] * exact[c] + FLOOR))
-                    .sum()
-            };
-            Ok(Some([err(j_blend), err(j_nearest)]))
-        })
-        .collect();
-    let mut errors = Vec::new();
-    for r in per_point {
-        if let Some(e) = r? {
-            errors.push(e.map(|x| x / 3.0));
-        }
-    }
-    let n = errors.len().max(1) as f64;
-    let mean = |k: usize| errors.iter().map(|e| e[k]).sum::<f64>() / n;
-    // The paired differences' standard error: a pixel's two errors share its lighting.
-    let diff: Vec<f64> = errors.iter().map(|e| e[0] - e[1]).collect();
-    let d = diff.iter().sum::<f64>() / n;
-    let var = diff.iter().map(|x| (x - d).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
-    Ok(VisibilityErrors {
-        blend: mean(0),
-        nearest: mean(1),
-        standard_error: (var / n).sqrt(),
-    })
-}
-
-/// What [`measure_visibility`] finds: the relMSE of each form of `Ṽ` and the standard
-/// error of their difference.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct VisibilityErrors {
-    pub blend: f64,
-    pub nearest: f64,
-    pub standard_error: f64,
-}
-
-impl VisibilityErrors {
-    /// The nearest record wins when its mean error is lower. (Per-pixel relative errors
-    /// are heavy-tailed — a few dark pixels lit by a neighbour's record — so the standard
-    /// error is wide and a two-SE rule kept the blend even on hairball, where the nearest
-    /// record's image has a tenth of its relMSE; 1024 pixels made the plain comparison
-    /// right on the five scenes probed.)
-    pub fn prefers_nearest(&self) -> bool {
-        self.nearest < self.blend
-    }
-}
-
-/// Up to `n` of the view's surface points, spread evenly over it (every k-th).
-fn spread(points: &[Option<TransferPoint>], n: usize) -> Vec<Option<TransferPoint>> {
-    spread_indices(points, n)
-        .into_iter()
-        .map(|i| points[i])
-        .collect()
-}
-
-/// The pixels [`spread`] picks.
-fn spread_indices(points: &[Option<TransferPoint>], n: usize) -> Vec<usize> {
-    let covered = points.iter().filter(|p| p.is_some()).count();
-    let step = covered.div_ceil(n).max(1);
-    (0..points.len())
-        .filter(|&i| points[i].is_some())
-        .step_by(step)
-        .collect()
-}
 
 /// `env` turned by `rotation` as integrals over the cells of `level`, with its bright cells
 /// moved out when `split` ([`bright`]; none moved otherwise, and no centroids taken).

@@ -98,7 +98,7 @@ fn untruncated_transfer_equals_the_direct_preview() {
 fn haar_with_every_term_is_j_within_its_rounding() {
     let v = view("garage", 24, 18);
     let preview = LightingPreview::new(&v.setup.scene, &v.camera, Some(2)).unwrap();
-    let points = preview.transfer_points(&v.cache);
+    let points = preview.transfer_points(&v.cache).unwrap();
     let settings = TransferSettings::DEFAULT;
     let materials = points.iter().flatten().map(|p| &p.material);
     let level = Transfer::full_level(&v.cache, materials, &settings).unwrap();
@@ -295,7 +295,7 @@ fn truncated_bases_and_auto() {
 /// error among equally cheap ones, and a much better basis however dear.
 #[test]
 fn auto_keeps_the_cheapest_basis_within_the_slack() {
-    use super::cheapest_within_slack as pick;
+    use super::choose::cheapest_within_slack as pick;
     let (haar, sh, texels) = (
         Basis::Haar { terms: 152 },
         Basis::Sh { order: 8 },
@@ -596,7 +596,7 @@ fn bright_cells_trace_rays_where_records_disagree() {
 fn columns_give_the_records_masks() {
     let v = view("dynamics", 48, 36);
     let state = v.cache.read();
-    let columns = bright::RecordColumns::of(&state);
+    let columns = bright::RecordColumns::of(&state).unwrap();
     let (m, records) = (state.store().m(), state.store().len());
     assert!(records > 64 && records % 64 != 0, "{records} records");
     assert_eq!(
@@ -615,4 +615,94 @@ fn columns_give_the_records_masks() {
             assert_eq!(masks, bright.record_masks(&state, level), "level {level}");
         }
     }
+}
+
+/// Every phase of `prepare` polls the current stop: run alone under a set stop, each fails
+/// with `Interrupted`, as do `prepare` (keeping no transfer) and `from_gbuffer`; outside the
+/// stop's scope the same calls succeed.
+#[test]
+fn a_set_stop_interrupts_every_phase_of_prepare() {
+    let v = view("garage", 40, 30);
+    let (scene, env) = (&v.setup.scene, &v.setup.envmap);
+    let g = GBuffer::render(scene, &v.camera, 0, false, Some(2)).unwrap();
+    let preview = LightingPreview::from_gbuffer(scene, &g).unwrap();
+    let points = preview.transfer_points(&v.cache).unwrap();
+    let settings = TransferSettings::DEFAULT;
+    let level = preview.full_level(&v.cache, &settings).unwrap();
+    let (cells, bright) = split_light(env, level, None, true).unwrap();
+    let columns = bright::RecordColumns::of(&v.cache.read()).unwrap();
+    let masks = columns.masks(&bright, level);
+    let basis = Basis::Haar { terms: 16 };
+    let params = v.cache.params();
+    let phases = || -> Vec<(&str, Result<()>)> {
+        vec![
+            (
+                "transfer_points",
+                preview.transfer_points(&v.cache).map(drop),
+            ),
+            (
+                "full_level",
+                preview.full_level(&v.cache, &settings).map(drop),
+            ),
+            (
+                "columns",
+                bright::RecordColumns::of(&v.cache.read()).map(drop),
+            ),
+            (
+                "records",
+                bright::PixelRecords::gather(&points, &v.cache.read(), params).map(drop),
+            ),
+            ("split_light", split_light(env, level, None, true).map(drop)),
+            (
+                "measure_visibility",
+                choose::measure_visibility(scene, &points, &v.cache, &settings, level, {
+                    (&cells, &bright)
+                })
+                .map(drop),
+            ),
+            (
+                "measure",
+                choose::measure(&points, &v.cache, &settings, level, &[basis], env, {
+                    (&cells, &bright, &masks)
+                })
+                .map(drop),
+            ),
+            (
+                "build",
+                Transfer::build(&points, &v.cache, settings, level, basis, None).map(drop),
+            ),
+            (
+                "prepare",
+                preview
+                    .prepare(
+                        Some(scene),
+                        &v.cache,
+                        None,
+                        TransferRequest::DEFAULT,
+                        Some(2),
+                    )
+                    .map(drop),
+            ),
+            (
+                "from_gbuffer",
+                LightingPreview::from_gbuffer(scene, &g).map(drop),
+            ),
+        ]
+    };
+    let stop = Stop::new();
+    stop.set();
+    for (phase, r) in stop.scope(phases) {
+        assert!(
+            matches!(r, Err(crate::error::Error::Interrupted { .. })),
+            "{phase}: {r:?}"
+        );
+    }
+    assert!(
+        preview.transfer_info().is_none(),
+        "a stopped prepare keeps nothing"
+    );
+    for (phase, r) in phases() {
+        assert!(r.is_ok(), "{phase}: {r:?}");
+    }
+    assert!(preview.transfer_info().is_some());
 }

@@ -584,7 +584,7 @@ impl Scene {
             // Neighbouring work items on the threads at any moment, which share the nodes
             // of neighbouring bundles in the cache the cores share.
             map_in_order(&items, trace)
-        })?;
+        })??;
         stop.check("tracing rays")?;
         // The least bad row over the items is the batch's first, as `validate` names it.
         if let Some(bad) = traced.iter().filter_map(|t| t.as_ref().err()).min() {

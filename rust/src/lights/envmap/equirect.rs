@@ -56,34 +56,37 @@ impl Accumulator {
         }
     }
 
-    /// Adds the splats of `work` over `units` ([`for_each_splat`]).
+    /// Adds the splats of `work` over `units` ([`for_each_splat`]); stops as it does.
     fn run<U: Sync>(
         &mut self,
         units: &[U],
         cost: impl Fn(&U) -> usize,
         work: impl Fn(&U) -> Vec<Splat> + Sync,
-    ) {
+    ) -> Result<()> {
         for_each_splat(units, cost, work, |s| {
             let t = s.texel as usize;
             self.base[t] += s.base;
             self.excess[t] += s.excess;
             self.omega[t] += s.omega;
-        });
+        })
     }
 }
 
 /// Runs `work` over `units` in parallel batches of at most ~2M pending splats (`cost`
 /// bounds a unit's), handing the results to `sink` in unit order: deterministic, bounded
-/// memory.
+/// memory. Polls the current [`Stop`] between batches (each is tens of milliseconds):
+/// stopped, it returns [`Error::Interrupted`] with `sink` part-fed.
 fn for_each_splat<U: Sync>(
     units: &[U],
     cost: impl Fn(&U) -> usize,
     work: impl Fn(&U) -> Vec<Splat> + Sync,
     mut sink: impl FnMut(&Splat),
-) {
+) -> Result<()> {
     const BUDGET: usize = 1 << 21;
+    let stop = Stop::current();
     let mut start = 0;
     while start < units.len() {
+        stop.check("EnvMap.to_equirect")?;
         let mut end = start;
         let mut pending = 0;
         while end < units.len() && (end == start || pending + cost(&units[end]) <= BUDGET) {
@@ -94,6 +97,7 @@ fn for_each_splat<U: Sync>(
         done.iter().flatten().for_each(&mut sink);
         start = end;
     }
+    Ok(())
 }
 /// Largest accepted lat-long image side (width or height), in pixels.
 pub const MAX_EQUIRECT_SIDE: usize = 1 << 15;
@@ -243,36 +247,43 @@ impl EnvMap {
         let pixel = (pi / h).min(std::f64::consts::TAU / w);
         let sub = ((2.0 * texel_angle(res) / pixel).ceil() as usize).clamp(4, 64);
         let has_excess = source_excess.max_element() > 0.0;
-        stop.check(WHAT)?;
-        let gathered: Vec<(DVec3, DVec3)> = (0..res * res)
-            .into_par_iter()
-            .map(|t| {
-                // A texel is at least 16 points of 4 taps: the poll costs nothing beside it.
-                if stop.is_set() {
-                    return (DVec3::ZERO, DVec3::ZERO);
-                }
-                let (x, y) = ((t % res) as f64, (t / res) as f64);
-                let (mut b, mut e) = (DVec3::ZERO, DVec3::ZERO);
-                for i in 0..sub {
-                    for k in 0..sub {
-                        let p = DVec2::new(
-                            (x + (k as f64 + 0.5) / sub as f64) / res as f64,
-                            (y + (i as f64 + 0.5) / sub as f64) / res as f64,
-                        );
-                        let st = dir_to_latlong(square_to_sphere(p.as_vec2()).as_dvec3());
-                        let (taps, weights) = bilinear_taps(st, width, height);
-                        for (&tap, &wt) in taps.iter().zip(&weights) {
-                            b += base[tap] * wt;
-                            if has_excess {
-                                e += excess[tap] * wt;
+        // Filled block by block, so that a stop leaves the later blocks untouched: writing
+        // the rest of 16M texels (768 MB) after one took 0.5 s.
+        const BLOCK: u32 = 1 << 18;
+        let mut gathered: Vec<(DVec3, DVec3)> = Vec::with_capacity((res * res) as usize);
+        for start in (0..res * res).step_by(BLOCK as usize) {
+            stop.check(WHAT)?;
+            gathered.par_extend(
+                (start..(start + BLOCK).min(res * res))
+                    .into_par_iter()
+                    .map(|t| {
+                        // A texel is at least 16 points of 4 taps: a poll costs nothing beside.
+                        if stop.is_set() {
+                            return (DVec3::ZERO, DVec3::ZERO);
+                        }
+                        let (x, y) = ((t % res) as f64, (t / res) as f64);
+                        let (mut b, mut e) = (DVec3::ZERO, DVec3::ZERO);
+                        for i in 0..sub {
+                            for k in 0..sub {
+                                let p = DVec2::new(
+                                    (x + (k as f64 + 0.5) / sub as f64) / res as f64,
+                                    (y + (i as f64 + 0.5) / sub as f64) / res as f64,
+                                );
+                                let st = dir_to_latlong(square_to_sphere(p.as_vec2()).as_dvec3());
+                                let (taps, weights) = bilinear_taps(st, width, height);
+                                for (&tap, &wt) in taps.iter().zip(&weights) {
+                                    b += base[tap] * wt;
+                                    if has_excess {
+                                        e += excess[tap] * wt;
+                                    }
+                                }
                             }
                         }
-                    }
-                }
-                let n = (sub * sub) as f64;
-                (b / n, e / n)
-            })
-            .collect();
+                        let n = (sub * sub) as f64;
+                        (b / n, e / n)
+                    }),
+            );
+        }
         stop.check(WHAT)?;
         // The excess keeps the source's power exactly (a sun of a pixel or less would
         // otherwise gain or lose what the interpolant's samples happen to see of it).
@@ -303,10 +314,15 @@ impl EnvMap {
     /// wide missed or caught its border texels, which moved the irradiance it gives by
     /// -0.8% to +0.1% with the image's width (a renderer given the image then disagreed
     /// with ours by tens of standard errors). Sizes of zero give an empty image.
-    pub fn to_equirect(&self, width: usize, height: usize) -> Vec<[f32; 3]> {
+    ///
+    /// Every pass polls the current [`Stop`] (per row of pixels, per batch of sub-texels):
+    /// stopped, it returns [`Error::Interrupted`].
+    pub fn to_equirect(&self, width: usize, height: usize) -> Result<Vec<[f32; 3]>> {
         if width == 0 || height == 0 {
-            return Vec::new();
+            return Ok(Vec::new());
         }
+        const WHAT: &str = "EnvMap.to_equirect";
+        let stop = Stop::current();
         let res = self.resolution;
         let (w, h) = (width as f64, height as f64);
         let pi = std::f64::consts::PI;
@@ -370,27 +386,33 @@ impl EnvMap {
         };
         if gather {
             // The excess lands in few pixels: kept sparse beside the gathered base.
-            let mut image = self.gather_equirect(width, height, |l| split(l).0);
+            let mut image = self.gather_equirect(width, height, |l| split(l).0)?;
             let mut excess = std::collections::BTreeMap::<u32, DVec3>::new();
             for_each_splat(&units, cost, unit_splats, |s| {
                 *excess.entry(s.texel).or_default() += s.excess;
-            });
+            })?;
             for (i, e) in excess {
                 let px = &mut image[i as usize];
                 let value = Vec3::from(*px).as_dvec3() + e / pixel_omega(i as usize / width);
                 *px = value.as_vec3().to_array();
             }
-            return image;
+            return Ok(image);
         }
         let mut acc = Accumulator::new(width * height);
-        acc.run(&units, cost, unit_splats);
+        acc.run(&units, cost, unit_splats)?;
         let Accumulator {
             base,
             excess,
             omega,
         } = acc;
-        (0..width * height)
+        // Each pixel on its own: the same image for any thread count.
+        let image = (0..width * height)
+            .into_par_iter()
+            .with_min_len(width)
             .map(|i| {
+                if stop.is_set() {
+                    return [0.0; 3];
+                }
                 let (x, y) = (i % width, i / width);
                 let b = if omega[i] > 0.0 {
                     base[i] / omega[i]
@@ -401,21 +423,28 @@ impl EnvMap {
                 };
                 (b + excess[i] / pixel_omega(y)).as_vec3().to_array()
             })
-            .collect()
+            .collect();
+        stop.check(WHAT)?;
+        Ok(image)
     }
 
     /// The base of [`Self::to_equirect`] for pixels much smaller than texels: `base` of the
-    /// map's radiance at 2x2 equal-area points per pixel, averaged.
+    /// map's radiance at 2x2 equal-area points per pixel, averaged. Polls the current
+    /// [`Stop`] per row.
     fn gather_equirect(
         &self,
         width: usize,
         height: usize,
         base: impl Fn([f32; 3]) -> DVec3 + Sync,
-    ) -> Vec<[f32; 3]> {
+    ) -> Result<Vec<[f32; 3]>> {
         let (w, h) = (width as f64, height as f64);
         let pi = std::f64::consts::PI;
+        let stop = Stop::current();
         let mut out = vec![[0.0f32; 3]; width * height];
         out.par_chunks_mut(width).enumerate().for_each(|(j, row)| {
+            if stop.is_set() {
+                return;
+            }
             let (c0, c1) = ((pi * j as f64 / h).cos(), (pi * (j + 1) as f64 / h).cos());
             let ts = [0.25, 0.75].map(|f| (c0 + (c1 - c0) * f).clamp(-1.0, 1.0).acos() / pi);
             for (i, px) in row.iter_mut().enumerate() {
@@ -429,6 +458,7 @@ impl EnvMap {
                 *px = (sum * 0.25).as_vec3().to_array();
             }
         });
-        out
+        stop.check("EnvMap.to_equirect")?;
+        Ok(out)
     }
 }

@@ -231,7 +231,7 @@ impl EnvMap {
         let res = self.resolution as usize;
         let (width, height, pixels) = match layout {
             ExrLayout::Octahedral => (res, res, self.texels.clone()),
-            ExrLayout::LatLong => (2 * res, res, self.to_equirect(2 * res, res)),
+            ExrLayout::LatLong => (2 * res, res, self.to_equirect(2 * res, res)?),
         };
         crate::image::write_exr_rgb(
             path.as_ref(),

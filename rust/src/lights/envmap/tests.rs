@@ -314,7 +314,7 @@ fn a_single_bright_pixel_keeps_its_power_and_place() {
 fn to_equirect_round_trips_smooth_maps_and_keeps_power() {
     let map = sunny(64, 6.0);
     let (w, h) = (256, 128);
-    let img = map.to_equirect(w, h);
+    let img = map.to_equirect(w, h).unwrap();
     assert_eq!(img.len(), w * h);
     assert_power(
         latlong_power(&img, w, h),
@@ -335,7 +335,8 @@ fn to_equirect_round_trips_smooth_maps_and_keeps_power() {
             .collect();
         EnvMap::from_octahedral(64, texels).unwrap()
     };
-    let back = EnvMap::from_equirect(&smooth.to_equirect(4096, 2048), 4096, 2048, 64).unwrap();
+    let back =
+        EnvMap::from_equirect(&smooth.to_equirect(4096, 2048).unwrap(), 4096, 2048, 64).unwrap();
     for (a, b) in smooth.texels().iter().zip(back.texels()) {
         assert!((a[0] / b[0] - 1.0).abs() < 0.1, "{a:?} {b:?}");
     }
@@ -352,9 +353,9 @@ fn to_equirect_round_trips_smooth_maps_and_keeps_power() {
         64,
     )
     .unwrap();
-    let img = m.to_equirect(64, 32);
+    let img = m.to_equirect(64, 32).unwrap();
     assert!(img[16 * 64 + 16][0] > 0.9 && img[16 * 64 + 48][0] == 0.0);
-    assert!(m.to_equirect(0, 5).is_empty());
+    assert!(m.to_equirect(0, 5).unwrap().is_empty());
 }
 
 /// Irradiance on the plane of normal +y from the map (8x8 points per texel).
@@ -401,7 +402,7 @@ fn to_equirect_keeps_a_suns_irradiance_at_every_width() {
     let map = sunny(256, 0.53);
     let exact = map_irradiance(&map);
     for w in [256, 1024, 2048, 4096] {
-        let e = latlong_irradiance(&map.to_equirect(w, w / 2), w, w / 2);
+        let e = latlong_irradiance(&map.to_equirect(w, w / 2).unwrap(), w, w / 2);
         for c in 0..3 {
             let rel = (e[c] / exact[c] - 1.0).abs();
             // Below ~1024 the rows are too coarse to place the sun's cosine closer.
@@ -514,7 +515,7 @@ fn exr_round_trips_in_both_layouts() {
     let back = EnvMap::read_exr(&path, Some(8)).unwrap();
     assert_eq!(back.resolution(), 8);
     // Without the attribute, the shape decides.
-    let img = map.to_equirect(64, 32);
+    let img = map.to_equirect(64, 32).unwrap();
     let path = temp("plain_latlong.exr");
     ::exr::prelude::write_rgb_file(&path, 64, 32, |x, y| {
         let p = img[y * 64 + x];
@@ -632,4 +633,19 @@ fn from_equirect_stops_when_asked() {
         .unwrap_err();
     assert!(matches!(e, Error::Interrupted { .. }), "{e}");
     assert!(EnvMap::from_equirect(&rgb, 64, 32, 16).is_ok());
+}
+
+/// `to_equirect` polls the current stop on both of its paths (texels splatted into pixels
+/// at least a quarter texel wide, the map gathered into smaller ones, a sun splatted on
+/// both): a set stop gives `Interrupted`; outside its scope the same image is made.
+#[test]
+fn to_equirect_stops_when_asked() {
+    let map = sunny(64, 2.0);
+    let stop = crate::stop::Stop::new();
+    stop.set();
+    for w in [64, 2048] {
+        let e = stop.scope(|| map.to_equirect(w, w / 2)).unwrap_err();
+        assert!(matches!(e, Error::Interrupted { .. }), "{w}: {e}");
+        assert_eq!(map.to_equirect(w, w / 2).unwrap().len(), w * w / 2);
+    }
 }

@@ -261,3 +261,24 @@ fn without_light_vpls_the_count_is_of_surface_vpls() {
         }
     }
 }
+
+/// Tracing polls the current stop per chunk of paths, with importance (pilot, view points,
+/// the set) and without: a set stop fails it with `Interrupted`, and the same call outside
+/// the stop's scope gives the set a call never stopped gives.
+#[test]
+fn tracing_stops_when_its_stop_is_set() {
+    let mut scene = furnace();
+    scene.build(Default::default());
+    let cam = camera();
+    let stop = crate::stop::Stop::new();
+    stop.set();
+    for importance in [false, true] {
+        let p = params(5_000, 2, importance);
+        let traced = || VplSet::trace(&scene, &black(), Some(&cam), &p, Some(2));
+        let e = stop.scope(traced).unwrap_err();
+        assert!(matches!(e, Error::Interrupted { .. }), "{e}");
+        let (a, b) = (traced().unwrap(), traced().unwrap());
+        assert_eq!(a.vpls, b.vpls);
+        assert!(!a.vpls.is_empty());
+    }
+}
