@@ -327,6 +327,15 @@ pub fn image_array<'py, T: numpy::Element>(
 /// A 1-D array of reals as `f32`, copied (values beyond the `float32` range become
 /// infinite).
 pub fn f32_vector(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<f32>> {
+    real_vector(obj, name, "float32")
+}
+
+/// A 1-D real array (any float or integer dtype) as `T` (numpy's `dtype`), copied.
+fn real_vector<T: numpy::Element + Copy>(
+    obj: &Bound<'_, PyAny>,
+    name: &str,
+    dtype: &str,
+) -> PyResult<Vec<T>> {
     let arr = as_array(obj, name)?;
     check_kind(&arr, name, b"fiu", "a real-valued array")?;
     if arr.ndim() != 1 {
@@ -335,7 +344,7 @@ pub fn f32_vector(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<f32>> {
             arr.shape()
         )));
     }
-    let a: PyReadonlyArray1<f32> = contiguous(&arr, "float32")?.extract()?;
+    let a: PyReadonlyArray1<T> = contiguous(&arr, dtype)?.extract()?;
     snapshot(
         a.as_slice()
             .map_err(|e| PyValueError::new_err(e.to_string()))?,
@@ -385,20 +394,7 @@ pub fn image3_f32(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<(Vec<[f32; 3]>
 
 /// A 1-D array of reals as `f64` (any float or integer dtype).
 pub fn f64_vector(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<f64>> {
-    let arr = as_array(obj, name)?;
-    check_kind(&arr, name, b"fiu", "a real-valued array")?;
-    if arr.ndim() != 1 {
-        return Err(PyValueError::new_err(format!(
-            "{name}: expected shape (N,), got {:?}",
-            arr.shape()
-        )));
-    }
-    let a: PyReadonlyArray1<f64> = contiguous(&arr, "float64")?.extract()?;
-    snapshot(
-        a.as_slice()
-            .map_err(|e| PyValueError::new_err(e.to_string()))?,
-        name,
-    )
+    real_vector(obj, name, "float64")
 }
 
 /// Rows of an `(N, 3)` array of directions where an all-NaN row stands for "no direction"

@@ -52,15 +52,7 @@ impl MethodRenderer for DirectRenderer {
             View::Camera(cam) => render(scene, env, cam, &params, cache, threads, progress)?,
             View::GBuffer(g) => render_from(scene, env, g, &params, cache, threads, progress)?,
         };
-        Ok(RenderOutput {
-            width: out.width,
-            height: out.height,
-            image: out.image,
-            variance: out.variance,
-            alpha: out.alpha,
-            sample_counts: out.sample_counts,
-            stats: stats(spec, &params, &out.stats),
-        })
+        Ok(out.map_stats(|s| stats(spec, &params, &s)))
     }
 }
 

@@ -433,21 +433,8 @@ pub struct RenderStats {
     pub own_cache: Option<own_cache::OwnCacheStats>,
 }
 
-/// A rendered image.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Rendered {
-    pub width: u32,
-    pub height: u32,
-    /// Mean radiance per pixel, row-major, row 0 at the top.
-    pub image: Vec<[f32; 3]>,
-    /// Per-pixel variance of the mean, per channel (infinite below two samples).
-    pub variance: Vec<[f32; 3]>,
-    /// Per-pixel `α` of the control variate (only for [`Method::ControlVariate`]).
-    pub alpha: Option<Vec<[f32; 3]>>,
-    /// Samples each pixel took, row-major.
-    pub sample_counts: Vec<u32>,
-    pub stats: RenderStats,
-}
+/// A rendered image of the direct methods, with their stats as a struct.
+pub type Rendered = output::RenderOutput<RenderStats>;
 
 /// Renders `camera`'s view of `scene` lit by `env` and the scene's area lights.
 ///

@@ -124,21 +124,37 @@ impl Stats {
     }
 }
 
-/// A render by a registered method.
+/// A render by a registered method; `S`, its stats (named figures, or a method's own
+/// struct where a caller reads them typed: [`super::Rendered`]).
 #[derive(Clone, Debug, PartialEq)]
-pub struct RenderOutput {
+pub struct RenderOutput<S = Stats> {
     pub width: u32,
     pub height: u32,
     /// Mean radiance per pixel, row-major, row 0 at the top.
     pub image: Vec<[f32; 3]>,
-    /// Per-pixel variance of the mean.
+    /// Per-pixel variance of the mean, per channel (infinite below two samples).
     pub variance: Vec<[f32; 3]>,
     /// The control variate's per-pixel `α`, for the methods that have one.
     pub alpha: Option<Vec<[f32; 3]>>,
     /// Samples each pixel took, row-major.
     pub sample_counts: Vec<u32>,
     /// The method's figures.
-    pub stats: Stats,
+    pub stats: S,
+}
+
+impl<S> RenderOutput<S> {
+    /// The same image with its stats turned into `T` by `f`.
+    pub fn map_stats<T>(self, f: impl FnOnce(S) -> T) -> RenderOutput<T> {
+        RenderOutput {
+            width: self.width,
+            height: self.height,
+            image: self.image,
+            variance: self.variance,
+            alpha: self.alpha,
+            sample_counts: self.sample_counts,
+            stats: f(self.stats),
+        }
+    }
 }
 
 #[cfg(test)]
