@@ -128,6 +128,15 @@ def test_envmap_to_equirect_stops():
     assert env.to_equirect(64, 32).shape == (32, 64, 3)
 
 
+def test_envmap_from_exr_returns_at_once(tmp_path):
+    # The EXR codec cannot poll: its thread runs on, the call returns (1.4 s to decode
+    # 2048x1024 here when not interrupted; the signal lands in the decoding).
+    path = tmp_path / "map.exr"
+    vc.io.write_exr(path, np.random.default_rng(0).random((1024, 2048, 3), dtype=np.float32))
+    interrupt(lambda: vc.EnvMap.from_exr(path, resolution=64), 0.05)
+    assert vc.EnvMap.from_exr(path, resolution=16).resolution == 16
+
+
 def test_slow_bvh_build_returns_at_once_and_keeps_the_scene():
     # 375k triangles: the "slow" builder takes 0.9 s on one thread, and runs on to its end
     # in the background once interrupted (it cannot stop part-way).

@@ -100,6 +100,22 @@ CASES = {
             assert s.num_triangles == 0, s.num_triangles
         expect_memory_error(lambda: s.add_mesh(verts, faces), "faces")
     """,
+    "scene_load": """
+        limit()
+        expect_memory_error(lambda: vc.scenes.load("hairball", detail=16), "detail")
+    """,
+    "preview_prepare": """
+        setup = vc.scenes.load("cornell", detail=0.25)
+        cam = setup.camera.with_resolution(128, 96)
+        cache = vc.VisibilityCache(setup.scene, preset="low")
+        cache.build(cam, progress=False)
+        view = vc.LightingPreview(setup.scene, cam)
+        limit()
+        # The full basis at level 8: 256 KiB a pixel.
+        call = lambda: view.prepare(cache, setup.envmap, basis="full", product_level=8,
+                                    budget_mb=1e6)
+        expect_memory_error(call, "budget_mb")
+    """,
     "render_unbuilt": """
         s = vc.Scene()
         n = 4_000_000

@@ -1,6 +1,6 @@
 //! `vc.EnvMap`: the octahedral HDR environment map of [`crate::lights::envmap`].
 
-use super::interrupt::detach_stoppable;
+use super::interrupt::{detach_abandonable, detach_stoppable};
 use std::path::PathBuf;
 
 use glam::Vec3;
@@ -203,7 +203,11 @@ impl PyEnvMap {
             Some(o) if !o.is_none() => Some(resolution_arg(o)?),
             _ => None,
         };
-        let inner = detach_stoppable(py, || EnvMap::read_exr(&path, r))?.py()?;
+        // The EXR codec cannot be stopped part-way: on Ctrl-C the call returns at once and
+        // the decoding thread's map is dropped when done.
+        let inner = detach_abandonable(py, "viscache-exr", move || EnvMap::read_exr(&path, r))?
+            .ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("path: the reader failed"))?
+            .py()?;
         Ok(Self { inner })
     }
 

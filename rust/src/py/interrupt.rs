@@ -23,6 +23,35 @@ pub fn detach_stoppable<R: Send>(py: Python<'_>, work: impl FnOnce() -> R + Send
     detach_interruptible(py, &Stop::new(), work)
 }
 
+/// Runs `work` on a thread of its own (named `name`) with the GIL released, for work that
+/// cannot poll a stop (a library's codec or tree builder): on Ctrl-C the call returns at
+/// once and the thread runs on until `work` ends, its result then dropped. `Ok(None)`
+/// when the thread could not run `work` to its end (it panicked).
+pub fn detach_abandonable<R: Send + 'static>(
+    py: Python<'_>,
+    name: &str,
+    work: impl FnOnce() -> R + Send + 'static,
+) -> PyResult<Option<R>> {
+    let (sent, received) = std::sync::mpsc::channel();
+    std::thread::Builder::new()
+        .name(name.into())
+        .spawn(move || {
+            // The receiver is gone when the call was interrupted.
+            let _ = sent.send(work());
+        })
+        .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(format!("{name}: {e}")))?;
+    detach_stoppable(py, move || {
+        let stop = Stop::current();
+        loop {
+            match received.recv_timeout(std::time::Duration::from_millis(10)) {
+                Ok(out) => return Some(out),
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) if !stop.is_set() => {}
+                Err(_) => return None,
+            }
+        }
+    })
+}
+
 /// Runs `work` with the GIL released, on a scoped thread, while this thread runs Python's
 /// signal handlers every [`POLL`]. When one raises (`KeyboardInterrupt` for Ctrl-C), `stop`
 /// is set, the work is awaited (its loops poll `stop`, the work's current [`Stop`]) and its

@@ -1,6 +1,6 @@
 //! `vc.Scene`: geometry input, ray queries, counters and the G-buffer.
 
-use super::interrupt::detach_stoppable;
+use super::interrupt::{detach_abandonable, detach_stoppable};
 use std::path::PathBuf;
 use std::sync::{Arc, RwLock};
 
@@ -396,24 +396,10 @@ impl PyScene {
         self.get().check_bvh_memory().py()?;
         let snapshot = self.get();
         let built_for = snapshot.pose_fingerprint();
-        let (sent, received) = std::sync::mpsc::channel();
-        std::thread::Builder::new()
-            .name("viscache-bvh".into())
-            .spawn(move || {
-                let bvh = crate::parallel::with_threads(threads, || snapshot.build_aside(q));
-                // The receiver is gone when the call was interrupted: the tree is dropped.
-                let _ = sent.send(bvh);
-            })
-            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(format!("build: {e}")))?;
-        let bvh = detach_stoppable(py, move || {
-            let stop = crate::stop::Stop::current();
-            loop {
-                match received.recv_timeout(std::time::Duration::from_millis(10)) {
-                    Ok(bvh) => return Some(bvh),
-                    Err(std::sync::mpsc::RecvTimeoutError::Timeout) if !stop.is_set() => {}
-                    Err(_) => return None,
-                }
-            }
+        // The builder cannot be stopped part-way: on Ctrl-C the call returns at once and
+        // the tree, built aside, is dropped when done.
+        let bvh = detach_abandonable(py, "viscache-bvh", move || {
+            crate::parallel::with_threads(threads, || snapshot.build_aside(q))
         })?;
         let bvh = bvh
             .ok_or_else(|| pyo3::exceptions::PyRuntimeError::new_err("build: the builder failed"))?

@@ -195,6 +195,7 @@ pub fn names() -> &'static [&'static str] {
 /// name the argument.
 pub fn load(name: &str, detail: f32, seed: u64) -> Result<Setup> {
     check_detail(detail)?;
+    check_load_memory(name, detail)?;
     match name {
         "cornell" => cornell::build(detail, seed),
         "garage" => garage::build(detail, seed),
@@ -290,6 +291,41 @@ pub fn load_animated(name: &str, detail: f32, seed: u64) -> Result<Setup> {
 }
 
 /// `detail` must be finite and lie in (0, 16].
+/// Triangles of each built-in scene at detail 1 (measured; `scenes.load(name).scene
+/// .num_triangles`), for [`check_load_memory`].
+const TRIANGLES_AT_DETAIL_1: [(&str, u64); 11] = [
+    ("cornell", 1_262),
+    ("garage", 11_636),
+    ("garden", 402_332),
+    ("dynamics", 6_768),
+    ("hairball", 1_499_272),
+    ("instances", 210_904),
+    ("strands", 241_800),
+    ("room", 16_708),
+    ("panels", 64_010),
+    ("scales", 29_152),
+    ("blob", 330_880),
+];
+
+/// Bytes a triangle takes while a scene is generated, at most: 36 of vertices and 4 of
+/// object id, twice over for a growing vector's slack, and the generators' own buffers.
+const BYTES_PER_GENERATED_TRIANGLE: usize = 128;
+
+/// Fails with [`Error::OutOfMemory`] (naming `detail`) when the buffers of scene `name` at
+/// `detail` could not be allocated: a probe before generating, so that a detail that
+/// cannot be met is a `MemoryError` at once, not an abort after minutes. Triangle counts
+/// grow at most linearly with detail.
+fn check_load_memory(name: &str, detail: f32) -> Result<()> {
+    let Some(&(_, triangles)) = TRIANGLES_AT_DETAIL_1.iter().find(|(n, _)| *n == name) else {
+        return Ok(());
+    };
+    let estimate = (triangles as f64 * detail.max(1.0) as f64) as usize;
+    crate::alloc::check_memory(
+        estimate.saturating_mul(BYTES_PER_GENERATED_TRIANGLE),
+        "detail",
+    )
+}
+
 pub(crate) fn check_detail(detail: f32) -> Result<()> {
     if detail > 0.0 && detail <= MAX_DETAIL {
         Ok(())
@@ -417,6 +453,25 @@ pub(crate) mod testing {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The memory probe knows every scene, and its counts are the scenes' (the small ones
+    /// checked here; the rest were measured the same way).
+    #[test]
+    fn the_load_probe_knows_every_scene() {
+        for name in NAMES {
+            assert!(
+                TRIANGLES_AT_DETAIL_1.iter().any(|(n, _)| *n == name),
+                "{name}"
+            );
+        }
+        for (name, triangles) in TRIANGLES_AT_DETAIL_1 {
+            if triangles < 20_000 {
+                let setup = load(name, 1.0, 0).unwrap();
+                assert_eq!(setup.scene.num_triangles() as u64, triangles, "{name}");
+            }
+        }
+        assert!(check_load_memory("hairball", MAX_DETAIL).is_ok());
+    }
 
     #[test]
     fn names_and_errors() {
