@@ -449,6 +449,11 @@ def report(info: dict, results: list) -> None:
         agree = min(min(r["workloads"][name]["agreement1"], r["workloads"][name]["agreement2"])
                     for r in results)
         print(f"{name:<12}{cells[0]}{cells[1]}{agree:>17.6f}")
+    for side, label in (("ours", "ours"), ("embree", "Embree")):
+        gains = [w[f"{side}2_rays_per_s"] / w[f"{side}1_rays_per_s"]
+                 for r in results for w in r["workloads"].values()]
+        print(f"{label} at 2 threads over 1 (best timings): geometric mean "
+              f"{np.exp(np.mean(np.log(gains))):.2f}, range {min(gains):.2f}-{max(gains):.2f}")
     split = [r["scene"] for r in results
              if not all(w["ours_threads_agree"] for w in r["workloads"].values())]
     print("ours at 1 and 2 threads: " + ("identical answers" if not split
