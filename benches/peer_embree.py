@@ -386,7 +386,7 @@ def main() -> None:
                     help="cornell and garage unless --scenes, smaller workloads")
     ap.add_argument("--json", default="results/peer_embree.json")
     args = ap.parse_args()
-    repeats = args.repeats or (2 if args.quick else 5)
+    repeats = args.repeats if args.repeats is not None else (2 if args.quick else 5)
     if repeats < 1:
         ap.error("--repeats must be at least 1")
     names = args.scenes or (["cornell", "garage"] if args.quick else vc.scenes.suite_names())
