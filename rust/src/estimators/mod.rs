@@ -6,6 +6,7 @@ pub mod control_variate;
 pub mod decoupled;
 pub mod direct;
 pub mod indirect;
+pub mod irradiance;
 pub mod many_lights;
 pub mod normal_products;
 pub mod preview;
