@@ -20,6 +20,7 @@ from ._core import (
 )
 from .ambient import AOResult, render_ao
 from .cache import VisibilityCache
+from .irradiance import IrradianceCache
 from .relight import Relighter, RelightResult
 from .render import RenderResult, methods, preview, render
 
@@ -28,6 +29,7 @@ __all__ = [
     "Camera",
     "EnvMap",
     "GBuffer",
+    "IrradianceCache",
     "LightingPreview",
     "Material",
     "RelightResult",

@@ -242,6 +242,58 @@ class Setup:
     def moving_bounds(self) -> npt.NDArray[np.float32] | None: ...
 
 @disjoint_base
+class IrradianceCache:
+    """One-bounce irradiance records with gradients (survey ch. 3). Subclassed by
+    ``viscache_rs.IrradianceCache``, which adds the progress bar to ``build``."""
+
+    def __new__(
+        cls,
+        scene: Scene,
+        a: float | None = None,
+        strata: tuple[int, int] | None = None,
+        r_min: float | None = None,
+        r_max: float | None = None,
+        gradients: str | None = None,
+        clamp_neighbours: bool | None = None,
+        secondary_spp: int | None = None,
+    ) -> IrradianceCache: ...
+    @property
+    def scene(self) -> Scene: ...
+    @property
+    def params(self) -> dict[str, Any]: ...
+    @property
+    def record_bytes(self) -> int: ...
+    def memory_bytes(self) -> int: ...
+    def __len__(self) -> int: ...
+    def build(
+        self,
+        camera: Camera | None = None,
+        seed: int | None = 0,
+        threads: int | None = None,
+        *,
+        envmap: EnvMap,
+        gbuffer: GBuffer | None = None,
+        time_budget: float | None = None,
+        callback: Any = None,
+    ) -> dict[str, Any]: ...
+    def insert(
+        self,
+        point: _ArrayLike,
+        normal: _ArrayLike,
+        *,
+        envmap: EnvMap,
+        footprint: float | None = None,
+        seed: int | None = 0,
+    ) -> int: ...
+    def lookup(
+        self, points: _ArrayLike, normals: _ArrayLike, threads: int | None = None
+    ) -> dict[str, Any]: ...
+    def records(self) -> dict[str, npt.NDArray[np.float32]]: ...
+    def stats(self) -> dict[str, int]: ...
+    def save(self, path: str | PathLike[str]) -> None: ...
+    @classmethod
+    def load(cls, path: str | PathLike[str], scene: Scene) -> Self: ...
+
 class VisibilityCache:
     """World-space visibility records over a scene (CAM08 sec. 5). Subclassed by
     ``viscache_rs.VisibilityCache``, which adds the progress bar to ``build``."""
@@ -395,7 +447,7 @@ def render(
     time_budget: float | None = None,
     product_level: int | str | None = None,
     callback: Any = None,
-    cache: VisibilityCache | None = None,
+    cache: VisibilityCache | IrradianceCache | None = None,
     jitter: bool = True,
     alpha: float | str | None = None,
     alpha_radius: int | None = 4,
@@ -411,6 +463,13 @@ def render(
     vpls: VPLs | None = None,
     clamp: float | None = None,
     vpl_samples: int | None = None,
+    a: float | None = None,
+    strata: tuple[int, int] | None = None,
+    r_min: float | None = None,
+    r_max: float | None = None,
+    gradients: str | None = None,
+    clamp_neighbours: bool | None = None,
+    secondary_spp: int | None = None,
 ) -> dict[str, Any]: ...
 def methods() -> list[dict[str, Any]]: ...
 def own_cache_record_cap(pixels: int, spp: int, preset: str = "auto") -> int: ...
@@ -424,7 +483,7 @@ OWN_CACHE_BUDGET_SHARE: float
 LIMITS: dict[str, tuple[Any, Any]]
 
 def check_method_args(
-    method: str, given: list[str], cache: VisibilityCache | None = None
+    method: str, given: list[str], cache: VisibilityCache | IrradianceCache | None = None
 ) -> None: ...
 @final
 class VPLs:

@@ -39,9 +39,16 @@ direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=N
   direct light at the first hit): what irradiance caching and VF approximate. Any other
   method takes ``bounces`` too (default 0), its own estimator then shading the first hit;
 - ``"vpl"`` and ``"vpl_sampled"``: the many-light renderer over virtual point lights
-  (``vpls=``, ``clamp=``, ``vpl_samples=``; see :mod:`viscache_rs.vpl`).
+  (``vpls=``, ``clamp=``, ``vpl_samples=``; see :mod:`viscache_rs.vpl`);
+- ``"irradiance_cache"`` (biased, the survey's ch. 3): one bounce (``bounces=1``), its
+  diffuse part interpolated from an :class:`IrradianceCache` (``cache=``, grown for the
+  view; or one built from ``a=``, ``strata=``, ``r_min=``, ``r_max=``, ``gradients=``,
+  ``clamp_neighbours=``, ``secondary_spp=``), Phong's specular part and pixels without a
+  usable record by paths; ``stats["seconds"]`` includes the build, ``stats["records"]``,
+  ``stats["irradiance_misses"]`` say what it did. Direct light as ``"mis"`` unless
+  ``direct=False``.
 
-All are unbiased estimators of the same image. Every pixel's per-point work (the product
+All others are unbiased estimators of the same image. Every pixel's per-point work (the product
 distribution, the cache lookup, J) is done once, at its *anchor*, the first hit through its
 centre. By default (``jitter=True``, antialiased with a box filter) every sample traces its
 own jittered primary ray and shades its own hit with the anchor's work: for "product" and
@@ -152,6 +159,13 @@ def render(
     light_samples: int | None = None,
     learn_techniques: bool = True,
     adaptive: bool | None = None,
+    a: float | None = None,
+    strata: tuple[int, int] | None = None,
+    r_min: float | None = None,
+    r_max: float | None = None,
+    gradients: str | None = None,
+    clamp_neighbours: bool | None = None,
+    secondary_spp: int | None = None,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     # (A cache is checked by the registry below, against the caches the method accepts.)
@@ -165,7 +179,11 @@ def render(
              "gbuffer": gbuffer is not None, "vpls": vpls is not None,
              "clamp": clamp is not None, "vpl_samples": vpl_samples is not None,
              "light_samples": light_samples is not None,
-             "learn_techniques": not learn_techniques, "adaptive": bool(adaptive)}
+             "learn_techniques": not learn_techniques, "adaptive": bool(adaptive),
+             "a": a is not None, "strata": strata is not None, "r_min": r_min is not None,
+             "r_max": r_max is not None, "gradients": gradients is not None,
+             "clamp_neighbours": clamp_neighbours is not None,
+             "secondary_spp": secondary_spp is not None}
     _core.check_method_args(method, [k for k, v in given.items() if v], cache)
     if camera is None:
         camera = setup.camera if gbuffer is None else gbuffer.camera
@@ -203,6 +221,13 @@ def render(
             vpls=vpls,
             clamp=clamp,
             vpl_samples=vpl_samples,
+            a=a,
+            strata=strata,
+            r_min=r_min,
+            r_max=r_max,
+            gradients=gradients,
+            clamp_neighbours=clamp_neighbours,
+            secondary_spp=secondary_spp,
         )
     stats = out["stats"]
     return RenderResult(out["image"], out["variance"], stats, out["alpha"],

@@ -10,6 +10,7 @@ mod envmap;
 mod gbuffer;
 mod image;
 mod interrupt;
+mod irradiance;
 mod material;
 mod octahedral;
 mod preview;
@@ -45,6 +46,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<setup::PySetup>()?;
     m.add_class::<envmap::PyEnvMap>()?;
     m.add_class::<cache::PyVisibilityCache>()?;
+    m.add_class::<irradiance::PyIrradianceCache>()?;
     m.add_class::<preview::PyLightingPreview>()?;
     m.add_class::<relight::PyRelighter>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;

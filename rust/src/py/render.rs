@@ -14,6 +14,7 @@ use super::convert::{
 use super::envmap::PyEnvMap;
 use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::interrupt::{detach_interruptible, PyProgress};
+use super::irradiance::{params_arg as irradiance_params_arg, PyIrradianceCache};
 use super::scene::PyScene;
 use super::vpl::PyVpls;
 use crate::estimators::control_variate::AlphaRule;
@@ -21,7 +22,7 @@ use crate::estimators::direct::Techniques;
 use crate::estimators::indirect::MAX_BOUNCES;
 use crate::estimators::many_lights::MAX_DRAWS;
 use crate::render::output::{Stat, Stats, View as CoreView};
-use crate::render::registry::{self, CacheKind, MethodInputs};
+use crate::render::registry::{self, CacheKind, CacheRef, MethodInputs};
 use crate::render::{RenderParams, MAX_LIGHT_SAMPLES};
 use crate::visibility::params::CacheParams;
 
@@ -120,7 +121,7 @@ fn opt_int(obj: Option<&Bound<'_, PyAny>>, name: &str, lo: u32, hi: u32) -> PyRe
 /// without `cache` builds one of `preset` for the view first
 /// (`crate::render::own_cache`; its figures are the stats' `cache_*`).
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None))]
+#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None, a=None, strata=None, r_min=None, r_max=None, gradients=None, clamp_neighbours=None, secondary_spp=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -134,7 +135,7 @@ pub fn render<'py>(
     time_budget: Option<&Bound<'py, PyAny>>,
     product_level: Option<&Bound<'py, PyAny>>,
     callback: Option<Py<PyAny>>,
-    cache: Option<PyRef<'py, PyVisibilityCache>>,
+    cache: Option<&Bound<'py, PyAny>>,
     jitter: bool,
     alpha: Option<&Bound<'py, PyAny>>,
     #[pyo3(from_py_with = alpha_radius_arg)] alpha_radius: u32,
@@ -150,8 +151,39 @@ pub fn render<'py>(
     vpls: Option<Bound<'py, PyVpls>>,
     clamp: Option<&Bound<'py, PyAny>>,
     vpl_samples: Option<&Bound<'py, PyAny>>,
+    a: Option<&Bound<'py, PyAny>>,
+    strata: Option<&Bound<'py, PyAny>>,
+    r_min: Option<&Bound<'py, PyAny>>,
+    r_max: Option<&Bound<'py, PyAny>>,
+    gradients: Option<&Bound<'py, PyAny>>,
+    clamp_neighbours: Option<&Bound<'py, PyAny>>,
+    secondary_spp: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let view = view_arg(Some(camera), gbuffer)?;
+    let irradiance_given = [
+        a,
+        strata,
+        r_min,
+        r_max,
+        gradients,
+        clamp_neighbours,
+        secondary_spp,
+    ]
+    .iter()
+    .any(|o| o.is_some_and(|o| !o.is_none()));
+    let irradiance = if irradiance_given {
+        Some(irradiance_params_arg(
+            a,
+            strata,
+            r_min,
+            r_max,
+            gradients,
+            clamp_neighbours,
+            secondary_spp,
+        )?)
+    } else {
+        None
+    };
     let spec = registry::method(method).py()?;
     let spp = opt_int(spp, "spp", 1, spec.max_spp)?;
     let bounces = opt_int(bounces, "bounces", 0, MAX_BOUNCES)?;
@@ -178,7 +210,25 @@ pub fn render<'py>(
     let threads = threads_arg(threads)?;
     let scene = scene.get();
     scene.check_bvh_memory().py()?;
-    let cache = cache.map(|c| c.bound(py)).transpose()?;
+    let cache = cache.filter(|c| !c.is_none());
+    let visibility = match cache {
+        Some(c) if c.is_instance_of::<PyVisibilityCache>() => {
+            Some(c.cast::<PyVisibilityCache>()?.borrow().bound(py)?)
+        }
+        _ => None,
+    };
+    let irradiance_cache = match cache {
+        Some(c) if c.is_instance_of::<PyIrradianceCache>() => {
+            Some(c.cast::<PyIrradianceCache>()?.borrow().inner.clone())
+        }
+        Some(c) if visibility.is_none() => {
+            return Err(PyTypeError::new_err(format!(
+                "cache: expected a VisibilityCache, an IrradianceCache or None, got {}",
+                c.get_type().name()?
+            )))
+        }
+        _ => None,
+    };
     let env: Py<PyEnvMap> = envmap.unbind();
     let vpls: Option<Py<PyVpls>> = vpls.map(Bound::unbind);
     let mut reporter = PyProgress::new(callback);
@@ -196,7 +246,12 @@ pub fn render<'py>(
             adaptive,
             light_samples,
             params,
-            cache: cache.as_deref(),
+            cache: match (&visibility, &irradiance_cache) {
+                (Some(v), _) => Some(CacheRef::Visibility(v)),
+                (None, Some(i)) => Some(CacheRef::Irradiance(i)),
+                (None, None) => None,
+            },
+            irradiance,
             vpls: vpls.as_ref().map(|v| &v.get().inner),
             clamp,
             vpl_samples,
@@ -287,9 +342,10 @@ pub fn check_method_args(
     let kind = match cache.filter(|c| !c.is_none()) {
         None => None,
         Some(c) if c.is_instance_of::<PyVisibilityCache>() => Some(CacheKind::Visibility),
+        Some(c) if c.is_instance_of::<PyIrradianceCache>() => Some(CacheKind::Irradiance),
         Some(c) => {
             return Err(PyTypeError::new_err(format!(
-                "cache: expected a VisibilityCache or None, got {}",
+                "cache: expected a VisibilityCache, an IrradianceCache or None, got {}",
                 c.get_type().name()?
             )))
         }

@@ -47,7 +47,8 @@ impl MethodRenderer for DirectRenderer {
         progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
     ) -> Result<RenderOutput> {
         let params = self.params(spec, inputs)?;
-        let (scene, env, cache, threads) = (inputs.scene, inputs.env, inputs.cache, inputs.threads);
+        let cache = inputs.cache.and_then(|c| c.visibility());
+        let (scene, env, threads) = (inputs.scene, inputs.env, inputs.threads);
         let out = match inputs.view {
             View::Camera(cam) => render(scene, env, cam, &params, cache, threads, progress)?,
             View::GBuffer(g) => render_from(scene, env, g, &params, cache, threads, progress)?,
@@ -61,7 +62,7 @@ impl MethodRenderer for DirectRenderer {
 const TECHNIQUES: [&str; 4] = ["product", "guided", "bsdf", "env"];
 
 /// A direct render's figures by name.
-fn stats(spec: &MethodSpec, params: &RenderParams, s: &RenderStats) -> Stats {
+pub(super) fn stats(spec: &MethodSpec, params: &RenderParams, s: &RenderStats) -> Stats {
     let mut d = Stats::default();
     d.set("method", spec.name);
     d.set("bounces", params.bounces);

@@ -84,6 +84,7 @@ use crate::estimators::direct::anchored::AnchoredParams;
 use crate::estimators::direct::light_split;
 use crate::estimators::direct::{Lighting, Method, ProductLevel, Techniques};
 use crate::estimators::indirect::MAX_BOUNCES;
+use crate::estimators::irradiance::cache::IrradianceCache;
 use crate::estimators::normal_products::NormalProducts;
 use crate::geometry::Scene;
 use crate::lights::envmap::chroma::MapChroma;
@@ -98,6 +99,7 @@ pub mod ambient;
 pub mod direct;
 pub mod estimator;
 pub mod frame;
+pub mod irradiance;
 pub mod many_lights;
 pub mod output;
 pub mod own_cache;
@@ -431,6 +433,12 @@ pub struct RenderStats {
     pub mean_alpha: [f64; 3],
     /// Method "cv" given no cache: the cache the render built ([`own_cache`]).
     pub own_cache: Option<own_cache::OwnCacheStats>,
+    /// Samples whose diffuse indirect light the irradiance cache interpolated.
+    pub irradiance_lookups: u64,
+    /// ... and those where no record was usable (a path traced instead).
+    pub irradiance_misses: u64,
+    /// Channels the gradients pushed below 0, clamped.
+    pub irradiance_clamped: u64,
 }
 
 /// A rendered image of the direct methods, with their stats as a struct.
@@ -503,6 +511,26 @@ fn render_with(
     anchors: Option<&GBuffer>,
     params: &RenderParams,
     cache: Option<&VisibilityCache>,
+    threads: Option<usize>,
+    progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
+) -> Result<Rendered> {
+    let caches = (cache, None);
+    render_with_caches(
+        scene, env, camera, anchors, params, caches, threads, progress,
+    )
+}
+
+/// [`render_with`] with the caches a render may read: the visibility cache (method "cv")
+/// and the irradiance cache, whose records then give the diffuse part of the one bounce
+/// ([`irradiance`]).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn render_with_caches(
+    scene: &Scene,
+    env: &EnvMap,
+    camera: &Camera,
+    anchors: Option<&GBuffer>,
+    params: &RenderParams,
+    (cache, irradiance): (Option<&VisibilityCache>, Option<&IrradianceCache>),
     threads: Option<usize>,
     progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
 ) -> Result<Rendered> {
@@ -585,6 +613,7 @@ fn render_with(
         light_samples,
         splits: edge_share.is_some() && light_samples > 1,
         probe_ratios: None,
+        irradiance,
     };
     let pass_params = PassParams {
         spp: params.spp,

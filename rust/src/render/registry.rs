@@ -5,12 +5,14 @@
 //! methods and the same errors.
 
 use super::direct::DirectRenderer;
+use super::irradiance::IrradianceRenderer;
 use super::many_lights::{ManyLightsRenderer, DEFAULT_VPL_SPP};
 use super::output::{RenderOutput, View};
 use super::{RenderParams, MAX_SPP};
 use crate::error::{Error, Result};
 use crate::estimators::direct::Method;
 use crate::estimators::indirect::MAX_BOUNCES;
+use crate::estimators::irradiance::cache::{IrradianceCache, IrradianceParams};
 use crate::estimators::many_lights::MAX_SPP as MANY_LIGHT_MAX_SPP;
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
@@ -22,6 +24,41 @@ use crate::visibility::cache::VisibilityCache;
 pub enum CacheKind {
     /// [`crate::visibility::cache::VisibilityCache`] (CAM08's records).
     Visibility,
+    /// [`IrradianceCache`] (the survey's ch. 3 records).
+    Irradiance,
+}
+
+/// A cache handed to a render (`cache=`), of any kind a method may take.
+#[derive(Clone, Copy, Debug)]
+pub enum CacheRef<'a> {
+    Visibility(&'a VisibilityCache),
+    Irradiance(&'a IrradianceCache),
+}
+
+impl<'a> CacheRef<'a> {
+    /// Its kind.
+    pub fn kind(self) -> CacheKind {
+        match self {
+            CacheRef::Visibility(_) => CacheKind::Visibility,
+            CacheRef::Irradiance(_) => CacheKind::Irradiance,
+        }
+    }
+
+    /// The visibility cache, if it is one.
+    pub fn visibility(self) -> Option<&'a VisibilityCache> {
+        match self {
+            CacheRef::Visibility(c) => Some(c),
+            CacheRef::Irradiance(_) => None,
+        }
+    }
+
+    /// The irradiance cache, if it is one.
+    pub fn irradiance(self) -> Option<&'a IrradianceCache> {
+        match self {
+            CacheRef::Irradiance(c) => Some(c),
+            CacheRef::Visibility(_) => None,
+        }
+    }
 }
 
 impl CacheKind {
@@ -29,6 +66,7 @@ impl CacheKind {
     pub const fn name(self) -> &'static str {
         match self {
             CacheKind::Visibility => "VisibilityCache",
+            CacheKind::Irradiance => "IrradianceCache",
         }
     }
 }
@@ -57,7 +95,11 @@ pub struct MethodInputs<'a> {
     /// pass-layer methods' own. Its `spp`, `method`, `bounces`, `adaptive`,
     /// `light_samples` and `auto_light_samples` are set from the fields above and the row.
     pub params: RenderParams,
-    pub cache: Option<&'a VisibilityCache>,
+    /// A cache of a kind the method takes ([`MethodSpec::caches`]).
+    pub cache: Option<CacheRef<'a>>,
+    /// Method "irradiance_cache" given no cache: the parameters of the one it builds
+    /// (`None`: the defaults).
+    pub irradiance: Option<IrradianceParams>,
     /// The many-light methods' VPLs; `None`: a default set traced for the view.
     pub vpls: Option<&'a VplSet>,
     /// The many-light methods' bound of the geometry term (1/m²).
@@ -80,6 +122,7 @@ impl<'a> MethodInputs<'a> {
             light_samples: None,
             params: RenderParams::DEFAULT,
             cache: None,
+            irradiance: None,
             vpls: None,
             clamp: None,
             vpl_samples: None,
@@ -194,6 +237,25 @@ const CV_PARAMS: &[&str] = &[
     "insert_missing",
 ];
 
+/// What method "irradiance_cache" reads besides the common parameters: the pass layer's,
+/// a cache, and the parameters of the cache it builds without one.
+const IRRADIANCE_PARAMS: &[&str] = &[
+    "gbuffer",
+    "adaptive",
+    "cache",
+    "a",
+    "strata",
+    "r_min",
+    "r_max",
+    "gradients",
+    "clamp_neighbours",
+    "secondary_spp",
+];
+
+/// Samples per pixel of method "irradiance_cache" without `spp` or a time budget: its
+/// samples antialias the interpolated bounce (and estimate direct light, if asked).
+pub const DEFAULT_IRRADIANCE_SPP: u32 = 4;
+
 /// Samples per pixel of the pass-layer methods without `spp` or a time budget.
 pub const DEFAULT_DIRECT_SPP: u32 = 16;
 
@@ -260,6 +322,18 @@ pub const METHODS: &[MethodSpec] = &[
             &DirectRenderer(Method::Mis),
             PASS_PARAMS,
         )
+    },
+    MethodSpec {
+        name: "irradiance_cache",
+        about: "one bounce of diffuse light interpolated from irradiance records with \
+                gradients (survey ch. 3); Phong's specular bounce by paths",
+        renderer: &IrradianceRenderer,
+        params: IRRADIANCE_PARAMS,
+        caches: &[CacheKind::Irradiance],
+        min_bounces: 1,
+        default_bounces: 1,
+        default_spp: DEFAULT_IRRADIANCE_SPP,
+        max_spp: MAX_SPP,
     },
     MethodSpec {
         name: "vpl",
@@ -363,11 +437,12 @@ impl MethodSpec {
             ("gbuffer", matches!(inputs.view, View::GBuffer(_))),
             ("adaptive", inputs.adaptive == Some(true)),
             ("light_samples", inputs.light_samples.is_some()),
+            ("a", inputs.irradiance.is_some()),
         ]
         .into_iter()
         .filter_map(|(name, set)| set.then_some(name))
         .collect();
-        let kind = inputs.cache.map(|_| CacheKind::Visibility);
+        let kind = inputs.cache.map(CacheRef::kind);
         self.check_args(&given, kind)?;
         self.renderer.render(self, inputs, progress)
     }
@@ -582,7 +657,7 @@ mod tests {
         // What the row does not declare is refused, naming it.
         let cache = VisibilityCache::new(crate::visibility::params::CacheParams::MEDIUM).unwrap();
         let with_cache = MethodInputs {
-            cache: Some(&cache),
+            cache: Some(CacheRef::Visibility(&cache)),
             ..inputs
         };
         let e = toy.render(&with_cache, &mut |_, _| true).unwrap_err();

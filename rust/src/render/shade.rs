@@ -22,6 +22,7 @@ use crate::estimators::direct::anchored::{AnchorWork, AnchoredShader};
 use crate::estimators::direct::light_split;
 use crate::estimators::direct::mixture_choice::{Choices, DrawMoments, PixelTechniques};
 use crate::estimators::direct::{Lighting, ProductLevel, Techniques};
+use crate::estimators::irradiance::cache::IrradianceCache;
 use crate::estimators::normal_products::NormalProducts;
 use crate::lights::envmap::chroma::MapChroma;
 use crate::lights::envmap::luminance;
@@ -83,6 +84,9 @@ pub(super) struct DirectMethod<'a> {
     /// Whether the probe measures the light draws per sample ([`split`]).
     pub(super) splits: bool,
     pub(super) probe_ratios: Option<light_split::ProbeRatios>,
+    /// The irradiance cache whose records give the diffuse part of one bounce (method
+    /// "irradiance_cache").
+    pub(super) irradiance: Option<&'a IrradianceCache>,
 }
 
 impl PixelEstimator for DirectMethod<'_> {
@@ -99,6 +103,7 @@ impl PixelEstimator for DirectMethod<'_> {
 
     fn pass<R>(&self, plan: &PassPlan, run: impl FnOnce(&AnchoredShader<'_>) -> R) -> R {
         let guard = self.cache.map(|c| c.read());
+        let irradiance = self.irradiance.map(|c| c.read());
         // The mixtures the pilot's draws are weighed for, and chosen among after it.
         let choices = (plan.pilot && self.choose_mixtures).then(|| Choices::new(self.techniques));
         let shader = AnchoredShader {
@@ -120,6 +125,7 @@ impl PixelEstimator for DirectMethod<'_> {
             // A view that splits lets its probe choose how many draws the passes take.
             measure_split: plan.probe && self.splits,
             normal_products: self.normal_products.as_ref(),
+            irradiance: irradiance.as_deref(),
         };
         run(&shader)
     }
@@ -215,6 +221,9 @@ impl DirectMethod<'_> {
         stats.shared_lookups = total.shared_lookups;
         stats.reused_integrals = total.reused_integrals;
         stats.reused_products = total.reused_products;
+        stats.irradiance_lookups = total.irradiance_lookups;
+        stats.irradiance_misses = total.irradiance_misses;
+        stats.irradiance_clamped = total.irradiance_clamped;
         stats.unmatched_samples = total.unmatched_samples;
         stats.record_misses = total.verdicts.values().map(|v| v.0 as u64).sum();
         stats.record_uses = total.verdicts.values().map(|v| v.1 as u64).sum();

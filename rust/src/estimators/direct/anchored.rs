@@ -21,6 +21,8 @@ use crate::bsdf::Material;
 use crate::camera::{Camera, GBuffer, DIM_PIXEL_JITTER};
 use crate::estimators::control_variate::{control_sample, LobeControl};
 use crate::estimators::indirect::{estimate_indirect, shading_point_at, PathParams};
+use crate::estimators::irradiance::build::diffuse_albedo;
+use crate::estimators::irradiance::cache::IrradianceState;
 use crate::estimators::normal_products::NormalProducts;
 use crate::geometry::bvh::PACKET;
 use crate::geometry::{SurfaceHit, TraversalCounters};
@@ -96,6 +98,12 @@ pub struct AnchorWork {
     pub shared_lookups: u64,
     /// ... whose `J` was the neighbour's too (the same product distribution).
     pub reused_integrals: u64,
+    /// Samples whose diffuse indirect light the irradiance cache interpolated.
+    pub irradiance_lookups: u64,
+    /// ... and those where no record was usable (a path traced instead).
+    pub irradiance_misses: u64,
+    /// Channels the gradients pushed below 0, clamped.
+    pub irradiance_clamped: u64,
     /// The pixel being shaded, and the matched draws kept for learning the mixture:
     /// (pixel, `f cos L V` in luminance, techniques' densities, mixture density).
     pixel: u32,
@@ -148,6 +156,9 @@ impl AnchorWork {
         self.shared_lookups += o.shared_lookups;
         self.reused_integrals += o.reused_integrals;
         self.reused_products += o.reused_products;
+        self.irradiance_lookups += o.irradiance_lookups;
+        self.irradiance_misses += o.irradiance_misses;
+        self.irradiance_clamped += o.irradiance_clamped;
         for (id, (m, u)) in o.verdicts {
             let e = self.verdicts.entry(id).or_default();
             e.0 += m;
@@ -209,6 +220,14 @@ pub struct AnchoredShader<'a> {
     pub measure_split: bool,
     /// Products by normal for diffuse hits off their anchor's surface.
     pub normal_products: Option<&'a NormalProducts<'a>>,
+    /// The irradiance cache's records (read-locked for the pass): one-bounce light of the
+    /// diffuse part interpolated from them instead of traced ([`Self::cached_indirect`]).
+    pub irradiance: Option<&'a IrradianceState>,
+}
+
+thread_local! {
+    /// The records an irradiance interpolation gathers, reused between samples.
+    static REACHING: std::cell::RefCell<Vec<(u32, f32)>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Draws a band keeps for [`Techniques::learnt`].
@@ -549,16 +568,64 @@ impl AnchoredShader<'_> {
             return Vec3::ZERO;
         }
         let start = Instant::now();
-        let l = estimate_indirect(
+        let l = match self.irradiance {
+            Some(state) => self.cached_indirect(state, sp, rng, work),
+            None => self.path(sp, rng, work),
+        };
+        work.indirect_ns += elapsed_ns(start);
+        l
+    }
+
+    /// [`estimate_indirect`] at `sp` with the render's bounces.
+    fn path(&self, sp: &ShadingPoint, rng: &PixelSampler, work: &mut AnchorWork) -> Vec3 {
+        estimate_indirect(
             &self.lighting,
             sp,
             &PathParams::new(self.params.bounces),
             rng,
             &mut work.direct,
             &mut work.bvh,
-        );
-        work.indirect_ns += elapsed_ns(start);
-        l
+        )
+    }
+
+    /// One bounce at `sp` with the irradiance cache (Survey eq. 3.8): the diffuse part
+    /// `k_d/π · E(x)` interpolated from the records, Phong's specular part by a path
+    /// sampling that lobe alone (radiance caching, §3.4, is not built). Where no record is
+    /// usable the whole bounce is a path, so such samples stay unbiased.
+    fn cached_indirect(
+        &self,
+        state: &IrradianceState,
+        sp: &ShadingPoint,
+        rng: &PixelSampler,
+        work: &mut AnchorWork,
+    ) -> Vec3 {
+        let albedo = Vec3::from(diffuse_albedo(&sp.material));
+        if albedo == Vec3::ZERO {
+            return self.path(sp, rng, work);
+        }
+        let found = REACHING.with(|r| state.interpolate(sp.origin, sp.normal, &mut r.borrow_mut()));
+        let Some(found) = found else {
+            work.irradiance_misses += 1;
+            return self.path(sp, rng, work);
+        };
+        work.irradiance_lookups += 1;
+        work.irradiance_clamped += found.clamped as u64;
+        let diffuse = albedo * Vec3::from(found.irradiance) * std::f32::consts::FRAC_1_PI;
+        let specular = match sp.material {
+            Material::Phong { ks, exponent, .. } if ks != [0.0; 3] => {
+                let lobe = ShadingPoint {
+                    material: Material::Phong {
+                        kd: [0.0; 3],
+                        ks,
+                        exponent,
+                    },
+                    ..*sp
+                };
+                self.path(&lobe, rng, work)
+            }
+            _ => Vec3::ZERO,
+        };
+        diffuse + specular
     }
 
     /// What the camera sees of the map through a pixel: direct light.

@@ -5,5 +5,8 @@
 //! Biased: what the records miss between them is error, measured against the one-bounce
 //! reference ([`crate::estimators::indirect`]).
 
+pub mod build;
 pub mod cache;
+pub mod io;
+mod reach_stub;
 pub mod record;

@@ -51,7 +51,11 @@ pub struct RecordRays {
 pub fn record_key(position: Vec3, normal: Vec3) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     // `+ 0.0` makes −0 and 0 one key.
-    for v in (position + 0.0).to_array().into_iter().chain((normal + 0.0).to_array()) {
+    for v in (position + 0.0)
+        .to_array()
+        .into_iter()
+        .chain((normal + 0.0).to_array())
+    {
         h ^= v.to_bits() as u64;
         h = h.wrapping_mul(0x0100_0000_01b3);
         h ^= h >> 29;
