@@ -680,6 +680,17 @@ impl IrradianceCache {
     }
 }
 
+impl IrradianceCache {
+    /// Inserts a record made elsewhere (a copy, a synthetic one) with neighbour clamping
+    /// when the parameters ask for it; returns its id. Refused, naming `record`, unless its
+    /// position is finite, its normal unit, its radius finite and `> 0`, its irradiance
+    /// finite and `>= 0` and its gradients finite; the cache is then unchanged.
+    pub fn insert_record(&self, record: IrradianceRecord) -> Result<u32> {
+        super::io::check_record(&record).map_err(|why| Error::invalid("record", why))?;
+        self.write().push(record, self.params.clamp_neighbours)
+    }
+}
+
 /// Fails naming `name` unless `p` is finite.
 pub(crate) fn check_point(name: &str, p: Vec3) -> Result<()> {
     if p.is_finite() {

@@ -63,6 +63,12 @@ fn record_of(v: &[f32]) -> std::result::Result<IrradianceRecord, String> {
         rotation: [vec(10), vec(13), vec(16)],
         translation: [vec(19), vec(22), vec(25)],
     };
+    check_record(&r)?;
+    Ok(r)
+}
+
+/// Why `r` is not a record the cache can hold, if it is not.
+pub(super) fn check_record(r: &IrradianceRecord) -> std::result::Result<(), String> {
     if !r.position.is_finite() {
         return Err("a non-finite position".into());
     }
@@ -86,7 +92,7 @@ fn record_of(v: &[f32]) -> std::result::Result<IrradianceRecord, String> {
     {
         return Err("a non-finite gradient".into());
     }
-    Ok(r)
+    Ok(())
 }
 
 impl IrradianceCache {
