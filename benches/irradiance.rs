@@ -67,7 +67,13 @@ fn lookups(c: &mut Criterion) {
             .collect();
         let step = 1.0 / side as f32;
         let ordered: Vec<Vec3> = (0..n as u32)
-            .map(|k| Vec3::new((k % side) as f32 * step, 0.0, (k / side % side) as f32 * step))
+            .map(|k| {
+                Vec3::new(
+                    (k % side) as f32 * step,
+                    0.0,
+                    (k / side % side) as f32 * step,
+                )
+            })
             .collect();
         let state = cache.read();
         let used: u64 = random

@@ -185,9 +185,12 @@ impl WaveTarget for Refine<'_> {
         !state.covers(x, n, &mut scratch)
     }
 
+    /// The record of pixel `i`, its random numbers keyed by the pixel: the same record at
+    /// any scene scale, whichever wave or worker makes it.
     fn make(&self, i: u32) -> Result<Self::Record> {
-        let (x, n, f) = self.query(i);
-        Ok(self.cache.trace(self.lighting, x, n, f, self.seed))
+        Ok(self
+            .cache
+            .trace(self.lighting, self.query(i), self.seed, i as u64))
     }
 
     fn insert(
@@ -207,3 +210,6 @@ impl WaveTarget for Refine<'_> {
         Ok(true)
     }
 }
+
+#[cfg(test)]
+mod tests;

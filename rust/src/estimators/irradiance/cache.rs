@@ -572,14 +572,14 @@ impl IrradianceCache {
     }
 
     /// Traces the record of the surface point `position` (unit `normal`) for a pixel of
-    /// `footprint` world units (its radius bounds), with `seed`. Takes no lock.
+    /// `footprint` world units (its radius bounds), its random numbers from `(seed, key)`.
+    /// Takes no lock.
     pub fn trace(
         &self,
         lighting: &Lighting,
-        position: Vec3,
-        normal: Vec3,
-        footprint: f32,
+        (position, normal, footprint): (Vec3, Vec3, f32),
         seed: u64,
+        key: u64,
     ) -> (IrradianceRecord, RecordRays, TraversalCounters) {
         let mut counters = DirectCounters::default();
         let mut bvh = TraversalCounters::default();
@@ -590,7 +590,7 @@ impl IrradianceCache {
             &self.params.record(),
             self.params.radius_bounds(footprint),
             seed,
-            record_key(position, normal),
+            key,
             &mut counters,
             &mut bvh,
         );
@@ -627,7 +627,8 @@ impl IrradianceCache {
             }
         };
         self.bind_scene(lighting.scene)?;
-        let (record, rays, bvh) = self.trace(lighting, position, normal, footprint, seed);
+        let key = record_key(position, normal);
+        let (record, rays, bvh) = self.trace(lighting, (position, normal, footprint), seed, key);
         lighting.scene.add_counters(bvh);
         let mut state = self.write();
         state.counters.count(&rays);

@@ -286,3 +286,36 @@ fn files_round_trip_and_refuse_corruption() {
     bad.extend(sum.to_le_bytes());
     assert!(parse(&bad).contains("record 3"), "{}", parse(&bad));
 }
+
+#[test]
+fn records_never_serve_across_a_floor_wall_edge() {
+    // A floor record 1 mm from the wall's foot, however large its radius and `a`: a wall
+    // point at the foot differs by 90° in normal, which eq. 3.7's normal term alone puts
+    // at the border for a = 1.
+    for a in [0.05f32, 0.2, 1.0] {
+        let mut s = state(IrradianceParams {
+            a,
+            ..IrradianceParams::DEFAULT
+        });
+        s.push(
+            record(Vec3::new(-0.001, 0.0, 0.0), Vec3::Y, 1.0, 100.0),
+            true,
+        )
+        .unwrap();
+        let mut scratch = Vec::new();
+        for y in [0.0f32, 1e-4, 0.01] {
+            let wall = Vec3::new(0.0, y, 0.0);
+            assert!(
+                s.interpolate(wall, -Vec3::X, &mut scratch).is_none(),
+                "a {a} y {y}"
+            );
+        }
+        // A grazing pair of normals 1° apart is served.
+        let tilt = 1f32.to_radians();
+        let n = Vec3::new(tilt.sin(), tilt.cos(), 0.0);
+        assert!(
+            s.interpolate(Vec3::ZERO, n, &mut scratch).is_some(),
+            "a {a}"
+        );
+    }
+}
