@@ -1,6 +1,9 @@
 //! The first pass of §3.2.2: records for a view, coarse to fine over its G-buffer, where no
 //! record is usable (Algorithm 1, lines 3 and 7–8), grown in deterministic waves by the
-//! record index's [`WaveBuilder`] — the visibility cache's and AO's build.
+//! record index's [`WaveBuilder`] — the visibility cache's and AO's build. Neighbour
+//! clamping may take a point's record away after its level was walked (it lowers the
+//! radii of records already made), so sweeps over every point follow until one adds
+//! nothing.
 
 use std::ops::{Deref, DerefMut};
 use std::time::Instant;
@@ -95,7 +98,21 @@ impl IrradianceCache {
                 gbuffer,
                 seed,
             };
-            WaveBuilder::new(start, time_budget, progress).run(&target, levels, report.points)
+            let mut builder = WaveBuilder::new(start, time_budget, progress);
+            let mut waves = builder.run(&target, levels, report.points)?;
+            // Neighbour clamping lowers the radii of records made before, so a point that
+            // one of them served when its level was walked may have lost it: sweep every
+            // point again, in pixel order, until a sweep inserts nothing. A point given its
+            // own record stays served (e = 0), so the sweeps end.
+            let mut fresh = waves.inserted;
+            while self.params().clamp_neighbours && waves.complete && fresh > 0 {
+                let sweep = builder.run(&target, [points.iter().copied()], report.points)?;
+                fresh = sweep.inserted;
+                waves.inserted += sweep.inserted;
+                waves.discarded += sweep.discarded;
+                waves.complete = sweep.complete;
+            }
+            Ok::<_, crate::error::Error>(waves)
         })??;
         report.inserted = waves.inserted;
         report.discarded = waves.discarded;
