@@ -201,3 +201,68 @@ def test_relight_experiment_smoke(tmp_path, monkeypatch):
     assert rec["overhead"]["bytes_per_pixel_and_light"] == 4 + 4
     md = (tmp_path / "relight" / "results.md").read_text()
     assert "Where the estimated bound holds" in md and "| garage_rot45 | cache | 0.25 |" in md
+
+
+def test_irradiance_cache_experiment_smoke(tmp_path, monkeypatch):
+    from viscache_rs import experiments
+    from viscache_rs.experiments import irradiance_cache
+
+    def tiny(quick):
+        return {"scenes": [("cornell", None)], "width": 24, "height": 18,
+                "reference_spp": 256, "a": [0.2, 0.4], "gradients": ["none", "both"],
+                "clamp": [True], "path_budgets": [1.0], "interpolation_size": (16, 12),
+                "scaling": [(16, 12), (32, 24), (64, 48)]}
+
+    monkeypatch.setattr(irradiance_cache, "settings", tiny)
+    assert irradiance_cache.settings(True)["scenes"] == [("cornell", None)]
+    experiments.run("irradiance-cache", quick=True, out=tmp_path, seed=1, threads=2,
+                    progress=False)
+    out = tmp_path / "irradiance-cache"
+    data = json.loads((out / "results.json").read_text())
+    d = data["cornell/default"]
+    assert d["records"] > 0 and d["build_complete"] and 0 <= d["misses"] < d["lookups"]
+    assert d["hemisphere_rays"] % (16 * 64) == 0
+    assert d["hemisphere_rays"] >= d["records"] * 16 * 64
+    assert 0 < d["build_seconds"] < d["seconds"]
+    assert np.isfinite(d["relmse"]) and len(d["relmse_rgb"]) == 3
+    grid = data["cornell/grid"]
+    assert [(r["a"], r["gradients"]) for r in grid] == [
+        (0.2, "none"), (0.2, "both"), (0.4, "none"), (0.4, "both")]
+    # Gradients change the interpolation, not the records.
+    assert grid[0]["records"] == grid[1]["records"] > grid[2]["records"] == grid[3]["records"]
+    assert all(0 <= r["misses"] < r["lookups"] for r in grid)
+    # The interpolation's own error: gradients lower it (measured 2-3x on cornell), and a
+    # per-pixel cache gives every point its own record.
+    for a in (0.2, 0.4):
+        none, both = (r["interpolation_relmse"] for r in grid if r["a"] == a)
+        assert 0 < both < none
+    assert data["cornell/per_pixel"]["own_record"] == 1
+    assert data["cornell/per_pixel"]["record_noise"] > 0
+    gains = data["cornell/gradient_gain_interpolation"]
+    assert [(g["a"], g["gradients"]) for g in gains] == [(0.2, "both"), (0.4, "both")]
+    eq = {o["method"]: o for o in data["cornell/equal_time"]}
+    assert set(eq) == {"path", "vpl"} and eq["path"]["spp"] >= 1
+    assert all(o["seconds"] > 0 and np.isfinite(o["relmse"]) for o in eq.values())
+    whole = data["cornell/whole_image"]
+    assert whole["path"]["seconds"] > 0 and whole["irradiance_cache"]["records"] > 0
+    rows = data["cornell/scaling"]["rows"]
+    assert [r["records"] for r in rows] == sorted(r["records"] for r in rows)
+    assert data["cornell/scaling"]["ratio"] == rows[-1]["records"] / rows[0]["records"]
+    summary = data["summary"]["cornell"]
+    assert summary["record_ratio"] >= 1
+    # A ratio of relMSEs is given only where both are positive (each less its
+    # reference's noise share), else None and its target undecided.
+    for key, met in (("relmse_ratio_to_path", "path_target_met"),
+                     ("whole_image_ratio_to_path", None)):
+        r = summary[key]
+        assert r is None or r > 0
+        if met:
+            assert summary[met] is (None if r is None else r <= 0.1)
+    md = (out / "results.md").read_text()
+    assert "## Targets (issue 62 §5)" in md and "| cornell | 0.4 | both | on |" in md
+    for name in ("cornell_records.png", "cornell_relmse_vs_a.png", "cornell_equal_time.png",
+                 "records_vs_pixels.png", "cornell_cache.png"):
+        assert (out / name).read_bytes().startswith(b"\x89PNG"), name
+    # The reference is kept and read again by a rerun.
+    assert len(list(out.glob("reference_cornell_path_24x18_256spp_seed1.npz"))) == 1
+    assert data["cornell/reference"]["cached"] is False

@@ -269,7 +269,7 @@ def experiment(args: argparse.Namespace) -> int:
         for name in experiments.names():
             text = " ".join(plain(experiments.describe(name)).split())
             first = re.split(r"(?<=[a-z0-9)]\.)\s+(?=[A-Z])", text, maxsplit=1)[0]
-            print(textwrap.fill(first, width=88, initial_indent=f"{name:<16}",
+            print(textwrap.fill(first, width=88, initial_indent=f"{name:<15} ",
                                 subsequent_indent=" " * 16))
         return 0 if args.list else 2
     try:

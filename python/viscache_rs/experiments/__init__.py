@@ -28,6 +28,7 @@ _MODULES = {
     "animation": "animation",
     "tradeoff": "tradeoff",
     "relight": "relight",
+    "irradiance-cache": "irradiance_cache",
 }
 
 

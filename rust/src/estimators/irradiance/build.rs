@@ -1,6 +1,9 @@
 //! The first pass of §3.2.2: records for a view, coarse to fine over its G-buffer, where no
 //! record is usable (Algorithm 1, lines 3 and 7–8), grown in deterministic waves by the
-//! record index's [`WaveBuilder`] — the visibility cache's and AO's build.
+//! record index's [`WaveBuilder`] — the visibility cache's and AO's build. Neighbour
+//! clamping may take a point's record away after its level was walked (it lowers the
+//! radii of records already made), so sweeps over every point follow until one adds
+//! nothing.
 
 use std::ops::{Deref, DerefMut};
 use std::time::Instant;

@@ -51,6 +51,10 @@ use crate::spatial::{Records, SpatialIndex};
 /// reach are skipped (Algorithm 2, line 3). Scale-free, unlike Ward's fixed distance.
 pub const FRONT_TOLERANCE: f32 = 0.05;
 
+/// `1 − cos` below which two unit normals count as equal in eq. 3.7 (normal term 0): the
+/// rounding of `f32` unit vectors, a turn of at most 0.06°.
+pub const SAME_NORMAL_COS: f64 = 4.0 * f32::EPSILON as f64;
+
 /// Most strata per record (`M·N`).
 pub const MAX_STRATA: u32 = 1 << 16;
 /// Most direct-light samples per stratum hit.
@@ -322,7 +326,14 @@ impl IrradianceState {
         let a = self.a;
         let d = (x - r.position).length() as f64;
         let cos = (n.dot(r.normal) as f64).clamp(-1.0, 1.0);
-        let e = d / r.radius as f64 + (1.0 - cos).max(0.0).sqrt();
+        // Unit normals in f32 are unit to a few ulps, so equal normals may give
+        // `cos = 1 − 1e-7`, whose root (3e-4) would keep a record's own point from `e = 0`.
+        let turn = if cos >= 1.0 - SAME_NORMAL_COS {
+            0.0
+        } else {
+            (1.0 - cos).sqrt()
+        };
+        let e = d / r.radius as f64 + turn;
         if e >= a || e.is_nan() {
             return None;
         }
