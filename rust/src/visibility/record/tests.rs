@@ -3,6 +3,7 @@
 //! cosine-weighted estimate, `R_i` against closest hits of every ray; extremes: M = 1 and 7,
 //! open (empty scene) and closed (inside the Cornell box) records, bad arguments.
 
+use super::difference::{xor_popcount_dispatch, xor_popcount_portable, Words16, XorPopcount};
 use super::*;
 use crate::math::to_world;
 use crate::sampling::octahedral::{morton_decode, texel_of};
@@ -378,19 +379,19 @@ fn difference_equals_a_bit_by_bit_count() {
     }
 }
 
-/// Every kernel this CPU can run, on every length up to 40 words (whole vectors, tails and
-/// the straight-line 16-word form), against the portable count.
-#[cfg(target_arch = "x86_64")]
+/// Every form of the count this CPU can run ([`crate::simd::run_at`] at each level), on
+/// every length up to 40 words (whole vectors, tails and the straight-line 16-word form),
+/// against the portable count; and the dispatched count.
 #[test]
 fn every_xor_popcount_kernel_agrees_with_the_portable_count() {
-    let has = |feature: &str| match feature {
-        "popcnt" => std::arch::is_x86_feature_detected!("popcnt"),
-        "avx2" => std::arch::is_x86_feature_detected!("avx2"),
-        _ => {
-            std::arch::is_x86_feature_detected!("avx512f")
-                && std::arch::is_x86_feature_detected!("avx512vpopcntdq")
-        }
-    };
+    use crate::simd::{run_at, SimdLevel};
+    let levels = [
+        SimdLevel::Portable,
+        SimdLevel::Popcnt,
+        SimdLevel::Avx2,
+        SimdLevel::Avx512,
+    ];
+    let mut ran = [0usize; 4];
     for len in 0..=40usize {
         let a: Vec<u64> = (0..len)
             .map(|i| hash4(1, len as u64, i as u64, 0))
@@ -401,27 +402,26 @@ fn every_xor_popcount_kernel_agrees_with_the_portable_count() {
         let expected = xor_popcount_portable(&a, &b);
         assert_eq!(xor_popcount(&a, &b), expected, "dispatched, {len} words");
         assert_eq!(xor_popcount_dispatch(&a, &b), expected, "{len} words");
-        // SAFETY (each call): the features were detected just before.
-        if has("popcnt") {
-            assert_eq!(unsafe { xor_popcount_popcnt(&a, &b) }, expected);
-        }
-        if has("avx2") && has("popcnt") {
-            assert_eq!(unsafe { xor_popcount_avx2(&a, &b) }, expected);
-        }
-        if has("avx512") {
-            assert_eq!(
-                unsafe { xor_popcount_avx512(&a, &b) },
-                expected,
-                "{len} words"
-            );
-            let pair = (
-                <&[u64; 16]>::try_from(&a[..]),
-                <&[u64; 16]>::try_from(&b[..]),
-            );
-            if let (Ok(a16), Ok(b16)) = pair {
-                assert_eq!(unsafe { xor_popcount_avx512_16(a16, b16) }, expected);
+        for (k, &at) in levels.iter().enumerate() {
+            let (a, b) = (&a[..], &b[..]);
+            if let Some(got) = run_at(at, XorPopcount { a, b }) {
+                assert_eq!(got, expected, "{}, {len} words", at.name());
+                ran[k] += 1;
+            }
+            let pair = (<&[u64; 16]>::try_from(a), <&[u64; 16]>::try_from(b));
+            if let (Ok(a), Ok(b)) = pair {
+                // The straight-line form answers exactly at the AVX-512 level.
+                let want = (at == SimdLevel::Avx512).then_some(expected);
+                if let Some(got) = run_at(at, Words16 { a, b }) {
+                    assert_eq!(got, want, "16 words, {}", at.name());
+                }
             }
         }
+    }
+    // Every level up to this CPU's ran on every length, and none above it.
+    for (k, &at) in levels.iter().enumerate() {
+        let expected = if crate::simd::has(at) { 41 } else { 0 };
+        assert_eq!(ran[k], expected, "{}", at.name());
     }
 }
 
