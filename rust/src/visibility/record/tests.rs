@@ -410,17 +410,17 @@ fn every_xor_popcount_kernel_agrees_with_the_portable_count() {
             }
             let pair = (<&[u64; 16]>::try_from(a), <&[u64; 16]>::try_from(b));
             if let (Ok(a), Ok(b)) = pair {
-                // The straight-line form answers exactly at the AVX-512 level.
-                let want = (at == SimdLevel::Avx512).then_some(expected);
+                // The straight-line form at the AVX-512 level, the dispatched one below.
                 if let Some(got) = run_at(at, Words16 { a, b }) {
-                    assert_eq!(got, want, "16 words, {}", at.name());
+                    assert_eq!(got, expected, "16 words, {}", at.name());
                 }
             }
         }
     }
     // Every level up to this CPU's ran on every length, and none above it.
+    let best = crate::simd::level();
     for (k, &at) in levels.iter().enumerate() {
-        let expected = if crate::simd::has(at) { 41 } else { 0 };
+        let expected = if at <= best { 41 } else { 0 };
         assert_eq!(ran[k], expected, "{}", at.name());
     }
 }
