@@ -3,7 +3,9 @@
 //! cosine-weighted estimate, `R_i` against closest hits of every ray; extremes: M = 1 and 7,
 //! open (empty scene) and closed (inside the Cornell box) records, bad arguments.
 
-use super::difference::{xor_popcount_dispatch, xor_popcount_portable, Words16, XorPopcount};
+use super::difference::{
+    xor_popcount_dispatch, xor_popcount_portable, Words, Words16, XorPopcount,
+};
 use super::*;
 use crate::math::to_world;
 use crate::sampling::octahedral::{morton_decode, texel_of};
@@ -380,19 +382,36 @@ fn difference_equals_a_bit_by_bit_count() {
 }
 
 /// Every form of the count this CPU can run ([`crate::simd::run_at`] at each level), on
-/// every length up to 40 words (whole vectors, tails and the straight-line 16-word form),
-/// against the portable count; and the dispatched count.
+/// every length up to 40 words (whole vectors, tails and the straight-line 16-word form)
+/// and the 64 and 256 words of 64² and 128² maps, against the portable count; and the
+/// dispatched count.
 #[test]
 fn every_xor_popcount_kernel_agrees_with_the_portable_count() {
-    use crate::simd::{run_at, SimdLevel};
+    use crate::simd::{run_at, Kernel, SimdLevel};
     let levels = [
         SimdLevel::Portable,
         SimdLevel::Popcnt,
         SimdLevel::Avx2,
         SimdLevel::Avx512,
     ];
+    /// `kernel` at every level this CPU has, each against `expected`; counts the runs.
+    fn at_every_level<K: Kernel<Output = u32> + Copy>(
+        levels: &[SimdLevel; 4],
+        kernel: K,
+        expected: u32,
+        what: &str,
+        ran: &mut [usize; 4],
+    ) {
+        for (k, &at) in levels.iter().enumerate() {
+            if let Some(got) = run_at(at, kernel) {
+                assert_eq!(got, expected, "{what}, {}", at.name());
+                ran[k] += 1;
+            }
+        }
+    }
+    let lengths: Vec<usize> = (0..=40).chain([64, 256]).collect();
     let mut ran = [0usize; 4];
-    for len in 0..=40usize {
+    for &len in &lengths {
         let a: Vec<u64> = (0..len)
             .map(|i| hash4(1, len as u64, i as u64, 0))
             .collect();
@@ -402,25 +421,27 @@ fn every_xor_popcount_kernel_agrees_with_the_portable_count() {
         let expected = xor_popcount_portable(&a, &b);
         assert_eq!(xor_popcount(&a, &b), expected, "dispatched, {len} words");
         assert_eq!(xor_popcount_dispatch(&a, &b), expected, "{len} words");
-        for (k, &at) in levels.iter().enumerate() {
-            let (a, b) = (&a[..], &b[..]);
-            if let Some(got) = run_at(at, XorPopcount { a, b }) {
-                assert_eq!(got, expected, "{}, {len} words", at.name());
-                ran[k] += 1;
-            }
-            let pair = (<&[u64; 16]>::try_from(a), <&[u64; 16]>::try_from(b));
-            if let (Ok(a), Ok(b)) = pair {
-                // The straight-line form at the AVX-512 level, the dispatched one below.
-                if let Some(got) = run_at(at, Words16 { a, b }) {
-                    assert_eq!(got, expected, "16 words, {}", at.name());
-                }
-            }
+        let (a, b) = (&a[..], &b[..]);
+        let what = format!("{len} words");
+        at_every_level(&levels, XorPopcount { a, b }, expected, &what, &mut ran);
+        // Array forms: the straight-line form at the AVX-512 level (the dispatched one
+        // below), and the dispatched forms' carrier.
+        let mut unused = [0; 4];
+        if let (Ok(a), Ok(b)) = (<&[u64; 16]>::try_from(a), <&[u64; 16]>::try_from(b)) {
+            at_every_level(&levels, Words16 { a, b }, expected, &what, &mut unused);
+            at_every_level(&levels, Words { a, b }, expected, &what, &mut unused);
+        }
+        if let (Ok(a), Ok(b)) = (<&[u64; 64]>::try_from(a), <&[u64; 64]>::try_from(b)) {
+            at_every_level(&levels, Words { a, b }, expected, &what, &mut unused);
+        }
+        if let (Ok(a), Ok(b)) = (<&[u64; 256]>::try_from(a), <&[u64; 256]>::try_from(b)) {
+            at_every_level(&levels, Words { a, b }, expected, &what, &mut unused);
         }
     }
     // Every level up to this CPU's ran on every length, and none above it.
     let best = crate::simd::level();
     for (k, &at) in levels.iter().enumerate() {
-        let expected = if at <= best { 41 } else { 0 };
+        let expected = if at <= best { lengths.len() } else { 0 };
         assert_eq!(ran[k], expected, "{}", at.name());
     }
 }
