@@ -472,10 +472,6 @@ def test_smaller_a_means_more_records(cornell, small):
     assert tiny.stats["records"] == 16 * 12
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "issue 62: relMSE of the render rises as a falls (cornell 64x48: a = 0.4 2e-4, "
-    "a = 0.1 1e-3, a = 0.05 3e-3): jittered hits that no record reaches (4% of samples "
-    "at a = 0.2, 28% at a = 0.05) take a one-sample path; pass 2 fills no gaps yet"))
 def test_render_error_falls_as_a_falls(cornell, small, reference):
     err = {a: vc.metrics.relmse(ic_render(cornell, small, a=a).image, reference.image,
                                 reference.variance) for a in (0.4, 0.1)}

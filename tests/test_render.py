@@ -449,9 +449,12 @@ def test_bad_arguments_name_themselves(small_setups, kwargs, exc, needle):
 
 def test_the_registry_lists_every_method_and_refuses_what_a_method_ignores(small_setups):
     table = {m["name"]: m for m in vc.methods()}
-    assert list(table) == ["env", "bsdf", "mis", "product", "cv", "path", "vpl", "vpl_sampled"]
+    assert list(table) == ["env", "bsdf", "mis", "product", "cv", "path", "irradiance_cache",
+                           "vpl", "vpl_sampled"]
     assert table["cv"]["caches"] == ["VisibilityCache"]
-    assert all(not m["caches"] for name, m in table.items() if name != "cv")
+    assert table["irradiance_cache"]["caches"] == ["IrradianceCache"]
+    assert all(not m["caches"] for name, m in table.items()
+               if name not in ("cv", "irradiance_cache"))
     assert (table["path"]["min_bounces"], table["path"]["default_bounces"]) == (1, 1)
     assert table["vpl"]["estimator"] == "many_lights"
     assert (table["mis"]["default_spp"], table["vpl"]["default_spp"]) == (16, 1)

@@ -16,6 +16,7 @@ __all__ = [
     "Setup",
     "EnvMap",
     "GBuffer",
+    "IrradianceCache",
     "VisibilityCache",
     "LightingPreview",
     "Relighter",
@@ -294,6 +295,7 @@ class IrradianceCache:
     @classmethod
     def load(cls, path: str | PathLike[str], scene: Scene) -> Self: ...
 
+@disjoint_base
 class VisibilityCache:
     """World-space visibility records over a scene (CAM08 sec. 5). Subclassed by
     ``viscache_rs.VisibilityCache``, which adds the progress bar to ``build``."""

@@ -54,13 +54,11 @@ pub fn level() -> SimdLevel {
     level
 }
 
-/// Whether [`level`] has been detected as [`SimdLevel::Avx512`]: one load, for kernels that
-/// take a straight-line AVX-512 path before anything else (false before the first
-/// [`level`] call, which such kernels' fallbacks make). Only for checks on paths of a few
-/// nanoseconds, where [`has`]'s detection branch would cost (the xor-popcount of 32² maps;
-/// [`dispatch_avx512_detected`]); elsewhere use [`dispatch`] or [`dispatch_avx512`].
+/// Whether [`level`] has been detected as [`SimdLevel::Avx512`]: one load (false before the
+/// first [`level`] call), the check of [`dispatch_avx512_detected`]. Private so that no
+/// kernel chooses its instruction set but through a dispatcher of this module.
 #[inline]
-pub fn is_avx512() -> bool {
+fn is_avx512() -> bool {
     LEVEL.load(std::sync::atomic::Ordering::Relaxed) == SimdLevel::Avx512 as u8
 }
 
@@ -93,8 +91,21 @@ impl Level for Portable {
     const LEVEL: SimdLevel = SimdLevel::Portable;
 }
 
-/// [`SimdLevel::Avx2`] as a [`Level`]: made only on CPUs with AVX2, for code compiled
-/// with it.
+/// [`SimdLevel::Popcnt`] as a [`Level`]: made only on CPUs with `popcnt`, for the kernels
+/// that ask [`dispatch`] for a form at that level ([`Kernel::POPCNT`]).
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, Debug)]
+pub struct Popcnt(());
+
+#[cfg(target_arch = "x86_64")]
+impl sealed::Sealed for Popcnt {}
+#[cfg(target_arch = "x86_64")]
+impl Level for Popcnt {
+    const LEVEL: SimdLevel = SimdLevel::Popcnt;
+}
+
+/// [`SimdLevel::Avx2`] as a [`Level`]: made only on CPUs with AVX2 (and `popcnt`), for
+/// code compiled with AVX2.
 #[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy, Debug)]
 pub struct Avx2(());
@@ -107,7 +118,7 @@ impl Level for Avx2 {
 }
 
 /// [`SimdLevel::Avx512`] as a [`Level`]: made only on CPUs with AVX-512 F, VL and
-/// VPOPCNTDQ, for code compiled with F and VL.
+/// VPOPCNTDQ (and AVX2 and `popcnt`), for code compiled with all of them.
 #[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy, Debug)]
 pub struct Avx512(());
@@ -128,20 +139,28 @@ impl Level for Avx512 {
 pub trait Kernel {
     /// What the computation returns.
     type Output;
+    /// Whether [`dispatch`] compiles `run` for [`SimdLevel::Popcnt`] too, for CPUs with
+    /// `popcnt` but not AVX2. False by default: such CPUs run the portable body, whose code
+    /// differs from a `popcnt` build only in its bit counts, and a fourth copy of every
+    /// kernel would not pay; kernels that are mostly bit counts say true.
+    const POPCNT: bool = false;
     /// The body, at instruction set `L` (`level` is the proof that the CPU has it).
     fn run<L: Level>(self, level: L) -> Self::Output;
 }
 
 /// Runs `kernel` compiled for this CPU's best instruction set among AVX-512, AVX2 and the
-/// portable one (a CPU with `popcnt` alone runs the portable body).
+/// portable one (a CPU with `popcnt` alone runs the portable body, or the `popcnt` build
+/// for kernels that ask for one, [`Kernel::POPCNT`]).
 #[inline(always)]
 pub fn dispatch<K: Kernel>(kernel: K) -> K::Output {
     #[cfg(target_arch = "x86_64")]
     match level() {
-        // SAFETY: the CPU has AVX-512 F and VL.
+        // SAFETY: the CPU has the AVX-512 level.
         SimdLevel::Avx512 => return unsafe { run_avx512(kernel) },
-        // SAFETY: the CPU has AVX2.
+        // SAFETY: the CPU has AVX2 and popcnt.
         SimdLevel::Avx2 => return unsafe { run_avx2(kernel) },
+        // SAFETY: the CPU has popcnt.
+        SimdLevel::Popcnt if K::POPCNT => return unsafe { run_popcnt(kernel) },
         _ => {}
     }
     kernel.run(Portable)
@@ -155,39 +174,52 @@ pub fn dispatch<K: Kernel>(kernel: K) -> K::Output {
 pub fn dispatch_avx512<K: Kernel>(kernel: K) -> K::Output {
     #[cfg(target_arch = "x86_64")]
     if has(SimdLevel::Avx512) {
-        // SAFETY: the CPU has AVX-512 F and VL.
+        // SAFETY: the CPU has the AVX-512 level.
         return unsafe { run_avx512(kernel) };
     }
     kernel.run(Portable)
 }
 
-/// [`dispatch_avx512`] by the one-load check [`is_avx512`] (so the portable body until the
-/// level is first detected): for kernels on paths of a few nanoseconds.
+/// [`dispatch_avx512`] by a check of one load, without detecting the level: the portable
+/// body until something has called [`level`] (or a dispatcher). For kernels on paths of a
+/// few nanoseconds whose portable body falls back on [`dispatch`] (which detects), such as
+/// the straight-line xor-popcount of 32² maps.
 #[inline(always)]
 pub fn dispatch_avx512_detected<K: Kernel>(kernel: K) -> K::Output {
     #[cfg(target_arch = "x86_64")]
     if is_avx512() {
-        // SAFETY: the CPU has AVX-512 F and VL.
+        // SAFETY: the CPU has the AVX-512 level.
         return unsafe { run_avx512(kernel) };
     }
     kernel.run(Portable)
 }
 
-/// Runs `kernel` compiled for `at` (for [`SimdLevel::Popcnt`], the portable body) when this
-/// CPU has it, else None: tests hold each instruction set's form to the portable one.
+/// Runs `kernel` compiled for `at` when this CPU has it, else None: tests hold each
+/// instruction set's form to the portable one. [`SimdLevel::Popcnt`] runs what
+/// [`dispatch`] runs on a CPU of that level (the portable body unless
+/// [`Kernel::POPCNT`]).
 pub fn run_at<K: Kernel>(at: SimdLevel, kernel: K) -> Option<K::Output> {
     if !has(at) {
         return None;
     }
     #[cfg(target_arch = "x86_64")]
     match at {
-        // SAFETY: the CPU has AVX-512 F and VL (checked above).
+        // SAFETY: the CPU has the AVX-512 level (checked above).
         SimdLevel::Avx512 => return Some(unsafe { run_avx512(kernel) }),
-        // SAFETY: the CPU has AVX2 (checked above).
+        // SAFETY: the CPU has AVX2 and popcnt (checked above).
         SimdLevel::Avx2 => return Some(unsafe { run_avx2(kernel) }),
+        // SAFETY: the CPU has popcnt (checked above).
+        SimdLevel::Popcnt if K::POPCNT => return Some(unsafe { run_popcnt(kernel) }),
         _ => {}
     }
     Some(kernel.run(Portable))
+}
+
+/// [`Kernel::run`] compiled for `popcnt` alone.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "popcnt")]
+fn run_popcnt<K: Kernel>(kernel: K) -> K::Output {
+    kernel.run(Popcnt(()))
 }
 
 /// [`Kernel::run`] compiled for AVX2.
@@ -197,10 +229,11 @@ fn run_avx2<K: Kernel>(kernel: K) -> K::Output {
     kernel.run(Avx2(()))
 }
 
-/// [`Kernel::run`] compiled for AVX-512 F and VL: the 256-bit code of AVX2 with 32 vector
-/// registers and mask registers.
+/// [`Kernel::run`] compiled for the whole AVX-512 level: the 256-bit code of AVX2 with 32
+/// vector registers and mask registers, and `vpopcntq` and `popcnt`, so that the kernels'
+/// AVX-512 forms (which enable some of these) are inlined into it rather than called.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f,avx512vl")]
+#[target_feature(enable = "avx2,avx512f,avx512vl,avx512vpopcntdq,popcnt")]
 fn run_avx512<K: Kernel>(kernel: K) -> K::Output {
     kernel.run(Avx512(()))
 }
@@ -236,6 +269,62 @@ mod tests {
         #[cfg(target_arch = "x86_64")]
         if first >= SimdLevel::Avx2 {
             assert!(std::arch::is_x86_feature_detected!("avx2"));
+        }
+    }
+
+    /// Reports the level it was compiled for; `P` is its [`Kernel::POPCNT`].
+    struct WhichLevel<const P: bool>;
+
+    impl<const P: bool> Kernel for WhichLevel<P> {
+        type Output = SimdLevel;
+        const POPCNT: bool = P;
+
+        fn run<L: Level>(self, _level: L) -> SimdLevel {
+            L::LEVEL
+        }
+    }
+
+    #[test]
+    fn dispatchers_run_kernels_at_the_detected_level_and_popcnt_only_when_asked() {
+        let best = level();
+        // Without a popcnt form, a popcnt-only CPU runs the portable body.
+        let plain = if best == SimdLevel::Popcnt {
+            SimdLevel::Portable
+        } else {
+            best
+        };
+        assert_eq!(dispatch(WhichLevel::<true>), best);
+        assert_eq!(dispatch(WhichLevel::<false>), plain);
+        let avx512 = |l| {
+            if l == SimdLevel::Avx512 {
+                l
+            } else {
+                SimdLevel::Portable
+            }
+        };
+        assert_eq!(dispatch_avx512(WhichLevel::<true>), avx512(best));
+        assert_eq!(dispatch_avx512_detected(WhichLevel::<true>), avx512(best));
+        for at in [
+            SimdLevel::Portable,
+            SimdLevel::Popcnt,
+            SimdLevel::Avx2,
+            SimdLevel::Avx512,
+        ] {
+            let (with, without) = (
+                run_at(at, WhichLevel::<true>),
+                run_at(at, WhichLevel::<false>),
+            );
+            if at <= best {
+                assert_eq!(with, Some(at), "{}", at.name());
+                let plain = if at == SimdLevel::Popcnt {
+                    SimdLevel::Portable
+                } else {
+                    at
+                };
+                assert_eq!(without, Some(plain), "{}", at.name());
+            } else {
+                assert_eq!((with, without), (None, None), "{}", at.name());
+            }
         }
     }
 }

@@ -3,7 +3,8 @@
 //! G-buffer ([`IrradianceCache::build_from`]: records coarse to fine where none is usable);
 //! pass 2 is the direct methods' pass layer with MIS, every sample taking its diffuse part
 //! of the bounce from the records at its own (jittered) hit, Phong's specular part from a
-//! path of that lobe, and a whole path where no record is usable
+//! path of that lobe; a hit no record reaches takes its anchor's irradiance when it lies on
+//! the anchor's surface (`irradiance_from_anchor`), else a whole path
 //! ([`crate::estimators::direct::anchored::AnchoredShader`]). So a budget that stops pass 1
 //! early leaves the uncovered pixels to paths, counted in the stats (`irradiance_misses`).
 //!
@@ -139,6 +140,7 @@ impl MethodRenderer for IrradianceRenderer {
             d.set("clamped_radii", report.clamped_radii);
             d.set("irradiance_lookups", s.irradiance_lookups);
             d.set("irradiance_misses", s.irradiance_misses);
+            d.set("irradiance_from_anchor", s.irradiance_from_anchor);
             d.set("clamped_channels", s.irradiance_clamped);
             d.set("a", cache.params().a);
             d.set("gradients", cache.params().gradients.name());

@@ -437,6 +437,8 @@ pub struct RenderStats {
     pub irradiance_lookups: u64,
     /// ... and those where no record was usable (a path traced instead).
     pub irradiance_misses: u64,
+    /// ... and those that took their anchor's irradiance (no record reached the hit).
+    pub irradiance_from_anchor: u64,
     /// Channels the gradients pushed below 0, clamped.
     pub irradiance_clamped: u64,
 }

@@ -223,6 +223,7 @@ impl DirectMethod<'_> {
         stats.reused_products = total.reused_products;
         stats.irradiance_lookups = total.irradiance_lookups;
         stats.irradiance_misses = total.irradiance_misses;
+        stats.irradiance_from_anchor = total.irradiance_from_anchor;
         stats.irradiance_clamped = total.irradiance_clamped;
         stats.unmatched_samples = total.unmatched_samples;
         stats.record_misses = total.verdicts.values().map(|v| v.0 as u64).sum();

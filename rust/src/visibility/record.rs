@@ -18,8 +18,8 @@
 //! occluded", so a parent's code is the OR of its children's.
 //!
 //! ## Mean difference (eq. 11)
-//! `δ_ij = popcount(V_i xor V_j) / 4^M`, word by word with `count_ones` (the `popcnt`
-//! instruction where the CPU has it, chosen at run time).
+//! `δ_ij = popcount(V_i xor V_j) / 4^M`, by the fastest form of the count this CPU has
+//! (`difference.rs`: AVX-512 `vpopcntq`, AVX2, `popcnt` or portable, chosen at run time).
 //!
 //! ## Ambient occlusion (eq. 12) and `R_i` (§6.1)
 //! `A = ∫_Ω V (n·ω) dω / π` from the record's own rays: with equal-solid-angle samples
@@ -50,7 +50,7 @@
 //! slice; it is the exchange form, the store the resident one.
 //!
 //! Files: `store.rs` (the packed [`RecordStore`]), `emitter_stop.rs` (records that see area
-//! lights).
+//! lights), `difference.rs` (eq. 11's count per instruction set).
 
 use glam::{UVec2, Vec2, Vec3};
 
@@ -61,8 +61,11 @@ use crate::sampling::octahedral::{
 };
 use crate::sampling::pattern::check_log2_resolution;
 
+mod difference;
 mod emitter_stop;
 mod store;
+
+use difference::xor_popcount;
 
 pub use store::{RecordHeader, RecordStore};
 
@@ -140,105 +143,6 @@ impl Coverage {
     #[inline]
     fn code_of(bits: u64, mask: u64) -> u8 {
         ((bits & mask != 0) as u8 * SOME_VISIBLE) | ((bits & mask != mask) as u8 * SOME_OCCLUDED)
-    }
-}
-
-/// `popcount(a xor b)` over two equally long word slices, portable form (LLVM vectorises it
-/// or uses `popcnt` when the target allows).
-#[inline(always)]
-fn xor_popcount_portable(a: &[u64], b: &[u64]) -> u32 {
-    a.iter().zip(b).map(|(x, y)| (x ^ y).count_ones()).sum()
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "popcnt")]
-fn xor_popcount_popcnt(a: &[u64], b: &[u64]) -> u32 {
-    xor_popcount_portable(a, b)
-}
-
-/// With AVX2 LLVM vectorises the loop (nibble lookups with `vpshufb`, four words at once).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,popcnt")]
-fn xor_popcount_avx2(a: &[u64], b: &[u64]) -> u32 {
-    xor_popcount_portable(a, b)
-}
-
-/// AVX-512 with `vpopcntq`: eight words per instruction, so a 32² map is two of them.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vpopcntdq,popcnt")]
-fn xor_popcount_avx512(a: &[u64], b: &[u64]) -> u32 {
-    use std::arch::x86_64::*;
-    let n = a.len().min(b.len());
-    let mut sum = _mm512_setzero_si512();
-    let mut k = 0;
-    while k + 8 <= n {
-        // SAFETY: `k + 8 <= n` words remain in both slices; unaligned loads.
-        let (x, y) = unsafe {
-            (
-                _mm512_loadu_si512(a.as_ptr().add(k).cast()),
-                _mm512_loadu_si512(b.as_ptr().add(k).cast()),
-            )
-        };
-        sum = _mm512_add_epi64(sum, _mm512_popcnt_epi64(_mm512_xor_si512(x, y)));
-        k += 8;
-    }
-    _mm512_reduce_add_epi64(sum) as u32 + xor_popcount_portable(&a[k..n], &b[k..n])
-}
-
-/// [`xor_popcount_avx512`] for 32² maps (16 words), straight-line: at a few nanoseconds a
-/// call, the generic loop's length checks and tail cost as much as the counting.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vpopcntdq")]
-fn xor_popcount_avx512_16(a: &[u64; 16], b: &[u64; 16]) -> u32 {
-    use std::arch::x86_64::*;
-    // SAFETY: both arrays hold 16 words, two unaligned 8-word loads each.
-    let (a0, a1, b0, b1) = unsafe {
-        (
-            _mm512_loadu_si512(a.as_ptr().cast()),
-            _mm512_loadu_si512(a.as_ptr().add(8).cast()),
-            _mm512_loadu_si512(b.as_ptr().cast()),
-            _mm512_loadu_si512(b.as_ptr().add(8).cast()),
-        )
-    };
-    let counts = _mm512_add_epi64(
-        _mm512_popcnt_epi64(_mm512_xor_si512(a0, b0)),
-        _mm512_popcnt_epi64(_mm512_xor_si512(a1, b1)),
-    );
-    _mm512_reduce_add_epi64(counts) as u32
-}
-
-/// `popcount(a xor b)`, vectorised with AVX-512, AVX2 or the `popcnt` instruction when the
-/// CPU has them (checked once). 32² maps on AVX-512 take the first branch, kept small
-/// enough to inline; everything else goes through [`xor_popcount_dispatch`].
-#[inline]
-fn xor_popcount(a: &[u64], b: &[u64]) -> u32 {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if crate::simd::is_avx512() {
-            if let (Ok(a), Ok(b)) = (<&[u64; 16]>::try_from(a), <&[u64; 16]>::try_from(b)) {
-                // SAFETY: the CPU has AVX-512 VPOPCNTDQ (`crate::simd`).
-                return unsafe { xor_popcount_avx512_16(a, b) };
-            }
-        }
-        xor_popcount_dispatch(a, b)
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    xor_popcount_portable(a, b)
-}
-
-/// [`xor_popcount`] for every length and CPU (and the first call, which detects the CPU).
-/// A match on [`crate::simd::level`] rather than [`crate::simd::dispatch`]: it also
-/// chooses by length and takes the `popcnt`-only level, which `dispatch` runs portably.
-#[cfg(target_arch = "x86_64")]
-#[inline(never)]
-fn xor_popcount_dispatch(a: &[u64], b: &[u64]) -> u32 {
-    use crate::simd::SimdLevel;
-    match crate::simd::level() {
-        // SAFETY (all three): the CPU has the features, detected by `crate::simd`.
-        SimdLevel::Avx512 if a.len() >= 8 => unsafe { xor_popcount_avx512(a, b) },
-        SimdLevel::Avx512 | SimdLevel::Avx2 if a.len() >= 8 => unsafe { xor_popcount_avx2(a, b) },
-        SimdLevel::Portable => xor_popcount_portable(a, b),
-        _ => unsafe { xor_popcount_popcnt(a, b) },
     }
 }
 

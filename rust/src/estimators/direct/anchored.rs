@@ -102,6 +102,8 @@ pub struct AnchorWork {
     pub irradiance_lookups: u64,
     /// ... and those where no record was usable (a path traced instead).
     pub irradiance_misses: u64,
+    /// ... and those that took their anchor's irradiance (no record reached the hit).
+    pub irradiance_from_anchor: u64,
     /// Channels the gradients pushed below 0, clamped.
     pub irradiance_clamped: u64,
     /// The pixel being shaded, and the matched draws kept for learning the mixture:
@@ -158,6 +160,7 @@ impl AnchorWork {
         self.reused_products += o.reused_products;
         self.irradiance_lookups += o.irradiance_lookups;
         self.irradiance_misses += o.irradiance_misses;
+        self.irradiance_from_anchor += o.irradiance_from_anchor;
         self.irradiance_clamped += o.irradiance_clamped;
         for (id, (m, u)) in o.verdicts {
             let e = self.verdicts.entry(id).or_default();
@@ -426,7 +429,10 @@ impl AnchoredShader<'_> {
         work: &mut AnchorWork,
         verdicts: &mut [(u32, u32)],
     ) -> (Vec3, [f64; 3]) {
-        let indirect = self.indirect(sp, rng, work);
+        // A jittered hit that no record reaches may take its anchor's irradiance when it
+        // lies on the anchor's surface.
+        let own_anchor = anchor.filter(|_| matched).map(|a| &a.sp);
+        let indirect = self.indirect(sp, own_anchor, rng, work);
         if !self.params.direct {
             return (indirect, [0.0; 3]);
         }
@@ -563,13 +569,19 @@ impl AnchoredShader<'_> {
 
     /// The light of [`AnchoredParams::bounces`] bounces at `sp` (zero without), on the
     /// dimensions above the direct estimate's ([`crate::estimators::indirect`]).
-    fn indirect(&self, sp: &ShadingPoint, rng: &PixelSampler, work: &mut AnchorWork) -> Vec3 {
+    fn indirect(
+        &self,
+        sp: &ShadingPoint,
+        anchor: Option<&ShadingPoint>,
+        rng: &PixelSampler,
+        work: &mut AnchorWork,
+    ) -> Vec3 {
         if self.params.bounces == 0 {
             return Vec3::ZERO;
         }
         let start = Instant::now();
         let l = match self.irradiance {
-            Some(state) => self.cached_indirect(state, sp, rng, work),
+            Some(state) => self.cached_indirect(state, sp, anchor, rng, work),
             None => self.path(sp, rng, work),
         };
         work.indirect_ns += elapsed_ns(start);
@@ -590,12 +602,16 @@ impl AnchoredShader<'_> {
 
     /// One bounce at `sp` with the irradiance cache (Survey eq. 3.8): the diffuse part
     /// `k_d/π · E(x)` interpolated from the records, Phong's specular part by a path
-    /// sampling that lobe alone (radiance caching, §3.4, is not built). Where no record is
-    /// usable the whole bounce is a path, so such samples stay unbiased.
+    /// sampling that lobe alone (radiance caching, §3.4, is not built). A jittered hit that
+    /// no record reaches but lies on its pixel's `anchor` surface takes the anchor's `E`
+    /// (the pixel is finer than the cache there: small `a`, or a radius clamped by a
+    /// neighbour); elsewhere without a usable record the whole bounce is a path, so such
+    /// samples stay unbiased.
     fn cached_indirect(
         &self,
         state: &IrradianceState,
         sp: &ShadingPoint,
+        anchor: Option<&ShadingPoint>,
         rng: &PixelSampler,
         work: &mut AnchorWork,
     ) -> Vec3 {
@@ -603,7 +619,17 @@ impl AnchoredShader<'_> {
         if albedo == Vec3::ZERO {
             return self.path(sp, rng, work);
         }
-        let found = REACHING.with(|r| state.interpolate(sp.origin, sp.normal, &mut r.borrow_mut()));
+        let found = REACHING.with(|r| {
+            let scratch = &mut r.borrow_mut();
+            state
+                .interpolate(sp.origin, sp.normal, scratch)
+                .or_else(|| {
+                    let a = anchor?;
+                    let found = state.interpolate(a.origin, a.normal, scratch);
+                    work.irradiance_from_anchor += found.is_some() as u64;
+                    found
+                })
+        });
         let Some(found) = found else {
             work.irradiance_misses += 1;
             return self.path(sp, rng, work);

@@ -39,6 +39,8 @@ pub struct IrradianceBuildReport {
     pub secondary_rays: u64,
     /// Radii lowered by neighbour clamping during this build.
     pub clamped_radii: u64,
+    /// Rounds over every point that filled the gaps neighbour clamping left.
+    pub gap_rounds: u32,
     /// Wall-clock seconds.
     pub seconds: f64,
     /// False when the time budget or progress stopped the build early.
@@ -88,7 +90,7 @@ impl IrradianceCache {
             self.write().default_footprint = Some(f);
         }
         let camera = &gbuffer.camera;
-        let waves = with_threads(threads, || {
+        let complete = with_threads(threads, || {
             let levels = coarse_to_fine_levels(camera.width, camera.height)
                 .into_iter()
                 .map(|level| level.into_iter().filter(|&i| diffuse(i as usize)));
@@ -99,24 +101,28 @@ impl IrradianceCache {
                 seed,
             };
             let mut builder = WaveBuilder::new(start, time_budget, progress);
-            let mut waves = builder.run(&target, levels, report.points)?;
-            // Neighbour clamping lowers the radii of records made before, so a point that
-            // one of them served when its level was walked may have lost it: sweep every
-            // point again, in pixel order, until a sweep inserts nothing. A point given its
-            // own record stays served (e = 0), so the sweeps end.
-            let mut fresh = waves.inserted;
-            while self.params().clamp_neighbours && waves.complete && fresh > 0 {
-                let sweep = builder.run(&target, [points.iter().copied()], report.points)?;
-                fresh = sweep.inserted;
-                waves.inserted += sweep.inserted;
-                waves.discarded += sweep.discarded;
-                waves.complete = sweep.complete;
+            let first = builder.run(&target, levels, report.points)?;
+            report.inserted = first.inserted;
+            report.discarded = first.discarded;
+            let (mut complete, mut last) = (first.complete, first.inserted);
+            // Neighbour clamping lowers the radii of records already placed, which may leave
+            // points they served without a usable record: fill those gaps in further rounds
+            // over every point (the survey's second pass, §3.2.2), until none is left.
+            while complete
+                && last > 0
+                && self.params().clamp_neighbours
+                && report.gap_rounds < MAX_GAP_ROUNDS
+            {
+                let all = std::iter::once(points.iter().copied());
+                let round = builder.run(&target, all, report.points)?;
+                report.inserted += round.inserted;
+                report.discarded += round.discarded;
+                report.gap_rounds += 1;
+                (complete, last) = (round.complete, round.inserted);
             }
-            Ok::<_, crate::error::Error>(waves)
+            Ok::<_, crate::error::Error>(complete)
         })??;
-        report.inserted = waves.inserted;
-        report.discarded = waves.discarded;
-        report.complete = waves.complete;
+        report.complete = complete;
         let after = self.counters();
         report.records = self.len();
         report.hemisphere_rays = after.hemisphere_rays - before.hemisphere_rays;
@@ -126,6 +132,9 @@ impl IrradianceCache {
         Ok(report)
     }
 }
+
+/// Most rounds of gap filling after the coarse-to-fine pass.
+pub const MAX_GAP_ROUNDS: u32 = 8;
 
 /// The albedo of a material's diffuse part (`kd` of Phong), per channel.
 pub fn diffuse_albedo(material: &crate::bsdf::Material) -> [f32; 3] {

@@ -8,5 +8,5 @@
 pub mod build;
 pub mod cache;
 pub mod io;
-mod reach_stub;
+mod reach_scan;
 pub mod record;

@@ -13,6 +13,7 @@ use super::{FarthestFirst, STACK};
 use crate::geometry::bvh::bvh8::{decode, BoundedStack, Child, Stack, TraversalStack, EXIT_SCALE};
 #[cfg(target_arch = "x86_64")]
 use crate::geometry::bvh::watertight::lanes;
+use crate::simd::{Kernel, Level};
 
 /// A lane's closest triangle: its block slot and barycentrics `(u, v)`.
 #[cfg(target_arch = "x86_64")]
@@ -37,43 +38,13 @@ impl Bvh {
         counters: &mut TraversalCounters,
     ) -> [Option<Hit>; PACKET] {
         assert!(directions.len() <= PACKET && tmax.len() == directions.len());
-        let mut out = [None; PACKET];
-        #[cfg(target_arch = "x86_64")]
-        if self.traces_packets(directions.len()) {
-            if COUNT {
-                counters.rays += directions.len() as u64;
-            }
-            // SAFETY: the CPU has AVX-512 F and VL, and popcnt (part of the level); 1 to
-            // PACKET rays.
-            unsafe {
-                let packet = Packet::new(self, origin, directions, tmax);
-                let rays = &mut LaneRays::new(origin, directions, tmax);
-                let found = if self.stack_is_bounded() {
-                    type Bounded = BoundedStack<((u32, u16), f32), STACK>;
-                    self.closest_packet::<COUNT, Bounded>(&packet, rays, counters)
-                } else {
-                    type Spilling = Stack<((u32, u16), f32), STACK>;
-                    self.closest_packet::<COUNT, Spilling>(&packet, rays, counters)
-                };
-                let (best_t, best) = found;
-                for (l, f) in best.into_iter().enumerate().take(directions.len()) {
-                    out[l] = f.map(|(slot, u, v)| {
-                        let r = self.local_ray(origin, directions[l], tmax[l]);
-                        Hit {
-                            t: best_t[l] * r.t_to_param,
-                            triangle: self.triangle_ids[slot as usize],
-                            u,
-                            v,
-                        }
-                    });
-                }
-            }
-            return out;
-        }
-        for (l, (&d, &t)) in directions.iter().zip(tmax).enumerate() {
-            out[l] = self.intersect::<COUNT>(origin, d, t, counters);
-        }
-        out
+        crate::simd::dispatch_avx512(ClosestPacket::<COUNT> {
+            bvh: self,
+            origin,
+            directions,
+            tmax,
+            counters,
+        })
     }
 
     /// The traversal of [`Self::intersect_packet`] under AVX-512: per lane, the distance
@@ -183,5 +154,68 @@ impl Bvh {
             counters.triangles += tests;
         }
         (best_t, best)
+    }
+}
+
+/// [`Bvh::intersect_packet`] as a [`Kernel`]: the packet under AVX-512, else its rays one
+/// by one ([`Bvh::intersect`], which dispatches by itself).
+struct ClosestPacket<'a, const COUNT: bool> {
+    bvh: &'a Bvh,
+    origin: Vec3A,
+    directions: &'a [Vec3A],
+    tmax: &'a [f32],
+    counters: &'a mut TraversalCounters,
+}
+
+impl<const COUNT: bool> Kernel for ClosestPacket<'_, COUNT> {
+    type Output = [Option<Hit>; PACKET];
+
+    #[inline(always)]
+    fn run<L: Level>(self, _level: L) -> [Option<Hit>; PACKET] {
+        let Self {
+            bvh,
+            origin,
+            directions,
+            tmax,
+            counters,
+        } = self;
+        let mut out = [None; PACKET];
+        #[cfg(target_arch = "x86_64")]
+        if bvh.traces_packets::<L>(directions.len()) {
+            if COUNT {
+                counters.rays += directions.len() as u64;
+            }
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here the AVX-512 level (F, VL and popcnt among it); 1 to PACKET
+            // rays.
+            unsafe {
+                let packet = Packet::new(bvh, origin, directions, tmax);
+                let rays = &mut LaneRays::new(origin, directions, tmax);
+                let found = if bvh.stack_is_bounded() {
+                    type Bounded = BoundedStack<((u32, u16), f32), STACK>;
+                    bvh.closest_packet::<COUNT, Bounded>(&packet, rays, counters)
+                } else {
+                    type Spilling = Stack<((u32, u16), f32), STACK>;
+                    bvh.closest_packet::<COUNT, Spilling>(&packet, rays, counters)
+                };
+                let (best_t, best) = found;
+                for (l, f) in best.into_iter().enumerate().take(directions.len()) {
+                    out[l] = f.map(|(slot, u, v)| {
+                        let r = bvh.local_ray(origin, directions[l], tmax[l]);
+                        Hit {
+                            t: best_t[l] * r.t_to_param,
+                            triangle: bvh.triangle_ids[slot as usize],
+                            u,
+                            v,
+                        }
+                    });
+                }
+            }
+            return out;
+        }
+        for (l, (&d, &t)) in directions.iter().zip(tmax).enumerate() {
+            out[l] = bvh.intersect::<COUNT>(origin, d, t, counters);
+        }
+        out
     }
 }

@@ -13,6 +13,9 @@ use crate::geometry::bvh::bvh8::{
 };
 #[cfg(target_arch = "x86_64")]
 use crate::geometry::bvh::watertight::{lanes, WatertightPacket, WatertightRay};
+#[cfg(target_arch = "x86_64")]
+use crate::simd::SimdLevel;
+use crate::simd::{Kernel, Level};
 
 /// Rays of a packet reaching a leaf from which its triangles are tested against the rays
 /// all at once ([`WatertightPacket`]) rather than ray by ray (shadow and closest-hit
@@ -48,33 +51,23 @@ impl Bvh {
         counters: &mut TraversalCounters,
     ) -> u16 {
         assert!(directions.len() <= PACKET && tmax.len() == directions.len());
-        #[cfg(target_arch = "x86_64")]
-        if self.traces_packets(directions.len()) {
-            if COUNT {
-                counters.rays += directions.len() as u64;
-            }
-            // SAFETY: the CPU has AVX-512 F and VL, and popcnt (part of the level); 1 to
-            // PACKET rays.
-            return unsafe {
-                let packet = Packet::new(self, origin, directions, tmax);
-                let rays = &mut LaneRays::new(origin, directions, tmax);
-                self.occluded_packet_avx512::<COUNT>(&packet, rays, hint, counters)
-            };
-        }
-        let mut occluded = 0u16;
-        for (l, (&d, &t)) in directions.iter().zip(tmax).enumerate() {
-            if self.occluded_hinted::<COUNT>(origin, d, t, hint, counters) {
-                occluded |= 1 << l;
-            }
-        }
-        occluded
+        crate::simd::dispatch_avx512(OccludedPacket::<COUNT> {
+            bvh: self,
+            origin,
+            directions,
+            tmax,
+            hint,
+            counters,
+        })
     }
 
-    /// Whether a packet of `rays` rays runs the AVX-512 kernels: some rays, a non-empty
-    /// tree and a CPU with AVX-512 (else its rays go one by one).
+    /// Whether a packet of `rays` rays runs the AVX-512 kernels in code compiled for `L`
+    /// ([`Kernel`]): the AVX-512 level, some rays and a non-empty tree (else its rays go
+    /// one by one).
     #[cfg(target_arch = "x86_64")]
-    pub(super) fn traces_packets(&self, rays: usize) -> bool {
-        rays > 0 && !self.blocks.is_empty() && crate::simd::has(crate::simd::SimdLevel::Avx512)
+    #[inline(always)]
+    pub(super) fn traces_packets<L: Level>(&self, rays: usize) -> bool {
+        L::LEVEL == SimdLevel::Avx512 && rays > 0 && !self.blocks.is_empty()
     }
 
     /// [`Self::occluded_packet`] under AVX-512: the hinted node's subtree, then the tree
@@ -241,6 +234,54 @@ impl Bvh {
             counters.triangles += tests;
         }
         occluder
+    }
+}
+
+/// [`Bvh::occluded_packet`] as a [`Kernel`]: the packet under AVX-512, else its rays one
+/// by one ([`Bvh::occluded_hinted`], which dispatches by itself).
+struct OccludedPacket<'a, const COUNT: bool> {
+    bvh: &'a Bvh,
+    origin: Vec3A,
+    directions: &'a [Vec3A],
+    tmax: &'a [f32],
+    hint: &'a mut OccluderHint,
+    counters: &'a mut TraversalCounters,
+}
+
+impl<const COUNT: bool> Kernel for OccludedPacket<'_, COUNT> {
+    type Output = u16;
+
+    #[inline(always)]
+    fn run<L: Level>(self, _level: L) -> u16 {
+        let Self {
+            bvh,
+            origin,
+            directions,
+            tmax,
+            hint,
+            counters,
+        } = self;
+        #[cfg(target_arch = "x86_64")]
+        if bvh.traces_packets::<L>(directions.len()) {
+            if COUNT {
+                counters.rays += directions.len() as u64;
+            }
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here the AVX-512 level (F, VL and popcnt among it); 1 to PACKET
+            // rays.
+            return unsafe {
+                let packet = Packet::new(bvh, origin, directions, tmax);
+                let rays = &mut LaneRays::new(origin, directions, tmax);
+                bvh.occluded_packet_avx512::<COUNT>(&packet, rays, hint, counters)
+            };
+        }
+        let mut occluded = 0u16;
+        for (l, (&d, &t)) in directions.iter().zip(tmax).enumerate() {
+            if bvh.occluded_hinted::<COUNT>(origin, d, t, hint, counters) {
+                occluded |= 1 << l;
+            }
+        }
+        occluded
     }
 }
 

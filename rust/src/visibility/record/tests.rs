@@ -3,6 +3,9 @@
 //! cosine-weighted estimate, `R_i` against closest hits of every ray; extremes: M = 1 and 7,
 //! open (empty scene) and closed (inside the Cornell box) records, bad arguments.
 
+use super::difference::{
+    xor_popcount_dispatch, xor_popcount_portable, Words, Words16, XorPopcount,
+};
 use super::*;
 use crate::math::to_world;
 use crate::sampling::octahedral::{morton_decode, texel_of};
@@ -378,20 +381,37 @@ fn difference_equals_a_bit_by_bit_count() {
     }
 }
 
-/// Every kernel this CPU can run, on every length up to 40 words (whole vectors, tails and
-/// the straight-line 16-word form), against the portable count.
-#[cfg(target_arch = "x86_64")]
+/// Every form of the count this CPU can run ([`crate::simd::run_at`] at each level), on
+/// every length up to 40 words (whole vectors, tails and the straight-line 16-word form)
+/// and the 64 and 256 words of 64² and 128² maps, against the portable count; and the
+/// dispatched count.
 #[test]
 fn every_xor_popcount_kernel_agrees_with_the_portable_count() {
-    let has = |feature: &str| match feature {
-        "popcnt" => std::arch::is_x86_feature_detected!("popcnt"),
-        "avx2" => std::arch::is_x86_feature_detected!("avx2"),
-        _ => {
-            std::arch::is_x86_feature_detected!("avx512f")
-                && std::arch::is_x86_feature_detected!("avx512vpopcntdq")
+    use crate::simd::{run_at, Kernel, SimdLevel};
+    let levels = [
+        SimdLevel::Portable,
+        SimdLevel::Popcnt,
+        SimdLevel::Avx2,
+        SimdLevel::Avx512,
+    ];
+    /// `kernel` at every level this CPU has, each against `expected`; counts the runs.
+    fn at_every_level<K: Kernel<Output = u32> + Copy>(
+        levels: &[SimdLevel; 4],
+        kernel: K,
+        expected: u32,
+        what: &str,
+        ran: &mut [usize; 4],
+    ) {
+        for (k, &at) in levels.iter().enumerate() {
+            if let Some(got) = run_at(at, kernel) {
+                assert_eq!(got, expected, "{what}, {}", at.name());
+                ran[k] += 1;
+            }
         }
-    };
-    for len in 0..=40usize {
+    }
+    let lengths: Vec<usize> = (0..=40).chain([64, 256]).collect();
+    let mut ran = [0usize; 4];
+    for &len in &lengths {
         let a: Vec<u64> = (0..len)
             .map(|i| hash4(1, len as u64, i as u64, 0))
             .collect();
@@ -401,27 +421,28 @@ fn every_xor_popcount_kernel_agrees_with_the_portable_count() {
         let expected = xor_popcount_portable(&a, &b);
         assert_eq!(xor_popcount(&a, &b), expected, "dispatched, {len} words");
         assert_eq!(xor_popcount_dispatch(&a, &b), expected, "{len} words");
-        // SAFETY (each call): the features were detected just before.
-        if has("popcnt") {
-            assert_eq!(unsafe { xor_popcount_popcnt(&a, &b) }, expected);
+        let (a, b) = (&a[..], &b[..]);
+        let what = format!("{len} words");
+        at_every_level(&levels, XorPopcount { a, b }, expected, &what, &mut ran);
+        // Array forms: the straight-line form at the AVX-512 level (the dispatched one
+        // below), and the dispatched forms' carrier.
+        let mut unused = [0; 4];
+        if let (Ok(a), Ok(b)) = (<&[u64; 16]>::try_from(a), <&[u64; 16]>::try_from(b)) {
+            at_every_level(&levels, Words16 { a, b }, expected, &what, &mut unused);
+            at_every_level(&levels, Words { a, b }, expected, &what, &mut unused);
         }
-        if has("avx2") && has("popcnt") {
-            assert_eq!(unsafe { xor_popcount_avx2(&a, &b) }, expected);
+        if let (Ok(a), Ok(b)) = (<&[u64; 64]>::try_from(a), <&[u64; 64]>::try_from(b)) {
+            at_every_level(&levels, Words { a, b }, expected, &what, &mut unused);
         }
-        if has("avx512") {
-            assert_eq!(
-                unsafe { xor_popcount_avx512(&a, &b) },
-                expected,
-                "{len} words"
-            );
-            let pair = (
-                <&[u64; 16]>::try_from(&a[..]),
-                <&[u64; 16]>::try_from(&b[..]),
-            );
-            if let (Ok(a16), Ok(b16)) = pair {
-                assert_eq!(unsafe { xor_popcount_avx512_16(a16, b16) }, expected);
-            }
+        if let (Ok(a), Ok(b)) = (<&[u64; 256]>::try_from(a), <&[u64; 256]>::try_from(b)) {
+            at_every_level(&levels, Words { a, b }, expected, &what, &mut unused);
         }
+    }
+    // Every level up to this CPU's ran on every length, and none above it.
+    let best = crate::simd::level();
+    for (k, &at) in levels.iter().enumerate() {
+        let expected = if at <= best { lengths.len() } else { 0 };
+        assert_eq!(ran[k], expected, "{}", at.name());
     }
 }
 

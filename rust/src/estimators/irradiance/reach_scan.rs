@@ -1,4 +1,5 @@
-//! Temporary: brute-force reach queries until the index has its own.
+//! Reach queries as a linear scan over the records: correct, `O(records)` per lookup. The
+//! record index's own query by per-node reach (issue 62 §2) replaces it when it lands.
 use glam::Vec3;
 
 use crate::spatial::{Records, SpatialIndex};
