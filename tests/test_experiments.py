@@ -242,6 +242,7 @@ def test_irradiance_cache_experiment_smoke(tmp_path, monkeypatch):
     assert [(g["a"], g["gradients"]) for g in gains] == [(0.2, "both"), (0.4, "both")]
     eq = {o["method"]: o for o in data["cornell/equal_time"]}
     assert set(eq) == {"path", "vpl"} and eq["path"]["spp"] >= 1
+    assert eq["path"]["mean_spp"] >= eq["path"]["spp"]
     assert all(o["seconds"] > 0 and np.isfinite(o["relmse"]) for o in eq.values())
     whole = data["cornell/whole_image"]
     assert whole["path"]["seconds"] > 0 and whole["irradiance_cache"]["records"] > 0
