@@ -121,29 +121,15 @@ impl AoParams {
 }
 
 /// `max_i [w_i · (1 − d_i / max(R_i, r_min))]` over the candidates (0 when none): §6.1's
-/// coverage of a point by the cache. `r_min` is the clamp of `R_i`, world units.
+/// coverage of a point by the cache ([`crate::spatial::coverage`]: a record covers nothing
+/// at or beyond its radius, even when the radius is 0, a record in a corner, and the point
+/// its own; an infinite radius gives the factor 1). `r_min` is the clamp of `R_i`, world
+/// units.
 pub fn coverage(state: &CacheState, nearest: &Nearest, r_min: f32) -> f32 {
-    nearest
-        .candidates()
-        .iter()
-        .map(|c| {
-            let r = state
-                .store()
-                .header(c.id as usize)
-                .nearest_hit_distance
-                .max(r_min);
-            // A record covers nothing at or beyond its radius, even when the radius is 0
-            // (a record in a corner) and the point its own.
-            let factor = if !r.is_finite() {
-                1.0
-            } else if c.distance < r {
-                1.0 - c.distance / r
-            } else {
-                0.0
-            };
-            c.weight * factor
-        })
-        .fold(0.0, f32::max)
+    crate::spatial::coverage(nearest.candidates().iter().map(|c| {
+        let header = state.store().header(c.id as usize);
+        (c.weight, c.distance, header.nearest_hit_distance.max(r_min))
+    }))
 }
 
 /// §6.1: does a point with these candidates need a record of its own?

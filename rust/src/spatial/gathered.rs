@@ -116,7 +116,6 @@ impl GatheredSites {
         self.id[k]
     }
 
-    #[cfg(test)]
     pub(super) fn position(&self, k: usize) -> Vec3 {
         Vec3::new(self.x[k], self.y[k], self.z[k])
     }

@@ -6,6 +6,10 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use glam::Vec3;
 
 use super::candidates::{candidate_key, key_d2};
+use super::reach::{
+    distance2, reach_bound, reach_bound2, reaches, sort_by_key, with_reach_scratch, ReachScratch,
+    Reached,
+};
 use super::score::Hits;
 use super::scratch::LookupScratch;
 use super::tree::SiteTree;
@@ -29,7 +33,10 @@ pub trait Records {
     /// Position (finite, world units) and unit normal of record `id`.
     fn site(&self, id: usize) -> (Vec3, Vec3);
 
-    /// Validity radius of record `id`, world units (`f32::INFINITY`: unbounded).
+    /// Validity radius (reach) of record `id`, world units (`f32::INFINITY`: unbounded;
+    /// 0 or NaN: reaches nothing), read by [`SpatialIndex::within_reach`]. The index
+    /// bounds it when the record is admitted or re-indexed: it may shrink afterwards, not
+    /// grow, until [`SpatialIndex::refresh_reach`].
     fn radius(&self, _id: usize) -> f32 {
         f32::INFINITY
     }
@@ -52,6 +59,12 @@ pub struct SpatialIndex<S> {
     sites: Vec<Site>,
     /// Changes with every insertion and re-index (see [`LookupScratch`]).
     generation: u64,
+    /// Changes with every insertion, re-index, refresh of the reach bounds and access to
+    /// the records that may change radii (see [`ReachScratch`]).
+    reach_generation: u64,
+    /// Whether the tree's lane bounds are exactly the reaches of their records (no radius
+    /// changed through [`Self::records_mut`] since the last re-index or refresh).
+    reach_exact: bool,
     /// Last record of each chain, indexed by its head (only valid for heads).
     chain_tail: Vec<u32>,
     /// Records that are not the first at their position (in a chain, not in the tree).
@@ -66,6 +79,8 @@ impl<S: Records> SpatialIndex<S> {
             tree: SiteTree::default(),
             sites: Vec::new(),
             generation: next_generation(),
+            reach_generation: next_generation(),
+            reach_exact: true,
             chain_tail: Vec::new(),
             chained: 0,
         };
@@ -81,12 +96,18 @@ impl<S: Records> SpatialIndex<S> {
     }
 
     /// The records, to change their payloads; positions and normals must stay as they are
-    /// (the index keeps copies): [`Self::rebuild`] changes those.
+    /// (the index keeps copies): [`Self::rebuild`] changes those. Radii may be lowered
+    /// (the index's bounds on them stay valid, only looser: [`Self::refresh_reach`]
+    /// tightens them), not raised without a [`Self::refresh_reach`] before the next
+    /// [`Self::within_reach`].
     pub fn records_mut(&mut self) -> &mut S {
+        self.reach_generation = next_generation();
+        self.reach_exact = false;
         &mut self.records
     }
 
-    /// Changes the records by `change` (removals, moves), then rebuilds the index balanced.
+    /// Changes the records by `change` (removals, moves, radii), then rebuilds the index
+    /// balanced, its reach bounds exact.
     pub fn rebuild(&mut self, change: impl FnOnce(&mut S)) {
         change(&mut self.records);
         self.reindex();
@@ -109,8 +130,8 @@ impl<S: Records> SpatialIndex<S> {
 
     /// Bytes of the index on top of the records: per record its site (position, decoded
     /// normal, chain link: 28 B) and chain tail (4 B), and the tree with its leaves (which
-    /// hold position, normal and id inline: 28 B per record, at leaf fills of one half to
-    /// whole), spare capacity included.
+    /// hold position, normal and id inline, 28 B per record, with a reach bound beside,
+    /// 4 B, at leaf fills of one half to whole), spare capacity included.
     pub fn memory_bytes(&self) -> usize {
         self.len() * (std::mem::size_of::<Site>() + 4) + self.tree.memory_bytes()
     }
@@ -254,22 +275,201 @@ impl<S: Records> SpatialIndex<S> {
         }
     }
 
+    /// Every record `i` whose reach covers `x`, `|x − p_i| < radius(i)` ([`reaches`]: strict,
+    /// `∞` reaches everywhere, 0 and NaN nowhere), records sharing a position included:
+    /// appended to `out` as `(id, |p_i − x|²)` ([`distance2`]) in id order, so that sums
+    /// over them have the same bits whatever the tree's shape and the order of queries.
+    /// Filters the thread's gathered set when it serves `x` or a wide gathering is due, else
+    /// queries the kd-tree at `x` (module `reach`): its nodes whose reach bound admits `x`
+    /// or the ball gathered (survey ch. 3, Algorithm 3), then each record by its radius.
+    /// Allocates nothing once `out` and the thread's working space have grown. A
+    /// non-finite `x` finds nothing.
+    pub fn within_reach(&self, x: Vec3, out: &mut Vec<(u32, f32)>) {
+        with_reach_scratch(|scratch| {
+            if self.gather_reach(x, scratch) {
+                scratch.scale = scratch.near.covering(x, out).sqrt();
+                return;
+            }
+            let start = out.len();
+            let mut most = 0.0f32;
+            self.tree
+                .within_reach(x, 0.0, &mut scratch.reach, |head, d2, _, lane| {
+                    self.for_chain(head, lane, |id, radius| {
+                        if reaches(d2, radius) {
+                            out.push((id, d2));
+                            most = most.max(d2);
+                        }
+                    })
+                });
+            sort_by_key(&mut out[start..], &mut scratch.pairs, |&(id, _)| id);
+            scratch.scale = most.sqrt();
+        });
+    }
+
+    /// Whether `scratch.near` serves `x`: when its ball holds `x`, or after a new wide
+    /// gathering while queries come in a walk; not when they come scattered (module
+    /// `reach`), and then the set is dropped.
+    fn gather_reach(&self, x: Vec3, scratch: &mut ReachScratch) -> bool {
+        // A margin of 1e-5 keeps rounding on the safe side, as in `gather`.
+        let covered = scratch.generation == self.reach_generation
+            && (x - scratch.anchor).length() <= scratch.rho * (1.0 - 1e-5);
+        let previous = std::mem::replace(&mut scratch.previous, x);
+        if covered {
+            scratch.served += 1;
+            return true;
+        }
+        // Wide while that pays, else exact with a wide try now and then (less often each
+        // time a try serves nothing more), as `gather` decides.
+        let coherent = scratch.served > 1;
+        let (first, most) = ReachScratch::WIDE_RETRY;
+        scratch.wide_interval = if coherent || scratch.wide_interval == 0 {
+            first
+        } else if scratch.wide {
+            (2 * scratch.wide_interval).min(most)
+        } else {
+            scratch.wide_interval
+        };
+        let wide = coherent || scratch.until_wide == 0;
+        scratch.until_wide = if wide {
+            scratch.wide_interval
+        } else {
+            scratch.until_wide - 1
+        };
+        scratch.wide = wide;
+        let step = x - previous;
+        let step_length = step.length();
+        let mut rho = 0.0;
+        let mut anchor = x;
+        if wide && step_length > 0.0 && step_length.is_finite() {
+            rho = (ReachScratch::WIDE_STEPS * step_length).min(0.5 * scratch.scale);
+            let ahead = x + step * (ReachScratch::ANCHOR_AHEAD * rho / step_length);
+            if (x - ahead).length() <= rho * (1.0 - 1e-5) {
+                anchor = ahead;
+            }
+        }
+        scratch.served = 1;
+        scratch.gathers = scratch.gathers.wrapping_add(1);
+        if rho == 0.0 {
+            // A query of its own serves this point alone: no set to gather.
+            scratch.generation = 0;
+            return false;
+        }
+        scratch.generation = self.reach_generation;
+        scratch.anchor = anchor;
+        scratch.rho = rho;
+        let ReachScratch {
+            reach,
+            found,
+            spare,
+            near,
+            ..
+        } = scratch;
+        found.clear();
+        // Every record that covers some point within ρ of the anchor: `|c − p| < R + ρ`,
+        // with a margin of 1e-5 (under the tree's, 2e-5) for the rounding of both
+        // distances.
+        self.tree
+            .within_reach(anchor, rho, reach, |head, d2, position, lane| {
+                let d = d2.sqrt();
+                self.for_chain(head, lane, |id, radius| {
+                    if radius > 0.0 && d < (radius + rho) * (1.0 + 1e-5) {
+                        found.push(Reached {
+                            id,
+                            position,
+                            radius,
+                        });
+                    }
+                })
+            });
+        sort_by_key(found, spare, |r| r.id);
+        near.fill(found);
+        true
+    }
+
+    /// Calls `f(id, reach)` for `head` and each record chained to it, with `lane`, the
+    /// bound of `head`'s lane, for the reach while the lanes are exact and unchained (a
+    /// lane's 0 stands for a reach of 0, NaN or below: none covers anything), else with
+    /// the records' radii (one cache miss per record) and chain links.
+    #[inline(always)]
+    fn for_chain(&self, head: u32, lane: f32, mut f: impl FnMut(u32, f32)) {
+        if self.reach_exact && self.chained == 0 {
+            return f(head, lane);
+        }
+        let mut id = head;
+        loop {
+            f(id, self.records.radius(id as usize));
+            if self.chained == 0 {
+                return;
+            }
+            id = self.sites[id as usize].next;
+            if id == NO_RECORD {
+                return;
+            }
+        }
+    }
+
+    /// Every record within `r` of `x` (`|x − p_i| < r`, [`reaches`]), records sharing a
+    /// position included: appended to `out` as `(id, |p_i − x|²)` in id order. A
+    /// non-positive, NaN `r` or non-finite `x` finds nothing; `r = ∞` finds every record.
+    pub fn within_radius(&self, x: Vec3, r: f32, out: &mut Vec<(u32, f32)>) {
+        if self.sites.is_empty() || r.is_nan() || r <= 0.0 {
+            return;
+        }
+        let start = out.len();
+        with_reach_scratch(|scratch| {
+            scratch.sites.clear();
+            self.tree
+                .within(x, reach_bound2(r), &mut scratch.range, &mut scratch.sites);
+            for k in 0..scratch.sites.len() {
+                let d2 = distance2(scratch.sites.position(k), x);
+                if reaches(d2, r) {
+                    let mut id = scratch.sites.id(k);
+                    while id != NO_RECORD {
+                        out.push((id, d2));
+                        id = self.sites[id as usize].next;
+                    }
+                }
+            }
+            sort_by_key(&mut out[start..], &mut scratch.pairs, |&(id, _)| id);
+        });
+    }
+
+    /// Sets the kd-tree's reach bounds exact from the records' radii, in one pass over the
+    /// records and the tree (about as long as one insertion per record would take). Needed
+    /// after radii grow through [`Self::records_mut`]; after they shrink (the irradiance
+    /// cache's neighbour clamping), answers stay exact without it and only the pruning of
+    /// [`Self::within_reach`] loosens: refresh once in a while (say after each wave of
+    /// insertions), not after every change. [`Self::rebuild`] refreshes too.
+    pub fn refresh_reach(&mut self) {
+        let Self {
+            records,
+            tree,
+            sites,
+            ..
+        } = self;
+        tree.refresh_reach(|head| chain_reach(records, sites, head));
+        self.reach_generation = next_generation();
+        self.reach_exact = true;
+    }
+
     /// Appends a record by `push` (which returns its id, the next one: ids are dense) and
     /// indexes it. The record's position must be finite.
     pub fn admit(&mut self, push: impl FnOnce(&mut S) -> Result<usize>) -> Result<u32> {
         let id = push(&mut self.records)? as u32;
         self.sites.push(Site::of(&self.records, id as usize));
         self.generation = next_generation();
+        self.reach_generation = next_generation();
         self.chain_tail.push(id);
         self.index(id);
         Ok(id)
     }
 
     /// Puts record `id` (the newest) into the tree, or at the end of the chain of a record
-    /// with the same position.
+    /// with the same position; either way its reach raises the tree's bounds.
     fn index(&mut self, id: u32) {
         let site = self.sites[id as usize];
-        if let Some(head) = self.tree.insert((site.position, site.normal, id)) {
+        let reach = reach_bound(self.records.radius(id as usize));
+        if let Some(head) = self.tree.insert((site.position, site.normal, id), reach) {
             self.chain(head, id);
         }
     }
@@ -288,6 +488,8 @@ impl<S: Records> SpatialIndex<S> {
         let n = self.records.len();
         self.sites = (0..n).map(|i| Site::of(&self.records, i)).collect();
         self.generation = next_generation();
+        self.reach_generation = next_generation();
+        self.reach_exact = true;
         self.chain_tail = (0..n as u32).collect();
         self.chained = 0;
         let mut heads: Vec<u32> = Vec::with_capacity(n);
@@ -310,11 +512,24 @@ impl<S: Records> SpatialIndex<S> {
             .iter()
             .map(|&id| {
                 let site = &self.sites[id as usize];
-                (site.position, site.normal, id)
+                let reach = chain_reach(&self.records, &self.sites, id);
+                ((site.position, site.normal, id), reach)
             })
             .collect();
         self.tree = SiteTree::build(entries);
     }
+}
+
+/// The tree's bound for the lane of `head`: [`reach_bound`] of the largest radius among
+/// `head` and the records chained to it.
+fn chain_reach<S: Records>(records: &S, sites: &[Site], head: u32) -> f32 {
+    let mut bound = f32::NEG_INFINITY;
+    let mut id = head;
+    while id != NO_RECORD {
+        bound = bound.max(reach_bound(records.radius(id as usize)));
+        id = sites[id as usize].next;
+    }
+    bound
 }
 
 /// Source of [`SpatialIndex`] generations: every change takes the next number, so no

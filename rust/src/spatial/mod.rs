@@ -1,6 +1,7 @@
 //! One index for the records of every cache: records with a position, a unit normal and a
-//! validity radius, looked up by weighted `m`-nearest gathering (CAM08 §5.1, eq. 9), with
-//! a payload of the cache's own ([`Records`]).
+//! validity radius, looked up by weighted `m`-nearest gathering (CAM08 §5.1, eq. 9) or by
+//! reach (every record whose radius covers a point: survey ch. 3, Algorithms 2–3), with a
+//! payload of the cache's own ([`Records`]).
 //!
 //! The visibility cache ([`crate::visibility::cache`]) keeps its records here; the
 //! irradiance and importance caches will. Everything is generic over the records and
@@ -34,17 +35,24 @@
 //! gathering prefetches the payloads of its records ([`Records::prefetch`]), which the
 //! lookups it serves may compare.
 //!
+//! ## Reach
+//! [`SpatialIndex::within_reach`] answers "which records cover `x`" (`|x − p_i| < R_i`),
+//! in id order, for the irradiance cache's interpolation; the tree keeps per node a bound
+//! on the reach of the records under it and enters only nodes that can reach `x` (module
+//! [`reach`], which also holds the [`coverage`] test the caches share).
+//!
 //! ## Growing
 //! [`waves::WaveBuilder`] grows any cache deterministically in waves (look up in
 //! parallel, make the requested records in parallel, insert them in a fixed order), with
 //! the cache's insertion test and record constructor plugged in ([`waves::WaveTarget`]).
 //!
-//! Module dependencies run one way: `gathered` ← `tree`, `candidates`, `score` ←
-//! `scratch` ← `index`.
+//! Module dependencies run one way: `gathered` ← `tree` ← `reach`, `candidates`, `score`
+//! ← `scratch` ← `index`.
 
 mod candidates;
 mod gathered;
 mod index;
+pub mod reach;
 mod score;
 mod scratch;
 mod tree;
@@ -52,6 +60,7 @@ pub mod waves;
 pub mod weight;
 
 pub use index::{prefetch, Records, SpatialIndex};
+pub use reach::{coverage, reach_factor};
 pub(crate) use score::Hits;
 pub use scratch::{with_thread_scratch, LookupScratch};
 pub use weight::Weighting;

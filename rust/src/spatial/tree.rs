@@ -12,6 +12,18 @@
 //! distinct: [`SiteTree::insert`] reports a record already at the exact position instead
 //! of adding another (the index chains records sharing a position). [`SiteTree::build`] makes a balanced
 //! tree from a whole set at once, for rebuilds after removals.
+//!
+//! ## Reach
+//! Every record has a reach (its validity radius `R`, world units, `∞` unbounded; module
+//! `reach`). Beside the sites, and apart from them so that range queries read the same
+//! memory as before, the tree keeps bounds on `max(R, 0)`: per leaf lane (the lane's record
+//! and the records chained to it; exactly its record's reach while the index says so) and,
+//! squared, per node (everything under it, kept by the parent stem for both children).
+//! Insertion raises them along its descent, builds and [`SiteTree::refresh_reach`] set
+//! them exact. [`SiteTree::within_reach`] enters a node only when the distance from the
+//! query point to its region (bounded by the split planes on the way down) is within the
+//! node's bound: Algorithm 3 of the survey (ch. 3) with the kd-tree in place of its
+//! multiply referenced octree.
 
 use glam::Vec3;
 
@@ -63,13 +75,11 @@ impl Leaf {
         self.len += 1;
     }
 
-    /// The id of the record held at exactly `position`, if any.
-    fn holding(&self, position: Vec3) -> Option<u32> {
-        (0..self.len as usize)
-            .find(|&i| {
-                self.x[i] == position.x && self.y[i] == position.y && self.z[i] == position.z
-            })
-            .map(|i| self.id[i])
+    /// The lane of the record held at exactly `position`, if any.
+    fn holding(&self, position: Vec3) -> Option<usize> {
+        (0..self.len as usize).find(|&i| {
+            self.x[i] == position.x && self.y[i] == position.y && self.z[i] == position.z
+        })
     }
 
     fn entry(&self, i: usize) -> Entry {
@@ -90,12 +100,49 @@ struct Stem {
     children: [u32; 2],
 }
 
+/// Bounds on `max(R, 0)` of a leaf's lanes, each over the lane's record and the records
+/// chained to it; `−∞` past the leaf's `len`.
+#[derive(Clone, Debug)]
+#[repr(C, align(64))]
+struct LaneReach([f32; LEAF]);
+
+impl LaneReach {
+    const EMPTY: Self = LaneReach([f32::NEG_INFINITY; LEAF]);
+
+    /// The node bound of the leaf: [`squared`] of its largest lane.
+    fn bound2(&self) -> f32 {
+        squared(self.0.iter().copied().fold(f32::NEG_INFINITY, f32::max))
+    }
+}
+
+/// A node bound from a lane bound `r`: `r²`, or `−∞` for `−∞` (nothing under the node).
+/// Rounding is monotone, so the square of the largest lane bounds the squares of all.
+#[inline]
+fn squared(r: f32) -> f32 {
+    if r >= 0.0 {
+        r * r
+    } else {
+        f32::NEG_INFINITY
+    }
+}
+
+/// A site with the bound on `max(R, 0)` of its lane: what builds and splits move around.
+pub(super) type Reaching = (Entry, f32);
+
 /// The kd-tree (see the module docs). Positions must be finite.
 #[derive(Clone, Debug)]
 pub(super) struct SiteTree {
     stems: Vec<Stem>,
     leaves: Vec<Leaf>,
     root: u32,
+    /// By stem: bounds on `max(R, 0)²` over everything under each child (the children's
+    /// order; [`squared`] of the largest lane under it), upper bounds always, exact after
+    /// a build or [`Self::refresh_reach`].
+    stem_reach: Vec<[f32; 2]>,
+    /// By leaf: the lanes' bounds.
+    lane_reach: Vec<LaneReach>,
+    /// The bound over the whole tree (`−∞` when empty).
+    root_reach: f32,
 }
 
 impl Default for SiteTree {
@@ -104,30 +151,42 @@ impl Default for SiteTree {
             stems: Vec::new(),
             leaves: vec![Leaf::empty()],
             root: LEAF_BIT,
+            stem_reach: Vec::new(),
+            lane_reach: vec![LaneReach::EMPTY],
+            root_reach: f32::NEG_INFINITY,
         }
     }
 }
 
 impl SiteTree {
-    /// A balanced tree over `entries` (distinct finite positions), split at medians.
-    pub(super) fn build(mut entries: Vec<Entry>) -> Self {
+    /// A balanced tree over `entries` (distinct finite positions, each with the bound of
+    /// its lane), split at medians.
+    pub(super) fn build(mut entries: Vec<Reaching>) -> Self {
+        let leaves = entries.len().div_ceil(LEAF / 2) + 1;
         let mut tree = Self {
             stems: Vec::new(),
-            leaves: Vec::with_capacity(entries.len().div_ceil(LEAF / 2) + 1),
+            leaves: Vec::with_capacity(leaves),
             root: 0,
+            stem_reach: Vec::new(),
+            lane_reach: Vec::with_capacity(leaves),
+            root_reach: f32::NEG_INFINITY,
         };
-        tree.root = tree.build_node(&mut entries);
+        (tree.root, tree.root_reach) = tree.build_node(&mut entries);
         tree
     }
 
-    fn build_node(&mut self, entries: &mut [Entry]) -> u32 {
+    /// Builds the subtree over `entries`: its node and its bound.
+    fn build_node(&mut self, entries: &mut [Reaching]) -> (u32, f32) {
         if entries.len() <= LEAF {
-            let mut leaf = Leaf::empty();
-            for &e in entries.iter() {
+            let (mut leaf, mut lanes) = (Leaf::empty(), LaneReach::EMPTY);
+            for &(e, reach) in entries.iter() {
+                lanes.0[leaf.len as usize] = reach;
                 leaf.push(e);
             }
+            let bound = lanes.bound2();
             self.leaves.push(leaf);
-            return (self.leaves.len() - 1) as u32 | LEAF_BIT;
+            self.lane_reach.push(lanes);
+            return ((self.leaves.len() - 1) as u32 | LEAF_BIT, bound);
         }
         let (dim, split, left) = split_of(entries);
         let stem = self.stems.len();
@@ -136,58 +195,91 @@ impl SiteTree {
             dim,
             children: [0, 0],
         });
+        self.stem_reach.push([f32::NEG_INFINITY; 2]);
         let (below, above) = entries.split_at_mut(left);
-        let children = [self.build_node(below), self.build_node(above)];
-        self.stems[stem].children = children;
-        stem as u32
+        let (low, high) = (self.build_node(below), self.build_node(above));
+        self.stems[stem].children = [low.0, high.0];
+        self.stem_reach[stem] = [low.1, high.1];
+        (stem as u32, low.1.max(high.1))
     }
 
-    /// Bytes held (stems and leaves, with spare capacity).
+    /// Bytes held (stems and leaves with their reach bounds, spare capacity included).
     pub(super) fn memory_bytes(&self) -> usize {
         self.stems.capacity() * std::mem::size_of::<Stem>()
             + self.leaves.capacity() * std::mem::size_of::<Leaf>()
+            + self.stem_reach.capacity() * std::mem::size_of::<[f32; 2]>()
+            + self.lane_reach.capacity() * std::mem::size_of::<LaneReach>()
     }
 
     /// The id of the record held at exactly `position`, if any.
     #[cfg(test)]
     pub(super) fn find(&self, position: Vec3) -> Option<u32> {
-        let leaf = &self.leaves[(self.leaf_of(position).0 & !LEAF_BIT) as usize];
-        leaf.holding(position)
+        let mut node = self.root;
+        while node & LEAF_BIT == 0 {
+            let stem = &self.stems[node as usize];
+            node = stem.children[(position[stem.dim as usize] >= stem.split) as usize];
+        }
+        let leaf = &self.leaves[(node & !LEAF_BIT) as usize];
+        leaf.holding(position).map(|i| leaf.id[i])
     }
 
-    /// Adds a record (finite position) unless a record is held at exactly its position:
-    /// then returns that record's id and leaves the tree as it was. Both are found by one
-    /// descent, records at one position falling in one leaf.
-    pub(super) fn insert(&mut self, entry: Entry) -> Option<u32> {
-        debug_assert!(entry.0.is_finite());
-        let (node, parent) = self.leaf_of(entry.0);
-        let index = (node & !LEAF_BIT) as usize;
-        if let Some(id) = self.leaves[index].holding(entry.0) {
-            return Some(id);
+    /// Adds a record (finite position) whose lane bound is `reach >= 0` unless a record is
+    /// held at exactly its position: then returns that record's id, raises that record's
+    /// lane bound to `reach` (the new record will be chained to it) and leaves the tree as
+    /// it was otherwise. Both are found by one descent, records at one position falling in
+    /// one leaf; the descent raises the bounds of the nodes it passes.
+    pub(super) fn insert(&mut self, entry: Entry, reach: f32) -> Option<u32> {
+        debug_assert!(entry.0.is_finite() && reach >= 0.0);
+        let reach2 = squared(reach);
+        self.root_reach = self.root_reach.max(reach2);
+        let mut node = self.root;
+        let mut parent = None;
+        while node & LEAF_BIT == 0 {
+            let stem = &self.stems[node as usize];
+            let side = (entry.0[stem.dim as usize] >= stem.split) as usize;
+            let bound = &mut self.stem_reach[node as usize][side];
+            *bound = bound.max(reach2);
+            parent = Some((node as usize, side));
+            node = stem.children[side];
         }
-        if (self.leaves[index].len as usize) < LEAF {
+        let index = (node & !LEAF_BIT) as usize;
+        if let Some(lane) = self.leaves[index].holding(entry.0) {
+            let bound = &mut self.lane_reach[index].0[lane];
+            *bound = bound.max(reach);
+            return Some(self.leaves[index].id[lane]);
+        }
+        let len = self.leaves[index].len as usize;
+        if len < LEAF {
+            self.lane_reach[index].0[len] = reach;
             self.leaves[index].push(entry);
             return None;
         }
         // Full: split the leaf's records and the new one in two leaves under a new stem.
         let leaf = std::mem::replace(&mut self.leaves[index], Leaf::empty());
-        let mut entries: Vec<Entry> = (0..LEAF).map(|i| leaf.entry(i)).collect();
-        entries.push(entry);
+        let lanes = std::mem::replace(&mut self.lane_reach[index], LaneReach::EMPTY);
+        let mut entries: Vec<Reaching> = (0..LEAF).map(|i| (leaf.entry(i), lanes.0[i])).collect();
+        entries.push((entry, reach));
         let (dim, split, left) = split_of(&mut entries);
-        for &e in &entries[..left] {
-            self.leaves[index].push(e);
+        let mut above = (Leaf::empty(), LaneReach::EMPTY);
+        for (k, &(e, reach)) in entries.iter().enumerate() {
+            let (leaf, lanes) = if k < left {
+                (&mut self.leaves[index], &mut self.lane_reach[index])
+            } else {
+                (&mut above.0, &mut above.1)
+            };
+            lanes.0[leaf.len as usize] = reach;
+            leaf.push(e);
         }
-        let mut above = Leaf::empty();
-        for &e in &entries[left..] {
-            above.push(e);
-        }
-        self.leaves.push(above);
+        let bounds = [self.lane_reach[index].bound2(), above.1.bound2()];
+        self.leaves.push(above.0);
+        self.lane_reach.push(above.1);
         let stem = self.stems.len() as u32;
         self.stems.push(Stem {
             split,
             dim,
             children: [node, (self.leaves.len() - 1) as u32 | LEAF_BIT],
         });
+        self.stem_reach.push(bounds);
         match parent {
             Some((p, side)) => self.stems[p].children[side] = stem,
             None => self.root = stem,
@@ -195,17 +287,109 @@ impl SiteTree {
         None
     }
 
-    /// The leaf `position` falls in, with its parent stem and side.
-    fn leaf_of(&self, position: Vec3) -> (u32, Option<(usize, usize)>) {
-        let mut node = self.root;
-        let mut parent = None;
-        while node & LEAF_BIT == 0 {
-            let stem = &self.stems[node as usize];
-            let side = (position[stem.dim as usize] >= stem.split) as usize;
-            parent = Some((node as usize, side));
-            node = stem.children[side];
+    /// Sets every bound exact: each lane's to `lane(id)` (`id` the lane's record, the
+    /// first at its position), then each node's to the maximum under it. Children come
+    /// after their parents in `stems` (builds push a stem before its subtrees, splits
+    /// append), so one pass from the back sees every child before its parent.
+    pub(super) fn refresh_reach(&mut self, lane: impl Fn(u32) -> f32) {
+        for (leaf, lanes) in self.leaves.iter().zip(&mut self.lane_reach) {
+            for i in 0..leaf.len as usize {
+                lanes.0[i] = lane(leaf.id[i]);
+            }
         }
-        (node, parent)
+        let bound_of = |node: u32, stem_reach: &[[f32; 2]], lane_reach: &[LaneReach]| {
+            if node & LEAF_BIT != 0 {
+                lane_reach[(node & !LEAF_BIT) as usize].bound2()
+            } else {
+                let [a, b] = stem_reach[node as usize];
+                a.max(b)
+            }
+        };
+        for s in (0..self.stems.len()).rev() {
+            let children = self.stems[s].children;
+            debug_assert!(children
+                .iter()
+                .all(|&c| c & LEAF_BIT != 0 || c as usize > s));
+            self.stem_reach[s] = children.map(|c| bound_of(c, &self.stem_reach, &self.lane_reach));
+        }
+        self.root_reach = bound_of(self.root, &self.stem_reach, &self.lane_reach);
+    }
+
+    /// Calls `found(id, d2, p, r)` for every lane record (position `p`) whose lane bound
+    /// `r` admits the ball of radius `rho >= 0` around `x`: `√d2 < widen_lane(r, rho)` with
+    /// `d2 = |p − x|²` (summed as [`GatheredSites::filter`] sums it), leaf after leaf. A
+    /// lane passes when any record of its chain may reach a point of the ball: with
+    /// `rho = 0`, exactly when its record covers `x` if `r` is that record's reach and no
+    /// record is chained to it. A node is entered only when its bound, widened by [`widen`],
+    /// admits the squared distance from `x` to its region. `scratch` is working space.
+    pub(super) fn within_reach(
+        &self,
+        x: Vec3,
+        rho: f32,
+        scratch: &mut ReachQueryScratch,
+        mut found: impl FnMut(u32, f32, Vec3, f32),
+    ) {
+        let ReachQueryScratch { stack, leaves } = scratch;
+        stack.clear();
+        leaves.clear();
+        // A region's squared offsets from x along each axis (0 inside its slab), summed
+        // as a record's squared distance is (module `gathered`): the sum is at most that
+        // distance for every record in the region, each term being at most the record's
+        // and rounding monotone. Kept as three scalars, not an array written at a varying
+        // index and read whole (a failed store forwarding per node).
+        if widen(self.root_reach, rho) >= 0.0 {
+            stack.push((self.root, 0.0, 0.0, 0.0));
+        }
+        while let Some((mut node, s0, s1, s2)) = stack.pop() {
+            // Down the nearer side, which keeps the region's offsets; the farther side
+            // moves the offset along the split's axis to the plane.
+            let near_d2 = s0 + s1 + s2;
+            let mut reached = true;
+            while node & LEAF_BIT == 0 {
+                let stem = &self.stems[node as usize];
+                let bounds = &self.stem_reach[node as usize];
+                let offset = x[stem.dim as usize] - stem.split;
+                let near = (offset >= 0.0) as usize;
+                let o2 = offset * offset;
+                let far = match stem.dim {
+                    0 => (o2, s1, s2),
+                    1 => (s0, o2, s2),
+                    _ => (s0, s1, o2),
+                };
+                if far.0 + far.1 + far.2 <= widen(bounds[1 - near], rho) {
+                    stack.push((stem.children[1 - near], far.0, far.1, far.2));
+                }
+                // A NaN bound (nothing under the node) admits nothing; `near_d2` is never
+                // NaN (a frame is pushed only when its distance passed a test).
+                let bound = widen(bounds[near], rho);
+                if near_d2 > bound || bound.is_nan() {
+                    reached = false;
+                    break;
+                }
+                node = stem.children[near];
+            }
+            if reached {
+                let index = node & !LEAF_BIT;
+                let leaf = &self.leaves[index as usize];
+                leaf.prefetch_positions();
+                leaf.prefetch_ids();
+                super::index::prefetch(&self.lane_reach[index as usize].0[0]);
+                super::index::prefetch(&self.lane_reach[index as usize].0[LEAF / 2]);
+                leaves.push(index);
+            }
+        }
+        for &index in leaves.iter() {
+            let (leaf, lanes) = (
+                &self.leaves[index as usize],
+                &self.lane_reach[index as usize],
+            );
+            let (mut pass, d2) = leaf.reached(x, lanes, rho);
+            while pass != 0 {
+                let lane = pass.trailing_zeros() as usize;
+                pass &= pass - 1;
+                found(leaf.id[lane], d2[lane], leaf.entry(lane).0, lanes.0[lane]);
+            }
+        }
     }
 
     /// Appends to `out` every record with `|p − x|² <= r2` (summed as
@@ -246,6 +430,32 @@ impl SiteTree {
     }
 }
 
+/// A node's squared bound `b` widened by `rho >= 0`: `b` itself for `rho = 0`, else
+/// `((√b + rho)(1 + 4e-5))²`, so that every record a lane test widened by `rho` passes
+/// ([`widen_lane`], whose margin is half this one) lies within it. NaN for `b = −∞`
+/// (nothing under the node), which no test passes.
+#[inline(always)]
+pub(super) fn widen(b: f32, rho: f32) -> f32 {
+    if rho == 0.0 {
+        b
+    } else {
+        let w = (b.sqrt() + rho) * (1.0 + 4e-5);
+        w * w
+    }
+}
+
+/// A lane bound `r` widened by `rho >= 0`: `r` itself for `rho = 0`, else
+/// `(r + rho)(1 + 2e-5)`, above the `(R + rho)(1 + 1e-5)` of every reach `R <= r` with a
+/// margin for the rounding of this.
+#[inline(always)]
+pub(super) fn widen_lane(r: f32, rho: f32) -> f32 {
+    if rho == 0.0 {
+        r
+    } else {
+        (r + rho) * (1.0 + 2e-5)
+    }
+}
+
 /// [`Leaf::append_within`] as a [`Kernel`]: its AVX-512 form, else the portable one. The
 /// AVX-512 form is never inlined into the dispatcher's function, whose feature set differs
 /// (AVX-512 VL): it stays compiled exactly for its own set.
@@ -279,7 +489,59 @@ pub(super) struct QueryScratch {
     leaves: Vec<u32>,
 }
 
+/// Working space of [`SiteTree::within_reach`]: nodes to visit with the offsets of their
+/// regions, and the leaves found.
+#[derive(Clone, Debug, Default)]
+pub(super) struct ReachQueryScratch {
+    stack: Vec<(u32, f32, f32, f32)>,
+    leaves: Vec<u32>,
+}
+
+impl ReachQueryScratch {
+    /// Leaves the last query visited.
+    #[cfg(test)]
+    pub(super) fn leaves_visited(&self) -> usize {
+        self.leaves.len()
+    }
+}
+
+/// [`Leaf::reached`] as a [`Kernel`]: its AVX-512 form, else the portable one.
+struct ReachedKernel<'a> {
+    leaf: &'a Leaf,
+    x: Vec3,
+    lanes: &'a LaneReach,
+    rho: f32,
+}
+
+impl Kernel for ReachedKernel<'_> {
+    type Output = (u32, [f32; LEAF]);
+
+    #[inline(always)]
+    fn run<L: Level>(self, _level: L) -> Self::Output {
+        let Self {
+            leaf,
+            x,
+            lanes,
+            rho,
+        } = self;
+        match L::LEVEL {
+            // SAFETY: a value of `L` exists only on CPUs with `L::LEVEL` (`Level`'s
+            // contract), here AVX-512 F.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => unsafe { leaf.reached_avx512(x, lanes, rho) },
+            _ => leaf.reached_portable(x, lanes, rho),
+        }
+    }
+}
+
 impl Leaf {
+    /// Asks for the cache lines of the ids (the 128 bytes after positions and normals).
+    #[inline(always)]
+    fn prefetch_ids(&self) {
+        super::index::prefetch(&self.id[0]);
+        super::index::prefetch(&self.id[LEAF / 2]);
+    }
+
     /// Asks for the cache lines of the positions (`x`, `y`, `z`: the first 384 bytes).
     #[inline(always)]
     fn prefetch_positions(&self) {
@@ -292,6 +554,63 @@ impl Leaf {
                 _mm_prefetch::<_MM_HINT_T0>(at.cast());
             }
         }
+    }
+
+    /// The lanes whose bound `r` in `lanes`, widened by `rho`, admits `x`
+    /// (`√|p − x|² < widen_lane(r, rho)`; NaN lanes past `len` fail) as a mask, and every
+    /// lane's `|p − x|²`.
+    #[inline]
+    fn reached(&self, x: Vec3, lanes: &LaneReach, rho: f32) -> (u32, [f32; LEAF]) {
+        crate::simd::dispatch_avx512(ReachedKernel {
+            leaf: self,
+            x,
+            lanes,
+            rho,
+        })
+    }
+
+    fn reached_portable(&self, x: Vec3, lanes: &LaneReach, rho: f32) -> (u32, [f32; LEAF]) {
+        let mut d2 = [f32::NAN; LEAF];
+        let mut pass = 0u32;
+        for (i, d2) in d2.iter_mut().enumerate() {
+            let (ex, ey, ez) = (self.x[i] - x.x, self.y[i] - x.y, self.z[i] - x.z);
+            *d2 = ex * ex + ey * ey + ez * ez;
+            pass |= ((d2.sqrt() < widen_lane(lanes.0[i], rho)) as u32) << i;
+        }
+        (pass, d2)
+    }
+
+    /// [`Self::reached_portable`] sixteen lanes at a time.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    #[inline(never)]
+    fn reached_avx512(&self, x: Vec3, lanes: &LaneReach, rho: f32) -> (u32, [f32; LEAF]) {
+        use std::arch::x86_64::*;
+        let q = [x.x, x.y, x.z].map(|v| _mm512_set1_ps(v));
+        let (wide, margin) = (_mm512_set1_ps(rho), _mm512_set1_ps(1.0 + 2e-5));
+        // `widen_lane` and the test, operation for operation (the square root is
+        // correctly rounded in both forms).
+        let mut d2 = [f32::NAN; LEAF];
+        let mut pass = 0u32;
+        for c in (0..LEAF).step_by(16) {
+            // SAFETY: `c + 16 <= LEAF`, the length of every lane array.
+            unsafe {
+                let (_, d) = offsets_avx512(
+                    self.x.as_ptr().add(c),
+                    self.y.as_ptr().add(c),
+                    self.z.as_ptr().add(c),
+                    q,
+                );
+                let mut bound = _mm512_loadu_ps(lanes.0.as_ptr().add(c));
+                if rho != 0.0 {
+                    bound = _mm512_mul_ps(_mm512_add_ps(bound, wide), margin);
+                }
+                let within = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(_mm512_sqrt_ps(d), bound);
+                pass |= (within as u32) << c;
+                _mm512_storeu_ps(d2.as_mut_ptr().add(c), d);
+            }
+        }
+        (pass, d2)
     }
 
     /// Appends to `out` the records with `|p − x|² <= r2`, in lane order.
@@ -348,10 +667,10 @@ impl Leaf {
 /// Where to split `entries` (at least two distinct positions): the coordinate of widest
 /// extent (the lower axis on ties), the value nearest the median that leaves records on
 /// both sides, and how many lie below it. Sorts `entries` by that coordinate, then id.
-fn split_of(entries: &mut [Entry]) -> (u32, f32, usize) {
+fn split_of(entries: &mut [Reaching]) -> (u32, f32, usize) {
     let (lo, hi) = entries.iter().fold(
         (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-        |(lo, hi), e| (lo.min(e.0), hi.max(e.0)),
+        |(lo, hi), (e, _)| (lo.min(e.0), hi.max(e.0)),
     );
     let extent = hi - lo;
     let dim = if extent.x >= extent.y && extent.x >= extent.z {
@@ -361,8 +680,8 @@ fn split_of(entries: &mut [Entry]) -> (u32, f32, usize) {
     } else {
         2
     };
-    entries.sort_unstable_by(|a, b| a.0[dim].total_cmp(&b.0[dim]).then(a.2.cmp(&b.2)));
-    let value = |i: usize| entries[i].0[dim];
+    entries.sort_unstable_by(|(a, _), (b, _)| a.0[dim].total_cmp(&b.0[dim]).then(a.2.cmp(&b.2)));
+    let value = |i: usize| entries[i].0 .0[dim];
     let mid = entries.len() / 2;
     // The first change of value at or after the median, else the last before it; one
     // exists, the extent being positive.
@@ -418,12 +737,12 @@ mod tests {
             let mut grown = SiteTree::default();
             for &e in &all {
                 assert_eq!(grown.find(e.0), None);
-                assert_eq!(grown.insert(e), None);
+                assert_eq!(grown.insert(e, 1.0), None);
                 assert_eq!(grown.find(e.0), Some(e.2));
                 // A second record at the same position is reported, not added.
-                assert_eq!(grown.insert((e.0, Vec3::X, u32::MAX)), Some(e.2));
+                assert_eq!(grown.insert((e.0, Vec3::X, u32::MAX), 1.0), Some(e.2));
             }
-            let built = SiteTree::build(all.clone());
+            let built = SiteTree::build(all.iter().map(|&e| (e, 1.0)).collect());
             for q in 0..200u64 {
                 // Query points at records (exactly on the reach of others) and anywhere.
                 let x = if q % 4 == 0 && !all.is_empty() {
@@ -501,12 +820,140 @@ mod tests {
         }
     }
 
+    /// Checks every stored node bound against the square of the largest lane under it:
+    /// equal when `exact`, at least it otherwise. Lanes past a leaf's `len` must be `−∞`.
+    fn check_bounds(tree: &SiteTree, exact: bool) {
+        fn under(tree: &SiteTree, node: u32, exact: bool) -> f32 {
+            if node & LEAF_BIT != 0 {
+                let i = (node & !LEAF_BIT) as usize;
+                let len = tree.leaves[i].len as usize;
+                let lanes = &tree.lane_reach[i].0;
+                assert!(lanes[len..].iter().all(|&b| b == f32::NEG_INFINITY));
+                return lanes[..len]
+                    .iter()
+                    .copied()
+                    .fold(f32::NEG_INFINITY, f32::max);
+            }
+            let stem = &tree.stems[node as usize];
+            let mut most = f32::NEG_INFINITY;
+            for side in 0..2 {
+                let b = under(tree, stem.children[side], exact);
+                let (stored, b2) = (tree.stem_reach[node as usize][side], squared(b));
+                if exact {
+                    assert_eq!(stored, b2, "stem {node}, side {side}");
+                } else {
+                    assert!(stored >= b2, "stem {node}, side {side}: {stored} < {b2}");
+                }
+                most = most.max(b);
+            }
+            most
+        }
+        let b = squared(under(tree, tree.root, exact));
+        if exact {
+            assert_eq!(tree.root_reach, b);
+        } else {
+            assert!(tree.root_reach >= b);
+        }
+    }
+
+    /// Reach bounds are the maxima under each node after growth (chained records raising
+    /// their head's lane), builds and refreshes, and bounds after lanes are lowered.
+    #[test]
+    fn reach_bounds_are_the_maxima_under_each_node() {
+        let bound = |seed: u64, k: u64| match hash4(seed, k, 3, 3) % 8 {
+            0 => f32::INFINITY,
+            1 => 0.0,
+            _ => unit(seed + 1, k),
+        };
+        for (count, seed) in [(0usize, 20u64), (1, 21), (40, 22), (3000, 23)] {
+            let all = distinct(entries(count, seed));
+            let mut grown = SiteTree::default();
+            check_bounds(&grown, true);
+            for (k, &e) in all.iter().enumerate() {
+                assert_eq!(grown.insert(e, bound(seed, k as u64)), None);
+                if k % 7 == 0 {
+                    // Another record at this position: its reach raises the lane.
+                    let other = (e.0, Vec3::X, u32::MAX);
+                    assert_eq!(grown.insert(other, bound(seed + 2, k as u64)), Some(e.2));
+                }
+            }
+            check_bounds(&grown, true);
+            let with_bounds: Vec<Reaching> = all
+                .iter()
+                .enumerate()
+                .map(|(k, &e)| (e, bound(seed, k as u64)))
+                .collect();
+            let mut built = SiteTree::build(with_bounds);
+            check_bounds(&built, true);
+            // Lower every lane behind the nodes' backs: bounds, not maxima, until refreshed.
+            let lower = |id: u32| 0.5 * unit(seed + 3, id as u64);
+            for tree in [&mut grown, &mut built] {
+                for (leaf, lanes) in tree.leaves.iter().zip(&mut tree.lane_reach) {
+                    for i in 0..leaf.len as usize {
+                        lanes.0[i] = lower(leaf.id[i]);
+                    }
+                }
+                check_bounds(tree, false);
+                tree.refresh_reach(lower);
+                check_bounds(tree, true);
+            }
+        }
+    }
+
+    /// Both forms of the reach scan give the same mask and, in the lanes held, the same
+    /// squared distances, with bounds of 0, ∞ and exactly a lane's distance, unwidened and
+    /// widened.
+    #[test]
+    fn every_reach_scan_form_gives_the_same_lanes() {
+        let x = Vec3::splat(0.5);
+        for fill in [0usize, 1, 15, 16, 17, LEAF] {
+            let mut leaf = Leaf::empty();
+            let mut lanes = LaneReach::EMPTY;
+            for k in 0..fill as u64 {
+                let p = Vec3::new(unit(42, 3 * k), unit(42, 3 * k + 1), unit(42, 3 * k + 2));
+                let d = p - x;
+                lanes.0[k as usize] = match k % 4 {
+                    0 => 0.0,
+                    1 => f32::INFINITY,
+                    2 => (d.x * d.x + d.y * d.y + d.z * d.z).sqrt(),
+                    _ => 0.3 * unit(43, k),
+                };
+                leaf.push((p, Vec3::Y, k as u32));
+            }
+            for rho in [0.0f32, 0.05, 0.3] {
+                let (mask, d2) = leaf.reached_portable(x, &lanes, rho);
+                let expected = (0..fill).fold(0u32, |m, i| {
+                    let d = leaf.entry(i).0 - x;
+                    let d2 = d.x * d.x + d.y * d.y + d.z * d.z;
+                    m | ((d2.sqrt() < widen_lane(lanes.0[i], rho)) as u32) << i
+                });
+                assert_eq!(mask, expected, "fill {fill}, rho {rho}");
+                if fill > 2 {
+                    assert_ne!(mask & 0b10, 0, "infinite bounds pass");
+                    assert_eq!(mask & 0b101 != 0, rho > 0.0, "0 and |p − x| pass widened");
+                }
+                let (got, got_d2) = leaf.reached(x, &lanes, rho);
+                assert_eq!(got, mask, "dispatched, fill {fill}, rho {rho}");
+                let held =
+                    |d: [f32; LEAF]| d[..fill].iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(held(got_d2), held(d2));
+                #[cfg(target_arch = "x86_64")]
+                if std::arch::is_x86_feature_detected!("avx512f") {
+                    // SAFETY: the feature was detected just before.
+                    let (wide, wide_d2) = unsafe { leaf.reached_avx512(x, &lanes, rho) };
+                    assert_eq!(wide, mask, "AVX-512, fill {fill}, rho {rho}");
+                    assert_eq!(held(wide_d2), held(d2));
+                }
+            }
+        }
+    }
+
     #[test]
     fn records_on_one_line_and_sorted_insertion_still_split() {
         // Every record shares y and z; inserted in increasing x (a scanline).
         let mut tree = SiteTree::default();
         for k in 0..500u32 {
-            tree.insert((Vec3::new(k as f32, 1.0, 2.0), Vec3::Y, k));
+            tree.insert((Vec3::new(k as f32, 1.0, 2.0), Vec3::Y, k), 1.0);
         }
         assert!(tree.leaves.iter().all(|l| l.len as usize <= LEAF));
         assert_eq!(
