@@ -102,6 +102,8 @@ impl IrradianceCache {
             };
             let mut builder = WaveBuilder::new(start, time_budget, progress);
             let first = builder.run(&target, levels, report.points)?;
+            // Clamping lowered radii under the tree's reach bounds: make them tight again.
+            self.write().refresh_reach();
             report.inserted = first.inserted;
             report.discarded = first.discarded;
             let (mut complete, mut last) = (first.complete, first.inserted);
@@ -115,6 +117,7 @@ impl IrradianceCache {
             {
                 let all = std::iter::once(points.iter().copied());
                 let round = builder.run(&target, all, report.points)?;
+                self.write().refresh_reach();
                 report.inserted += round.inserted;
                 report.discarded += round.discarded;
                 report.gap_rounds += 1;

@@ -467,6 +467,12 @@ impl IrradianceState {
         Ok(id)
     }
 
+    /// Tightens the index's reach bounds after neighbour clamping lowered radii (answers are
+    /// exact either way; loose bounds only prune less).
+    pub fn refresh_reach(&mut self) {
+        self.index.refresh_reach();
+    }
+
     /// The totals since creation.
     pub fn counters(&self) -> IrradianceCounters {
         self.counters

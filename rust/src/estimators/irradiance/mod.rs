@@ -8,5 +8,4 @@
 pub mod build;
 pub mod cache;
 pub mod io;
-mod reach_scan;
 pub mod record;
