@@ -52,9 +52,10 @@ TARGET_PATH_RATIO = 0.1
 TARGET_GRADIENT_GAIN = 0.3
 TARGET_RECORD_RATIO = 3.0
 
-#: Samples per pixel of the cache's renders: pass 2 only antialiases the interpolated
-#: bounce (the renderer's default), and estimates direct light in the whole-image rows.
-IC_SPP = 4
+#: Samples per pixel of the cache's renders (the renderer's default): pass 2 antialiases
+#: the interpolated bounce and traces Phong's specular part, and estimates direct light in
+#: the whole-image rows.
+IC_SPP = 16
 IC_SPP_DIRECT = 16
 
 #: The scenes that the equal-time target names.

@@ -253,8 +253,11 @@ const IRRADIANCE_PARAMS: &[&str] = &[
 ];
 
 /// Samples per pixel of method "irradiance_cache" without `spp` or a time budget: its
-/// samples antialias the interpolated bounce (and estimate direct light, if asked).
-pub const DEFAULT_IRRADIANCE_SPP: u32 = 4;
+/// samples antialias the interpolated bounce, trace Phong's specular part of it and the
+/// few points no record serves (and estimate direct light, if asked). At 256x192 with the
+/// default cache, 16 rather than 4 took the garage's (sun) relMSE from 0.0106 to 0.0042
+/// and room's (sunlit) from 8.1e-4 to 3.9e-4, for about a quarter more time.
+pub const DEFAULT_IRRADIANCE_SPP: u32 = 16;
 
 /// Samples per pixel of the pass-layer methods without `spp` or a time budget.
 pub const DEFAULT_DIRECT_SPP: u32 = 16;

@@ -48,6 +48,15 @@
 //!   then `ρ = r_edge sin θ`), and the nearer of the two is the edge's distance: exact for a
 //!   planar occluder, and eq. 3.6's `min` in the limit of fine strata.
 //!
+//! ## The gradient limit (beyond the survey)
+//! `R_i <= min_c E_c / |∇_t E_c|` over the channels with light, then at least `r_lo`: the
+//! bound Ward & Heckbert (1992) draw from the translational gradient, as Křivánek and
+//! Gautron's irradiance caching uses it. The harmonic mean knows distances, not light: at
+//! the garage's sunlit opening it gave records a reach over which eq. 3.8's linear
+//! extrapolation changed `E` by 1.2x its value, and gradients there raised the image's
+//! relMSE by 72% (a = 0.2, 256x192). With the limit the same renders have 3.2x less
+//! relMSE with or without gradients, for 48% more records (the experiment's figures).
+//!
 //! Hit distances that divide are taken at least `r_lo` (the lower radius bound), so
 //! contact (distances below 1e-6, or 0) leaves the gradients finite. Escaped rays have
 //! `r = ∞`: they add nothing to `1/R_i` and their edges move with the other side.
@@ -71,7 +80,8 @@ pub struct IrradianceRecord {
     /// One-bounce irradiance `E` (eq. 3.4), W/m² per RGB channel, `>= 0`.
     pub irradiance: [f32; 3],
     /// Validity radius `R_i`, world units: the harmonic mean of the strata's hit distances,
-    /// clamped to the bounds the record was made with (finite, `> 0`).
+    /// at most `E / |∇_t E|` (the gradient limit, module docs), clamped to the bounds the
+    /// record was made with (finite, `> 0`).
     pub radius: f32,
     /// Rotational gradient `∇_r E` per channel (eq. 3.5), in the tangent plane, W/m² per
     /// radian, for eq. 3.8's `E_i + (n_i × n)·∇_r E` (module docs).
@@ -390,6 +400,14 @@ pub fn record_from_strata(
             }
         }
     }
+    // The gradient limit (module docs).
+    let limit = translation
+        .iter()
+        .zip(irradiance)
+        .filter(|(g, e)| *e > 0.0 && g.length() > 0.0)
+        .map(|(g, e)| (e as f64 / g.length()) as f32)
+        .fold(f32::INFINITY, f32::min);
+    let radius = radius.min(limit).max(r_lo);
     IrradianceRecord {
         position,
         normal,

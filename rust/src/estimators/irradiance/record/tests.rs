@@ -212,6 +212,60 @@ fn translation_gradient_beside_a_lit_wall_matches_the_view_factor() {
 }
 
 #[test]
+fn the_radius_is_at_most_irradiance_over_its_translational_gradient() {
+    // A floor point sees, just over a dark wall's top edge, a thin band of a bright far
+    // facade (its light is all in that band): a small step toward the wall hides the band,
+    // while the hit distances (the harmonic mean) allow a reach several times that.
+    let normal = Vec3::Y;
+    let frame = tangent_frame(normal);
+    let (d, h) = (1.0f64, 1.0f64);
+    let strata = (16u32, 64u32);
+    let field = |band: [f64; 3]| {
+        move |s: f64, phi: f64| {
+            let w = frame_direction(&frame, s, phi);
+            if w.x <= 0.0 {
+                return (f32::INFINITY, Vec3::ZERO, [0.0; 3]);
+            }
+            let t = d / w.x;
+            if t * w.y <= h {
+                (t as f32, Vec3::NEG_X, [0.0; 3])
+            } else if w.y < 50f64.to_radians().sin() {
+                (10.0 / w.x as f32, Vec3::NEG_X, band)
+            } else {
+                (f32::INFINITY, Vec3::ZERO, [0.0; 3])
+            }
+        }
+    };
+    let bounds = (1e-4, 1e4);
+    let make = |band, bounds| {
+        record_from_strata(
+            Vec3::ZERO,
+            normal,
+            strata,
+            &synthetic_samples(strata, 1, field(band)),
+            bounds,
+        )
+    };
+    let lit = make([1.0, 0.5, 2.0], bounds);
+    let limit = (0..3)
+        .map(|c| lit.irradiance[c] / lit.translation[c].length())
+        .fold(f32::INFINITY, f32::min);
+    // The same distances without light: no gradient, the harmonic mean rules.
+    let dark = make([0.0; 3], bounds);
+    assert!(
+        limit < 0.5 * dark.radius,
+        "limit {limit}, harmonic {}",
+        dark.radius
+    );
+    assert_eq!(lit.radius, limit);
+    // The lower bound still wins over the limit.
+    assert_eq!(
+        make([1.0, 0.5, 2.0], (2.0 * limit, 1e4)).radius,
+        2.0 * limit
+    );
+}
+
+#[test]
 fn translation_gradient_under_a_linear_ceiling_converges() {
     // A ceiling at height h whose radiance grows linearly, L(x) = a + g·x: E(p) = π L(p)
     // (the linear part seen around p integrates to zero), so ∇_t E = π g. Radiance varies
