@@ -6,7 +6,18 @@ the core reports to, and adds built-in scenes, environment maps, I/O and the ``v
 command line.
 """
 
-from . import analysis, design, envmaps, metrics, mitsuba, models, octahedral, scenes, testing
+from . import (
+    analysis,
+    design,
+    envmaps,
+    metrics,
+    mitsuba,
+    models,
+    octahedral,
+    scene_files,
+    scenes,
+    testing,
+)
 from ._core import (
     Camera,
     EnvMap,
@@ -23,6 +34,10 @@ from .cache import VisibilityCache
 from .irradiance import IrradianceCache
 from .relight import Relighter, RelightResult
 from .render import RenderResult, methods, preview, render
+
+# Scene.load dispatches to Python readers (trimesh), so it is attached here rather than
+# written in Rust; _core.pyi declares it.
+Scene.load = staticmethod(scene_files.load)  # type: ignore[method-assign]
 
 __all__ = [
     "AOResult",
@@ -51,6 +66,7 @@ __all__ = [
     "preview",
     "render",
     "render_ao",
+    "scene_files",
     "scenes",
     "testing",
 ]
