@@ -16,6 +16,7 @@ from . import (
     octahedral,
     scene_files,
     scenes,
+    setup_files,
     testing,
 )
 from ._core import (
@@ -35,9 +36,12 @@ from .irradiance import IrradianceCache
 from .relight import Relighter, RelightResult
 from .render import RenderResult, methods, preview, render
 
-# Scene.load dispatches to Python readers (trimesh), so it is attached here rather than
-# written in Rust; _core.pyi declares it.
+# Scene.load, Setup.load and Setup.save read and write files through Python libraries
+# (trimesh, json), so they are attached here rather than written in Rust; _core.pyi
+# declares them.
 Scene.load = staticmethod(scene_files.load)  # type: ignore[method-assign]
+Setup.load = staticmethod(setup_files.load)  # type: ignore[method-assign]
+Setup.save = setup_files.save  # type: ignore[method-assign]
 
 __all__ = [
     "AOResult",
@@ -68,5 +72,6 @@ __all__ = [
     "render_ao",
     "scene_files",
     "scenes",
+    "setup_files",
     "testing",
 ]
