@@ -365,6 +365,20 @@ def test_constant_emitter_and_no_emitter():
     assert vc.mitsuba.from_mitsuba(_scene_with(), envmap_resolution=8).envmap.is_black
 
 
+@pytest.mark.parametrize("flip", [False, True])
+def test_emitting_side_follows_flip_normals(flip):
+    # A rectangle's normal is its local +z; flip_normals turns it, and Mitsuba's area light
+    # with it, to -z: our winding normal follows, so the light emits on the same side.
+    setup = vc.mitsuba.from_mitsuba(_scene_with(lamp={
+        "type": "rectangle", "flip_normals": flip,
+        "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [1, 1, 1]}}}),
+        envmap_resolution=8)
+    t = setup.scene.triangles().astype(np.float64)
+    normals = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    assert np.all(np.sign(normals[:, 2]) == (-1 if flip else 1))
+    assert setup.scene.area_lights() == [0]
+
+
 def test_import_keeps_the_callers_variant():
     # The importer works in scalar_rgb and gives back the variant it found.
     setup = _small_map_setup("cornell")

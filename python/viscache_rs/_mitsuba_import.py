@@ -124,7 +124,16 @@ def _material(mi, bsdf, phong_class) -> Material:
 
 
 def _triangles(mi, shape, sphere_subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
-    """World-space vertices (V, 3) and faces (F, 3) of a supported shape."""
+    """World-space vertices (V, 3) and faces (F, 3) of a supported shape, wound so that
+    their winding normal is Mitsuba's normal (which ``flip_normals`` turns over): the side
+    an area light emits on, here and there."""
+    vertices, faces = _untransformed_triangles(mi, shape, sphere_subdivisions)
+    if getattr(shape, "has_flipped_normals", lambda: False)():
+        faces = faces[:, ::-1]
+    return vertices, faces
+
+
+def _untransformed_triangles(mi, shape, sphere_subdivisions: int):
     name = plugin_name(shape)
     if shape.is_mesh() and (name in MESH_SHAPES or name == "Mesh"):
         vertices = np.array(shape.vertex_positions_buffer(), np.float32).reshape(-1, 3)
