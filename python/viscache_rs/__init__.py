@@ -6,7 +6,19 @@ the core reports to, and adds built-in scenes, environment maps, I/O and the ``v
 command line.
 """
 
-from . import analysis, design, envmaps, metrics, mitsuba, models, octahedral, scenes, testing
+from . import (
+    analysis,
+    design,
+    envmaps,
+    metrics,
+    mitsuba,
+    models,
+    octahedral,
+    scene_files,
+    scenes,
+    setup_files,
+    testing,
+)
 from ._core import (
     Camera,
     EnvMap,
@@ -23,6 +35,13 @@ from .cache import VisibilityCache
 from .irradiance import IrradianceCache
 from .relight import Relighter, RelightResult
 from .render import RenderResult, methods, preview, render
+
+# Scene.load, Setup.load and Setup.save read and write files through Python libraries
+# (trimesh, json), so they are attached here rather than written in Rust; _core.pyi
+# declares them.
+Scene.load = staticmethod(scene_files.load)  # type: ignore[method-assign]
+Setup.load = staticmethod(setup_files.load)  # type: ignore[method-assign]
+Setup.save = setup_files.save  # type: ignore[method-assign]
 
 __all__ = [
     "AOResult",
@@ -51,6 +70,8 @@ __all__ = [
     "preview",
     "render",
     "render_ao",
+    "scene_files",
     "scenes",
+    "setup_files",
     "testing",
 ]

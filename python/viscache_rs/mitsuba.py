@@ -1,10 +1,13 @@
-"""Setups as Mitsuba 3 scenes, to render the same image with the renderer a user would
-otherwise pick (``pip install mitsuba``; the peer benchmark ``benches/peer_mitsuba.py`` and
-the cross-validation test use it).
+"""Setups as Mitsuba 3 scenes and back, to render the same image with the renderer a user
+would otherwise pick (``pip install mitsuba``; the peer benchmark ``benches/peer_mitsuba.py``
+and the cross-validation test use it), and to bring scenes kept for Mitsuba here.
 
-``to_mitsuba(setup, camera=None, envmap=None, spp=8, equirect_width=None)`` returns a dict for
-``mitsuba.load_dict``; ``load(setup, ...)`` loads it. The conversion keeps what our renderer
-computes:
+``to_mitsuba(setup, camera=None, envmap=None, spp=8, equirect_width=None,
+integrator="direct", max_depth=None)`` returns a dict for ``mitsuba.load_dict``;
+``load(setup, ...)`` loads it; ``from_mitsuba(path_or_dict)`` reads a Mitsuba scene (XML
+file or dict) into a :class:`~viscache_rs.Setup` with Mitsuba's own loader, refusing by
+name what has no exact counterpart here (see its docstring). The conversion keeps what our
+renderer computes:
 
 - one mesh per object, without vertex normals (both shade with geometric normals);
 - Lambert as ``twosided`` ``diffuse``; the normalised Phong BRDF
@@ -24,7 +27,8 @@ computes:
   normal, in both renderers) with a black BSDF;
 - the pinhole camera as ``perspective`` with ``fov_axis="y"``, an ``hdrfilm`` of its size
   with a ``box`` filter, and the ``direct`` integrator (one emitter and one BSDF sample per
-  pixel sample, MIS) with the ``independent`` sampler.
+  pixel sample, MIS) or the ``path`` tracer (``max_depth`` 3: one bounce) with the
+  ``independent`` sampler.
 
 What cannot be kept: Mitsuba offsets rays leaving a surface by ``(1 + max|p|) 8.9e-5``
 (0.13 mm half a metre from the origin), ours by 64 ulps of the hit triangle's coordinates
@@ -34,13 +38,19 @@ some of them: a quadrature of the parts' pixels with our rays gives our render's
 1e-4, with Mitsuba's offsets 0.4% more light.
 
 Mitsuba needs a variant chosen before ``to_mitsuba`` is called (``mitsuba.set_variant``):
-``scalar_rgb`` works anywhere; ``llvm_ad_rgb`` (fast) needs LLVM (Debian's ``libllvm19``).
+``scalar_rgb`` works anywhere; ``llvm_ad_rgb`` (fast) needs LLVM (Debian's ``libllvm19``:
+``scripts/install-llvm.sh``; without it, choosing the variant aborts the process, which
+:func:`llvm_available` finds out in a child process). ``from_mitsuba`` needs no variant.
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import math
 import os
+import subprocess
+import sys
 import tempfile
 from typing import Any
 
@@ -48,8 +58,9 @@ import numpy as np
 
 from .metrics import LUMINANCE
 
-__all__ = ["MAX_EQUIRECT_WIDTH", "PHONG_PLUGIN", "equirect_width_for", "load", "render",
-           "rows_at_mitsubas_latitudes", "to_mitsuba"]
+__all__ = ["INTEGRATORS", "MAX_EQUIRECT_WIDTH", "PHONG_PLUGIN", "equirect_width_for",
+           "from_mitsuba", "llvm_available", "load", "render", "rows_at_mitsubas_latitudes",
+           "to_mitsuba"]
 
 #: Widest lat-long image :func:`equirect_width_for` chooses.
 MAX_EQUIRECT_WIDTH = 8192
@@ -57,10 +68,15 @@ MAX_EQUIRECT_WIDTH = 8192
 #: Name of the normalised Phong BSDF plugin registered by :func:`to_mitsuba`.
 PHONG_PLUGIN = "viscache_phong"
 
-_registered: set[str] = set()
+#: The Phong plugin's class per variant it was registered for (the importer recognises
+#: the plugin's objects by it).
+_phong_classes: dict[str, type] = {}
+
+#: Integrators :func:`to_mitsuba` writes.
+INTEGRATORS = ("direct", "path")
 
 
-def _mi():
+def _import_mitsuba():
     try:
         import mitsuba as mi
     except ImportError as e:  # pragma: no cover - depends on the environment
@@ -68,6 +84,11 @@ def _mi():
             "viscache_rs.mitsuba needs Mitsuba 3: pip install mitsuba "
             "(or the 'experiments' extra)"
         ) from e
+    return mi
+
+
+def _mi():
+    mi = _import_mitsuba()
     if mi.variant() is None:
         raise RuntimeError(
             "choose a Mitsuba variant first, e.g. mitsuba.set_variant('scalar_rgb') or "
@@ -76,9 +97,53 @@ def _mi():
     return mi
 
 
+#: What :func:`llvm_available` runs in a child process: a render, because an LLVM older
+#: than Dr.Jit's (Debian 12's libLLVM-15) loads and compiles small kernels, then aborts
+#: the process on a renderer's.
+_LLVM_PROBE = """
+import mitsuba as mi
+mi.set_variant("llvm_ad_rgb")
+look = mi.ScalarTransform4f().look_at(origin=[0, 1, 4], target=[0, 0, 0], up=[0, 1, 0])
+scene = mi.load_dict({"type": "scene", "integrator": {"type": "direct"},
+                      "box": {"type": "cube"},
+                      "sky": {"type": "constant"},
+                      "sensor": {"type": "perspective", "to_world": look,
+                                 "film": {"type": "hdrfilm", "width": 4, "height": 4}}})
+mi.render(scene, spp=1)
+"""
+
+
+@functools.cache
+def llvm_available(timeout: float = 120.0) -> bool:
+    """Whether Mitsuba's ``llvm_ad_rgb`` variant renders here (it needs LLVM 19 or newer,
+    Debian's ``libllvm19``: ``scripts/install-llvm.sh``; ``DRJIT_LIBLLVM_PATH`` chooses
+    among several). Found out in a child process, because choosing the variant without it
+    aborts the process that does; the answer is kept for this process."""
+    try:
+        child = subprocess.run([sys.executable, "-c", _LLVM_PROBE], capture_output=True,
+                               timeout=timeout)
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return child.returncode == 0
+
+
+@contextlib.contextmanager
+def _scalar_variant(mi):
+    """``scalar_rgb`` for the duration, the caller's variant (if any) after: the importer
+    needs no LLVM and must not change what the caller renders with."""
+    before = mi.variant()
+    if before != "scalar_rgb":
+        mi.set_variant("scalar_rgb")
+    try:
+        yield
+    finally:
+        if before is not None and before != "scalar_rgb":
+            mi.set_variant(before)
+
+
 def _register_phong(mi) -> None:
     """Registers the normalised Phong BSDF for the current variant (once per variant)."""
-    if mi.variant() in _registered:
+    if mi.variant() in _phong_classes:
         return
     import drjit as dr
 
@@ -143,13 +208,14 @@ def _register_phong(mi) -> None:
             return self._eval_pdf(si.wi, wo, active)
 
         def traverse(self, callback):
+            # Nothing to differentiate; the importer reads kd, ks and e off the object.
             pass
 
         def to_string(self):
             return f"NormalisedPhong[e={self.e}]"
 
     mi.register_bsdf(PHONG_PLUGIN, lambda props: NormalisedPhong(props))
-    _registered.add(mi.variant())
+    _phong_classes[mi.variant()] = NormalisedPhong
 
 
 def _bsdf(material) -> dict[str, Any]:
@@ -175,17 +241,44 @@ def equirect_width_for(envmap) -> int:
     return min(MAX_EQUIRECT_WIDTH, 1 << math.ceil(math.log2(16 * texels_around)))
 
 
+def _integrator(integrator: str, max_depth: int | None) -> dict[str, Any]:
+    if integrator not in INTEGRATORS:
+        raise ValueError(f"integrator: expected one of {INTEGRATORS}, got {integrator!r}")
+    if integrator == "direct":
+        if max_depth is not None:
+            raise ValueError("max_depth: the 'direct' integrator takes none (it stops after "
+                             "the first bounce)")
+        return {"type": "direct"}
+    d: dict[str, Any] = {"type": "path"}
+    if max_depth is not None:
+        if (not isinstance(max_depth, int) or isinstance(max_depth, bool)
+                or not (max_depth == -1 or max_depth >= 1)):
+            raise ValueError(f"max_depth: must be -1 (no limit) or an int >= 1, got "
+                             f"{max_depth!r}")
+        d["max_depth"] = max_depth
+    return d
+
+
 def to_mitsuba(setup, camera=None, envmap=None, spp: int = 8,
                equirect_width: int | None = None,
-               folder: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+               folder: str | os.PathLike[str] | None = None, integrator: str = "direct",
+               max_depth: int | None = None) -> dict[str, Any]:
     """A ``mitsuba.load_dict`` dict of ``setup`` seen by ``camera`` (default: the setup's)
     under ``envmap`` (default: the setup's), the map exported ``equirect_width`` pixels
     wide (default: :func:`equirect_width_for` it); see the module docstring. The objects are
     written as PLY files into ``folder`` (default: a new temporary folder), which must exist
-    until the dict is loaded; :func:`load` does this and removes them."""
+    until the dict is loaded; :func:`load` does this and removes them.
+
+    ``integrator`` is ``"direct"`` (direct light only: one emitter and one BSDF sample per
+    pixel sample, MIS) or ``"path"`` (Mitsuba's path tracer, to check the indirect
+    methods). ``max_depth`` is the path tracer's longest path in segments from the camera,
+    as Mitsuba counts them: 2 is direct light only, 3 adds one bounce (what
+    ``render(..., method="path", bounces=1)`` computes), -1 or None no limit; the direct
+    integrator takes none."""
     mi = _mi()
     if equirect_width is not None and (equirect_width < 2 or equirect_width % 2):
         raise ValueError(f"equirect_width: must be an even number >= 2, got {equirect_width}")
+    integrator_dict = _integrator(integrator, max_depth)
     _register_phong(mi)
     camera = setup.camera if camera is None else camera
     envmap = setup.envmap if envmap is None else envmap
@@ -196,7 +289,7 @@ def to_mitsuba(setup, camera=None, envmap=None, spp: int = 8,
     eye = np.asarray(camera.eye, float)
     d: dict[str, Any] = {
         "type": "scene",
-        "integrator": {"type": "direct"},
+        "integrator": integrator_dict,
         "sensor": {
             "type": "perspective",
             "fov": float(camera.fov_deg),
@@ -276,11 +369,52 @@ def _write_ply(mi, triangles: np.ndarray, path: str, name: str) -> None:
     mesh.write_ply(path)
 
 
-def load(setup, camera=None, envmap=None, spp: int = 8, equirect_width: int | None = None):
+def load(setup, camera=None, envmap=None, spp: int = 8, equirect_width: int | None = None,
+         integrator: str = "direct", max_depth: int | None = None):
     """The Mitsuba scene of :func:`to_mitsuba` (its files removed once loaded)."""
     mi = _mi()
     with tempfile.TemporaryDirectory(prefix="viscache_mitsuba_") as folder:
-        return mi.load_dict(to_mitsuba(setup, camera, envmap, spp, equirect_width, folder))
+        return mi.load_dict(to_mitsuba(setup, camera, envmap, spp, equirect_width, folder,
+                                       integrator=integrator, max_depth=max_depth))
+
+
+def from_mitsuba(source, envmap_resolution: int = 256, sphere_subdivisions: int = 4):
+    """A :class:`~viscache_rs.Setup` read from a Mitsuba 3 scene: ``source`` is the path
+    of an XML scene file or a ``mitsuba.load_dict`` dict (what :func:`to_mitsuba`
+    returns). Mitsuba's own loader reads it in the ``scalar_rgb`` variant (no LLVM needed;
+    the caller's variant is restored afterwards), so its includes, defaults, transforms
+    and mesh formats mean what they mean to Mitsuba.
+
+    What is read, each with an exact counterpart here:
+
+    - shapes ``obj``, ``ply``, ``serialized``, ``cube`` and ``rectangle`` as their world-space
+      triangles (``to_world`` applied); ``sphere`` as an icosphere of
+      ``sphere_subdivisions`` (4: 5,120 triangles) under its ``to_world``; one object per
+      shape, named by its id;
+    - BSDFs ``diffuse`` (Lambert) and ``twosided`` around it or around ``viscache_phong``
+      (normalised Phong) with a constant reflectance; ours shade the side facing the
+      viewer, so a one-sided ``diffuse`` reads as Lambert too (they differ only seen from
+      behind, where Mitsuba's is black);
+    - ``area`` emitters with a constant radiance (one-sided, on the winding normal's side,
+      as ours);
+    - ``envmap`` and ``constant`` emitters, summed into one octahedral map of
+      ``envmap_resolution``: each texel the mean of 16 evaluations of Mitsuba's own
+      emitter (its ``to_world`` and ``scale`` included; about 3 s at 256², 0.2 s at 64²);
+    - the first sensor, ``perspective``: its ``to_world`` (rotation and translation only),
+      film size and field of view, whichever axis it was given on.
+
+    Anything else (another shape, BSDF, emitter or sensor; a textured reflectance or
+    radiance; a ``twosided`` with two different sides; a shifted principal point, a crop
+    window or a mirrored camera; no sensor) raises ValueError naming the file or dict, the
+    plugin and its id; an XML or plugin error Mitsuba raises is passed on as ValueError
+    naming the file; a missing file raises FileNotFoundError.
+
+    ``from_mitsuba(to_mitsuba(setup))`` gives the setup back: the same triangles, materials,
+    area lights and camera rays, and the map to within the lat-long export's resolution."""
+    from ._mitsuba_import import read
+
+    return read(source, envmap_resolution=envmap_resolution,
+                sphere_subdivisions=sphere_subdivisions)
 
 
 def render(mi_scene, spp: int, seed: int = 0) -> np.ndarray:
