@@ -5,6 +5,7 @@ same with or without a bar."""
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Literal
@@ -15,9 +16,20 @@ from tqdm.auto import tqdm
 Callback = Callable[[int, int], bool]
 
 
+def wants_bar(show: bool | None) -> bool:
+    """Whether a call given ``progress=show`` draws a bar: ``show`` itself when it is a
+    bool; for None, whether ``sys.stderr`` (where tqdm draws) is a terminal."""
+    if show is not None:
+        return bool(show)
+    try:
+        return sys.stderr is not None and sys.stderr.isatty()
+    except (AttributeError, ValueError):  # no isatty, or a closed stream
+        return False
+
+
 @contextmanager
 def progress_bar(
-    show: bool,
+    show: bool | None,
     desc: str,
     unit: str,
     total: float | None | Literal["reported"] = "reported",
@@ -25,9 +37,11 @@ def progress_bar(
 ) -> Iterator[Callback | None]:
     """Yields the callback to pass to a core call, drawing a bar of ``done / per_unit``
     ``unit``s out of ``total`` (a number, None for unknown, or "reported": the total of
-    each report, over ``per_unit``), or None when ``show`` is False. The bar is closed on
+    each report, over ``per_unit``), or None when no bar is drawn (:func:`wants_bar`:
+    ``show`` False, or None and stderr not a terminal); without a bar the core gets no
+    callback at all. The bar is closed on
     leaving, also when the call raises (KeyboardInterrupt included)."""
-    if not show:
+    if not wants_bar(show):
         yield None
         return
     bar = tqdm(total=None if total == "reported" else total, desc=desc, unit=unit,

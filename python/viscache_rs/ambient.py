@@ -1,7 +1,7 @@
 """Ambient occlusion from the visibility cache (CAM08 sec. 6.1) and its ray-traced reference.
 
 ``render_ao(setup, camera=None, cache=None, reference_rays=None, seed=0, threads=None,
-progress=True, time_budget=None, sigma_scale=None, min_radius_scale=None, w_min=None,
+progress=None, time_budget=None, sigma_scale=None, min_radius_scale=None, w_min=None,
 gbuffer=None, **cache_overrides)`` computes, at the first hit through every pixel centre
 (or every hit of ``gbuffer``, from ``setup.scene.gbuffer``), the ambient
 occlusion ``A`` = eq. 12 / pi: the cosine-weighted visible fraction of the hemisphere, in
@@ -57,7 +57,7 @@ def render_ao(
     reference_rays: int | None = None,
     seed: int = 0,
     threads: int | None = None,
-    progress: bool = True,
+    progress: bool | None = None,
     time_budget: float | None = None,
     sigma_scale: float | None = None,
     min_radius_scale: float | None = None,

@@ -46,7 +46,7 @@ def visibility_maps(
     normals,
     resolution: int = 32,
     threads: int | None = None,
-    progress: bool = False,
+    progress: bool | None = False,
 ) -> _VisibilityMaps:
     """Traces the ``resolution x resolution`` visibility map at each of the (N, 3)
     ``points`` with (N, 3) ``normals`` (normalised; rays leave on their side). With

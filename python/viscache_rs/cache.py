@@ -21,7 +21,7 @@ class VisibilityCache(_core.VisibilityCache):
         camera: _core.Camera | None = None,
         seed: int | None = 0,
         threads: int | None = None,
-        progress: bool = True,
+        progress: bool | None = None,
         time_budget: float | None = None,
         *,
         gbuffer: _core.GBuffer | None = None,
@@ -32,9 +32,10 @@ class VisibilityCache(_core.VisibilityCache):
         empty, then a pass over the G-buffer applying both insertion criteria), or at the
         points of ``gbuffer`` (``scene.gbuffer(camera, jitter=False)``; ``render(...,
         gbuffer=)`` with the same buffer anchors its pixels at exactly these points).
-        Deterministic for any ``threads``. Shows a progress bar unless ``progress=False``;
-        stops after the wave that spends ``time_budget`` seconds. Returns a dict: records,
-        bootstrap_records, refined_records, discarded_records, pixels, covered_pixels,
+        Deterministic for any ``threads``. Shows a progress bar with ``progress=True``
+        (default None: only when stderr is a terminal); stops after the wave that
+        spends ``time_budget`` seconds. Returns a dict: records, bootstrap_records,
+        refined_records, discarded_records, pixels, covered_pixels,
         shadow_rays, nearest_rays, shadow_rays_per_pixel (CAM08 Table 2's last row),
         seconds, complete, and the coherence check's findings (the ``"auto"`` preset):
         incoherence (mean Jaccard distance of its pairs), predicted_variance_ratio and

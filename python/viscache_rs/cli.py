@@ -38,6 +38,12 @@ from ._core import LIMITS
 from .io import auto_exposure, to_srgb8, write_png
 
 
+def _bars(quiet: bool) -> bool | None:
+    """``progress=`` for a command: none with ``--quiet``, else a bar when stderr is a
+    terminal (None), so that a command whose stderr goes to a log writes no bar lines."""
+    return False if quiet else None
+
+
 def _ratios(res, base) -> str:
     rgb, mean = metrics.variance_ratio(res.variance, base.variance)
     return f"{rgb[0]:.3f} / {rgb[1]:.3f} / {rgb[2]:.3f} (mean {mean:.3f})"
@@ -61,19 +67,20 @@ def demo(args: argparse.Namespace) -> int:
                             nearest_hits=False)
     # One G-buffer: the records' points and the renders' anchors.
     gbuffer = scene.gbuffer(setup.camera, jitter=False, threads=args.threads)
-    b = cache.build(gbuffer=gbuffer, seed=args.seed, threads=args.threads, progress=not quiet)
+    b = cache.build(gbuffer=gbuffer, seed=args.seed, threads=args.threads,
+                    progress=_bars(quiet))
     print(f"visibility cache: {b['records']:,} records of {cache.resolution}x"
           f"{cache.resolution} ({cache.memory_bytes() / 1e6:.2f} MB), "
           f"{b['shadow_rays_per_pixel']:.1f} shadow rays per pixel, built in "
           f"{b['seconds']:.2f} s")
     cv = render(setup, spp=args.spp, method="cv", cache=cache, alpha=args.alpha, seed=args.seed,
-                threads=args.threads, progress=not quiet, gbuffer=gbuffer)
+                threads=args.threads, progress=_bars(quiet), gbuffer=gbuffer)
     cv_total = cv.stats["seconds"] + b["seconds"]
     same = render(setup, spp=args.spp, method="product", seed=args.seed + 3,
                   threads=args.threads, progress=False, gbuffer=gbuffer)
     # Product sampling given the time of the cache build and the cv render together.
     prod = render(setup, method="product", time_budget=cv_total, seed=args.seed + 2,
-                  threads=args.threads, progress=not quiet, gbuffer=gbuffer)
+                  threads=args.threads, progress=_bars(quiet), gbuffer=gbuffer)
     print(f"\n{'method':<24}{'spp':>6}{'seconds':>10}")
     for name, res, sec in (("product", same, same.stats["seconds"]),
                            ("product (equal time)", prod, prod.stats["seconds"]),
@@ -111,7 +118,7 @@ def preview(args: argparse.Namespace) -> int:
         return 2
     setup.scene.build(threads=args.threads)
     cache = VisibilityCache(setup.scene)
-    b = cache.build(cam, threads=args.threads, progress=not args.quiet)
+    b = cache.build(cam, threads=args.threads, progress=_bars(args.quiet))
     pv = LightingPreview(setup.scene, cam, threads=args.threads)
     info = pv.prepare(cache, env, basis=args.basis, budget_mb=args.budget_mb,
                       threads=args.threads)
@@ -280,7 +287,7 @@ def experiment(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     ctx = experiments.run(args.name, quick=args.quick, out=args.out, seed=args.seed,
-                          threads=args.threads, progress=not args.quiet)
+                          threads=args.threads, progress=_bars(args.quiet))
     print(f"wrote {ctx.out}/ in {ctx.results['seconds']:.1f} s")
     return 0
 
@@ -319,7 +326,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", default="auto", choices=["auto", "low", "medium", "high"])
     p.add_argument("--alpha", type=_alpha, default="estimate",
                    help="control-variate alpha: a number in [0, 2] or 'estimate'")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress bars (default: bars when stderr is a terminal)")
     p.add_argument("--out", type=_folder, default="results/demo",
                    help="folder of the three PNGs (created)")
     p.set_defaults(func=demo)
@@ -331,7 +339,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="minutes on 2 cores")
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--threads", type=threads, default=None, help="default: every core")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress bars (default: bars when stderr is a terminal)")
     p.add_argument("--out", type=_folder, default="results",
                    help="parent folder of results/NAME/")
     p.set_defaults(func=experiment)
@@ -354,7 +363,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget-mb", type=_positive(float), default=200.0,
                    help="memory for the transfer in MB (default 200)")
     p.add_argument("--threads", type=threads, default=None, help="default: every core")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress bars (default: bars when stderr is a terminal)")
     p.set_defaults(func=preview)
     p = sub.add_parser("scenes", help="list the built-in scenes", usage="%(prog)s")
     p.set_defaults(func=list_scenes)

@@ -29,7 +29,7 @@ class IrradianceCache(_core.IrradianceCache):
         camera: _core.Camera | None = None,
         seed: int | None = 0,
         threads: int | None = None,
-        progress: bool = True,
+        progress: bool | None = None,
         time_budget: float | None = None,
         *,
         envmap: _core.EnvMap,

@@ -139,14 +139,15 @@ class Relighter:
 
     def converge_visibility(self, spp: int = 256, seed: int = 0, envmap=None,
                             threads: int | None = None, time_budget: float | None = None,
-                            progress: bool = True) -> dict[str, Any]:
+                            progress: bool | None = None) -> dict[str, Any]:
         """Traces ``spp`` V-samples per pixel and light under ``envmap`` (default: the
         setup's) and the scene's materials, in passes of 16 (with ``time_budget`` seconds,
         no pass starts once it is spent; ``["spp"]`` says how many were taken). Shows a
-        progress bar unless ``progress=False``; Ctrl-C stops and leaves the relighter as it
-        was. Returns spp, shadow_rays, seconds and bytes_per_pixel_and_light (two 16-bit
-        counts per light, and for the map a bit for each of its first 224 V-samples, to
-        reweight them: at most 32 bytes, SBF's 8 floats)."""
+        progress bar with ``progress=True`` (default None: only when stderr is a
+        terminal); Ctrl-C stops and leaves the relighter as it was. Returns spp,
+        shadow_rays, seconds and bytes_per_pixel_and_light (two 16-bit counts per light,
+        and for the map a bit for each of its first 224 V-samples, to reweight them: at
+        most 32 bytes, SBF's 8 floats)."""
         envmap = self.setup.envmap if envmap is None else envmap
         threads = self.threads if threads is None else threads
         pixels = self.camera.width * self.camera.height

@@ -1,7 +1,7 @@
 """The renderer: direct illumination from the environment map and area lights, and
 indirect light by path tracing.
 
-``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=True,
+``render(setup, camera=None, spp=None, method="mis", seed=0, threads=None, progress=None,
 time_budget=None, envmap=None, product_level="auto", cache=None, preset="auto", jitter=True,
 alpha=1.0, alpha_radius=4, insert_missing=False, technique_weights=None, bounces=None,
 direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=None)`` renders
@@ -139,7 +139,7 @@ def render(
     method: str = "mis",
     seed: int = 0,
     threads: int | None = None,
-    progress: bool = True,
+    progress: bool | None = None,
     time_budget: float | None = None,
     envmap=None,
     product_level: int | str = "auto",

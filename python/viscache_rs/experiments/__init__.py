@@ -64,7 +64,7 @@ def run(
     out: str | Path = "results",
     seed: int = 0,
     threads: int | None = None,
-    progress: bool = True,
+    progress: bool | None = None,
 ) -> ExperimentContext:
     """Runs experiment ``name`` and writes ``out/name/``; returns the context, whose
     ``results`` dict holds every recorded figure."""

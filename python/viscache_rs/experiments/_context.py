@@ -34,7 +34,8 @@ class ExperimentContext:
     """Where an experiment writes, and how hard it should work.
 
     ``quick`` asks for a run of minutes on 2 cores; ``seed`` drives every random choice;
-    ``threads`` is passed to the core (None: all cores); ``progress`` shows progress bars.
+    ``threads`` is passed to the core (None: all cores); ``progress``: bars (True),
+    none (False), or only when stderr is a terminal (None).
     """
 
     name: str
@@ -42,7 +43,7 @@ class ExperimentContext:
     quick: bool = False
     seed: int = 0
     threads: int | None = None
-    progress: bool = True
+    progress: bool | None = None
     results: dict[str, Any] = field(default_factory=dict)
     _tables: list[str] = field(default_factory=list)
     _start: float = field(default_factory=time.perf_counter)

@@ -58,7 +58,7 @@ def _cell(b: dict, i: int = 0, j: int = 0) -> dict:
             "count": int(b["count"][i, j]), "undefined": int(b["undefined"][i, j])}
 
 
-def measure(setup, s: Settings, seed: int, threads: int | None, progress: bool) -> dict:
+def measure(setup, s: Settings, seed: int, threads: int | None, progress: bool | None) -> dict:
     """Every figure of one scene (see the module docs)."""
     t0 = time.perf_counter()
     cam = setup.camera.with_resolution(s.width, s.height)
@@ -167,7 +167,7 @@ def run(ctx: ExperimentContext, scenes=SCENES, settings: Settings | None = None)
     ctx.record("settings", asdict(s))
     rows, marg = [], []
     for name in scenes:
-        if ctx.progress:
+        if ctx.progress is not False:  # a line per scene, bar or not
             print(f"correlation: {name} ({s.width}x{s.height} points, "
                   f"{s.resolution}x{s.resolution} maps)", flush=True)
         r = measure(load(name), s, ctx.seed, ctx.threads, ctx.progress)
