@@ -1,18 +1,186 @@
-"""Notebooks and logs: progress bars stay out of logs unless asked for."""
+"""Notebooks: results show themselves (``_repr_png_``) and save themselves (``.save``), and
+progress bars stay out of logs unless asked for.
+
+PNG bytes are decoded with Pillow (matplotlib's own dependency) and EXR files read back with
+Mitsuba's ``Bitmap``: readers of other projects, so a file that only our own code could read
+would fail here."""
 
 from __future__ import annotations
 
 import io
 import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
 import viscache_rs as vc
 from viscache_rs._progress import progress_bar, wants_bar
+from viscache_rs.display import DISPLAY_MAX_WIDTH
+from viscache_rs.io import auto_exposure, encode_png, to_srgb8
+
+PIL = pytest.importorskip("PIL.Image")
+
+
+def _png(data: bytes) -> np.ndarray:
+    """Decodes PNG bytes (Pillow) to an (H, W, 3) uint8 array."""
+    image = PIL.open(io.BytesIO(data))
+    assert image.mode == "RGB"
+    return np.asarray(image)
+
+
+def _read_exr(path: Path) -> np.ndarray:
+    """An RGB EXR file as (H, W, 3) float32, read by Mitsuba."""
+    mi = pytest.importorskip("mitsuba")
+    if mi.variant() is None:
+        mi.set_variant("scalar_rgb")
+    bitmap = mi.Bitmap(str(path))
+    assert bitmap.component_format() == mi.Struct.Type.Float32
+    return np.array(bitmap, copy=True)
 
 
 @pytest.fixture(scope="module")
 def cornell():
     return vc.scenes.load("cornell")
+
+
+@pytest.fixture(scope="module")
+def small(cornell):
+    return cornell.camera.with_resolution(20, 15)
+
+
+@pytest.fixture(scope="module")
+def rendered(cornell, small):
+    return vc.render(cornell, camera=small, spp=4, method="mis", progress=False)
+
+
+@pytest.fixture(scope="module")
+def one_triangle():
+    """A triangle that covers part of the view: pixels with and without a hit."""
+    scene = vc.Scene()
+    scene.add_mesh(np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], np.float32),
+                   np.array([[0, 1, 2]], np.uint32))
+    camera = vc.Camera.look_at((0, 0, 3), (0, 0, 0), width=16, height=12)
+    return vc.Setup(scene, camera, vc.EnvMap.constant(1.0, resolution=16))
+
+
+# ---- _repr_png_ ----------------------------------------------------------------------------
+
+
+def test_a_render_shows_itself_at_auto_exposure(rendered):
+    shown = _png(rendered._repr_png_())
+    assert shown.shape == (15, 20, 3)
+    img = rendered.image
+    assert np.array_equal(shown, to_srgb8(img, auto_exposure(img)))
+    assert 10 < shown.mean() < 245  # neither black nor blown out
+
+
+def test_a_relit_image_shows_itself(cornell):
+    cam = cornell.camera.with_resolution(12, 9)
+    relighter = vc.Relighter(cornell, camera=cam)
+    relighter.converge_visibility(spp=16, progress=False)
+    res = relighter.render(lb_spp=4, lbv_spp=2)
+    shown = _png(res._repr_png_())
+    assert shown.shape == (9, 12, 3)
+    assert np.array_equal(shown, to_srgb8(res.image, auto_exposure(res.image)))
+
+
+def test_ambient_occlusion_shows_as_grey_with_no_surface_black(one_triangle):
+    ao = vc.render_ao(one_triangle, reference_rays=4, progress=False)
+    shown = _png(ao._repr_png_())
+    assert shown.shape == (12, 16, 3)
+    assert np.array_equal(shown[..., 0], shown[..., 1])
+    assert np.array_equal(shown[..., 0], shown[..., 2])
+    none = np.isnan(ao.image)
+    assert none.any() and (~none).any()
+    assert np.all(shown[none] == 0)
+    # A lone triangle occludes nothing: AO = 1, white, at exposure 1.
+    assert np.all(shown[~none] == 255)
+
+
+def test_a_gbuffer_shows_its_normals(one_triangle):
+    g = one_triangle.scene.gbuffer(one_triangle.camera, jitter=False)
+    shown = _png(g._repr_png_())
+    assert shown.shape == (12, 16, 3)
+    hit = g["object"] >= 0
+    assert hit.any() and (~hit).any()
+    assert np.all(shown[~hit] == 0)
+    # The triangle faces +z: (n + 1) / 2 = (0.5, 0.5, 1) in sRGB.
+    want = to_srgb8(np.array([[[0.5, 0.5, 1.0]]]))[0, 0]
+    assert np.all(shown[hit] == want)
+
+
+def test_an_envmap_shows_its_latlong_image():
+    env = vc.EnvMap.sky((0.3, 0.8, 0.2), 500.0, 3.0, (0.1, 0.2, 0.5), (0.7, 0.7, 0.8),
+                        resolution=32)
+    shown = _png(env._repr_png_())
+    assert shown.shape == (32, 64, 3)
+    latlong = env.to_equirect(64, 32)
+    assert np.array_equal(shown, to_srgb8(latlong, auto_exposure(latlong)))
+    # Sky above (blue over red), ground below it: rows differ.
+    assert shown[1, :, 2].mean() > shown[1, :, 0].mean()
+    # A large map is shown at most DISPLAY_MAX_WIDTH wide.
+    big = vc.EnvMap.constant(0.5, resolution=2048)
+    w = DISPLAY_MAX_WIDTH
+    assert w < 2 * 2048 and _png(big._repr_png_()).shape == (w // 2, w, 3)
+
+
+# ---- save ----------------------------------------------------------------------------------
+
+
+def test_a_render_saves_exr_exactly_and_png_as_shown(rendered, tmp_path):
+    out = rendered.save(tmp_path / "r.exr")
+    assert out == tmp_path / "r.exr"
+    back = _read_exr(out)
+    assert back.dtype == np.float32 and np.array_equal(back, rendered.image)
+    rendered.save(tmp_path / "r.png")
+    assert np.array_equal(_png((tmp_path / "r.png").read_bytes()),
+                          to_srgb8(rendered.image, auto_exposure(rendered.image)))
+    rendered.save(tmp_path / "dark.PNG", exposure=0.25)  # extension case does not matter
+    assert np.array_equal(_png((tmp_path / "dark.PNG").read_bytes()),
+                          to_srgb8(rendered.image, 0.25))
+    with pytest.raises(ValueError, match="exposure: must be a positive"):
+        rendered.save(tmp_path / "bad.png", exposure=0.0)
+    assert not (tmp_path / "bad.png").exists()
+
+
+def test_ao_saves_nan_where_no_surface(one_triangle, tmp_path):
+    ao = vc.render_ao(one_triangle, reference_rays=4, progress=False)
+    back = _read_exr(ao.save(tmp_path / "ao.exr"))
+    for c in range(3):
+        np.testing.assert_array_equal(back[..., c], ao.image)  # NaN equal to NaN
+    ao.save(tmp_path / "ao.png")
+    assert (tmp_path / "ao.png").read_bytes() == encode_png(
+        _png(ao._repr_png_()), level=6)
+
+
+def test_a_gbuffer_saves_the_array_asked_for(one_triangle, tmp_path):
+    g = one_triangle.scene.gbuffer(one_triangle.camera, jitter=False)
+    np.testing.assert_array_equal(_read_exr(g.save(tmp_path / "n.exr")), g["normal"])
+    np.testing.assert_array_equal(_read_exr(g.save(tmp_path / "d.exr", key="depth"))[..., 1],
+                                  g["depth"])  # inf where no hit, kept
+    with pytest.raises(ValueError, match="key: expected one of"):
+        g.save(tmp_path / "x.exr", key="albedo")
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_an_envmap_saves_exr_that_loads_bit_exactly(tmp_path):
+    env = vc.EnvMap.sky((0.3, 0.8, 0.2), 500.0, 3.0, (0.1, 0.2, 0.5), (0.7, 0.7, 0.8),
+                        resolution=32)
+    env.save(tmp_path / "sky.exr")
+    assert np.array_equal(vc.EnvMap.from_exr(tmp_path / "sky.exr").texels(), env.texels())
+    env.save(tmp_path / "sky.png")
+    assert _png((tmp_path / "sky.png").read_bytes()).shape == (32, 64, 3)
+
+
+@pytest.mark.parametrize("name", ["r.jpg", "r.tiff", "r", "r.exr.gz"])
+def test_an_unknown_extension_names_the_path_and_writes_nothing(rendered, tmp_path, name):
+    env = vc.EnvMap.constant(1.0, resolution=8)
+    for obj in (rendered, env):
+        with pytest.raises(ValueError, match=f"path: .*{name}"):
+            obj.save(tmp_path / name)
+    with pytest.raises(TypeError, match="path: expected a str or os.PathLike"):
+        rendered.save(3)
+    assert list(tmp_path.iterdir()) == []
 
 
 # ---- progress bars -------------------------------------------------------------------------

@@ -9,6 +9,7 @@ command line.
 from . import (
     analysis,
     design,
+    display,
     envmaps,
     metrics,
     mitsuba,
@@ -42,6 +43,12 @@ from .render import RenderResult, methods, preview, render
 Scene.load = staticmethod(scene_files.load)  # type: ignore[method-assign]
 Setup.load = staticmethod(setup_files.load)  # type: ignore[method-assign]
 Setup.save = setup_files.save  # type: ignore[method-assign]
+# The native G-buffer and map show themselves in Jupyter and save to EXR or PNG through
+# numpy and the io helpers (``display``); _core.pyi declares them.
+GBuffer._repr_png_ = display.gbuffer_repr_png  # type: ignore[method-assign]
+GBuffer.save = display.gbuffer_save  # type: ignore[method-assign]
+EnvMap._repr_png_ = display.envmap_repr_png  # type: ignore[method-assign]
+EnvMap.save = display.envmap_save  # type: ignore[method-assign]
 
 __all__ = [
     "AOResult",
@@ -61,6 +68,7 @@ __all__ = [
     "__version__",
     "analysis",
     "design",
+    "display",
     "envmaps",
     "methods",
     "metrics",

@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from . import display
+
 
 @dataclass
 class RenderResult:
@@ -26,6 +28,10 @@ class RenderResult:
     def standard_error(self) -> np.ndarray:
         """Per-pixel standard error of the mean, (H, W, 3)."""
         return np.sqrt(self.variance)
+
+    # Jupyter shows the image; ``save`` writes EXR or PNG (``viscache_rs.display``).
+    _repr_png_ = display.radiance_repr_png
+    save = display.radiance_save
 
 
 __all__ = ["RenderResult"]

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from . import _core
+from . import _core, display
 from ._checks import check_call
 from ._progress import progress_bar
 from .cache import VisibilityCache
@@ -48,6 +48,10 @@ class AOResult:
     image: np.ndarray
     stats: dict[str, Any] = field(default_factory=dict)
     cache: Any = None
+
+    # Jupyter shows the AO as grey; ``save`` writes EXR or PNG (``viscache_rs.display``).
+    _repr_png_ = display.ao_repr_png
+    save = display.ao_save
 
 
 def render_ao(

@@ -76,7 +76,7 @@ from typing import Any
 
 import numpy as np
 
-from . import _core
+from . import _core, display
 from ._checks import check_call, check_optional
 from ._progress import progress_bar
 from .cache import VisibilityCache
@@ -104,6 +104,10 @@ class RelightResult:
     effective_samples: np.ndarray
     lbv_counts: np.ndarray
     stats: dict[str, Any] = field(default_factory=dict)
+
+    # Jupyter shows the image; ``save`` writes EXR or PNG (``viscache_rs.display``).
+    _repr_png_ = display.radiance_repr_png
+    save = display.radiance_save
 
 
 class Relighter:
