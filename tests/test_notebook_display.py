@@ -1,5 +1,6 @@
-"""Notebooks: results show themselves (``_repr_png_``) and save themselves (``.save``), and
-progress bars stay out of logs unless asked for.
+"""Notebooks: results show themselves (``_repr_png_``) and save themselves (``.save``),
+``vc.plot.compare`` draws side-by-side panels with relMSE maps, and progress bars stay out
+of logs unless asked for.
 
 PNG bytes are decoded with Pillow (matplotlib's own dependency) and EXR files read back with
 Mitsuba's ``Bitmap``: readers of other projects, so a file that only our own code could read
@@ -8,6 +9,7 @@ would fail here."""
 from __future__ import annotations
 
 import io
+import math
 import sys
 from pathlib import Path
 
@@ -19,7 +21,6 @@ from viscache_rs.display import DISPLAY_MAX_WIDTH
 from viscache_rs.io import auto_exposure, encode_png, to_srgb8
 
 PIL = pytest.importorskip("PIL.Image")
-
 
 def _png(data: bytes) -> np.ndarray:
     """Decodes PNG bytes (Pillow) to an (H, W, 3) uint8 array."""
@@ -181,6 +182,69 @@ def test_an_unknown_extension_names_the_path_and_writes_nothing(rendered, tmp_pa
     with pytest.raises(TypeError, match="path: expected a str or os.PathLike"):
         rendered.save(3)
     assert list(tmp_path.iterdir()) == []
+
+
+# ---- vc.plot.compare -----------------------------------------------------------------------
+
+
+def test_relmse_map_means_to_the_metric(cornell, small, rendered):
+    other = vc.render(cornell, camera=small, spp=4, method="env", seed=3, progress=False)
+    m = vc.plot.relmse_map(other, rendered)
+    assert m.shape == (15, 20)
+    assert math.isclose(float(m.mean()), vc.metrics.relmse(other.image, rendered.image),
+                        rel_tol=1e-12)
+    # Known answer: x = 2 ref everywhere gives ref^2 / (ref^2 + 1e-2) per pixel.
+    ref = np.full((2, 3, 3), 0.1)
+    assert np.allclose(vc.plot.relmse_map(2 * ref, ref), 0.01 / 0.02)
+
+
+def test_compare_draws_the_panels_headless(cornell, small, rendered, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    other = vc.render(cornell, camera=small, spp=4, method="env", seed=3, progress=False)
+    fig = vc.plot.compare(other, rendered, labels=("env", "mis"))
+    assert isinstance(fig, Figure)
+    # two images, one map, its colour bar
+    titles = [ax.get_title() for ax in fig.axes]
+    assert titles[:2] == ["env", "mis"] and titles[2].startswith("relMSE of env against mis")
+    assert len(fig.axes) == 4
+    shown = fig.axes[2].images[0]
+    m = vc.plot.relmse_map(other, rendered)
+    exact = m == 0  # off a log scale: drawn at its bottom
+    assert exact.any() and (m > 0).any()
+    np.testing.assert_allclose(shown.get_array()[~exact], m[~exact], rtol=1e-12)
+    assert np.all(shown.get_array()[exact] == shown.norm.vmin)
+
+    reference = vc.render(cornell, camera=small, spp=16, method="mis", seed=9, progress=False)
+    fig = vc.plot.compare(other.image, rendered, ref=reference, labels=("env", "mis"))
+    titles = [ax.get_title() for ax in fig.axes]
+    assert titles[:3] == ["env", "mis", "reference"] and len(fig.axes) == 6
+    mean = vc.metrics.relmse(rendered.image, reference.image)
+    assert titles[4] == f"relMSE of mis\nmean {mean:.3g}"
+    # One colour scale for both maps.
+    assert fig.axes[3].images[0].norm is fig.axes[4].images[0].norm
+    png = fig._repr_png_()
+    assert _png_size(png)[0] > 0
+    fig.savefig(tmp_path / "compare.png")
+    assert (tmp_path / "compare.png").stat().st_size > 0
+
+
+def _png_size(data: bytes) -> tuple[int, int]:
+    return PIL.open(io.BytesIO(data)).size
+
+
+def test_compare_names_the_bad_argument(rendered):
+    with pytest.raises(ValueError, match="b: shape"):
+        vc.plot.compare(rendered, rendered.image[:5])
+    with pytest.raises(ValueError, match="ref: shape"):
+        vc.plot.compare(rendered, rendered, ref=np.zeros((2, 2, 3)))
+    with pytest.raises(TypeError, match="a: expected an image"):
+        vc.plot.compare(object(), rendered)
+    with pytest.raises(ValueError, match="exposure"):
+        vc.plot.compare(rendered, rendered, exposure=-1.0)
 
 
 # ---- progress bars -------------------------------------------------------------------------
