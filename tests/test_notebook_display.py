@@ -1,6 +1,6 @@
 """Notebooks: results show themselves (``_repr_png_``) and save themselves (``.save``),
-``vc.plot.compare`` draws side-by-side panels with relMSE maps, and progress bars stay out
-of logs unless asked for.
+``vc.plot.compare`` draws side-by-side panels with relMSE maps, the second example notebook
+runs headless, and progress bars stay out of logs unless asked for.
 
 PNG bytes are decoded with Pillow (matplotlib's own dependency) and EXR files read back with
 Mitsuba's ``Bitmap``: readers of other projects, so a file that only our own code could read
@@ -9,8 +9,10 @@ would fail here."""
 from __future__ import annotations
 
 import io
+import json
 import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +23,9 @@ from viscache_rs.display import DISPLAY_MAX_WIDTH
 from viscache_rs.io import auto_exposure, encode_png, to_srgb8
 
 PIL = pytest.importorskip("PIL.Image")
+
+NOTEBOOK = Path(__file__).resolve().parents[1] / "examples" / "mesh_to_efficiency.ipynb"
+
 
 def _png(data: bytes) -> np.ndarray:
     """Decodes PNG bytes (Pillow) to an (H, W, 3) uint8 array."""
@@ -293,3 +298,49 @@ def test_wants_bar_follows_tqdms_disable_none(monkeypatch):
     assert not wants_bar(None)
     with progress_bar(None, "x", "px") as callback:
         assert callback is None
+
+
+# ---- the second notebook -------------------------------------------------------------------
+
+# Appended to the notebook before it runs: what the test checks, as one line of JSON.
+DRIVER = """
+import json
+print("RESULT " + json.dumps({"methods": [r["method"] for r in rows],
+                              "efficiency": [r["efficiency"] for r in rows],
+                              "best": best, "registry": [m["name"] for m in vc.methods()]}))
+"""
+
+
+def test_mesh_to_efficiency_notebook_runs_headless(tmp_path):
+    """Runs ``examples/mesh_to_efficiency.ipynb`` headless: from the PLY file it writes to
+    the efficiency of every registry method, the plot and the comparison figure. About 11 s
+    on 2 cores, kernel start included (printed, not judged)."""
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    pytest.importorskip("ipykernel")
+
+    nb = nbformat.read(NOTEBOOK, as_version=4)
+    assert all(c.get("outputs", []) == [] for c in nb.cells if c.cell_type == "code"), \
+        "store the notebook without outputs"
+    nbformat.validate(nb)
+    nb.cells.append(nbformat.v4.new_code_cell(DRIVER))
+    t0 = time.perf_counter()
+    client = nbclient.NotebookClient(nb, kernel_name="python3", timeout=120,
+                                     resources={"metadata": {"path": str(tmp_path)}})
+    client.execute()
+    print(f"notebook ran in {time.perf_counter() - t0:.1f} s")
+
+    text = "".join(o.get("text", "") for o in nb.cells[-1].outputs if o.output_type == "stream")
+    result = json.loads(next(t for t in text.splitlines() if t.startswith("RESULT "))[7:])
+    assert result["methods"] == result["registry"]  # every method, in registry order
+    assert all(math.isfinite(e) and e > 0 for e in result["efficiency"]), result
+    assert result["best"] in result["methods"]
+    # Every picture came out as a PNG: the map, the G-buffer, the reference, the plot,
+    # the comparison; and no stream of progress bars reached the notebook.
+    pngs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs
+            if "image/png" in o.get("data", {})]
+    assert len(pngs) == 5, [c.source[:40] for c in nb.cells]
+    streams = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code"
+                      for o in c.outputs if o.output_type == "stream")
+    assert "it/s" not in streams and "spp/s" not in streams
+    assert list(tmp_path.iterdir()) == []  # the mesh went to a temporary folder
