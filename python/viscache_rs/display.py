@@ -13,9 +13,10 @@ What the picture is, per object:
 
 - radiance (renders, relit images, environment maps): ``to_srgb8`` at
   ``io.auto_exposure`` (median luminance to middle grey), so a dim render is not shown
-  black; pass ``exposure=`` to ``save`` to choose. The environment map is shown and saved
-  as its lat-long image, ``2R x R`` for a map of resolution ``R`` (shown at most
-  :data:`DISPLAY_MAX_WIDTH` wide).
+  black; pass ``exposure=`` to ``save`` to choose. The environment map's picture is its
+  lat-long image, ``2R x R`` for a map of resolution ``R`` (shown at most
+  :data:`DISPLAY_MAX_WIDTH` wide); its EXR is the octahedral texture itself
+  (``EnvMap.to_exr``), which ``EnvMap.from_exr`` reads back bit for bit.
 - ambient occlusion: already a fraction in [0, 1], shown at exposure 1 as grey (pixels
   without a surface black).
 - G-buffer: one of its arrays (``key``, default "normal"): vectors (normal, position,
