@@ -5,8 +5,9 @@
 //!
 //! Here so far: [`combine`], how the rows of the records near a shading point become one
 //! estimator — the balance heuristic over the records of a row (eq. 6.4–6.5) and the
-//! α-max heuristic (eq. 6.6) or the balance heuristic over the rows F, U, B, C. The
-//! records themselves (their build on a G-buffer grid and the bounds of row B) and the
-//! render method come next.
+//! α-max heuristic (eq. 6.6) or the balance heuristic over the rows F, U, B, C; and
+//! [`bound`], row B's geometry term over a record's region (Fig. 6.5). The records
+//! themselves (their build on a G-buffer grid) and the render method come next.
 
+pub mod bound;
 pub mod combine;
