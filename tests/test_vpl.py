@@ -150,18 +150,22 @@ def test_vpl_image_converges_to_the_path_traced_one_bounce_image():
     assert errors[16000][0] < 5e-4, errors
 
 
-def test_sampled_gather_is_unbiased_for_the_full_sum():
+@pytest.mark.parametrize("sampling", [None, "uniform", "power", "unoccluded"])
+def test_sampled_gather_is_unbiased_for_the_full_sum(sampling):
     setup = vc.scenes.load("cornell")
     cam = setup.camera.with_resolution(16, 12)
     vpls = vc.VPLs.trace(setup, count=800, seed=4, threads=2)
     kw = dict(camera=cam, vpls=vpls, jitter=False, spp=4, threads=2, progress=False)
     full = vc.render(setup, method="vpl", **kw)
-    sampled = vc.render(setup, method="vpl_sampled", vpl_samples=16, seed=3, **kw)
+    sampled = vc.render(setup, method="vpl_sampled", vpl_samples=16, seed=3,
+                        sampling=sampling, **kw)
     diff = (sampled.image - full.image).astype(np.float64).sum(axis=(0, 1))
     se = np.sqrt(sampled.variance.astype(np.float64).sum(axis=(0, 1)))
     assert np.all(se > 0)
     np.testing.assert_array_less(np.abs(diff), 4 * se)
     assert sampled.stats["vpl_samples"] == 16
+    assert sampled.stats["sampling"] == (sampling or "unoccluded")
+    assert full.stats["sampling"] is None
     assert sampled.stats["shadow_rays"] <= 4 * 16 * 16 * 12 < full.stats["shadow_rays"]
 
 
@@ -179,15 +183,17 @@ def test_direct_and_indirect_parts_add_up():
     assert np.all(clamped.image <= both.image * (1 + 1e-6))
 
 
-@pytest.mark.parametrize("method", ["vpl", "vpl_sampled"])
-def test_renders_and_sets_are_bit_identical_for_any_thread_count(method):
+@pytest.mark.parametrize("method,sampling", [("vpl", None), ("vpl_sampled", None),
+                                             ("vpl_sampled", "power"),
+                                             ("vpl_sampled", "uniform")])
+def test_renders_and_sets_are_bit_identical_for_any_thread_count(method, sampling):
     setup = vc.scenes.load("garage")
     cam = setup.camera.with_resolution(20, 14)
     a, b = (vc.VPLs.trace(setup, count=1500, seed=7, depth=2, threads=t) for t in (1, 2))
     np.testing.assert_array_equal(a.flux, b.flux)
     np.testing.assert_array_equal(a.positions, b.positions)
     ra, rb = (vc.render(setup, camera=cam, method=method, vpls=a, spp=2, threads=t,
-                        progress=False) for t in (1, 2))
+                        sampling=sampling, progress=False) for t in (1, 2))
     np.testing.assert_array_equal(ra.image, rb.image)
     np.testing.assert_array_equal(ra.variance, rb.variance)
 
@@ -220,6 +226,15 @@ def test_bad_input_is_named():
                   progress=False)
     with pytest.raises(ValueError, match="vpls"):
         vc.render(setup, camera=cam, method="mis", vpls=vpls, progress=False)
+    with pytest.raises(ValueError, match="sampling"):
+        vc.render(setup, camera=cam, method="vpl", vpls=vpls, sampling="power", progress=False)
+    for bad in ("Power", "", "cache"):
+        with pytest.raises(ValueError, match="sampling"):
+            vc.render(setup, camera=cam, method="vpl_sampled", vpls=vpls, sampling=bad,
+                      progress=False)
+    with pytest.raises(TypeError, match="sampling"):
+        vc.render(setup, camera=cam, method="vpl_sampled", vpls=vpls, sampling=2,
+                  progress=False)
     with pytest.raises(TypeError, match="vpls"):
         vc.render(setup, camera=cam, method="vpl", vpls="many", progress=False)
     with pytest.raises(ValueError, match="vpls"):

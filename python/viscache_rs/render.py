@@ -39,7 +39,7 @@ direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=N
   direct light at the first hit): what irradiance caching and VF approximate. Any other
   method takes ``bounces`` too (default 0), its own estimator then shading the first hit;
 - ``"vpl"`` and ``"vpl_sampled"``: the many-light renderer over virtual point lights
-  (``vpls=``, ``clamp=``, ``vpl_samples=``; see :mod:`viscache_rs.vpl`);
+  (``vpls=``, ``clamp=``, ``vpl_samples=``, ``sampling=``; see :mod:`viscache_rs.vpl`);
 - ``"irradiance_cache"`` (biased, the survey's ch. 3): one bounce (``bounces=1``), its
   diffuse part interpolated from an :class:`IrradianceCache` (``cache=``, grown for the
   view; or one built from ``a=``, ``strata=``, ``r_min=``, ``r_max=``, ``gradients=``,
@@ -166,6 +166,7 @@ def render(
     gradients: str | None = None,
     clamp_neighbours: bool | None = None,
     secondary_spp: int | None = None,
+    sampling: str | None = None,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     # (A cache is checked by the registry below, against the caches the method accepts.)
@@ -183,7 +184,8 @@ def render(
              "a": a is not None, "strata": strata is not None, "r_min": r_min is not None,
              "r_max": r_max is not None, "gradients": gradients is not None,
              "clamp_neighbours": clamp_neighbours is not None,
-             "secondary_spp": secondary_spp is not None}
+             "secondary_spp": secondary_spp is not None,
+             "sampling": sampling is not None}
     _core.check_method_args(method, [k for k, v in given.items() if v], cache)
     if camera is None:
         camera = setup.camera if gbuffer is None else gbuffer.camera
@@ -228,6 +230,7 @@ def render(
             gradients=gradients,
             clamp_neighbours=clamp_neighbours,
             secondary_spp=secondary_spp,
+            sampling=sampling,
         )
     stats = out["stats"]
     return RenderResult(out["image"], out["variance"], stats, out["alpha"],

@@ -17,8 +17,10 @@ VPLs), ``.kinds`` (0 area-light point, 1 map direction, 2 surface), ``len()``, `
 ``vc.render(setup, method="vpl", vpls=..., clamp=None, direct=True)`` sums every VPL's
 term (survey eq. 6.1) with one shadow ray each at the first hit of every pixel sample
 (``spp``, default 1, each its own jittered hit: antialiased); ``method="vpl_sampled"``
-draws ``vpl_samples`` (default 16) VPLs per pixel sample in proportion to their
-unoccluded contribution, an unbiased estimate of the same sum. ``clamp`` bounds the
+draws ``vpl_samples`` (default 16) VPLs per pixel sample, an unbiased estimate of the
+same sum, in proportion to ``sampling=``: ``"unoccluded"`` (the default) their unoccluded
+contribution at the pixel's hit, ``"power"`` the luminance of their flux, ``"uniform"``
+every VPL alike (the survey's Fig. 6.8 baselines; ``stats["sampling"]``). ``clamp`` bounds the
 geometry term ``cos cos / d^2`` (1/m^2; removes the bright spots of nearby VPLs, biased);
 ``direct=False`` keeps the surface VPLs only: the indirect light of ``method="path",
 bounces=depth, direct=False``. Without ``vpls`` a set of 4096 is traced with

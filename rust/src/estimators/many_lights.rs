@@ -13,10 +13,12 @@
 //!   not grain). The rays of a 4 x 4 tile of pixels towards one VPL start at the VPL and
 //!   go out in nearby directions: they are handed to [`Scene::occluded`] as runs from one
 //!   origin, which it traces as packets ([`crate::geometry::bvh::PACKET`] = 16 rays).
-//! - [`Gather::Sampled`]: `M` VPLs per pixel sample drawn from a per-pixel distribution
-//!   `p_k ∝ w_k` ([`VplDistribution`]; default [`Unoccluded`]: the luminance of the
-//!   contribution without visibility), the estimate `(1/M) Σ_m c_{k_m} V_{k_m} / p_{k_m}`.
-//!   Unbiased for the full sum wherever `w_k > 0` for every VPL that contributes. The hook
+//! - [`Gather::Sampled`]: `M` VPLs per pixel sample drawn from a distribution `p_k ∝ w_k`,
+//!   the estimate `(1/M) Σ_m c_{k_m} V_{k_m} / p_{k_m}`. Unbiased for the full sum
+//!   wherever `w_k > 0` for every VPL that contributes. [`Sampling`] picks `w`: the same
+//!   for every VPL, the VPL's power, or per pixel ([`VplDistribution`]; default
+//!   [`Unoccluded`]: the luminance of the contribution without visibility). The first two
+//!   do not depend on the pixel: their table is built once per render. The per-pixel hook
 //!   is where importance caching (survey §6.2.3) puts its cached distributions.
 //!
 //! With `clamp`, the geometry term is `min(G, clamp)`: this removes the bright spots that
@@ -74,8 +76,62 @@ const VPL_BLOCK: usize = 256;
 pub enum Gather {
     /// Every VPL, one shadow ray each.
     Full,
-    /// `draws` VPLs drawn from the pixel's [`VplDistribution`], `1..=MAX_DRAWS`.
-    Sampled { draws: u32 },
+    /// `draws` VPLs (`1..=MAX_DRAWS`) drawn as `sampling` says.
+    Sampled { draws: u32, sampling: Sampling },
+}
+
+/// What [`Gather::Sampled`] draws VPLs in proportion to (survey §6.2.3's baselines).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Sampling {
+    /// Every VPL alike, `p_k = 1/N`: positive wherever a VPL contributes, blind to all
+    /// else.
+    Uniform,
+    /// The luminance of the VPL's flux `Φ_k` (W; for a map VPL the flux through the
+    /// scene's disk): the "power" row of survey Fig. 6.8, positive for every VPL that
+    /// carries light, blind to where the receiver is.
+    Power,
+    /// Per pixel, from the [`VplDistribution`] the render is given (default
+    /// [`Unoccluded`]): the luminance of each VPL's term without visibility.
+    #[default]
+    Unoccluded,
+}
+
+impl Sampling {
+    /// Every value, in the order the errors list them.
+    pub const ALL: [Sampling; 3] = [Sampling::Uniform, Sampling::Power, Sampling::Unoccluded];
+
+    /// The name `sampling=` takes.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Sampling::Uniform => "uniform",
+            Sampling::Power => "power",
+            Sampling::Unoccluded => "unoccluded",
+        }
+    }
+
+    /// The value called `name`; an error naming `sampling` and listing the names otherwise.
+    pub fn parse(name: &str) -> Result<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|s| s.name() == name)
+            .ok_or_else(|| {
+                let names: Vec<&str> = Self::ALL.iter().map(|s| s.name()).collect();
+                Error::invalid(
+                    "sampling",
+                    format!("expected one of {names:?}, got {name:?}"),
+                )
+            })
+    }
+
+    /// The weight `w_k` of a VPL under a pixel-independent sampling (`None` for
+    /// [`Sampling::Unoccluded`]).
+    pub fn fixed_weight(self, v: &Vpl) -> Option<f64> {
+        match self {
+            Sampling::Uniform => Some(1.0),
+            Sampling::Power => Some(luminance(v.flux) as f64),
+            Sampling::Unoccluded => None,
+        }
+    }
 }
 
 /// Parameters of the many-light renderer (`render::many_lights::render_many_lights`, on
@@ -124,7 +180,7 @@ impl ManyLightParams {
                 ));
             }
         }
-        if let Gather::Sampled { draws } = self.gather {
+        if let Gather::Sampled { draws, .. } = self.gather {
             crate::error::check_range("vpl_samples", draws, 1, MAX_DRAWS)?;
         }
         crate::error::check_time_budget(self.time_budget)?;
@@ -454,17 +510,20 @@ fn gather_sampled(
     params: &ManyLightParams,
     draws: u32,
     sample: u32,
-    distribution: &dyn VplDistribution,
+    distribution: Distribution<'_>,
     cdf: &mut Vec<f64>,
     work: &mut GatherWork,
 ) -> (DVec3, DVec3) {
-    cdf.resize(vpls.len(), 0.0);
-    distribution.weights(scene, pixel, r, vpls, disk_area, cdf);
-    let mut total = 0.0f64;
-    for w in cdf.iter_mut() {
-        total += if w.is_finite() && *w > 0.0 { *w } else { 0.0 };
-        *w = total;
-    }
+    let cdf: &[f64] = match distribution {
+        Distribution::Fixed(fixed) => fixed,
+        Distribution::PerPixel(d) => {
+            cdf.resize(vpls.len(), 0.0);
+            d.weights(scene, pixel, r, vpls, disk_area, cdf);
+            to_cdf(cdf);
+            cdf
+        }
+    };
+    let total = cdf.last().copied().unwrap_or(0.0);
     if !(total > 0.0 && total.is_finite()) {
         return (DVec3::ZERO, DVec3::ZERO);
     }
@@ -498,6 +557,25 @@ fn gather_sampled(
     (mean, var)
 }
 
+/// Turns weights into their running sum in place (non-finite or negative weights count
+/// as zero, so the sum is finite unless the weights overflow `f64`).
+fn to_cdf(weights: &mut [f64]) {
+    let mut total = 0.0f64;
+    for w in weights.iter_mut() {
+        total += if w.is_finite() && *w > 0.0 { *w } else { 0.0 };
+        *w = total;
+    }
+}
+
+/// Where [`gather_sampled`] reads its running sums of weights.
+#[derive(Clone, Copy)]
+enum Distribution<'a> {
+    /// One table for every pixel ([`Sampling::Uniform`], [`Sampling::Power`]).
+    Fixed(&'a [f64]),
+    /// Each pixel's own weights.
+    PerPixel(&'a dyn VplDistribution),
+}
+
 /// What a render's samples read: the scene, what misses see, the camera, the parameters,
 /// the VPLs the gather uses and the distribution [`Gather::Sampled`] draws them from.
 /// Every sample is a pure function of `(seed, pixel, sample)` and, for [`Gather::Full`],
@@ -510,12 +588,16 @@ pub struct Gatherer<'a> {
     used: Vec<Vpl>,
     disk_area: f32,
     distribution: &'a dyn VplDistribution,
+    /// The running sums of [`Sampling::fixed_weight`] over `used`, for a pixel-independent
+    /// [`Gather::Sampled`]; empty otherwise.
+    fixed: Vec<f64>,
 }
 
 impl<'a> Gatherer<'a> {
     /// The gather of `camera`'s view of `scene` lit by `vpls` (the surface VPLs only,
-    /// without `params.direct`); `env` is what misses see. Checks nothing: the caller
-    /// validates `params` and the set's geometry.
+    /// without `params.direct`); `env` is what misses see; `distribution` serves
+    /// [`Sampling::Unoccluded`]. Checks nothing: the caller validates `params` and the
+    /// set's geometry.
     pub fn new(
         scene: &'a Scene,
         env: &'a EnvMap,
@@ -524,12 +606,22 @@ impl<'a> Gatherer<'a> {
         params: &ManyLightParams,
         distribution: &'a dyn VplDistribution,
     ) -> Self {
-        let used = vpls
+        let used: Vec<Vpl> = vpls
             .vpls
             .iter()
             .filter(|v| params.direct || v.bounce >= 1)
             .copied()
             .collect();
+        let mut fixed = Vec::new();
+        if let Gather::Sampled { sampling, .. } = params.gather {
+            if sampling != Sampling::Unoccluded {
+                fixed = used
+                    .iter()
+                    .map(|v| sampling.fixed_weight(v).unwrap_or(0.0))
+                    .collect();
+                to_cdf(&mut fixed);
+            }
+        }
         Self {
             scene,
             env,
@@ -538,6 +630,7 @@ impl<'a> Gatherer<'a> {
             used,
             disk_area: vpls.disk_area,
             distribution,
+            fixed,
         }
     }
 
@@ -650,7 +743,14 @@ impl<'a> Gatherer<'a> {
                     &self.params,
                     draws,
                     s,
-                    self.distribution,
+                    match self.params.gather {
+                        Gather::Sampled {
+                            sampling: Sampling::Unoccluded,
+                            ..
+                        }
+                        | Gather::Full => Distribution::PerPixel(self.distribution),
+                        Gather::Sampled { .. } => Distribution::Fixed(&self.fixed),
+                    },
                     &mut scratch.cdf,
                     work,
                 );

@@ -5,6 +5,7 @@ pub mod ambient;
 pub mod control_variate;
 pub mod decoupled;
 pub mod direct;
+pub mod importance;
 pub mod indirect;
 pub mod irradiance;
 pub mod many_lights;

@@ -20,7 +20,7 @@ use super::vpl::PyVpls;
 use crate::estimators::control_variate::AlphaRule;
 use crate::estimators::direct::Techniques;
 use crate::estimators::indirect::MAX_BOUNCES;
-use crate::estimators::many_lights::MAX_DRAWS;
+use crate::estimators::many_lights::{Sampling, MAX_DRAWS};
 use crate::render::output::{Stat, Stats, View as CoreView};
 use crate::render::registry::{self, CacheKind, CacheRef, MethodInputs};
 use crate::render::{RenderParams, MAX_LIGHT_SAMPLES};
@@ -116,12 +116,13 @@ fn opt_int(obj: Option<&Bound<'_, PyAny>>, name: &str, lo: u32, hi: u32) -> PyRe
 /// as many as fit with a time budget), `threads` every core, `time_budget` none,
 /// `product_level` "auto" (per material), `alpha` 1.0 (CAM08's), `technique_weights` the
 /// method's own, `bounces` the method's (1 for "path", "vpl" and "vpl_sampled", else 0),
-/// `adaptive` under a time budget only, `vpls` a default set traced for the view. With
+/// `adaptive` under a time budget only, `vpls` a default set traced for the view,
+/// `sampling` (method "vpl_sampled": "uniform", "power" or "unoccluded") "unoccluded". With
 /// `gbuffer` (traced through `camera`) its hits are the pixels' anchors. Method "cv"
 /// without `cache` builds one of `preset` for the view first
 /// (`crate::render::own_cache`; its figures are the stats' `cache_*`).
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None, a=None, strata=None, r_min=None, r_max=None, gradients=None, clamp_neighbours=None, secondary_spp=None))]
+#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None, a=None, strata=None, r_min=None, r_max=None, gradients=None, clamp_neighbours=None, secondary_spp=None, sampling=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -158,6 +159,7 @@ pub fn render<'py>(
     gradients: Option<&Bound<'py, PyAny>>,
     clamp_neighbours: Option<&Bound<'py, PyAny>>,
     secondary_spp: Option<&Bound<'py, PyAny>>,
+    sampling: Option<&str>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let view = view_arg(Some(camera), gbuffer)?;
     let irradiance_given = [
@@ -207,6 +209,7 @@ pub fn render<'py>(
     let light_samples = opt_int(light_samples, "light_samples", 1, MAX_LIGHT_SAMPLES)?;
     let vpl_samples = opt_int(vpl_samples, "vpl_samples", 1, MAX_DRAWS)?;
     let clamp = clamp_arg(clamp)?;
+    let sampling = sampling.map(Sampling::parse).transpose().py()?;
     let threads = threads_arg(threads)?;
     let scene = scene.get();
     scene.check_bvh_memory().py()?;
@@ -255,6 +258,7 @@ pub fn render<'py>(
             vpls: vpls.as_ref().map(|v| &v.get().inner),
             clamp,
             vpl_samples,
+            sampling,
             ..MethodInputs::new(&scene, &env.get().inner, view)
         };
         spec.render(&inputs, &mut progress)

@@ -39,8 +39,8 @@ use super::sums::PixelSums;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::estimators::many_lights::{
-    tile_of, Gather, GatherWork, Gatherer, ManyLightParams, Scratch, Unoccluded, VplDistribution,
-    VplSums, TILE,
+    tile_of, Gather, GatherWork, Gatherer, ManyLightParams, Sampling, Scratch, Unoccluded,
+    VplDistribution, VplSums, TILE,
 };
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
@@ -172,7 +172,7 @@ impl PixelPass for ManyLights<'_> {
     ) -> PixelTiming {
         let start = Instant::now();
         match self.gather {
-            Gather::Sampled { draws } => {
+            Gather::Sampled { draws, .. } => {
                 for s in samples {
                     let (x, var) = self.gatherer.sampled_pixel(
                         pixel,
@@ -328,19 +328,25 @@ impl MethodRenderer for ManyLightsRenderer {
             ));
         }
         let depth = inputs.bounces_for(spec)?;
-        let gather = match (self.sampled, inputs.vpl_samples) {
-            (true, draws) => Gather::Sampled {
+        let gather = match (self.sampled, inputs.vpl_samples, inputs.sampling) {
+            (true, draws, sampling) => Gather::Sampled {
                 draws: draws.unwrap_or(DEFAULT_VPL_SAMPLES),
+                sampling: sampling.unwrap_or_default(),
             },
-            (false, None) => Gather::Full,
-            (false, Some(_)) => {
+            (false, None, None) => Gather::Full,
+            (false, draws, _) => {
+                let name = if draws.is_some() {
+                    "vpl_samples"
+                } else {
+                    "sampling"
+                };
                 return Err(Error::invalid(
-                    "vpl_samples",
+                    name,
                     format!(
                         "method {:?} sums every VPL; \"vpl_sampled\" draws them",
                         spec.name
                     ),
-                ))
+                ));
             }
         };
         let p = &inputs.params;
@@ -393,7 +399,14 @@ impl MethodRenderer for ManyLightsRenderer {
         d.set(
             "vpl_samples",
             match gather {
-                Gather::Sampled { draws } => Some(draws),
+                Gather::Sampled { draws, .. } => Some(draws),
+                Gather::Full => None,
+            },
+        );
+        d.set(
+            "sampling",
+            match gather {
+                Gather::Sampled { sampling, .. } => Some(sampling.name()),
                 Gather::Full => None,
             },
         );
@@ -453,7 +466,8 @@ pub fn default_vpls(
 
 /// Renders `camera`'s view of `scene` lit by `vpls` ([`crate::estimators::many_lights`],
 /// passes as the module docs say); `env` is what misses see (with `direct`).
-/// `distribution` replaces [`Unoccluded`] for [`Gather::Sampled`]. `progress(done,
+/// `distribution` replaces [`Unoccluded`] for [`Gather::Sampled`] with
+/// [`Sampling::Unoccluded`] (with another sampling it is an error). `progress(done,
 /// planned)` (pixel samples) is called from the calling thread about every 0.1 s and after
 /// each pass; `false` stops the render, within the tiles under way if a pass is
 /// (`stats.complete` is then false). Fails on bad parameters or a VPL set traced in other
@@ -503,6 +517,18 @@ fn render_with(
             "vpls",
             "were traced in other geometry: trace them again for this scene",
         ));
+    }
+    if let (Some(_), Gather::Sampled { sampling, .. }) = (distribution, params.gather) {
+        if sampling != Sampling::Unoccluded {
+            return Err(Error::invalid(
+                "sampling",
+                format!(
+                    "{:?} draws from one table for every pixel; a per-pixel distribution \
+                     needs \"unoccluded\"",
+                    sampling.name()
+                ),
+            ));
+        }
     }
     let start = Instant::now();
     let default = Unoccluded {

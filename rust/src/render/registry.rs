@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use crate::estimators::direct::Method;
 use crate::estimators::indirect::MAX_BOUNCES;
 use crate::estimators::irradiance::cache::{IrradianceCache, IrradianceParams};
-use crate::estimators::many_lights::MAX_SPP as MANY_LIGHT_MAX_SPP;
+use crate::estimators::many_lights::{Sampling, MAX_SPP as MANY_LIGHT_MAX_SPP};
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
 use crate::lights::vpl::VplSet;
@@ -106,6 +106,8 @@ pub struct MethodInputs<'a> {
     pub clamp: Option<f32>,
     /// VPLs drawn per pixel sample by method "vpl_sampled".
     pub vpl_samples: Option<u32>,
+    /// What method "vpl_sampled" draws VPLs by; `None`: [`Sampling::Unoccluded`].
+    pub sampling: Option<Sampling>,
 }
 
 impl<'a> MethodInputs<'a> {
@@ -126,6 +128,7 @@ impl<'a> MethodInputs<'a> {
             vpls: None,
             clamp: None,
             vpl_samples: None,
+            sampling: None,
         }
     }
 
@@ -351,9 +354,10 @@ pub const METHODS: &[MethodSpec] = &[
     },
     MethodSpec {
         name: "vpl_sampled",
-        about: "virtual point lights drawn by their unoccluded contribution",
+        about: "virtual point lights drawn by their unoccluded contribution, their power or \
+                uniformly (sampling=)",
         renderer: &ManyLightsRenderer { sampled: true },
-        params: &["vpls", "clamp", "vpl_samples"],
+        params: &["vpls", "clamp", "vpl_samples", "sampling"],
         caches: &[],
         min_bounces: 1,
         default_bounces: 1,
@@ -437,6 +441,7 @@ impl MethodSpec {
             ("vpls", inputs.vpls.is_some()),
             ("clamp", inputs.clamp.is_some()),
             ("vpl_samples", inputs.vpl_samples.is_some()),
+            ("sampling", inputs.sampling.is_some()),
             ("gbuffer", matches!(inputs.view, View::GBuffer(_))),
             ("adaptive", inputs.adaptive == Some(true)),
             ("light_samples", inputs.light_samples.is_some()),

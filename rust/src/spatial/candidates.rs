@@ -130,14 +130,16 @@ unsafe fn least_by_rank_avx512(keys: &[u64], m: usize) -> Option<u32> {
     (least.count_ones() as usize == m).then_some(least)
 }
 
-/// Orders candidates by squared distance, then record id, as one integer: `d2` is finite
-/// and non-negative, so its bits order as it does.
+/// Orders candidates by their metric's value ([`super::Metric::key`]: squared distance
+/// by default), then record id, as one integer: the value is finite and non-negative, so
+/// its bits order as it does.
 #[inline]
 pub(super) fn candidate_key(d2: f32, id: u32) -> u64 {
     ((d2.to_bits() as u64) << 32) | id as u64
 }
 
-/// The squared distance of a [`candidate_key`].
+/// The metric's value of a [`candidate_key`].
+#[cfg(test)]
 #[inline]
 pub(super) fn key_d2(key: u64) -> f32 {
     f32::from_bits((key >> 32) as u32)

@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::Vec3;
 
-use super::candidates::{candidate_key, key_d2};
+use super::candidates::candidate_key;
 use super::reach::{
     distance2, reach_bound, reach_bound2, reaches, sort_by_key, with_reach_scratch, ReachScratch,
     Reached,
@@ -153,7 +153,7 @@ impl<S: Records> SpatialIndex<S> {
         if self.sites.is_empty() || !(d_max > 0.0 && d_max.is_finite()) {
             return &scratch.hits;
         }
-        let m = weighting.m;
+        let (m, metric) = (weighting.m, weighting.metric);
         let theta_max = weighting.theta_max;
         let cos_max = theta_max.cos();
         self.gather(x, d_max, scratch);
@@ -177,13 +177,14 @@ impl<S: Records> SpatialIndex<S> {
                     continue;
                 }
             }
-            candidates.push(candidate_key(d2, gathered.id(k as usize)), j as u32);
+            let key = metric.key(d2, passed.cos[j]);
+            candidates.push(candidate_key(key, gathered.id(k as usize)), j as u32);
         }
         let mut i = 0;
         candidates.for_each_least(m, |key, j| {
             let j = j as usize;
             hits.key[i] = key;
-            hits.d2[i] = key_d2(key);
+            hits.d2[i] = passed.d2[j];
             hits.cos[i] = passed.cos[j];
             hits.sin[i] = passed.sin[j];
             hits.along[i] = passed.along[j];

@@ -30,7 +30,8 @@
 //! covers. Each lookup filters the gathered records by distance and normal sixteen at a
 //! time (module `gathered`; AVX-512 masks and compression where the CPU has them), with the
 //! answer of a range query at its point bit for bit, and takes its `m` nearest by one
-//! integer key (squared distance, then id; module `candidates`). Module `score` weights
+//! integer key (the [`Metric`], then id; module `candidates`): squared distance for CAM08,
+//! survey eq. 6.3's distance plus normal term for the importance cache, one tree for both. Module `score` weights
 //! them by eq. 9 ([`weight`]) one SIMD lane per record and picks the `n` heaviest. A wide
 //! gathering prefetches the payloads of its records ([`Records::prefetch`]), which the
 //! lookups it serves may compare.
@@ -52,6 +53,7 @@
 mod candidates;
 mod gathered;
 mod index;
+pub mod metric;
 pub mod reach;
 mod score;
 mod scratch;
@@ -60,6 +62,7 @@ pub mod waves;
 pub mod weight;
 
 pub use index::{prefetch, Records, SpatialIndex};
+pub use metric::Metric;
 pub use reach::{coverage, reach_factor};
 pub(crate) use score::Hits;
 pub use scratch::{with_thread_scratch, LookupScratch};

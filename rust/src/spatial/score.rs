@@ -12,7 +12,7 @@ use crate::simd::{Kernel, Level, SimdLevel};
 pub(crate) struct Hits {
     /// Records held.
     pub(crate) len: usize,
-    /// [`candidate_key`]s: squared distance, then record id, as one integer.
+    /// [`candidate_key`]s: the lookup's metric, then record id, as one integer.
     pub(super) key: [u64; HIT_LANES],
     /// Squared distance `|p_i − x|²` (the range query's summation order), `sin θ_i` as `|n × n_i|`,
     /// `cos θ_i` and `n · (p_i − x)`: the inputs of [`Self::score`].
@@ -117,7 +117,7 @@ impl Hits {
     }
 
     /// The `keep` heaviest records held, heaviest first, into `order` (indices), and how
-    /// many there are: ties go to the nearer record, then the lower id, so the choice is
+    /// many there are: ties go to the nearer record (under the lookup's metric), then the lower id, so the choice is
     /// deterministic. Weights of 0 carry nothing and are left out. Also the greatest
     /// weight (+0 when none is positive).
     pub(crate) fn heaviest(&self, keep: usize, order: &mut [usize; MAX_KEEP]) -> (usize, f32) {

@@ -1,8 +1,10 @@
 //! Eq. 9 of CAM08 (§5.1): how much a record at distance `d` whose normal differs by `θ`
 //! counts for a lookup, and the angle between two normals it takes.
 
-/// What gathering and scoring a lookup's nearest records take: `m` nearest, normals
-/// within `θ_max`, weights eq. 9 rescaled from `[w_lo, 1]` to `[0, 1]`.
+use super::metric::Metric;
+
+/// What gathering and scoring a lookup's nearest records take: `m` nearest under `metric`,
+/// normals within `θ_max`, weights eq. 9 rescaled from `[w_lo, 1]` to `[0, 1]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Weighting {
     /// Records kept by distance, `1..=MAX_NEAREST`.
@@ -11,8 +13,10 @@ pub struct Weighting {
     pub theta_max: f32,
     /// `w_lo = w(d_max, θ_max)`, the smallest weight a lookup can accept, in `[0, 1)`.
     pub w_lo: f32,
-    /// `λ` of eq. 9's falloff (`>= 0`).
+    /// `λ` of eq. 9's falloff (`>= 0`); not eq. 6.3's, which is the metric's.
     pub lambda: f32,
+    /// What ranks the records within `d_max` and `θ_max` for the `m` kept.
+    pub metric: Metric,
 }
 
 /// The angle `θ = atan2(sin, cos)` in `[0, π]` between two unit normals, from

@@ -30,7 +30,7 @@ use crate::sampling::pattern::{
     check_log2_resolution, DEFAULT_LOG2_RESOLUTION, DEFAULT_PATTERN_SEED,
 };
 pub use crate::spatial::weight::{normal_angle, raw_weight};
-use crate::spatial::{Weighting, MAX_KEEP, MAX_NEAREST};
+use crate::spatial::{Metric, Weighting, MAX_KEEP, MAX_NEAREST};
 use crate::visibility::record::RecordTracing;
 
 /// Largest `m` (candidates per lookup). Lookups keep candidates on the stack.
@@ -286,6 +286,7 @@ impl CacheParams {
             theta_max: self.theta_max(),
             w_lo: self.weight_floor(),
             lambda: self.lambda_falloff,
+            metric: Metric::SquaredDistance,
         }
     }
 }

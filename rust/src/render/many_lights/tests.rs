@@ -166,6 +166,8 @@ fn cornell() -> (Scene, EnvMap, Camera, VplSet) {
     (scene, setup.envmap, cam, vpls)
 }
 
+/// Every [`Sampling`] is unbiased for the full sum (eq. 6.1): the image's sum per channel
+/// within 4 standard errors of the draws (fixed seeds; the pixels' draws are independent).
 #[test]
 fn sampled_gather_is_unbiased_for_the_full_sum() {
     let (scene, env, cam, vpls) = cornell();
@@ -189,31 +191,105 @@ fn sampled_gather_is_unbiased_for_the_full_sum() {
         .unwrap()
     };
     let full = run(Gather::Full);
-    let sampled = run(Gather::Sampled { draws: 16 });
-    // Per channel over the image: the pixels' draws are independent.
-    for c in 0..3 {
-        let (mut diff, mut var) = (0.0f64, 0.0f64);
-        for (a, (b, v)) in full
-            .image
-            .iter()
-            .zip(sampled.image.iter().zip(&sampled.variance))
-        {
-            diff += (b[c] - a[c]) as f64;
-            var += v[c] as f64;
-        }
-        let se = var.sqrt();
-        assert!(se > 0.0);
-        assert!(diff.abs() < 4.0 * se, "channel {c}: {diff} (SE {se})");
-    }
     // Fixed receivers: the full sum is the same every sample.
     assert!(full.variance.iter().all(|v| v.iter().all(|x| *x < 1e-6)));
-    assert_eq!(sampled.stats.shadow_rays, 4 * 16 * 16 * 12);
+    let mut se_by = Vec::new();
+    for sampling in Sampling::ALL {
+        let sampled = run(Gather::Sampled {
+            draws: 16,
+            sampling,
+        });
+        let mut se_sum = 0.0;
+        for c in 0..3 {
+            let (mut diff, mut var) = (0.0f64, 0.0f64);
+            for (a, (b, v)) in full
+                .image
+                .iter()
+                .zip(sampled.image.iter().zip(&sampled.variance))
+            {
+                diff += (b[c] - a[c]) as f64;
+                var += v[c] as f64;
+            }
+            let se = var.sqrt();
+            assert!(se > 0.0, "{sampling:?}");
+            assert!(
+                diff.abs() < 4.0 * se,
+                "{sampling:?} channel {c}: {diff} (SE {se})"
+            );
+            se_sum += se;
+        }
+        se_by.push(se_sum);
+        // A draw whose term is zero (the VPL behind the receiver) traces no ray: only the
+        // unoccluded contribution never draws one.
+        let draws = 4 * 16 * 16 * 12;
+        if sampling == Sampling::Unoccluded {
+            assert_eq!(sampled.stats.shadow_rays, draws);
+        } else {
+            assert!(sampled.stats.shadow_rays < draws, "{sampling:?}");
+        }
+    }
+    // The unoccluded contribution knows the receiver: it is the least noisy.
+    assert!(se_by[2] < se_by[0] && se_by[2] < se_by[1], "{se_by:?}");
+}
+
+/// Lights at one point facing one way, their fluxes grey: each term is its light's share
+/// of the sum, so power sampling is exact (`c_k / p_k = Σ c`) in every pixel; uniform is
+/// not, and a light of zero flux is never drawn by power.
+#[test]
+fn power_sampling_is_exact_for_lights_alike_but_their_flux() {
+    let mut scene = Scene::new();
+    let v = [
+        [-5.0, 0.0, -5.0],
+        [5.0, 0.0, -5.0],
+        [5.0, 0.0, 5.0],
+        [-5.0, 0.0, 5.0],
+    ];
+    scene
+        .add_indexed(
+            &v,
+            &[[0, 2, 1], [0, 3, 2]],
+            Material::lambert([0.6; 3]).unwrap(),
+            None,
+        )
+        .unwrap();
+    let fluxes = [[1.0f32; 3], [3.0; 3], [0.0; 3], [0.5; 3]];
+    let at = [[0.3f32, 1.5, 0.2]; 4];
+    let down = [[0.0f32, -1.0, 0.0]; 4];
+    let vpls = VplSet::from_lights(&scene, &at, &down, &fluxes).unwrap();
+    let cam = camera(Vec3::new(0.0, 4.0, 0.1), Vec3::ZERO, 12, 9);
+    let run = |gather| {
+        let params = ManyLightParams {
+            jitter: false,
+            spp: 2,
+            gather,
+            ..ManyLightParams::DEFAULT
+        };
+        render(&scene, &cam, &vpls, &params, 2)
+    };
+    let full = run(Gather::Full);
+    let power = run(Gather::Sampled {
+        draws: 3,
+        sampling: Sampling::Power,
+    });
+    for (a, b) in full.image.iter().zip(&power.image) {
+        for c in 0..3 {
+            assert!((a[c] - b[c]).abs() <= 1e-5 * a[c], "{a:?} vs {b:?}");
+        }
+    }
+    assert!(power.variance.iter().flatten().all(|v| *v <= 1e-10));
+    let uniform = run(Gather::Sampled {
+        draws: 3,
+        sampling: Sampling::Uniform,
+    });
+    let noisy = uniform.variance.iter().filter(|v| v[0] > 1e-6).count();
+    assert!(noisy > 12 * 9 / 2, "{noisy}");
 }
 
 #[test]
 fn images_are_bit_identical_for_any_thread_count() {
     let (scene, env, cam, vpls) = cornell();
-    for gather in [Gather::Full, Gather::Sampled { draws: 8 }] {
+    let sampled = Sampling::ALL.map(|sampling| Gather::Sampled { draws: 8, sampling });
+    for gather in std::iter::once(Gather::Full).chain(sampled) {
         let params = ManyLightParams {
             spp: 2,
             gather,
@@ -276,11 +352,44 @@ fn bad_parameters_are_named() {
         ),
         "clamp"
     );
-    let g = Gather::Sampled { draws: 0 };
+    let g = Gather::Sampled {
+        draws: 0,
+        sampling: Sampling::Power,
+    };
     assert_eq!(
         name(ManyLightParams { gather: g, ..d }, &vpls),
         "vpl_samples"
     );
+    // A per-pixel distribution serves only the per-pixel sampling.
+    let uniform = ManyLightParams {
+        gather: Gather::Sampled {
+            draws: 4,
+            sampling: Sampling::Uniform,
+        },
+        ..d
+    };
+    let own = Unoccluded::default();
+    match render_many_lights(
+        &scene,
+        &env,
+        &cam,
+        &vpls,
+        &uniform,
+        Some(&own),
+        None,
+        &mut no_progress(),
+    ) {
+        Err(Error::InvalidArgument { name, .. }) => assert_eq!(name, "sampling"),
+        other => panic!("{:?}", other.map(|i| i.stats)),
+    }
+    assert_eq!(Sampling::parse("power").unwrap(), Sampling::Power);
+    for s in Sampling::ALL {
+        assert_eq!(Sampling::parse(s.name()).unwrap(), s);
+    }
+    match Sampling::parse("Power") {
+        Err(Error::InvalidArgument { name, .. }) => assert_eq!(name, "sampling"),
+        other => panic!("{other:?}"),
+    }
     let other = furnace();
     let foreign = trace(&other, 100, 0);
     assert_eq!(name(d, &foreign), "vpls");
