@@ -7,7 +7,9 @@
 //! The three G-buffers (marching, indirect, camera resolution) trace pixel centres, so
 //! the indirect image is a point sample per pixel (the references are box-filtered); the
 //! direct part is antialiased as `jitter` says. A `time_budget` bounds the direct part
-//! only (VF's own work is one fixed pass). Ctrl-C and a `false` from progress (called
+//! only (VF's own work is one fixed pass): where the frame alone overruns it,
+//! `first_sample_seconds` says when the image had its indirect light and every pixel a
+//! direct sample. Ctrl-C and a `false` from progress (called
 //! between stages, `(stage, 7)`) stop the render with [`Error::Interrupted`].
 
 use std::time::Instant;
@@ -63,6 +65,18 @@ pub struct VfStats {
     pub sh_range: f32,
     /// Whether the grids used the hashed table.
     pub hashed: bool,
+    /// The marching and indirect sizes used.
+    pub marching: [u32; 2],
+    pub indirect: [u32; 2],
+    /// Under a time budget the frame overran: seconds from the call until the image had
+    /// its indirect light and every pixel a direct sample (VF's frame is one step a
+    /// budget cannot divide).
+    pub first_sample_seconds: Option<f64>,
+    /// The direct part's least samples per pixel and passes (0 without `direct`), and
+    /// whether it finished them (true without `direct`).
+    pub spp: u32,
+    pub passes: u32,
+    pub complete: bool,
 }
 
 /// The indirect image at the camera's resolution and the figures of the indirect stages.
@@ -119,8 +133,9 @@ pub fn vf_frame(
     };
     let start = Instant::now();
     let r = sh_range(params, scene);
-    let low_cam = camera.with_resolution(params.marching[0], params.marching[1])?;
-    let ind_cam = camera.with_resolution(params.indirect[0], params.indirect[1])?;
+    let (ind_size, low_size) = params.sizes([camera.width, camera.height]);
+    let low_cam = camera.with_resolution(low_size[0], low_size[1])?;
+    let ind_cam = camera.with_resolution(ind_size[0], ind_size[1])?;
     let low = GBuffer::render(scene, &low_cam, seed, false, None)?;
     let ind = GBuffer::render(scene, &ind_cam, seed, false, None)?;
     let full = GBuffer::render(scene, camera, seed, false, None)?;
@@ -208,6 +223,12 @@ pub fn vf_frame(
             gather: counts,
             sh_range: r,
             hashed: grid.disc_index.is_hashed(),
+            marching: low_size,
+            indirect: ind_size,
+            first_sample_seconds: None,
+            spp: 0,
+            passes: 0,
+            complete: true,
         },
     })
 }
@@ -255,6 +276,13 @@ pub fn render_vf(
     let mut image = frame.image;
     let n = image.len();
     let (mut variance, mut counts) = (vec![[0.0f32; 3]; n], vec![1u32; n]);
+    let frame_end = start.elapsed().as_secs_f64();
+    let overran = direct
+        .and_then(|d| d.time_budget)
+        .is_some_and(|b| frame_end > b);
+    if overran {
+        stats.first_sample_seconds = Some(frame_end);
+    }
     if let Some(dp) = direct {
         let t = Instant::now();
         let dp = RenderParams {
@@ -274,6 +302,14 @@ pub fn render_vf(
         }
         variance = d.variance;
         counts = d.sample_counts;
+        stats.spp = d.stats.spp;
+        stats.passes = d.stats.passes;
+        stats.complete = d.stats.complete;
+        if let Some(f) = d.stats.first_sample_seconds {
+            stats.first_sample_seconds = Some(frame_end + f);
+        } else if overran {
+            stats.first_sample_seconds = Some(start.elapsed().as_secs_f64());
+        }
         stats.direct_seconds = t.elapsed().as_secs_f64();
     }
     stats.seconds = start.elapsed().as_secs_f64();
@@ -341,6 +377,9 @@ impl MethodRenderer for VfRenderer {
             d.set("bounces", 1u32);
             d.set("direct", p.direct);
             d.set("seconds", s.seconds);
+            d.set("spp", s.spp);
+            d.set("passes", s.passes);
+            d.set("complete", s.complete);
             d.set("proxy_seconds", s.proxy_seconds);
             d.set("voxelisation_seconds", s.voxelisation_seconds);
             d.set("marching_seconds", s.marching_seconds);
@@ -360,9 +399,10 @@ impl MethodRenderer for VfRenderer {
             d.set("sh_terms", s.gather.sh_terms);
             d.set("sh_range", s.sh_range);
             d.set("hashed", s.hashed);
+            d.set("first_sample_seconds", s.first_sample_seconds);
             d.set("voxels", params.voxels.map(u64::from).to_vec());
-            d.set("marching", params.marching.map(u64::from).to_vec());
-            d.set("indirect", params.indirect.map(u64::from).to_vec());
+            d.set("marching", s.marching.map(u64::from).to_vec());
+            d.set("indirect", s.indirect.map(u64::from).to_vec());
             d.set("rays_per_pixel", params.rays_per_pixel);
             d.set("filter", params.filter);
             d

@@ -63,10 +63,12 @@ pub struct VfParams {
     pub proxies: u32,
     /// Voxels along x, y, z (`1..=MAX_VOXELS_PER_AXIS` each) over the scene's bounds.
     pub voxels: [u32; 3],
-    /// `(width, height)` of the marching G-buffer: at most `indirect` on each axis.
-    pub marching: [u32; 2],
-    /// `(width, height)` the light is gathered at: at most the camera's on each axis.
-    pub indirect: [u32; 2],
+    /// `(width, height)` of the marching G-buffer: at most `indirect` on each axis;
+    /// `None`: [`DEFAULT_MARCHING`], clipped to `indirect`.
+    pub marching: Option<[u32; 2]>,
+    /// `(width, height)` the light is gathered at: at most the camera's on each axis;
+    /// `None`: [`DEFAULT_INDIRECT`], clipped to the camera.
+    pub indirect: Option<[u32; 2]>,
     /// Cosine-distributed rays per marching pixel (stratified), `1..=MAX_RAYS_PER_PIXEL`.
     pub rays_per_pixel: u32,
     /// Side of the square window of eq. 4 (`2m + 1`), odd, `1..=MAX_FILTER`.
@@ -87,17 +89,22 @@ pub struct VfParams {
     pub visibility: Visibility,
 }
 
+/// The paper's marching size (Table 1, Cornell box).
+pub const DEFAULT_MARCHING: [u32; 2] = [64, 64];
+/// The paper's indirect resolution.
+pub const DEFAULT_INDIRECT: [u32; 2] = [256, 256];
+
 /// `sh_range` when not given, as a share of the scene's bounding-box diagonal.
 pub const DEFAULT_SH_RANGE_SHARE: f32 = 0.35;
 
 impl VfParams {
     /// The paper's Cornell box setting (24k proxies, 6³ voxels, marching 64², indirect
-    /// 256², 7x7 filter) with 16 rays per marching pixel.
+    /// 256², each clipped to the image, 7x7 filter) with 16 rays per marching pixel.
     pub const DEFAULT: Self = Self {
         proxies: 24_000,
         voxels: [6, 6, 6],
-        marching: [64, 64],
-        indirect: [256, 256],
+        marching: None,
+        indirect: None,
         rays_per_pixel: 16,
         filter: 7,
         depth_tol: 0.1,
@@ -107,6 +114,18 @@ impl VfParams {
         visibility: Visibility::Marched,
     };
 
+    /// The indirect and marching sizes for a `camera`-sized image (`(width, height)`):
+    /// the given ones, else the defaults clipped to the camera and to `indirect`.
+    pub fn sizes(&self, camera: [u32; 2]) -> ([u32; 2], [u32; 2]) {
+        let indirect = self
+            .indirect
+            .unwrap_or([0, 1].map(|a| DEFAULT_INDIRECT[a].min(camera[a])));
+        let marching = self
+            .marching
+            .unwrap_or([0, 1].map(|a| DEFAULT_MARCHING[a].min(indirect[a])));
+        (indirect, marching)
+    }
+
     /// Fails with an error naming the first parameter out of range; `camera` is the
     /// final image's `(width, height)`.
     pub fn validate(&self, camera: [u32; 2]) -> Result<()> {
@@ -114,7 +133,8 @@ impl VfParams {
         for v in self.voxels {
             crate::error::check_range("voxels", v, 1, MAX_VOXELS_PER_AXIS)?;
         }
-        for (name, size) in [("marching", self.marching), ("indirect", self.indirect)] {
+        let (indirect, marching) = self.sizes(camera);
+        for (name, size) in [("marching", marching), ("indirect", indirect)] {
             if size.contains(&0) {
                 return Err(Error::invalid(
                     name,
@@ -122,22 +142,16 @@ impl VfParams {
                 ));
             }
         }
-        if self.marching[0] > self.indirect[0] || self.marching[1] > self.indirect[1] {
-            return Err(Error::invalid(
-                "marching",
-                format!(
-                    "must not exceed indirect {:?} on either axis, got {:?}",
-                    self.indirect, self.marching
-                ),
-            ));
-        }
-        if self.indirect[0] > camera[0] || self.indirect[1] > camera[1] {
+        if indirect[0] > camera[0] || indirect[1] > camera[1] {
             return Err(Error::invalid(
                 "indirect",
-                format!(
-                    "must not exceed the camera's {camera:?} on either axis, got {:?}",
-                    self.indirect
-                ),
+                format!("must not exceed the camera's {camera:?} on either axis, got {indirect:?}"),
+            ));
+        }
+        if marching[0] > indirect[0] || marching[1] > indirect[1] {
+            return Err(Error::invalid(
+                "marching",
+                format!("must not exceed indirect {indirect:?} on either axis, got {marching:?}"),
             ));
         }
         crate::error::check_range("rays_per_pixel", self.rays_per_pixel, 1, MAX_RAYS_PER_PIXEL)?;

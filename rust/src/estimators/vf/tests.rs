@@ -546,8 +546,8 @@ fn surface_vpls_check_their_rows() {
 fn bad_parameters_are_named() {
     let cam = [256, 192];
     assert!(VfParams {
-        indirect: [256, 192],
-        marching: [64, 48],
+        indirect: Some([256, 192]),
+        marching: Some([64, 48]),
         ..VfParams::DEFAULT
     }
     .validate(cam)
@@ -569,22 +569,22 @@ fn bad_parameters_are_named() {
         ),
         (
             VfParams {
-                marching: [0, 4],
+                marching: Some([0, 4]),
                 ..VfParams::DEFAULT
             },
             "marching",
         ),
         (
             VfParams {
-                marching: [300, 4],
-                indirect: [256, 192],
+                marching: Some([300, 4]),
+                indirect: Some([256, 192]),
                 ..VfParams::DEFAULT
             },
             "marching",
         ),
         (
             VfParams {
-                indirect: [256, 256],
+                indirect: Some([256, 256]),
                 ..VfParams::DEFAULT
             },
             "indirect",
@@ -592,7 +592,7 @@ fn bad_parameters_are_named() {
         (
             VfParams {
                 rays_per_pixel: 0,
-                indirect: [256, 192],
+                indirect: Some([256, 192]),
                 ..VfParams::DEFAULT
             },
             "rays_per_pixel",
@@ -600,7 +600,7 @@ fn bad_parameters_are_named() {
         (
             VfParams {
                 filter: 4,
-                indirect: [256, 192],
+                indirect: Some([256, 192]),
                 ..VfParams::DEFAULT
             },
             "filter",
@@ -608,7 +608,7 @@ fn bad_parameters_are_named() {
         (
             VfParams {
                 depth_tol: f32::NAN,
-                indirect: [256, 192],
+                indirect: Some([256, 192]),
                 ..VfParams::DEFAULT
             },
             "depth_tol",
@@ -616,7 +616,7 @@ fn bad_parameters_are_named() {
         (
             VfParams {
                 normal_tol: 1.5,
-                indirect: [256, 192],
+                indirect: Some([256, 192]),
                 ..VfParams::DEFAULT
             },
             "normal_tol",
@@ -624,7 +624,7 @@ fn bad_parameters_are_named() {
         (
             VfParams {
                 depth_tol: -0.1,
-                indirect: [256, 192],
+                indirect: Some([256, 192]),
                 ..VfParams::DEFAULT
             },
             "depth_tol",
@@ -632,7 +632,7 @@ fn bad_parameters_are_named() {
         (
             VfParams {
                 sh_range: Some(-1.0),
-                indirect: [256, 192],
+                indirect: Some([256, 192]),
                 ..VfParams::DEFAULT
             },
             "sh_range",
@@ -640,7 +640,7 @@ fn bad_parameters_are_named() {
         (
             VfParams {
                 sh_range: Some(f32::NAN),
-                indirect: [256, 192],
+                indirect: Some([256, 192]),
                 ..VfParams::DEFAULT
             },
             "sh_range",
@@ -652,7 +652,7 @@ fn bad_parameters_are_named() {
     }
     assert!(VfParams {
         sh_range: Some(f32::INFINITY),
-        indirect: [256, 192],
+        indirect: Some([256, 192]),
         ..VfParams::DEFAULT
     }
     .validate(cam)

@@ -65,8 +65,8 @@ fn the_exactness_chain_ends_at_the_many_light_renderer() {
     let (w, h) = (c.camera.width, c.camera.height);
     let exact = VfParams {
         proxies: 3000,
-        marching: [w, h],
-        indirect: [w, h],
+        marching: Some([w, h]),
+        indirect: Some([w, h]),
         rays_per_pixel: 64,
         filter: 1,
         sh_range: Some(f32::INFINITY),
@@ -118,15 +118,15 @@ fn the_exactness_chain_ends_at_the_many_light_renderer() {
         ..filtered
     };
     let low = VfParams {
-        marching: [w / 4, h / 4],
+        marching: Some([w / 4, h / 4]),
         ..with_sh
     };
     let upsampled = VfParams {
-        indirect: [w / 2, h / 2],
-        marching: [w / 4, h / 4],
+        indirect: Some([w / 2, h / 2]),
+        marching: Some([w / 4, h / 4]),
         ..with_sh
     };
-    let mut errors = Vec::new();
+    let (mut errors, mut means) = (Vec::new(), Vec::new());
     for (name, p) in [
         ("marching", marched),
         ("filter 7x7", filtered),
@@ -134,17 +134,28 @@ fn the_exactness_chain_ends_at_the_many_light_renderer() {
         ("low-resolution gathering", low),
         ("upsampling", upsampled),
     ] {
-        let e = relmse(&frame(&c, &p, 2), &traced);
-        println!("VF bias with {name}: relMSE {e:.5}");
+        let img = frame(&c, &p, 2);
+        let e = relmse(&img, &traced);
+        let m: f32 = img.iter().map(|p| p[0] + p[1] + p[2]).sum::<f32>() / (3 * img.len()) as f32;
+        println!(
+            "VF bias with {name}: relMSE {e:.5}, mean {:.4} of the traced",
+            m / mean
+        );
         assert!(e.is_finite());
         errors.push(e);
+        means.push(m / mean);
     }
-    // Measured: 0.0112, 0.0016, 0.0120, 0.0117, 0.0126. Marching 64 rays per pixel over
-    // 3000 discs sees most of the light, the filter repairs most of what it misses (the
-    // paper's claim), and the later stages stay within a few per cent.
+    // Measured relMSE 0.0112, 0.0016, 0.0120, 0.0117, 0.0126 and means 0.60, 1.06, 1.06,
+    // 0.80, 0.79 of the traced image. Marching 64 rays per pixel misses two fifths of the
+    // light (a voxel is seen only where a ray ends in it); the filter repairs nearly all
+    // of it (the paper's claim): a union only adds voxels, each of non-negative light.
     assert!(errors[0] < 0.03, "{errors:?}");
     assert!(errors[1] < 0.5 * errors[0], "{errors:?}");
     assert!(errors.iter().all(|&e| e < 0.03), "{errors:?}");
+    assert!(
+        means[1] >= means[0] && (means[1] - 1.0).abs() < 0.1,
+        "{means:?}"
+    );
 }
 
 /// A frame is bit-identical on one and three threads, with the hashed table too, and a
@@ -153,8 +164,8 @@ fn the_exactness_chain_ends_at_the_many_light_renderer() {
 fn frames_are_deterministic_and_tables_agree() {
     let c = chain();
     let p = VfParams {
-        marching: [16, 12],
-        indirect: [32, 24],
+        marching: Some([16, 12]),
+        indirect: Some([32, 24]),
         ..VfParams::DEFAULT
     };
     let one = frame(&c, &p, 1);
@@ -185,8 +196,8 @@ fn the_row_renders_and_adds_direct_light() {
     let cam = setup.camera.with_resolution(24, 18).unwrap();
     let vf = VfParams {
         proxies: 2000,
-        marching: [12, 9],
-        indirect: [24, 18],
+        marching: Some([12, 9]),
+        indirect: Some([24, 18]),
         ..VfParams::DEFAULT
     };
     let inputs = MethodInputs {
