@@ -35,6 +35,99 @@ pub struct VoxelLights {
     pub vpls: Vec<Vpl>,
     /// Per entry of `index`.
     pub sh: Vec<VoxelSh>,
+    /// The VPLs in `index.items` order as lanes, for voxels of diffuse VPLs.
+    lanes: Lanes,
+}
+
+/// Diffuse VPLs as structure of arrays, in `index.items` order: origin, normal and
+/// intensity `Φ f_v` (W/sr per channel). A diffuse receiver's terms over a voxel's VPLs
+/// are then one loop the compiler vectorises (the many-light renderer's tile lanes turned
+/// round: one receiver, many VPLs).
+#[derive(Clone, Debug, Default)]
+struct Lanes {
+    o: [Vec<f32>; 3],
+    n: [Vec<f32>; 3],
+    i: [Vec<f32>; 3],
+    /// Per entry: every VPL of it is diffuse.
+    diffuse: Vec<bool>,
+}
+
+/// Accumulators per lane group.
+const WIDTH: usize = 8;
+
+impl Lanes {
+    fn new(index: &VoxelIndex, vpls: &[Vpl]) -> Self {
+        let mut l = Lanes::default();
+        for &k in &index.items {
+            let v = &vpls[k as usize];
+            let i = v.diffuse_intensity().unwrap_or(Vec3::ZERO);
+            for a in 0..3 {
+                l.o[a].push(v.origin[a]);
+                l.n[a].push(v.normal[a]);
+                l.i[a].push(i[a]);
+            }
+        }
+        l.diffuse = (0..index.entries.len())
+            .map(|e| {
+                index
+                    .range(e)
+                    .iter()
+                    .all(|&k| vpls[k as usize].diffuse_intensity().is_some())
+            })
+            .collect();
+        l
+    }
+
+    /// `Σ Φ f_v cos θ_x cos θ_v / d²` over items `range` at a receiver at `o` with normal
+    /// `n` (multiply by the receiver's `f_x`): [`Vpl::connect`]'s terms without
+    /// visibility, summed in a fixed order.
+    // One index runs through several arrays at once: the lanes' layout.
+    #[allow(clippy::needless_range_loop)]
+    #[inline]
+    fn sum(&self, range: std::ops::Range<usize>, o: Vec3, n: Vec3) -> Vec3 {
+        let mut acc = [[0.0f32; WIDTH]; 3];
+        let (ox, oy, oz) = (
+            &self.o[0][range.clone()],
+            &self.o[1][range.clone()],
+            &self.o[2][range.clone()],
+        );
+        let (nx, ny, nz) = (
+            &self.n[0][range.clone()],
+            &self.n[1][range.clone()],
+            &self.n[2][range.clone()],
+        );
+        let (ir, ig, ib) = (
+            &self.i[0][range.clone()],
+            &self.i[1][range.clone()],
+            &self.i[2][range],
+        );
+        let len = ox.len();
+        let mut k = 0;
+        while k < len {
+            let m = WIDTH.min(len - k);
+            for j in 0..m {
+                let q = k + j;
+                let (dx, dy, dz) = (ox[q] - o.x, oy[q] - o.y, oz[q] - o.z);
+                let sx = n.x * dx + n.y * dy + n.z * dz;
+                let sv = -(nx[q] * dx + ny[q] * dy + nz[q] * dz);
+                let d2 = dx * dx + dy * dy + dz * dz;
+                let g = if sx > 0.0 && sv > 0.0 {
+                    sx * sv / (d2 * d2)
+                } else {
+                    0.0
+                };
+                acc[0][j] += g * ir[q];
+                acc[1][j] += g * ig[q];
+                acc[2][j] += g * ib[q];
+            }
+            k += WIDTH;
+        }
+        Vec3::new(
+            acc[0].iter().sum(),
+            acc[1].iter().sum(),
+            acc[2].iter().sum(),
+        )
+    }
 }
 
 impl VoxelLights {
@@ -46,16 +139,19 @@ impl VoxelLights {
         let sh = (0..index.entries.len())
             .map(|e| project_voxel(index.range(e).iter().map(|&i| &set.vpls[i as usize])))
             .collect();
+        let lanes = Lanes::new(&index, &set.vpls);
         Ok(Self {
             index,
             vpls: set.vpls.clone(),
             sh,
+            lanes,
         })
     }
 
     /// Eq. 6 for the voxel of `key` at receiver `r`: its VPLs' terms when its centroid is
-    /// nearer than `sh_range`, else its SH's; zero for an empty voxel. Counts the VPL
-    /// terms and SH lookups in `counts`.
+    /// nearer than `sh_range` (a diffuse receiver of a voxel of diffuse VPLs sums them
+    /// in lanes, equal to [`Vpl::connect`]'s terms to rounding), else its SH's; zero for
+    /// an empty voxel. Counts the VPL terms and SH lookups in `counts`.
     #[inline]
     pub fn voxel_light(
         &self,
@@ -72,9 +168,14 @@ impl VoxelLights {
         let to = sh.centroid - sp.origin;
         let d2 = to.length_squared();
         if d2 < sh_range * sh_range || sh_range == f32::INFINITY {
+            let entry = &self.index.entries[e];
+            counts.vpl_terms += (entry.end - entry.start) as u64;
+            if let (Some(f), true) = (r.diffuse(), self.lanes.diffuse[e]) {
+                let range = entry.start as usize..entry.end as usize;
+                return (f * self.lanes.sum(range, sp.origin, sp.normal)).as_dvec3();
+            }
             let mut sum = DVec3::ZERO;
             for &i in self.index.range(e) {
-                counts.vpl_terms += 1;
                 if let Some(c) = self.vpls[i as usize].connect(r, None, 0.0) {
                     sum += c.value.as_dvec3();
                 }

@@ -32,6 +32,10 @@ pub struct VoxelSh {
     /// The VPLs' luminance-weighted centroid (world units); their mean where all are
     /// black.
     pub centroid: Vec3,
+    /// The expansion as `a + b_x ω_x + b_y ω_y + b_z ω_z` (bands 0-1 are affine in the
+    /// direction; the basis read off `crate::sampling::sh::eval` at the axes): `[a, b_x,
+    /// b_y, b_z]`, so [`VoxelSh::intensity`] costs a dot product.
+    pub affine: [DVec3; 4],
 }
 
 /// `A_l` of the clamped cosine for `l = 0, 1`.
@@ -80,6 +84,7 @@ pub fn project_voxel<'a>(vpls: impl IntoIterator<Item = &'a Vpl>) -> VoxelSh {
         count += 1;
         mean += v.position.as_dvec3();
     }
+    out.affine = affine(&out.coeffs);
     out.centroid = if wsum > 0.0 {
         (psum / wsum).as_vec3()
     } else if count > 0 {
@@ -90,11 +95,34 @@ pub fn project_voxel<'a>(vpls: impl IntoIterator<Item = &'a Vpl>) -> VoxelSh {
     out
 }
 
+/// `Σ_k c_k Y_k(ω)` as `a + b · ω`: band 0 is the constant `Y_0`, band 1 linear, so `b`'s
+/// component along axis `e` is `Σ_{k ≥ 1} c_k Y_k(e)` and `a = c_0 Y_0`.
+fn affine(coeffs: &[DVec3; COEFFS]) -> [DVec3; 4] {
+    let mut out = [DVec3::ZERO; 4];
+    let mut y = [0.0f64; COEFFS];
+    for (axis, e) in [DVec3::X, DVec3::Y, DVec3::Z].into_iter().enumerate() {
+        sh::eval(ORDER, e, &mut y);
+        out[0] = coeffs[0] * y[0];
+        for k in 1..COEFFS {
+            out[1 + axis] += coeffs[k] * y[k];
+        }
+    }
+    out
+}
+
 impl VoxelSh {
     /// The radiant intensity the voxel sends along unit `dir` (W/sr per channel), clamped
     /// at zero (bands 0-1 ring below it behind the VPLs).
     #[inline]
     pub fn intensity(&self, dir: Vec3) -> DVec3 {
+        let [a, bx, by, bz] = self.affine;
+        let d = dir.as_dvec3();
+        (a + bx * d.x + by * d.y + bz * d.z).max(DVec3::ZERO)
+    }
+
+    /// [`Self::intensity`] from the basis itself (the reference the affine form is
+    /// tested against).
+    pub fn intensity_by_basis(&self, dir: Vec3) -> DVec3 {
         let mut y = [0.0f64; COEFFS];
         sh::eval(ORDER, dir.as_dvec3(), &mut y);
         let mut i = DVec3::ZERO;

@@ -304,11 +304,21 @@ fn sh_of_one_vpl_is_its_projection() {
     let want = (v.flux * Vec3::new(0.8, 0.4, 0.2)).as_dvec3();
     assert!((flux - want).abs().max_element() < 1e-6 * want.max_element());
     assert_eq!(vox.centroid, v.position);
-    // The intensity along the normal is close to Φ ρ / π (bands 0-1 of a clamped cosine
-    // give 1/4 + 1/2 cos... = 0.75 of the peak... at θ = 0: π·¼·(1/π)... check numerically).
+    // Bands 0-1 of a clamped cosine are positive along the normal and clamped to zero
+    // straight behind it.
     let along = vox.intensity(n);
     let back = vox.intensity(-n);
     assert!(along.min_element() > 0.0 && back == glam::DVec3::ZERO);
+    // The affine form is the basis's sum, in every direction.
+    for i in 0..500 {
+        let r = rng(12, i);
+        let w = unit_sphere([r(0), r(1)]);
+        let (a, b) = (vox.intensity(w), vox.intensity_by_basis(w));
+        assert!(
+            (a - b).abs().max_element() <= 1e-12 * want.max_element(),
+            "{w}: {a} vs {b}"
+        );
+    }
 }
 
 /// A 1 x 1 window is the identity; the output holds the input; no union across a depth
@@ -671,5 +681,64 @@ fn an_empty_index_is_empty() {
         }
         let d = march_ray(&idx, &[], Vec3::splat(0.5), Vec3::X, 0.0, f32::INFINITY);
         assert_eq!(d, None);
+    }
+}
+
+/// A diffuse receiver's sum over a voxel of diffuse VPLs in lanes equals the sum of
+/// [`Vpl::connect`]'s terms (to f32 rounding), and a glossy receiver takes `connect`'s.
+#[test]
+fn lanes_equal_connect() {
+    let scene = plane_scene(1.0);
+    let frame = GridFrame::new(bounds(Vec3::splat(-1.0), Vec3::ONE), [2, 2, 2]).unwrap();
+    let vpls: Vec<Vpl> = (0..300)
+        .map(|i| {
+            let r = rng(9, i);
+            let p = Vec3::new(r(0), r(1), r(2)) * 2.0 - 1.0;
+            lambert_vpl(
+                p,
+                unit_sphere([r(3), r(4)]),
+                Vec3::new(r(5), r(6), 1.0),
+                [0.7, 0.5, 0.3],
+            )
+        })
+        .collect();
+    let set = crate::lights::vpl::VplSet {
+        vpls: vpls.clone(),
+        fingerprint: scene.geometry_fingerprint(),
+        ..Default::default()
+    };
+    let lights = VoxelLights::build(frame, &set, None).unwrap();
+    for material in [
+        Material::Lambert {
+            albedo: [0.6, 0.4, 0.2],
+        },
+        Material::Phong {
+            kd: [0.3; 3],
+            ks: [0.5; 3],
+            exponent: 20.0,
+        },
+    ] {
+        for t in 0..20u64 {
+            let r = rng(10, t);
+            let sp = crate::estimators::direct::ShadingPoint {
+                origin: Vec3::new(r(0), r(1), r(2)) * 2.0 - 1.0,
+                normal: unit_sphere([r(3), r(4)]),
+                wo: unit_sphere([r(5), r(6)]),
+                material,
+            };
+            let rec = Receiver::new(&scene, sp);
+            let mut counts = Default::default();
+            for k in 0..frame.voxels() {
+                let got = lights.voxel_light(k, &rec, f32::INFINITY, &mut counts);
+                let mut want = glam::DVec3::ZERO;
+                for &i in lights.index.get(frame.coords(k)) {
+                    if let Some(c) = lights.vpls[i as usize].connect(&rec, None, 0.0) {
+                        want += c.value.as_dvec3();
+                    }
+                }
+                let tol = 1e-4 * want.max_element().max(1e-6);
+                assert!((got - want).abs().max_element() <= tol, "{got} vs {want}");
+            }
+        }
     }
 }
