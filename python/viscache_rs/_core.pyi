@@ -484,6 +484,15 @@ def render(
     gradients: str | None = None,
     clamp_neighbours: bool | None = None,
     secondary_spp: int | None = None,
+    proxies: int | None = None,
+    voxels: int | tuple[int, int, int] | None = None,
+    marching: int | tuple[int, int] | None = None,
+    indirect: int | tuple[int, int] | None = None,
+    rays_per_pixel: int | None = None,
+    filter: int | None = None,
+    depth_tol: float | None = None,
+    normal_tol: float | None = None,
+    sh_range: float | None = None,
     sampling: str | None = None,
 ) -> dict[str, Any]: ...
 def methods() -> list[dict[str, Any]]: ...
@@ -521,6 +530,15 @@ class VPLs:
     @staticmethod
     def from_lights(
         scene: Scene, positions: _ArrayLike, normals: _ArrayLike, flux: _ArrayLike
+    ) -> VPLs: ...
+    @staticmethod
+    def from_surface(
+        scene: Scene,
+        positions: _ArrayLike,
+        normals: _ArrayLike,
+        irradiance: _ArrayLike,
+        areas: _ArrayLike,
+        objects: _ArrayLike,
     ) -> VPLs: ...
     def __len__(self) -> int: ...
     @property

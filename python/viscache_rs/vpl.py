@@ -12,7 +12,9 @@ divided by it: unbiased, with the VPLs where the camera looks. ``lights=False`` 
 light VPLs (``count`` then counts VPLs of indirect light only). ``.positions``,
 ``.normals``, ``.flux`` (N, 3) float32, ``.incident``, ``.bounces`` (generation, 0 for light
 VPLs), ``.kinds`` (0 area-light point, 1 map direction, 2 surface), ``len()``, ``.stats``.
-``VPLs.from_lights(scene, positions, normals, flux)`` makes cosine point lights.
+``VPLs.from_lights(scene, positions, normals, flux)`` makes cosine point lights;
+``VPLs.from_surface(scene, positions, normals, irradiance, areas, objects)`` first-bounce
+surface VPLs (VF's proxies: flux ``irradiance * area``, the object's material).
 
 ``vc.render(setup, method="vpl", vpls=..., clamp=None, direct=True)`` sums every VPL's
 term (survey eq. 6.1) with one shadow ray each at the first hit of every pixel sample

@@ -11,3 +11,4 @@ pub mod irradiance;
 pub mod many_lights;
 pub mod normal_products;
 pub mod preview;
+pub mod vf;

@@ -19,6 +19,7 @@ mod render;
 mod scene;
 mod setup;
 mod testing;
+mod vf;
 mod vpl;
 
 use pyo3::prelude::*;

@@ -16,6 +16,7 @@ use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::irradiance::{params_arg as irradiance_params_arg, PyIrradianceCache};
 use super::scene::PyScene;
+use super::vf::params_arg as vf_params_arg;
 use super::vpl::PyVpls;
 use crate::estimators::control_variate::AlphaRule;
 use crate::estimators::direct::Techniques;
@@ -122,7 +123,7 @@ fn opt_int(obj: Option<&Bound<'_, PyAny>>, name: &str, lo: u32, hi: u32) -> PyRe
 /// without `cache` builds one of `preset` for the view first
 /// (`crate::render::own_cache`; its figures are the stats' `cache_*`).
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None, a=None, strata=None, r_min=None, r_max=None, gradients=None, clamp_neighbours=None, secondary_spp=None, sampling=None))]
+#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None, a=None, strata=None, r_min=None, r_max=None, gradients=None, clamp_neighbours=None, secondary_spp=None, proxies=None, voxels=None, marching=None, indirect=None, rays_per_pixel=None, filter=None, depth_tol=None, normal_tol=None, sh_range=None, sampling=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -159,9 +160,29 @@ pub fn render<'py>(
     gradients: Option<&Bound<'py, PyAny>>,
     clamp_neighbours: Option<&Bound<'py, PyAny>>,
     secondary_spp: Option<&Bound<'py, PyAny>>,
+    proxies: Option<&Bound<'py, PyAny>>,
+    voxels: Option<&Bound<'py, PyAny>>,
+    marching: Option<&Bound<'py, PyAny>>,
+    indirect: Option<&Bound<'py, PyAny>>,
+    rays_per_pixel: Option<&Bound<'py, PyAny>>,
+    filter: Option<&Bound<'py, PyAny>>,
+    depth_tol: Option<&Bound<'py, PyAny>>,
+    normal_tol: Option<&Bound<'py, PyAny>>,
+    sh_range: Option<&Bound<'py, PyAny>>,
     sampling: Option<&str>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let view = view_arg(Some(camera), gbuffer)?;
+    let vf = vf_params_arg(
+        proxies,
+        voxels,
+        marching,
+        indirect,
+        rays_per_pixel,
+        filter,
+        depth_tol,
+        normal_tol,
+        sh_range,
+    )?;
     let irradiance_given = [
         a,
         strata,
@@ -259,6 +280,7 @@ pub fn render<'py>(
             clamp,
             vpl_samples,
             sampling,
+            vf,
             ..MethodInputs::new(&scene, &env.get().inner, view)
         };
         spec.render(&inputs, &mut progress)

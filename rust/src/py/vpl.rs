@@ -8,8 +8,8 @@ use pyo3::types::PyDict;
 
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, finite_rows, int_arg, or_default, rows3_array, rows_array, seed_or_zero, threads_arg,
-    IntoPyResult,
+    f32_vector, f64_arg, f64_vector, finite_rows, int_arg, or_default, rows3_array, rows_array,
+    seed_or_zero, threads_arg, IntoPyResult,
 };
 use super::envmap::PyEnvMap;
 use super::interrupt::{detach_interruptible, PyProgress};
@@ -42,6 +42,22 @@ fn attribute<'py, T: pyo3::PyClass>(
                     .unwrap_or(name)
             ))
         })
+}
+
+/// `objects` (N,): object ids, integers in `[0, 2^32)`.
+fn object_ids(obj: &Bound<'_, PyAny>) -> PyResult<Vec<u32>> {
+    let v = f64_vector(obj, "objects")?;
+    v.iter()
+        .map(|&x| {
+            if x.fract() == 0.0 && (0.0..=u32::MAX as f64).contains(&x) {
+                Ok(x as u32)
+            } else {
+                Err(pyo3::exceptions::PyValueError::new_err(format!(
+                    "objects: expected object ids (integers >= 0), got {x}"
+                )))
+            }
+        })
+        .collect()
 }
 
 /// Extractor of `depth=1`.
@@ -136,6 +152,31 @@ impl PyVpls {
         let n = finite_rows::<3>(normals, "normals")?;
         let f = finite_rows::<3>(flux, "flux")?;
         let set = VplSet::from_lights(&scene.get(), &p, &n, &f).py()?;
+        Ok(Self { inner: set })
+    }
+
+    /// First-bounce surface VPLs (VF's proxies, `bounce` 1): at `positions` (N, 3) facing
+    /// `normals` (N, 3, normalised here), with direct irradiance `irradiance` (N, 3; W/m²,
+    /// finite and >= 0) over `areas` (N,; world units², > 0) and the material of object
+    /// `objects` (N,) of `scene`: flux `irradiance * area`, reflected by that material as
+    /// light that arrived along the normal.
+    #[staticmethod]
+    fn from_surface(
+        scene: PyRef<'_, PyScene>,
+        positions: &Bound<'_, PyAny>,
+        normals: &Bound<'_, PyAny>,
+        irradiance: &Bound<'_, PyAny>,
+        areas: &Bound<'_, PyAny>,
+        objects: &Bound<'_, PyAny>,
+    ) -> PyResult<Self> {
+        let p = finite_rows::<3>(positions, "positions")?;
+        let n = finite_rows::<3>(normals, "normals")?;
+        let e = finite_rows::<3>(irradiance, "irradiance")?;
+        let a = f32_vector(areas, "areas")?;
+        let o = object_ids(objects)?;
+        let set =
+            crate::estimators::vf::proxies::surface_vpls(&scene.get(), &p, &n, &e, &a, &o, false)
+                .py()?;
         Ok(Self { inner: set })
     }
 

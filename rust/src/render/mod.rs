@@ -109,6 +109,7 @@ pub mod relight;
 pub(crate) mod schedule;
 mod shade;
 pub mod sums;
+pub mod vf;
 
 use frame::Frame;
 use passes::{run_passes, PassParams};

@@ -8,12 +8,14 @@ use super::direct::DirectRenderer;
 use super::irradiance::IrradianceRenderer;
 use super::many_lights::{ManyLightsRenderer, DEFAULT_VPL_SPP};
 use super::output::{RenderOutput, View};
+use super::vf::VfRenderer;
 use super::{RenderParams, MAX_SPP};
 use crate::error::{Error, Result};
 use crate::estimators::direct::Method;
 use crate::estimators::indirect::MAX_BOUNCES;
 use crate::estimators::irradiance::cache::{IrradianceCache, IrradianceParams};
 use crate::estimators::many_lights::{Sampling, MAX_SPP as MANY_LIGHT_MAX_SPP};
+use crate::estimators::vf::VfParams;
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
 use crate::lights::vpl::VplSet;
@@ -108,6 +110,8 @@ pub struct MethodInputs<'a> {
     pub vpl_samples: Option<u32>,
     /// What method "vpl_sampled" draws VPLs by; `None`: [`Sampling::Unoccluded`].
     pub sampling: Option<Sampling>,
+    /// Method "vf"'s parameters (`None`: [`VfParams::DEFAULT`]).
+    pub vf: Option<VfParams>,
 }
 
 impl<'a> MethodInputs<'a> {
@@ -129,6 +133,7 @@ impl<'a> MethodInputs<'a> {
             clamp: None,
             vpl_samples: None,
             sampling: None,
+            vf: None,
         }
     }
 
@@ -255,6 +260,19 @@ const IRRADIANCE_PARAMS: &[&str] = &[
     "secondary_spp",
 ];
 
+/// What method "vf" reads besides the common parameters ([`VfParams`]' fields).
+pub const VF_PARAMS: &[&str] = &[
+    "proxies",
+    "voxels",
+    "marching",
+    "indirect",
+    "rays_per_pixel",
+    "filter",
+    "depth_tol",
+    "normal_tol",
+    "sh_range",
+];
+
 /// Samples per pixel of method "irradiance_cache" without `spp` or a time budget: its
 /// samples antialias the interpolated bounce, trace Phong's specular part of it and the
 /// few points no record serves (and estimate direct light, if asked). At 256x192 with the
@@ -364,6 +382,18 @@ pub const METHODS: &[MethodSpec] = &[
         default_spp: DEFAULT_VPL_SPP,
         max_spp: MANY_LIGHT_MAX_SPP,
     },
+    MethodSpec {
+        name: "vf",
+        about: "visibility filtering: VPLs of point proxies in a voxel grid, visibility by \
+                sparse marching and a geometry-aware filter, far voxels in SH (VF eq. 1-7)",
+        renderer: &VfRenderer,
+        params: VF_PARAMS,
+        caches: &[],
+        min_bounces: 1,
+        default_bounces: 1,
+        default_spp: DEFAULT_DIRECT_SPP,
+        max_spp: MAX_SPP,
+    },
 ];
 
 /// The names of every method, in registry order.
@@ -446,6 +476,7 @@ impl MethodSpec {
             ("adaptive", inputs.adaptive == Some(true)),
             ("light_samples", inputs.light_samples.is_some()),
             ("a", inputs.irradiance.is_some()),
+            ("proxies", inputs.vf.is_some()),
         ]
         .into_iter()
         .filter_map(|(name, set)| set.then_some(name))
