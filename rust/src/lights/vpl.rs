@@ -177,6 +177,40 @@ pub struct VplSet {
     pub stats: TraceStats,
 }
 
+/// Row `i` of user-given VPL arrays, checked: a finite `position`, a finite non-zero
+/// `normal` (returned unit) and `values` (the row of the array named `values_name`: flux or
+/// irradiance) finite and `>= 0`. Fails naming the array and the row.
+pub fn checked_row(
+    i: usize,
+    position: [f32; 3],
+    normal: [f32; 3],
+    values: [f32; 3],
+    values_name: &str,
+) -> Result<(Vec3, Vec3)> {
+    let p = Vec3::from(position);
+    if !p.is_finite() {
+        return Err(Error::invalid(
+            "positions",
+            format!("row {i} is not finite: {position:?}"),
+        ));
+    }
+    let n = Vec3::from(normal);
+    let len = n.length();
+    if !(len.is_finite() && len > 0.0) {
+        return Err(Error::invalid(
+            "normals",
+            format!("row {i} must be finite and non-zero, got {normal:?}"),
+        ));
+    }
+    if !values.iter().all(|c| c.is_finite() && *c >= 0.0) {
+        return Err(Error::invalid(
+            values_name,
+            format!("row {i} must be finite and >= 0, got {values:?}"),
+        ));
+    }
+    Ok((p, n / len))
+}
+
 /// Rec. 709 luminance.
 #[inline]
 pub fn luminance(v: Vec3) -> f32 {

@@ -68,7 +68,7 @@ use crate::estimators::direct::ShadingPoint;
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::lights::vpl::{
-    luminance, Importance, TraceParams, TraceStats, Vpl, VplKind, VplSet, MAX_VPLS,
+    checked_row, luminance, Importance, TraceParams, TraceStats, Vpl, VplKind, VplSet, MAX_VPLS,
 };
 use crate::math::{triangle_cross, LUMINANCE_F32};
 use crate::parallel::with_threads;
@@ -906,28 +906,7 @@ impl VplSet {
         }
         let mut vpls = Vec::with_capacity(n);
         for i in 0..n {
-            let p = Vec3::from(positions[i]);
-            if !p.is_finite() {
-                return Err(Error::invalid(
-                    "positions",
-                    format!("row {i} is not finite: {:?}", positions[i]),
-                ));
-            }
-            let nrm = Vec3::from(normals[i]);
-            let len = nrm.length();
-            if !(len.is_finite() && len > 0.0) {
-                return Err(Error::invalid(
-                    "normals",
-                    format!("row {i} must be finite and non-zero, got {:?}", normals[i]),
-                ));
-            }
-            if !flux[i].iter().all(|c| c.is_finite() && *c >= 0.0) {
-                return Err(Error::invalid(
-                    "flux",
-                    format!("row {i} must be finite and >= 0, got {:?}", flux[i]),
-                ));
-            }
-            let nrm = nrm / len;
+            let (p, nrm) = checked_row(i, positions[i], normals[i], flux[i], "flux")?;
             vpls.push(Vpl {
                 position: p,
                 origin: scene.offset_point(p, nrm),

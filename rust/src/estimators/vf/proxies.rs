@@ -28,7 +28,7 @@ use crate::bsdf::Material;
 use crate::error::{Error, Result};
 use crate::estimators::direct::{DirectCounters, Lighting, Method, ShadingPoint};
 use crate::geometry::Scene;
-use crate::lights::vpl::{TraceStats, Vpl, VplKind, VplSet};
+use crate::lights::vpl::{checked_row, TraceStats, Vpl, VplKind, VplSet};
 use crate::math::triangle_cross;
 use crate::sampling::rng::{mix64, SampleRng};
 
@@ -249,27 +249,7 @@ pub fn surface_vpls(
     let mesh = scene.mesh();
     let mut vpls = Vec::with_capacity(n);
     for i in 0..n {
-        let p = Vec3::from(positions[i]);
-        if !p.is_finite() {
-            return Err(Error::invalid(
-                "positions",
-                format!("row {i} is not finite: {:?}", positions[i]),
-            ));
-        }
-        let nrm = Vec3::from(normals[i]);
-        let len = nrm.length();
-        if !(len.is_finite() && len > 0.0) {
-            return Err(Error::invalid(
-                "normals",
-                format!("row {i} must be finite and non-zero, got {:?}", normals[i]),
-            ));
-        }
-        if !irradiance[i].iter().all(|c| c.is_finite() && *c >= 0.0) {
-            return Err(Error::invalid(
-                "irradiance",
-                format!("row {i} must be finite and >= 0, got {:?}", irradiance[i]),
-            ));
-        }
+        let (p, nrm) = checked_row(i, positions[i], normals[i], irradiance[i], "irradiance")?;
         if !(areas[i].is_finite() && areas[i] > 0.0) {
             return Err(Error::invalid(
                 "areas",
@@ -286,7 +266,6 @@ pub fn surface_vpls(
                 ),
             ));
         };
-        let nrm = nrm / len;
         vpls.push(Vpl {
             position: p,
             origin: scene.offset_point(p, nrm),
