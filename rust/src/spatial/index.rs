@@ -11,7 +11,7 @@ use super::reach::{
     Reached,
 };
 use super::score::Hits;
-use super::scratch::LookupScratch;
+use super::scratch::{next_gather_is_wide, LookupScratch};
 use super::tree::SiteTree;
 use super::weight::{normal_angle, Weighting};
 use crate::error::Result;
@@ -213,21 +213,13 @@ impl<S: Records> SpatialIndex<S> {
             // gather exactly, and try wide again after a while, less often each time a
             // try serves nothing more.
             let coherent = scratch.served > 1;
-            let (first, most) = LookupScratch::WIDE_RETRY;
-            scratch.wide_interval = if coherent || scratch.wide_interval == 0 {
-                first
-            } else if scratch.wide {
-                (2 * scratch.wide_interval).min(most)
-            } else {
-                scratch.wide_interval
-            };
-            let wide = coherent || scratch.until_wide == 0;
-            scratch.until_wide = if wide {
-                scratch.wide_interval
-            } else {
-                scratch.until_wide - 1
-            };
-            scratch.wide = wide;
+            let wide = next_gather_is_wide(
+                scratch.served,
+                &mut scratch.wide,
+                &mut scratch.until_wide,
+                &mut scratch.wide_interval,
+                LookupScratch::WIDE_RETRY,
+            );
             scratch.gathers = scratch.gathers.wrapping_add(1);
             let reach = if wide { LookupScratch::REACH } else { 1.0 } * d_max;
             // Lookups in pixel order walk on: a wide ball centred ahead of `x`, along the
@@ -321,22 +313,13 @@ impl<S: Records> SpatialIndex<S> {
         }
         // Wide while that pays, else exact with a wide try now and then (less often each
         // time a try serves nothing more), as `gather` decides.
-        let coherent = scratch.served > 1;
-        let (first, most) = ReachScratch::WIDE_RETRY;
-        scratch.wide_interval = if coherent || scratch.wide_interval == 0 {
-            first
-        } else if scratch.wide {
-            (2 * scratch.wide_interval).min(most)
-        } else {
-            scratch.wide_interval
-        };
-        let wide = coherent || scratch.until_wide == 0;
-        scratch.until_wide = if wide {
-            scratch.wide_interval
-        } else {
-            scratch.until_wide - 1
-        };
-        scratch.wide = wide;
+        let wide = next_gather_is_wide(
+            scratch.served,
+            &mut scratch.wide,
+            &mut scratch.until_wide,
+            &mut scratch.wide_interval,
+            ReachScratch::WIDE_RETRY,
+        );
         let step = x - previous;
         let step_length = step.length();
         let mut rho = 0.0;

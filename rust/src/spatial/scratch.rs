@@ -52,6 +52,35 @@ impl LookupScratch {
     pub const WIDE_RETRY: (u32, u32) = (8, 64);
 }
 
+/// Whether the next gathering goes wide: always while the last one served several lookups
+/// (`served > 1`); otherwise every `wide_interval`-th, the interval starting at
+/// `retry.0` and doubling up to `retry.1` each time a wide try served one lookup alone.
+/// Updates `wide` (to the answer), `until_wide` and `wide_interval` (0: not yet set).
+pub(super) fn next_gather_is_wide(
+    served: u32,
+    wide: &mut bool,
+    until_wide: &mut u32,
+    wide_interval: &mut u32,
+    (first, most): (u32, u32),
+) -> bool {
+    let coherent = served > 1;
+    *wide_interval = if coherent || *wide_interval == 0 {
+        first
+    } else if *wide {
+        (2 * *wide_interval).min(most)
+    } else {
+        *wide_interval
+    };
+    let next = coherent || *until_wide == 0;
+    *until_wide = if next {
+        *wide_interval
+    } else {
+        *until_wide - 1
+    };
+    *wide = next;
+    next
+}
+
 thread_local! {
     /// The scratch of lookups made without one: its buffers are kept between calls, and
     /// a thread's consecutive lookups still share gatherings when they are close.
