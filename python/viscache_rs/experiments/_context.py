@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +35,8 @@ class ExperimentContext:
     """Where an experiment writes, and how hard it should work.
 
     ``quick`` asks for a run of minutes on 2 cores; ``seed`` drives every random choice;
-    ``threads`` is passed to the core (None: all cores); ``progress`` shows progress bars.
+    ``threads`` is passed to the core (None: all cores); ``progress`` shows progress bars;
+    ``client`` is where sweeps run (``vc.experiments.sweep``'s ``client``).
     """
 
     name: str
@@ -43,9 +45,19 @@ class ExperimentContext:
     seed: int = 0
     threads: int | None = None
     progress: bool = True
+    client: Any = "serial"
     results: dict[str, Any] = field(default_factory=dict)
     _tables: list[str] = field(default_factory=list)
     _start: float = field(default_factory=time.perf_counter)
+
+    def sweep(self, points: list[dict[str, Any]]):
+        """``points`` run by ``vc.experiments.sweep`` on this context's client: in this
+        process with ``threads`` per render, or one thread per render on a cluster."""
+        from .sweeps import SERIAL, sweep
+
+        if self.client == SERIAL:
+            return sweep(points, SERIAL, threads=self.threads or os.cpu_count() or 1)
+        return sweep(points, self.client, progress=self.progress)
 
     def __post_init__(self) -> None:
         self.out = Path(self.out)
