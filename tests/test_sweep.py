@@ -160,7 +160,7 @@ def test_renders_hold_no_gil():
     out = {}
 
     def work():
-        out["res"] = vc.render(setup, cam, spp=512, method="mis", threads=1, progress=False)
+        out["res"] = vc.render(setup, cam, spp=256, method="mis", threads=1, progress=False)
 
     t = threading.Thread(target=work)
     ticks = [time.perf_counter()]
@@ -285,6 +285,30 @@ def test_write_leaves_whole_files_or_none(tmp_path, serial_table, monkeypatch):
     assert (out / "sweep.parquet").read_bytes() == before
     assert sorted(p.name for p in out.iterdir()) == ["efficiency.png", "sweep.parquet"]
 
+def test_the_tradeoff_experiment_on_a_cluster_gives_its_rows_in_process(cluster, tmp_path,
+                                                                         monkeypatch):
+    from viscache_rs import experiments
+    from viscache_rs.experiments import tradeoff
+
+    def tiny(quick):
+        return {"scenes": ["garage"], "width": 24, "height": 18, "reference_spp": 64,
+                "spp": [2, 8], "configs": [tradeoff.CV_CONFIGS[2], tradeoff.CV_CONFIGS[5]]}
+
+    monkeypatch.setattr(tradeoff, "settings", tiny)
+    _c, client = cluster
+    here = experiments.run("tradeoff", quick=True, out=tmp_path / "a", progress=False)
+    there = experiments.run("tradeoff", quick=True, out=tmp_path / "b", progress=False,
+                            client=client)
+    timing = {"render_seconds", "cache_seconds", "total_seconds", "efficiency",
+              "efficiency_total"}
+    a, b = here.results["garage/rows"], there.results["garage/rows"]
+    assert len(a) == len(b) == 6
+    for x, y in zip(a, b, strict=True):
+        assert {k: v for k, v in x.items() if k not in timing} == \
+            {k: v for k, v in y.items() if k not in timing}
+    assert (tmp_path / "b" / "tradeoff" / "tradeoff_garage.png").exists()
+
+
 
 CHILD = textwrap.dedent(
     """
@@ -337,3 +361,4 @@ def test_ctrl_c_stops_a_sweep(cluster, where):
         while any(client.processing().values()):
             assert time.monotonic() < deadline, client.processing()
             time.sleep(0.1)
+
