@@ -243,6 +243,17 @@ def test_points_in_python_are_checked_before_any_work():
         sweeps.sweep([], sweeps.SERIAL)
 
 
+def test_a_value_the_renderer_refuses_names_the_point(cluster):
+    _c, client = cluster
+    pts = [{"scene": "cornell", "method": "mis", "spp": 1, "width": 8, "height": 6,
+            "reference": False},
+           {"scene": "garage", "method": "cv", "spp": 1, "width": 8, "height": 6,
+            "reference": False, "params": {"alpha": 7.0}, "cache": {"preset": "low"}}]
+    for where in (sweeps.SERIAL, client):
+        with pytest.raises(ValueError, match=r"^points\[1\] \(cv\): alpha"):
+            sweeps.sweep(pts, where)
+
+
 def test_the_cli_writes_the_table_and_the_plot(cluster, tmp_path, serial_table):
     from viscache_rs.cli import main
 

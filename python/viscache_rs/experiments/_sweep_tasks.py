@@ -115,7 +115,16 @@ def point(p: dict[str, Any], index: int, ref: dict[str, Any] | None,
           shared: dict[str, Any] | None, threads: int = 1) -> dict[str, Any]:
     """One point's row: the render's samples, seconds, variance and, against ``ref``, its
     relMSE on RGB (the reference's own variance share subtracted, ``vc.metrics.relmse``)
-    and efficiency 1 / (relMSE s)."""
+    and efficiency 1 / (relMSE s). A value the renderer refuses (an ``alpha`` out of
+    range) is raised naming the point, ``points[index]``."""
+    try:
+        return _point(p, index, ref, shared, threads)
+    except (ValueError, TypeError) as e:
+        raise type(e)(f"points[{index}] ({p['label']}): {e}") from e
+
+
+def _point(p: dict[str, Any], index: int, ref: dict[str, Any] | None,
+           shared: dict[str, Any] | None, threads: int) -> dict[str, Any]:
     setup, camera, gbuffer = _view(p["scene"], p["detail"], p["scene_seed"], p["width"],
                                    p["height"])
     kw = dict(p["params"])
