@@ -56,7 +56,8 @@ class ExperimentContext:
         from .sweeps import SERIAL, sweep
 
         if self.client == SERIAL:
-            return sweep(points, SERIAL, threads=self.threads or os.cpu_count() or 1)
+            return sweep(points, SERIAL, threads=self.threads or os.cpu_count() or 1,
+                         progress=self.progress)
         return sweep(points, self.client, progress=self.progress)
 
     def __post_init__(self) -> None:

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._progress import progress_bar
 from ..io import atomic_path
 from . import _sweep_tasks as tasks
 from ._sweep_points import POINT_KEYS, check_points, load
@@ -68,7 +69,12 @@ def _table(rows: list[dict[str, Any]]) -> pd.DataFrame:
     return pd.DataFrame(sorted(rows, key=lambda r: r["index"])).reset_index(drop=True)
 
 
-def _serial(points, threads: int, on_row) -> list[dict[str, Any]]:
+def _serial(points, threads: int, on_row, progress: bool) -> list[dict[str, Any]]:
+    with progress_bar(progress, "sweep", "points", total=len(points)) as bar:
+        return _serial_rows(points, threads, on_row, bar)
+
+
+def _serial_rows(points, threads: int, on_row, bar) -> list[dict[str, Any]]:
     refs: dict[str | None, Any] = {None: None}
     caches: dict[str | None, Any] = {None: None}
     rows = []
@@ -83,6 +89,8 @@ def _serial(points, threads: int, on_row) -> list[dict[str, Any]]:
         rows.append(row)
         if on_row is not None:
             on_row(row)
+        if bar is not None:
+            bar(i + 1, len(points))
     return rows
 
 
@@ -157,7 +165,8 @@ def sweep(
     ``distributed.Client`` is used as it is; a string is a scheduler's address
     (``"tcp://host:port"``) to connect to; ``"serial"`` runs the points one after
     another in this process, without Dask. ``threads``: the threads of each render (1:
-    a worker's core). ``progress``: Dask's progress bar. ``on_row(row)`` is called with
+    a worker's core). ``progress``: Dask's progress bar (in this process: a bar of
+points). ``on_row(row)`` is called with
     each row as it arrives.
 
     Every point is checked before any work (ValueError/TypeError naming the point and the
@@ -173,7 +182,7 @@ def sweep(
     if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
         raise ValueError(f"threads: expected a positive integer, got {threads!r}")
     if client == SERIAL:
-        return _table(_serial(checked, threads, on_row))
+        return _table(_serial(checked, threads, on_row, progress))
     client, cluster, close = _client(client, workers)
     try:
         return _table(_on_cluster(client, checked, threads, on_row, progress))
