@@ -89,7 +89,10 @@ def run(
         progress=progress,
         client=client,
     )
-    mod.run(ctx)
+    try:
+        mod.run(ctx)
+    finally:
+        ctx.close()
     ctx.finish()
     return ctx
 

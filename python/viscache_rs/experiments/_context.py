@@ -48,6 +48,7 @@ class ExperimentContext:
     client: Any = "serial"
     results: dict[str, Any] = field(default_factory=dict)
     _tables: list[str] = field(default_factory=list)
+    _owned: list[Any] = field(default_factory=list)
     _start: float = field(default_factory=time.perf_counter)
 
     def sweep(self, points: list[dict[str, Any]]):
@@ -58,7 +59,24 @@ class ExperimentContext:
         if self.client == SERIAL:
             return sweep(points, SERIAL, threads=self.threads or os.cpu_count() or 1,
                          progress=self.progress)
+        if self.client is None or isinstance(self.client, str):
+            # One cluster (or connection) for all of the experiment's sweeps, closed by
+            # close(): a LocalCluster takes seconds to start.
+            from .sweeps import _client
+
+            client, cluster, close = _client(self.client, None)
+            self._owned = [client, cluster, close]
+            self.client = client
         return sweep(points, self.client, progress=self.progress)
+
+    def close(self) -> None:
+        """Closes the client and cluster that :meth:`sweep` started, if any."""
+        client, cluster, close = self._owned or (None, None, False)
+        self._owned = []
+        if close and client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
 
     def __post_init__(self) -> None:
         self.out = Path(self.out)
