@@ -58,6 +58,13 @@ def _cache_args(p: dict[str, Any]) -> dict[str, Any] | None:
             "width": p["width"], "height": p["height"], "settings": p["cache"]}
 
 
+def _cost(p: dict[str, Any]) -> tuple[float, float]:
+    """A point's expected work, to order the tasks: its time budget (seconds, first), else
+    its samples (pixels x spp x repeats)."""
+    samples = p["width"] * p["height"] * (p["spp"] or 0) * p["repeats"]
+    return (p["time_budget"] or 0.0) * p["repeats"], float(samples)
+
+
 def _key(args: dict[str, Any] | None) -> str | None:
     """Points with equal arguments share one task."""
     return None if args is None else json.dumps(args, sort_keys=True)
@@ -113,13 +120,18 @@ def _on_cluster(client, points, threads: int, on_row, progress: bool) -> list[di
     refs: dict[str | None, Any] = {None: None}
     caches: dict[str | None, Any] = {None: None}
     futures = {}
-    for i, p in enumerate(points):
+    for p in points:
         ra, ca = _reference_args(p), _cache_args(p)
         rk, ck = _key(ra), _key(ca)
         if ra is not None and rk not in refs:
             refs[rk] = client.submit(tasks.reference, **ra, threads=threads)
         if ca is not None and ck not in caches:
             caches[ck] = client.submit(tasks.cache, **ca, threads=threads)
+    # The scheduler starts tasks in the order they were submitted: the longest first, so
+    # that the sweep does not end on one long point while the other workers wait.
+    for i in sorted(range(len(points)), key=lambda i: _cost(points[i]), reverse=True):
+        p = points[i]
+        rk, ck = _key(_reference_args(p)), _key(_cache_args(p))
         futures[client.submit(tasks.point, p, i, refs[rk], caches[ck], threads)] = i
     everything = [f for f in (*futures, *refs.values(), *caches.values()) if f is not None]
     try:
