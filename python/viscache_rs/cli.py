@@ -11,9 +11,16 @@ viscache preview SCENE --rotate A:B:STEP --out DIR
                     A+STEP, ... below B, in degrees) into DIR/SCENE_000.png, ... and print
                     the preparation's cost and the milliseconds per frame.
 viscache scenes     list the built-in scenes.
-viscache experiment NAME [--quick]
+viscache experiment NAME [--quick] [--scheduler ADDRESS]
                     run an experiment (viscache experiment --list) and write
                     results/NAME/: JSON of every figure, markdown tables, images, plots.
+                    tradeoff and variance-table run their renders as a sweep: in this
+                    process, or on the Dask cluster at ADDRESS ("local": a new one here).
+viscache sweep CONFIG [--scheduler ADDRESS] [--workers N] [--out DIR]
+                    run the points of a sweep file (JSON or TOML; README "Sweeps"), one
+                    Dask task each, on a new LocalCluster (one worker per core) or the
+                    cluster at ADDRESS (tcp://host:port); write DIR/sweep.parquet (one
+                    row per point) and DIR/efficiency.png, and print the table.
 viscache --version  the version.
 
 Every option is checked before any work, against the library's own ranges.
@@ -22,6 +29,7 @@ Every option is checked before any work, against the library's own ranges.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import re
 import sys
@@ -286,10 +294,54 @@ def experiment(args: argparse.Namespace) -> int:
               "installed; install the extra with: pip install 'viscache_rs[experiments]'",
               file=sys.stderr)
         return 2
+    client = {None: "serial", "local": None}.get(args.scheduler, args.scheduler)
     ctx = experiments.run(args.name, quick=args.quick, out=args.out, seed=args.seed,
-                          threads=args.threads, progress=_bars(args.quiet))
+                          threads=args.threads, progress=_bars(args.quiet), client=client)
     print(f"wrote {ctx.out}/ in {ctx.results['seconds']:.1f} s")
     return 0
+
+
+def sweep(args: argparse.Namespace) -> int:
+    """Runs a sweep file's points on Dask and writes the table and the efficiency plot."""
+    from .experiments import sweeps
+
+    missing = [m for m in ("distributed", "pandas", "pyarrow", "matplotlib")
+               if importlib.util.find_spec(m) is None]
+    if missing:
+        print(f"viscache sweep: needs {', '.join(missing)}; install the extra with: "
+              "pip install 'viscache_rs[sweep]'", file=sys.stderr)
+        return 2
+    try:
+        points = sweeps.load(args.config)
+    except (ValueError, TypeError) as e:
+        print(f"viscache sweep: {e}", file=sys.stderr)
+        return 2
+    client = (sweeps.SERIAL if args.serial
+              else None if args.scheduler in (None, "local") else args.scheduler)
+    t = time.perf_counter()
+    table = sweeps.sweep(points, client, workers=args.workers, progress=_bars(args.quiet))
+    written = sweeps.write(table, args.out)
+    print(sweeps.summary(table))
+    print(f"{len(table)} points in {time.perf_counter() - t:.1f} s; wrote "
+          f"{', '.join(str(p) for p in written)}")
+    return 0
+
+
+def _sweep_file(text: str) -> str:
+    """A sweep file: an existing .json or .toml file (its contents are checked before any
+    work by ``sweeps.load``)."""
+    if Path(text).suffix.lower() not in (".json", ".toml"):
+        raise argparse.ArgumentTypeError(f"expected a .json or .toml file, got {text!r}")
+    if not Path(text).is_file():
+        raise argparse.ArgumentTypeError(f"no such file: {text}")
+    return text
+
+
+def _scheduler(text: str) -> str:
+    if text == "local" or re.fullmatch(r"[a-z]+://\S+", text):
+        return text
+    raise argparse.ArgumentTypeError(
+        f"expected a scheduler's address such as tcp://host:8786 or 'local', got {text!r}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -343,7 +395,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="no progress bars (default: bars when stderr is a terminal)")
     p.add_argument("--out", type=_folder, default="results",
                    help="parent folder of results/NAME/")
+    p.add_argument("--scheduler", type=_scheduler, default=None, metavar="ADDRESS",
+                   help="run the sweeps of tradeoff and variance-table on the Dask cluster "
+                   "at ADDRESS (tcp://host:port), or 'local' for a new LocalCluster; "
+                   "default: in this process")
     p.set_defaults(func=experiment)
+    p = sub.add_parser("sweep", help="run a sweep file's points on Dask",
+                       usage="%(prog)s CONFIG [options]")
+    p.add_argument("config", type=_sweep_file, metavar="CONFIG",
+                   help="the sweep file (.json or .toml; README \"Sweeps\")")
+    p.add_argument("--scheduler", type=_scheduler, default=None, metavar="ADDRESS",
+                   help="an existing cluster's scheduler (tcp://host:port); default: a new "
+                   "LocalCluster of one single-threaded worker process per core")
+    p.add_argument("--workers", type=_integer("threads"), default=None,
+                   help="workers of the new LocalCluster (default: one per core)")
+    p.add_argument("--serial", action="store_true",
+                   help="run the points one after another in this process, without Dask")
+    p.add_argument("--out", type=_folder, default="results/sweep",
+                   help="folder of sweep.parquet and efficiency.png (created)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=sweep)
     p = sub.add_parser("preview", help="preview frames of a rotating map from the cached "
                        "transfer, with timings", usage="%(prog)s SCENE [options]")
     p.add_argument("scene", choices=suite, metavar="SCENE", help=f"one of {', '.join(suite)}")

@@ -11,14 +11,21 @@ that takes an :class:`ExperimentContext`. ``viscache experiment NAME [--quick]``
 
 ``--quick`` runs in minutes on 2 cores (small images, few sample counts); the full mode
 follows the paper's settings more closely and can take much longer.
+
+:func:`sweep` runs a list of (scene, method, parameters, spp or time budget, seed) points
+as Dask tasks, each measured against its scene's reference, into one pandas table
+(:mod:`~viscache_rs.experiments.sweeps`); ``tradeoff`` and ``variance-table`` run their
+points through it, in this process by default or on a cluster (``client=``).
 """
 
 from __future__ import annotations
 
 import importlib
 from pathlib import Path
+from typing import Any
 
 from ._context import ExperimentContext
+from .sweeps import sweep
 
 #: Experiment name -> module name.
 _MODULES = {
@@ -65,9 +72,13 @@ def run(
     seed: int = 0,
     threads: int | None = None,
     progress: bool | None = None,
+    client: Any = "serial",
 ) -> ExperimentContext:
     """Runs experiment ``name`` and writes ``out/name/``; returns the context, whose
-    ``results`` dict holds every recorded figure."""
+    ``results`` dict holds every recorded figure. ``client``: where the sweeps of
+    ``tradeoff`` and ``variance-table`` run (:func:`sweep`'s ``client``): ``"serial"``
+    (default) in this process with ``threads`` per render, None a new LocalCluster, a
+    scheduler's address or a ``distributed.Client``; the other experiments ignore it."""
     mod = _get(name)
     ctx = ExperimentContext(
         name=name,
@@ -76,10 +87,14 @@ def run(
         seed=seed,
         threads=threads,
         progress=progress,
+        client=client,
     )
-    mod.run(ctx)
+    try:
+        mod.run(ctx)
+    finally:
+        ctx.close()
     ctx.finish()
     return ctx
 
 
-__all__ = ["ExperimentContext", "describe", "names", "run"]
+__all__ = ["ExperimentContext", "describe", "names", "run", "sweep"]

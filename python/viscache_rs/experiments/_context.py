@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +37,7 @@ class ExperimentContext:
     ``quick`` asks for a run of minutes on 2 cores; ``seed`` drives every random choice;
     ``threads`` is passed to the core (None: all cores); ``progress``: bars (True),
     none (False), or only when stderr is a terminal (None).
+    ``client`` is where sweeps run (``vc.experiments.sweep``'s ``client``).
     """
 
     name: str
@@ -44,9 +46,38 @@ class ExperimentContext:
     seed: int = 0
     threads: int | None = None
     progress: bool | None = None
+    client: Any = "serial"
     results: dict[str, Any] = field(default_factory=dict)
     _tables: list[str] = field(default_factory=list)
+    _owned: list[Any] = field(default_factory=list)
     _start: float = field(default_factory=time.perf_counter)
+
+    def sweep(self, points: list[dict[str, Any]]):
+        """``points`` run by ``vc.experiments.sweep`` on this context's client: in this
+        process with ``threads`` per render, or one thread per render on a cluster."""
+        from .sweeps import SERIAL, sweep
+
+        if self.client == SERIAL:
+            return sweep(points, SERIAL, threads=self.threads or os.cpu_count() or 1,
+                         progress=self.progress)
+        if self.client is None or isinstance(self.client, str):
+            # One cluster (or connection) for all of the experiment's sweeps, closed by
+            # close(): a LocalCluster takes seconds to start.
+            from .sweeps import _client
+
+            client, cluster, close = _client(self.client, None)
+            self._owned = [client, cluster, close]
+            self.client = client
+        return sweep(points, self.client, progress=self.progress)
+
+    def close(self) -> None:
+        """Closes the client and cluster that :meth:`sweep` started, if any."""
+        client, cluster, close = self._owned or (None, None, False)
+        self._owned = []
+        if close and client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
 
     def __post_init__(self) -> None:
         self.out = Path(self.out)

@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import metrics, scenes
-from ..cache import VisibilityCache
-from ..render import render
 from ._context import pyplot
 
 DESCRIPTION = """\
@@ -23,7 +20,9 @@ record resolution 32; and cv alpha = 1 over a medium cache at resolution 64. Eac
 built once per scene (alpha = 1 and alpha estimated share it) and reused across the spp
 ladder (quick: 4, 16, 64; full: 4 to 256), as a user would; its build seconds are reported
 separately and added in the "total" columns. Renders use the renderer's defaults
-(antialiased, jittered samples).
+(antialiased, jittered samples). Every render is a point of one sweep
+(``vc.experiments.sweep``): each starts from the cache as built, and with a cluster
+(``viscache experiment tradeoff --scheduler ADDRESS``) the points run one per worker core.
 
 The error is relMSE on RGB (``vc.metrics.relmse``): the mean over pixels and channels of
 (img - ref)^2 / (ref^2 + 1e-2), minus the reference's own share, var_ref / (ref^2 + 1e-2)
@@ -58,66 +57,63 @@ def settings(quick: bool) -> dict:
             "configs": CV_CONFIGS}
 
 
+def points(s: dict, seed: int) -> list[dict]:
+    """The sweep's points (``vc.experiments.sweep``): per scene, product and every cv
+    configuration at every spp of the ladder, in the order of the tables."""
+    out = []
+    common = {"width": s["width"], "height": s["height"], "seed": seed,
+              "reference": {"method": "product", "spp": s["reference_spp"],
+                            "seed": seed + 104729}}
+    for name in s["scenes"]:
+        out += [{**common, "scene": name, "method": "product", "spp": spp, "label": "product"}
+                for spp in s["spp"]]
+        for label, preset, resolution, alpha in s["configs"]:
+            # One cache per (preset, resolution): the sweep builds it once and both alphas
+            # share it.
+            cache = {"preset": preset, "nearest_hits": False, "seed": seed}
+            if resolution is not None:
+                cache["resolution"] = resolution
+            out += [{**common, "scene": name, "method": "cv", "spp": spp, "label": label,
+                     "params": {"alpha": alpha}, "cache": cache} for spp in s["spp"]]
+    return out
+
+
 def run(ctx) -> None:
     s = settings(ctx.quick)
     ctx.record("settings", {**s, "configs": [list(c) for c in s["configs"]]})
-    kw = {"threads": ctx.threads, "progress": ctx.progress}
     ladder = s["spp"]
     plt = pyplot()
     summary = {}
+    table = ctx.sweep(points(s, ctx.seed))
     for name in s["scenes"]:
-        setup = scenes.load(name)
-        cam = setup.camera.with_resolution(s["width"], s["height"])
-        # One G-buffer: the records' points and every render's anchors.
-        gbuffer = setup.scene.gbuffer(cam, jitter=False, threads=ctx.threads)
-        ref = render(setup, gbuffer=gbuffer, spp=s["reference_spp"], method="product",
-                     seed=ctx.seed + 104729, **kw)
-        ref_image = np.asarray(ref.image, dtype=np.float64)
-        ref_variance = np.asarray(ref.variance, dtype=np.float64)
-        ref_var = metrics.relative_variance(ref_variance, ref_image)
-        ctx.record(f"{name}/reference", {"spp": s["reference_spp"],
-                                         "seconds": ref.stats["seconds"],
+        scene_rows = table[table["scene"] == name].to_dict("records")
+        first = scene_rows[0]
+        ref_spp, ref_seconds = first["reference_spp"], first["reference_seconds"]
+        ref_var = first["reference_variance"]
+        ctx.record(f"{name}/reference", {"spp": ref_spp, "seconds": ref_seconds,
                                          "variance": ref_var})
-
-        def measure(label, method, build_seconds, cache=None, alpha=1.0, records=0,
-                    _setup=setup, _g=gbuffer, _ref=ref_image, _ref_variance=ref_variance):
-            out = []
-            for spp in ladder:
-                extra = {"cache": cache, "alpha": alpha} if method == "cv" else {}
-                res = render(_setup, gbuffer=_g, spp=spp, method=method, seed=ctx.seed, **extra,
-                             **kw)
-                raw = metrics.relmse(res.image, _ref)
-                mse = metrics.relmse(res.image, _ref, _ref_variance)
-                per_channel = metrics.relmse_per_channel(res.image, _ref, _ref_variance)
-                sec = res.stats["seconds"]
-                total = sec + build_seconds
-                out.append({"config": label, "spp": spp, "render_seconds": sec,
-                            "cache_seconds": build_seconds, "total_seconds": total,
-                            "mse_raw": raw, "mse": mse, "mse_rgb": per_channel.tolist(),
-                            "variance": metrics.relative_variance(res.variance, _ref),
-                            "efficiency": metrics.efficiency(mse, sec),
-                            "efficiency_total": metrics.efficiency(mse, total),
-                            "records": records})
-            return out
-
-        rows = measure("product", "product", 0.0)
-        caches: dict[tuple[str, int], tuple[VisibilityCache, float]] = {}
-        for label, preset, resolution, alpha in s["configs"]:
-            key = (preset, resolution)
-            if key not in caches:
-                cache = VisibilityCache(setup.scene, resolution=resolution, preset=preset,
-                                        nearest_hits=False)
-                report = cache.build(gbuffer=gbuffer, seed=ctx.seed, **kw)
-                caches[key] = (cache, report["seconds"])
-                ctx.record(f"{name}/cache/{preset}/{resolution}",
-                           {k: report[k] for k in ("records", "shadow_rays",
-                                                   "shadow_rays_per_pixel", "seconds")}
-                           | {"memory_bytes": cache.memory_bytes()})
-            cache, build_seconds = caches[key]
-            rows += measure(label, "cv", build_seconds, cache=cache, alpha=alpha,
-                            records=len(cache))
-        caches.clear()
+        resolutions = {c[0]: (c[1], c[2]) for c in s["configs"]}
+        rows = []
+        for r in scene_rows:
+            if r["method"] == "cv":
+                preset, resolution = resolutions[r["label"]]
+                key = f"{name}/cache/{preset}/{resolution}"
+                if key not in ctx.results:
+                    ctx.record(key, {
+                        "records": r["records"], "shadow_rays": r["cache_shadow_rays"],
+                        "shadow_rays_per_pixel": r["cache_rays_per_pixel"],
+                        "seconds": r["cache_seconds"],
+                        "memory_bytes": r["cache_memory_bytes"]})
+            rows.append({"config": r["label"], "spp": r["spp"],
+                         "render_seconds": r["render_seconds"],
+                         "cache_seconds": r["cache_seconds"],
+                         "total_seconds": r["total_seconds"], "mse_raw": r["relmse_raw"],
+                         "mse": r["relmse"],
+                         "mse_rgb": [r["relmse_r"], r["relmse_g"], r["relmse_b"]],
+                         "variance": r["variance"], "efficiency": r["efficiency"],
+                         "efficiency_total": r["efficiency_total"], "records": r["records"]})
         ctx.record(f"{name}/rows", rows)
+        width, height = s["width"], s["height"]
 
         by_config: dict[str, list[dict]] = {}
         for r in rows:
@@ -132,8 +128,8 @@ def run(ctx) -> None:
         }
         ctx.record(f"{name}/summary", summary[name])
 
-        ctx.note(f"### {name}\n\n{cam.width}x{cam.height}; reference: product, "
-                 f"{s['reference_spp']} spp, {ref.stats['seconds']:.3g} s, its own "
+        ctx.note(f"### {name}\n\n{width}x{height}; reference: product, "
+                 f"{ref_spp} spp, {ref_seconds:.3g} s, its own "
                  f"variance share {ref_var:.4g} (subtracted from every relMSE).")
         ctx.table(
             f"{name}: error against time",

@@ -13,18 +13,19 @@ same time), with the images side by side.
 
 Both methods shade one point per pixel and draw every sample there (CAM08's setting), with
 the same product cells, seeds and threads; the
-cache is built once per scene (``CACHE`` below). ``--quick`` renders 256x192 at 10/30/100
+cache is built once per scene (``CACHE`` below). Every render is a point of a sweep
+(``vc.experiments.sweep``), each starting from the cache as built; on a cluster
+(``--scheduler``) its seconds are those of one thread. ``--quick`` renders 256x192 at 10/30/100
 spp; the full mode 640x480 at 10/30/100/300.
 """
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import numpy as np
 
-from .. import metrics, scenes
-from ..render import render
 from ._context import ExperimentContext, pyplot
 
 DESCRIPTION = __doc__
@@ -48,15 +49,14 @@ CACHE: dict[str, dict[str, Any]] = {
 }
 
 
-def make_cache(name: str, scene, pixels: int):
-    """The cache of ``CACHE[name]`` for an image of ``pixels`` pixels."""
-    from ..cache import VisibilityCache
-
+def cache_settings(name: str, pixels: int, seed: int) -> dict[str, Any]:
+    """The settings of ``CACHE[name]`` for an image of ``pixels`` pixels, as a sweep
+    point's ``cache`` (built once per scene and shared by its points)."""
     cfg = dict(CACHE[name])
     share = cfg.pop("records_per_pixel", None)
     if share is not None:
         cfg["max_records"] = max(1, int(share * pixels))
-    return VisibilityCache(scene, **cfg)
+    return {**cfg, "seed": seed}
 
 
 def settings(quick: bool) -> dict:
@@ -68,10 +68,49 @@ def settings(quick: bool) -> dict:
             "scenes": ["garage", "dynamics", "garden"], "equal_time_spp": 30}
 
 
-def channel_ratios(res, base) -> tuple[list[float], float]:
-    """Per-channel variance ratios of ``res`` to ``base`` and their mean."""
-    ratios, mean = metrics.variance_ratio(res.variance, base.variance)
-    return [float(r) for r in ratios], mean
+#: The three renders of every (scene, spp): label -> method and parameters.
+METHODS: dict[str, tuple[str, dict[str, Any]]] = {
+    "product": ("product", {}),
+    "cv": ("cv", {"alpha": 1.0}),
+    "cv_est": ("cv", {"alpha": "estimate"}),
+}
+
+
+def points(cfg: dict, seed: int) -> list[dict[str, Any]]:
+    """The sweep's points: per scene and spp, product and cv (alpha 1 and estimated) at
+    CAM08's fixed points, timed as the least of ``REPEATS`` renders; the first spp keeps
+    its images; garage adds Fig. 13's cv render. No reference: the tables compare
+    variances."""
+    common = {"width": cfg["width"], "height": cfg["height"], "reference": False,
+              "repeats": REPEATS, "scene_seed": seed}
+    out = []
+    for name in cfg["scenes"]:
+        cache = cache_settings(name, cfg["width"] * cfg["height"], seed)
+        for spp in cfg["spp"]:
+            for label, (method, params) in METHODS.items():
+                out.append({**common, "scene": name, "label": label, "method": method,
+                            "spp": spp, "seed": seed + spp,
+                            "params": {**params, **CAM08_POINTS},
+                            "cache": cache if method == "cv" else None,
+                            "image": spp == cfg["spp"][0] and label != "cv_est"})
+        if name == "garage":
+            out.append({**common, "scene": name, "label": "equal_time_cv", "method": "cv",
+                        "spp": cfg["equal_time_spp"], "seed": seed + 1000, "repeats": 1,
+                        "params": {"alpha": "estimate", **CAM08_POINTS}, "cache": cache,
+                        "image": True})
+    return out
+
+
+def channel_ratios(row, base) -> tuple[list[float], float]:
+    """Per-channel variance ratios of sweep row ``row`` to row ``base`` (their mean
+    per-pixel variances, ``vc.metrics.variance_ratio``) and their mean."""
+    ratios = [float(row[c] / base[c]) if base[c] > 0 else float("nan")
+              for c in ("var_r", "var_g", "var_b")]
+    return ratios, float(np.mean(ratios))
+
+
+def _stat(row, key: str) -> Any:
+    return json.loads(row["stats"]).get(key)
 
 
 def run(ctx: ExperimentContext) -> None:
@@ -79,56 +118,40 @@ def run(ctx: ExperimentContext) -> None:
     ctx.record("settings", cfg)
     table3, table2 = [], []
     per_scene = {}
+    table = ctx.sweep(points(cfg, ctx.seed))
     for name in cfg["scenes"]:
-        setup = scenes.load(name, seed=ctx.seed)
-        setup.camera = setup.camera.with_resolution(cfg["width"], cfg["height"])
-        setup.scene.build(threads=ctx.threads)
-        cache = make_cache(name, setup.scene, cfg["width"] * cfg["height"])
-        res = cache.resolution
-        # One G-buffer: the records' points and every render's anchors.
-        gbuffer = setup.scene.gbuffer(setup.camera, jitter=False, threads=ctx.threads)
-        build = cache.build(gbuffer=gbuffer, seed=ctx.seed, threads=ctx.threads,
-                            progress=ctx.progress)
+        at = table[table["scene"] == name]
+        first = at[at["method"] == "cv"].iloc[0]
+        build = {"records": int(first["records"]), "seconds": float(first["cache_seconds"]),
+                 "shadow_rays": int(first["cache_shadow_rays"]),
+                 "shadow_rays_per_pixel": float(first["cache_rays_per_pixel"])}
+        res = json.loads(first["cache"]).get("resolution") or CACHE[name].get("resolution")
         table2.append([name, build["records"], f"{res}x{res}",
-                       round(cache.memory_bytes() / max(build["records"], 1)),
+                       round(first["cache_memory_bytes"] / max(build["records"], 1)),
                        build["shadow_rays_per_pixel"], build["seconds"]])
         rows = []
         for spp in cfg["spp"]:
-            common = dict(spp=spp, seed=ctx.seed + spp, threads=ctx.threads,
-                          progress=ctx.progress, gbuffer=gbuffer, **CAM08_POINTS)
-            # Seconds are the least of REPEATS identical renders, the methods taking turns:
-            # sub-second renders on a shared machine vary by tens of percent from run to
-            # run, and drift (clock, other load) then hits every method alike.
-            methods = {
-                "product": dict(method="product"),
-                "cv": dict(method="cv", cache=cache, alpha=1.0),
-                "cv_est": dict(method="cv", cache=cache, alpha="estimate"),
-            }
-            runs: dict[str, list[Any]] = {k: [] for k in methods}
-            for _ in range(REPEATS):
-                for k, kw in methods.items():
-                    runs[k].append(render(setup, **kw, **common))
-            seconds = {k: min(r.stats["seconds"] for r in v) for k, v in runs.items()}
-            prod, cv1, cve = runs["product"][0], runs["cv"][0], runs["cv_est"][0]
-            vp = metrics.mean_variance(prod.variance)
-            t_p = seconds["product"]
-            row = {"spp": spp, "time_product": t_p, "var_product": vp}
+            got = {r["label"]: r for r in at[at["spp"] == spp].to_dict("records")
+                   if r["label"] in METHODS}
+            prod, cv1, cve = got["product"], got["cv"], got["cv_est"]
+            t_p = prod["render_seconds"]
+            row = {"spp": spp, "time_product": t_p, "var_product": prod["mean_variance"]}
             for key, r in (("cv", cv1), ("cv_est", cve)):
-                t = seconds[key]
+                t = r["render_seconds"]
                 per_channel, mean_ratio = channel_ratios(r, prod)
                 row.update({
                     f"time_{key}": t,
                     f"overhead_{key}_s": t - t_p,
                     f"overhead_{key}_pct": 100 * (t - t_p) / t_p,
                     f"overhead_{key}_with_build_pct": 100 * (t + build["seconds"] - t_p) / t_p,
-                    f"var_{key}": metrics.mean_variance(r.variance),
+                    f"var_{key}": r["mean_variance"],
                     f"ratio_{key}": mean_ratio,
                     f"ratio_rgb_{key}": per_channel,
-                    f"lookup_s_{key}": r.stats["lookup_seconds"],
-                    f"control_s_{key}": r.stats["control_seconds"],
-                    f"miss_rate_{key}": r.stats["miss_rate"],
+                    f"lookup_s_{key}": _stat(r, "lookup_seconds"),
+                    f"control_s_{key}": _stat(r, "control_seconds"),
+                    f"miss_rate_{key}": _stat(r, "miss_rate"),
                 })
-            row["mean_alpha_est"] = cve.stats["mean_alpha"]
+            row["mean_alpha_est"] = _stat(cve, "mean_alpha")
             rows.append(row)
             table3.append([name, spp, t_p, row["time_cv"], row["overhead_cv_s"],
                            f"{row['overhead_cv_pct']:.1f}%",
@@ -136,11 +159,12 @@ def run(ctx: ExperimentContext) -> None:
                            _rgb(row["ratio_rgb_cv"]), row["ratio_cv"],
                            _rgb(row["ratio_rgb_cv_est"]), row["ratio_cv_est"]])
             if spp == cfg["spp"][0]:
-                ctx.image(f"{name}_product_{spp}spp", prod.image)
-                ctx.image(f"{name}_cv_{spp}spp", cv1.image)
+                ctx.image(f"{name}_product_{spp}spp", prod["image"])
+                ctx.image(f"{name}_cv_{spp}spp", cv1["image"])
         per_scene[name] = {"build": build, "rows": rows}
         if name == "garage":
-            _equal_time(ctx, setup, cache, rows, cfg["equal_time_spp"], build["seconds"])
+            cv = at[at["label"] == "equal_time_cv"].iloc[0]
+            _equal_time(ctx, cv, rows, build["seconds"])
     ctx.record("scenes", per_scene)
     ctx.table("Table 2: the caches", ["scene", "records", "record size", "bytes/record",
                                       "avg rays/pixel", "build s"], table2)
@@ -155,40 +179,42 @@ def _rgb(ratios) -> str:
     return " / ".join(f"{r:.3f}" for r in ratios)
 
 
-def _equal_time(ctx, setup, cache, rows, cv_spp, build_seconds) -> None:
-    """Fig. 13: cv at ``cv_spp`` against product at the spp that takes as long, with the
-    cache reused (render time only) and with its build counted."""
+def _equal_time(ctx, cv, rows, build_seconds) -> None:
+    """Fig. 13: cv (the sweep's row ``cv``) against product at the spp that takes as long,
+    with the cache reused (render time only) and with its build counted."""
     # Render time is close to a + b * spp (per-pixel setup plus samples); fit the ladder.
     spp = np.array([r["spp"] for r in rows], float)
     tp = np.array([r["time_product"] for r in rows], float)
     b, a = np.polyfit(spp, tp, 1) if len(spp) > 1 else (tp[0] / spp[0], 0.0)
     # Tiny or noisy timings can fit a flat or falling line: bound the cost per sample below.
     b = max(b, 0.1 * tp[-1] / spp[-1])
-    cv = render(setup, spp=cv_spp, method="cv", cache=cache, alpha="estimate",
-                seed=ctx.seed + 1000, threads=ctx.threads, progress=ctx.progress,
-                **CAM08_POINTS)
-    t_cv = cv.stats["seconds"]
+    t_cv = float(cv["render_seconds"])
+    cv_spp = int(cv["spp"])
     out = {"cv_spp": cv_spp, "cv_seconds": t_cv, "cache_build_seconds": build_seconds}
-    table = [["cv (alpha est.)", cv_spp, t_cv, metrics.mean_variance(cv.variance), "1 / 1 / 1"]]
+    table = [["cv (alpha est.)", cv_spp, t_cv, cv["mean_variance"], "1 / 1 / 1"]]
+    budgets = {"render": t_cv, "with_build": t_cv + build_seconds}
+    # At least two samples, so the variance of the mean is defined.
+    products = {label: int(np.clip(round((budget - a) / b), 2, 1 << 16))
+                for label, budget in budgets.items()}
+    common = {"scene": cv["scene"], "method": "product", "width": int(cv["width"]),
+              "height": int(cv["height"]), "reference": False, "seed": ctx.seed + 2000,
+              "scene_seed": int(cv["scene_seed"]), "params": CAM08_POINTS, "image": True}
+    prods = ctx.sweep([{**common, "label": label, "spp": n} for label, n in products.items()])
     images = {}
-    for label, budget in (("render", t_cv), ("with_build", t_cv + build_seconds)):
-        # At least two samples, so the variance of the mean is defined.
-        product_spp = int(np.clip(round((budget - a) / b), 2, 1 << 16))
-        prod = render(setup, spp=product_spp, method="product", seed=ctx.seed + 2000,
-                      threads=ctx.threads, progress=ctx.progress, **CAM08_POINTS)
+    for prod in prods.to_dict("records"):
+        label = prod["label"]
         per_channel, ratio = channel_ratios(cv, prod)
-        out[label] = {"product_spp": product_spp, "product_seconds": prod.stats["seconds"],
+        out[label] = {"product_spp": products[label], "product_seconds": prod["render_seconds"],
                       "variance_ratio": ratio, "variance_ratio_rgb": per_channel}
-        table.append([f"product, equal time ({label.replace('_', ' ')})", product_spp,
-                      prod.stats["seconds"], metrics.mean_variance(prod.variance),
-                      _rgb(per_channel)])
-        images[label] = prod.image
+        table.append([f"product, equal time ({label.replace('_', ' ')})", products[label],
+                      prod["render_seconds"], prod["mean_variance"], _rgb(per_channel)])
+        images[label] = prod["image"]
     ctx.record("equal_time", out)
     ctx.table("Fig. 13: equal time on garage",
               ["method", "spp", "seconds", "mean variance (RGB)", "cv variance / this, R/G/B"],
               table)
-    gap = np.ones_like(cv.image[:, :4])
-    both = np.concatenate([images["render"], gap, cv.image], axis=1)
+    gap = np.ones_like(cv["image"][:, :4])
+    both = np.concatenate([images["render"], gap, cv["image"]], axis=1)
     ctx.image("garage_equal_time_product_vs_cv", both)
 
 
