@@ -205,7 +205,7 @@ INDIRECT = [("cornell", None), ("cornell", "glossy_floor"), ("cornell", "semiglo
 def test_variants_are_listed_beside_the_scenes():
     assert vc.scenes.indirect_names() == INDIRECT
     assert vc.scenes.variants("cornell") == ["glossy_floor", "semiglossy_floor"]
-    assert vc.scenes.variants("garage") == ["sun"]
+    assert vc.scenes.variants("garage") == ["sun", "ceiling_lights"]
     assert vc.scenes.variants("room") == ["sunlit"]
     assert vc.scenes.variants("garden") == [] and vc.scenes.variants("meshes") == []
     assert not {v for _, v in INDIRECT} & set(vc.scenes.suite_names())
@@ -222,6 +222,20 @@ def test_variants_are_listed_beside_the_scenes():
     with pytest.raises(ValueError, match="^detail"):
         vc.scenes.load("room", variant="sunlit", detail=float("nan"))
     assert vc.scenes.load("cornell").variant is None
+
+
+def test_the_ceiling_lights_variant_lights_the_garage_by_1000_lamps():
+    base = vc.scenes.load("garage", detail=0.25)
+    lit = vc.scenes.load("garage", variant="ceiling_lights", detail=0.25)
+    assert lit.variant == "ceiling_lights"
+    lamps = lit.scene.area_lights()
+    assert len(lamps) == 1000 and len(base.scene.area_lights()) == 0
+    # The lamps are new objects after the garage's own, whose triangles are unchanged.
+    n = base.scene.num_objects
+    assert sorted(lamps) == list(range(n, n + 1000))
+    ids = lit.scene.object_ids()
+    assert np.array_equal(lit.scene.triangles()[ids < n], base.scene.triangles())
+
 
 
 @pytest.mark.parametrize("name,variant", INDIRECT)

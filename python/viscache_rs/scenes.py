@@ -60,6 +60,10 @@ room        sunlit              the sun (azimuth 350, elevation 45 deg) falls   
                                 patches: indirect light dominates
 ==========  ==================  ================================================  ========
 
+One variant is not for indirect light: ``load("garage", variant="ceiling_lights")`` is the
+garage at night (a dim constant map) lit by 1,000 small area lights under the roof (radiances
+between 0.25x and 1.75x of their mean): the many-light case of the survey's ch. 6.
+
 ``setup.variant`` names the variant (None for the default).
 
 Animated variants (``animated_names()``; ``load("dynamics", animated=True)``): the

@@ -54,6 +54,15 @@
 //! with the cars' shadows; it reaches neither the roof's underside nor the walls' inner
 //! faces (the back wall lies beyond the patch, the side walls are parallel to the sun), so
 //! they are lit by the patch's bounce and by the sky. The ground outside is sunlit too.
+//!
+//! **Variant `ceiling_lights`** ([`build_ceiling_lights`]): the same geometry and camera at
+//! night ([`NIGHT_RADIANCE`], a dim constant map) lit by [`CEILING_LIGHTS`] small square
+//! area lights (0.12 m, facing down, 5 mm under the roof's underside) on a 40 x 25 grid over
+//! x in [-5.85, 5.85], z in [-3.8, 9.4]: inside the building and under the overhang. Their
+//! radiances differ (a fixed scramble of the index between 0.25x and 1.75x of
+//! [`CEILING_LIGHT_RADIANCE`]), so drawing lights by power differs from drawing them
+//! uniformly. The many-light case of the survey's ch. 6: a point sees hundreds of lights,
+//! the cars and walls hide many of them, and a few nearby ones dominate.
 
 use glam::Vec3;
 
@@ -203,6 +212,39 @@ pub fn build_sun(detail: f32, seed: u64) -> Result<Setup> {
     Ok(s)
 }
 
+/// Area lights of the `ceiling_lights` variant.
+pub const CEILING_LIGHTS: usize = 1000;
+/// Mean radiance of a ceiling light (W/(m² sr) per channel, warm white).
+pub const CEILING_LIGHT_RADIANCE: [f32; 3] = [60.0, 52.0, 40.0];
+/// Radiance of the `ceiling_lights` variant's night sky.
+pub const NIGHT_RADIANCE: [f32; 3] = [0.01, 0.012, 0.02];
+
+/// The `ceiling_lights` variant (see the module docs). `seed` is unused.
+pub fn build_ceiling_lights(detail: f32, seed: u64) -> Result<Setup> {
+    let mut s = build(detail, seed)?;
+    s.envmap = EnvMap::constant(NIGHT_RADIANCE, super::ENV_RESOLUTION)?;
+    let (nx, nz) = (40, 25);
+    debug_assert_eq!(nx * nz, CEILING_LIGHTS);
+    let (half, y) = (0.06, WALL_HEIGHT - 0.005);
+    for i in 0..CEILING_LIGHTS {
+        let x = -5.85 + 0.3 * (i % nx) as f32;
+        let z = -3.8 + 0.55 * (i / nx) as f32;
+        // A fixed scramble of the index (Knuth's multiplicative hash) in [0, 1).
+        let u = ((i as u64 * 2_654_435_761) % 1000) as f32 / 1000.0;
+        let radiance = CEILING_LIGHT_RADIANCE.map(|c| c * (0.25 + 1.5 * u));
+        // Counter-clockwise seen from below: normal -y.
+        let quad = [
+            [x - half, y, z - half],
+            [x + half, y, z - half],
+            [x + half, y, z + half],
+            [x - half, y, z + half],
+        ];
+        s.scene
+            .add_area_light(&quad, radiance, Some(format!("ceiling_light{i}")))?;
+    }
+    Ok(s)
+}
+
 /// The default environment: bright windows, mostly occluded from under the roof (see the
 /// module docs).
 pub fn envmap() -> Result<EnvMap> {
@@ -275,6 +317,39 @@ mod tests {
         );
         assert!(under >= 36, "{under} of 48 under the roof");
         assert!(sum / n as f32 > 0.6, "mean occlusion {}", sum / n as f32);
+    }
+
+    #[test]
+    fn the_ceiling_lights_variant_has_its_lights_under_the_roof_facing_down() {
+        let s = crate::scenes::load_variant("garage", Some("ceiling_lights"), 0.25, 0).unwrap();
+        let base = build(0.25, 0).unwrap();
+        let lights = s.scene.area_lights();
+        assert_eq!(lights.len(), CEILING_LIGHTS);
+        assert_eq!(
+            s.scene.num_objects(),
+            base.scene.num_objects() + CEILING_LIGHTS
+        );
+        for l in lights {
+            for t in l.triangles() {
+                let n = (t[1] - t[0]).cross(t[2] - t[0]);
+                assert!(n.y < 0.0 && n.x == 0.0 && n.z == 0.0, "{n}");
+                for v in t {
+                    assert!((v.y - (WALL_HEIGHT - 0.005)).abs() < 1e-6);
+                    assert!(v.x.abs() < 6.0 && v.z > -4.0 && v.z < ROOF_FRONT);
+                }
+            }
+        }
+        // Radiances span the documented range, so power differs from uniform.
+        let red: Vec<f32> = lights.iter().map(|l| l.radiance().x).collect();
+        let (lo, hi) = red
+            .iter()
+            .fold((f32::MAX, 0.0f32), |(a, b), &r| (a.min(r), b.max(r)));
+        assert!(
+            lo >= 0.25 * CEILING_LIGHT_RADIANCE[0] - 1e-3 && lo < 0.3 * CEILING_LIGHT_RADIANCE[0]
+        );
+        assert!(
+            hi <= 1.75 * CEILING_LIGHT_RADIANCE[0] + 1e-3 && hi > 1.7 * CEILING_LIGHT_RADIANCE[0]
+        );
     }
 
     #[test]

@@ -48,6 +48,9 @@
 //! | `garage`, `sun`            | map: [`daylight`] with a low sun under the roof's edge | a sun patch on the floor inside whose bounce lights the walls and the roof's underside | 0.29 |
 //! | `room`, `sunlit`           | map: sun through the back windows; camera turned away from them | a sun-lit interior where indirect light dominates | 0.70 |
 //!
+//! One variant is not for indirect light: `garage`, `ceiling_lights` (night map, 1,000 small
+//! area lights under the roof: many lights, survey ch. 6's importance caching).
+//!
 //! **Animated setups** ([`load_animated`], [`ANIMATED_NAMES`]): `dynamics` has a variant
 //! whose sphere rolls back and forth; [`Setup::at_frame`] moves it (see [`animation`]).
 //! Frame 0 of an animated setup is its static setup, triangle for triangle.
@@ -160,10 +163,11 @@ pub const ANIMATED_NAMES: [&str; 1] = ["dynamics"];
 /// Named variants of built-in setups, as (scene, variant) pairs, in a fixed order; each
 /// scene module's docs describe its variants. The default setups ([`load`]) are unchanged by
 /// them.
-pub const VARIANTS: [(&str, &str); 4] = [
+pub const VARIANTS: [(&str, &str); 5] = [
     ("cornell", "glossy_floor"),
     ("cornell", "semiglossy_floor"),
     ("garage", "sun"),
+    ("garage", "ceiling_lights"),
     ("room", "sunlit"),
 ];
 
@@ -252,6 +256,7 @@ pub fn load_variant(name: &str, variant: Option<&str>, detail: f32, seed: u64) -
             cornell::build_glossy_floor(detail, seed, cornell::SEMIGLOSSY_EXPONENT)?
         }
         ("garage", "sun") => garage::build_sun(detail, seed)?,
+        ("garage", "ceiling_lights") => garage::build_ceiling_lights(detail, seed)?,
         ("room", "sunlit") => room::build_sunlit(detail, seed)?,
         _ => {
             let valid = variants(name)?;
