@@ -241,7 +241,8 @@ def test_irradiance_cache_experiment_smoke(tmp_path, monkeypatch):
     gains = data["cornell/gradient_gain_interpolation"]
     assert [(g["a"], g["gradients"]) for g in gains] == [(0.2, "both"), (0.4, "both")]
     eq = {o["method"]: o for o in data["cornell/equal_time"]}
-    assert set(eq) == {"path", "vpl"} and eq["path"]["spp"] >= 1
+    assert set(eq) == {"path", "vpl", "vf"} and eq["path"]["spp"] >= 1
+    assert eq["vf"]["budget_factor"] == pytest.approx(eq["vf"]["seconds"] / d["seconds"])
     assert eq["path"]["mean_spp"] >= eq["path"]["spp"]
     assert all(o["seconds"] > 0 and np.isfinite(o["relmse"]) for o in eq.values())
     whole = data["cornell/whole_image"]
@@ -259,6 +260,13 @@ def test_irradiance_cache_experiment_smoke(tmp_path, monkeypatch):
         assert r is None or r > 0
         if met:
             assert summary[met] is (None if r is None else r <= 0.1)
+    # Against VF: the relMSE ratio where VF took at least the cache's time, else the
+    # efficiency's.
+    vf_ratio, vf_met = summary["relmse_ratio_to_vf"], summary["vf_target_met"]
+    if vf_ratio is not None:
+        by = (vf_ratio if eq["vf"]["seconds"] >= d["seconds"]
+              else 1 / summary["efficiency_gain_over_vf"])
+        assert vf_met is (by <= 0.5)
     md = (out / "results.md").read_text()
     assert "## Targets (issue 62 §5)" in md and "| cornell | 0.4 | both | on |" in md
     for name in ("cornell_records.png", "cornell_relmse_vs_a.png", "cornell_equal_time.png",
