@@ -203,6 +203,20 @@ def test_relight_experiment_smoke(tmp_path, monkeypatch):
     assert "Where the estimated bound holds" in md and "| garage_rot45 | cache | 0.25 |" in md
 
 
+def test_the_edge_band_grows_from_the_creases():
+    from viscache_rs.experiments.irradiance_cache import edge_band
+
+    setup = vc.scenes.load("cornell")
+    cam = setup.camera.with_resolution(64, 48)
+    bands = [edge_band(setup, cam, 2, width=w) for w in (0, 1, 4)]
+    # Width 0: the creases alone (the box's corners and the blocks' edges).
+    assert 0 < bands[0].sum() < 0.2 * bands[0].size
+    for thin, wide in zip(bands[:-1], bands[1:], strict=True):
+        assert (wide >= thin).all() and wide.sum() > thin.sum()
+    hits = setup.scene.gbuffer(cam, jitter=False)["object"] >= 0
+    assert not (bands[-1] & ~hits).any()
+
+
 def test_irradiance_cache_experiment_smoke(tmp_path, monkeypatch):
     from viscache_rs import experiments
     from viscache_rs.experiments import irradiance_cache
@@ -231,6 +245,9 @@ def test_irradiance_cache_experiment_smoke(tmp_path, monkeypatch):
     # Gradients change the interpolation, not the records.
     assert grid[0]["records"] == grid[1]["records"] > grid[2]["records"] == grid[3]["records"]
     assert all(0 <= r["misses"] < r["lookups"] for r in grid)
+    band = data["cornell/edge_band"]
+    assert 0 < band["pixels"] <= 24 * 18 and band["clamping_gain"] == []  # no clamp=off row
+    assert all(np.isfinite(r["edge_relmse"]) for r in grid)
     # The interpolation's own error: gradients lower it (measured 2-3x on cornell), and a
     # per-pixel cache gives every point its own record.
     for a in (0.2, 0.4):

@@ -26,12 +26,16 @@ rerun with the same size, samples and seed). Outputs:
   one bounce: the cache with ``direct=True``, 16 spp) against ``"path"`` (bounces=1,
   direct=True) given its seconds, against a reference that is the sum of the indirect one
   and ``"mis"`` at the same samples;
+- near creases (pixels within 8 of a turn of the surface by over 60 degrees: floor-wall
+  edges) the relMSE of every grid row, and what neighbour clamping buys there (1 -
+  relMSE(on) / relMSE(off) at equal a and gradients);
 - records of the default cache built for 256x192, 512x384 and 1024x768 (quick: 64x48,
   128x96, 256x192) and their ratio (Algorithm 1's promise: sparse records).
 
 Targets (issue 62 §5): relMSE at equal time <= 0.1x ``"path"``'s and <= 0.5x ``"vf"``'s
 on cornell, garage and room; gradients lower relMSE by >= 30% at equal a; records <= 3x
-from 256x192 to 1024x768 (16x the pixels). results.json, results.md, EXR/PNG images and plots
+from 256x192 to 1024x768 (16x the pixels); neighbour clamping lowers relMSE within 8 pixels
+of floor-wall edges by >= 20%. results.json, results.md, EXR/PNG images and plots
 (``{scene}_relmse_vs_a.png``, ``{scene}_equal_time.png``, ``records_vs_pixels.png``).
 ``--quick`` runs in about a minute on 2 cores; full mode takes tens of minutes.
 """
@@ -52,6 +56,9 @@ DESCRIPTION = __doc__
 #: Targets of issue 62 §5.
 TARGET_PATH_RATIO = 0.1
 TARGET_VF_RATIO = 0.5
+TARGET_CLAMPING_GAIN = 0.2
+#: Width (pixels) of the band about creases where neighbour clamping is measured.
+EDGE_BAND_PIXELS = 8
 TARGET_GRADIENT_GAIN = 0.3
 TARGET_RECORD_RATIO = 3.0
 
@@ -195,6 +202,7 @@ def run(ctx: ExperimentContext) -> None:
 
         # a x gradients x clamping: the render's error, and the interpolation's alone.
         exact = PerPixel(setup, s["interpolation_size"], ctx)
+        band = edge_band(setup, cam, ctx.threads)
         grid: list[dict[str, Any]] = []
         for clamp in s["clamp"]:
             for a in s["a"]:
@@ -203,7 +211,8 @@ def run(ctx: ExperimentContext) -> None:
                     r = ic(**params)
                     row = {"a": a, "gradients": g, "clamp": clamp,
                            **ic_row(r, errors(r.image, ref)),
-                           "interpolation_relmse": exact.error(params)}
+                           "interpolation_relmse": exact.error(params),
+                           "edge_relmse": band_error(r.image, ref, band)}
                     grid.append(row)
                     grid_rows.append([label, a, g, "on" if clamp else "off", row["records"],
                                       row["build_seconds"], row["interpolation_seconds"],
@@ -217,6 +226,10 @@ def run(ctx: ExperimentContext) -> None:
         interp_gains = gradient_gains(grid, "interpolation_relmse")
         ctx.record(f"{label}/gradient_gain", gains)
         ctx.record(f"{label}/gradient_gain_interpolation", interp_gains)
+        clamp_gains = clamping_gains(grid)
+        ctx.record(f"{label}/edge_band", {"pixels": int(band.sum()),
+                                          "share": float(band.mean()),
+                                          "clamping_gain": clamp_gains})
         relmse_vs_a_figure(ctx, plt, label, grid, s)
 
         # Equal time against paths and VPLs.
@@ -288,12 +301,16 @@ def run(ctx: ExperimentContext) -> None:
             "gradient_gain_mean": float(np.mean(both)) if both else None,
             "interpolation_gradient_gain_min": min(both_interp, default=None),
             "record_ratio": record_ratio,
+            "edge_clamping_gain_min": min((g["gain"] for g in clamp_gains), default=None),
             "whole_image_ratio_to_path": ratio(icd_row["relmse"], pd_row["relmse"]),
             "path_target_met": None if ratio_path is None else ratio_path <= TARGET_PATH_RATIO,
             "vf_target_met": vf_target(default, vf_row),
             "gradient_target_met": (None if not both else
                                     min(both) >= TARGET_GRADIENT_GAIN),
             "record_target_met": record_ratio <= TARGET_RECORD_RATIO,
+            "clamping_target_met": (None if not clamp_gains else
+                                    min(g["gain"] for g in clamp_gains)
+                                    >= TARGET_CLAMPING_GAIN),
         }
         ctx.record(f"{label}/summary", summary[label])
         d = default
@@ -335,14 +352,15 @@ def run(ctx: ExperimentContext) -> None:
                "relMSE / vf's (<= 0.5)",
                "gradient gain min (>= 0.3)", "gradient gain mean",
                "interpolation gradient gain min", "records ratio (<= 3)",
-               "whole image / path's", "met: path, vf, gradients, records"],
+               f"edge clamping gain min (>= {TARGET_CLAMPING_GAIN})",
+               "whole image / path's", "met: path, vf, gradients, records, clamping"],
               [[k, v["relmse_ratio_to_path"], v["relmse_ratio_to_vpl"],
                 v["relmse_ratio_to_vf"],
                 v["gradient_gain_min"], v["gradient_gain_mean"],
                 v["interpolation_gradient_gain_min"], v["record_ratio"],
-                v["whole_image_ratio_to_path"],
+                v["edge_clamping_gain_min"], v["whole_image_ratio_to_path"],
                 ", ".join({True: "yes", False: "no", None: "n/a"}[v[f"{t}_target_met"]]
-                          for t in ("path", "vf", "gradient", "record"))]
+                          for t in ("path", "vf", "gradient", "record", "clamping"))]
                for k, v in summary.items()])
     ctx.note("relMSE is on RGB against the reference, minus the reference's own variance "
              "share (so small values may dip below 0 where the error is within the "
@@ -401,6 +419,56 @@ def vf_target(cache: dict[str, Any], vf: dict[str, Any]) -> bool | None:
         return r <= TARGET_VF_RATIO
     gain = ratio(cache["efficiency"], vf["efficiency"])
     return None if gain is None else 1.0 / gain <= TARGET_VF_RATIO
+
+
+def edge_band(setup, cam, threads, width: int = EDGE_BAND_PIXELS) -> np.ndarray:
+    """Pixels within ``width`` pixels of a crease (floor-wall edges and the like): where
+    two neighbouring pixels' surfaces turn by more than 60 degrees, both hits. (H, W) bool."""
+    g = setup.scene.gbuffer(cam, jitter=False, threads=threads)
+    n, hit = np.asarray(g["normal"], np.float64), np.asarray(g["object"]) >= 0
+    crease = np.zeros(hit.shape, bool)
+    for axis in (0, 1):
+        a = [slice(None)] * 2
+        b = [slice(None)] * 2
+        a[axis], b[axis] = slice(None, -1), slice(1, None)
+        turn = ((n[tuple(a)] * n[tuple(b)]).sum(axis=-1) < 0.5) & hit[tuple(a)] & hit[tuple(b)]
+        crease[tuple(a)] |= turn
+        crease[tuple(b)] |= turn
+    # Dilate by `width` in both directions (a square window), rows then columns.
+    out = crease.copy()
+    for axis in (0, 1):
+        grown = out.copy()
+        for k in range(1, width + 1):
+            lo = [slice(None)] * 2
+            hi = [slice(None)] * 2
+            lo[axis], hi[axis] = slice(None, -k), slice(k, None)
+            grown[tuple(lo)] |= out[tuple(hi)]
+            grown[tuple(hi)] |= out[tuple(lo)]
+        out = grown
+    return out & hit
+
+
+def band_error(image, ref: dict[str, Any], band: np.ndarray) -> float:
+    """relMSE on RGB over the pixels of ``band`` (the reference's variance share
+    subtracted); NaN for an empty band."""
+    if not band.any():
+        return float("nan")
+    img = np.asarray(image, np.float64)[band][None]
+    return vc.metrics.relmse(img, ref["image"][band][None], ref["variance"][band][None])
+
+
+def clamping_gains(grid: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """1 - edge relMSE(clamping on) / (off) at every (a, gradients) with both rows."""
+    out = []
+    for row in grid:
+        off = next((r for r in grid if not r["clamp"] and r["a"] == row["a"]
+                    and r["gradients"] == row["gradients"]), None)
+        if not row["clamp"] or off is None:
+            continue
+        r = ratio(row["edge_relmse"], off["edge_relmse"])
+        if r is not None:
+            out.append({"a": row["a"], "gradients": row["gradients"], "gain": 1.0 - r})
+    return out
 
 
 def gradient_gains(grid: list[dict[str, Any]], key: str) -> list[dict[str, Any]]:
