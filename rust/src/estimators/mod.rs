@@ -11,4 +11,5 @@ pub mod irradiance;
 pub mod many_lights;
 pub mod normal_products;
 pub mod preview;
+pub mod stochastic_visibility;
 pub mod vf;
