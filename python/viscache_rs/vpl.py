@@ -11,7 +11,9 @@ of its first ``depth`` hits (light that bounced that many times). With ``importa
 divided by it: unbiased, with the VPLs where the camera looks. ``lights=False`` keeps no
 light VPLs (``count`` then counts VPLs of indirect light only). ``.positions``,
 ``.normals``, ``.flux`` (N, 3) float32, ``.incident``, ``.bounces`` (generation, 0 for light
-VPLs), ``.kinds`` (0 area-light point, 1 map direction, 2 surface), ``len()``, ``.stats``.
+VPLs), ``.kinds`` (0 area-light point, 1 directional light, 2 surface, 3 whole area
+light), ``.area_points`` (the fixed points of each whole area light), ``len()``,
+``.stats``.
 ``VPLs.from_lights(scene, positions, normals, flux)`` makes cosine point lights;
 ``VPLs.from_surface(scene, positions, normals, irradiance, areas, objects)`` first-bounce
 surface VPLs (VF's proxies: flux ``irradiance * area``, the object's material).
