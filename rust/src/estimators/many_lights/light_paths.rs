@@ -323,7 +323,7 @@ impl Vpl {
         let s = light.sample(sp.origin, u[0], Vec2::new(u[1], u[2]))?;
         // `s.pdf = d² / (A cos θ_y)` (solid angle), so `cos θ_y / d² = 1 / (A pdf)`.
         let cos_x = sp.normal.dot(s.direction);
-        if !(cos_x > 0.0) {
+        if cos_x.is_nan() || cos_x <= 0.0 {
             return None;
         }
         let mut g = (cos_x as f64 / (light.area() * s.pdf)) as f32;
@@ -337,7 +337,7 @@ impl Vpl {
         // From the receiver to the point, stopping short of the light's own triangle (as
         // the direct estimators' shadow rays to area lights).
         let tmax = scene.segment_end(s.distance, s.point);
-        if !(tmax > 0.0) {
+        if tmax.is_nan() || tmax <= 0.0 {
             return None;
         }
         Some(Connection {
