@@ -158,3 +158,17 @@ def test_bad_input_is_named():
             lights.view_share(setup, width=width)
     with pytest.raises(ValueError, match="vpls"):
         vc.VPLs.from_directions(bare, good, [[1.0] * 3]).view_share(setup)
+
+
+@pytest.mark.parametrize("method", ["vpl", "vpl_sampled"])
+def test_area_light_renders_are_bit_identical_for_any_thread_count(method):
+    setup = lit_room()
+    lights = vc.VPLs.from_area_lights(setup.scene, points=4) + vc.VPLs.from_directions(
+        setup.scene, [[0.2, 1.0, 0.1]], [[0.5, 0.5, 0.5]])
+    ra, rb = (vc.render(setup, method=method, vpls=lights, spp=3, seed=6, threads=t,
+                        progress=False) for t in (1, 2))
+    np.testing.assert_array_equal(ra.image, rb.image)
+    np.testing.assert_array_equal(ra.variance, rb.variance)
+    # Another seed samples other points on the lights.
+    rc = vc.render(setup, method=method, vpls=lights, spp=3, seed=7, threads=2, progress=False)
+    assert np.any(rc.image != ra.image)
