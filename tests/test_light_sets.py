@@ -115,8 +115,13 @@ def test_view_share_with_and_without_importance():
     b = aimed.view_share(setup, camera=cam, width=24, threads=2)
     assert a["total"] == len(plain) and 0 < a["contributing"] <= a["total"]
     assert a["share"] == a["contributing"] / a["total"]
-    # Algorithm 11 keeps VPLs the view sees: a larger share reaches it.
+    # Algorithm 11 keeps VPLs the view sees: a larger share reaches it, of the surface
+    # VPLs (kind 2) it decides on too.
     assert b["share"] > a["share"]
+    (ca, ta), (cb, tb) = a["by_kind"][2], b["by_kind"][2]
+    assert cb / tb > ca / ta
+    assert sum(t for _, t in a["by_kind"].values()) == a["total"]
+    assert sum(c for c, _ in a["by_kind"].values()) == a["contributing"]
     assert b == aimed.view_share(setup, camera=cam, width=24, threads=1)
 
 

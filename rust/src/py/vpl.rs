@@ -14,6 +14,7 @@ use super::convert::{
 use super::envmap::PyEnvMap;
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
+use crate::estimators::many_lights::light_paths::kind_index;
 use crate::lights::vpl::{
     Importance, TraceParams, VplKind, VplSet, MAX_AREA_POINTS, MAX_DEPTH, MAX_VPLS,
 };
@@ -270,7 +271,8 @@ impl PyVpls {
 
     /// The share of the lights that reach the view of `setup`'s camera (or `camera`): a
     /// positive, unoccluded term at one pixel centre at least of a G-buffer `width` pixels
-    /// wide. Returns `{"share", "contributing", "total", "points"}`.
+    /// wide. Returns `{"share", "contributing", "total", "points", "by_kind"}`, the last
+    /// `{kind: (contributing, total)}` for the kinds the set holds (codes of `.kinds`).
     #[pyo3(signature = (setup, camera=None, width=64, threads=None))]
     fn view_share<'py>(
         &self,
@@ -298,6 +300,13 @@ impl PyVpls {
         d.set_item("contributing", share.contributing)?;
         d.set_item("total", share.total)?;
         d.set_item("points", share.points)?;
+        let kinds = PyDict::new(py);
+        for (k, &(c, t)) in share.by_kind.iter().enumerate() {
+            if t > 0 {
+                kinds.set_item(k, (c, t))?;
+            }
+        }
+        d.set_item("by_kind", kinds)?;
         Ok(d)
     }
 
@@ -408,14 +417,7 @@ impl PyVpls {
             .inner
             .vpls
             .iter()
-            .map(|v| {
-                [match v.kind {
-                    VplKind::Emitter => 0,
-                    VplKind::Env => 1,
-                    VplKind::Surface => 2,
-                    VplKind::Area { .. } => 3,
-                }]
-            })
+            .map(|v| [kind_index(v.kind) as i8])
             .collect();
         rows_array(py, rows)?.call_method1("reshape", (-1,))
     }

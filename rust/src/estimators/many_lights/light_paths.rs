@@ -1071,6 +1071,19 @@ pub struct ViewShare {
     pub total: u64,
     /// First hits of the view's G-buffer (the points tested).
     pub points: u64,
+    /// `contributing` and `total` per kind, indexed by [`kind_index`].
+    pub by_kind: [(u64, u64); 4],
+}
+
+/// A kind's index in [`ViewShare::by_kind`] (and Python's `VPLs.kinds`): 0 emitter point,
+/// 1 directional, 2 surface, 3 whole area light.
+pub fn kind_index(kind: VplKind) -> usize {
+    match kind {
+        VplKind::Emitter => 0,
+        VplKind::Env => 1,
+        VplKind::Surface => 2,
+        VplKind::Area { .. } => 3,
+    }
 }
 
 impl ViewShare {
@@ -1284,7 +1297,7 @@ impl VplSet {
         crate::error::check_range("width", width, 1, 1024)?;
         let points = view_points(scene, camera, width, threads)?;
         let disk_area = self.disk_area;
-        let (contributing, counters) = with_threads(threads, || {
+        let (hits, counters) = with_threads(threads, || {
             self.vpls
                 .par_iter()
                 .map(|v| {
@@ -1292,21 +1305,26 @@ impl VplSet {
                     let hit = points
                         .iter()
                         .any(|r| reaches(scene, v, r, disk_area, &mut c));
-                    (hit as u64, c)
+                    (hit, c)
                 })
-                .reduce(
-                    || (0, TraversalCounters::default()),
-                    |(a, mut ca), (b, cb)| {
-                        ca += cb;
-                        (a + b, ca)
-                    },
-                )
+                .unzip::<bool, TraversalCounters, Vec<bool>, Vec<TraversalCounters>>()
         })?;
-        scene.add_counters(counters);
+        let mut total = TraversalCounters::default();
+        for c in counters {
+            total += c;
+        }
+        scene.add_counters(total);
+        let mut by_kind = [(0u64, 0u64); 4];
+        for (v, hit) in self.vpls.iter().zip(&hits) {
+            let k = &mut by_kind[kind_index(v.kind)];
+            k.0 += *hit as u64;
+            k.1 += 1;
+        }
         Ok(ViewShare {
-            contributing,
+            contributing: by_kind.iter().map(|k| k.0).sum(),
             total: self.len() as u64,
             points: points.len() as u64,
+            by_kind,
         })
     }
 }

@@ -615,6 +615,7 @@ fn view_share_counts_the_lights_the_view_sees() {
     let s = set.view_share(&scene, &cam, 16, Some(2)).unwrap();
     assert_eq!((s.contributing, s.total), (3, 4));
     assert!(s.points > 0 && (s.fraction() - 0.75).abs() < 1e-12);
+    assert_eq!(s.by_kind, [(0, 0), (2, 3), (0, 0), (1, 1)]);
     assert_eq!(s, set.view_share(&scene, &cam, 16, Some(1)).unwrap());
     let other = lit_plane(false);
     assert!(set
