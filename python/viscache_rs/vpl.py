@@ -11,10 +11,32 @@ of its first ``depth`` hits (light that bounced that many times). With ``importa
 divided by it: unbiased, with the VPLs where the camera looks. ``lights=False`` keeps no
 light VPLs (``count`` then counts VPLs of indirect light only). ``.positions``,
 ``.normals``, ``.flux`` (N, 3) float32, ``.incident``, ``.bounces`` (generation, 0 for light
-VPLs), ``.kinds`` (0 area-light point, 1 map direction, 2 surface), ``len()``, ``.stats``.
+VPLs), ``.kinds`` (0 area-light point, 1 directional light, 2 surface, 3 whole area
+light), ``.area_points`` (the fixed points of each whole area light), ``len()``,
+``.stats``.
 ``VPLs.from_lights(scene, positions, normals, flux)`` makes cosine point lights;
 ``VPLs.from_surface(scene, positions, normals, irradiance, areas, objects)`` first-bounce
 surface VPLs (VF's proxies: flux ``irradiance * area``, the object's material).
+
+Other lights in the same set type (survey sec. 6.3, the directional and surface lights of
+Fig. 6.5): ``VPLs.from_envmap(env_or_setup, level=4, scene=None)`` makes the map one
+directional light per texel of its octahedral level ``level`` (``4**level`` lights; the
+texel's ``sum(radiance * solid angle)`` as the irradiance it gives a surface facing it,
+from the luminance-weighted mean of its directions, so a sun keeps its direction; black
+texels make none); ``VPLs.from_directions(scene, directions, irradiance)`` directional
+lights such as a sun (the built-in setups carry their sun inside the map, so this is how
+to give one on its own); ``VPLs.from_area_lights(scene, points=16)`` the scene's area
+lights as one light each (``.kinds`` 3): what distributions read of it (``sampling=
+"unoccluded"``) is the quadrature over ``points`` fixed stratified points on it, floored
+to stay positive wherever the light can reach, and a render that picks it samples a fresh
+point by area for each shadow ray, so ``"vpl"`` (one shadow ray per light and pixel
+sample) and ``"vpl_sampled"`` stay unbiased for the true area light. ``a + b`` is the union
+of two sets of the same scene (``ValueError`` naming ``other`` otherwise): directional
+fluxes are rescaled to one disk and the stats add (``mean_contribution`` weighted by
+pilot paths). ``vpls.view_share(setup, camera=None, width=64)`` counts the lights with a
+positive, unoccluded term at one pixel centre at least of a ``width``-wide G-buffer (area
+lights through their fixed points): ``{"share", "contributing", "total", "points"}``,
+e.g. to see what Algorithm 11's ``importance=True`` buys.
 
 ``vc.render(setup, method="vpl", vpls=..., clamp=None, direct=True)`` sums every VPL's
 term (survey eq. 6.1) with one shadow ray each at the first hit of every pixel sample

@@ -21,6 +21,12 @@
 //!   do not depend on the pixel: their table is built once per render. The per-pixel hook
 //!   is where importance caching (survey §6.2.3) puts its cached distributions.
 //!
+//! An area light held as one light ([`VplKind::Area`]) is a point VPL for the distributions
+//! (its weight is [`Vpl::unoccluded`]: a quadrature over fixed points, positive wherever it
+//! can contribute) but not for the estimate: each time it is gathered, [`Gather::Full`] once
+//! per pixel sample and [`Gather::Sampled`] once per draw, a fresh point on it is sampled by
+//! area ([`Vpl::sample_area`]), so both gathers stay unbiased for the true area light.
+//!
 //! With `clamp`, the geometry term is `min(G, clamp)`: this removes the bright spots that
 //! VPLs near a receiver make (`1/d²`) and is biased (dark corners, the light of short
 //! paths lost); without (the default) the sum is unbiased for the set.
@@ -220,7 +226,7 @@ pub struct Unoccluded {
 impl VplDistribution for Unoccluded {
     fn weights(
         &self,
-        _scene: &Scene,
+        scene: &Scene,
         _pixel: usize,
         r: &VplReceiver,
         vpls: &[Vpl],
@@ -228,9 +234,7 @@ impl VplDistribution for Unoccluded {
         weights: &mut [f64],
     ) {
         for (w, v) in weights.iter_mut().zip(vpls) {
-            *w = v
-                .connect(r, self.clamp, disk_area)
-                .map_or(0.0, |c| luminance(c.value) as f64);
+            *w = luminance(v.unoccluded(scene, r, self.clamp, disk_area)) as f64;
         }
     }
 }
@@ -319,6 +323,7 @@ pub struct Scratch {
     cdf: Vec<f64>,
     shading: Vec<(usize, VplReceiver)>,
     acc: Vec<DVec3>,
+    rngs: Vec<SampleRng>,
 }
 
 /// Reusable buffers of a tile's batches.
@@ -453,10 +458,15 @@ impl Lanes {
 
 /// The full sum of eq. 6.1 at the receivers of one tile (up to 16 pixels, `shading`
 /// holds their indices into `points`); adds each to `out`.
+///
+/// An area light ([`VplKind::Area`]) takes one fresh point per receiver
+/// ([`Vpl::sample_area`]), read from `rngs[k]` (receiver `k`'s stream, dimensions
+/// `3 j ..= 3 j + 2` for the `j`-th area light of `vpls`).
 #[allow(clippy::too_many_arguments)]
 fn gather_full(
     scene: &Scene,
     points: &[(usize, VplReceiver)],
+    rngs: &[SampleRng],
     vpls: &[Vpl],
     disk_area: f32,
     clamp: Option<f32>,
@@ -467,7 +477,8 @@ fn gather_full(
     // Point VPLs: rays from the VPL to each receiver of the tile (one origin per run).
     let lanes = Lanes::new(points);
     for block in vpls.chunks(VPL_BLOCK) {
-        for v in block.iter().filter(|v| v.kind != VplKind::Env) {
+        let point = |v: &&Vpl| !(v.kind == VplKind::Env || v.kind.is_area());
+        for v in block.iter().filter(point) {
             match (&lanes, v.diffuse_intensity()) {
                 (Some(lanes), Some(intensity)) => {
                     lanes.connect(v, intensity, clamp, batch);
@@ -495,7 +506,27 @@ fn gather_full(
             batch.flush(scene, out, work)?;
         }
     }
+    // Area lights: rays from each receiver to a fresh point on each light.
+    let areas: Vec<&Vpl> = vpls.iter().filter(|v| v.kind.is_area()).collect();
+    for (k, (_, r)) in points.iter().enumerate() {
+        for (b, block) in areas.chunks(VPL_BLOCK * 16).enumerate() {
+            for (i, v) in block.iter().enumerate() {
+                let d = 3 * (b * VPL_BLOCK * 16 + i) as u64;
+                let u = [rngs[k].get(d), rngs[k].get(d + 1), rngs[k].get(d + 2)];
+                if let Some(c) = v.sample_area(scene, r, clamp, u) {
+                    batch.push(c, k);
+                }
+            }
+            batch.flush(scene, out, work)?;
+        }
+    }
     Ok(())
+}
+
+/// The stream of the points sampled on area lights by sample `s` of `pixel` (apart from
+/// the draws' stream of [`gather_sampled`]).
+fn area_rng(seed: u64, pixel: usize, s: u32) -> SampleRng {
+    SampleRng::new(mix64(seed ^ 0x4152_4541_4c49_4748), pixel as u64, s as u64)
 }
 
 /// One sample of [`Gather::Sampled`] at `sp`: the estimate and the variance of its mean
@@ -528,12 +559,25 @@ fn gather_sampled(
         return (DVec3::ZERO, DVec3::ZERO);
     }
     let rng = SampleRng::new(params.seed, pixel as u64, sample as u64);
+    let points = area_rng(params.seed, pixel, sample);
     let (mut sum, mut sum2) = (DVec3::ZERO, DVec3::ZERO);
     for m in 0..draws as u64 {
         let u = rng.get(m) as f64 * total;
         let k = cdf.partition_point(|&c| c <= u).min(vpls.len() - 1);
         let p = (cdf[k] - if k == 0 { 0.0 } else { cdf[k - 1] }) / total;
-        let x = match vpls[k].connect(r, params.clamp, disk_area) {
+        let v = &vpls[k];
+        let connection = if v.kind.is_area() {
+            // A fresh point on the light for each draw.
+            let u = [
+                points.get(3 * m),
+                points.get(3 * m + 1),
+                points.get(3 * m + 2),
+            ];
+            v.sample_area(scene, r, params.clamp, u)
+        } else {
+            v.connect(r, params.clamp, disk_area)
+        };
+        let x = match connection {
             Some(c) if p > 0.0 => {
                 work.shadow_rays += 1;
                 if scene.occluded1(c.origin, c.direction, c.tmax, &mut work.counters) {
@@ -705,9 +749,17 @@ impl<'a> Gatherer<'a> {
         }
         scratch.acc.clear();
         scratch.acc.resize(scratch.shading.len(), DVec3::ZERO);
+        scratch.rngs.clear();
+        scratch.rngs.extend(
+            scratch
+                .shading
+                .iter()
+                .map(|(slot, _)| area_rng(self.params.seed, tile[*slot], s)),
+        );
         gather_full(
             self.scene,
             &scratch.shading,
+            &scratch.rngs,
             &self.used,
             self.disk_area,
             self.params.clamp,

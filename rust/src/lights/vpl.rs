@@ -8,7 +8,8 @@ use glam::{DVec3, Vec3};
 
 use crate::bsdf::Material;
 use crate::error::{Error, Result};
-use crate::math::LUMINANCE_F32;
+use crate::lights::AreaLight;
+use crate::math::{triangle_cross, LUMINANCE_F32};
 
 /// Largest number of VPLs a set may hold.
 pub const MAX_VPLS: u64 = 1 << 26;
@@ -28,13 +29,33 @@ pub enum VplKind {
     /// A light-path hit: reflects its incident flux `Φ` (arriving from `incident`) by
     /// `material`.
     Surface,
+    /// A whole area light of the scene (`light - 1` indexes `Scene::area_lights`) of power
+    /// `Φ = π A L̄`. Its term without visibility at a receiver (what distributions read) is
+    /// the quadrature over `points` fixed stratified points on it ([`area_points`]); a
+    /// gather that picks it samples a fresh point by area for its shadow ray, so the
+    /// estimate stays unbiased for the true area light.
+    Area {
+        /// `K >= 1`, the fixed points of the quadrature.
+        points: u32,
+    },
+}
+
+impl VplKind {
+    /// True for [`VplKind::Area`].
+    #[inline(always)]
+    pub fn is_area(self) -> bool {
+        matches!(self, VplKind::Area { .. })
+    }
 }
 
 /// One virtual point light.
 ///
 /// Invariants: `flux` finite and `>= 0` per channel; `normal` unit; `incident` unit for
 /// [`VplKind::Surface`] (zero otherwise); `origin` is `position` moved off the surface
-/// along `normal` by the scene's epsilon (the start of its shadow rays).
+/// along `normal` by the scene's epsilon (the start of its shadow rays). For
+/// [`VplKind::Area`], `position` is the light's area-weighted centroid and `normal` its
+/// area-weighted mean normal (for display and bounds); its shadow rays start at sampled
+/// points.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Vpl {
     /// Position (world units); meaningless for [`VplKind::Env`] (zero).
@@ -54,7 +75,8 @@ pub struct Vpl {
     /// Generation: 0 for light VPLs, `j >= 1` for the `j`-th hit of a path.
     pub bounce: u32,
     /// The light its path started at: 0 the map, `k >= 1` area light `k - 1`
-    /// ([`u32::MAX`] for [`VplSet::from_lights`]).
+    /// ([`u32::MAX`] for user-given lights: `VplSet::from_lights`,
+    /// `VplSet::from_directions`). For [`VplKind::Area`], the area light it is (`k >= 1`).
     pub light: u32,
 }
 
@@ -63,7 +85,7 @@ impl Vpl {
     /// or an emitter), W/sr per channel: its term is then `f_x Φ f_v G`.
     pub fn diffuse_intensity(&self) -> Option<Vec3> {
         match (self.kind, self.material) {
-            (VplKind::Env, _) => None,
+            (VplKind::Env | VplKind::Area { .. }, _) => None,
             (VplKind::Surface, Material::Lambert { albedo }) => {
                 Some(self.flux * Vec3::from(albedo) * std::f32::consts::FRAC_1_PI)
             }
@@ -235,5 +257,163 @@ impl VplSet {
             .filter(|v| v.bounce == bounce)
             .map(|v| v.flux.as_dvec3())
             .sum()
+    }
+}
+
+/// Most fixed points per area light ([`VplKind::Area`]).
+pub const MAX_AREA_POINTS: u32 = 1 << 16;
+
+/// One of an area light's fixed quadrature points ([`area_points`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AreaPoint {
+    /// The point on the light (world units).
+    pub position: Vec3,
+    /// Its triangle's unit normal (the side it emits to).
+    pub normal: Vec3,
+    /// Radiance leaving it (W/(m² sr) per channel) times its share of the area, `A / K`
+    /// (m²): its term at a receiver is `f_x · value · cos θ_x cos θ_y / d²`.
+    pub value: Vec3,
+}
+
+/// Van der Corput's radical inverse of `i` in base 2, in `[0, 1)`.
+#[inline]
+fn radical_inverse2(i: u32) -> f32 {
+    (i.reverse_bits() as f64 / 4_294_967_296.0) as f32
+}
+
+/// Calls `f` with the `k` fixed stratified points of `light`: the Hammersley set
+/// `((i + ½)/k, φ₂(i))` of the unit square, its first coordinate walked along the
+/// triangles' cumulative area (so each triangle gets points in proportion to its area)
+/// and both mapped onto the triangle by the square-root warp (uniform by area, as
+/// `AreaLight::sample`). Degenerate triangles get none. `O(T + k)` for `T` triangles.
+pub fn area_points(light: &AreaLight, k: u32, mut f: impl FnMut(AreaPoint)) {
+    let k = k.max(1);
+    let total = light.area();
+    let share = (total / k as f64) as f32;
+    let area_of = |tri: &[Vec3; 3]| 0.5 * triangle_cross(tri).as_dvec3().length();
+    // The last triangle with area takes what rounding leaves past the running sum.
+    let last = light
+        .triangles()
+        .iter()
+        .rposition(|tri| area_of(tri) > 0.0)
+        .unwrap_or(0);
+    let mut before = 0.0f64;
+    let mut i = 0u32;
+    for (t, tri) in light.triangles().iter().enumerate() {
+        let area = area_of(tri);
+        let after = before + area;
+        if area > 0.0 {
+            let n = light.normal(t);
+            // Points whose first coordinate falls in this triangle's share of the area.
+            while i < k {
+                let u0 = (i as f64 + 0.5) / k as f64 * total;
+                if u0 >= after && t < last {
+                    break;
+                }
+                let local = ((u0 - before) / area).clamp(0.0, 1.0 - f64::EPSILON) as f32;
+                let su = local.sqrt();
+                let (b0, b1) = (1.0 - su, radical_inverse2(i) * su);
+                let [a, b, c] = *tri;
+                let y = a * b0 + b * b1 + c * (1.0 - b0 - b1);
+                f(AreaPoint {
+                    position: y,
+                    normal: n,
+                    value: light.radiance_at(y) * share,
+                });
+                i += 1;
+            }
+        }
+        before = after;
+    }
+}
+
+impl TraceStats {
+    /// The figures of two traces together: counts and seconds add, `mean_contribution` is
+    /// the mean of the two weighted by their pilot paths (0 when neither had a pilot).
+    pub fn combined(&self, o: &TraceStats) -> TraceStats {
+        let pilots = self.pilot_paths + o.pilot_paths;
+        let mean_contribution = if pilots > 0 {
+            (self.mean_contribution * self.pilot_paths as f64
+                + o.mean_contribution * o.pilot_paths as f64)
+                / pilots as f64
+        } else {
+            0.0
+        };
+        TraceStats {
+            paths: self.paths + o.paths,
+            pilot_paths: pilots,
+            path_rays: self.path_rays + o.path_rays,
+            shadow_rays: self.shadow_rays + o.shadow_rays,
+            rejected: self.rejected + o.rejected,
+            mean_contribution,
+            seconds: self.seconds + o.seconds,
+        }
+    }
+}
+
+impl VplSet {
+    /// True when the set holds a [`VplKind::Env`] light (whose flux `disk_area` scales).
+    pub fn has_directions(&self) -> bool {
+        self.vpls.iter().any(|v| v.kind == VplKind::Env)
+    }
+
+    /// The union of two sets of the same geometry: `self`'s VPLs, then `other`'s. Both
+    /// sets' lights add up (two estimates of the same light counted twice are twice the
+    /// light: that is the caller's choice). Directional lights keep their irradiance
+    /// `Φ / disk_area`: `other`'s are rescaled to `self`'s disk (or the other way when
+    /// only `other` has any). Stats combine by [`TraceStats::combined`]. Fails naming
+    /// `other` when the fingerprints differ or the union would exceed [`MAX_VPLS`].
+    pub fn concat(&self, other: &VplSet) -> Result<VplSet> {
+        if self.fingerprint != other.fingerprint {
+            return Err(Error::invalid(
+                "other",
+                format!(
+                    "VPLs of another scene (fingerprint {:#018x}, this set's {:#018x})",
+                    other.fingerprint, self.fingerprint
+                ),
+            ));
+        }
+        let n = self.len() as u64 + other.len() as u64;
+        if n > MAX_VPLS {
+            return Err(Error::invalid(
+                "other",
+                format!("the union would hold {n} VPLs, more than {MAX_VPLS}"),
+            ));
+        }
+        crate::error::check_memory(
+            (n as usize).saturating_mul(std::mem::size_of::<Vpl>()),
+            "vpls",
+        )?;
+        // The disk the union's directional fluxes are normalised by.
+        let disk_area = if self.has_directions() || !other.has_directions() {
+            self.disk_area
+        } else {
+            other.disk_area
+        };
+        let rescale = |set: &VplSet, v: &Vpl| {
+            let mut v = *v;
+            if v.kind == VplKind::Env && set.disk_area != disk_area && set.disk_area > 0.0 {
+                v.flux *= disk_area / set.disk_area;
+            }
+            v
+        };
+        let mut vpls = Vec::with_capacity(n as usize);
+        vpls.extend(self.vpls.iter().map(|v| rescale(self, v)));
+        vpls.extend(other.vpls.iter().map(|v| rescale(other, v)));
+        Ok(VplSet {
+            vpls,
+            disk_area,
+            fingerprint: self.fingerprint,
+            stats: self.stats.combined(&other.stats),
+        })
+    }
+}
+
+impl std::ops::Add for &VplSet {
+    type Output = Result<VplSet>;
+
+    /// [`VplSet::concat`].
+    fn add(self, other: &VplSet) -> Result<VplSet> {
+        self.concat(other)
     }
 }

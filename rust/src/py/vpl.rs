@@ -14,7 +14,10 @@ use super::convert::{
 use super::envmap::PyEnvMap;
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::scene::PyScene;
-use crate::lights::vpl::{Importance, TraceParams, VplKind, VplSet, MAX_DEPTH, MAX_VPLS};
+use crate::estimators::many_lights::light_paths::kind_index;
+use crate::lights::vpl::{
+    Importance, TraceParams, VplKind, VplSet, MAX_AREA_POINTS, MAX_DEPTH, MAX_VPLS,
+};
 
 /// A set of virtual point lights: `VPLs.trace(setup, count, ...)` traces them from the
 /// setup's map and area lights, `VPLs.from_lights(scene, positions, normals, flux)` makes
@@ -77,6 +80,21 @@ fn pilot_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
     or_default(obj, 4000, |o| {
         Ok(int_arg(o, "pilot_paths", 1, 1 << 24)? as u32)
     })
+}
+
+/// Extractor of `level=4` (an octahedral level; the map's own range is checked later).
+fn level_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    Ok(int_arg(obj, "level", 0, 64)? as u32)
+}
+
+/// Extractor of `points=16`.
+fn points_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    Ok(int_arg(obj, "points", 1, MAX_AREA_POINTS as i128)? as u32)
+}
+
+/// Extractor of `width=64`.
+fn width_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    Ok(int_arg(obj, "width", 1, 1024)? as u32)
 }
 
 #[pymethods]
@@ -180,6 +198,134 @@ impl PyVpls {
         Ok(Self { inner: set })
     }
 
+    /// Directional lights from an environment map, one per texel of its octahedral
+    /// `level` (`2**level` texels a side, `0..=log2(resolution)`), each the texel's
+    /// `sum(radiance * solid angle)` as irradiance from the luminance-weighted mean of its
+    /// directions. `env_or_setup` is a setup (its `.envmap` and `.scene`) or an `EnvMap`,
+    /// which needs `scene`.
+    #[staticmethod]
+    #[pyo3(signature = (env_or_setup, level=4, scene=None))]
+    fn from_envmap(
+        py: Python<'_>,
+        env_or_setup: &Bound<'_, PyAny>,
+        #[pyo3(from_py_with = level_arg)] level: u32,
+        scene: Option<Bound<'_, PyScene>>,
+    ) -> PyResult<Self> {
+        let (env, scene) = match env_or_setup.cast::<PyEnvMap>() {
+            Ok(env) => {
+                let Some(scene) = scene else {
+                    return Err(PyTypeError::new_err(
+                        "scene: an EnvMap needs the scene the lights are for (or pass a setup)",
+                    ));
+                };
+                (env.clone().unbind(), scene.borrow().get())
+            }
+            Err(_) => {
+                let env = attribute::<PyEnvMap>(env_or_setup, "envmap").map_err(|_| {
+                    PyTypeError::new_err(
+                        "env_or_setup: expected an EnvMap or a setup with .envmap and .scene",
+                    )
+                })?;
+                let scene = match scene {
+                    Some(s) => s.borrow().get(),
+                    None => attribute::<PyScene>(env_or_setup, "scene")?.borrow().get(),
+                };
+                (env.unbind(), scene)
+            }
+        };
+        let set = py
+            .detach(|| VplSet::from_envmap(&scene, &env.get().inner, level))
+            .py()?;
+        Ok(Self { inner: set })
+    }
+
+    /// Directional lights (a sun) for `scene`: light from `directions` (N, 3; towards the
+    /// light, normalised here) of `irradiance` (N, 3; W/m² on a surface facing it, finite
+    /// and >= 0).
+    #[staticmethod]
+    fn from_directions(
+        scene: PyRef<'_, PyScene>,
+        directions: &Bound<'_, PyAny>,
+        irradiance: &Bound<'_, PyAny>,
+    ) -> PyResult<Self> {
+        let d = finite_rows::<3>(directions, "directions")?;
+        let e = finite_rows::<3>(irradiance, "irradiance")?;
+        let set = VplSet::from_directions(&scene.get(), &d, &e).py()?;
+        Ok(Self { inner: set })
+    }
+
+    /// `scene`'s area lights as one light each: its term without visibility (what
+    /// `"vpl_sampled"` draws by) from `points` fixed stratified points on it; its shadow
+    /// rays go to a fresh point by area per gather, so renders stay unbiased for the true
+    /// area light.
+    #[staticmethod]
+    #[pyo3(signature = (scene, points=16))]
+    fn from_area_lights(
+        scene: PyRef<'_, PyScene>,
+        #[pyo3(from_py_with = points_arg)] points: u32,
+    ) -> PyResult<Self> {
+        let k = points;
+        let set = VplSet::from_area_lights(&scene.get(), k).py()?;
+        Ok(Self { inner: set })
+    }
+
+    /// The share of the lights that reach the view of `setup`'s camera (or `camera`): a
+    /// positive, unoccluded term at one pixel centre at least of a G-buffer `width` pixels
+    /// wide. Returns `{"share", "contributing", "total", "points", "by_kind"}`, the last
+    /// `{kind: (contributing, total)}` for the kinds the set holds (codes of `.kinds`).
+    #[pyo3(signature = (setup, camera=None, width=64, threads=None))]
+    fn view_share<'py>(
+        &self,
+        py: Python<'py>,
+        setup: &Bound<'py, PyAny>,
+        camera: Option<Bound<'py, PyCamera>>,
+        #[pyo3(from_py_with = width_arg)] width: u32,
+        threads: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let threads = threads_arg(threads)?;
+        let scene = attribute::<PyScene>(setup, "scene")?.borrow().get();
+        let camera = match camera {
+            Some(c) => c,
+            None => attribute::<PyCamera>(setup, "camera")?,
+        }
+        .borrow()
+        .inner;
+        let stop = PyProgress::new(None).stop_flag();
+        let share = detach_interruptible(py, &stop, || {
+            self.inner.view_share(&scene, &camera, width, threads)
+        })?
+        .py()?;
+        let d = PyDict::new(py);
+        d.set_item("share", share.fraction())?;
+        d.set_item("contributing", share.contributing)?;
+        d.set_item("total", share.total)?;
+        d.set_item("points", share.points)?;
+        let kinds = PyDict::new(py);
+        for (k, &(c, t)) in share.by_kind.iter().enumerate() {
+            if t > 0 {
+                kinds.set_item(k, (c, t))?;
+            }
+        }
+        d.set_item("by_kind", kinds)?;
+        Ok(d)
+    }
+
+    /// The union `self + other` (same scene; directional fluxes rescaled to one disk,
+    /// stats combined).
+    fn __add__(&self, other: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let other = other.cast::<PyVpls>().map_err(|_| {
+            PyTypeError::new_err(format!(
+                "other: expected VPLs, got {}",
+                other
+                    .get_type()
+                    .name()
+                    .map_or("?".into(), |n| n.to_string())
+            ))
+        })?;
+        let set = self.inner.concat(&other.get().inner).py()?;
+        Ok(Self { inner: set })
+    }
+
     fn __len__(&self) -> usize {
         self.inner.len()
     }
@@ -241,6 +387,21 @@ impl PyVpls {
         )
     }
 
+    /// The fixed points of each area light (N,) int32 (0 for other kinds).
+    #[getter]
+    fn area_points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let rows: Vec<[i32; 1]> = self
+            .inner
+            .vpls
+            .iter()
+            .map(|v| match v.kind {
+                VplKind::Area { points } => [points as i32],
+                _ => [0],
+            })
+            .collect();
+        rows_array(py, rows)?.call_method1("reshape", (-1,))
+    }
+
     /// Generation (N,) int32: 0 for light VPLs, j for the j-th hit of a light path.
     #[getter]
     fn bounces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
@@ -248,21 +409,15 @@ impl PyVpls {
         rows_array(py, rows)?.call_method1("reshape", (-1,))
     }
 
-    /// Kind (N,) int8: 0 a point on an area light (or from_lights), 1 a map direction,
-    /// 2 a surface hit.
+    /// Kind (N,) int8: 0 a point on an area light (or from_lights), 1 a directional light
+    /// (a map direction or texel, from_directions), 2 a surface hit, 3 a whole area light.
     #[getter]
     fn kinds<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         let rows: Vec<[i8; 1]> = self
             .inner
             .vpls
             .iter()
-            .map(|v| {
-                [match v.kind {
-                    VplKind::Emitter => 0,
-                    VplKind::Env => 1,
-                    VplKind::Surface => 2,
-                }]
-            })
+            .map(|v| [kind_index(v.kind) as i8])
             .collect();
         rows_array(py, rows)?.call_method1("reshape", (-1,))
     }

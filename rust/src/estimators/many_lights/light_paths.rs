@@ -53,6 +53,16 @@
 //! a constant for them and the set stays unbiased; `len()` is then about `count` (within
 //! the pilot's noise: a few per cent with 4000 pilot paths).
 //!
+//! ## Other lights of the same set
+//! Beside traced sets, [`VplSet`] holds lights made directly (survey §6.3.3 and Fig. 6.5's
+//! two forms, the point light on a surface and the directional light):
+//! [`VplSet::from_lights`] (cosine point lights), [`VplSet::from_envmap`] (the map as one
+//! directional light per texel of a coarse octahedral level), [`VplSet::from_directions`]
+//! (a sun) and [`VplSet::from_area_lights`] (each area light as one light: its value at a
+//! receiver from `K` fixed stratified points, [`Vpl::unoccluded`]; its shadow rays from a
+//! fresh point by area, [`Vpl::sample_area`]). [`VplSet::concat`] joins sets and
+//! [`VplSet::view_share`] counts the lights that reach a view.
+//!
 //! ## Determinism
 //! Path `i` reads only `(seed, i, dimension)` of the counter-based generator, paths are
 //! traced in fixed chunks and concatenated in path order: the set is bit-identical for any
@@ -68,8 +78,10 @@ use crate::estimators::direct::ShadingPoint;
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::envmap::EnvMap;
 use crate::lights::vpl::{
-    checked_row, luminance, Importance, TraceParams, TraceStats, Vpl, VplKind, VplSet, MAX_VPLS,
+    area_points, checked_row, luminance, Importance, TraceParams, TraceStats, Vpl, VplKind, VplSet,
+    MAX_AREA_POINTS, MAX_VPLS,
 };
+use crate::lights::AreaLight;
 use crate::math::{triangle_cross, LUMINANCE_F32};
 use crate::parallel::with_threads;
 use crate::sampling::rng::{mix64, SampleRng};
@@ -174,9 +186,15 @@ impl Vpl {
     /// faces away, a black BSDF) so no ray is needed. The shadow ray runs from the VPL
     /// to the receiver (rays towards one VPL then share their origin: packets) and stops
     /// short of the receiver's origin by twice the scene's epsilon there.
+    ///
+    /// A [`VplKind::Area`] light has no single point: `None` here; its term without
+    /// visibility is [`Vpl::unoccluded`] and its shadow rays come from [`Vpl::sample_area`].
     #[inline(always)]
     pub fn connect(&self, r: &Receiver, clamp: Option<f32>, disk_area: f32) -> Option<Connection> {
         let sp = &r.sp;
+        if self.kind.is_area() {
+            return None;
+        }
         if self.kind == VplKind::Env {
             let w = self.normal;
             let cos = sp.normal.dot(w);
@@ -232,6 +250,120 @@ impl Vpl {
             tmax,
         })
     }
+}
+
+impl Vpl {
+    /// Eq. 6.1's term at `r` without visibility (W/(m² sr) per channel), for any kind: what
+    /// distributions over the set read (survey §6.3.2's `U = L f_s G`). For a point or
+    /// directional light it is [`Vpl::connect`]'s value (zero where that is `None`); for a
+    /// [`VplKind::Area`] light, the quadrature over its `K` fixed points ([`area_points`]):
+    /// `Σ_i f_x(ω_i) L(y_i) (A / K) cos θ_x cos θ_i / d_i²` (each `G` bounded by `clamp`).
+    /// Where that sum is zero but part of the light is in front of `r` and `r` in front of
+    /// it, the value is a floor `1e-3 L̄ f_x min(1, A / d²)` (`d` to the centroid), so a
+    /// pdf in proportion to it is positive wherever the light can contribute and a gather
+    /// that samples it stays unbiased.
+    pub fn unoccluded(
+        &self,
+        scene: &Scene,
+        r: &Receiver,
+        clamp: Option<f32>,
+        disk_area: f32,
+    ) -> Vec3 {
+        let VplKind::Area { points } = self.kind else {
+            return self
+                .connect(r, clamp, disk_area)
+                .map_or(Vec3::ZERO, |c| c.value);
+        };
+        let Some(light) = area_light_of(scene, self) else {
+            return Vec3::ZERO;
+        };
+        let sp = &r.sp;
+        let bound = clamp.unwrap_or(f32::INFINITY);
+        let mut sum = Vec3::ZERO;
+        area_points(light, points, |q| {
+            let d = q.position - sp.origin;
+            let (side_x, side_y) = (sp.normal.dot(d), -q.normal.dot(d));
+            if !(side_x > 0.0 && side_y > 0.0) {
+                return;
+            }
+            let dist2 = d.length_squared();
+            let w = d / dist2.sqrt();
+            let g = (side_x * side_y / (dist2 * dist2)).min(bound);
+            sum += r.f(w) * q.value * g;
+        });
+        if sum != Vec3::ZERO || !area_reaches(light, sp.origin, sp.normal) {
+            return sum;
+        }
+        let d = self.position - sp.origin;
+        let w = d.normalize_or(sp.normal);
+        let w = if sp.normal.dot(w) > 0.0 { w } else { sp.normal };
+        let area = light.area() as f32;
+        let reach = (area / d.length_squared().max(f32::MIN_POSITIVE)).min(1.0);
+        r.f(w) * light.radiance() * (1e-3 * reach)
+    }
+
+    /// One sample of a [`VplKind::Area`] light at `r` from `u` in `[0, 1)³`: a point `y`
+    /// by area (`AreaLight::sample`'s triangle pick and warp, density `1 / A`) and its term
+    /// over that density, `f_x(ω) L(y) cos θ_x cos θ_y / d² · A` (`G` bounded by `clamp`),
+    /// with the shadow ray from `r` towards `y`, stopping short of it. Its expectation over `u`
+    /// is the light's exact direct term (clamped by `clamp` if given). `None` when the
+    /// term is zero (the point faces away, `r` is behind it) or the kind is not `Area`.
+    pub fn sample_area(
+        &self,
+        scene: &Scene,
+        r: &Receiver,
+        clamp: Option<f32>,
+        u: [f32; 3],
+    ) -> Option<Connection> {
+        if !self.kind.is_area() {
+            return None;
+        }
+        let light = area_light_of(scene, self)?;
+        let sp = &r.sp;
+        let s = light.sample(sp.origin, u[0], Vec2::new(u[1], u[2]))?;
+        // `s.pdf = d² / (A cos θ_y)` (solid angle), so `cos θ_y / d² = 1 / (A pdf)`.
+        let cos_x = sp.normal.dot(s.direction);
+        if cos_x.is_nan() || cos_x <= 0.0 {
+            return None;
+        }
+        let mut g = (cos_x as f64 / (light.area() * s.pdf)) as f32;
+        if let Some(c) = clamp {
+            g = g.min(c);
+        }
+        let value = r.f(s.direction) * s.radiance * (g * light.area() as f32);
+        if !(value.is_finite() && value != Vec3::ZERO) {
+            return None;
+        }
+        // From the receiver to the point, stopping short of the light's own triangle (as
+        // the direct estimators' shadow rays to area lights).
+        let tmax = scene.segment_end(s.distance, s.point);
+        if tmax.is_nan() || tmax <= 0.0 {
+            return None;
+        }
+        Some(Connection {
+            value,
+            origin: sp.origin,
+            direction: s.direction,
+            tmax,
+        })
+    }
+}
+
+/// The scene's area light a [`VplKind::Area`] VPL stands for.
+fn area_light_of<'s>(scene: &'s Scene, v: &Vpl) -> Option<&'s AreaLight> {
+    (v.light as usize)
+        .checked_sub(1)
+        .and_then(|k| scene.area_lights().get(k))
+}
+
+/// Whether some part of `light` is strictly above the plane of `(p, n)` while `p` is
+/// strictly in front of that part's triangle: the light can reach `p` (without
+/// visibility). Exact for every triangle, so never false where the light contributes.
+fn area_reaches(light: &AreaLight, p: Vec3, n: Vec3) -> bool {
+    light.triangles().iter().enumerate().any(|(t, tri)| {
+        let m = light.normal(t);
+        m != Vec3::ZERO && m.dot(p - tri[0]) > 0.0 && tri.iter().any(|v| n.dot(*v - p) > 0.0)
+    })
 }
 
 /// The lights of a scene, to start paths from.
@@ -927,5 +1059,293 @@ impl VplSet {
             fingerprint: scene.geometry_fingerprint(),
             stats: TraceStats::default(),
         })
+    }
+}
+
+/// How many of a set's lights reach a view ([`VplSet::view_share`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ViewShare {
+    /// Lights with a positive, unoccluded term at one point of the view at least.
+    pub contributing: u64,
+    /// Lights in the set.
+    pub total: u64,
+    /// First hits of the view's G-buffer (the points tested).
+    pub points: u64,
+    /// `contributing` and `total` per kind, indexed by [`kind_index`].
+    pub by_kind: [(u64, u64); 4],
+}
+
+/// A kind's index in [`ViewShare::by_kind`] (and Python's `VPLs.kinds`): 0 emitter point,
+/// 1 directional, 2 surface, 3 whole area light.
+pub fn kind_index(kind: VplKind) -> usize {
+    match kind {
+        VplKind::Emitter => 0,
+        VplKind::Env => 1,
+        VplKind::Surface => 2,
+        VplKind::Area { .. } => 3,
+    }
+}
+
+impl ViewShare {
+    /// `contributing / total` (0 for an empty set).
+    pub fn fraction(&self) -> f64 {
+        if self.total == 0 {
+            0.0
+        } else {
+            self.contributing as f64 / self.total as f64
+        }
+    }
+}
+
+/// Whether `v` lights receiver `r` at all: a positive term and an unoccluded shadow ray
+/// (for an area light, towards one of its fixed points at least).
+fn reaches(
+    scene: &Scene,
+    v: &Vpl,
+    r: &Receiver,
+    disk_area: f32,
+    c: &mut TraversalCounters,
+) -> bool {
+    let VplKind::Area { points } = v.kind else {
+        return v
+            .connect(r, None, disk_area)
+            .is_some_and(|k| !scene.occluded1(k.origin, k.direction, k.tmax, c));
+    };
+    let Some(light) = area_light_of(scene, v) else {
+        return false;
+    };
+    let sp = &r.sp;
+    let mut seen = false;
+    area_points(light, points, |q| {
+        if seen || q.value == Vec3::ZERO {
+            return;
+        }
+        let d = q.position - sp.origin;
+        if !(sp.normal.dot(d) > 0.0 && -q.normal.dot(d) > 0.0) {
+            return;
+        }
+        let dist = d.length();
+        let tmax = scene.segment_end(dist, q.position);
+        seen = tmax > 0.0 && !scene.occluded1(sp.origin, d / dist, tmax, c);
+    });
+    seen
+}
+
+impl VplSet {
+    /// The environment map as directional lights ([`VplKind::Env`]), one per texel of its
+    /// octahedral level `level` (`2^level` texels a side, `0..=log2(resolution)`): a coarse
+    /// texel covers `4^(L - level)` texels of the map's level `L` exactly (the map is
+    /// equal-area and its quadtree nests), so its light carries their `Σ L_t ω_t` as the
+    /// irradiance `E` it gives a surface facing it (flux `E · disk_area`), from the
+    /// luminance-weighted mean of their directions (a sun inside a coarse texel keeps its
+    /// direction). Black texels make no light. At a receiver of normal `n` the set's
+    /// irradiance `Σ E_k max(0, n · ω_k)` converges to `∫ L(ω) max(0, n · ω) dω` as the
+    /// level grows. Fails naming `level` when out of range.
+    pub fn from_envmap(scene: &Scene, env: &EnvMap, level: u32) -> Result<VplSet> {
+        use crate::sampling::octahedral::{texel_center, texel_solid_angle};
+        let res = env.resolution();
+        let finest = res.trailing_zeros();
+        crate::error::check_range("level", level, 0, finest)?;
+        let (side, block) = (1u32 << level, res >> level);
+        let omega = texel_solid_angle(res);
+        let disk_area = bounding_disk_area(scene);
+        let mut vpls = Vec::with_capacity((side * side) as usize);
+        for cy in 0..side {
+            for cx in 0..side {
+                let (mut power, mut mean) = (DVec3::ZERO, DVec3::ZERO);
+                for y in cy * block..(cy + 1) * block {
+                    for x in cx * block..(cx + 1) * block {
+                        let t = glam::UVec2::new(x, y);
+                        let l = env.texel(t).as_dvec3();
+                        power += l * omega;
+                        let lum = l.dot(DVec3::from_array(LUMINANCE_F32.map(|c| c as f64)));
+                        mean += texel_center(t, res).as_dvec3() * (lum * omega);
+                    }
+                }
+                if power == DVec3::ZERO {
+                    continue;
+                }
+                let centre = texel_center(glam::UVec2::new(cx, cy), side);
+                let dir = mean.normalize_or_zero().as_vec3();
+                let dir = if dir == Vec3::ZERO { centre } else { dir };
+                vpls.push(env_light(dir, (power * disk_area as f64).as_vec3(), 0));
+            }
+        }
+        Ok(VplSet {
+            vpls,
+            disk_area,
+            fingerprint: scene.geometry_fingerprint(),
+            stats: TraceStats::default(),
+        })
+    }
+
+    /// Directional lights ([`VplKind::Env`], a sun): light from unit `directions` (towards
+    /// the light; normalised here) of `irradiance` (W/m² per channel on a surface facing
+    /// it, finite and `>= 0`). Fails naming the argument on an empty or mismatched input,
+    /// a zero or non-finite direction or a bad irradiance.
+    pub fn from_directions(
+        scene: &Scene,
+        directions: &[[f32; 3]],
+        irradiance: &[[f32; 3]],
+    ) -> Result<VplSet> {
+        let n = directions.len();
+        crate::parallel::check_rows("irradiance", irradiance.len(), n, "directions")?;
+        if n == 0 {
+            return Err(Error::invalid(
+                "directions",
+                "needs at least one light, got 0",
+            ));
+        }
+        let disk_area = bounding_disk_area(scene);
+        let mut vpls = Vec::with_capacity(n);
+        for (i, (d, e)) in directions.iter().zip(irradiance).enumerate() {
+            let w = Vec3::from(*d).as_dvec3();
+            let len = w.length();
+            if !(len.is_finite() && len > 0.0) {
+                return Err(Error::invalid(
+                    "directions",
+                    format!("row {i} must be finite and non-zero, got {d:?}"),
+                ));
+            }
+            if !crate::lights::valid_radiance(*e) {
+                return Err(Error::invalid(
+                    "irradiance",
+                    format!("row {i} {}", crate::lights::radiance_problem(*e)),
+                ));
+            }
+            let flux = Vec3::from(*e) * disk_area;
+            vpls.push(env_light((w / len).as_vec3(), flux, u32::MAX));
+        }
+        Ok(VplSet {
+            vpls,
+            disk_area,
+            fingerprint: scene.geometry_fingerprint(),
+            stats: TraceStats::default(),
+        })
+    }
+
+    /// The scene's area lights, one [`VplKind::Area`] light each, whose term without
+    /// visibility comes from `points` fixed stratified points on it
+    /// ([`crate::lights::vpl::area_points`], `1..=MAX_AREA_POINTS`) and whose shadow rays
+    /// go to a fresh point per gather ([`Vpl::sample_area`]). Fails naming `points` out of
+    /// range or `scene` without area lights.
+    pub fn from_area_lights(scene: &Scene, points: u32) -> Result<VplSet> {
+        crate::error::check_range("points", points, 1, MAX_AREA_POINTS)?;
+        let lights = scene.area_lights();
+        if lights.is_empty() {
+            return Err(Error::invalid(
+                "scene",
+                "has no area lights (Scene.add_area_light or set_emitter make them)",
+            ));
+        }
+        let mut vpls = Vec::with_capacity(lights.len());
+        for (k, light) in lights.iter().enumerate() {
+            let (mut centroid, mut normal) = (DVec3::ZERO, DVec3::ZERO);
+            for t in light.triangles() {
+                let cross = triangle_cross(t).as_dvec3();
+                let area = 0.5 * cross.length();
+                centroid += (t[0] + t[1] + t[2]).as_dvec3() / 3.0 * area;
+                normal += 0.5 * cross;
+            }
+            let centroid = (centroid / light.area()).as_vec3();
+            // A closed emitter's normals cancel: any of its own then stands for it.
+            let normal = match normal.normalize_or_zero().as_vec3() {
+                Vec3::ZERO => (0..light.triangles().len())
+                    .map(|t| light.normal(t))
+                    .find(|n| *n != Vec3::ZERO)
+                    .unwrap_or(Vec3::Y),
+                n => n,
+            };
+            vpls.push(Vpl {
+                position: centroid,
+                origin: scene.offset_point(centroid, normal),
+                normal,
+                incident: Vec3::ZERO,
+                material: EMITTER,
+                flux: Vec3::from(light.power().map(|c| c as f32)),
+                kind: VplKind::Area { points },
+                bounce: 0,
+                light: k as u32 + 1,
+            });
+        }
+        Ok(VplSet {
+            vpls,
+            disk_area: bounding_disk_area(scene),
+            fingerprint: scene.geometry_fingerprint(),
+            stats: TraceStats::default(),
+        })
+    }
+
+    /// How many of the set's lights contribute to `camera`'s view: those with a positive,
+    /// unoccluded term (eq. 6.1 without clamping) at one first hit at least of a G-buffer
+    /// `width` pixels wide (rows by the camera's aspect; `1..=1024`), pixel centres. Area
+    /// lights count when one of their fixed points does. Fails naming `vpls` for a set of
+    /// another scene, `width` out of range; counts do not depend on `threads`.
+    pub fn view_share(
+        &self,
+        scene: &Scene,
+        camera: &Camera,
+        width: u32,
+        threads: Option<usize>,
+    ) -> Result<ViewShare> {
+        if self.fingerprint != scene.geometry_fingerprint() {
+            return Err(Error::invalid(
+                "vpls",
+                "were made for another scene (geometry fingerprints differ)",
+            ));
+        }
+        crate::error::check_range("width", width, 1, 1024)?;
+        let points = view_points(scene, camera, width, threads)?;
+        let disk_area = self.disk_area;
+        let (hits, counters) = with_threads(threads, || {
+            self.vpls
+                .par_iter()
+                .map(|v| {
+                    let mut c = TraversalCounters::default();
+                    let hit = points
+                        .iter()
+                        .any(|r| reaches(scene, v, r, disk_area, &mut c));
+                    (hit, c)
+                })
+                .unzip::<bool, TraversalCounters, Vec<bool>, Vec<TraversalCounters>>()
+        })?;
+        let mut total = TraversalCounters::default();
+        for c in counters {
+            total += c;
+        }
+        scene.add_counters(total);
+        let mut by_kind = [(0u64, 0u64); 4];
+        for (v, hit) in self.vpls.iter().zip(&hits) {
+            let k = &mut by_kind[kind_index(v.kind)];
+            k.0 += *hit as u64;
+            k.1 += 1;
+        }
+        Ok(ViewShare {
+            contributing: by_kind.iter().map(|k| k.0).sum(),
+            total: self.len() as u64,
+            points: points.len() as u64,
+            by_kind,
+        })
+    }
+}
+
+/// `π R²` of the disk that covers `scene` (the normalisation of directional fluxes).
+fn bounding_disk_area(scene: &Scene) -> f32 {
+    let radius = bounding_disk(scene).1;
+    std::f32::consts::PI * radius * radius
+}
+
+/// A directional light from unit `dir` of flux `flux` (irradiance times the disk's area).
+fn env_light(dir: Vec3, flux: Vec3, light: u32) -> Vpl {
+    Vpl {
+        position: Vec3::ZERO,
+        origin: Vec3::ZERO,
+        normal: dir,
+        incident: Vec3::ZERO,
+        material: EMITTER,
+        flux,
+        kind: VplKind::Env,
+        bounce: 0,
+        light,
     }
 }

@@ -46,7 +46,7 @@ const ZONAL: [f64; 2] = [std::f64::consts::PI, 2.0 * std::f64::consts::PI / 3.0]
 /// direction.
 pub fn diffuse_albedo(v: &Vpl) -> Option<Vec3> {
     match (v.kind, v.material) {
-        (VplKind::Env, _) => None,
+        (VplKind::Env | VplKind::Area { .. }, _) => None,
         (VplKind::Emitter, _) => Some(Vec3::ONE),
         (VplKind::Surface, Material::Lambert { albedo }) => Some(Vec3::from(albedo)),
         (VplKind::Surface, Material::Phong { kd, .. }) => Some(Vec3::from(kd)),
