@@ -11,6 +11,13 @@
 //! Where no neighbour lies on the pixel's surface (`N_c = 0`), the neighbours that saw a
 //! surface count by `w_l` alone; a pixel with none of those, or a miss, gets zero.
 //!
+//! The receiver's BSDF is Phong's diffuse plus specular term; eq. 7 weights the specular
+//! term towards each light by a Gaussian in `1 - cos^η θ` (θ: the angle between the light's
+//! direction and the mirror direction of the view, η the Phong exponent) of width
+//! `σ_θ` ([`specular_weight`]). The paper's `1 / (σ_θ √(2π))` is left out so that the
+//! weight peaks at 1 and `σ_θ = ∞` (the default) is Phong's term unweighted, equal to
+//! `method="vpl"`'s shading.
+//!
 //! [`Visibility::Traced`] replaces the lists by one shadow ray per VPL: the exact sum of
 //! `method="vpl"` over the same set.
 
@@ -20,12 +27,41 @@ use super::grid::{index_points, GridFrame, VoxelIndex};
 use super::march::Lists;
 use super::sh::{project_voxel, VoxelSh};
 use super::{Surfel, Visibility};
+use crate::bsdf::Material;
 use crate::camera::GBuffer;
 use crate::error::Result;
 use crate::estimators::indirect::shading_point_at;
-use crate::estimators::many_lights::light_paths::Receiver;
+use crate::estimators::many_lights::light_paths::{Connection, Receiver};
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::vpl::{Vpl, VplSet};
+
+/// Eq. 7's weight `exp(-½ ((1 - cos^η θ) / σ_θ)²)` of a specular term whose light lies at
+/// `cos_theta` from the mirror direction (clamped to `[0, 1]`), for Phong exponent `eta`;
+/// 1 for `sigma = ∞`. In `(0, 1]`, 1 at θ = 0, decreasing in θ.
+#[inline]
+pub fn specular_weight(eta: f32, cos_theta: f32, sigma: f32) -> f32 {
+    if sigma == f32::INFINITY {
+        return 1.0;
+    }
+    let x = (1.0 - cos_theta.clamp(0.0, 1.0).powf(eta)) / sigma;
+    (-0.5 * x * x).exp()
+}
+
+/// The receiver's BSDF `f_x(ωo, wi)` with eq. 7's weight on Phong's specular part
+/// (`sigma = ∞`: [`Material::eval`]).
+#[inline]
+pub fn weighted_f(material: &Material, n: Vec3, wo: Vec3, wi: Vec3, sigma: f32) -> Vec3 {
+    let full = material.eval(n, wo, wi);
+    match *material {
+        Material::Phong { kd, exponent, .. } if sigma != f32::INFINITY && full != Vec3::ZERO => {
+            let diffuse = Vec3::from(kd) * std::f32::consts::FRAC_1_PI;
+            let r = 2.0 * n.dot(wo) * n - wo;
+            let cos = r.dot(wi) / r.length();
+            diffuse + (full - diffuse).max(Vec3::ZERO) * specular_weight(exponent, cos, sigma)
+        }
+        _ => full,
+    }
+}
 
 /// The VPLs sorted into voxels with each voxel's SH (eq. 2).
 #[derive(Clone, Debug)]
@@ -158,6 +194,7 @@ impl VoxelLights {
         key: u64,
         r: &Receiver,
         sh_range: f32,
+        specular_sigma: f32,
         counts: &mut GatherCounts,
     ) -> DVec3 {
         let Some(e) = self.index.entry_of_key(key) else {
@@ -177,7 +214,7 @@ impl VoxelLights {
             let mut sum = DVec3::ZERO;
             for &i in self.index.range(e) {
                 if let Some(c) = self.vpls[i as usize].connect(r, None, 0.0) {
-                    sum += c.value.as_dvec3();
+                    sum += weighted(&c, r, specular_sigma).as_dvec3();
                 }
             }
             return sum;
@@ -189,7 +226,7 @@ impl VoxelLights {
         if !(cos > 0.0 && d2 > 0.0) {
             return DVec3::ZERO;
         }
-        let f = sp.material.eval(sp.normal, sp.wo, w).as_dvec3();
+        let f = weighted_f(&sp.material, sp.normal, sp.wo, w, specular_sigma).as_dvec3();
         f * sh.intensity(-w) * (cos / d2) as f64
     }
 
@@ -198,6 +235,7 @@ impl VoxelLights {
         &self,
         scene: &Scene,
         r: &Receiver,
+        specular_sigma: f32,
         counts: &mut GatherCounts,
         bvh: &mut TraversalCounters,
     ) -> DVec3 {
@@ -207,12 +245,38 @@ impl VoxelLights {
             if let Some(c) = v.connect(r, None, 0.0) {
                 counts.shadow_rays += 1;
                 if !scene.occluded1(c.origin, c.direction, c.tmax, bvh) {
-                    sum += c.value.as_dvec3();
+                    sum += weighted(&c, r, specular_sigma).as_dvec3();
                 }
             }
         }
         sum
     }
+}
+
+/// A surface VPL's term `c` at `r` with eq. 7's weight: its `f_x` factor replaced by
+/// [`weighted_f`]'s, channel by channel (unchanged for `sigma = ∞` or a Lambert receiver).
+#[inline]
+fn weighted(c: &Connection, r: &Receiver, sigma: f32) -> Vec3 {
+    if sigma == f32::INFINITY || r.diffuse().is_some() {
+        return c.value;
+    }
+    let sp = &r.sp;
+    // A point VPL's ray runs from it to the receiver (the light arrives from
+    // -direction); a map direction's (unbounded) from the receiver towards it.
+    let wi = if c.tmax == f32::INFINITY {
+        c.direction
+    } else {
+        -c.direction
+    };
+    let full = sp.material.eval(sp.normal, sp.wo, wi);
+    let w = weighted_f(&sp.material, sp.normal, sp.wo, wi, sigma);
+    Vec3::from_array(std::array::from_fn(|k| {
+        if full[k] > 0.0 {
+            c.value[k] * (w[k] / full[k])
+        } else {
+            0.0
+        }
+    }))
 }
 
 /// Work of a gather.
@@ -222,6 +286,7 @@ pub struct GatherCounts {
     pub vpl_terms: u64,
     /// Voxels shaded by their SH (second case).
     pub sh_terms: u64,
+
     /// Shadow rays ([`Visibility::Traced`]).
     pub shadow_rays: u64,
 }
@@ -230,6 +295,7 @@ impl std::ops::AddAssign for GatherCounts {
     fn add_assign(&mut self, o: Self) {
         self.vpl_terms += o.vpl_terms;
         self.sh_terms += o.sh_terms;
+
         self.shadow_rays += o.shadow_rays;
     }
 }
@@ -274,6 +340,7 @@ pub fn gather(
     low: LowRes<'_>,
     lights: &VoxelLights,
     sh_range: f32,
+    specular_sigma: f32,
     depth_tol: f32,
     normal_tol: f32,
     visibility: Visibility,
@@ -295,7 +362,7 @@ pub fn gather(
             let sp = shading_point_at(scene, &hit, -dir);
             let r = Receiver::new(scene, sp);
             if visibility == Visibility::Traced {
-                out.push(lights.traced(scene, &r, &mut counts, &mut bvh));
+                out.push(lights.traced(scene, &r, specular_sigma, &mut counts, &mut bvh));
                 continue;
             }
             let me = Surfel {
@@ -335,7 +402,7 @@ pub fn gather(
                     wk += weighted[i].1 as f64;
                     i += 1;
                 }
-                sum += lights.voxel_light(key, &r, sh_range, &mut counts) * wk;
+                sum += lights.voxel_light(key, &r, sh_range, specular_sigma, &mut counts) * wk;
             }
             out.push(sum);
         }

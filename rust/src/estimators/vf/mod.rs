@@ -86,6 +86,11 @@ pub struct VfParams {
     /// most [`grid::DENSE_MAX_VOXELS`] voxels, else hashed with as many slots as
     /// non-empty voxels.
     pub table_slots: Option<u32>,
+    /// σ_θ of eq. 7 (`> 0`, may be infinite): a Phong receiver's specular term towards
+    /// each VPL or voxel is weighted by `exp(-½ ((1 - cos^η θ) / σ_θ)²)`
+    /// ([`gather::specular_weight`]); infinite (the default) leaves Phong's specular term
+    /// whole, as `method="vpl"` shades it.
+    pub specular_sigma: f32,
     pub visibility: Visibility,
 }
 
@@ -111,6 +116,7 @@ impl VfParams {
         normal_tol: 0.1,
         sh_range: None,
         table_slots: None,
+        specular_sigma: f32::INFINITY,
         visibility: Visibility::Marched,
     };
 
@@ -179,6 +185,15 @@ impl VfParams {
                     format!("must be >= 0 (world units; inf: VPLs only), got {r}"),
                 ));
             }
+        }
+        if !(self.specular_sigma > 0.0) {
+            return Err(Error::invalid(
+                "specular_sigma",
+                format!(
+                    "must be > 0 (inf: Phong's specular term unweighted), got {}",
+                    self.specular_sigma
+                ),
+            ));
         }
         if self.table_slots == Some(0) {
             return Err(Error::invalid("table_slots", "must be at least 1, got 0"));

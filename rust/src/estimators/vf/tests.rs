@@ -162,7 +162,7 @@ fn empty_voxels_and_a_one_voxel_grid() {
     let lit = frame.key(frame.voxel_of(vpl.position));
     for k in 0..frame.voxels() {
         for range in [0.0, 1.0, f32::INFINITY] {
-            let l = lights.voxel_light(k, &r, range, &mut counts);
+            let l = lights.voxel_light(k, &r, range, f32::INFINITY, &mut counts);
             assert!(l.is_finite());
             if k != lit {
                 assert_eq!(l, glam::DVec3::ZERO);
@@ -562,13 +562,27 @@ fn bad_parameters_are_named() {
     }
     .validate(cam)
     .is_ok());
-    let cases: [(VfParams, &str); 12] = [
+    let cases: [(VfParams, &str); 14] = [
         (
             VfParams {
                 proxies: 0,
                 ..VfParams::DEFAULT
             },
             "proxies",
+        ),
+        (
+            VfParams {
+                specular_sigma: 0.0,
+                ..VfParams::DEFAULT
+            },
+            "specular_sigma",
+        ),
+        (
+            VfParams {
+                specular_sigma: f32::NAN,
+                ..VfParams::DEFAULT
+            },
+            "specular_sigma",
         ),
         (
             VfParams {
@@ -729,7 +743,7 @@ fn lanes_equal_connect() {
             let rec = Receiver::new(&scene, sp);
             let mut counts = Default::default();
             for k in 0..frame.voxels() {
-                let got = lights.voxel_light(k, &rec, f32::INFINITY, &mut counts);
+                let got = lights.voxel_light(k, &rec, f32::INFINITY, f32::INFINITY, &mut counts);
                 let mut want = glam::DVec3::ZERO;
                 for &i in lights.index.get(frame.coords(k)) {
                     if let Some(c) = lights.vpls[i as usize].connect(&rec, None, 0.0) {
