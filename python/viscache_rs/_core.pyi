@@ -18,6 +18,7 @@ __all__ = [
     "EnvMap",
     "GBuffer",
     "IrradianceCache",
+    "ProxyGrid",
     "VisibilityCache",
     "LightingPreview",
     "Relighter",
@@ -268,7 +269,7 @@ class ProxyGrid:
         seed: int | None = 0,
         threads: int | None = None,
         table_slots: int | None = None,
-    ) -> ProxyGrid: ...
+    ) -> Self: ...
     @property
     def scene(self) -> Scene: ...
     @property
