@@ -25,7 +25,7 @@ use crate::estimators::vf::gather::{gather, GatherCounts, LowRes};
 use crate::estimators::vf::march::{march, Lists};
 use crate::estimators::vf::proxy_grid::ProxyGrid;
 use crate::estimators::vf::upsample::upsample;
-use crate::estimators::vf::{surfels, VfParams, DEFAULT_SH_RANGE_SHARE};
+use crate::estimators::vf::{surfels, VfParams, DEFAULT_MERGE_VOXELS, DEFAULT_SH_RANGE_SHARE};
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
@@ -63,6 +63,8 @@ pub struct VfStats {
     pub gather: GatherCounts,
     /// `R` used (world units).
     pub sh_range: f32,
+    /// The merge range used (world units).
+    pub merge_range: f32,
     /// Whether the grids used the hashed table.
     pub hashed: bool,
     /// The marching and indirect sizes used.
@@ -133,6 +135,9 @@ pub fn vf_frame(
     };
     let start = Instant::now();
     let r = sh_range(params, scene);
+    let merge_range = params
+        .merge_range
+        .unwrap_or(DEFAULT_MERGE_VOXELS * grid.frame().cell.length());
     let (ind_size, low_size) = params.sizes([camera.width, camera.height]);
     let low_cam = camera.with_resolution(low_size[0], low_size[1])?;
     let ind_cam = camera.with_resolution(ind_size[0], ind_size[1])?;
@@ -179,6 +184,7 @@ pub fn vf_frame(
         },
         &grid.lights,
         r,
+        merge_range,
         params.specular_sigma,
         params.depth_tol,
         params.normal_tol,
@@ -223,6 +229,7 @@ pub fn vf_frame(
             marching_rays,
             gather: counts,
             sh_range: r,
+            merge_range,
             hashed: grid.disc_index.is_hashed(),
             marching: low_size,
             indirect: ind_size,
@@ -431,7 +438,9 @@ impl VfRenderer {
             d.set("marching_rays", s.marching_rays);
             d.set("vpl_terms", s.gather.vpl_terms);
             d.set("sh_terms", s.gather.sh_terms);
+            d.set("culled_voxels", s.gather.culled_voxels);
             d.set("sh_range", s.sh_range);
+            d.set("merge_range", s.merge_range);
             d.set("hashed", s.hashed);
             d.set("first_sample_seconds", s.first_sample_seconds);
             d.set(
