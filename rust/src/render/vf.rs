@@ -289,7 +289,7 @@ pub fn render_vf(
                 what: "vf".to_string(),
             });
         }
-        vf_frame(scene, &grid, camera, params, seed, progress)
+        vf_frame(scene, grid, camera, params, seed, progress)
     })??;
     let mut stats = frame.stats;
     let mut image = frame.image;

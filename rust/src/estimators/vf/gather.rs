@@ -154,7 +154,9 @@ pub const MERGE_CELLS: usize = 4;
 pub fn merge(vpls: &[&Vpl], lo: Vec3, hi: Vec3) -> Vec<(Vec3, Vec3, Vec3)> {
     let extent = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE));
     let m = MERGE_CELLS as f32;
-    let mut pools: std::collections::BTreeMap<([u32; 3], [u32; 3]), (DVec3, f64, DVec3, Vec3)> =
+    // (sub-cell, normal bits) -> (Σ w p, Σ w, Σ intensity, normal).
+    type Pool = (DVec3, f64, DVec3, Vec3);
+    let mut pools: std::collections::BTreeMap<([u32; 3], [u32; 3]), Pool> =
         std::collections::BTreeMap::new();
     for v in vpls {
         let i = v.diffuse_intensity().unwrap_or(Vec3::ZERO);

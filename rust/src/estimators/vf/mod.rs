@@ -196,7 +196,7 @@ impl VfParams {
                 ));
             }
         }
-        if !(self.specular_sigma > 0.0) {
+        if self.specular_sigma.is_nan() || self.specular_sigma <= 0.0 {
             return Err(Error::invalid(
                 "specular_sigma",
                 format!(
