@@ -292,3 +292,58 @@ def test_irradiance_cache_experiment_smoke(tmp_path, monkeypatch):
     # The reference is kept and read again by a rerun.
     assert len(list(out.glob("reference_cornell_path_24x18_256spp_seed1.npz"))) == 1
     assert data["cornell/reference"]["cached"] is False
+
+
+def test_vf_experiment_smoke(tmp_path, monkeypatch):
+    from viscache_rs import experiments
+    from viscache_rs.experiments import vf
+
+    quick = vf.settings(True)
+    assert quick["scenes"] == [("cornell", None)] and quick["floors"] == (10, 30, 50)
+
+    def tiny(quick):
+        return {"scenes": [("cornell", None)], "width": 24, "height": 18,
+                "reference_spp": 64,
+                "table1": {"cornell": {"size": (32, 32), "marching": [16]}},
+                "scene_params": {"cornell": {"proxies": 2000, "voxels": 4}},
+                "knobs": [{"rays_per_pixel": 4}, {"rays_per_pixel": 16},
+                          {"rays_per_pixel": 16, "filter": 1}],
+                "floors": (30,), "floor_size": (16, 12), "floor_spp": 32,
+                "flicker": {"frames": 3, "degrees": 0.5, "size": (16, 12),
+                            "reference_spp": 16}}
+
+    monkeypatch.setattr(vf, "settings", tiny)
+    monkeypatch.setattr(vf, "PAPER_TABLE_1", {("cornell", 16): vf.PAPER_TABLE_1[
+        ("cornell", 64)]})
+    monkeypatch.setattr(vf, "PAPER_FRAME_SECONDS", {("cornell", 16): 0.435})
+    experiments.run("vf", quick=True, out=tmp_path, seed=1, threads=2, progress=False)
+    out = tmp_path / "vf"
+    data = json.loads((out / "results.json").read_text())
+    t1 = data["table1/cornell/16"]
+    for k in vf.STAGES:
+        assert t1[f"{k}_ms"] >= 0
+    assert t1["marching_ms"] > 0 and t1["illumination_ms"] > 0
+    assert t1["marching"] == [16, 16] and t1["target_met"] in (True, False)
+    d = data["cornell/default"]
+    assert 1500 < d["proxies"] < 2500 and np.isfinite(d["relmse"]) and d["efficiency"] > 0
+    assert data["cornell/combined"]["relmse"] < 1
+    eq = {o["method"]: o for o in data["cornell/equal_time"]}
+    assert set(eq) == {"path", "vpl"} and all(o["seconds"] > 0 for o in eq.values())
+    knobs = data["cornell/knobs"]
+    assert [(r["rays_per_pixel"], r["filter"]) for r in knobs] == [(4, 7), (16, 7), (16, 1)]
+    # The 7x7 filter only adds voxels to the lists.
+    assert knobs[1]["mean_list_after"] >= knobs[2]["mean_list_after"]
+    assert all(r["path"]["seconds"] > 0 and r["vpl"]["seconds"] > 0 for r in knobs)
+    floor = data["floors/30"]
+    assert floor["exponent"] == 30 and np.isfinite(floor["relmse"])
+    flick = data["cornell/flicker"]
+    assert flick["frames"] == 3 and len(flick["vf_relmse_per_frame"]) == 3
+    # Consecutive frames of a pan differ; a 16-spp path differs more than its mean motion.
+    assert flick["vf"] > 0 and flick["reference"] > 0 and flick["path"] > 0
+    summary = data["summary"]
+    assert summary["targets"]["bias"] == d["relmse"]
+    assert set(summary["targets"]["floors_equal_time"]) == {"30"}
+    md = (out / "results.md").read_text()
+    assert "## Table 1: per-stage milliseconds" in md and "| cornell | 16x16 |" in md
+    for name in ("cornell_strip.png", "cornell_relmse_vs_seconds.png", "cornell_vf.png"):
+        assert (out / name).read_bytes().startswith(b"\x89PNG"), name

@@ -137,3 +137,58 @@ def test_other_methods_refuse_vf_parameters(cornell):
     with pytest.raises(ValueError, match="^bounces"):
         vc.render(cornell, method="vf", bounces=2, progress=False, **SMALL)
     assert "vf" in [m["name"] for m in vc.methods()]
+
+
+GRID_FREE = {k: v for k, v in SMALL.items() if k not in ("proxies", "voxels")}
+
+
+@pytest.fixture(scope="module")
+def grid(cornell):
+    return vc.vf.ProxyGrid(cornell, proxies=3000, voxels=6, seed=0, threads=2)
+
+
+def test_a_proxy_grid_gives_the_render_its_own_image(cornell, indirect, grid):
+    """A grid built with the render's seed is the grid the render builds: the same image
+    bit for bit, from any view (a second camera against its own full render)."""
+    assert isinstance(grid, vc.vf.ProxyGrid) and len(grid) == indirect.stats["proxies"]
+    assert grid.voxels == (6, 6, 6) and grid.seed == 0
+    st = grid.stats
+    assert st["nonempty_voxels"] == indirect.stats["nonempty_voxels"]
+    assert st["vpls"] > 0 and min(st["flux"]) > 0
+    out = vc.render(cornell, method="vf", direct=False, threads=2, progress=False,
+                    proxies=grid, **GRID_FREE)
+    np.testing.assert_array_equal(out.image, indirect.image)
+    assert out.stats["grid_given"] is True and indirect.stats["grid_given"] is False
+    assert out.stats["voxels"] == [6, 6, 6] and out.stats["proxies"] == len(grid)
+    other = vc.Camera.look_at((0.3, 1.0, 2.6), (0.0, 0.8, 0.0), fov_deg=50.0, width=32,
+                              height=24)
+    a = vc.render(cornell, camera=other, method="vf", direct=False, threads=1,
+                  progress=False, proxies=grid, **GRID_FREE)
+    b = vc.render(cornell, camera=other, method="vf", direct=False, threads=2,
+                  progress=False, **SMALL)
+    np.testing.assert_array_equal(a.image, b.image)
+    assert not np.array_equal(a.image, out.image) and a.image.mean() > 0
+
+
+def test_a_proxy_grid_is_refused_where_it_does_not_belong(cornell, grid):
+    box = vc.scenes.load("cornell", detail=0.5)  # other triangles
+    other = vc.Setup(box.scene, cornell.camera, cornell.envmap)
+    with pytest.raises(ValueError, match="^proxies.*other geometry"):
+        vc.render(other, method="vf", direct=False, progress=False, proxies=grid,
+                  **GRID_FREE)
+    with pytest.raises(ValueError, match="^proxies.*envmap"):
+        vc.render(cornell, envmap=vc.EnvMap.constant((1.0, 1.0, 1.0)), method="vf",
+                  direct=False, progress=False, proxies=grid, **GRID_FREE)
+    with pytest.raises(ValueError, match="^voxels"):
+        vc.render(cornell, method="vf", direct=False, progress=False, proxies=grid,
+                  voxels=4, **GRID_FREE)
+    with pytest.raises(ValueError, match="^proxies"):
+        vc.render(cornell, method="vpl", direct=False, progress=False, proxies=grid)
+    with pytest.raises(TypeError, match="^setup"):
+        vc.vf.ProxyGrid(cornell.scene)
+    with pytest.raises(ValueError, match="^voxels"):
+        vc.vf.ProxyGrid(cornell, voxels=(6, 0, 6))
+    with pytest.raises(ValueError, match="^proxies"):
+        vc.vf.ProxyGrid(cornell, proxies=0)
+    with pytest.raises(TypeError, match="^proxies"):
+        vc.render(cornell, method="vf", direct=False, progress=False, proxies="grid")

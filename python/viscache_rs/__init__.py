@@ -21,6 +21,7 @@ from . import (
     scenes,
     setup_files,
     testing,
+    vf,
 )
 from ._core import (
     Camera,
@@ -86,4 +87,5 @@ __all__ = [
     "scenes",
     "setup_files",
     "testing",
+    "vf",
 ]

@@ -18,6 +18,7 @@ __all__ = [
     "EnvMap",
     "GBuffer",
     "IrradianceCache",
+    "ProxyGrid",
     "VisibilityCache",
     "LightingPreview",
     "Relighter",
@@ -255,6 +256,33 @@ class Setup:
     def save(self, path: str | PathLike[str]) -> None: ...
 
 @disjoint_base
+class ProxyGrid:
+    """VF's proxies, their VPLs and voxel grids. Subclassed by ``viscache_rs.vf.ProxyGrid``,
+    which takes a setup."""
+
+    def __new__(
+        cls,
+        scene: Scene,
+        envmap: EnvMap,
+        proxies: int | None = None,
+        voxels: int | tuple[int, int, int] | None = None,
+        seed: int | None = 0,
+        threads: int | None = None,
+        table_slots: int | None = None,
+    ) -> Self: ...
+    @property
+    def scene(self) -> Scene: ...
+    @property
+    def envmap(self) -> EnvMap: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def voxels(self) -> tuple[int, int, int]: ...
+    @property
+    def stats(self) -> dict[str, Any]: ...
+    def __len__(self) -> int: ...
+
+@disjoint_base
 class IrradianceCache:
     """One-bounce irradiance records with gradients (survey ch. 3). Subclassed by
     ``viscache_rs.IrradianceCache``, which adds the progress bar to ``build``."""
@@ -484,7 +512,7 @@ def render(
     gradients: str | None = None,
     clamp_neighbours: bool | None = None,
     secondary_spp: int | None = None,
-    proxies: int | None = None,
+    proxies: int | ProxyGrid | None = None,
     voxels: int | tuple[int, int, int] | None = None,
     marching: int | tuple[int, int] | None = None,
     indirect: int | tuple[int, int] | None = None,

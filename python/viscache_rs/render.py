@@ -62,6 +62,12 @@ direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=N
   ``stats`` holds Table 1's ``voxelisation_seconds``, ``marching_seconds``,
   ``filter_seconds``, ``illumination_seconds``, ``upsampling_seconds`` and the counts
   ``proxies``, ``nonempty_voxels``, ``mean_list_before``/``mean_list_after``.
+  ``proxies=`` may instead be a :class:`viscache_rs.vf.ProxyGrid` built beforehand (the
+  proxies, their VPLs and grids, reusable across views; :mod:`viscache_rs.vf`;
+  ``stats["grid_given"]``). Near voxels at least ``stats["merge_range"]`` away (one voxel
+  diagonal) light a diffuse receiver by their VPLs pooled per quarter-voxel sub-cell and
+  normal; ``stats["culled_voxels"]`` counts near voxels skipped as wholly below the
+  receiver's tangent plane or behind their own.
 
 All others are unbiased estimators of the same image. Every pixel's per-point work (the product
 distribution, the cache lookup, J) is done once, at its *anchor*, the first hit through its
@@ -181,7 +187,7 @@ def render(
     gradients: str | None = None,
     clamp_neighbours: bool | None = None,
     secondary_spp: int | None = None,
-    proxies: int | None = None,
+    proxies: int | _core.ProxyGrid | None = None,
     voxels: int | tuple[int, int, int] | None = None,
     marching: int | tuple[int, int] | None = None,
     indirect: int | tuple[int, int] | None = None,

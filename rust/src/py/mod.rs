@@ -50,6 +50,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<irradiance::PyIrradianceCache>()?;
     m.add_class::<preview::PyLightingPreview>()?;
     m.add_class::<relight::PyRelighter>()?;
+    m.add_class::<vf::PyProxyGrid>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(render::methods, m)?)?;
     m.add_function(wrap_pyfunction!(render::check_method_args, m)?)?;

@@ -16,7 +16,7 @@ use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::irradiance::{params_arg as irradiance_params_arg, PyIrradianceCache};
 use super::scene::PyScene;
-use super::vf::params_arg as vf_params_arg;
+use super::vf::{grid_arg as vf_grid_arg, params_arg as vf_params_arg};
 use super::vpl::PyVpls;
 use crate::estimators::control_variate::AlphaRule;
 use crate::estimators::direct::Techniques;
@@ -24,6 +24,7 @@ use crate::estimators::indirect::MAX_BOUNCES;
 use crate::estimators::many_lights::{Sampling, MAX_DRAWS};
 use crate::render::output::{Stat, Stats, View as CoreView};
 use crate::render::registry::{self, CacheKind, CacheRef, MethodInputs};
+use crate::render::vf::VfRenderer;
 use crate::render::{RenderParams, MAX_LIGHT_SAMPLES};
 use crate::visibility::params::CacheParams;
 
@@ -253,6 +254,7 @@ pub fn render<'py>(
         }
         _ => None,
     };
+    let vf_grid = vf_grid_arg(proxies, &envmap)?;
     let env: Py<PyEnvMap> = envmap.unbind();
     let vpls: Option<Py<PyVpls>> = vpls.map(Bound::unbind);
     let mut reporter = PyProgress::new(callback);
@@ -283,7 +285,12 @@ pub fn render<'py>(
             vf,
             ..MethodInputs::new(&scene, &env.get().inner, view)
         };
-        spec.render(&inputs, &mut progress)
+        match &vf_grid {
+            // A grid built beforehand (`proxies=ProxyGrid`) goes to VF's renderer itself:
+            // the registry's inputs carry parameters, not grids.
+            Some(g) => VfRenderer.render_with(spec, &inputs, Some(g.as_ref()), &mut progress),
+            None => spec.render(&inputs, &mut progress),
+        }
     })?
     .py()?;
     reporter.finish()?;

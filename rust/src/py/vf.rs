@@ -1,14 +1,166 @@
 //! Method "vf"'s keyword arguments ([`crate::estimators::vf::VfParams`]) for
 //! `_core.render`: each checked here with an error naming it, then the whole set by
-//! [`VfParams::validate`] against the camera.
+//! [`VfParams::validate`] against the camera; and `ProxyGrid`, VF's view-independent half
+//! ([`crate::estimators::vf::proxy_grid::ProxyGrid`]) built once and given to renders of
+//! any view as `proxies=`.
+
+use std::sync::Arc;
 
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
-use super::convert::{f64_arg, int_arg};
+use super::convert::{f64_arg, int_arg, seed_or_zero, threads_arg, IntoPyResult};
+use super::envmap::PyEnvMap;
+use super::interrupt::{detach_interruptible, PyProgress};
+use super::scene::PyScene;
+use crate::estimators::direct::Lighting;
+use crate::estimators::vf::proxy_grid::ProxyGrid;
 use crate::estimators::vf::{
     VfParams, MAX_FILTER, MAX_PROXIES, MAX_RAYS_PER_PIXEL, MAX_VOXELS_PER_AXIS,
 };
+use crate::parallel::with_threads;
+use crate::render::RenderParams;
+
+/// VF's proxies, their VPLs (lit by `envmap` and the scene's area lights) and voxel grids
+/// (eq. 1-3): built once, rendered from any view with `render(method="vf", proxies=grid)`.
+#[pyclass(name = "ProxyGrid", module = "viscache_rs._core", subclass, frozen)]
+pub struct PyProxyGrid {
+    pub(crate) inner: Arc<ProxyGrid>,
+    /// The scene the grid was built in.
+    #[pyo3(get)]
+    scene: Py<PyScene>,
+    /// The map that lit the proxies: a render under another map is refused.
+    #[pyo3(get)]
+    envmap: Py<PyEnvMap>,
+    /// The seed of the proxies' placement and lighting.
+    #[pyo3(get)]
+    seed: u64,
+}
+
+#[pymethods]
+impl PyProxyGrid {
+    /// `ProxyGrid(scene, envmap, proxies=24000, voxels=(6, 6, 6), seed=0, threads=None,
+    /// table_slots=None)`: about `proxies` proxies placed by area in `scene` and lit by
+    /// `envmap` with stream `seed`, in a `voxels` grid (an int: the same on every axis) over
+    /// the scene's bounds; `table_slots`: slots of the hashed table (None: dense when it
+    /// fits). The same seed gives the grid a render with that seed builds for itself, bit
+    /// for bit, on any `threads`.
+    #[new]
+    #[pyo3(signature = (scene, envmap, proxies=None, voxels=None, seed=0, threads=None, table_slots=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        scene: Py<PyScene>,
+        envmap: Py<PyEnvMap>,
+        proxies: Option<&Bound<'_, PyAny>>,
+        voxels: Option<&Bound<'_, PyAny>>,
+        #[pyo3(from_py_with = seed_or_zero)] seed: u64,
+        threads: Option<&Bound<'_, PyAny>>,
+        table_slots: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let mut p = VfParams::DEFAULT;
+        if let Some(o) = set(proxies) {
+            p.proxies = int_arg(o, "proxies", 1, MAX_PROXIES as i128)? as u32;
+        }
+        if let Some(o) = set(voxels) {
+            p.voxels = sizes::<3>(o, "voxels", MAX_VOXELS_PER_AXIS)?;
+        }
+        if let Some(o) = set(table_slots) {
+            p.table_slots = Some(int_arg(o, "table_slots", 1, u32::MAX as i128)? as u32);
+        }
+        let threads = threads_arg(threads)?;
+        let s = scene.borrow(py).get();
+        s.check_bvh_memory().py()?;
+        let env = envmap.get().inner.at_least(2).py()?.into_owned();
+        let reporter = PyProgress::new(None);
+        let stop = reporter.stop_flag();
+        let grid = detach_interruptible(py, &stop, || {
+            with_threads(threads, || {
+                let _ = s.bvh();
+                let lighting = Lighting {
+                    scene: &s,
+                    env: &env,
+                    product_level: RenderParams::DEFAULT.product_level,
+                };
+                ProxyGrid::build(&lighting, p.proxies, p.voxels, p.table_slots, seed, None)
+            })
+        })?
+        .py()?
+        .py()?;
+        reporter.finish()?;
+        Ok(Self {
+            inner: Arc::new(grid),
+            scene,
+            envmap,
+            seed,
+        })
+    }
+
+    /// Proxies placed.
+    fn __len__(&self) -> usize {
+        self.inner.proxies.len()
+    }
+
+    /// Voxels per axis.
+    #[getter]
+    fn voxels(&self) -> (u32, u32, u32) {
+        let d = self.inner.frame().dims;
+        (d[0], d[1], d[2])
+    }
+
+    /// Figures of the build: proxies, vpls, occupied_voxels (holding a disc),
+    /// nonempty_voxels (holding a VPL), hashed, proxy_seconds, voxelisation_seconds, and
+    /// the VPLs' total flux (W per channel).
+    #[getter]
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let g = &self.inner;
+        let d = PyDict::new(py);
+        d.set_item("proxies", g.proxies.len())?;
+        d.set_item("vpls", g.vpls.len())?;
+        d.set_item("occupied_voxels", g.occupied_voxels())?;
+        d.set_item("nonempty_voxels", g.lit_voxels())?;
+        d.set_item("hashed", g.disc_index.is_hashed())?;
+        d.set_item("proxy_seconds", g.proxy_seconds)?;
+        d.set_item("voxelisation_seconds", g.voxel_seconds)?;
+        d.set_item("flux", g.flux().to_array())?;
+        Ok(d)
+    }
+
+    fn __repr__(&self) -> String {
+        let d = self.inner.frame().dims;
+        format!(
+            "ProxyGrid(proxies={}, voxels=({}, {}, {}), seed={})",
+            self.inner.proxies.len(),
+            d[0],
+            d[1],
+            d[2],
+            self.seed
+        )
+    }
+}
+
+/// `proxies` as a [`PyProxyGrid`]'s grid, checked against the render's `envmap` (the map
+/// that lit it); `None` when `proxies` is not a grid.
+pub fn grid_arg(
+    proxies: Option<&Bound<'_, PyAny>>,
+    envmap: &Bound<'_, PyEnvMap>,
+) -> PyResult<Option<Arc<ProxyGrid>>> {
+    let Some(o) = set(proxies) else {
+        return Ok(None);
+    };
+    let Ok(g) = o.cast::<PyProxyGrid>() else {
+        return Ok(None);
+    };
+    let g = g.get();
+    if !g.envmap.bind(o.py()).is(envmap) {
+        return Err(PyValueError::new_err(
+            "proxies: the ProxyGrid's proxies were lit by another envmap; build one for \
+             this map",
+        ));
+    }
+    Ok(Some(g.inner.clone()))
+}
 
 /// `n` integers in `[1, max]` from an integer (repeated) or a sequence of `n`.
 fn sizes<const N: usize>(obj: &Bound<'_, PyAny>, name: &str, max: u32) -> PyResult<[u32; N]> {
@@ -78,7 +230,13 @@ pub fn params_arg(
         return Ok(None);
     }
     let mut p = VfParams::DEFAULT;
-    if let Some(o) = set(proxies) {
+    let grid = set(proxies).is_some_and(|o| o.is_instance_of::<PyProxyGrid>());
+    if grid && set(voxels).is_some() {
+        return Err(PyValueError::new_err(
+            "voxels: fixed by the ProxyGrid given as proxies; leave it None",
+        ));
+    }
+    if let Some(o) = set(proxies).filter(|_| !grid) {
         p.proxies = int_arg(o, "proxies", 1, MAX_PROXIES as i128)? as u32;
     }
     if let Some(o) = set(voxels) {

@@ -25,7 +25,7 @@ use crate::estimators::vf::gather::{gather, GatherCounts, LowRes};
 use crate::estimators::vf::march::{march, Lists};
 use crate::estimators::vf::proxy_grid::ProxyGrid;
 use crate::estimators::vf::upsample::upsample;
-use crate::estimators::vf::{surfels, VfParams, DEFAULT_SH_RANGE_SHARE};
+use crate::estimators::vf::{surfels, VfParams, DEFAULT_MERGE_VOXELS, DEFAULT_SH_RANGE_SHARE};
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
 use crate::parallel::with_threads;
@@ -63,6 +63,8 @@ pub struct VfStats {
     pub gather: GatherCounts,
     /// `R` used (world units).
     pub sh_range: f32,
+    /// The merge range used (world units).
+    pub merge_range: f32,
     /// Whether the grids used the hashed table.
     pub hashed: bool,
     /// The marching and indirect sizes used.
@@ -133,6 +135,9 @@ pub fn vf_frame(
     };
     let start = Instant::now();
     let r = sh_range(params, scene);
+    let merge_range = params
+        .merge_range
+        .unwrap_or(DEFAULT_MERGE_VOXELS * grid.frame().cell.length());
     let (ind_size, low_size) = params.sizes([camera.width, camera.height]);
     let low_cam = camera.with_resolution(low_size[0], low_size[1])?;
     let ind_cam = camera.with_resolution(ind_size[0], ind_size[1])?;
@@ -179,6 +184,8 @@ pub fn vf_frame(
         },
         &grid.lights,
         r,
+        merge_range,
+        params.specular_sigma,
         params.depth_tol,
         params.normal_tol,
         params.visibility,
@@ -222,6 +229,7 @@ pub fn vf_frame(
             marching_rays,
             gather: counts,
             sh_range: r,
+            merge_range,
             hashed: grid.disc_index.is_hashed(),
             marching: low_size,
             indirect: ind_size,
@@ -233,8 +241,11 @@ pub fn vf_frame(
     })
 }
 
-/// A whole VF render: the grid, the frame, and with `direct` the direct light of
-/// `direct_params` (MIS, no bounce) added. Runs on `threads` workers.
+/// A whole VF render: the grid (`grid`, built for `scene` and lit by `env`, else built
+/// here from `params` and `seed`: the same grid [`ProxyGrid::build`] makes with that seed),
+/// the frame, and with `direct` the direct light of `direct_params` (MIS, no bounce)
+/// added. Runs on `threads` workers. A given grid's build is not in `seconds`; its
+/// `voxelisation_seconds` are the build's.
 #[allow(clippy::too_many_arguments)]
 pub fn render_vf(
     scene: &Scene,
@@ -243,6 +254,7 @@ pub fn render_vf(
     params: &VfParams,
     seed: u64,
     direct: Option<RenderParams>,
+    grid: Option<&ProxyGrid>,
     threads: Option<usize>,
     progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
 ) -> Result<RenderOutput<VfStats>> {
@@ -257,20 +269,27 @@ pub fn render_vf(
     };
     let frame = with_threads(threads, || -> Result<VfFrame> {
         let _ = scene.bvh();
-        let grid = ProxyGrid::build(
-            &lighting,
-            params.proxies,
-            params.voxels,
-            params.table_slots,
-            seed,
-            None,
-        )?;
+        let built;
+        let grid = match grid {
+            Some(g) => g,
+            None => {
+                built = ProxyGrid::build(
+                    &lighting,
+                    params.proxies,
+                    params.voxels,
+                    params.table_slots,
+                    seed,
+                    None,
+                )?;
+                &built
+            }
+        };
         if !progress(1, 7) {
             return Err(Error::Interrupted {
                 what: "vf".to_string(),
             });
         }
-        vf_frame(scene, &grid, camera, params, seed, progress)
+        vf_frame(scene, grid, camera, params, seed, progress)
     })??;
     let mut stats = frame.stats;
     let mut image = frame.image;
@@ -328,17 +347,38 @@ pub fn render_vf(
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct VfRenderer;
 
-impl MethodRenderer for VfRenderer {
-    fn family(&self) -> &'static str {
-        "vf"
-    }
-
-    fn render(
+impl VfRenderer {
+    /// Renders `inputs` with row `spec` (method "vf") from a grid built beforehand
+    /// (`grid`: Python's `proxies=vc.vf.ProxyGrid(...)`; `None`: built for the render from
+    /// `inputs.vf`). The grid must be `inputs.scene`'s, else an error naming `proxies`.
+    pub fn render_with(
         &self,
         spec: &MethodSpec,
         inputs: &MethodInputs<'_>,
+        grid: Option<&ProxyGrid>,
         progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
     ) -> Result<RenderOutput> {
+        if spec.renderer.family() != "vf" {
+            return Err(Error::invalid(
+                "proxies",
+                format!(
+                    "a ProxyGrid is for method \"vf\", got method {:?}",
+                    spec.name
+                ),
+            ));
+        }
+        if inputs.cache.is_some() {
+            return Err(Error::invalid("cache", "method \"vf\" takes no cache"));
+        }
+        if let Some(g) = grid {
+            if g.vpls.fingerprint != inputs.scene.geometry_fingerprint() {
+                return Err(Error::invalid(
+                    "proxies",
+                    "the ProxyGrid was built for other geometry: build it again for this \
+                     scene",
+                ));
+            }
+        }
         let View::Camera(camera) = inputs.view else {
             return Err(Error::invalid(
                 "gbuffer",
@@ -368,6 +408,7 @@ impl MethodRenderer for VfRenderer {
             &params,
             p.seed,
             direct,
+            grid,
             inputs.threads,
             progress,
         )?;
@@ -397,16 +438,39 @@ impl MethodRenderer for VfRenderer {
             d.set("marching_rays", s.marching_rays);
             d.set("vpl_terms", s.gather.vpl_terms);
             d.set("sh_terms", s.gather.sh_terms);
+            d.set("culled_voxels", s.gather.culled_voxels);
             d.set("sh_range", s.sh_range);
+            d.set("merge_range", s.merge_range);
             d.set("hashed", s.hashed);
             d.set("first_sample_seconds", s.first_sample_seconds);
-            d.set("voxels", params.voxels.map(u64::from).to_vec());
+            d.set(
+                "voxels",
+                grid.map_or(params.voxels, |g| g.frame().dims)
+                    .map(u64::from)
+                    .to_vec(),
+            );
             d.set("marching", s.marching.map(u64::from).to_vec());
             d.set("indirect", s.indirect.map(u64::from).to_vec());
             d.set("rays_per_pixel", params.rays_per_pixel);
             d.set("filter", params.filter);
+            d.set("grid_given", grid.is_some());
             d
         }))
+    }
+}
+
+impl MethodRenderer for VfRenderer {
+    fn family(&self) -> &'static str {
+        "vf"
+    }
+
+    fn render(
+        &self,
+        spec: &MethodSpec,
+        inputs: &MethodInputs<'_>,
+        progress: &mut (dyn FnMut(u64, u64) -> bool + Send),
+    ) -> Result<RenderOutput> {
+        self.render_with(spec, inputs, None, progress)
     }
 }
 

@@ -11,6 +11,13 @@
 //! Where no neighbour lies on the pixel's surface (`N_c = 0`), the neighbours that saw a
 //! surface count by `w_l` alone; a pixel with none of those, or a miss, gets zero.
 //!
+//! The receiver's BSDF is Phong's diffuse plus specular term; eq. 7 weights the specular
+//! term towards each light by a Gaussian in `1 - cos^η θ` (θ: the angle between the light's
+//! direction and the mirror direction of the view, η the Phong exponent) of width
+//! `σ_θ` ([`specular_weight`]). The paper's `1 / (σ_θ √(2π))` is left out so that the
+//! weight peaks at 1 and `σ_θ = ∞` (the default) is Phong's term unweighted, equal to
+//! `method="vpl"`'s shading.
+//!
 //! [`Visibility::Traced`] replaces the lists by one shadow ray per VPL: the exact sum of
 //! `method="vpl"` over the same set.
 
@@ -20,12 +27,41 @@ use super::grid::{index_points, GridFrame, VoxelIndex};
 use super::march::Lists;
 use super::sh::{project_voxel, VoxelSh};
 use super::{Surfel, Visibility};
+use crate::bsdf::Material;
 use crate::camera::GBuffer;
 use crate::error::Result;
 use crate::estimators::indirect::shading_point_at;
-use crate::estimators::many_lights::light_paths::Receiver;
+use crate::estimators::many_lights::light_paths::{Connection, Receiver};
 use crate::geometry::{Scene, TraversalCounters};
 use crate::lights::vpl::{Vpl, VplSet};
+
+/// Eq. 7's weight `exp(-½ ((1 - cos^η θ) / σ_θ)²)` of a specular term whose light lies at
+/// `cos_theta` from the mirror direction (clamped to `[0, 1]`), for Phong exponent `eta`;
+/// 1 for `sigma = ∞`. In `(0, 1]`, 1 at θ = 0, decreasing in θ.
+#[inline]
+pub fn specular_weight(eta: f32, cos_theta: f32, sigma: f32) -> f32 {
+    if sigma == f32::INFINITY {
+        return 1.0;
+    }
+    let x = (1.0 - cos_theta.clamp(0.0, 1.0).powf(eta)) / sigma;
+    (-0.5 * x * x).exp()
+}
+
+/// The receiver's BSDF `f_x(ωo, wi)` with eq. 7's weight on Phong's specular part
+/// (`sigma = ∞`: [`Material::eval`]).
+#[inline]
+pub fn weighted_f(material: &Material, n: Vec3, wo: Vec3, wi: Vec3, sigma: f32) -> Vec3 {
+    let full = material.eval(n, wo, wi);
+    match *material {
+        Material::Phong { kd, exponent, .. } if sigma != f32::INFINITY && full != Vec3::ZERO => {
+            let diffuse = Vec3::from(kd) * std::f32::consts::FRAC_1_PI;
+            let r = 2.0 * n.dot(wo) * n - wo;
+            let cos = r.dot(wi) / r.length();
+            diffuse + (full - diffuse).max(Vec3::ZERO) * specular_weight(exponent, cos, sigma)
+        }
+        _ => full,
+    }
+}
 
 /// The VPLs sorted into voxels with each voxel's SH (eq. 2).
 #[derive(Clone, Debug)]
@@ -37,6 +73,112 @@ pub struct VoxelLights {
     pub sh: Vec<VoxelSh>,
     /// The VPLs in `index.items` order as lanes, for voxels of diffuse VPLs.
     lanes: Lanes,
+    /// Per entry of diffuse VPLs, those VPLs merged by [`MERGE_CELLS`]³ sub-cell and
+    /// normal ([`merge`]), and each entry's range of them: what a receiver farther than
+    /// the merge range from the voxel sums instead of the VPLs themselves.
+    coarse: Lanes,
+    coarse_ranges: Vec<std::ops::Range<usize>>,
+    /// Per entry: what decides that none of its VPLs can light a receiver.
+    bounds: Vec<VoxelBounds>,
+}
+
+/// The extent of a voxel's VPLs that lets a receiver skip them all: the box of their
+/// positions (none lies above the receiver's tangent plane when no corner does) and, when
+/// they share one normal (a flat patch), the least offset of their plane (the receiver
+/// lies behind every one of them when it lies behind that).
+#[derive(Clone, Copy, Debug)]
+struct VoxelBounds {
+    lo: Vec3,
+    hi: Vec3,
+    /// The common normal and `min n·o` over the VPLs, if every normal is the same.
+    plane: Option<(Vec3, f32)>,
+    /// Slack of the tests (world units): a part in 1e5 of the box's diagonal and of its
+    /// distance from the origin. Coplanar VPLs (a receiver on the patch itself, whose
+    /// terms are zero but whose tests round either way) are culled; a VPL within the
+    /// slack above the tangent plane is dropped with its term, of cosine at most
+    /// `slack / d`.
+    slack: f32,
+}
+
+impl VoxelBounds {
+    fn new<'a>(vpls: impl Iterator<Item = &'a Vpl>) -> Self {
+        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        let mut normal: Option<Vec3> = None;
+        let mut shared = true;
+        let mut offset = f32::INFINITY;
+        for v in vpls {
+            lo = lo.min(v.origin);
+            hi = hi.max(v.origin);
+            match normal {
+                None => normal = Some(v.normal),
+                Some(n) if n != v.normal => shared = false,
+                _ => {}
+            }
+            offset = offset.min(v.normal.dot(v.origin));
+        }
+        let scale = (hi - lo).length() + lo.abs().max(hi.abs()).length();
+        Self {
+            lo,
+            hi,
+            plane: normal.filter(|_| shared).map(|n| (n, offset)),
+            slack: 1e-5 * scale,
+        }
+    }
+
+    /// True when no VPL of the voxel can reach a receiver at `o` with normal `n`: every
+    /// one lies at or below its tangent plane, or (a flat patch) it lies at or behind
+    /// theirs, within the slack. Such VPLs' terms are zero (either cosine is) but for
+    /// those within the slack.
+    #[inline]
+    fn dark(&self, o: Vec3, n: Vec3) -> bool {
+        // The corner farthest along n.
+        let far = Vec3::select(n.cmpge(Vec3::ZERO), self.hi, self.lo);
+        if n.dot(far - o) <= self.slack {
+            return true;
+        }
+        match self.plane {
+            Some((nv, offset)) => nv.dot(o) - offset <= self.slack,
+            None => false,
+        }
+    }
+}
+
+/// Sub-cells per axis of a voxel's VPL box that [`merge`] pools VPLs in.
+pub const MERGE_CELLS: usize = 4;
+
+/// A voxel's diffuse VPLs pooled by sub-cell of their box (`MERGE_CELLS`³) and normal
+/// (bit for bit): one VPL per pool at the intensity-weighted centroid, with the pool's
+/// normal and summed intensity `Σ Φ f_v`, in pool order (deterministic). A receiver at
+/// distance `d` sees a pool of size `s` with a relative error of order `(s / d)²` in each
+/// term, hence its use only beyond the merge range. Rows are (origin, normal, intensity).
+pub fn merge(vpls: &[&Vpl], lo: Vec3, hi: Vec3) -> Vec<(Vec3, Vec3, Vec3)> {
+    let extent = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE));
+    let m = MERGE_CELLS as f32;
+    // (sub-cell, normal bits) -> (Σ w p, Σ w, Σ intensity, normal).
+    type Pool = (DVec3, f64, DVec3, Vec3);
+    let mut pools: std::collections::BTreeMap<([u32; 3], [u32; 3]), Pool> =
+        std::collections::BTreeMap::new();
+    for v in vpls {
+        let i = v.diffuse_intensity().unwrap_or(Vec3::ZERO);
+        let c = ((v.origin - lo) / extent * m)
+            .floor()
+            .clamp(Vec3::ZERO, Vec3::splat(m - 1.0));
+        let key = (
+            [c.x as u32, c.y as u32, c.z as u32],
+            v.normal.to_array().map(f32::to_bits),
+        );
+        let w = (i.x + i.y + i.z) as f64;
+        let e = pools
+            .entry(key)
+            .or_insert((DVec3::ZERO, 0.0, DVec3::ZERO, v.normal));
+        e.0 += v.origin.as_dvec3() * w.max(1e-30);
+        e.1 += w.max(1e-30);
+        e.2 += i.as_dvec3();
+    }
+    pools
+        .into_values()
+        .map(|(p, w, i, n)| ((p / w).as_vec3(), n, i.as_vec3()))
+        .collect()
 }
 
 /// Diffuse VPLs as structure of arrays, in `index.items` order: origin, normal and
@@ -56,6 +198,19 @@ struct Lanes {
 const WIDTH: usize = 8;
 
 impl Lanes {
+    /// Lanes of `(origin, normal, intensity)` rows, in order (no per-entry flags).
+    fn from_rows(rows: &[(Vec3, Vec3, Vec3)]) -> Self {
+        let mut l = Lanes::default();
+        for (o, n, i) in rows {
+            for a in 0..3 {
+                l.o[a].push(o[a]);
+                l.n[a].push(n[a]);
+                l.i[a].push(i[a]);
+            }
+        }
+        l
+    }
+
     fn new(index: &VoxelIndex, vpls: &[Vpl]) -> Self {
         let mut l = Lanes::default();
         for &k in &index.items {
@@ -140,11 +295,32 @@ impl VoxelLights {
             .map(|e| project_voxel(index.range(e).iter().map(|&i| &set.vpls[i as usize])))
             .collect();
         let lanes = Lanes::new(&index, &set.vpls);
+        let bounds: Vec<VoxelBounds> = (0..index.entries.len())
+            .map(|e| VoxelBounds::new(index.range(e).iter().map(|&i| &set.vpls[i as usize])))
+            .collect();
+        let mut rows = Vec::new();
+        let mut coarse_ranges = Vec::with_capacity(index.entries.len());
+        for (e, b) in bounds.iter().enumerate() {
+            let start = rows.len();
+            if lanes.diffuse[e] {
+                let vs: Vec<&Vpl> = index
+                    .range(e)
+                    .iter()
+                    .map(|&i| &set.vpls[i as usize])
+                    .collect();
+                rows.extend(merge(&vs, b.lo, b.hi));
+            }
+            coarse_ranges.push(start..rows.len());
+        }
+        let coarse = Lanes::from_rows(&rows);
         Ok(Self {
             index,
             vpls: set.vpls.clone(),
             sh,
             lanes,
+            coarse,
+            coarse_ranges,
+            bounds,
         })
     }
 
@@ -158,6 +334,8 @@ impl VoxelLights {
         key: u64,
         r: &Receiver,
         sh_range: f32,
+        merge_range: f32,
+        specular_sigma: f32,
         counts: &mut GatherCounts,
     ) -> DVec3 {
         let Some(e) = self.index.entry_of_key(key) else {
@@ -168,16 +346,26 @@ impl VoxelLights {
         let to = sh.centroid - sp.origin;
         let d2 = to.length_squared();
         if d2 < sh_range * sh_range || sh_range == f32::INFINITY {
-            let entry = &self.index.entries[e];
-            counts.vpl_terms += (entry.end - entry.start) as u64;
-            if let (Some(f), true) = (r.diffuse(), self.lanes.diffuse[e]) {
-                let range = entry.start as usize..entry.end as usize;
-                return (f * self.lanes.sum(range, sp.origin, sp.normal)).as_dvec3();
+            if self.bounds[e].dark(sp.origin, sp.normal) {
+                counts.culled_voxels += 1;
+                return DVec3::ZERO;
             }
+            let entry = &self.index.entries[e];
+            if let (Some(f), true) = (r.diffuse(), self.lanes.diffuse[e]) {
+                // Beyond the merge range the voxel's pooled VPLs stand in for its VPLs.
+                let (lanes, range) = if d2 >= merge_range * merge_range {
+                    (&self.coarse, self.coarse_ranges[e].clone())
+                } else {
+                    (&self.lanes, entry.start as usize..entry.end as usize)
+                };
+                counts.vpl_terms += range.len() as u64;
+                return (f * lanes.sum(range, sp.origin, sp.normal)).as_dvec3();
+            }
+            counts.vpl_terms += (entry.end - entry.start) as u64;
             let mut sum = DVec3::ZERO;
             for &i in self.index.range(e) {
                 if let Some(c) = self.vpls[i as usize].connect(r, None, 0.0) {
-                    sum += c.value.as_dvec3();
+                    sum += weighted(&c, r, specular_sigma).as_dvec3();
                 }
             }
             return sum;
@@ -189,7 +377,7 @@ impl VoxelLights {
         if !(cos > 0.0 && d2 > 0.0) {
             return DVec3::ZERO;
         }
-        let f = sp.material.eval(sp.normal, sp.wo, w).as_dvec3();
+        let f = weighted_f(&sp.material, sp.normal, sp.wo, w, specular_sigma).as_dvec3();
         f * sh.intensity(-w) * (cos / d2) as f64
     }
 
@@ -198,6 +386,7 @@ impl VoxelLights {
         &self,
         scene: &Scene,
         r: &Receiver,
+        specular_sigma: f32,
         counts: &mut GatherCounts,
         bvh: &mut TraversalCounters,
     ) -> DVec3 {
@@ -207,12 +396,38 @@ impl VoxelLights {
             if let Some(c) = v.connect(r, None, 0.0) {
                 counts.shadow_rays += 1;
                 if !scene.occluded1(c.origin, c.direction, c.tmax, bvh) {
-                    sum += c.value.as_dvec3();
+                    sum += weighted(&c, r, specular_sigma).as_dvec3();
                 }
             }
         }
         sum
     }
+}
+
+/// A surface VPL's term `c` at `r` with eq. 7's weight: its `f_x` factor replaced by
+/// [`weighted_f`]'s, channel by channel (unchanged for `sigma = ∞` or a Lambert receiver).
+#[inline]
+fn weighted(c: &Connection, r: &Receiver, sigma: f32) -> Vec3 {
+    if sigma == f32::INFINITY || r.diffuse().is_some() {
+        return c.value;
+    }
+    let sp = &r.sp;
+    // A point VPL's ray runs from it to the receiver (the light arrives from
+    // -direction); a map direction's (unbounded) from the receiver towards it.
+    let wi = if c.tmax == f32::INFINITY {
+        c.direction
+    } else {
+        -c.direction
+    };
+    let full = sp.material.eval(sp.normal, sp.wo, wi);
+    let w = weighted_f(&sp.material, sp.normal, sp.wo, wi, sigma);
+    Vec3::from_array(std::array::from_fn(|k| {
+        if full[k] > 0.0 {
+            c.value[k] * (w[k] / full[k])
+        } else {
+            0.0
+        }
+    }))
 }
 
 /// Work of a gather.
@@ -222,6 +437,9 @@ pub struct GatherCounts {
     pub vpl_terms: u64,
     /// Voxels shaded by their SH (second case).
     pub sh_terms: u64,
+    /// Near voxels skipped whole: every VPL of theirs below the receiver's tangent
+    /// plane, or the receiver behind their common plane.
+    pub culled_voxels: u64,
     /// Shadow rays ([`Visibility::Traced`]).
     pub shadow_rays: u64,
 }
@@ -230,6 +448,7 @@ impl std::ops::AddAssign for GatherCounts {
     fn add_assign(&mut self, o: Self) {
         self.vpl_terms += o.vpl_terms;
         self.sh_terms += o.sh_terms;
+        self.culled_voxels += o.culled_voxels;
         self.shadow_rays += o.shadow_rays;
     }
 }
@@ -274,6 +493,8 @@ pub fn gather(
     low: LowRes<'_>,
     lights: &VoxelLights,
     sh_range: f32,
+    merge_range: f32,
+    specular_sigma: f32,
     depth_tol: f32,
     normal_tol: f32,
     visibility: Visibility,
@@ -284,7 +505,6 @@ pub fn gather(
         let mut out = Vec::with_capacity(w);
         let mut counts = GatherCounts::default();
         let mut bvh = TraversalCounters::default();
-        let mut weighted: Vec<(u64, f32)> = Vec::new();
         for x in 0..w {
             let p = y * w + x;
             let Some(hit) = gbuffer.surface_hit(p) else {
@@ -295,7 +515,7 @@ pub fn gather(
             let sp = shading_point_at(scene, &hit, -dir);
             let r = Receiver::new(scene, sp);
             if visibility == Visibility::Traced {
-                out.push(lights.traced(scene, &r, &mut counts, &mut bvh));
+                out.push(lights.traced(scene, &r, specular_sigma, &mut counts, &mut bvh));
                 continue;
             }
             let me = Surfel {
@@ -319,23 +539,38 @@ pub fn gather(
                 out.push(DVec3::ZERO);
                 continue;
             }
-            weighted.clear();
-            for ((q, _), wq) in near.iter().zip(ws) {
-                if wq > 0.0 {
-                    weighted.extend(low.lists.get(*q).iter().map(|&k| (k, wq / nc)));
+            // The four lists are sorted and distinct: merge them, a voxel in several
+            // taking the sum of their weights in neighbour order (what a stable sort of
+            // their concatenation gave, without its cost).
+            let lists: [&[u64]; 4] = std::array::from_fn(|j| {
+                if ws[j] > 0.0 {
+                    low.lists.get(near[j].0)
+                } else {
+                    &[]
                 }
-            }
-            weighted.sort_by_key(|&(k, _)| k);
+            });
+            let mut heads = [0usize; 4];
             let mut sum = DVec3::ZERO;
-            let mut i = 0;
-            while i < weighted.len() {
-                let key = weighted[i].0;
-                let mut wk = 0.0f64;
-                while i < weighted.len() && weighted[i].0 == key {
-                    wk += weighted[i].1 as f64;
-                    i += 1;
+            loop {
+                let mut key = u64::MAX;
+                for j in 0..4 {
+                    if let Some(&k) = lists[j].get(heads[j]) {
+                        key = key.min(k);
+                    }
                 }
-                sum += lights.voxel_light(key, &r, sh_range, &mut counts) * wk;
+                if key == u64::MAX {
+                    break;
+                }
+                let mut wk = 0.0f64;
+                for j in 0..4 {
+                    if lists[j].get(heads[j]) == Some(&key) {
+                        wk += (ws[j] / nc) as f64;
+                        heads[j] += 1;
+                    }
+                }
+                sum +=
+                    lights.voxel_light(key, &r, sh_range, merge_range, specular_sigma, &mut counts)
+                        * wk;
             }
             out.push(sum);
         }

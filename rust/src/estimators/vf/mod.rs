@@ -82,10 +82,20 @@ pub struct VfParams {
     /// nearer give their VPLs, farther ones their SH; `None`: [`DEFAULT_SH_RANGE_SHARE`] of
     /// the scene's diagonal.
     pub sh_range: Option<f32>,
+    /// Voxels whose centroid lies at least this far (world units, `>= 0`, may be
+    /// infinite: never) but nearer than `sh_range` give a diffuse receiver their VPLs
+    /// pooled by sub-cell and normal ([`gather::merge`]) instead of each VPL; `None`:
+    /// [`DEFAULT_MERGE_VOXELS`] voxel diagonals.
+    pub merge_range: Option<f32>,
     /// Slots `T` of the hashed voxel table; `None`: dense storage when the grid has at
     /// most [`grid::DENSE_MAX_VOXELS`] voxels, else hashed with as many slots as
     /// non-empty voxels.
     pub table_slots: Option<u32>,
+    /// σ_θ of eq. 7 (`> 0`, may be infinite): a Phong receiver's specular term towards
+    /// each VPL or voxel is weighted by `exp(-½ ((1 - cos^η θ) / σ_θ)²)`
+    /// ([`gather::specular_weight`]); infinite (the default) leaves Phong's specular term
+    /// whole, as `method="vpl"` shades it.
+    pub specular_sigma: f32,
     pub visibility: Visibility,
 }
 
@@ -93,6 +103,10 @@ pub struct VfParams {
 pub const DEFAULT_MARCHING: [u32; 2] = [64, 64];
 /// The paper's indirect resolution.
 pub const DEFAULT_INDIRECT: [u32; 2] = [256, 256];
+
+/// `merge_range` when not given, in voxel diagonals: pools of a quarter voxel are then
+/// seen from at least four of their sizes.
+pub const DEFAULT_MERGE_VOXELS: f32 = 1.0;
 
 /// `sh_range` when not given, as a share of the scene's bounding-box diagonal.
 pub const DEFAULT_SH_RANGE_SHARE: f32 = 0.35;
@@ -110,7 +124,9 @@ impl VfParams {
         depth_tol: 0.1,
         normal_tol: 0.1,
         sh_range: None,
+        merge_range: None,
         table_slots: None,
+        specular_sigma: f32::INFINITY,
         visibility: Visibility::Marched,
     };
 
@@ -177,6 +193,23 @@ impl VfParams {
                 return Err(Error::invalid(
                     "sh_range",
                     format!("must be >= 0 (world units; inf: VPLs only), got {r}"),
+                ));
+            }
+        }
+        if self.specular_sigma.is_nan() || self.specular_sigma <= 0.0 {
+            return Err(Error::invalid(
+                "specular_sigma",
+                format!(
+                    "must be > 0 (inf: Phong's specular term unweighted), got {}",
+                    self.specular_sigma
+                ),
+            ));
+        }
+        if let Some(r) = self.merge_range {
+            if r.is_nan() || r < 0.0 {
+                return Err(Error::invalid(
+                    "merge_range",
+                    format!("must be >= 0 (world units; inf: never pool), got {r}"),
                 ));
             }
         }

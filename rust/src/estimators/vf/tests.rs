@@ -162,7 +162,7 @@ fn empty_voxels_and_a_one_voxel_grid() {
     let lit = frame.key(frame.voxel_of(vpl.position));
     for k in 0..frame.voxels() {
         for range in [0.0, 1.0, f32::INFINITY] {
-            let l = lights.voxel_light(k, &r, range, &mut counts);
+            let l = lights.voxel_light(k, &r, range, f32::INFINITY, f32::INFINITY, &mut counts);
             assert!(l.is_finite());
             if k != lit {
                 assert_eq!(l, glam::DVec3::ZERO);
@@ -562,13 +562,27 @@ fn bad_parameters_are_named() {
     }
     .validate(cam)
     .is_ok());
-    let cases: [(VfParams, &str); 12] = [
+    let cases: [(VfParams, &str); 14] = [
         (
             VfParams {
                 proxies: 0,
                 ..VfParams::DEFAULT
             },
             "proxies",
+        ),
+        (
+            VfParams {
+                specular_sigma: 0.0,
+                ..VfParams::DEFAULT
+            },
+            "specular_sigma",
+        ),
+        (
+            VfParams {
+                specular_sigma: f32::NAN,
+                ..VfParams::DEFAULT
+            },
+            "specular_sigma",
         ),
         (
             VfParams {
@@ -729,7 +743,14 @@ fn lanes_equal_connect() {
             let rec = Receiver::new(&scene, sp);
             let mut counts = Default::default();
             for k in 0..frame.voxels() {
-                let got = lights.voxel_light(k, &rec, f32::INFINITY, &mut counts);
+                let got = lights.voxel_light(
+                    k,
+                    &rec,
+                    f32::INFINITY,
+                    f32::INFINITY,
+                    f32::INFINITY,
+                    &mut counts,
+                );
                 let mut want = glam::DVec3::ZERO;
                 for &i in lights.index.get(frame.coords(k)) {
                     if let Some(c) = lights.vpls[i as usize].connect(&rec, None, 0.0) {
@@ -740,5 +761,76 @@ fn lanes_equal_connect() {
                 assert!((got - want).abs().max_element() <= tol, "{got} vs {want}");
             }
         }
+    }
+}
+
+/// Pools ([`gather::merge`]) keep a voxel's intensity and normals; seen from afar they
+/// light a receiver as its VPLs do, to a relative error within `(s / d)²` (`s` a pool's
+/// diagonal) that falls with the distance; within the merge range a receiver sums the
+/// VPLs themselves (bit for bit).
+#[test]
+fn pooled_vpls_keep_the_light_from_afar() {
+    let scene = plane_scene(1.0);
+    let frame = GridFrame::new(bounds(Vec3::ZERO, Vec3::ONE), [1, 1, 1]).unwrap();
+    let tilted = Vec3::new(0.3, 1.0, 0.1).normalize();
+    let vpls: Vec<Vpl> = (0..500)
+        .map(|i| {
+            let r = rng(21, i);
+            let p = Vec3::new(r(0), 0.5 * r(1), r(2));
+            let n = if i % 2 == 0 { Vec3::Y } else { tilted };
+            lambert_vpl(p, n, Vec3::new(r(3), r(4), 1.0), [0.7, 0.5, 0.3])
+        })
+        .collect();
+    let refs: Vec<&Vpl> = vpls.iter().collect();
+    let (lo, hi) = (Vec3::ZERO, Vec3::new(1.0, 0.5, 1.0));
+    let pools = gather::merge(&refs, lo, hi);
+    assert!(pools.len() <= 2 * gather::MERGE_CELLS.pow(3) && pools.len() > 8);
+    let total: Vec3 = vpls.iter().map(|v| v.diffuse_intensity().unwrap()).sum();
+    let pooled: Vec3 = pools.iter().map(|p| p.2).sum();
+    assert!((total - pooled).abs().max_element() <= 1e-5 * total.max_element());
+    assert!(pools.iter().all(|p| p.1 == Vec3::Y || p.1 == tilted));
+    let set = crate::lights::vpl::VplSet {
+        vpls,
+        fingerprint: scene.geometry_fingerprint(),
+        ..Default::default()
+    };
+    let lights = VoxelLights::build(frame, &set, None).unwrap();
+    let s = (hi - lo).length() / gather::MERGE_CELLS as f32;
+    let mut last = f64::INFINITY;
+    for d in [3.0f32, 6.0, 12.0, 24.0] {
+        let sp = crate::estimators::direct::ShadingPoint {
+            origin: Vec3::new(0.5, d, 0.4),
+            normal: -Vec3::Y,
+            wo: -Vec3::Y,
+            material: Material::Lambert {
+                albedo: [0.6, 0.4, 0.2],
+            },
+        };
+        let rec = Receiver::new(&scene, sp);
+        let mut counts = Default::default();
+        let key = frame.key(UVec3::ZERO);
+        let exact = lights.voxel_light(
+            key,
+            &rec,
+            f32::INFINITY,
+            f32::INFINITY,
+            f32::INFINITY,
+            &mut counts,
+        );
+        let near = lights.voxel_light(
+            key,
+            &rec,
+            f32::INFINITY,
+            2.0 * d,
+            f32::INFINITY,
+            &mut counts,
+        );
+        let pooled = lights.voxel_light(key, &rec, f32::INFINITY, 0.0, f32::INFINITY, &mut counts);
+        assert_eq!(near, exact);
+        let rel = ((pooled - exact).abs() / exact).max_element();
+        let bound = ((s / d) as f64).powi(2);
+        println!("pooled at d = {d}: relative error {rel:.2e} (bound {bound:.2e})");
+        assert!(rel <= bound && rel < last, "d = {d}: {rel} vs {bound}");
+        last = rel;
     }
 }

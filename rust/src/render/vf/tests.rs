@@ -26,7 +26,12 @@ struct Chain {
 }
 
 fn chain() -> Chain {
-    let setup = crate::scenes::load("cornell", 0.25, 0).unwrap();
+    chain_of(None)
+}
+
+/// The chain's setup in cornell's `variant` (e.g. `glossy_floor`).
+fn chain_of(variant: Option<&str>) -> Chain {
+    let setup = crate::scenes::load_variant("cornell", variant, 0.25, 0).unwrap();
     let camera = setup.camera.with_resolution(32, 24).unwrap();
     let env = setup.envmap.at_least(2).unwrap().into_owned();
     let lighting = Lighting {
@@ -156,6 +161,128 @@ fn the_exactness_chain_ends_at_the_many_light_renderer() {
         means[1] >= means[0] && (means[1] - 1.0).abs() < 0.1,
         "{means:?}"
     );
+}
+
+fn vpl_image(c: &Chain) -> Vec<[f32; 3]> {
+    render_many_lights(
+        &c.setup.scene,
+        &c.setup.envmap,
+        &c.camera,
+        &c.grid.vpls,
+        &ManyLightParams {
+            spp: 1,
+            seed: 3,
+            jitter: false,
+            clamp: None,
+            direct: false,
+            gather: Gather::Full,
+            time_budget: None,
+        },
+        None,
+        Some(2),
+        &mut |_, _| true,
+    )
+    .unwrap()
+    .image
+}
+
+/// Eq. 7's weight against its formula worked by hand, and its limits.
+#[test]
+fn eq7_weight_is_the_papers_gaussian() {
+    use crate::estimators::vf::gather::specular_weight;
+    // η = 10, cos θ = 0.9: cos^η = 0.348678, x = 0.651322 / 0.5, exp(-x²/2) = 0.428082.
+    assert!((specular_weight(10.0, 0.9, 0.5) - 0.428082).abs() < 1e-5);
+    assert_eq!(specular_weight(10.0, 1.0, 0.5), 1.0);
+    assert_eq!(specular_weight(50.0, 0.2, f32::INFINITY), 1.0);
+    // Below the mirror's hemisphere cos^η is 0: the floor of the weight.
+    assert!((specular_weight(10.0, -0.5, 0.5) - (-2.0f32).exp()).abs() < 1e-6);
+    let mut last = 1.0;
+    for k in 0..=100 {
+        let w = specular_weight(30.0, 1.0 - k as f32 / 100.0, 0.3);
+        assert!(w > 0.0 && w <= last, "{k}: {w} > {last}");
+        last = w;
+    }
+}
+
+/// On the glossy floor (Phong, N_s = 50) the exactness chain still ends at
+/// `method="vpl"`: with σ_θ = ∞ the traced frame shades the floor's Phong specular term
+/// as the many-light renderer does. A finite σ_θ (eq. 7) only lowers pixels (weights in
+/// (0, 1] on the specular part), lowers the floor's, and tends to the unweighted image as
+/// σ_θ grows.
+#[test]
+fn eq7_on_the_glossy_floor_ends_at_the_many_light_renderer() {
+    let c = chain_of(Some("glossy_floor"));
+    let (w, h) = (c.camera.width, c.camera.height);
+    let exact = VfParams {
+        proxies: 3000,
+        marching: Some([w, h]),
+        indirect: Some([w, h]),
+        filter: 1,
+        sh_range: Some(f32::INFINITY),
+        visibility: Visibility::Traced,
+        ..VfParams::DEFAULT
+    };
+    let traced = frame(&c, &exact, 2);
+    let vpl = vpl_image(&c);
+    let mean: f32 =
+        traced.iter().map(|p| p[0] + p[1] + p[2]).sum::<f32>() / (3 * traced.len()) as f32;
+    assert!(mean > 0.0);
+    for (i, (a, b)) in traced.iter().zip(&vpl).enumerate() {
+        for ch in 0..3 {
+            assert!(
+                (a[ch] - b[ch]).abs() <= 1e-4 * b[ch].abs().max(mean),
+                "pixel {i}: {a:?} vs {b:?}"
+            );
+        }
+    }
+    let weighted = frame(
+        &c,
+        &VfParams {
+            specular_sigma: 0.2,
+            ..exact
+        },
+        2,
+    );
+    let mut lowered = 0;
+    for (a, b) in weighted.iter().zip(&traced) {
+        for ch in 0..3 {
+            assert!(a[ch] <= b[ch] * (1.0 + 1e-5) + 1e-9, "{a:?} vs {b:?}");
+        }
+        if a[1] < 0.99 * b[1] {
+            lowered += 1;
+        }
+    }
+    // The floor fills the lower part of the view.
+    assert!(lowered > traced.len() / 20, "{lowered} of {}", traced.len());
+    let wide = frame(
+        &c,
+        &VfParams {
+            specular_sigma: 1e4,
+            ..exact
+        },
+        2,
+    );
+    assert!(relmse(&wide, &traced) < 1e-8, "{}", relmse(&wide, &traced));
+    // The SH case weights the same way: with every voxel by SH, eq. 7 still lowers.
+    let sh = VfParams {
+        sh_range: Some(0.0),
+        visibility: Visibility::Marched,
+        rays_per_pixel: 16,
+        ..exact
+    };
+    let (a, b) = (
+        frame(
+            &c,
+            &VfParams {
+                specular_sigma: 0.2,
+                ..sh
+            },
+            2,
+        ),
+        frame(&c, &sh, 2),
+    );
+    let (sa, sb): (f32, f32) = (a.iter().map(|p| p[1]).sum(), b.iter().map(|p| p[1]).sum());
+    assert!(sa < 0.999 * sb, "{sa} vs {sb}");
 }
 
 /// A frame is bit-identical on one and three threads, with the hashed table too, and a
