@@ -42,6 +42,22 @@ def test_every_method_keeps_its_budget(garage, method):
     assert r.stats["complete"]
 
 
+@pytest.mark.parametrize("method", ["vpl", "path"])
+def test_a_budget_spent_before_the_passes_still_ends_after_one_sample(method):
+    """The default VPL set's tracing can spend the whole budget: the probe then finds its
+    deadline passed before any band begins. The schedule, knowing no sample's cost, once
+    planned 65,536 samples per pixel for the next pass (the render ran for minutes)."""
+    setup = vc.scenes.load("cornell")
+    cam = setup.camera.with_resolution(24, 18)
+    start = time.perf_counter()
+    r = vc.render(setup, camera=cam, method=method, direct=False, time_budget=0.002,
+                  progress=False, threads=2)
+    wall = time.perf_counter() - start
+    assert r.stats["spp"] >= 1 and r.stats["samples"] < 8 * 24 * 18
+    bound = max(1.1 * 0.002, r.stats.get("first_sample_seconds") or 0.0)
+    assert wall <= bound + ALLOWANCE, (wall, r.stats)
+
+
 def test_reference_ao_keeps_its_budget(garage):
     setup, cam = garage
     start = time.perf_counter()

@@ -83,6 +83,11 @@ impl PassSchedule {
     /// at `min` or more; `None` when not even one more sample per pixel fits.
     pub(crate) fn next_target(&self, left: f64, pixels: u64, taken: u64, min: u32) -> Option<u32> {
         let w = &self.work;
+        // No sample measured yet (a probe whose deadline passed before any band began):
+        // nothing says what a sample costs, and a cost of zero would plan MAX_SPP.
+        if w.samples == 0 || w.sample_ns == 0 {
+            return None;
+        }
         let per_pixel = self.anchor_seconds();
         let per_sample = self.wall_per_cpu_ns() * w.sample_ns as f64 / w.samples.max(1) as f64;
         let spend = self.spend(left) - per_pixel * pixels as f64;
@@ -94,5 +99,32 @@ impl PassSchedule {
         let mean = taken as f64 / pixels.max(1) as f64;
         (target >= (mean + 1.0).floor() && target > min as f64)
             .then(|| target.min(MAX_SPP as f64) as u32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Before any sample is measured the schedule plans nothing (the driver then gives
+    /// every pixel one sample): a cost of zero per sample once planned MAX_SPP samples in
+    /// every pixel of a render whose probe found its deadline passed.
+    #[test]
+    fn nothing_is_planned_before_a_sample_is_measured() {
+        let mut s = PassSchedule::default();
+        assert_eq!(s.next_target(10.0, 100, 0, 0), None);
+        s.record(0.001, PassWork::default());
+        assert_eq!(s.next_target(10.0, 100, 0, 0), None);
+        // Once a sample is measured: 1 ms a sample (one thread), 1 s left, 10 pixels.
+        s.record(
+            0.01,
+            PassWork {
+                samples: 10,
+                sample_ns: 10_000_000,
+                ..PassWork::default()
+            },
+        );
+        let t = s.next_target(1.0, 10, 10, 1).unwrap();
+        assert!(t > 1 && t < MAX_SPP, "{t}");
     }
 }
