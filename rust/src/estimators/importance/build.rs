@@ -75,7 +75,7 @@ impl ImportanceCache {
             .filter(|&i| diffuse(i as usize))
             .collect();
         let (w, s) = (gbuffer.camera.width, self.params().spacing);
-        let on_grid = |i: u32| (i % w) % s == 0 && (i / w) % s == 0;
+        let on_grid = |i: u32| (i % w).is_multiple_of(s) && (i / w).is_multiple_of(s);
         let mut report = ImportanceBuildReport {
             pixels: gbuffer.object.len(),
             points: points.len(),
