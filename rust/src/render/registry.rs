@@ -568,7 +568,10 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("alpha") && e.contains("\"mis\"") && e.contains("gbuffer"));
-        assert!(e.contains("methods that do: [\"cv\"]"), "{e}");
+        assert!(
+            e.contains("methods that do: [\"cv\", \"importance_cache\"]"),
+            "{e}"
+        );
         let e = mis
             .check_args(&[], Some(CacheKind::Visibility))
             .unwrap_err()
