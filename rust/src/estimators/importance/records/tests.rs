@@ -72,7 +72,8 @@ fn point_in(region: &Region, seed: u64, i: u64) -> (Vec3, Vec3) {
     // A normal within the cone: tilt the record's by up to the cone's angle.
     let t = unit(seed, i, 4) * region.cone;
     let side = region.normal.any_orthonormal_vector();
-    let side = glam::Quat::from_axis_angle(region.normal, unit(seed, i, 5) * std::f32::consts::TAU).mul_vec3(side);
+    let side = glam::Quat::from_axis_angle(region.normal, unit(seed, i, 5) * std::f32::consts::TAU)
+        .mul_vec3(side);
     let n = (region.normal * t.cos() + side * t.sin()).normalize();
     (x, n)
 }
