@@ -142,3 +142,15 @@ def test_bad_input_names_the_argument(cornell, lights, small, built):
     with pytest.raises(ValueError, match="spacing"):
         vc.render(cornell, camera=small, method="mis", spacing=4)
     assert len(cache) == n
+
+
+def test_indirect_only_matches_the_exact_indirect_sum(cornell, lights, small, built):
+    """Without direct light the light VPLs add nothing, whether the cache holds them (a
+    given cache: drawn, they cost no ray) or not (the cache built here leaves them out)."""
+    cache, _ = built
+    ref = vc.render(cornell, camera=small, method="vpl", vpls=lights, spp=SPP, threads=2,
+                    direct=False)
+    for kwargs in ({"cache": cache}, {"vpls": lights, "spacing": 4}):
+        res = vc.render(cornell, camera=small, method="importance_cache", spp=SPP,
+                        vpl_samples=4, threads=2, direct=False, **kwargs)
+        within_4_se(res, ref, f"direct=False {sorted(kwargs)}")
