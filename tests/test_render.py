@@ -450,11 +450,12 @@ def test_bad_arguments_name_themselves(small_setups, kwargs, exc, needle):
 def test_the_registry_lists_every_method_and_refuses_what_a_method_ignores(small_setups):
     table = {m["name"]: m for m in vc.methods()}
     assert list(table) == ["env", "bsdf", "mis", "product", "cv", "path", "irradiance_cache",
-                           "vpl", "vpl_sampled", "vf"]
+                           "vpl", "vpl_sampled", "importance_cache", "vf"]
     assert table["cv"]["caches"] == ["VisibilityCache"]
     assert table["irradiance_cache"]["caches"] == ["IrradianceCache"]
+    assert table["importance_cache"]["caches"] == ["ImportanceCache"]
     assert all(not m["caches"] for name, m in table.items()
-               if name not in ("cv", "irradiance_cache"))
+               if name not in ("cv", "irradiance_cache", "importance_cache"))
     assert (table["path"]["min_bounces"], table["path"]["default_bounces"]) == (1, 1)
     assert table["vpl"]["estimator"] == "many_lights"
     assert (table["mis"]["default_spp"], table["vpl"]["default_spp"]) == (16, 1)
@@ -473,7 +474,8 @@ def test_the_registry_lists_every_method_and_refuses_what_a_method_ignores(small
     # A cache for a method that takes none; a parameter only other methods read.
     with pytest.raises(ValueError, match=r'^cache: method "product" takes no cache'):
         vc.render(setup, spp=1, method="product", cache=cache, progress=False)
-    with pytest.raises(ValueError, match=r'^alpha: method "mis".*methods that do: \["cv"\]'):
+    takers = r'methods that do: \["cv", "importance_cache"\]'
+    with pytest.raises(ValueError, match=r'^alpha: method "mis".*' + takers):
         vc.render(setup, spp=1, method="mis", alpha=0.5, progress=False)
     with pytest.raises(ValueError, match=r'^vpls: method "cv"'):
         vc.render(setup, spp=1, method="cv", vpls=object(), progress=False)

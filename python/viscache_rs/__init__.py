@@ -36,6 +36,7 @@ from ._core import (
 )
 from .ambient import AOResult, render_ao
 from .cache import VisibilityCache
+from .importance import ImportanceCache
 from .irradiance import IrradianceCache
 from .relight import Relighter, RelightResult
 from .render import RenderResult, methods, preview, render
@@ -58,6 +59,7 @@ __all__ = [
     "Camera",
     "EnvMap",
     "GBuffer",
+    "ImportanceCache",
     "IrradianceCache",
     "LightingPreview",
     "Material",

@@ -17,6 +17,7 @@ __all__ = [
     "Setup",
     "EnvMap",
     "GBuffer",
+    "ImportanceCache",
     "IrradianceCache",
     "ProxyGrid",
     "VisibilityCache",
@@ -283,6 +284,48 @@ class ProxyGrid:
     def __len__(self) -> int: ...
 
 @disjoint_base
+class ImportanceCache:
+    """Importance records over a scene and a light set (survey ch. 6). Subclassed by
+    ``viscache_rs.ImportanceCache``, which adds the progress bar to ``build``."""
+
+    def __new__(
+        cls,
+        scene: Scene,
+        lights: VPLs,
+        spacing: int | None = None,
+        nearest: int | None = None,
+        lam: float | None = None,
+        alpha: tuple[float, float, float, float] | None = None,
+    ) -> ImportanceCache: ...
+    @property
+    def scene(self) -> Scene: ...
+    @property
+    def lights(self) -> VPLs: ...
+    @property
+    def params(self) -> dict[str, Any]: ...
+    def memory_bytes(self) -> int: ...
+    def __len__(self) -> int: ...
+    def build(
+        self,
+        camera: Camera | None = None,
+        seed: int | None = 0,
+        threads: int | None = None,
+        *,
+        gbuffer: GBuffer | None = None,
+        time_budget: float | None = None,
+        callback: Any = None,
+    ) -> dict[str, Any]: ...
+    def lookup(
+        self, points: _ArrayLike, normals: _ArrayLike, lam: float | None = None
+    ) -> dict[str, npt.NDArray[Any]]: ...
+    def records(self) -> dict[str, npt.NDArray[Any]]: ...
+    def save(self, path: str | PathLike[str]) -> None: ...
+    @classmethod
+    def load(
+        cls, path: str | PathLike[str], scene: Scene, lights: VPLs
+    ) -> ImportanceCache: ...
+
+@disjoint_base
 class IrradianceCache:
     """One-bounce irradiance records with gradients (survey ch. 3). Subclassed by
     ``viscache_rs.IrradianceCache``, which adds the progress bar to ``build``."""
@@ -489,9 +532,9 @@ def render(
     time_budget: float | None = None,
     product_level: int | str | None = None,
     callback: Any = None,
-    cache: VisibilityCache | IrradianceCache | None = None,
+    cache: VisibilityCache | IrradianceCache | ImportanceCache | None = None,
     jitter: bool = True,
-    alpha: float | str | None = None,
+    alpha: float | str | tuple[float, float, float, float] | None = None,
     alpha_radius: int | None = 4,
     insert_missing: bool = False,
     technique_weights: dict[str, float] | None = None,
@@ -522,6 +565,10 @@ def render(
     normal_tol: float | None = None,
     sh_range: float | None = None,
     sampling: str | None = None,
+    combine: str | None = None,
+    lam: float | None = None,
+    spacing: int | None = None,
+    nearest: int | None = None,
 ) -> dict[str, Any]: ...
 def methods() -> list[dict[str, Any]]: ...
 def own_cache_record_cap(pixels: int, spp: int, preset: str = "auto") -> int: ...
@@ -535,7 +582,9 @@ OWN_CACHE_BUDGET_SHARE: float
 LIMITS: dict[str, tuple[Any, Any]]
 
 def check_method_args(
-    method: str, given: list[str], cache: VisibilityCache | IrradianceCache | None = None
+    method: str,
+    given: list[str],
+    cache: VisibilityCache | IrradianceCache | ImportanceCache | None = None,
 ) -> None: ...
 @final
 class VPLs:

@@ -47,6 +47,13 @@ direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=N
   usable record by paths; ``stats["seconds"]`` includes the build, ``stats["records"]``,
   ``stats["irradiance_misses"]`` say what it did. Direct light as ``"mis"`` unless
   ``direct=False``.
+- ``"importance_cache"`` (unbiased for the VPL set; the survey's ch. 6): ``vpl_samples``
+  (16) lights per row and sample drawn from the rows F, U, B, C of the ``nearest`` records
+  of an :class:`ImportanceCache` (``cache=``, or one built for the view from ``spacing=``,
+  ``nearest=``), ``combine`` "alpha_max" (default, confidences ``alpha=(α_F, α_U, α_B,
+  α_C)``), "balance", or one row "F", "U", "B", "C" (biased but "C"), ``lam`` eq. 6.3's
+  normal weight in median record reaches; ``stats["seconds"]`` includes a build,
+  ``stats["build_seconds"]`` is the build alone.
 - ``"vf"`` (biased; Chen et al. 2014, visibility filtering): one bounce from about
   ``proxies`` (default 24 000) point proxies placed by area and lit by shadow rays, each
   a first-bounce surface VPL, hashed into a ``voxels`` grid (default ``(6, 6, 6)``; an
@@ -167,7 +174,7 @@ def render(
     cache=None,
     preset: str = "auto",
     jitter: bool = True,
-    alpha: float | str = 1.0,
+    alpha: float | str | tuple[float, float, float, float] = 1.0,
     alpha_radius: int = 4,
     insert_missing: bool = False,
     technique_weights: dict[str, float] | None = None,
@@ -197,6 +204,10 @@ def render(
     normal_tol: float | None = None,
     sh_range: float | None = None,
     sampling: str | None = None,
+    combine: str | None = None,
+    lam: float | None = None,
+    spacing: int | None = None,
+    nearest: int | None = None,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     # (A cache is checked by the registry below, against the caches the method accepts.)
@@ -220,7 +231,9 @@ def render(
              "marching": marching is not None, "indirect": indirect is not None,
              "rays_per_pixel": rays_per_pixel is not None, "filter": filter is not None,
              "depth_tol": depth_tol is not None, "normal_tol": normal_tol is not None,
-             "sh_range": sh_range is not None}
+             "sh_range": sh_range is not None, "combine": combine is not None,
+             "lam": lam is not None, "spacing": spacing is not None,
+             "nearest": nearest is not None}
     _core.check_method_args(method, [k for k, v in given.items() if v], cache)
     if camera is None:
         camera = setup.camera if gbuffer is None else gbuffer.camera
@@ -244,7 +257,9 @@ def render(
             callback=callback,
             cache=cache,
             jitter=jitter,
-            alpha=alpha,
+            # Method "importance_cache" reads alpha as (α_F, α_U, α_B, α_C); the default
+            # 1.0 is CV's and means the cache's own there.
+            alpha=None if method == "importance_cache" and alpha == 1.0 else alpha,
             alpha_radius=alpha_radius,
             insert_missing=insert_missing,
             technique_weights=technique_weights,
@@ -275,6 +290,10 @@ def render(
             depth_tol=depth_tol,
             normal_tol=normal_tol,
             sh_range=sh_range,
+            combine=combine,
+            lam=lam,
+            spacing=spacing,
+            nearest=nearest,
         )
     stats = out["stats"]
     return RenderResult(out["image"], out["variance"], stats, out["alpha"],

@@ -683,6 +683,21 @@ impl<'a> Gatherer<'a> {
         &self.used
     }
 
+    /// Sample `s` of `pixel` before any gather: the radiance it sees directly (the map or
+    /// what the surface emits, zero without `direct`) and, where it sees a surface, the
+    /// receiver to gather at. For gathers of other estimators (the importance cache).
+    pub fn first_hit(
+        &self,
+        pixel: usize,
+        s: u32,
+        work: &mut GatherWork,
+    ) -> (DVec3, Option<VplReceiver>) {
+        match self.receiver(pixel, s, work) {
+            Receiver::Background(l) => (l.as_dvec3(), None),
+            Receiver::Surface { emitted, r } => (emitted.as_dvec3(), Some(r)),
+        }
+    }
+
     /// The receiver of sample `s` of `pixel` (row-major): the first hit of the pixel's
     /// primary ray with the seed of sample `s` (jittered or through the centre), exactly
     /// as [`crate::camera::GBuffer::render`] and [`crate::camera::GBuffer::surface_hit`]

@@ -9,6 +9,7 @@ mod convert;
 mod envmap;
 mod gbuffer;
 mod image;
+mod importance;
 mod interrupt;
 mod irradiance;
 mod material;
@@ -48,6 +49,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<envmap::PyEnvMap>()?;
     m.add_class::<cache::PyVisibilityCache>()?;
     m.add_class::<irradiance::PyIrradianceCache>()?;
+    m.add_class::<importance::PyImportanceCache>()?;
     m.add_class::<preview::PyLightingPreview>()?;
     m.add_class::<relight::PyRelighter>()?;
     m.add_class::<vf::PyProxyGrid>()?;

@@ -13,6 +13,7 @@ use super::convert::{
 };
 use super::envmap::PyEnvMap;
 use super::gbuffer::{view_arg, PyGBuffer, View};
+use super::importance::PyImportanceCache;
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::irradiance::{params_arg as irradiance_params_arg, PyIrradianceCache};
 use super::scene::PyScene;
@@ -124,7 +125,7 @@ fn opt_int(obj: Option<&Bound<'_, PyAny>>, name: &str, lo: u32, hi: u32) -> PyRe
 /// without `cache` builds one of `preset` for the view first
 /// (`crate::render::own_cache`; its figures are the stats' `cache_*`).
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None, a=None, strata=None, r_min=None, r_max=None, gradients=None, clamp_neighbours=None, secondary_spp=None, proxies=None, voxels=None, marching=None, indirect=None, rays_per_pixel=None, filter=None, depth_tol=None, normal_tol=None, sh_range=None, sampling=None))]
+#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None, a=None, strata=None, r_min=None, r_max=None, gradients=None, clamp_neighbours=None, secondary_spp=None, proxies=None, voxels=None, marching=None, indirect=None, rays_per_pixel=None, filter=None, depth_tol=None, normal_tol=None, sh_range=None, sampling=None, combine=None, lam=None, spacing=None, nearest=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -171,7 +172,60 @@ pub fn render<'py>(
     normal_tol: Option<&Bound<'py, PyAny>>,
     sh_range: Option<&Bound<'py, PyAny>>,
     sampling: Option<&str>,
+    combine: Option<&str>,
+    lam: Option<&Bound<'py, PyAny>>,
+    spacing: Option<&Bound<'py, PyAny>>,
+    nearest: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let importance_method = method == "importance_cache";
+    use super::importance::given;
+    let importance = if importance_method
+        && (combine.is_some()
+            || [lam, spacing, nearest, alpha]
+                .iter()
+                .any(|o| given(*o).is_some()))
+    {
+        let mut i = crate::render::importance::ImportanceInputs {
+            combine,
+            ..Default::default()
+        };
+        if let Some(a) = given(alpha) {
+            i.alpha = Some(super::importance::alpha4_arg(a)?);
+        }
+        if let Some(l) = given(lam) {
+            i.lam = Some(f64_arg(l, "lam")? as f32);
+        }
+        if let Some(s) = given(spacing) {
+            i.spacing = Some(int_arg(
+                s,
+                "spacing",
+                1,
+                crate::estimators::importance::records::MAX_SPACING as i128,
+            )? as u32);
+        }
+        if let Some(n) = given(nearest) {
+            i.nearest = Some(int_arg(
+                n,
+                "nearest",
+                1,
+                crate::estimators::importance::records::MAX_NEAREST as i128,
+            )? as u32);
+        }
+        Some(i)
+    } else {
+        if let Some((name, _)) = [("lam", lam), ("spacing", spacing), ("nearest", nearest)]
+            .into_iter()
+            .find(|(_, o)| given(*o).is_some())
+            .or(combine.map(|_| ("combine", None)))
+        {
+            return Err(PyValueError::new_err(format!(
+                "{name}: method {method:?} does not take it (methods that do: \
+                 [\"importance_cache\"])"
+            )));
+        }
+        None
+    };
+    let alpha = if importance_method { None } else { alpha };
     let view = view_arg(Some(camera), gbuffer)?;
     let vf = vf_params_arg(
         proxies,
@@ -242,13 +296,20 @@ pub fn render<'py>(
         }
         _ => None,
     };
+    let importance_cache = match cache {
+        Some(c) if c.is_instance_of::<PyImportanceCache>() => {
+            Some(c.cast::<PyImportanceCache>()?.borrow().inner.clone())
+        }
+        _ => None,
+    };
     let irradiance_cache = match cache {
         Some(c) if c.is_instance_of::<PyIrradianceCache>() => {
             Some(c.cast::<PyIrradianceCache>()?.borrow().inner.clone())
         }
-        Some(c) if visibility.is_none() => {
+        Some(c) if visibility.is_none() && importance_cache.is_none() => {
             return Err(PyTypeError::new_err(format!(
-                "cache: expected a VisibilityCache, an IrradianceCache or None, got {}",
+                "cache: expected a VisibilityCache, an IrradianceCache, an ImportanceCache \
+                 or None, got {}",
                 c.get_type().name()?
             )))
         }
@@ -272,11 +333,13 @@ pub fn render<'py>(
             adaptive,
             light_samples,
             params,
-            cache: match (&visibility, &irradiance_cache) {
-                (Some(v), _) => Some(CacheRef::Visibility(v)),
-                (None, Some(i)) => Some(CacheRef::Irradiance(i)),
-                (None, None) => None,
+            cache: match (&visibility, &irradiance_cache, &importance_cache) {
+                (Some(v), _, _) => Some(CacheRef::Visibility(v)),
+                (None, Some(i), _) => Some(CacheRef::Irradiance(i)),
+                (None, None, Some(i)) => Some(CacheRef::Importance(i)),
+                (None, None, None) => None,
             },
+            importance,
             irradiance,
             vpls: vpls.as_ref().map(|v| &v.get().inner),
             clamp,
@@ -376,9 +439,11 @@ pub fn check_method_args(
         None => None,
         Some(c) if c.is_instance_of::<PyVisibilityCache>() => Some(CacheKind::Visibility),
         Some(c) if c.is_instance_of::<PyIrradianceCache>() => Some(CacheKind::Irradiance),
+        Some(c) if c.is_instance_of::<PyImportanceCache>() => Some(CacheKind::Importance),
         Some(c) => {
             return Err(PyTypeError::new_err(format!(
-                "cache: expected a VisibilityCache, an IrradianceCache or None, got {}",
+                "cache: expected a VisibilityCache, an IrradianceCache, an ImportanceCache or \
+                 None, got {}",
                 c.get_type().name()?
             )))
         }

@@ -99,6 +99,7 @@ pub mod ambient;
 pub mod direct;
 pub mod estimator;
 pub mod frame;
+pub mod importance;
 pub mod irradiance;
 pub mod many_lights;
 pub mod output;

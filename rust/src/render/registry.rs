@@ -5,6 +5,7 @@
 //! methods and the same errors.
 
 use super::direct::DirectRenderer;
+use super::importance::{ImportanceInputs, ImportanceRenderer};
 use super::irradiance::IrradianceRenderer;
 use super::many_lights::{ManyLightsRenderer, DEFAULT_VPL_SPP};
 use super::output::{RenderOutput, View};
@@ -12,6 +13,7 @@ use super::vf::VfRenderer;
 use super::{RenderParams, MAX_SPP};
 use crate::error::{Error, Result};
 use crate::estimators::direct::Method;
+use crate::estimators::importance::records::ImportanceCache;
 use crate::estimators::indirect::MAX_BOUNCES;
 use crate::estimators::irradiance::cache::{IrradianceCache, IrradianceParams};
 use crate::estimators::many_lights::{Sampling, MAX_SPP as MANY_LIGHT_MAX_SPP};
@@ -28,6 +30,8 @@ pub enum CacheKind {
     Visibility,
     /// [`IrradianceCache`] (the survey's ch. 3 records).
     Irradiance,
+    /// [`ImportanceCache`] (the survey's ch. 6 records).
+    Importance,
 }
 
 /// A cache handed to a render (`cache=`), of any kind a method may take.
@@ -35,6 +39,7 @@ pub enum CacheKind {
 pub enum CacheRef<'a> {
     Visibility(&'a VisibilityCache),
     Irradiance(&'a IrradianceCache),
+    Importance(&'a ImportanceCache),
 }
 
 impl<'a> CacheRef<'a> {
@@ -43,6 +48,7 @@ impl<'a> CacheRef<'a> {
         match self {
             CacheRef::Visibility(_) => CacheKind::Visibility,
             CacheRef::Irradiance(_) => CacheKind::Irradiance,
+            CacheRef::Importance(_) => CacheKind::Importance,
         }
     }
 
@@ -50,7 +56,7 @@ impl<'a> CacheRef<'a> {
     pub fn visibility(self) -> Option<&'a VisibilityCache> {
         match self {
             CacheRef::Visibility(c) => Some(c),
-            CacheRef::Irradiance(_) => None,
+            _ => None,
         }
     }
 
@@ -58,7 +64,15 @@ impl<'a> CacheRef<'a> {
     pub fn irradiance(self) -> Option<&'a IrradianceCache> {
         match self {
             CacheRef::Irradiance(c) => Some(c),
-            CacheRef::Visibility(_) => None,
+            _ => None,
+        }
+    }
+
+    /// The importance cache, if it is one.
+    pub fn importance(self) -> Option<&'a ImportanceCache> {
+        match self {
+            CacheRef::Importance(c) => Some(c),
+            _ => None,
         }
     }
 }
@@ -69,6 +83,7 @@ impl CacheKind {
         match self {
             CacheKind::Visibility => "VisibilityCache",
             CacheKind::Irradiance => "IrradianceCache",
+            CacheKind::Importance => "ImportanceCache",
         }
     }
 }
@@ -112,6 +127,8 @@ pub struct MethodInputs<'a> {
     pub sampling: Option<Sampling>,
     /// Method "vf"'s parameters (`None`: [`VfParams::DEFAULT`]).
     pub vf: Option<VfParams>,
+    /// Method "importance_cache"'s own parameters (`None`: all defaults).
+    pub importance: Option<ImportanceInputs<'a>>,
 }
 
 impl<'a> MethodInputs<'a> {
@@ -134,6 +151,7 @@ impl<'a> MethodInputs<'a> {
             vpl_samples: None,
             sampling: None,
             vf: None,
+            importance: None,
         }
     }
 
@@ -273,6 +291,20 @@ pub const VF_PARAMS: &[&str] = &[
     "sh_range",
 ];
 
+/// What method "importance_cache" reads besides the common parameters: the VPLs, a cache,
+/// the draws per row, the combination and its confidences, eq. 6.3's `λ` and the
+/// parameters of the cache it builds without one.
+const IMPORTANCE_PARAMS: &[&str] = &[
+    "vpls",
+    "cache",
+    "vpl_samples",
+    "combine",
+    "alpha",
+    "lam",
+    "spacing",
+    "nearest",
+];
+
 /// Samples per pixel of method "irradiance_cache" without `spp` or a time budget: its
 /// samples antialias the interpolated bounce, trace Phong's specular part of it and the
 /// few points no record serves (and estimate direct light, if asked). At 256x192 with the
@@ -383,6 +415,18 @@ pub const METHODS: &[MethodSpec] = &[
         max_spp: MANY_LIGHT_MAX_SPP,
     },
     MethodSpec {
+        name: "importance_cache",
+        about: "virtual point lights drawn from the importance cache's records near each \
+                sample, rows F, U, B, C combined by alpha-max or balance (survey eq. 6.2-6.6)",
+        renderer: &ImportanceRenderer,
+        params: IMPORTANCE_PARAMS,
+        caches: &[CacheKind::Importance],
+        min_bounces: 1,
+        default_bounces: 1,
+        default_spp: DEFAULT_VPL_SPP,
+        max_spp: MANY_LIGHT_MAX_SPP,
+    },
+    MethodSpec {
         name: "vf",
         about: "visibility filtering: VPLs of point proxies in a voxel grid, visibility by \
                 sparse marching and a geometry-aware filter, far voxels in SH (VF eq. 1-7)",
@@ -477,6 +521,7 @@ impl MethodSpec {
             ("light_samples", inputs.light_samples.is_some()),
             ("a", inputs.irradiance.is_some()),
             ("proxies", inputs.vf.is_some()),
+            ("combine", inputs.importance.is_some()),
         ]
         .into_iter()
         .filter_map(|(name, set)| set.then_some(name))
@@ -523,7 +568,10 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("alpha") && e.contains("\"mis\"") && e.contains("gbuffer"));
-        assert!(e.contains("methods that do: [\"cv\"]"), "{e}");
+        assert!(
+            e.contains("methods that do: [\"cv\", \"importance_cache\"]"),
+            "{e}"
+        );
         let e = mis
             .check_args(&[], Some(CacheKind::Visibility))
             .unwrap_err()

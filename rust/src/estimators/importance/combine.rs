@@ -64,6 +64,39 @@ pub enum Combine {
 }
 
 impl Combine {
+    /// The names `combine=` takes, in the order errors list them.
+    pub const NAMES: [&'static str; 6] = ["alpha_max", "balance", "F", "U", "B", "C"];
+
+    /// The combination called `name` ([`Self::NAMES`]; `alpha_max` with confidences
+    /// `alpha`), validated; an error naming `combine` (or `alpha`) otherwise.
+    pub fn parse(name: &str, alpha: [f64; ROWS]) -> Result<Self> {
+        let c = match name {
+            "alpha_max" => Combine::AlphaMax(alpha),
+            "balance" => Combine::Balance,
+            "F" => Combine::Only(Row::F),
+            "U" => Combine::Only(Row::U),
+            "B" => Combine::Only(Row::B),
+            "C" => Combine::Only(Row::C),
+            _ => {
+                return Err(Error::invalid(
+                    "combine",
+                    format!("expected one of {:?}, got {name:?}", Self::NAMES),
+                ))
+            }
+        };
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// Its name ([`Self::NAMES`]).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Combine::AlphaMax(_) => "alpha_max",
+            Combine::Balance => "balance",
+            Combine::Only(r) => Self::NAMES[2 + *r as usize],
+        }
+    }
+
     /// Fails, naming `alpha`, on confidences outside `(0, 1]`.
     pub fn validate(&self) -> Result<()> {
         if let Combine::AlphaMax(alpha) = self {
@@ -78,18 +111,40 @@ impl Combine {
     }
 }
 
+/// A running sum's entry: `f64`, or `f32` as the importance cache's records store them
+/// (12 bytes per light for rows F, U, B). Draws and pmfs read the stored values widened
+/// to `f64`, so a light's drawn probability is exactly the pmf evaluated for it.
+pub trait CdfValue: Copy + Sync {
+    /// The value as `f64` (exact).
+    fn get(self) -> f64;
+}
+
+impl CdfValue for f64 {
+    #[inline(always)]
+    fn get(self) -> f64 {
+        self
+    }
+}
+
+impl CdfValue for f32 {
+    #[inline(always)]
+    fn get(self) -> f64 {
+        self as f64
+    }
+}
+
 /// The distribution matrix at one shading point: for rows F, U, B the CDFs of the records
 /// that can serve it, row C implicit.
 ///
 /// Invariants: every CDF has `lights` entries, non-decreasing, finite, last entry (the
 /// total) `> 0`.
 #[derive(Clone, Debug, Default)]
-pub struct Matrix<'a> {
+pub struct Matrix<'a, T: CdfValue = f64> {
     lights: usize,
-    rows: [Vec<&'a [f64]>; ROWS - 1],
+    rows: [Vec<&'a [T]>; ROWS - 1],
 }
 
-impl<'a> Matrix<'a> {
+impl<'a, T: CdfValue> Matrix<'a, T> {
     /// An empty matrix over `lights` lights (row C alone); an error naming `lights` for
     /// none.
     pub fn new(lights: usize) -> Result<Self> {
@@ -110,10 +165,10 @@ impl<'a> Matrix<'a> {
     /// Adds a record's CDF of row `row` (F, U or B): left out, as eq. 6.5's average allows,
     /// when its total is not positive and finite (nothing to draw). Panics on a CDF of
     /// another length or on row C (programming errors).
-    pub fn push(&mut self, row: Row, cdf: &'a [f64]) {
+    pub fn push(&mut self, row: Row, cdf: &'a [T]) {
         assert!(row != Row::C, "row C is uniform and stored nowhere");
         assert_eq!(cdf.len(), self.lights, "a CDF per light");
-        let total = cdf.last().copied().unwrap_or(0.0);
+        let total = cdf.last().map_or(0.0, |t| t.get());
         if total > 0.0 && total.is_finite() {
             self.rows[row as usize].push(cdf);
         }
@@ -154,7 +209,7 @@ impl<'a> Matrix<'a> {
         let c = cdfs[((u_record * cdfs.len() as f64) as usize).min(cdfs.len() - 1)];
         let u = u_light * total(c);
         // The first light whose running sum passes u: never one of zero mass.
-        Some(c.partition_point(|&x| x <= u).min(n - 1))
+        Some(c.partition_point(|&x| x.get() <= u).min(n - 1))
     }
 
     /// The weight of a draw of light `k` from row `s` under `combine` (module docs).
@@ -221,14 +276,14 @@ fn weight_of(combine: &Combine, s: Row, p: &[f64; ROWS]) -> f64 {
 
 /// The mass of light `k` in a CDF.
 #[inline]
-fn entry(cdf: &[f64], k: usize) -> f64 {
-    cdf[k] - if k == 0 { 0.0 } else { cdf[k - 1] }
+fn entry<T: CdfValue>(cdf: &[T], k: usize) -> f64 {
+    cdf[k].get() - if k == 0 { 0.0 } else { cdf[k - 1].get() }
 }
 
 /// A CDF's total.
 #[inline]
-fn total(cdf: &[f64]) -> f64 {
-    cdf[cdf.len() - 1]
+fn total<T: CdfValue>(cdf: &[T]) -> f64 {
+    cdf[cdf.len() - 1].get()
 }
 
 #[cfg(test)]

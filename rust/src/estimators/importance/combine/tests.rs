@@ -258,7 +258,7 @@ fn bad_input_is_named() {
         }
     }
     assert!(Combine::AlphaMax([1.0, 0.5, 1e-6, 1.0]).validate().is_ok());
-    match Matrix::new(0) {
+    match Matrix::<f64>::new(0) {
         Err(Error::InvalidArgument { name, .. }) => assert_eq!(name, "lights"),
         other => panic!("{:?}", other.map(|m| m.lights())),
     }

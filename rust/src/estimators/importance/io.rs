@@ -1,0 +1,182 @@
+//! The importance cache's file: magic, version, the scene's geometry fingerprint, a hash
+//! of the light set, the parameters and every record (position, normal, radius, rows),
+//! little-endian. The lights are not written: [`ImportanceCache::load_for`] takes them
+//! again and refuses a set whose hash differs, as it refuses another scene.
+
+use std::path::Path;
+
+use glam::Vec3;
+
+use super::records::{ImportanceCache, ImportanceParams, ImportanceRecord};
+use crate::error::{Error, Result};
+use crate::geometry::Scene;
+use crate::lights::vpl::{Vpl, VplSet};
+use crate::sampling::rng::mix64;
+
+const MAGIC: &[u8; 8] = b"VCIMPORT";
+const VERSION: u32 = 1;
+
+/// A hash of the lights' every field, in order.
+pub fn lights_hash(lights: &[Vpl]) -> u64 {
+    let mut h = mix64(lights.len() as u64);
+    for v in lights {
+        let text = format!("{v:?}");
+        for chunk in text.as_bytes().chunks(8) {
+            let mut b = [0u8; 8];
+            b[..chunk.len()].copy_from_slice(chunk);
+            h = mix64(h ^ u64::from_le_bytes(b));
+        }
+    }
+    h
+}
+
+/// Reads little-endian values off a byte slice, failing (naming `path`) when it ends.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl Reader<'_> {
+    fn take(&mut self, n: usize) -> Result<&[u8]> {
+        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
+        let Some(end) = end else {
+            return Err(Error::invalid("path", "the cache file is truncated"));
+        };
+        let s = &self.bytes[self.at..end];
+        self.at = end;
+        Ok(s)
+    }
+
+    fn u32(&mut self) -> Result<u32> {
+        Ok(u32::from_le_bytes(
+            self.take(4)?.try_into().expect("4 bytes"),
+        ))
+    }
+
+    fn u64(&mut self) -> Result<u64> {
+        Ok(u64::from_le_bytes(
+            self.take(8)?.try_into().expect("8 bytes"),
+        ))
+    }
+
+    fn f32(&mut self) -> Result<f32> {
+        Ok(f32::from_le_bytes(
+            self.take(4)?.try_into().expect("4 bytes"),
+        ))
+    }
+
+    fn f64(&mut self) -> Result<f64> {
+        Ok(f64::from_le_bytes(
+            self.take(8)?.try_into().expect("8 bytes"),
+        ))
+    }
+
+    fn vec3(&mut self) -> Result<Vec3> {
+        Ok(Vec3::new(self.f32()?, self.f32()?, self.f32()?))
+    }
+}
+
+impl ImportanceCache {
+    /// Writes the cache to `path` atomically (module docs).
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let state = self.read();
+        let records = &state.index.records().records;
+        let n = self.lights.len();
+        let mut out = Vec::with_capacity(64 + records.len() * (28 + 12 * n));
+        out.extend_from_slice(MAGIC);
+        out.extend_from_slice(&VERSION.to_le_bytes());
+        out.extend_from_slice(&self.scene.to_le_bytes());
+        out.extend_from_slice(&lights_hash(&self.lights).to_le_bytes());
+        out.extend_from_slice(&(n as u64).to_le_bytes());
+        let p = self.params();
+        out.extend_from_slice(&p.spacing.to_le_bytes());
+        out.extend_from_slice(&p.nearest.to_le_bytes());
+        out.extend_from_slice(&p.lam.to_le_bytes());
+        for a in p.alpha {
+            out.extend_from_slice(&a.to_le_bytes());
+        }
+        out.extend_from_slice(&(records.len() as u64).to_le_bytes());
+        for r in records {
+            for x in r.position.to_array().into_iter().chain(r.normal.to_array()) {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+            out.extend_from_slice(&r.radius.to_le_bytes());
+            for x in r.rows.iter() {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        crate::files::write_bytes_atomically(path, &out)
+    }
+
+    /// Reads a cache written by [`Self::save`] for `scene` lit by `lights` (the set it was
+    /// built over); a truncated or foreign file, another scene or another set fails naming
+    /// `path`, `scene` or `lights`.
+    pub fn load_for(path: &Path, scene: &Scene, lights: &VplSet) -> Result<Self> {
+        let bytes = std::fs::read(path)
+            .map_err(|e| Error::invalid("path", format!("cannot read {}: {e}", path.display())))?;
+        let mut r = Reader {
+            bytes: &bytes,
+            at: 0,
+        };
+        if r.take(8)? != MAGIC || r.u32()? != VERSION {
+            return Err(Error::invalid("path", "not an importance cache file"));
+        }
+        let fingerprint = r.u64()?;
+        if fingerprint != scene.geometry_fingerprint() {
+            return Err(Error::invalid(
+                "scene",
+                "the cache was built for another scene (its geometry fingerprint differs)",
+            ));
+        }
+        let hash = r.u64()?;
+        let n = r.u64()? as usize;
+        if n != lights.vpls.len() || hash != lights_hash(&lights.vpls) {
+            return Err(Error::invalid(
+                "lights",
+                "are not the set the cache was built over",
+            ));
+        }
+        let params = ImportanceParams {
+            spacing: r.u32()?,
+            nearest: r.u32()?,
+            lam: r.f32()?,
+            alpha: [r.f64()?, r.f64()?, r.f64()?, r.f64()?],
+        };
+        params
+            .validate()
+            .map_err(|e| Error::invalid("path", format!("corrupted parameters: {e}")))?;
+        let cache = ImportanceCache::new(lights, params)?;
+        let count = r.u64()?;
+        {
+            let mut state = cache.write();
+            for _ in 0..count {
+                let position = r.vec3()?;
+                let normal = r.vec3()?;
+                let radius = r.f32()?;
+                let rows: Vec<f32> = (0..3 * n).map(|_| r.f32()).collect::<Result<_>>()?;
+                let ok = position.is_finite()
+                    && (normal.length() - 1.0).abs() < 1e-3
+                    && radius > 0.0
+                    && rows.iter().all(|x| x.is_finite());
+                if !ok {
+                    return Err(Error::invalid("path", "the cache file is corrupted"));
+                }
+                let rec = ImportanceRecord {
+                    position,
+                    normal,
+                    radius,
+                    rows: rows.into_boxed_slice(),
+                };
+                state.index.admit(|set| {
+                    set.records.push(rec);
+                    Ok(set.records.len() - 1)
+                })?;
+                state.max_radius = state.max_radius.max(radius);
+            }
+        }
+        if r.at != bytes.len() {
+            return Err(Error::invalid("path", "the cache file has trailing bytes"));
+        }
+        Ok(cache)
+    }
+}

@@ -1,0 +1,428 @@
+//! The records: B bounds U over each record's region, F never exceeds U, rows of every
+//! light kind, the lookup against a brute-force scan of eq. 6.3, the α-max weights'
+//! partition at random points, the build's determinism over threads, extremes and bad
+//! parameters.
+
+use std::time::Instant;
+
+use glam::Vec3;
+
+use super::*;
+use crate::camera::{Camera, GBuffer};
+use crate::error::Error;
+use crate::estimators::importance::bound::Region;
+use crate::estimators::importance::combine::{Combine, ROWS};
+use crate::geometry::Scene;
+use crate::lights::vpl::TraceParams;
+use crate::sampling::rng::{hash4, to_unit_f64};
+
+fn setup() -> crate::scenes::Setup {
+    crate::scenes::load("cornell", 0.25, 0).unwrap()
+}
+
+fn lights(s: &crate::scenes::Setup, count: u64) -> VplSet {
+    let cam = s.camera.with_resolution(16, 12).unwrap();
+    let p = TraceParams {
+        count,
+        depth: 1,
+        seed: 3,
+        importance: None,
+        lights: true,
+    };
+    VplSet::trace(&s.scene, &s.envmap, Some(&cam), &p, Some(2)).unwrap()
+}
+
+fn built(
+    s: &crate::scenes::Setup,
+    set: &VplSet,
+    camera: &Camera,
+    params: ImportanceParams,
+    threads: usize,
+) -> ImportanceCache {
+    let cache = ImportanceCache::new(set, params).unwrap();
+    let g = GBuffer::render(&s.scene, camera, 0, false, Some(threads)).unwrap();
+    let report = cache
+        .build_from(
+            &s.scene,
+            &g,
+            Some(threads),
+            Instant::now(),
+            None,
+            &mut |_, _| true,
+        )
+        .unwrap();
+    assert!(report.complete && report.records == cache.len());
+    assert!(report.grid > 0 && report.inserted >= report.grid);
+    assert_eq!(
+        report.pairs,
+        (report.inserted + report.discarded) as u64 * set.vpls.len() as u64
+    );
+    cache
+}
+
+fn unit(seed: u64, i: u64, d: u64) -> f32 {
+    to_unit_f64(hash4(seed, i, 0, d)) as f32
+}
+
+/// A point of `region`'s ball and a unit normal within its cone.
+fn point_in(region: &Region, seed: u64, i: u64) -> (Vec3, Vec3) {
+    let r = region.radius * unit(seed, i, 0).cbrt();
+    let dir = loop_dir(seed, i);
+    let x = region.position + dir * r;
+    // A normal within the cone: tilt the record's by up to the cone's angle.
+    let t = unit(seed, i, 4) * region.cone;
+    let side = region.normal.any_orthonormal_vector();
+    let side = glam::Quat::from_axis_angle(region.normal, unit(seed, i, 5) * std::f32::consts::TAU)
+        .mul_vec3(side);
+    let n = (region.normal * t.cos() + side * t.sin()).normalize();
+    (x, n)
+}
+
+fn loop_dir(seed: u64, i: u64) -> Vec3 {
+    let z = 2.0 * unit(seed, i, 1) - 1.0;
+    let phi = unit(seed, i, 2) * std::f32::consts::TAU;
+    let s = (1.0 - z * z).max(0.0).sqrt();
+    Vec3::new(s * phi.cos(), s * phi.sin(), z)
+}
+
+/// `L f_s G` of light `v` at `x` (normal `n`) with the diffuse `f_s`, unoccluded.
+fn u_at(scene: &Scene, v: &Vpl, x: Vec3, n: Vec3, albedo: [f32; 3], disk_area: f32) -> f64 {
+    let sp = crate::estimators::direct::ShadingPoint {
+        origin: x,
+        normal: n,
+        wo: n,
+        material: crate::bsdf::Material::Lambert { albedo },
+    };
+    let r = crate::estimators::many_lights::light_paths::Receiver::new(scene, sp);
+    v.connect(&r, None, disk_area)
+        .map_or(0.0, |c| luminance(c.value) as f64)
+}
+
+/// B bounds U at 2000 random points of every record's region (lights outside the ball:
+/// within it `G_max` is unbounded and capped, module docs), F never exceeds U, B never
+/// below U at the record; for surface and emitter VPLs.
+#[test]
+fn b_bounds_u_over_the_region_and_f_stays_below_u() {
+    let s = setup();
+    let set = lights(&s, 150);
+    let cam = s.camera.with_resolution(24, 18).unwrap();
+    let params = ImportanceParams {
+        spacing: 6,
+        ..ImportanceParams::DEFAULT
+    };
+    let cache = built(&s, &set, &cam, params, 2);
+    let n = set.vpls.len();
+    let state = cache.read();
+    let records = &state.index.records().records;
+    assert!(records.len() >= 12, "{}", records.len());
+    let albedo_of = |x: Vec3, nrm: Vec3| {
+        // The record's material: its object's, found by a ray into the surface.
+        let h = s
+            .scene
+            .intersect1(x + nrm * 1e-3, -nrm, 1.0, &mut Default::default())
+            .unwrap();
+        crate::estimators::irradiance::build::diffuse_albedo(
+            &s.scene.mesh().objects[h.obj as usize].material,
+        )
+    };
+    let (mut checked, mut behind) = (0u64, 0u64);
+    for (ri, rec) in records.iter().enumerate() {
+        let albedo = albedo_of(rec.position, rec.normal);
+        let f_s = Vec3::from(albedo) * std::f32::consts::FRAC_1_PI;
+        let region = Region {
+            position: rec.position,
+            normal: rec.normal,
+            radius: rec.radius,
+            cone: REGION_CONE,
+        };
+        for k in 0..n {
+            let (f, u) = (rec.value(Row::F, n, k), rec.value(Row::U, n, k));
+            let total_u = rec.row(Row::U, n)[n - 1];
+            assert!(
+                f <= u + total_u * 1e-6,
+                "record {ri} light {k}: F {f} > U {u}"
+            );
+        }
+        for (k, v) in set.vpls.iter().enumerate() {
+            if v.position.distance(rec.position) <= rec.radius * 1.001 {
+                continue;
+            }
+            let u0 = u_at(&s.scene, v, rec.position, rec.normal, albedo, set.disk_area);
+            let b = b_value(v, &region, f_s, set.disk_area, u0);
+            if u0 == 0.0 && b > 0.0 {
+                behind += 1;
+            }
+            for i in 0..2000 / n as u64 + 1 {
+                let (x, nx) = point_in(&region, ri as u64 * 7919 + k as u64, i);
+                let u = u_at(&s.scene, v, x, nx, albedo, set.disk_area);
+                assert!(
+                    b >= u * (1.0 - 1e-4),
+                    "record {ri} light {k} ({:?}): B {b} < U {u} at {x}",
+                    v.kind
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 10_000, "{checked}");
+    // Row B keeps lights the record's own point cannot see (Fig. 6.5b).
+    assert!(behind > 0);
+}
+
+/// The lookup is eq. 6.3's `nearest` by a linear scan (records within the largest reach
+/// and the cone), at random points near the records.
+#[test]
+fn lookup_is_eq_6_3_by_brute_force() {
+    let s = setup();
+    let set = lights(&s, 40);
+    let cam = s.camera.with_resolution(32, 24).unwrap();
+    let cache = built(&s, &set, &cam, ImportanceParams::DEFAULT, 2);
+    let state = cache.read();
+    let records = &state.index.records().records;
+    for lam in [0.0f32, 0.5, 4.0] {
+        let lambda = ImportanceCache::lambda_world(&state, lam);
+        for i in 0..300u64 {
+            let base = &records[i as usize % records.len()];
+            let x = base.position + loop_dir(11, i) * base.radius * unit(11, i, 3);
+            let nrm = (base.normal + loop_dir(12, i) * 0.5).normalize();
+            let got = state.nearest(x, nrm, 3, lambda);
+            let mut all: Vec<(f32, u32)> = records
+                .iter()
+                .enumerate()
+                .filter(|(_, r)| {
+                    r.position.distance_squared(x) <= state.max_radius * state.max_radius
+                        && crate::spatial::weight::normal_angle(
+                            r.normal.cross(nrm).length(),
+                            r.normal.dot(nrm),
+                        ) < REGION_CONE
+                })
+                .map(|(id, r)| {
+                    let key =
+                        Metric::DistanceNormal { lambda }.between(x, nrm, r.position, r.normal);
+                    (key, id as u32)
+                })
+                .collect();
+            all.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            // Ties within rounding may swap: compare the keys kept.
+            let want: Vec<f32> = all.iter().take(3).map(|p| p.0).collect();
+            let mut keys: Vec<f32> = got
+                .ids()
+                .iter()
+                .map(|&id| {
+                    let r = &records[id as usize];
+                    Metric::DistanceNormal { lambda }.between(x, nrm, r.position, r.normal)
+                })
+                .collect();
+            keys.sort_by(f32::total_cmp);
+            assert_eq!(keys.len(), want.len(), "lam {lam} point {i}");
+            for (a, b) in keys.iter().zip(&want) {
+                assert!(
+                    (a - b).abs() <= 1e-4 * (1.0 + b.abs()),
+                    "lam {lam} point {i}: {keys:?} vs {want:?}"
+                );
+            }
+        }
+    }
+}
+
+/// At random shading points, α-max's weights partition the lights (sum 1 per light for
+/// several α), balance's too, and each light has a positive pmf in some row.
+#[test]
+fn weights_partition_every_light() {
+    let s = setup();
+    let set = lights(&s, 60);
+    let cam = s.camera.with_resolution(24, 18).unwrap();
+    let cache = built(&s, &set, &cam, ImportanceParams::DEFAULT, 1);
+    let state = cache.read();
+    let n = set.vpls.len();
+    let records = &state.index.records().records;
+    let lambda = ImportanceCache::lambda_world(&state, 1.0);
+    for i in 0..50u64 {
+        let base = &records[i as usize % records.len()];
+        let x = base.position + loop_dir(5, i) * base.radius * 0.5;
+        let near = state.nearest(x, base.normal, 3, lambda);
+        assert!(near.len >= 1);
+        let m = state.matrix(near.ids(), n).unwrap();
+        for alpha in [[1.0; ROWS], [0.5, 0.5, 0.5, 1.0], [0.1, 0.9, 0.3, 0.7]] {
+            for combine in [Combine::AlphaMax(alpha), Combine::Balance] {
+                for k in 0..n {
+                    let sum: f64 = Row::ALL.iter().map(|&r| m.weight(&combine, r, k)).sum();
+                    assert!((sum - 1.0).abs() < 1e-12, "{combine:?} light {k}: {sum}");
+                }
+            }
+        }
+    }
+}
+
+/// The same records, bit for bit, on 1 and 2 threads; a second build of the same view adds
+/// no grid record.
+#[test]
+fn build_is_the_same_on_any_thread_count() {
+    let s = setup();
+    let set = lights(&s, 50);
+    let cam = s.camera.with_resolution(32, 24).unwrap();
+    let a = built(&s, &set, &cam, ImportanceParams::DEFAULT, 1);
+    let b = built(&s, &set, &cam, ImportanceParams::DEFAULT, 2);
+    {
+        let (ra, rb) = (a.read(), b.read());
+        assert_eq!(ra.index.records().records, rb.index.records().records);
+    }
+    let g = GBuffer::render(&s.scene, &cam, 0, false, Some(2)).unwrap();
+    let again = a
+        .build_from(&s.scene, &g, Some(2), Instant::now(), None, &mut |_, _| {
+            true
+        })
+        .unwrap();
+    assert_eq!(again.inserted, 0);
+    assert!(a.memory_bytes() >= a.len() * set.vpls.len() * 12);
+}
+
+/// Extremes: one light; every light occluded at a record (row F empty, the others still
+/// serve); a point far from every record (row C alone); a light 1e-6 from a receiver
+/// (finite rows).
+#[test]
+fn extremes() {
+    let s = setup();
+    let set = lights(&s, 30);
+    // One light.
+    let one = VplSet {
+        vpls: vec![set.vpls[5]],
+        ..set.clone()
+    };
+    let cam = s.camera.with_resolution(16, 12).unwrap();
+    let c1 = built(&s, &one, &cam, ImportanceParams::DEFAULT, 2);
+    {
+        let st = c1.read();
+        let r = &st.index.records().records[0];
+        let m = st.matrix(&[0], 1).unwrap();
+        let draw = m.draw(Row::C, 0.3, 0.9);
+        assert_eq!(draw, Some(0));
+        assert_eq!(r.rows.len(), 3);
+    }
+    // Every light occluded: a record outside a closed emitting sphere, facing it, sees
+    // the VPLs on its inside only through its wall.
+    let sphere =
+        crate::testing::furnace_sphere(3, crate::bsdf::Material::lambert([0.5; 3]).unwrap());
+    let black = crate::lights::envmap::EnvMap::constant([0.0; 3], 8).unwrap();
+    let tp = TraceParams {
+        count: 60,
+        depth: 1,
+        seed: 1,
+        importance: None,
+        lights: true,
+    };
+    let inside = VplSet::trace(&sphere, &black, None, &tp, Some(2)).unwrap();
+    let cache = ImportanceCache::new(&inside, ImportanceParams::DEFAULT).unwrap();
+    let (rec, _) = cache
+        .make_record(
+            &sphere,
+            (Vec3::new(0.0, 3.0, 0.0), -Vec3::Y, -Vec3::Y),
+            [0.5; 3],
+            0.1,
+        )
+        .unwrap();
+    let n = inside.vpls.len();
+    let f_total = rec.row(Row::F, n)[n - 1];
+    let u_total = rec.row(Row::U, n)[n - 1];
+    assert_eq!(f_total, 0.0);
+    assert!(
+        u_total > 0.0,
+        "some lights face the point through the floor"
+    );
+    let mut m = Matrix::<f32>::new(n).unwrap();
+    for row in [Row::F, Row::U, Row::B] {
+        m.push(row, rec.row(row, n));
+    }
+    assert_eq!(m.records(Row::F), 0);
+    assert_eq!(m.records(Row::U), 1);
+    let n = set.vpls.len();
+    // Far from every record: no record, row C alone.
+    let c30 = built(&s, &set, &cam, ImportanceParams::DEFAULT, 2);
+    let st = c30.read();
+    let far = st.nearest(Vec3::splat(1e6), Vec3::Y, 3, 0.0);
+    assert_eq!(far.len, 0);
+    let m = st.matrix(far.ids(), n).unwrap();
+    assert_eq!(m.records(Row::U), 0);
+    assert_eq!(m.pmf(Row::C, 3), 1.0 / n as f64);
+    // A light 1e-6 from the receiver: finite rows.
+    let v = set
+        .vpls
+        .iter()
+        .find(|v| v.kind == VplKind::Surface)
+        .unwrap();
+    let p = v.position + v.normal * 1e-6;
+    let (rec, _) = cache
+        .make_record(&s.scene, (p, v.normal, v.normal), [0.5; 3], 0.01)
+        .unwrap();
+    assert!(rec.rows.iter().all(|x| x.is_finite()));
+}
+
+/// Bad parameters name themselves; an empty light set names `lights`.
+#[test]
+fn bad_parameters_are_named() {
+    let s = setup();
+    let set = lights(&s, 10);
+    let name = |r: Result<ImportanceCache>| match r {
+        Err(Error::InvalidArgument { name, .. }) => name,
+        other => panic!("{:?}", other.map(|c| c.len())),
+    };
+    let p = ImportanceParams::DEFAULT;
+    assert_eq!(
+        name(ImportanceCache::new(
+            &set,
+            ImportanceParams { spacing: 0, ..p }
+        )),
+        "spacing"
+    );
+    assert_eq!(
+        name(ImportanceCache::new(
+            &set,
+            ImportanceParams { nearest: 0, ..p }
+        )),
+        "nearest"
+    );
+    assert_eq!(
+        name(ImportanceCache::new(
+            &set,
+            ImportanceParams { lam: -1.0, ..p }
+        )),
+        "lam"
+    );
+    assert_eq!(
+        name(ImportanceCache::new(
+            &set,
+            ImportanceParams {
+                alpha: [0.5, 0.0, 1.0, 1.0],
+                ..p
+            }
+        )),
+        "alpha"
+    );
+    let empty = VplSet {
+        vpls: Vec::new(),
+        ..set.clone()
+    };
+    assert_eq!(name(ImportanceCache::new(&empty, p)), "lights");
+    let mut c = ImportanceCache::new(&set, p).unwrap();
+    assert!(c.set_alpha([2.0, 1.0, 1.0, 1.0]).is_err());
+    assert_eq!(c.params().alpha, p.alpha);
+    // A cache of other geometry.
+    let other = crate::scenes::load("cornell", 0.25, 1).unwrap();
+    let g = GBuffer::render(
+        &other.scene,
+        &other.camera.with_resolution(8, 6).unwrap(),
+        0,
+        false,
+        None,
+    )
+    .unwrap();
+    if other.scene.geometry_fingerprint() != s.scene.geometry_fingerprint() {
+        let e = c
+            .build_from(&other.scene, &g, None, Instant::now(), None, &mut |_, _| {
+                true
+            })
+            .unwrap_err();
+        assert!(e.to_string().starts_with("cache"), "{e}");
+        assert!(c.is_empty());
+    }
+}
