@@ -154,3 +154,27 @@ def test_indirect_only_matches_the_exact_indirect_sum(cornell, lights, small, bu
         res = vc.render(cornell, camera=small, method="importance_cache", spp=SPP,
                         vpl_samples=4, threads=2, direct=False, **kwargs)
         within_4_se(res, ref, f"direct=False {sorted(kwargs)}")
+
+
+def test_whole_area_lights_are_sampled_unbiased(cornell, lights, small):
+    """A whole area light (``VPLs.from_area_lights``) drawn from the rows is shaded from a
+    fresh point on it, as ``method="vpl"`` shades it: both estimate the same image, so each
+    pixel and the image agree within 4 SE of the two estimates together."""
+    mixed = vc.VPLs.from_area_lights(cornell.scene, points=4) + lights
+    assert (mixed.kinds == 3).sum() == len(cornell.scene.area_lights()) >= 1
+    spp = 200
+    ref = vc.render(cornell, camera=small, method="vpl", vpls=mixed, spp=spp, threads=2)
+    res = vc.render(cornell, camera=small, method="importance_cache", vpls=mixed, spp=spp,
+                    vpl_samples=4, spacing=4, threads=2)
+    d = res.image.astype(np.float64) - ref.image
+    var = res.variance.astype(np.float64) + ref.variance.astype(np.float64)
+    assert np.isfinite(var).all() and (var > 0).any()
+    bad = np.abs(d) > 4 * np.sqrt(var) + 1e-6 * np.abs(ref.image)
+    assert not bad.any(), f"{bad.sum()} values off, worst {np.abs(d / np.sqrt(var)).max()} SE"
+    assert abs(d.sum()) <= 4 * np.sqrt(var.sum())
+    # The area light is drawn: rows F and U give it mass at the records.
+    cache = vc.ImportanceCache(cornell.scene, mixed, spacing=4)
+    cache.build(small, threads=2, progress=False)
+    u = cache.records()["U"]
+    area = np.flatnonzero(mixed.kinds == 3)
+    assert (u[:, area] > 0).any()

@@ -525,7 +525,7 @@ fn gather_full(
 
 /// The stream of the points sampled on area lights by sample `s` of `pixel` (apart from
 /// the draws' stream of [`gather_sampled`]).
-fn area_rng(seed: u64, pixel: usize, s: u32) -> SampleRng {
+pub fn area_rng(seed: u64, pixel: usize, s: u32) -> SampleRng {
     SampleRng::new(mix64(seed ^ 0x4152_4541_4c49_4748), pixel as u64, s as u64)
 }
 

@@ -34,7 +34,7 @@ use crate::estimators::importance::build::ImportanceBuildReport;
 use crate::estimators::importance::combine::Combine;
 use crate::estimators::importance::records::{ImportanceCache, ImportanceParams, ImportanceState};
 use crate::estimators::many_lights::{
-    Gather, GatherWork, Gatherer, ManyLightParams, Unoccluded, VplSums, MAX_DRAWS,
+    area_rng, Gather, GatherWork, Gatherer, ManyLightParams, Unoccluded, VplSums, MAX_DRAWS,
 };
 use crate::geometry::Scene;
 use crate::lights::envmap::EnvMap;
@@ -106,6 +106,10 @@ impl ImportancePass<'_> {
         let (scene, direct, disk_area) = (self.scene, self.params.direct, self.disk_area);
         let mut rays = 0u64;
         let counters = &mut work.gather.counters;
+        // A drawn area light takes a fresh point on it per call (dimensions 3j..3j+2 of
+        // the sample's own stream): the estimate stays unbiased for the true light.
+        let points = area_rng(self.params.seed, pixel, s);
+        let mut area_draws = 0u64;
         let (sum, calls) = matrix.estimate(
             &self.params.combine,
             self.params.draws,
@@ -115,7 +119,15 @@ impl ImportancePass<'_> {
                 if !direct && v.bounce == 0 {
                     return DVec3::ZERO;
                 }
-                match v.connect(&r, None, disk_area) {
+                let connection = if v.kind.is_area() {
+                    let d = 3 * area_draws;
+                    area_draws += 1;
+                    let u = [points.get(d), points.get(d + 1), points.get(d + 2)];
+                    v.sample_area(scene, &r, None, u)
+                } else {
+                    v.connect(&r, None, disk_area)
+                };
+                match connection {
                     Some(c) => {
                         rays += 1;
                         if scene.occluded1(c.origin, c.direction, c.tmax, counters) {

@@ -141,7 +141,21 @@ impl ImportanceCache {
         let (mut origins, mut directions, mut tmax, mut owner) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (k, v) in lights.iter().enumerate() {
-            if let Some(c) = v.connect(&receiver, None, self.disk_area) {
+            if v.kind.is_area() {
+                // A whole area light: U is its quadrature over fixed points (positive
+                // wherever it can reach the record), F that times the visibility of its
+                // centroid: a shape for the pdf, never a claim of the light's value.
+                u[k] = luminance(v.unoccluded(scene, &receiver, None, self.disk_area)) as f64;
+                let d = v.origin - sp.origin;
+                let dist = d.length();
+                let t = dist - 2.0 * scene.ray_epsilon(v.origin);
+                if u[k] > 0.0 && t > 0.0 {
+                    origins.push(sp.origin.to_array());
+                    directions.push((d / dist).to_array());
+                    tmax.push(t);
+                    owner.push(k as u32);
+                }
+            } else if let Some(c) = v.connect(&receiver, None, self.disk_area) {
                 u[k] = luminance(c.value) as f64;
                 // From the record towards the light: the record's rays share one origin.
                 let (dir, t) = if v.kind == crate::lights::vpl::VplKind::Env {
