@@ -63,7 +63,7 @@ direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=N
   pixels on the same surface (relative depth within ``depth_tol``, normals' dot at least
   ``1 - normal_tol``; both in [0, 1], default 0.1), gathered at ``indirect`` resolution
   (``(256, 256)``, at most the camera's; ``marching`` at most that): voxels nearer than
-  ``sh_range`` (world units, default 0.35 of the scene's diagonal; ``inf``: VPLs only)
+  ``sh_range`` (world units, default 0.7 of the scene's diagonal; ``inf``: VPLs only)
   by their VPLs, farther ones by their bands 0-1 SH, and upsampled to the camera
   bilaterally. ``direct=True`` adds ``"mis"``'s direct light of ``spp`` samples.
   ``stats`` holds Table 1's ``voxelisation_seconds``, ``marching_seconds``,
