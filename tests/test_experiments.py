@@ -347,3 +347,47 @@ def test_vf_experiment_smoke(tmp_path, monkeypatch):
     assert "## Table 1: per-stage milliseconds" in md and "| cornell | 16x16 |" in md
     for name in ("cornell_strip.png", "cornell_relmse_vs_seconds.png", "cornell_vf.png"):
         assert (out / name).read_bytes().startswith(b"\x89PNG"), name
+
+
+def test_importance_cache_experiment_smoke(tmp_path, monkeypatch):
+    from viscache_rs import experiments
+    from viscache_rs.experiments import importance_cache
+
+    def tiny(quick):
+        return {"sets": [("cornell", 300)], "width": 16, "height": 12, "base_spp": 2,
+                "budgets": [1.0], "area_reference_spp": 16}
+
+    monkeypatch.setattr(importance_cache, "settings", tiny)
+    experiments.run("importance-cache", quick=True, out=tmp_path, seed=1, threads=2,
+                    progress=False)
+    out = tmp_path / "importance-cache"
+    data = json.loads((out / "results.json").read_text())
+    exact = data["cornell/exact"]
+    assert exact["lights"] > 0 and exact["spp"] == 1 and exact["seconds"] > 0
+    build = data["cornell/build"]
+    assert build["records"] > 0 and build["bytes_per_light_record"] >= 12
+    claims = data["cornell/row_claims"]
+    # Each pixel's mass is split among the rows; pixels without a surface give none.
+    assert set(claims) == set("FUBC") and 0 < sum(claims.values()) <= 1 + 1e-9
+    names = [m for m, _, _ in importance_cache.METHODS]
+    fixed = data["cornell/fixed_samples"]
+    assert [r["method"] for r in fixed] == names
+    eq = data["cornell/equal_time"]
+    assert [r["method"] for r in eq] == names
+    assert all(np.isfinite(r["relmse"]) and r["seconds"] > 0 and r["spp"] >= 1 for r in eq)
+    # The unbiased columns' means agree with the exact sum's (green channel, loosely: a
+    # tiny image at few samples).
+    for r in eq:
+        if r["method"] in ("uniform", "power", "unoccluded", "balance", "alpha_max"):
+            assert 0.5 < r["mean_ratio"][1] < 2.0, r
+    s = data["summary"]["cornell"]
+    assert s["ratio_uniform"] == pytest.approx(
+        next(r for r in eq if r["method"] == "alpha_max")["relmse"]
+        / next(r for r in eq if r["method"] == "uniform")["relmse"])
+    assert set(s["met"]) == {"uniform", "power", "balance", "best_row", "exact_fraction",
+                             "build", "bytes"}
+    md = (out / "results.md").read_text()
+    assert "Targets (issue 65 §5)" in md
+    for name in ("cornell_exact.png", "cornell_alpha_max.png", "cornell_row_claims.png",
+                 "cornell_relmse_vs_seconds.png"):
+        assert (out / name).exists(), name

@@ -21,7 +21,7 @@ from ._progress import progress_bar
 class ImportanceCache(_core.ImportanceCache):
     """Importance records over a scene and a light set (survey ch. 6):
     ``ImportanceCache(scene, lights, spacing=8, nearest=3, lam=1.0, alpha=(0.5, 0.5, 0.5,
-    1.0))``. ``spacing`` (pixels) sets the grid of records, ``nearest`` how many records a
+    0.3))``. ``spacing`` (pixels) sets the grid of records, ``nearest`` how many records a
     lookup combines (points with fewer within reach get their own), ``lam`` eq. 6.3's
     normal weight in median record reaches, ``alpha`` the confidences of rows F, U, B, C
     (each in (0, 1]) renders take by default."""

@@ -36,6 +36,7 @@ _MODULES = {
     "tradeoff": "tradeoff",
     "relight": "relight",
     "irradiance-cache": "irradiance_cache",
+    "importance-cache": "importance_cache",
     "vf": "vf",
 }
 

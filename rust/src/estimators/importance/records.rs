@@ -70,12 +70,20 @@ pub struct ImportanceParams {
 }
 
 impl ImportanceParams {
-    /// Spacing 8, 3 nearest, `λ` one median reach, `α = (0.5, 0.5, 0.5, 1)`.
+    /// Spacing 8, 3 nearest, `λ` one median reach, `α = (0.5, 0.5, 0.5, 0.3)`.
+    ///
+    /// `α_C` below 1 lets F own a light whose cached probability is under the uniform
+    /// `1/N` (down to `0.3/N`) rather than hand it to C's uniform draws. Relative MSE
+    /// against the exact sum at 8 draws per row and 8 samples per pixel centre (96x72 to
+    /// 128x96, 2,000 lights), `α_C` = 1 / 0.3 / 0.1: cornell 1.7e-3 / 9.6e-4 / 9.7e-4,
+    /// garage `ceiling_lights` (1,000 area lights and 1,000 VPLs) 0.078 / 0.058 / 0.059,
+    /// garden 6.4e-3 / 7.4e-3 / 7.5e-3; `α_F = α_U = α_B` in {0.2, 0.5, 1} moved cornell
+    /// by under 3%.
     pub const DEFAULT: Self = Self {
         spacing: 8,
         nearest: 3,
         lam: 1.0,
-        alpha: [0.5, 0.5, 0.5, 1.0],
+        alpha: [0.5, 0.5, 0.5, 0.3],
     };
 
     /// Checks every range; the error names the parameter.
