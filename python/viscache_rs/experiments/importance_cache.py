@@ -127,7 +127,7 @@ def run(ctx: ExperimentContext) -> None:
         ref_spp = s["area_reference_spp"] if area else 1
         exact = render("vpl", spp=ref_spp)
         image = np.asarray(exact.image, np.float64)
-        ref = {"image": image, "seconds": float(exact.stats["seconds"]),
+        ref: dict[str, Any] = {"image": image, "seconds": float(exact.stats["seconds"]),
                "variance": (np.asarray(exact.variance, np.float64) if area
                             else np.zeros_like(image))}
         ctx.record(f"{label}/exact", {"lights": len(lights), "spp": ref_spp,
