@@ -13,8 +13,8 @@ use pyo3::types::{PyDict, PyType};
 
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, f64_vector, finite_rows, int_arg, log2_resolution, or_default, seed_arg, seed_or_zero,
-    threads_arg, unit_directions, vec3_arg, IntoPyResult,
+    f64_arg, f64_vector, int_arg, log2_resolution, or_default, points_and_normals, seed_arg,
+    seed_or_zero, threads_arg, vec3_arg, IntoPyResult,
 };
 use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::interrupt::{detach_interruptible_with, detach_stoppable, PyProgress};
@@ -511,18 +511,7 @@ impl PyVisibilityCache {
         interpolate: bool,
         threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let pts: Vec<glam::Vec3> = finite_rows::<3>(points, "points")?
-            .into_iter()
-            .map(glam::Vec3::from)
-            .collect();
-        let nrm = unit_directions(normals, "normals")?;
-        if nrm.len() != pts.len() {
-            return Err(PyValueError::new_err(format!(
-                "normals: expected {} rows like points, got {}",
-                pts.len(),
-                nrm.len()
-            )));
-        }
+        let (pts, nrm) = points_and_normals(points, normals)?;
         let n = pts.len();
         let radii = self.radii(radius, footprints, n)?;
         let threads = threads_arg(threads)?;

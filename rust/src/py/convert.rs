@@ -152,6 +152,28 @@ pub fn finite_rows<const C: usize>(obj: &Bound<'_, PyAny>, name: &str) -> PyResu
     Ok(rows)
 }
 
+/// A lookup's `points` (N, 3), finite, and `normals` (N, 3), made unit
+/// ([`unit_directions`]); a `ValueError` naming the argument for bad rows or counts that
+/// differ.
+pub fn points_and_normals(
+    points: &Bound<'_, PyAny>,
+    normals: &Bound<'_, PyAny>,
+) -> PyResult<(Vec<glam::Vec3>, Vec<glam::Vec3>)> {
+    let pts: Vec<glam::Vec3> = finite_rows::<3>(points, "points")?
+        .into_iter()
+        .map(glam::Vec3::from)
+        .collect();
+    let nrm = unit_directions(normals, "normals")?;
+    if nrm.len() != pts.len() {
+        return Err(PyValueError::new_err(format!(
+            "normals: expected {} rows like points, got {}",
+            pts.len(),
+            nrm.len()
+        )));
+    }
+    Ok((pts, nrm))
+}
+
 /// Rows of an `(N, 3)` array of directions, normalised in f64: any finite row that is
 /// non-zero in `float32` has a direction, however short or long (a subnormal `1e-40` or
 /// `3e38`, whose squared length under- or overflows in f32). Zero-length or non-finite

@@ -11,7 +11,7 @@ use pyo3::types::{PyDict, PyType};
 
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, finite_rows, int_arg, seed_or_zero, threads_arg, unit_directions, IntoPyResult,
+    f64_arg, int_arg, points_and_normals, seed_or_zero, threads_arg, IntoPyResult,
 };
 use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::interrupt::{detach_interruptible, PyProgress};
@@ -231,18 +231,7 @@ impl PyImportanceCache {
         normals: &Bound<'py, PyAny>,
         lam: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let pts: Vec<glam::Vec3> = finite_rows::<3>(points, "points")?
-            .into_iter()
-            .map(glam::Vec3::from)
-            .collect();
-        let nrm = unit_directions(normals, "normals")?;
-        if nrm.len() != pts.len() {
-            return Err(PyValueError::new_err(format!(
-                "normals: expected {} rows like points, got {}",
-                pts.len(),
-                nrm.len()
-            )));
-        }
+        let (pts, nrm) = points_and_normals(points, normals)?;
         let lam = match lam {
             Some(l) if !l.is_none() => {
                 let l = f64_arg(l, "lam")? as f32;

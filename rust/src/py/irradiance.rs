@@ -6,14 +6,13 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use numpy::{PyArray1, PyArrayMethods};
-use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple, PyType};
 
 use super::camera::PyCamera;
 use super::convert::{
-    f64_arg, finite_rows, int_arg, seed_or_zero, threads_arg, unit_directions, vec3_arg,
-    IntoPyResult,
+    f64_arg, int_arg, points_and_normals, seed_or_zero, threads_arg, vec3_arg, IntoPyResult,
 };
 use super::envmap::PyEnvMap;
 use super::gbuffer::{view_arg, PyGBuffer, View};
@@ -294,18 +293,7 @@ impl PyIrradianceCache {
         normals: &Bound<'py, PyAny>,
         threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let pts: Vec<glam::Vec3> = finite_rows::<3>(points, "points")?
-            .into_iter()
-            .map(glam::Vec3::from)
-            .collect();
-        let nrm = unit_directions(normals, "normals")?;
-        if nrm.len() != pts.len() {
-            return Err(PyValueError::new_err(format!(
-                "normals: expected {} rows like points, got {}",
-                pts.len(),
-                nrm.len()
-            )));
-        }
+        let (pts, nrm) = points_and_normals(points, normals)?;
         let threads = threads_arg(threads)?;
         let inner = self.inner.clone();
         let found = py
