@@ -344,12 +344,9 @@ mod tests {
         let (lo, hi) = red
             .iter()
             .fold((f32::MAX, 0.0f32), |(a, b), &r| (a.min(r), b.max(r)));
-        assert!(
-            lo >= 0.25 * CEILING_LIGHT_RADIANCE[0] - 1e-3 && lo < 0.3 * CEILING_LIGHT_RADIANCE[0]
-        );
-        assert!(
-            hi <= 1.75 * CEILING_LIGHT_RADIANCE[0] + 1e-3 && hi > 1.7 * CEILING_LIGHT_RADIANCE[0]
-        );
+        let mean = CEILING_LIGHT_RADIANCE[0];
+        assert!((0.25 * mean - 1e-3..0.3 * mean).contains(&lo), "{lo}");
+        assert!(hi <= 1.75 * mean + 1e-3 && hi > 1.7 * mean, "{hi}");
     }
 
     #[test]

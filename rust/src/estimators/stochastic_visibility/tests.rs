@@ -116,10 +116,11 @@ fn the_special_cases_drop_a_term_without_bias() {
     let inside = Probabilities::new(0.6, 0.0, 0.4).unwrap();
     for (scene, proxy) in TYPES {
         let v = scene as u8 as f64;
-        if !(scene == false && proxy) {
+        // Outside proxies meet no type 2 (hit P, miss P'), inside ones no type 3.
+        if scene || !proxy {
             assert_eq!(expectation(&outside, scene, proxy), v);
         }
-        if !(scene && !proxy) {
+        if !scene || proxy {
             assert_eq!(expectation(&inside, scene, proxy), v);
         }
     }
