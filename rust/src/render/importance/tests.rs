@@ -32,6 +32,31 @@ fn bits(v: &[[f32; 3]]) -> Vec<u32> {
     v.iter().flatten().map(|x| x.to_bits()).collect()
 }
 
+/// Every pixel of `out` and its image sum within 4 SE (its own variance) of `want`.
+fn assert_within_4_se(label: &str, out: &RenderOutput, want: &[[f32; 3]]) {
+    let (got, var) = floats(out);
+    let (mut diff, mut var_sum) = (0.0f64, 0.0f64);
+    for (p, ((g, w), v)) in got.iter().zip(want).zip(&var).enumerate() {
+        for c in 0..3 {
+            let d = (g[c] - w[c]) as f64;
+            let se = (v[c] as f64).sqrt();
+            assert!(
+                d.abs() <= 4.0 * se + 1e-6 * w[c].abs() as f64,
+                "{label} pixel {p} channel {c}: {} vs {} (SE {se})",
+                g[c],
+                w[c]
+            );
+            diff += d;
+            var_sum += v[c] as f64;
+        }
+    }
+    assert!(
+        diff.abs() <= 4.0 * var_sum.sqrt(),
+        "{label}: image sum off by {diff}, SE {}",
+        var_sum.sqrt()
+    );
+}
+
 /// Every pixel and the image mean within 4 SE of the exact sum at the same first hits
 /// (the exact sum's samples share them, so the difference is the draws' noise alone,
 /// whose variance the importance estimate's own bounds), for α-max and balance, with
@@ -91,30 +116,65 @@ fn unbiased_against_the_exact_sum() {
                 .unwrap()
                 .render(&inputs, &mut |_, _| true)
                 .unwrap();
-            let (got, var) = floats(&out);
-            let (mut diff, mut var_sum) = (0.0f64, 0.0f64);
-            for (p, ((g, w), v)) in got.iter().zip(&want).zip(&var).enumerate() {
-                for c in 0..3 {
-                    let d = (g[c] - w[c]) as f64;
-                    let se = (v[c] as f64).sqrt();
-                    assert!(
-                        d.abs() <= 4.0 * se + 1e-6 * w[c].abs() as f64,
-                        "{combine} {} pixel {p} channel {c}: {} vs {} (SE {se})",
-                        cache.is_some(),
-                        g[c],
-                        w[c]
-                    );
-                    diff += d;
-                    var_sum += v[c] as f64;
-                }
-            }
-            assert!(
-                diff.abs() <= 4.0 * var_sum.sqrt(),
-                "{combine}: image sum off by {diff}, SE {}",
-                var_sum.sqrt()
-            );
+            let label = format!("{combine} (another view: {})", cache.is_some());
+            assert_within_4_se(&label, &out, &want);
             assert!(matches!(out.stats.get("records"), Some(Stat::Int(r)) if *r > 0));
         }
+    }
+}
+
+/// Rows moved between records (each record given the next one's F, U and B) cost
+/// variance, never bias (issue 65 §3): every pixel and the image within 4 SE of the exact
+/// sum, α-max and balance.
+#[test]
+fn rows_shuffled_between_records_stay_unbiased() {
+    let s = setup();
+    let cam = s.camera.with_resolution(12, 9).unwrap();
+    let set = vpls(&s, &cam, 200);
+    let base = MethodInputs {
+        spp: Some(600),
+        threads: Some(2),
+        vpls: Some(&set),
+        ..MethodInputs::new(&s.scene, &s.envmap, View::Camera(&cam))
+    };
+    let exact = method("vpl")
+        .unwrap()
+        .render(&base, &mut |_, _| true)
+        .unwrap();
+    let (want, _) = floats(&exact);
+    let cache = ImportanceCache::new(
+        &set,
+        ImportanceParams {
+            spacing: 4,
+            ..ImportanceParams::DEFAULT
+        },
+    )
+    .unwrap();
+    build_for_view(&s.scene, &cam, &cache, Some(2), None, &mut |_, _| true).unwrap();
+    {
+        let mut state = cache.write();
+        let records = &mut state.index.records_mut().records;
+        assert!(records.len() >= 2);
+        let rows: Vec<Box<[f32]>> = records.iter().map(|r| r.rows.clone()).collect();
+        for (i, r) in records.iter_mut().enumerate() {
+            r.rows = rows[(i + 1) % rows.len()].clone();
+        }
+    }
+    for combine in ["alpha_max", "balance"] {
+        let inputs = MethodInputs {
+            vpl_samples: Some(8),
+            cache: Some(CacheRef::Importance(&cache)),
+            importance: Some(ImportanceInputs {
+                combine: Some(combine),
+                ..Default::default()
+            }),
+            ..base
+        };
+        let out = method("importance_cache")
+            .unwrap()
+            .render(&inputs, &mut |_, _| true)
+            .unwrap();
+        assert_within_4_se(&format!("{combine} (shuffled rows)"), &out, &want);
     }
 }
 
