@@ -32,6 +32,24 @@ fn bits(v: &[[f32; 3]]) -> Vec<u32> {
     v.iter().flatten().map(|x| x.to_bits()).collect()
 }
 
+/// The exact sum (method "vpl") of `base`'s view and lights.
+fn exact_image(base: &MethodInputs<'_>) -> Vec<[f32; 3]> {
+    let exact = method("vpl")
+        .unwrap()
+        .render(base, &mut |_, _| true)
+        .unwrap();
+    floats(&exact).0
+}
+
+/// An empty cache over `set` with records every 4 pixels.
+fn spacing_4(set: &VplSet) -> ImportanceCache {
+    let params = ImportanceParams {
+        spacing: 4,
+        ..ImportanceParams::DEFAULT
+    };
+    ImportanceCache::new(set, params).unwrap()
+}
+
 /// Every pixel of `out` and its image sum within 4 SE (its own variance) of `want`.
 fn assert_within_4_se(label: &str, out: &RenderOutput, want: &[[f32; 3]]) {
     let (got, var) = floats(out);
@@ -75,11 +93,7 @@ fn unbiased_against_the_exact_sum() {
         vpls: Some(&set),
         ..MethodInputs::new(&s.scene, &s.envmap, View::Camera(&cam))
     };
-    let exact = method("vpl")
-        .unwrap()
-        .render(&base, &mut |_, _| true)
-        .unwrap();
-    let (want, _) = floats(&exact);
+    let want = exact_image(&base);
     // Records of another view: from a camera moved aside and turned.
     let other = Camera::look_at(
         cam.eye + cam.right * 0.3 * cam.eye.length().max(1.0),
@@ -90,14 +104,7 @@ fn unbiased_against_the_exact_sum() {
         15,
     )
     .unwrap();
-    let foreign = ImportanceCache::new(
-        &set,
-        ImportanceParams {
-            spacing: 4,
-            ..ImportanceParams::DEFAULT
-        },
-    )
-    .unwrap();
+    let foreign = spacing_4(&set);
     build_for_view(&s.scene, &other, &foreign, Some(2), None, &mut |_, _| true).unwrap();
     assert!(!foreign.is_empty());
     for combine in ["alpha_max", "balance"] {
@@ -137,19 +144,8 @@ fn rows_shuffled_between_records_stay_unbiased() {
         vpls: Some(&set),
         ..MethodInputs::new(&s.scene, &s.envmap, View::Camera(&cam))
     };
-    let exact = method("vpl")
-        .unwrap()
-        .render(&base, &mut |_, _| true)
-        .unwrap();
-    let (want, _) = floats(&exact);
-    let cache = ImportanceCache::new(
-        &set,
-        ImportanceParams {
-            spacing: 4,
-            ..ImportanceParams::DEFAULT
-        },
-    )
-    .unwrap();
+    let want = exact_image(&base);
+    let cache = spacing_4(&set);
     build_for_view(&s.scene, &cam, &cache, Some(2), None, &mut |_, _| true).unwrap();
     {
         let mut state = cache.write();

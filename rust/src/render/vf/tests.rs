@@ -79,29 +79,11 @@ fn the_exactness_chain_ends_at_the_many_light_renderer() {
         ..VfParams::DEFAULT
     };
     let traced = frame(&c, &exact, 2);
-    let vpl = render_many_lights(
-        &c.setup.scene,
-        &c.setup.envmap,
-        &c.camera,
-        &c.grid.vpls,
-        &ManyLightParams {
-            spp: 1,
-            seed: 3,
-            jitter: false,
-            clamp: None,
-            direct: false,
-            gather: Gather::Full,
-            time_budget: None,
-        },
-        None,
-        Some(2),
-        &mut |_, _| true,
-    )
-    .unwrap();
+    let vpl = vpl_image(&c);
     let mean: f32 =
         traced.iter().map(|p| p[0] + p[1] + p[2]).sum::<f32>() / (3 * traced.len()) as f32;
     assert!(mean > 0.0);
-    for (i, (a, b)) in traced.iter().zip(&vpl.image).enumerate() {
+    for (i, (a, b)) in traced.iter().zip(&vpl).enumerate() {
         for ch in 0..3 {
             assert!(
                 (a[ch] - b[ch]).abs() <= 1e-4 * b[ch].abs().max(mean),
