@@ -43,40 +43,7 @@
 
 use crate::error::{Error, Result};
 
-/// What a proxy set guarantees about the geometry it stands for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum ProxyKind {
-    /// Encloses every triangle (a bounding box, a convex hull): no ray hits `P` without
-    /// hitting `P'`, so type 2 never occurs and `p3` may be 0 (eq. 17–18).
-    Outside,
-    /// Lies inside a watertight mesh: no ray hits `P'` without hitting `P`, so type 3
-    /// never occurs and `p2` may be 0 (eq. 19–20).
-    Inside,
-    /// Neither: every term is needed.
-    General,
-}
-
-impl ProxyKind {
-    /// Every kind, in the order the errors list them.
-    pub const ALL: [ProxyKind; 3] = [ProxyKind::Outside, ProxyKind::Inside, ProxyKind::General];
-
-    /// The name `kind=` takes.
-    pub const fn name(self) -> &'static str {
-        match self {
-            ProxyKind::Outside => "outside",
-            ProxyKind::Inside => "inside",
-            ProxyKind::General => "general",
-        }
-    }
-
-    /// Whether term `t` can be non-zero for a ray under this guarantee.
-    pub const fn needs(self, t: Term) -> bool {
-        !matches!(
-            (self, t),
-            (ProxyKind::Outside, Term::Under) | (ProxyKind::Inside, Term::Over)
-        )
-    }
-}
+pub use crate::geometry::proxies::ProxyKind;
 
 /// One of eq. 8's terms.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -87,6 +54,17 @@ pub enum Term {
     Over,
     /// (c) `−V_P' (1 − V_P) / p3`: takes off what it under-occludes.
     Under,
+}
+
+impl Term {
+    /// Whether this term can be non-zero for a ray under proxies of `kind`: outside proxies
+    /// never under-occlude (eq. 17–18), inside ones never over-occlude (eq. 19–20).
+    pub const fn needed_under(self, kind: ProxyKind) -> bool {
+        !matches!(
+            (kind, self),
+            (ProxyKind::Outside, Term::Under) | (ProxyKind::Inside, Term::Over)
+        )
+    }
 }
 
 /// Shares of the four ray types of Table 1 over a point's shadow rays (eq. 9–11).
@@ -206,7 +184,7 @@ impl Probabilities {
     /// Equal probabilities over the terms `kind` needs (Fig. 5's "equal" columns):
     /// `(1/2, 1/2, 0)` outside, `(1/2, 0, 1/2)` inside, `1/3` each in general.
     pub fn equal(kind: ProxyKind) -> Self {
-        let needed = Term::ALL.map(|t| kind.needs(t) as u8 as f64);
+        let needed = Term::ALL.map(|t| t.needed_under(kind) as u8 as f64);
         let n: f64 = needed.iter().sum();
         Self {
             p: needed.map(|x| x / n),
@@ -223,7 +201,7 @@ impl Probabilities {
     pub fn check_unbiased(&self, kind: ProxyKind) -> Result<()> {
         match Term::ALL
             .into_iter()
-            .find(|&t| kind.needs(t) && self.of(t) <= 0.0)
+            .find(|&t| t.needed_under(kind) && self.of(t) <= 0.0)
         {
             Some(t) => Err(Error::invalid(
                 "probabilities",
@@ -353,7 +331,7 @@ impl Probabilities {
     /// Whether every term `kind` needs has probability `>= floor` and the others 0.
     fn meets_floor(&self, kind: ProxyKind, floor: f64) -> bool {
         Term::ALL.into_iter().all(|t| {
-            if kind.needs(t) {
+            if t.needed_under(kind) {
                 self.of(t) >= floor - 1e-12
             } else {
                 self.of(t) == 0.0
@@ -367,7 +345,7 @@ impl Probabilities {
         let floor = floor.clamp(0.0, 1.0 / 3.0);
         let mut p = self.p;
         for t in Term::ALL {
-            if !kind.needs(t) {
+            if !t.needed_under(kind) {
                 p[t as usize] = 0.0;
             }
         }
@@ -378,7 +356,7 @@ impl Probabilities {
         p = p.map(|x| x / sum);
         let needed: Vec<usize> = Term::ALL
             .into_iter()
-            .filter(|&t| kind.needs(t))
+            .filter(|&t| t.needed_under(kind))
             .map(|t| t as usize)
             .collect();
         let short: f64 = needed.iter().map(|&i| (floor - p[i]).max(0.0)).sum();

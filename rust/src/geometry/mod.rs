@@ -4,6 +4,7 @@ pub mod bvh;
 pub mod huge_pages;
 pub mod mesh;
 pub mod obj;
+pub mod proxies;
 pub mod scene;
 
 pub use bvh::{BuildQuality, Bvh, BvhUpdate, Hit, OccluderHint, TraversalCounters};
