@@ -254,6 +254,58 @@ fn weights_partition_every_light() {
     }
 }
 
+/// Chi-square of the lights drawn from each row of real lookups (records of a built
+/// cache, sparse rows among them) against the row's mean pmf `p̄`.
+#[test]
+fn draws_from_built_records_follow_the_mean_pmf() {
+    let s = setup();
+    let set = lights(&s, 60);
+    let cam = s.camera.with_resolution(24, 18).unwrap();
+    let cache = built(&s, &set, &cam, ImportanceParams::DEFAULT, 2);
+    let state = cache.read();
+    let n = set.vpls.len();
+    let records = &state.index.records().records;
+    assert!(records.iter().any(|r| r
+        .rows
+        .iter()
+        .any(|row| matches!(row, RowCdf::Sparse { .. }))));
+    let lambda = ImportanceCache::lambda_world(&state, 1.0);
+    for i in 0..4u64 {
+        let base = &records[(7 * i as usize) % records.len()];
+        let x = base.position + loop_dir(9, i) * base.radius * 0.5;
+        let near = state.nearest(x, base.normal, 3, lambda);
+        let m = state.matrix(near.ids(), n).unwrap();
+        for row in Row::ALL {
+            if m.records(row) == 0 {
+                continue;
+            }
+            let draws = 200_000u64;
+            let mut count = vec![0u64; n];
+            for j in 0..draws {
+                let u = |d| to_unit_f64(hash4(i, j, d, row as u64));
+                let k = m.draw(row, u(0), u(1)).unwrap();
+                count[k] += 1;
+            }
+            let (mut chi2, mut bins, mut outside) = (0.0, 0, 0);
+            for (k, &c) in count.iter().enumerate() {
+                let e = m.pmf(row, k) * draws as f64;
+                if e > 0.0 {
+                    chi2 += (c as f64 - e).powi(2) / e;
+                    bins += 1;
+                } else {
+                    outside += c;
+                }
+            }
+            assert_eq!(outside, 0, "{row:?}: draws of zero-mass lights");
+            let dof = (bins - 1) as f64;
+            assert!(
+                chi2 < dof + 5.0 * (2.0 * dof).sqrt(),
+                "{row:?} at {i}: {chi2} on {dof}"
+            );
+        }
+    }
+}
+
 /// The same records, bit for bit, on 1 and 2 threads; a second build of the same view adds
 /// no grid record.
 #[test]
