@@ -106,15 +106,7 @@ impl ProxyOptions {
                 format!("must lie in [1, {MAX_SPHERES}], got {}", self.spheres),
             ));
         }
-        if !(self.cell > 0.0 && self.cell <= 1.0) {
-            return Err(Error::invalid(
-                "cell",
-                format!(
-                    "must be a fraction of the object's box in (0, 1], got {}",
-                    self.cell
-                ),
-            ));
-        }
+        clustered::check_cell(self.cell)?;
         Ok(())
     }
 }
@@ -348,6 +340,98 @@ pub fn box_triangles(b: &Bounds) -> [[Vec3; 3]; 12] {
         out[2 * f + 1] = [c(q[0]), c(q[2]), c(q[3])];
     }
     out
+}
+
+/// Meshes and brute-force checks shared by the builders' tests.
+#[cfg(test)]
+pub(crate) mod test_meshes {
+    use glam::{DVec3, Vec3};
+
+    use crate::geometry::Scene;
+
+    /// A closed, bumpy sphere: an icosahedron subdivided `level` times (20 * 4^level
+    /// triangles), each vertex at `radius * (1 + amp * bump(direction))` from `centre`.
+    pub fn bumpy_ball(level: u32, centre: Vec3, radius: f32, amp: f32) -> Vec<[Vec3; 3]> {
+        let mut tris = super::inscribed::unit_sphere();
+        for _ in 1..level {
+            tris = tris
+                .iter()
+                .flat_map(|&[a, b, c]| {
+                    let (ab, bc, ca) = (
+                        (a + b).normalize(),
+                        (b + c).normalize(),
+                        (c + a).normalize(),
+                    );
+                    [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]
+                })
+                .collect();
+        }
+        let bump = |d: DVec3| (3.0 * d.x).sin() * (2.0 * d.y + 1.0).sin() * (4.0 * d.z).cos();
+        tris.iter()
+            .map(|t| {
+                t.map(|d| centre + (d * radius as f64 * (1.0 + amp as f64 * bump(d))).as_vec3())
+            })
+            .collect()
+    }
+
+    /// A scene of one object per triangle list.
+    pub fn scene_of(objects: &[Vec<[Vec3; 3]>]) -> Scene {
+        let mut mesh = crate::geometry::Mesh::new();
+        for t in objects {
+            mesh.add_triangles(t.iter().copied(), Default::default(), None)
+                .unwrap();
+        }
+        Scene::from_mesh(mesh)
+    }
+
+    /// True when `p` is inside the closed surface `tris`: odd crossings of a ray in a
+    /// fixed, oddly tilted direction (f64 Möller–Trumbore, brute force).
+    pub fn inside_by_parity(tris: &[[Vec3; 3]], p: Vec3) -> bool {
+        let o = p.as_dvec3();
+        let d = DVec3::new(0.5773, 0.6180, 0.5335).normalize();
+        let mut crossings = 0;
+        for t in tris {
+            let [a, b, c] = t.map(|v| v.as_dvec3());
+            let (e1, e2) = (b - a, c - a);
+            let q = d.cross(e2);
+            let det = e1.dot(q);
+            if det.abs() < 1e-300 {
+                continue;
+            }
+            let s = o - a;
+            let u = s.dot(q) / det;
+            let r = s.cross(e1);
+            let v = d.dot(r) / det;
+            let t = e2.dot(r) / det;
+            if u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > 0.0 {
+                crossings += 1;
+            }
+        }
+        crossings % 2 == 1
+    }
+
+    /// The triangles of proxy object `i` of `set`.
+    pub fn proxy_triangles(set: &super::ProxySet, i: usize) -> Vec<[Vec3; 3]> {
+        let mesh = set.scene().mesh();
+        mesh.triangles[mesh.objects[i].triangle_range()].to_vec()
+    }
+
+    /// A few points spread over each triangle (corners pulled in, centroid).
+    pub fn points_on(tris: &[[Vec3; 3]]) -> Vec<Vec3> {
+        let w = [
+            [0.98, 0.01, 0.01],
+            [0.01, 0.98, 0.01],
+            [0.01, 0.01, 0.98],
+            [1.0 / 3.0; 3],
+            [0.6, 0.3, 0.1],
+        ];
+        tris.iter()
+            .flat_map(|t| {
+                w.iter()
+                    .map(move |w| t[0] * w[0] + t[1] * w[1] + t[2] * w[2])
+            })
+            .collect()
+    }
 }
 
 #[cfg(test)]
