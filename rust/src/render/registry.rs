@@ -435,6 +435,18 @@ pub const METHODS: &[MethodSpec] = &[
         max_spp: MANY_LIGHT_MAX_SPP,
     },
     MethodSpec {
+        name: "vf",
+        about: "visibility filtering: VPLs of point proxies in a voxel grid, visibility by \
+                sparse marching and a geometry-aware filter, far voxels in SH (VF eq. 1-7)",
+        renderer: &VfRenderer,
+        params: VF_PARAMS,
+        caches: &[],
+        min_bounces: 1,
+        default_bounces: 1,
+        default_spp: DEFAULT_DIRECT_SPP,
+        max_spp: MAX_SPP,
+    },
+    MethodSpec {
         name: "stochastic",
         about: "light sampling with probabilistic visibility on geometry proxies: each shadow \
                 ray tests the proxies, the scene or a correction term, unbiased (BLD eq. 8, \
@@ -444,18 +456,6 @@ pub const METHODS: &[MethodSpec] = &[
         caches: &[],
         min_bounces: 0,
         default_bounces: 0,
-        default_spp: DEFAULT_DIRECT_SPP,
-        max_spp: MAX_SPP,
-    },
-    MethodSpec {
-        name: "vf",
-        about: "visibility filtering: VPLs of point proxies in a voxel grid, visibility by \
-                sparse marching and a geometry-aware filter, far voxels in SH (VF eq. 1-7)",
-        renderer: &VfRenderer,
-        params: VF_PARAMS,
-        caches: &[],
-        min_bounces: 1,
-        default_bounces: 1,
         default_spp: DEFAULT_DIRECT_SPP,
         max_spp: MAX_SPP,
     },

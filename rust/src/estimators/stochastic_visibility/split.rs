@@ -28,6 +28,10 @@
 //! when the set is prepared) and by the parity of a ray's crossings otherwise; each proxy's
 //! triangles must form a closed surface (the builders' guarantee; taken on trust for
 //! [`ProxySet::from_meshes`]).
+//!
+//! An area light's own object stays in `R`: a thick emitter's proxy blocks the segments
+//! that end on it, whose rays then take term (b) (unbiased, more variance); flat lights
+//! (quads) have flat boxes that a segment ending short of the light never crosses.
 
 use glam::Vec3;
 
