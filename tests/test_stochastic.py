@@ -189,3 +189,14 @@ def test_unbiased_on_foliage_hair_and_a_closed_mesh(name, kind, params, mode):
         assert terms[1] == 0 and terms[2] > 0
     if kind == "outside":
         assert terms[2] == 0
+
+
+def test_a_proxy_set_without_triangles_is_unbiased(cornell, small, exact):
+    """No proxy triangles: every proxy test misses (V_P' = 1), so term (a) is 1/p1 or 0
+    and (b) and (c) correct it from the scene: unbiased, as any set."""
+    empty = vc.Proxies.from_meshes(cornell.scene, {}, kind="general")
+    assert empty.num_triangles == 0 and empty.objects == []
+    out = vc.render(cornell, camera=small, spp=SPP, method="stochastic", proxies=empty,
+                    probabilities="equal", seed=SEED, threads=2, progress=False)
+    _within_4_se(out, exact)
+    assert out.stats["proxy_triangle_tests"] == 0
