@@ -134,8 +134,13 @@ def test_bad_input_names_the_argument(cornell, small, boxes):
         return vc.render(cornell, camera=small, spp=1, method="stochastic", progress=False,
                          **kw)
 
-    with pytest.raises(ValueError, match="proxies"):
-        run()
+    # Without a set: a box per object, built by the render, as Proxies.boxes gives.
+    default = vc.render(cornell, camera=small, spp=8, method="stochastic", seed=SEED,
+                        progress=False)
+    assert default.stats["proxies_built"] and default.stats["proxy_kind"] == "outside"
+    given = vc.render(cornell, camera=small, spp=8, method="stochastic", seed=SEED,
+                      progress=False, proxies=boxes)
+    assert np.array_equal(default.image, given.image) and not given.stats["proxies_built"]
     other = vc.scenes.load("blob", detail=0.25)
     with pytest.raises(ValueError, match="proxies"):
         run(proxies=vc.Proxies.boxes(other.scene))

@@ -78,7 +78,8 @@ direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=N
 - ``"stochastic"`` (unbiased; BLD, probabilistic visibility with geometry proxies):
   ``"env"``'s light samples with each shadow ray's visibility replaced by eq. 8's estimate
   (0, 1/p or -1/p, unclamped: pixels may be negative) against ``proxies=`` (a
-  :class:`Proxies` set, required), with visibility splitting (eq. 27: the object at the
+  :class:`Proxies` set; without one, a box per object, built in the render's seconds,
+  ``stats["proxies_built"]``), with visibility splitting (eq. 27: the object at the
   shading point tested exactly); ``probabilities`` "optimal" (default: least variance from
   ``probe_rays``, 16, probes per pixel), "cost" (then eq. 22-24's heuristic) or "equal".
   ``stats`` counts ``shadow_rays``, ``proxy_rays``, ``scene_rays`` (of them

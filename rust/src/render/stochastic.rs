@@ -60,7 +60,7 @@ const PROBE_STREAM: u64 = 0x5eed_7e2a_0b1d_0002;
 /// default).
 #[derive(Clone, Copy, Debug)]
 pub struct StochasticInputs<'a> {
-    /// The proxy set (required).
+    /// The proxy set; `None`: a box per object ([`ProxySet::boxes`]), built by the render.
     pub proxies: Option<&'a ProxySet>,
     /// "equal", "optimal" or "cost"; `None`: "optimal".
     pub probabilities: Option<&'a str>,
@@ -402,12 +402,14 @@ impl MethodRenderer for StochasticRenderer {
                 format!("method {:?} traces its own first hits", spec.name),
             ));
         };
-        let Some(proxies) = inputs.stochastic.and_then(|s| s.proxies) else {
-            return Err(Error::invalid(
-                "proxies",
-                "method \"stochastic\" needs a proxy set (vc.Proxies)",
-            ));
+        // Without a set, one box per object (outside proxies), built here.
+        let start = std::time::Instant::now();
+        let given = inputs.stochastic.and_then(|s| s.proxies);
+        let own = match given {
+            Some(_) => None,
+            None => Some(ProxySet::boxes(inputs.scene, None)?),
         };
+        let proxies = given.or(own.as_ref()).expect("given or built");
         let params = Self::params(spec, inputs)?;
         let out = render_stochastic(
             inputs.scene,
@@ -423,6 +425,10 @@ impl MethodRenderer for StochasticRenderer {
         d.set("method", spec.name);
         for (name, value) in o.stats.iter() {
             d.set(name, value.clone());
+        }
+        d.set("proxies_built", own.is_some());
+        if own.is_some() {
+            d.set("seconds", start.elapsed().as_secs_f64());
         }
         d.set(
             "pixel_scene_rays",
