@@ -18,6 +18,7 @@ use std::collections::HashMap;
 
 use glam::{DVec3, Vec3};
 
+use super::inscribed::{weld, Welded};
 use super::{per_object, ProxyKind, ProxySet};
 use crate::error::{Error, Result};
 use crate::geometry::{Bounds, Scene};
@@ -51,11 +52,13 @@ impl ProxySet {
             if triangles.len() <= target {
                 return Ok((!triangles.is_empty()).then(|| triangles.to_vec()));
             }
+            let welded = weld(triangles);
+            let bounds = Bounds::of_triangles(triangles);
             let (mut fine, mut coarse) = (FINEST.ln(), 0.0f32);
-            let mut best = cluster(triangles, 1.0);
+            let mut best = cluster_welded(&welded, &bounds, 1.0);
             for _ in 0..14 {
                 let mid = 0.5 * (fine + coarse);
-                let got = cluster(triangles, mid.exp());
+                let got = cluster_welded(&welded, &bounds, mid.exp());
                 if got.as_ref().map_or(0, Vec::len) <= target {
                     best = got;
                     coarse = mid;
@@ -83,43 +86,53 @@ pub(crate) fn check_cell(cell: f32) -> Result<()> {
 /// The clustered triangles of one object (see the module docs); `None` when nothing is
 /// left.
 pub(crate) fn cluster(triangles: &[[Vec3; 3]], cell: f32) -> Option<Vec<[Vec3; 3]>> {
-    let b = Bounds::of_triangles(triangles);
-    let side = b.extent() as f64 * cell as f64;
-    if b.is_empty() || side <= 0.0 {
+    cluster_welded(&weld(triangles), &Bounds::of_triangles(triangles), cell)
+}
+
+/// [`cluster`] on the object's welded vertices (`bounds`: its box). A welded vertex counts
+/// once per corner that uses it in its cell's mean.
+fn cluster_welded(welded: &Welded, bounds: &Bounds, cell: f32) -> Option<Vec<[Vec3; 3]>> {
+    let side = bounds.extent() as f64 * cell as f64;
+    if bounds.is_empty() || side <= 0.0 {
         return None;
     }
-    let lo = b.min.as_dvec3();
-    let key = |v: Vec3| {
-        ((v.as_dvec3() - lo) / side)
-            .floor()
-            .clamp(DVec3::ZERO, DVec3::splat(u32::MAX as f64))
-            .as_uvec3()
-            .to_array()
-    };
+    let lo = bounds.min.as_dvec3();
+    let mut uses = vec![0u32; welded.positions.len()];
+    for t in &welded.corners {
+        for &v in t {
+            uses[v as usize] += 1;
+        }
+    }
     let mut cells: HashMap<[u32; 3], u32> = HashMap::new();
     let mut sums: Vec<(DVec3, u32)> = Vec::new();
-    let ids: Vec<[u32; 3]> = triangles
+    let of_vertex: Vec<u32> = welded
+        .positions
         .iter()
-        .map(|t| {
-            t.map(|v| {
-                let id = *cells.entry(key(v)).or_insert_with(|| {
-                    sums.push((DVec3::ZERO, 0));
-                    sums.len() as u32 - 1
-                });
-                let s = &mut sums[id as usize];
-                s.0 += v.as_dvec3();
-                s.1 += 1;
-                id
-            })
+        .zip(&uses)
+        .map(|(&v, &n)| {
+            let key = ((v.as_dvec3() - lo) / side)
+                .floor()
+                .clamp(DVec3::ZERO, DVec3::splat(u32::MAX as f64))
+                .as_uvec3()
+                .to_array();
+            let id = *cells.entry(key).or_insert_with(|| {
+                sums.push((DVec3::ZERO, 0));
+                sums.len() as u32 - 1
+            });
+            let s = &mut sums[id as usize];
+            s.0 += v.as_dvec3() * n as f64;
+            s.1 += n;
+            id
         })
         .collect();
     let reps: Vec<Vec3> = sums
         .iter()
-        .map(|(s, n)| (*s / *n as f64).as_vec3())
+        .map(|(s, n)| (*s / (*n).max(1) as f64).as_vec3())
         .collect();
     let mut seen: std::collections::HashSet<[u32; 3]> = std::collections::HashSet::new();
     let mut out = Vec::new();
-    for [a, b, c] in ids {
+    for t in &welded.corners {
+        let [a, b, c] = t.map(|v| of_vertex[v as usize]);
         if a == b || b == c || c == a {
             continue;
         }
