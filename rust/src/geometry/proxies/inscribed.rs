@@ -59,17 +59,28 @@ impl ProxySet {
     }
 }
 
-/// A fast hasher for welding keys (coordinate bits).
+/// A fast hasher for welding and cell keys (coordinate bits, cell indices), 8 bytes a
+/// multiply.
 #[derive(Default)]
-struct Mix(u64);
+pub(crate) struct Mix(u64);
+
+/// Hash maps keyed by [`Mix`].
+pub(crate) type MixMap<K, V> = HashMap<K, V, BuildHasherDefault<Mix>>;
 
 impl Hasher for Mix {
     fn finish(&self) -> u64 {
-        self.0
+        self.0 ^ (self.0 >> 32)
     }
     fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.write_u64(b as u64);
+        let mut chunks = bytes.chunks_exact(8);
+        for c in &mut chunks {
+            self.write_u64(u64::from_le_bytes(c.try_into().unwrap_or_default()));
+        }
+        let rest = chunks.remainder();
+        if !rest.is_empty() {
+            let mut buf = [0u8; 8];
+            buf[..rest.len()].copy_from_slice(rest);
+            self.write_u64(u64::from_le_bytes(buf));
         }
     }
     fn write_u32(&mut self, v: u32) {
@@ -90,7 +101,7 @@ pub(crate) struct Welded {
 
 /// Welds `triangles`' corners with equal coordinates.
 pub(crate) fn weld(triangles: &[[Vec3; 3]]) -> Welded {
-    let mut index: HashMap<[u32; 3], u32, BuildHasherDefault<Mix>> =
+    let mut index: MixMap<[u32; 3], u32> =
         HashMap::with_capacity_and_hasher(triangles.len() / 2 + 3, Default::default());
     let mut positions = Vec::new();
     let corners = triangles
@@ -258,7 +269,7 @@ pub(crate) fn inscribed_spheres(
         let m = m as u32;
         for i in 0..=m {
             for j in 0..=m - i {
-                if (i == 0 && j == 0) || (i == m && j == 0) || (i == 0 && j == m) {
+                if (j == 0 && (i == 0 || i == m)) || (i == 0 && j == m) {
                     continue;
                 }
                 let p = a + (bb - a) * (i as f64 / m as f64) + (c - a) * (j as f64 / m as f64);
