@@ -12,6 +12,8 @@
 //!    the distance to the nearest surface sample (vertices, plus a lattice on triangles
 //!    longer than the grid step) minus the farthest any surface point lies from its
 //!    triangle's samples (`longest sub-edge / sqrt 3`), minus a rounding margin;
+//!    Above [`DECIMATE_ABOVE`] samples, one per cell of half a grid step is kept and the
+//!    bound grows by that cell's diagonal;
 //! 3. greedily, the largest candidate not inside an already chosen sphere, `count` times
 //!    (a discrete medial axis: centres of locally largest balls).
 //!
@@ -34,6 +36,10 @@ use crate::geometry::{Bounds, Scene};
 
 /// Candidate centres along the longest side of an object's box.
 pub const GRID: usize = 48;
+
+/// Surface samples above which they are thinned to one per half grid step (radii then
+/// lose up to `0.87` grid steps).
+const DECIMATE_ABOVE: usize = 20_000;
 
 impl ProxySet {
     /// Inside proxies: up to `count` (1..=[`MAX_SPHERES`]) inscribed spheres per object of
@@ -277,6 +283,21 @@ pub(crate) fn inscribed_spheres(
             }
         }
     }
+    if samples.len() > DECIMATE_ABOVE {
+        // One sample per cell of side step / 2: a dropped sample lies within the cell's
+        // diagonal of the kept one. Deep candidates are nearly equidistant from many
+        // samples, so the kd-tree's cost follows the sample count.
+        let h = step / 2.0;
+        let mut kept: MixMap<[i64; 3], ()> = MixMap::default();
+        samples.retain(|p| {
+            let key = ((Vec3::from(*p).as_dvec3() - lo) / h)
+                .floor()
+                .as_i64vec3()
+                .to_array();
+            kept.insert(key, ()).is_none()
+        });
+        cover += h * 3f64.sqrt();
+    }
     let tree: ImmutableKdTree<f32, u32, 3, 32> = ImmutableKdTree::new_from_slice(&samples);
     // Rounding: the f32 search and the f32 vertices of the tessellation.
     let slack = 1e-5 * longest + 8.0 * f32::EPSILON as f64 * b.max_abs() as f64;
@@ -396,6 +417,23 @@ mod tests {
         assert_eq!(set.num_triangles(), 0, "an empty object gets no spheres");
         let err = ProxySet::inscribed(&scene, None, 0).unwrap_err();
         assert!(err.to_string().starts_with("spheres"), "{err}");
+    }
+
+    #[test]
+    fn thinned_samples_keep_spheres_inside() {
+        // Level 6: 40,962 vertices, above the thinning threshold.
+        let ball = bumpy_ball(6, Vec3::new(0.5, -0.2, 0.1), 1.0, 0.25);
+        let welded = check_watertight(0, &ball).unwrap();
+        assert!(welded.positions.len() > DECIMATE_ABOVE);
+        let spheres = inscribed_spheres(&ball, &welded, 12);
+        assert_eq!(spheres.len(), 12);
+        let proxy = tessellate(&spheres, &unit_sphere());
+        for p in points_on(&proxy) {
+            assert!(inside_by_parity(&ball, p), "{p} is outside");
+        }
+        // Largest radius: at least the bumps' trough (0.75) less the grid and thinning
+        // losses (about 2.5 steps of 2.5 / 48).
+        assert!(spheres[0].1 > 0.5, "{:?}", spheres[0]);
     }
 
     #[test]
