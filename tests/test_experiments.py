@@ -365,7 +365,8 @@ def test_importance_cache_experiment_smoke(tmp_path, monkeypatch):
     exact = data["cornell/exact"]
     assert exact["lights"] > 0 and exact["spp"] == 1 and exact["seconds"] > 0
     build = data["cornell/build"]
-    assert build["records"] > 0 and build["bytes_per_light_record"] >= 12
+    # Rows: at most 12 bytes per light and record (fewer where sparse), plus the index.
+    assert build["records"] > 0 and 0 < build["bytes_per_light_record"] < 12 + 10_000 / 300
     claims = data["cornell/row_claims"]
     # Each pixel's mass is split among the rows; pixels without a surface give none.
     assert set(claims) == set("FUBC") and 0 < sum(claims.values()) <= 1 + 1e-9
@@ -391,3 +392,32 @@ def test_importance_cache_experiment_smoke(tmp_path, monkeypatch):
     for name in ("cornell_exact.png", "cornell_alpha_max.png", "cornell_row_claims.png",
                  "cornell_relmse_vs_seconds.png"):
         assert (out / name).exists(), name
+
+
+def test_proxies_experiment_smoke(tmp_path, monkeypatch):
+    from viscache_rs import experiments
+    from viscache_rs.experiments import proxies
+
+    def tiny(quick):
+        return {"scenes": [("cornell", "dense_blocks", ("boxes", "spheres"))],
+                "width": 12, "height": 9, "base_spp": 2, "reference_spp": 16,
+                "budgets": [1.0], "modes": ("equal", "optimal")}
+
+    monkeypatch.setattr(proxies, "settings", tiny)
+    experiments.run("proxies", quick=True, out=tmp_path, seed=1, threads=2, progress=False)
+    out = tmp_path / "proxies"
+    data = json.loads((out / "results.json").read_text())
+    made = data["cornell-dense_blocks/proxies"]
+    # The two blocks are the dense objects; a box each, and spheres inside each.
+    assert len(made["objects"]) == 2 and made["object_triangles"] == 2 * 81_920
+    kinds = {s["proxies"]: s for s in made["sets"]}
+    assert kinds["boxes"]["triangles"] == 24 and kinds["boxes"]["kind"] == "outside"
+    assert kinds["spheres"]["kind"] == "inside" and kinds["spheres"]["triangles"] > 0
+    eq = data["cornell-dense_blocks/equal_time"]
+    names = ["exact"] + [f"{k}/{m}" for k in ("boxes", "spheres") for m in ("equal", "optimal")]
+    assert [r["method"] for r in eq] == names
+    assert all(np.isfinite(r["relmse"]) and r["seconds"] > 0 and r["spp"] >= 1 for r in eq)
+    stochastic = [r for r in eq if r["method"] != "exact"]
+    assert all(r["proxy_rays_per_pixel"] > 0 for r in stochastic)
+    assert "cornell-dense_blocks" in data["summary"]
+    assert (out / "cornell-dense_blocks_relmse_vs_seconds.png").read_bytes().startswith(b"\x89PNG")

@@ -450,7 +450,8 @@ def test_bad_arguments_name_themselves(small_setups, kwargs, exc, needle):
 def test_the_registry_lists_every_method_and_refuses_what_a_method_ignores(small_setups):
     table = {m["name"]: m for m in vc.methods()}
     assert list(table) == ["env", "bsdf", "mis", "product", "cv", "path", "irradiance_cache",
-                           "vpl", "vpl_sampled", "importance_cache", "vf"]
+                           "vpl", "vpl_sampled", "importance_cache", "vf",
+                           "stochastic"]
     assert table["cv"]["caches"] == ["VisibilityCache"]
     assert table["irradiance_cache"]["caches"] == ["IrradianceCache"]
     assert table["importance_cache"]["caches"] == ["ImportanceCache"]

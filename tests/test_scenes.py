@@ -204,7 +204,7 @@ INDIRECT = [("cornell", None), ("cornell", "glossy_floor"), ("cornell", "semiglo
 
 def test_variants_are_listed_beside_the_scenes():
     assert vc.scenes.indirect_names() == INDIRECT
-    assert vc.scenes.variants("cornell") == ["glossy_floor", "semiglossy_floor"]
+    assert vc.scenes.variants("cornell") == ["glossy_floor", "semiglossy_floor", "dense_blocks"]
     assert vc.scenes.variants("garage") == ["sun", "ceiling_lights"]
     assert vc.scenes.variants("room") == ["sunlit"]
     assert vc.scenes.variants("garden") == [] and vc.scenes.variants("meshes") == []

@@ -20,6 +20,7 @@ __all__ = [
     "ImportanceCache",
     "IrradianceCache",
     "ProxyGrid",
+    "Proxies",
     "VisibilityCache",
     "LightingPreview",
     "Relighter",
@@ -282,6 +283,38 @@ class ProxyGrid:
     @property
     def stats(self) -> dict[str, Any]: ...
     def __len__(self) -> int: ...
+
+@final
+class Proxies:
+    """BLD's geometry proxies for ``render(method="stochastic", proxies=...)``: cheap
+    triangles standing for some of a scene's objects with one guarantee (``kind``):
+    "outside" (encloses each object; solid), "inside" (within each watertight object) or
+    "general". Their own scene and BVH, tied to the scene they were made for."""
+
+    @staticmethod
+    def boxes(scene: Scene, objects: list[int] | None = None) -> Proxies: ...
+    @staticmethod
+    def from_meshes(
+        scene: Scene,
+        meshes: dict[int, tuple[npt.ArrayLike, npt.ArrayLike]],
+        kind: str = "outside",
+    ) -> Proxies: ...
+    @staticmethod
+    def build(
+        scene: Scene,
+        kind: str = "outside",
+        hull: bool = False,
+        target: int | None = None,
+        spheres: int | None = None,
+        cell: float | None = None,
+        objects: list[int] | None = None,
+    ) -> Proxies: ...
+    @property
+    def kind(self) -> str: ...
+    @property
+    def num_triangles(self) -> int: ...
+    @property
+    def objects(self) -> list[int]: ...
 
 @disjoint_base
 class ImportanceCache:
@@ -555,7 +588,7 @@ def render(
     gradients: str | None = None,
     clamp_neighbours: bool | None = None,
     secondary_spp: int | None = None,
-    proxies: int | ProxyGrid | None = None,
+    proxies: int | ProxyGrid | Proxies | None = None,
     voxels: int | tuple[int, int, int] | None = None,
     marching: int | tuple[int, int] | None = None,
     indirect: int | tuple[int, int] | None = None,
@@ -569,6 +602,8 @@ def render(
     lam: float | None = None,
     spacing: int | None = None,
     nearest: int | None = None,
+    probabilities: str | None = None,
+    probe_rays: int | None = None,
 ) -> dict[str, Any]: ...
 def methods() -> list[dict[str, Any]]: ...
 def own_cache_record_cap(pixels: int, spp: int, preset: str = "auto") -> int: ...

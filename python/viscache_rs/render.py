@@ -75,6 +75,16 @@ direct=True, gbuffer=None, light_samples=None, learn_techniques=True, adaptive=N
   diagonal) light a diffuse receiver by their VPLs pooled per quarter-voxel sub-cell and
   normal; ``stats["culled_voxels"]`` counts near voxels skipped as wholly below the
   receiver's tangent plane or behind their own.
+- ``"stochastic"`` (unbiased; BLD, probabilistic visibility with geometry proxies):
+  ``"env"``'s light samples with each shadow ray's visibility replaced by eq. 8's estimate
+  (0, 1/p or -1/p, unclamped: pixels may be negative) against ``proxies=`` (a
+  :class:`Proxies` set, required), with visibility splitting (eq. 27: the object at the
+  shading point tested exactly); ``probabilities`` "optimal" (default: least variance from
+  ``probe_rays``, 16, probes per pixel), "cost" (then eq. 22-24's heuristic) or "equal".
+  ``stats`` counts ``shadow_rays``, ``proxy_rays``, ``scene_rays`` (of them
+  ``split_rays`` and ``probe_rays``), ``terms`` (a, b, c), the traversal work per structure
+  (``scene_nodes``, ``scene_triangle_tests``, ``proxy_nodes``, ``proxy_triangle_tests``)
+  and ``pixel_scene_rays`` (row-major, Fig. 7's image).
 
 All others are unbiased estimators of the same image. Every pixel's per-point work (the product
 distribution, the cache lookup, J) is done once, at its *anchor*, the first hit through its
@@ -194,7 +204,7 @@ def render(
     gradients: str | None = None,
     clamp_neighbours: bool | None = None,
     secondary_spp: int | None = None,
-    proxies: int | _core.ProxyGrid | None = None,
+    proxies: int | _core.ProxyGrid | _core.Proxies | None = None,
     voxels: int | tuple[int, int, int] | None = None,
     marching: int | tuple[int, int] | None = None,
     indirect: int | tuple[int, int] | None = None,
@@ -208,6 +218,8 @@ def render(
     lam: float | None = None,
     spacing: int | None = None,
     nearest: int | None = None,
+    probabilities: str | None = None,
+    probe_rays: int | None = None,
 ) -> RenderResult:
     """Renders direct illumination of a built-in or user setup; see the module docstring."""
     # (A cache is checked by the registry below, against the caches the method accepts.)
@@ -233,7 +245,9 @@ def render(
              "depth_tol": depth_tol is not None, "normal_tol": normal_tol is not None,
              "sh_range": sh_range is not None, "combine": combine is not None,
              "lam": lam is not None, "spacing": spacing is not None,
-             "nearest": nearest is not None}
+             "nearest": nearest is not None,
+             "probabilities": probabilities is not None,
+             "probe_rays": probe_rays is not None}
     _core.check_method_args(method, [k for k, v in given.items() if v], cache)
     if camera is None:
         camera = setup.camera if gbuffer is None else gbuffer.camera
@@ -294,6 +308,8 @@ def render(
             lam=lam,
             spacing=spacing,
             nearest=nearest,
+            probabilities=probabilities,
+            probe_rays=probe_rays,
         )
     stats = out["stats"]
     return RenderResult(out["image"], out["variance"], stats, out["alpha"],

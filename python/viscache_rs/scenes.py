@@ -62,7 +62,9 @@ room        sunlit              the sun (azimuth 350, elevation 45 deg) falls   
 
 One variant is not for indirect light: ``load("garage", variant="ceiling_lights")`` is the
 garage at night (a dim constant map) lit by 1,000 small area lights under the roof (radiances
-between 0.25x and 1.75x of their mean): the many-light case of the survey's ch. 6.
+between 0.25x and 1.75x of their mean): the many-light case of the survey's ch. 6. Nor is
+``load("cornell", variant="dense_blocks")``: the blocks become closed bumpy ellipsoids of
+81,920 triangles each (164,814 in all), the dense objects that BLD's proxies stand for.
 
 ``setup.variant`` names the variant (None for the default).
 

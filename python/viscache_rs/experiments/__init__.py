@@ -38,6 +38,7 @@ _MODULES = {
     "irradiance-cache": "irradiance_cache",
     "importance-cache": "importance_cache",
     "vf": "vf",
+    "proxies": "proxies",
 }
 
 

@@ -629,6 +629,50 @@ impl Lighting<'_> {
         total
     }
 
+    /// [`Method::Env`]'s estimate (one sample of the map's distribution, one point on each
+    /// area light, the same random numbers) with each shadow ray's visibility given by
+    /// `visibility(direction, tmax)` instead of traced: any real, unclamped (BLD's
+    /// stochastic visibility gives `0`, `1/p` or `−1/p`). Called only for rays
+    /// [`Method::Env`] would trace, in its order; with a 0/1 answer equal to the scene's the
+    /// result is [`Method::Env`]'s bit for bit. Counts the rays in `counters`.
+    pub fn estimate_lights_with(
+        &self,
+        sp: &ShadingPoint,
+        rng: &impl Sampler,
+        counters: &mut DirectCounters,
+        mut visibility: impl FnMut(Vec3, f32) -> f64,
+    ) -> Vec3 {
+        let mut total = Vec3::ZERO;
+        let mut term = |dir: Vec3, radiance: Vec3, pdf: f64, tmax: f32| {
+            let cos = sp.normal.dot(dir);
+            if cos <= 0.0 || pdf <= 0.0 || radiance == Vec3::ZERO || tmax <= 0.0 {
+                return Vec3::ZERO;
+            }
+            let f = sp.material.eval(sp.normal, sp.wo, dir);
+            if f == Vec3::ZERO {
+                return Vec3::ZERO;
+            }
+            counters.shadow_rays += 1;
+            let v = visibility(dir, tmax);
+            if v == 0.0 {
+                return Vec3::ZERO;
+            }
+            f * radiance * cos * (v / pdf) as f32
+        };
+        let u = unit_pair(rng.get2(dims::ENV));
+        if let Some((dir, pdf)) = self.env.sample(u) {
+            let radiance = self.env.eval(dir);
+            total += term(dir, radiance, pdf, f32::INFINITY);
+        }
+        for (k, light) in self.scene.area_lights().iter().enumerate() {
+            if let Some(s) = sample_area_light(light, k, sp.origin, rng) {
+                let tmax = self.scene.segment_end(s.distance, s.point);
+                total += term(s.direction, s.radiance, s.pdf, tmax);
+            }
+        }
+        total
+    }
+
     /// The product distribution of `sp` (`None` where the map or the surface sends no
     /// light towards `wo`).
     pub fn product(&self, sp: &ShadingPoint) -> Option<ProductDistribution> {

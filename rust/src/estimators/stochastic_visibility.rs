@@ -409,5 +409,7 @@ pub fn estimate(
     }
 }
 
+pub mod split;
+
 #[cfg(test)]
 mod tests;

@@ -136,7 +136,8 @@ impl PyImportanceCache {
         Ok(d)
     }
 
-    /// Bytes of the records (12 per light and record for rows F, U, B) and their index.
+    /// Bytes of the records (rows F, U, B: at most 12 per light and record, less where
+    /// rows are sparse) and their index.
     fn memory_bytes(&self) -> usize {
         self.inner.memory_bytes()
     }
@@ -289,7 +290,10 @@ impl PyImportanceCache {
         for (name, row) in [("F", Row::F), ("U", Row::U), ("B", Row::B)] {
             let v: Vec<f32> = recs
                 .iter()
-                .flat_map(|r| (0..l).map(move |k| r.value(row, l, k)))
+                .flat_map(|r| {
+                    let sums = r.row(row).dense(l);
+                    (0..l).map(move |k| sums[k] - if k == 0 { 0.0 } else { sums[k - 1] })
+                })
                 .collect();
             d.set_item(name, PyArray1::from_vec(py, v).reshape([n, l])?)?;
         }

@@ -15,6 +15,7 @@ mod irradiance;
 mod material;
 mod octahedral;
 mod preview;
+mod proxies;
 mod relight;
 mod render;
 mod scene;
@@ -53,6 +54,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<preview::PyLightingPreview>()?;
     m.add_class::<relight::PyRelighter>()?;
     m.add_class::<vf::PyProxyGrid>()?;
+    m.add_class::<proxies::PyProxies>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(render::methods, m)?)?;
     m.add_function(wrap_pyfunction!(render::check_method_args, m)?)?;

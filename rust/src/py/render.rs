@@ -16,6 +16,7 @@ use super::gbuffer::{view_arg, PyGBuffer, View};
 use super::importance::PyImportanceCache;
 use super::interrupt::{detach_interruptible, PyProgress};
 use super::irradiance::{params_arg as irradiance_params_arg, PyIrradianceCache};
+use super::proxies::PyProxies;
 use super::scene::PyScene;
 use super::vf::{grid_arg as vf_grid_arg, params_arg as vf_params_arg};
 use super::vpl::PyVpls;
@@ -25,6 +26,7 @@ use crate::estimators::indirect::MAX_BOUNCES;
 use crate::estimators::many_lights::{Sampling, MAX_DRAWS};
 use crate::render::output::{Stat, Stats, View as CoreView};
 use crate::render::registry::{self, CacheKind, CacheRef, MethodInputs};
+use crate::render::stochastic::StochasticInputs;
 use crate::render::vf::VfRenderer;
 use crate::render::{RenderParams, MAX_LIGHT_SAMPLES};
 use crate::visibility::params::CacheParams;
@@ -125,7 +127,7 @@ fn opt_int(obj: Option<&Bound<'_, PyAny>>, name: &str, lo: u32, hi: u32) -> PyRe
 /// without `cache` builds one of `preset` for the view first
 /// (`crate::render::own_cache`; its figures are the stats' `cache_*`).
 #[pyfunction]
-#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None, a=None, strata=None, r_min=None, r_max=None, gradients=None, clamp_neighbours=None, secondary_spp=None, proxies=None, voxels=None, marching=None, indirect=None, rays_per_pixel=None, filter=None, depth_tol=None, normal_tol=None, sh_range=None, sampling=None, combine=None, lam=None, spacing=None, nearest=None))]
+#[pyo3(signature = (scene, envmap, camera, spp=None, method="mis", seed=0, threads=None, time_budget=None, product_level=None, callback=None, cache=None, jitter=true, alpha=None, alpha_radius=4, insert_missing=false, technique_weights=None, bounces=None, direct=true, gbuffer=None, light_samples=None, learn_techniques=true, adaptive=None, preset="auto", vpls=None, clamp=None, vpl_samples=None, a=None, strata=None, r_min=None, r_max=None, gradients=None, clamp_neighbours=None, secondary_spp=None, proxies=None, voxels=None, marching=None, indirect=None, rays_per_pixel=None, filter=None, depth_tol=None, normal_tol=None, sh_range=None, sampling=None, combine=None, lam=None, spacing=None, nearest=None, probabilities=None, probe_rays=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -176,7 +178,36 @@ pub fn render<'py>(
     lam: Option<&Bound<'py, PyAny>>,
     spacing: Option<&Bound<'py, PyAny>>,
     nearest: Option<&Bound<'py, PyAny>>,
+    probabilities: Option<&str>,
+    probe_rays: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    // Method "stochastic" reads `proxies` as a proxy set (`Proxies`), VF as counts or a grid.
+    let stochastic_proxies = match proxies.filter(|p| !p.is_none()) {
+        Some(p) if p.is_instance_of::<PyProxies>() => {
+            Some(p.cast::<PyProxies>()?.get().inner.clone())
+        }
+        Some(p) if method == "stochastic" => {
+            return Err(PyTypeError::new_err(format!(
+                "proxies: method \"stochastic\" takes a Proxies set, got {}",
+                p.get_type().name()?
+            )))
+        }
+        _ => None,
+    };
+    let proxies = if stochastic_proxies.is_some() {
+        None
+    } else {
+        proxies
+    };
+    let probe_rays = opt_int(
+        probe_rays,
+        "probe_rays",
+        1,
+        crate::render::stochastic::MAX_PROBE_RAYS,
+    )?;
+    if let Some(p) = probabilities {
+        crate::estimators::stochastic_visibility::split::ProbabilityMode::parse(p).py()?;
+    }
     let importance_method = method == "importance_cache";
     use super::importance::given;
     let importance = if importance_method
@@ -346,6 +377,14 @@ pub fn render<'py>(
             vpl_samples,
             sampling,
             vf,
+            stochastic: (stochastic_proxies.is_some()
+                || probabilities.is_some()
+                || probe_rays.is_some())
+            .then_some(StochasticInputs {
+                proxies: stochastic_proxies.as_deref(),
+                probabilities,
+                probe_rays,
+            }),
             ..MethodInputs::new(&scene, &env.get().inner, view)
         };
         match &vf_grid {

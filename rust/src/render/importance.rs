@@ -473,7 +473,10 @@ impl MethodRenderer for ImportanceRenderer {
         d.set("vpls", cache.lights.len());
         d.set("records", cache.len());
         d.set("cache_bytes", cache.memory_bytes());
-        d.set("row_bytes_per_light_record", 12u32);
+        d.set(
+            "row_bytes_per_light_record",
+            cache.row_bytes() as f64 / (cache.len() * cache.lights.len()).max(1) as f64,
+        );
         d.set("build_seconds", build.map(|b| b.seconds).unwrap_or(0.0));
         d.set("build_pairs", build.map(|b| b.pairs).unwrap_or(0));
         d.set("build_rays", build.map(|b| b.rays).unwrap_or(0));

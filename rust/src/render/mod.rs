@@ -109,6 +109,7 @@ pub mod registry;
 pub mod relight;
 pub(crate) mod schedule;
 mod shade;
+pub mod stochastic;
 pub mod sums;
 pub mod vf;
 

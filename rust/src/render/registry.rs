@@ -9,6 +9,7 @@ use super::importance::{ImportanceInputs, ImportanceRenderer};
 use super::irradiance::IrradianceRenderer;
 use super::many_lights::{ManyLightsRenderer, DEFAULT_VPL_SPP};
 use super::output::{RenderOutput, View};
+use super::stochastic::{StochasticInputs, StochasticRenderer};
 use super::vf::VfRenderer;
 use super::{RenderParams, MAX_SPP};
 use crate::error::{Error, Result};
@@ -129,6 +130,8 @@ pub struct MethodInputs<'a> {
     pub vf: Option<VfParams>,
     /// Method "importance_cache"'s own parameters (`None`: all defaults).
     pub importance: Option<ImportanceInputs<'a>>,
+    /// Method "stochastic"'s proxies, probabilities and probe rays (`None`: none given).
+    pub stochastic: Option<StochasticInputs<'a>>,
 }
 
 impl<'a> MethodInputs<'a> {
@@ -152,6 +155,7 @@ impl<'a> MethodInputs<'a> {
             sampling: None,
             vf: None,
             importance: None,
+            stochastic: None,
         }
     }
 
@@ -305,6 +309,10 @@ const IMPORTANCE_PARAMS: &[&str] = &[
     "nearest",
 ];
 
+/// What method "stochastic" reads besides the common parameters: the proxy set, how the
+/// probabilities are chosen and the probes per pixel.
+const STOCHASTIC_PARAMS: &[&str] = &["proxies", "probabilities", "probe_rays"];
+
 /// Samples per pixel of method "irradiance_cache" without `spp` or a time budget: its
 /// samples antialias the interpolated bounce, trace Phong's specular part of it and the
 /// few points no record serves (and estimate direct light, if asked). At 256x192 with the
@@ -438,6 +446,19 @@ pub const METHODS: &[MethodSpec] = &[
         default_spp: DEFAULT_DIRECT_SPP,
         max_spp: MAX_SPP,
     },
+    MethodSpec {
+        name: "stochastic",
+        about: "light sampling with probabilistic visibility on geometry proxies: each shadow \
+                ray tests the proxies, the scene or a correction term, unbiased (BLD eq. 8, \
+                splitting eq. 27)",
+        renderer: &StochasticRenderer,
+        params: STOCHASTIC_PARAMS,
+        caches: &[],
+        min_bounces: 0,
+        default_bounces: 0,
+        default_spp: DEFAULT_DIRECT_SPP,
+        max_spp: MAX_SPP,
+    },
 ];
 
 /// The names of every method, in registry order.
@@ -522,6 +543,18 @@ impl MethodSpec {
             ("a", inputs.irradiance.is_some()),
             ("proxies", inputs.vf.is_some()),
             ("combine", inputs.importance.is_some()),
+            (
+                "probabilities",
+                inputs.stochastic.is_some_and(|s| s.probabilities.is_some()),
+            ),
+            (
+                "probe_rays",
+                inputs.stochastic.is_some_and(|s| s.probe_rays.is_some()),
+            ),
+            (
+                "proxies",
+                inputs.stochastic.is_some_and(|s| s.proxies.is_some()),
+            ),
         ]
         .into_iter()
         .filter_map(|(name, set)| set.then_some(name))

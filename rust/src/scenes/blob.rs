@@ -22,7 +22,7 @@
 
 use glam::Vec3;
 
-use super::shapes::{ground, icosphere, uniform, MAX_ICO_LEVEL};
+use super::shapes::{bumpy_ellipsoid, ground, MAX_ICO_LEVEL};
 use super::{camera, check_detail, daylight, setup, Setup};
 use crate::bsdf::Material;
 use crate::error::Result;
@@ -48,27 +48,7 @@ pub fn build(detail: f32, seed: u64) -> Result<Setup> {
     let center = Vec3::new(0.0, 1.6, 0.0);
     let level = (7.0 + detail.log(4.0).round()).clamp(1.0, MAX_ICO_LEVEL as f32) as u32;
     let mut t = Vec::new();
-    icosphere(&mut t, Vec3::ZERO, 1.0, level);
-    let waves: Vec<(Vec3, f32, f32)> = (0..6u64)
-        .map(|k| {
-            let u = |d: u64| uniform(seed, k, 0, d);
-            let axis = super::shapes::sphere_dir(u(0), u(1));
-            (
-                axis * (2.0 + 7.0 * u(2)),
-                std::f32::consts::TAU * u(3),
-                0.25 / 6.0,
-            )
-        })
-        .collect();
-    // Vertices shared by triangles are bit-identical, so the displaced mesh stays closed.
-    let displace = |v: Vec3| {
-        let bump: f32 = waves
-            .iter()
-            .map(|(f, phase, amp)| amp * (f.dot(v) + phase).sin())
-            .sum();
-        center + v * (1.5 + bump)
-    };
-    let t: Vec<_> = t.iter().map(|tri| tri.map(displace)).collect();
+    bumpy_ellipsoid(&mut t, center, Vec3::splat(1.5), level, 0.25 / 1.5, seed);
     mesh.add_triangles(
         t,
         Material::phong([0.55, 0.45, 0.35], [0.3; 3], 30.0)?,

@@ -41,10 +41,17 @@
 //! The floor's albedo is split between the lobes, `kd + ks` = [`FLOOR_KD`] + [`FLOOR_KS`] =
 //! 0.73, the white of the default floor; everything else, triangle for triangle, is the
 //! default setup.
+//!
+//! `dense_blocks` ([`build_dense_blocks`]; BLD's dense objects, issue 66 §5) replaces the
+//! blocks by closed bumpy ellipsoids in their places, white as they were: `short_block`
+//! of radii 0.8 m, `tall_block` of radii (0.8, 1.6, 0.8) m, each an icosphere of level
+//! 6 + round(log4(detail)) (81,920 triangles at detail 1) with bumps of 15% of its radius
+//! (seeded by `seed`), its lowest vertex on the floor. 164,814 triangles at detail 1: a box and a
+//! hull stand for each in a few triangles, where the exact test walks a deep BVH.
 
 use glam::Vec3;
 
-use super::shapes::{quad, BoxGrid, Face};
+use super::shapes::{bumpy_ellipsoid, quad, BoxGrid, Face, MAX_ICO_LEVEL};
 use super::{camera, check_detail, setup, Setup};
 use crate::bsdf::Material;
 use crate::error::Result;
@@ -85,8 +92,52 @@ pub fn build_glossy_floor(detail: f32, _seed: u64, exponent: f32) -> Result<Setu
     )
 }
 
+/// The `dense_blocks` variant (see the module docs).
+pub fn build_dense_blocks(detail: f32, seed: u64) -> Result<Setup> {
+    check_detail(detail)?;
+    let white = Material::lambert([0.73, 0.73, 0.73])?;
+    build_room(detail, white, |name, _, mesh| {
+        let (radii, x, z) = match name {
+            "short_block" => (Vec3::splat(0.8), 0.95, 0.85),
+            _ => (Vec3::new(0.8, 1.6, 0.8), -1.1, -0.9),
+        };
+        let level = (6.0 + detail.log(4.0).round()).clamp(1.0, MAX_ICO_LEVEL as f32) as u32;
+        let centre = Vec3::new(x, radii.y * (1.0 + DENSE_BUMPS), z);
+        let stream = (name == "tall_block") as u64;
+        let mut t = Vec::new();
+        bumpy_ellipsoid(&mut t, centre, radii, level, DENSE_BUMPS, seed ^ stream);
+        // Lowered onto the floor: its lowest vertex touches it.
+        let low = t
+            .iter()
+            .flatten()
+            .map(|v| v.y)
+            .fold(f32::INFINITY, f32::min);
+        let t = t.into_iter().map(|tri| tri.map(|v| v - Vec3::Y * low));
+        mesh.add_triangles(t, white, Some(name.into()))
+    })
+}
+
+/// Bump amplitude of the `dense_blocks` variant, a fraction of the radius.
+const DENSE_BUMPS: f32 = 0.15;
+
 /// The box with `floor` as the floor's material.
 fn build_with_floor(detail: f32, floor: Material) -> Result<Setup> {
+    let cell = 0.65 / detail.sqrt();
+    let white = Material::lambert([0.73, 0.73, 0.73])?;
+    build_room(detail, floor, |name, (center, size, yaw), mesh| {
+        let mut t = Vec::new();
+        BoxGrid::centered(center, size, yaw.to_radians(), cell).closed(&mut t);
+        mesh.add_triangles(t, white, Some(name.into()))
+    })
+}
+
+/// The room with `floor` as the floor's material, each block (name, its box's centre,
+/// size and yaw in degrees) added by `block`.
+fn build_room(
+    detail: f32,
+    floor: Material,
+    mut block: impl FnMut(&str, (Vec3, Vec3, f32), &mut Mesh) -> Result<u32>,
+) -> Result<Setup> {
     let cell = 0.65 / detail.sqrt();
     let white = Material::lambert([0.73, 0.73, 0.73])?;
     let red = Material::lambert([0.63, 0.065, 0.05])?;
@@ -127,9 +178,7 @@ fn build_with_floor(detail: f32, floor: Material) -> Result<Setup> {
         ),
     ];
     for (name, center, size, yaw) in blocks {
-        let mut t = Vec::new();
-        BoxGrid::centered(center, size, yaw.to_radians(), cell).closed(&mut t);
-        mesh.add_triangles(t, white, Some(name.into()))?;
+        block(name, (center, size, yaw), &mut mesh)?;
     }
 
     let (y, hx, hz) = (HEIGHT - 0.005, 0.65, 0.525);
@@ -220,6 +269,47 @@ mod tests {
             assert_eq!(s.scene.area_lights(), base.scene.area_lights());
         }
         assert!(build_glossy_floor(1.0, 0, 0.5).is_err());
+    }
+
+    /// `dense_blocks`: the room and light as the default, the blocks closed dense meshes
+    /// standing on the floor inside the room, one seed another shape.
+    #[test]
+    fn dense_blocks_replace_only_the_blocks() {
+        let base = build(1.0, 0).unwrap();
+        let s = crate::scenes::load_variant("cornell", Some("dense_blocks"), 1.0, 0).unwrap();
+        check_basic(&s, "cornell", 164_814..=164_814);
+        let (m, b) = (s.scene.mesh(), base.scene.mesh());
+        assert_eq!(m.objects.len(), b.objects.len());
+        for (o, ob) in m.objects.iter().zip(&b.objects) {
+            assert_eq!((&o.name, o.material), (&ob.name, ob.material));
+            let (t, tb) = (
+                &m.triangles[o.triangle_range()],
+                &b.triangles[ob.triangle_range()],
+            );
+            if !o.name.ends_with("_block") {
+                assert_eq!(t, tb, "{}", o.name);
+                continue;
+            }
+            assert_eq!(t.len(), 81_920, "{}", o.name);
+            let bounds = crate::geometry::Bounds::of_triangles(t);
+            assert!(bounds.min.y.abs() < 1e-6, "{bounds:?}");
+            assert!(bounds.min.cmpgt(Vec3::new(-HALF, -1.0, -HALF)).all());
+            assert!(bounds.max.cmplt(Vec3::new(HALF, HEIGHT, HALF)).all());
+            // Closed: every directed edge has its reverse in the mesh.
+            let key = |v: Vec3| v.to_array().map(f32::to_bits);
+            let edges: std::collections::HashSet<_> = t
+                .iter()
+                .flat_map(|tri| (0..3).map(move |i| (key(tri[i]), key(tri[(i + 1) % 3]))))
+                .collect();
+            assert!(
+                edges.iter().all(|(a, b)| edges.contains(&(*b, *a))),
+                "{}",
+                o.name
+            );
+        }
+        assert_eq!(s.scene.area_lights(), base.scene.area_lights());
+        let other = build_dense_blocks(1.0, 1).unwrap();
+        assert_ne!(other.scene.mesh().triangles, m.triangles);
     }
 
     #[test]

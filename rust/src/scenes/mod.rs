@@ -163,9 +163,10 @@ pub const ANIMATED_NAMES: [&str; 1] = ["dynamics"];
 /// Named variants of built-in setups, as (scene, variant) pairs, in a fixed order; each
 /// scene module's docs describe its variants. The default setups ([`load`]) are unchanged by
 /// them.
-pub const VARIANTS: [(&str, &str); 5] = [
+pub const VARIANTS: [(&str, &str); 6] = [
     ("cornell", "glossy_floor"),
     ("cornell", "semiglossy_floor"),
+    ("cornell", "dense_blocks"),
     ("garage", "sun"),
     ("garage", "ceiling_lights"),
     ("room", "sunlit"),
@@ -255,6 +256,7 @@ pub fn load_variant(name: &str, variant: Option<&str>, detail: f32, seed: u64) -
         ("cornell", "semiglossy_floor") => {
             cornell::build_glossy_floor(detail, seed, cornell::SEMIGLOSSY_EXPONENT)?
         }
+        ("cornell", "dense_blocks") => cornell::build_dense_blocks(detail, seed)?,
         ("garage", "sun") => garage::build_sun(detail, seed)?,
         ("garage", "ceiling_lights") => garage::build_ceiling_lights(detail, seed)?,
         ("room", "sunlit") => room::build_sunlit(detail, seed)?,
@@ -529,7 +531,7 @@ mod tests {
         assert_eq!(variants("garden").unwrap(), Vec::<&str>::new());
         assert_eq!(
             variants("cornell").unwrap(),
-            ["glossy_floor", "semiglossy_floor"]
+            ["glossy_floor", "semiglossy_floor", "dense_blocks"]
         );
         let e = |n, v, d| load_variant(n, v, d, 0).unwrap_err().to_string();
         assert!(variants("nope")

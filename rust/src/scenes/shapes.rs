@@ -555,6 +555,40 @@ pub fn icosphere(out: &mut Vec<Tri>, center: Vec3, radius: f32, level: u32) {
     }
 }
 
+/// A closed bumpy ellipsoid: an [`icosphere`] of `level` whose unit directions `v` are
+/// pushed out to `v (1 + bump(v))`, `bump` a sum of six sines of random frequencies (2 to 9
+/// per radian), phases (from `seed`) and total amplitude `amplitude` (a fraction of the
+/// radius), then scaled by `radii` about `center`. Vertices shared by triangles are
+/// bit-identical before and after, so the mesh stays closed; it lies within `radii (1 +
+/// amplitude)` of `center` per axis.
+pub fn bumpy_ellipsoid(
+    out: &mut Vec<Tri>,
+    center: Vec3,
+    radii: Vec3,
+    level: u32,
+    amplitude: f32,
+    seed: u64,
+) {
+    let mut t = Vec::new();
+    icosphere(&mut t, Vec3::ZERO, 1.0, level);
+    let waves: Vec<(Vec3, f32)> = (0..6u64)
+        .map(|k| {
+            let u = |d: u64| uniform(seed, k, 0, d);
+            let axis = sphere_dir(u(0), u(1));
+            (axis * (2.0 + 7.0 * u(2)), std::f32::consts::TAU * u(3))
+        })
+        .collect();
+    let displace = |v: Vec3| {
+        let bump: f32 = waves
+            .iter()
+            .map(|(f, phase)| (f.dot(v) + phase).sin())
+            .sum::<f32>()
+            * (amplitude / 6.0);
+        center + v * (1.0 + bump) * radii
+    };
+    out.extend(t.iter().map(|tri| tri.map(displace)));
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;

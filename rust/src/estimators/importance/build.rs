@@ -11,7 +11,7 @@ use glam::Vec3;
 
 use super::bound::Region;
 use super::records::{
-    b_value, ImportanceCache, ImportanceRecord, ImportanceState, REACH, REGION_CONE,
+    b_value, ImportanceCache, ImportanceRecord, ImportanceState, RowCdf, REACH, REGION_CONE,
 };
 use crate::camera::GBuffer;
 use crate::error::Result;
@@ -188,20 +188,12 @@ impl ImportanceCache {
                 f[k as usize] = u[k as usize];
             }
         }
-        let mut rows = Vec::with_capacity(3 * n);
-        for row in [&f, &u, &b] {
-            let mut total = 0.0f64;
-            for &x in row.iter() {
-                total += if x.is_finite() && x > 0.0 { x } else { 0.0 };
-                rows.push(total as f32);
-            }
-        }
         Ok((
             ImportanceRecord {
                 position,
                 normal,
                 radius,
-                rows: rows.into_boxed_slice(),
+                rows: [&f, &u, &b].map(|values| RowCdf::from_values(values)),
             },
             occluded.len() as u64,
         ))

@@ -112,7 +112,7 @@ impl Combine {
 }
 
 /// A running sum's entry: `f64`, or `f32` as the importance cache's records store them
-/// (12 bytes per light for rows F, U, B). Draws and pmfs read the stored values widened
+/// (at most 12 bytes per light for rows F, U, B). Draws and pmfs read the stored values widened
 /// to `f64`, so a light's drawn probability is exactly the pmf evaluated for it.
 pub trait CdfValue: Copy + Sync {
     /// The value as `f64` (exact).
@@ -133,15 +133,73 @@ impl CdfValue for f32 {
     }
 }
 
+/// A record's row as the matrix reads it: running sums over every light (dense), or over
+/// the lights of non-zero mass alone, in ascending order (sparse). Both give a light the
+/// same mass: a sparse row is the dense one without its repeated sums.
+#[derive(Clone, Copy, Debug)]
+pub struct CdfView<'a, T: CdfValue = f64> {
+    /// The lights of the entries (sparse), or `None` (dense: entry `k` is light `k`).
+    lights: Option<&'a [u32]>,
+    /// Running sums, non-decreasing, finite.
+    cdf: &'a [T],
+}
+
+impl<'a, T: CdfValue> CdfView<'a, T> {
+    /// A dense row: `cdf[k]` sums lights `0..=k`.
+    pub fn dense(cdf: &'a [T]) -> Self {
+        Self { lights: None, cdf }
+    }
+
+    /// A sparse row: `cdf[i]` sums the lights `lights[..=i]` (ascending, distinct), every
+    /// other light of mass 0. Panics when the lengths differ (a programming error).
+    pub fn sparse(lights: &'a [u32], cdf: &'a [T]) -> Self {
+        assert_eq!(lights.len(), cdf.len(), "a light per entry");
+        Self {
+            lights: Some(lights),
+            cdf,
+        }
+    }
+
+    /// The row's total (0 when empty).
+    #[inline]
+    pub fn total(&self) -> f64 {
+        self.cdf.last().map_or(0.0, |t| t.get())
+    }
+
+    /// Light `k`'s mass.
+    #[inline]
+    pub fn entry(&self, k: usize) -> f64 {
+        let i = match self.lights {
+            None => k,
+            Some(lights) => match lights.binary_search(&(k as u32)) {
+                Ok(i) => i,
+                Err(_) => return 0.0,
+            },
+        };
+        self.cdf[i].get() - if i == 0 { 0.0 } else { self.cdf[i - 1].get() }
+    }
+
+    /// The first light whose running sum passes `u` in `[0, total)`: never one of zero
+    /// mass.
+    #[inline]
+    fn find(&self, u: f64) -> usize {
+        let i = self
+            .cdf
+            .partition_point(|&x| x.get() <= u)
+            .min(self.cdf.len() - 1);
+        self.lights.map_or(i, |l| l[i] as usize)
+    }
+}
+
 /// The distribution matrix at one shading point: for rows F, U, B the CDFs of the records
 /// that can serve it, row C implicit.
 ///
-/// Invariants: every CDF has `lights` entries, non-decreasing, finite, last entry (the
-/// total) `> 0`.
+/// Invariants: every row is over `lights` lights (dense rows have `lights` entries,
+/// sparse ones name lights below it), its total `> 0` and finite.
 #[derive(Clone, Debug, Default)]
 pub struct Matrix<'a, T: CdfValue = f64> {
     lights: usize,
-    rows: [Vec<&'a [T]>; ROWS - 1],
+    rows: [Vec<CdfView<'a, T>>; ROWS - 1],
 }
 
 impl<'a, T: CdfValue> Matrix<'a, T> {
@@ -166,11 +224,21 @@ impl<'a, T: CdfValue> Matrix<'a, T> {
     /// when its total is not positive and finite (nothing to draw). Panics on a CDF of
     /// another length or on row C (programming errors).
     pub fn push(&mut self, row: Row, cdf: &'a [T]) {
-        assert!(row != Row::C, "row C is uniform and stored nowhere");
         assert_eq!(cdf.len(), self.lights, "a CDF per light");
-        let total = cdf.last().map_or(0.0, |t| t.get());
+        self.push_view(row, CdfView::dense(cdf));
+    }
+
+    /// [`Self::push`] for a row of either form. Panics on row C or a sparse row naming a
+    /// light beyond the set (programming errors).
+    pub fn push_view(&mut self, row: Row, view: CdfView<'a, T>) {
+        assert!(row != Row::C, "row C is uniform and stored nowhere");
+        match view.lights {
+            None => assert_eq!(view.cdf.len(), self.lights, "a CDF per light"),
+            Some(l) => assert!(l.last().is_none_or(|&k| (k as usize) < self.lights)),
+        }
+        let total = view.total();
         if total > 0.0 && total.is_finite() {
-            self.rows[row as usize].push(cdf);
+            self.rows[row as usize].push(view);
         }
     }
 
@@ -191,7 +259,7 @@ impl<'a, T: CdfValue> Matrix<'a, T> {
         if cdfs.is_empty() {
             return 0.0;
         }
-        let sum: f64 = cdfs.iter().map(|c| entry(c, k) / total(c)).sum();
+        let sum: f64 = cdfs.iter().map(|c| c.entry(k) / c.total()).sum();
         sum / cdfs.len() as f64
     }
 
@@ -207,9 +275,7 @@ impl<'a, T: CdfValue> Matrix<'a, T> {
             return None;
         }
         let c = cdfs[((u_record * cdfs.len() as f64) as usize).min(cdfs.len() - 1)];
-        let u = u_light * total(c);
-        // The first light whose running sum passes u: never one of zero mass.
-        Some(c.partition_point(|&x| x.get() <= u).min(n - 1))
+        Some(c.find(u_light * c.total()).min(n - 1))
     }
 
     /// The weight of a draw of light `k` from row `s` under `combine` (module docs).
@@ -272,18 +338,6 @@ fn weight_of(combine: &Combine, s: Row, p: &[f64; ROWS]) -> f64 {
             (owner == Some(s)) as u8 as f64
         }
     }
-}
-
-/// The mass of light `k` in a CDF.
-#[inline]
-fn entry<T: CdfValue>(cdf: &[T], k: usize) -> f64 {
-    cdf[k].get() - if k == 0 { 0.0 } else { cdf[k - 1].get() }
-}
-
-/// A CDF's total.
-#[inline]
-fn total<T: CdfValue>(cdf: &[T]) -> f64 {
-    cdf[cdf.len() - 1].get()
 }
 
 #[cfg(test)]

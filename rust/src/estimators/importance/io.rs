@@ -1,20 +1,24 @@
 //! The importance cache's file: magic, version, the scene's geometry fingerprint, a hash
-//! of the light set, the parameters and every record (position, normal, radius, rows),
-//! little-endian. The lights are not written: [`ImportanceCache::load_for`] takes them
+//! of the light set, the parameters and every record (position, normal, radius, rows F, U,
+//! B: each a `u32` count of stored lights, `u32::MAX` for a dense row, then the sparse
+//! row's light indices and its sums), little-endian. The lights are not written: [`ImportanceCache::load_for`] takes them
 //! again and refuses a set whose hash differs, as it refuses another scene.
 
 use std::path::Path;
 
 use glam::Vec3;
 
-use super::records::{ImportanceCache, ImportanceParams, ImportanceRecord};
+use super::records::{ImportanceCache, ImportanceParams, ImportanceRecord, RowCdf};
 use crate::error::{Error, Result};
 use crate::geometry::Scene;
 use crate::lights::vpl::{Vpl, VplSet};
 use crate::sampling::rng::mix64;
 
 const MAGIC: &[u8; 8] = b"VCIMPORT";
-const VERSION: u32 = 1;
+const VERSION: u32 = 2;
+
+/// A row's count field for a dense row (one sum per light).
+const DENSE: u32 = u32::MAX;
 
 /// A hash of the lights' every field, in order.
 pub fn lights_hash(lights: &[Vpl]) -> u64 {
@@ -74,6 +78,36 @@ impl Reader<'_> {
     fn vec3(&mut self) -> Result<Vec3> {
         Ok(Vec3::new(self.f32()?, self.f32()?, self.f32()?))
     }
+
+    /// A row over `n` lights ([`ImportanceCache::save`]'s form); sums that fall, or light
+    /// indices out of order or range, are a corrupted file.
+    fn row(&mut self, n: usize) -> Result<RowCdf> {
+        let count = self.u32()?;
+        let corrupted = || Error::invalid("path", "the cache file is corrupted");
+        let row = if count == DENSE {
+            RowCdf::Dense((0..n).map(|_| self.f32()).collect::<Result<_>>()?)
+        } else {
+            let count = count as usize;
+            if count > n {
+                return Err(corrupted());
+            }
+            let lights: Box<[u32]> = (0..count).map(|_| self.u32()).collect::<Result<_>>()?;
+            let sums = (0..count).map(|_| self.f32()).collect::<Result<_>>()?;
+            let ascending = lights.windows(2).all(|w| w[0] < w[1]);
+            if !ascending || lights.last().is_some_and(|&k| k as usize >= n) {
+                return Err(corrupted());
+            }
+            RowCdf::Sparse { lights, sums }
+        };
+        let sums = match &row {
+            RowCdf::Dense(s) | RowCdf::Sparse { sums: s, .. } => s,
+        };
+        // Finite sums that never fall (the finite check follows in the caller).
+        if sums.windows(2).any(|w| w[1] < w[0]) {
+            return Err(corrupted());
+        }
+        Ok(row)
+    }
 }
 
 impl ImportanceCache {
@@ -82,7 +116,7 @@ impl ImportanceCache {
         let state = self.read();
         let records = &state.index.records().records;
         let n = self.lights.len();
-        let mut out = Vec::with_capacity(64 + records.len() * (28 + 12 * n));
+        let mut out = Vec::with_capacity(64 + records.len() * (40 + 12 * n));
         out.extend_from_slice(MAGIC);
         out.extend_from_slice(&VERSION.to_le_bytes());
         out.extend_from_slice(&self.scene.to_le_bytes());
@@ -101,8 +135,23 @@ impl ImportanceCache {
                 out.extend_from_slice(&x.to_le_bytes());
             }
             out.extend_from_slice(&r.radius.to_le_bytes());
-            for x in r.rows.iter() {
-                out.extend_from_slice(&x.to_le_bytes());
+            for row in &r.rows {
+                let sums = match row {
+                    RowCdf::Dense(sums) => {
+                        out.extend_from_slice(&DENSE.to_le_bytes());
+                        sums
+                    }
+                    RowCdf::Sparse { lights, sums } => {
+                        out.extend_from_slice(&(lights.len() as u32).to_le_bytes());
+                        for k in lights.iter() {
+                            out.extend_from_slice(&k.to_le_bytes());
+                        }
+                        sums
+                    }
+                };
+                for x in sums.iter() {
+                    out.extend_from_slice(&x.to_le_bytes());
+                }
             }
         }
         crate::files::write_bytes_atomically(path, &out)
@@ -153,11 +202,11 @@ impl ImportanceCache {
                 let position = r.vec3()?;
                 let normal = r.vec3()?;
                 let radius = r.f32()?;
-                let rows: Vec<f32> = (0..3 * n).map(|_| r.f32()).collect::<Result<_>>()?;
+                let rows = [r.row(n)?, r.row(n)?, r.row(n)?];
                 let ok = position.is_finite()
                     && (normal.length() - 1.0).abs() < 1e-3
                     && radius > 0.0
-                    && rows.iter().all(|x| x.is_finite());
+                    && rows.iter().all(RowCdf::is_finite);
                 if !ok {
                     return Err(Error::invalid("path", "the cache file is corrupted"));
                 }
@@ -165,7 +214,7 @@ impl ImportanceCache {
                     position,
                     normal,
                     radius,
-                    rows: rows.into_boxed_slice(),
+                    rows,
                 };
                 state.index.admit(|set| {
                     set.records.push(rec);

@@ -17,8 +17,10 @@
 //!   disk area` times the cosine bound. A light inside the ball (unbounded `G_max`) takes
 //!   `G_max = 1 / (r/4)²`, and B is never below U at the record itself.
 //!
-//! Luminances, stored as running sums (CDFs) in `f32`: 12 bytes per light and record, for
-//! any set (the rows are dense; see [`ImportanceRecord::rows`]).
+//! Luminances, stored as running sums (CDFs) in `f32` ([`RowCdf`]): 4 bytes per light and
+//! row, or, where fewer than half the lights have mass (occluded for F, behind the record
+//! for U and B), 8 bytes per light of non-zero mass (its index and sum), the same pmf
+//! either way; at most 12 bytes per light and record.
 //!
 //! ## Region and reach
 //! A record made for a pixel of footprint `f` (world units) reaches `R = REACH · spacing · f`:
@@ -37,7 +39,7 @@ use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use glam::Vec3;
 
-use super::combine::{Matrix, Row};
+use super::combine::{CdfView, Matrix, Row};
 use crate::error::{Error, Result};
 use crate::lights::vpl::{luminance, Vpl, VplKind, VplSet};
 use crate::spatial::{with_thread_scratch, Metric, Records, SpatialIndex, Weighting};
@@ -106,6 +108,102 @@ impl Default for ImportanceParams {
     }
 }
 
+/// One row of a record: the running sums of its lights' luminances (module docs).
+///
+/// Invariants: sums finite and non-decreasing; a dense row has one per light of the
+/// cache's set, a sparse row one per light of positive value, lights ascending.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RowCdf {
+    /// `sums[k]`: lights `0..=k`.
+    Dense(Box<[f32]>),
+    /// `sums[i]`: lights `lights[..=i]`; every other light is 0.
+    Sparse {
+        lights: Box<[u32]>,
+        sums: Box<[f32]>,
+    },
+}
+
+impl RowCdf {
+    /// The row of `values` (one per light; non-finite and negative ones count as 0), summed
+    /// in `f64` and stored in `f32`: sparse when under half the lights have a positive
+    /// value (fewer bytes), dense otherwise; both give each light the same mass.
+    pub fn from_values(values: &[f64]) -> Self {
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        let nonzero = values.iter().filter(|&&x| positive(x)).count();
+        let mut total = 0.0f64;
+        if 2 * nonzero < values.len() {
+            let (mut lights, mut sums) = (Vec::with_capacity(nonzero), Vec::with_capacity(nonzero));
+            for (k, &x) in values.iter().enumerate().filter(|(_, &x)| positive(x)) {
+                total += x;
+                lights.push(k as u32);
+                sums.push(total as f32);
+            }
+            RowCdf::Sparse {
+                lights: lights.into_boxed_slice(),
+                sums: sums.into_boxed_slice(),
+            }
+        } else {
+            let sums = values.iter().map(|&x| {
+                total += if positive(x) { x } else { 0.0 };
+                total as f32
+            });
+            RowCdf::Dense(sums.collect())
+        }
+    }
+
+    /// The row as the distribution matrix reads it.
+    pub fn view(&self) -> CdfView<'_, f32> {
+        match self {
+            RowCdf::Dense(sums) => CdfView::dense(sums),
+            RowCdf::Sparse { lights, sums } => CdfView::sparse(lights, sums),
+        }
+    }
+
+    /// Light `k`'s value.
+    pub fn value(&self, k: usize) -> f32 {
+        self.view().entry(k) as f32
+    }
+
+    /// The row's total.
+    pub fn total(&self) -> f32 {
+        self.view().total() as f32
+    }
+
+    /// The row's running sums over all `lights` lights (dense form).
+    pub fn dense(&self, lights: usize) -> Vec<f32> {
+        match self {
+            RowCdf::Dense(sums) => sums.to_vec(),
+            RowCdf::Sparse { lights: l, sums } => {
+                let mut out = vec![0.0f32; lights];
+                let (mut at, mut sum) = (0, 0.0f32);
+                for (k, o) in out.iter_mut().enumerate() {
+                    if l.get(at) == Some(&(k as u32)) {
+                        sum = sums[at];
+                        at += 1;
+                    }
+                    *o = sum;
+                }
+                out
+            }
+        }
+    }
+
+    /// Whether every stored sum is finite.
+    pub fn is_finite(&self) -> bool {
+        match self {
+            RowCdf::Dense(s) | RowCdf::Sparse { sums: s, .. } => s.iter().all(|x| x.is_finite()),
+        }
+    }
+
+    /// Bytes its sums (and lights) take.
+    pub fn bytes(&self) -> usize {
+        match self {
+            RowCdf::Dense(s) => 4 * s.len(),
+            RowCdf::Sparse { lights, sums } => 4 * (lights.len() + sums.len()),
+        }
+    }
+}
+
 /// One record (module docs).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ImportanceRecord {
@@ -115,22 +213,19 @@ pub struct ImportanceRecord {
     pub normal: Vec3,
     /// Reach and region radius, world units (`> 0`).
     pub radius: f32,
-    /// Rows F, U, B one after the other, each the running sum over the lights of its
-    /// luminances (`lights` entries, non-decreasing, finite).
-    pub rows: Box<[f32]>,
+    /// Rows F, U, B.
+    pub rows: [RowCdf; 3],
 }
 
 impl ImportanceRecord {
-    /// The CDF of row `row` (F, U or B) over `lights` lights.
-    pub fn row(&self, row: Row, lights: usize) -> &[f32] {
-        let r = row as usize;
-        &self.rows[r * lights..(r + 1) * lights]
+    /// Row `row` (F, U or B).
+    pub fn row(&self, row: Row) -> &RowCdf {
+        &self.rows[row as usize]
     }
 
     /// Light `k`'s value in row `row`.
-    pub fn value(&self, row: Row, lights: usize, k: usize) -> f32 {
-        let c = self.row(row, lights);
-        c[k] - if k == 0 { 0.0 } else { c[k - 1] }
+    pub fn value(&self, row: Row, k: usize) -> f32 {
+        self.row(row).value(k)
     }
 }
 
@@ -253,7 +348,17 @@ impl ImportanceCache {
         Ok(())
     }
 
-    /// Bytes of the records' rows (12 per light and record) and their index.
+    /// Bytes of the records' rows alone (at most 12 per light and record).
+    pub fn row_bytes(&self) -> usize {
+        let state = self.read();
+        let records = &state.index.records().records;
+        records
+            .iter()
+            .flat_map(|r| r.rows.iter().map(RowCdf::bytes))
+            .sum()
+    }
+
+    /// Bytes of the records' rows (at most 12 per light and record) and their index.
     pub fn memory_bytes(&self) -> usize {
         let state = self.read();
         let rows: usize = state
@@ -261,7 +366,10 @@ impl ImportanceCache {
             .records()
             .records
             .iter()
-            .map(|r| r.rows.len() * 4 + std::mem::size_of::<ImportanceRecord>())
+            .map(|r| {
+                r.rows.iter().map(RowCdf::bytes).sum::<usize>()
+                    + std::mem::size_of::<ImportanceRecord>()
+            })
             .sum();
         rows + state.index.memory_bytes()
     }
@@ -342,7 +450,7 @@ impl ImportanceState {
         for &id in ids {
             let r = &records[id as usize];
             for row in [Row::F, Row::U, Row::B] {
-                m.push(row, r.row(row, lights));
+                m.push_view(row, r.row(row).view());
             }
         }
         Ok(m)

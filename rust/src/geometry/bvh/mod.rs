@@ -26,6 +26,7 @@ mod build;
 pub mod bvh8;
 mod closest;
 mod closest_packet;
+mod filtered;
 mod interleaved;
 mod packet;
 mod shadow;

@@ -379,6 +379,41 @@ impl Scene {
         }
     }
 
+    /// [`Self::occluded1`] counting only the triangles of objects `keep` accepts (by object
+    /// id): BLD's visibility splitting (eq. 27) tests one object apart from the rest. The
+    /// filter is asked only about triangles on the segment; [`Self::occluded1`] itself is
+    /// untouched by it.
+    #[inline]
+    pub fn occluded1_objects(
+        &self,
+        origin: Vec3,
+        direction: Vec3,
+        tmax: f32,
+        keep: impl Fn(u32) -> bool,
+        c: &mut TraversalCounters,
+    ) -> bool {
+        let bvh = self.bvh();
+        let ids = &self.mesh.object_ids;
+        let keep_triangle = |t: u32| keep(ids[t as usize]);
+        if self.counting_enabled() {
+            bvh.occluded_filtered::<true, _>(
+                origin.into(),
+                direction.into(),
+                tmax,
+                &keep_triangle,
+                c,
+            )
+        } else {
+            bvh.occluded_filtered::<false, _>(
+                origin.into(),
+                direction.into(),
+                tmax,
+                &keep_triangle,
+                c,
+            )
+        }
+    }
+
     /// Closest-hit query for one ray; counts it if counting is on.
     #[inline]
     pub fn intersect1(

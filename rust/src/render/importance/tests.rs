@@ -151,7 +151,7 @@ fn rows_shuffled_between_records_stay_unbiased() {
         let mut state = cache.write();
         let records = &mut state.index.records_mut().records;
         assert!(records.len() >= 2);
-        let rows: Vec<Box<[f32]>> = records.iter().map(|r| r.rows.clone()).collect();
+        let rows: Vec<_> = records.iter().map(|r| r.rows.clone()).collect();
         for (i, r) in records.iter_mut().enumerate() {
             r.rows = rows[(i + 1) % rows.len()].clone();
         }
@@ -196,6 +196,43 @@ fn the_same_bits_on_any_thread_count() {
     let (a, b) = (render(1), render(2));
     assert_eq!(bits(&a.image), bits(&b.image));
     assert_eq!(a.stats.get("records"), b.stats.get("records"));
+}
+
+/// Rows stored sparse render the same bits as the same rows stored dense.
+#[test]
+fn sparse_rows_render_as_dense_ones() {
+    use crate::estimators::importance::records::RowCdf;
+    let s = setup();
+    let cam = s.camera.with_resolution(16, 12).unwrap();
+    let set = vpls(&s, &cam, 100);
+    let cache = spacing_4(&set);
+    build_for_view(&s.scene, &cam, &cache, Some(2), None, &mut |_, _| true).unwrap();
+    let render = || {
+        let inputs = MethodInputs {
+            spp: Some(4),
+            threads: Some(2),
+            vpl_samples: Some(4),
+            cache: Some(CacheRef::Importance(&cache)),
+            ..MethodInputs::new(&s.scene, &s.envmap, View::Camera(&cam))
+        };
+        method("importance_cache")
+            .unwrap()
+            .render(&inputs, &mut |_, _| true)
+            .unwrap()
+    };
+    let sparse = render();
+    let n = set.vpls.len();
+    let mut converted = 0;
+    for r in cache.write().index.records_mut().records.iter_mut() {
+        for row in r.rows.iter_mut() {
+            if matches!(row, RowCdf::Sparse { .. }) {
+                *row = RowCdf::Dense(row.dense(n).into_boxed_slice());
+                converted += 1;
+            }
+        }
+    }
+    assert!(converted > 0);
+    assert_eq!(bits(&render().image), bits(&sparse.image));
 }
 
 /// Errors name the argument: draws, combination, α, spacing with a cache, another set's

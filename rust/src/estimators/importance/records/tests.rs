@@ -136,8 +136,8 @@ fn b_bounds_u_over_the_region_and_f_stays_below_u() {
             cone: REGION_CONE,
         };
         for k in 0..n {
-            let (f, u) = (rec.value(Row::F, n, k), rec.value(Row::U, n, k));
-            let total_u = rec.row(Row::U, n)[n - 1];
+            let (f, u) = (rec.value(Row::F, k), rec.value(Row::U, k));
+            let total_u = rec.row(Row::U).total();
             assert!(
                 f <= u + total_u * 1e-6,
                 "record {ri} light {k}: F {f} > U {u}"
@@ -254,6 +254,58 @@ fn weights_partition_every_light() {
     }
 }
 
+/// Chi-square of the lights drawn from each row of real lookups (records of a built
+/// cache, sparse rows among them) against the row's mean pmf `p̄`.
+#[test]
+fn draws_from_built_records_follow_the_mean_pmf() {
+    let s = setup();
+    let set = lights(&s, 60);
+    let cam = s.camera.with_resolution(24, 18).unwrap();
+    let cache = built(&s, &set, &cam, ImportanceParams::DEFAULT, 2);
+    let state = cache.read();
+    let n = set.vpls.len();
+    let records = &state.index.records().records;
+    assert!(records.iter().any(|r| r
+        .rows
+        .iter()
+        .any(|row| matches!(row, RowCdf::Sparse { .. }))));
+    let lambda = ImportanceCache::lambda_world(&state, 1.0);
+    for i in 0..4u64 {
+        let base = &records[(7 * i as usize) % records.len()];
+        let x = base.position + loop_dir(9, i) * base.radius * 0.5;
+        let near = state.nearest(x, base.normal, 3, lambda);
+        let m = state.matrix(near.ids(), n).unwrap();
+        for row in Row::ALL {
+            if m.records(row) == 0 {
+                continue;
+            }
+            let draws = 200_000u64;
+            let mut count = vec![0u64; n];
+            for j in 0..draws {
+                let u = |d| to_unit_f64(hash4(i, j, d, row as u64));
+                let k = m.draw(row, u(0), u(1)).unwrap();
+                count[k] += 1;
+            }
+            let (mut chi2, mut bins, mut outside) = (0.0, 0, 0);
+            for (k, &c) in count.iter().enumerate() {
+                let e = m.pmf(row, k) * draws as f64;
+                if e > 0.0 {
+                    chi2 += (c as f64 - e).powi(2) / e;
+                    bins += 1;
+                } else {
+                    outside += c;
+                }
+            }
+            assert_eq!(outside, 0, "{row:?}: draws of zero-mass lights");
+            let dof = (bins - 1) as f64;
+            assert!(
+                chi2 < dof + 5.0 * (2.0 * dof).sqrt(),
+                "{row:?} at {i}: {chi2} on {dof}"
+            );
+        }
+    }
+}
+
 /// The same records, bit for bit, on 1 and 2 threads; a second build of the same view adds
 /// no grid record.
 #[test]
@@ -274,7 +326,73 @@ fn build_is_the_same_on_any_thread_count() {
         })
         .unwrap();
     assert_eq!(again.inserted, 0);
-    assert!(a.memory_bytes() >= a.len() * set.vpls.len() * 12);
+    // Rows take at most 12 bytes per light and record; sparse ones less.
+    let state = a.read();
+    let records = &state.index.records().records;
+    let rows: usize = records
+        .iter()
+        .flat_map(|r| r.rows.iter().map(RowCdf::bytes))
+        .sum();
+    assert!(rows <= a.len() * set.vpls.len() * 12);
+    assert!(records
+        .iter()
+        .any(|r| matches!(r.row(Row::F), RowCdf::Sparse { .. })));
+    let overhead = a.len() * std::mem::size_of::<ImportanceRecord>() + state.index.memory_bytes();
+    drop(state);
+    assert_eq!(a.memory_bytes(), rows + overhead);
+}
+
+/// A row stored sparse (under half its lights of positive value) gives every light the
+/// mass the dense row gives it and the draws land on the same lights; the form is chosen
+/// by the count of positive values, and sparse rows take fewer bytes.
+#[test]
+fn sparse_and_dense_rows_are_the_same_distribution() {
+    let n = 200;
+    for (case, zeros) in [0.0, 0.3, 0.6, 0.95, 1.0].into_iter().enumerate() {
+        let values: Vec<f64> = (0..n as u64)
+            .map(|k| {
+                let u = |d| to_unit_f64(hash4(case as u64, k, d, 3));
+                match u(0) {
+                    x if x < zeros => [0.0, -1.0, f64::NAN][k as usize % 3],
+                    _ => u(1).powi(4) * 1e3,
+                }
+            })
+            .collect();
+        let row = RowCdf::from_values(&values);
+        let positive = values.iter().filter(|x| **x > 0.0).count();
+        assert_eq!(
+            matches!(row, RowCdf::Sparse { .. }),
+            2 * positive < n,
+            "{zeros}"
+        );
+        assert!(row.bytes() <= 4 * n && row.bytes() <= 8 * positive.max(n / 2));
+        let dense = row.dense(n);
+        let as_dense = RowCdf::Dense(dense.clone().into_boxed_slice());
+        assert_eq!(dense.len(), n);
+        for (k, &x) in values.iter().enumerate() {
+            assert_eq!(row.value(k), as_dense.value(k), "light {k}");
+            // (A tiny value may vanish in the f32 running sum: never the reverse.)
+            assert!(row.value(k) <= 0.0 || x > 0.0, "light {k}");
+        }
+        if positive == 0 {
+            assert_eq!(row.total(), 0.0);
+            continue;
+        }
+        let (mut a, mut b) = (
+            Matrix::<f32>::new(n).unwrap(),
+            Matrix::<f32>::new(n).unwrap(),
+        );
+        a.push_view(Row::U, row.view());
+        b.push(Row::U, &dense);
+        for j in 0..2000u64 {
+            let u = |d| to_unit_f64(hash4(9, j, d, case as u64));
+            let (ka, kb) = (a.draw(Row::U, u(0), u(1)), b.draw(Row::U, u(0), u(1)));
+            assert_eq!(ka, kb);
+            let k = ka.unwrap();
+            assert!(values[k] > 0.0, "drew light {k} of value {}", values[k]);
+            assert_eq!(a.pmf(Row::U, k), b.pmf(Row::U, k));
+        }
+    }
 }
 
 /// Extremes: one light; every light occluded at a record (row F empty, the others still
@@ -297,7 +415,7 @@ fn extremes() {
         let m = st.matrix(&[0], 1).unwrap();
         let draw = m.draw(Row::C, 0.3, 0.9);
         assert_eq!(draw, Some(0));
-        assert_eq!(r.rows.len(), 3);
+        assert!(r.rows.iter().all(|row| row.dense(1).len() == 1));
     }
     // Every light occluded: a record outside a closed emitting sphere, facing it, sees
     // the VPLs on its inside only through its wall.
@@ -322,8 +440,8 @@ fn extremes() {
         )
         .unwrap();
     let n = inside.vpls.len();
-    let f_total = rec.row(Row::F, n)[n - 1];
-    let u_total = rec.row(Row::U, n)[n - 1];
+    let f_total = rec.row(Row::F).total();
+    let u_total = rec.row(Row::U).total();
     assert_eq!(f_total, 0.0);
     assert!(
         u_total > 0.0,
@@ -331,7 +449,7 @@ fn extremes() {
     );
     let mut m = Matrix::<f32>::new(n).unwrap();
     for row in [Row::F, Row::U, Row::B] {
-        m.push(row, rec.row(row, n));
+        m.push_view(row, rec.row(row).view());
     }
     assert_eq!(m.records(Row::F), 0);
     assert_eq!(m.records(Row::U), 1);
@@ -354,7 +472,7 @@ fn extremes() {
     let (rec, _) = cache
         .make_record(&s.scene, (p, v.normal, v.normal), [0.5; 3], 0.01)
         .unwrap();
-    assert!(rec.rows.iter().all(|x| x.is_finite()));
+    assert!(rec.rows.iter().all(RowCdf::is_finite));
 }
 
 /// Bad parameters name themselves; an empty light set names `lights`.
