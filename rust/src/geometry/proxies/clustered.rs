@@ -14,10 +14,9 @@
 //! hairball's thousands of tubes defeat at low targets; clustering is the paper's method,
 //! linear in the triangles and a few lines.
 
-use std::collections::HashMap;
-
 use glam::{DVec3, Vec3};
 
+use super::inscribed::{weld, Mix, MixMap, Welded};
 use super::{per_object, ProxyKind, ProxySet};
 use crate::error::{Error, Result};
 use crate::geometry::{Bounds, Scene};
@@ -51,11 +50,13 @@ impl ProxySet {
             if triangles.len() <= target {
                 return Ok((!triangles.is_empty()).then(|| triangles.to_vec()));
             }
+            let welded = weld(triangles);
+            let bounds = Bounds::of_triangles(triangles);
             let (mut fine, mut coarse) = (FINEST.ln(), 0.0f32);
-            let mut best = cluster(triangles, 1.0);
+            let mut best = cluster_welded(&welded, &bounds, 1.0);
             for _ in 0..14 {
                 let mid = 0.5 * (fine + coarse);
-                let got = cluster(triangles, mid.exp());
+                let got = cluster_welded(&welded, &bounds, mid.exp());
                 if got.as_ref().map_or(0, Vec::len) <= target {
                     best = got;
                     coarse = mid;
@@ -89,20 +90,13 @@ pub(crate) fn cluster(triangles: &[[Vec3; 3]], cell: f32) -> Option<Vec<[Vec3; 3
         return None;
     }
     let lo = b.min.as_dvec3();
-    let key = |v: Vec3| {
-        ((v.as_dvec3() - lo) / side)
-            .floor()
-            .clamp(DVec3::ZERO, DVec3::splat(u32::MAX as f64))
-            .as_uvec3()
-            .to_array()
-    };
-    let mut cells: HashMap<[u32; 3], u32> = HashMap::new();
+    let mut cells: MixMap<[u32; 3], u32> = MixMap::default();
     let mut sums: Vec<(DVec3, u32)> = Vec::new();
     let ids: Vec<[u32; 3]> = triangles
         .iter()
         .map(|t| {
             t.map(|v| {
-                let id = *cells.entry(key(v)).or_insert_with(|| {
+                let id = *cells.entry(cell_key(v, lo, side)).or_insert_with(|| {
                     sums.push((DVec3::ZERO, 0));
                     sums.len() as u32 - 1
                 });
@@ -113,11 +107,27 @@ pub(crate) fn cluster(triangles: &[[Vec3; 3]], cell: f32) -> Option<Vec<[Vec3; 3
             })
         })
         .collect();
+    assemble(ids.into_iter(), &sums)
+}
+
+/// The cell of `v` for cells of side `side` anchored at `lo`.
+fn cell_key(v: Vec3, lo: DVec3, side: f64) -> [u32; 3] {
+    ((v.as_dvec3() - lo) / side)
+        .floor()
+        .clamp(DVec3::ZERO, DVec3::splat(u32::MAX as f64))
+        .as_uvec3()
+        .to_array()
+}
+
+/// Triangles of cell ids to triangles of cell means (`sums`: position sums and counts),
+/// dropping degenerate and repeated ones.
+fn assemble(ids: impl Iterator<Item = [u32; 3]>, sums: &[(DVec3, u32)]) -> Option<Vec<[Vec3; 3]>> {
     let reps: Vec<Vec3> = sums
         .iter()
-        .map(|(s, n)| (*s / *n as f64).as_vec3())
+        .map(|(s, n)| (*s / (*n).max(1) as f64).as_vec3())
         .collect();
-    let mut seen: std::collections::HashSet<[u32; 3]> = std::collections::HashSet::new();
+    let mut seen: std::collections::HashSet<[u32; 3], std::hash::BuildHasherDefault<Mix>> =
+        Default::default();
     let mut out = Vec::new();
     for [a, b, c] in ids {
         if a == b || b == c || c == a {
@@ -138,6 +148,46 @@ pub(crate) fn cluster(triangles: &[[Vec3; 3]], cell: f32) -> Option<Vec<[Vec3; 3
     (!out.is_empty()).then_some(out)
 }
 
+/// [`cluster`] on the object's welded vertices (`bounds`: its box). A welded vertex counts
+/// once per corner that uses it in its cell's mean.
+fn cluster_welded(welded: &Welded, bounds: &Bounds, cell: f32) -> Option<Vec<[Vec3; 3]>> {
+    let side = bounds.extent() as f64 * cell as f64;
+    if bounds.is_empty() || side <= 0.0 {
+        return None;
+    }
+    let lo = bounds.min.as_dvec3();
+    let mut uses = vec![0u32; welded.positions.len()];
+    for t in &welded.corners {
+        for &v in t {
+            uses[v as usize] += 1;
+        }
+    }
+    let mut cells: MixMap<[u32; 3], u32> = MixMap::default();
+    let mut sums: Vec<(DVec3, u32)> = Vec::new();
+    let of_vertex: Vec<u32> = welded
+        .positions
+        .iter()
+        .zip(&uses)
+        .map(|(&v, &n)| {
+            let id = *cells.entry(cell_key(v, lo, side)).or_insert_with(|| {
+                sums.push((DVec3::ZERO, 0));
+                sums.len() as u32 - 1
+            });
+            let s = &mut sums[id as usize];
+            s.0 += v.as_dvec3() * n as f64;
+            s.1 += n;
+            id
+        })
+        .collect();
+    assemble(
+        welded
+            .corners
+            .iter()
+            .map(|t| t.map(|v| of_vertex[v as usize])),
+        &sums,
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -148,7 +198,7 @@ mod tests {
         for scale in [1e-4f32, 1.0, 1e4] {
             // Level 5: edges of ~1.5% of the box, half a 3% cell.
             let ball = bumpy_ball(5, Vec3::new(2.0, 0.0, 1.0) * scale, scale, 0.2);
-            let scene = scene_of(&[ball.clone()]);
+            let scene = scene_of(std::slice::from_ref(&ball));
             let set = ProxySet::clustered(&scene, None, 0.03).unwrap();
             assert_eq!(set.kind(), ProxyKind::General);
             let n = set.num_triangles();

@@ -114,10 +114,7 @@ fn enclosing_polytope(
     let mut offsets: Vec<f64> = normals.iter().map(|&n| support(n)).collect();
     let mut used = vec![false; planes.len()];
     let mut best: Option<Vec<[DVec3; 3]>> = None;
-    loop {
-        let Some(tris) = half_space_intersection(&normals, &offsets) else {
-            break;
-        };
+    while let Some(tris) = half_space_intersection(&normals, &offsets) {
         if tris.len() > target {
             break;
         }
@@ -384,15 +381,12 @@ pub(crate) fn quickhull(n: usize, at: impl Fn(u32) -> DVec3) -> Option<Vec<[u32;
             // rather than return a wrong hull.
             return None;
         }
-        for j in 0..horizon.len() {
+        for (j, &(_, b, _)) in horizon.iter().enumerate() {
             // Edge (b, eye) of face (a, b, eye) is edge (eye, b) of the new face that
             // starts at b.
             let id = first + j as u32;
-            let b = horizon[j].1;
             let k = starts.partition_point(|&(s, _)| s < b);
-            let Some(&(s, next)) = starts.get(k) else {
-                return None;
-            };
+            let &(s, next) = starts.get(k)?;
             if s != b {
                 return None;
             }

@@ -12,6 +12,8 @@
 //!    the distance to the nearest surface sample (vertices, plus a lattice on triangles
 //!    longer than the grid step) minus the farthest any surface point lies from its
 //!    triangle's samples (`longest sub-edge / sqrt 3`), minus a rounding margin;
+//!    Above [`DECIMATE_ABOVE`] samples, one per cell of half a grid step is kept and the
+//!    bound grows by that cell's diagonal;
 //! 3. greedily, the largest candidate not inside an already chosen sphere, `count` times
 //!    (a discrete medial axis: centres of locally largest balls).
 //!
@@ -34,6 +36,10 @@ use crate::geometry::{Bounds, Scene};
 
 /// Candidate centres along the longest side of an object's box.
 pub const GRID: usize = 48;
+
+/// Surface samples above which they are thinned to one per half grid step (radii then
+/// lose up to `0.87` grid steps).
+const DECIMATE_ABOVE: usize = 20_000;
 
 impl ProxySet {
     /// Inside proxies: up to `count` (1..=[`MAX_SPHERES`]) inscribed spheres per object of
@@ -59,17 +65,28 @@ impl ProxySet {
     }
 }
 
-/// A fast hasher for welding keys (coordinate bits).
+/// A fast hasher for welding and cell keys (coordinate bits, cell indices), 8 bytes a
+/// multiply.
 #[derive(Default)]
-struct Mix(u64);
+pub(crate) struct Mix(u64);
+
+/// Hash maps keyed by [`Mix`].
+pub(crate) type MixMap<K, V> = HashMap<K, V, BuildHasherDefault<Mix>>;
 
 impl Hasher for Mix {
     fn finish(&self) -> u64 {
-        self.0
+        self.0 ^ (self.0 >> 32)
     }
     fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.write_u64(b as u64);
+        let mut chunks = bytes.chunks_exact(8);
+        for c in &mut chunks {
+            self.write_u64(u64::from_le_bytes(c.try_into().unwrap_or_default()));
+        }
+        let rest = chunks.remainder();
+        if !rest.is_empty() {
+            let mut buf = [0u8; 8];
+            buf[..rest.len()].copy_from_slice(rest);
+            self.write_u64(u64::from_le_bytes(buf));
         }
     }
     fn write_u32(&mut self, v: u32) {
@@ -90,7 +107,7 @@ pub(crate) struct Welded {
 
 /// Welds `triangles`' corners with equal coordinates.
 pub(crate) fn weld(triangles: &[[Vec3; 3]]) -> Welded {
-    let mut index: HashMap<[u32; 3], u32, BuildHasherDefault<Mix>> =
+    let mut index: MixMap<[u32; 3], u32> =
         HashMap::with_capacity_and_hasher(triangles.len() / 2 + 3, Default::default());
     let mut positions = Vec::new();
     let corners = triangles
@@ -258,13 +275,28 @@ pub(crate) fn inscribed_spheres(
         let m = m as u32;
         for i in 0..=m {
             for j in 0..=m - i {
-                if (i == 0 && j == 0) || (i == m && j == 0) || (i == 0 && j == m) {
+                if (j == 0 && (i == 0 || i == m)) || (i == 0 && j == m) {
                     continue;
                 }
                 let p = a + (bb - a) * (i as f64 / m as f64) + (c - a) * (j as f64 / m as f64);
                 samples.push(p.as_vec3().to_array());
             }
         }
+    }
+    if samples.len() > DECIMATE_ABOVE {
+        // One sample per cell of side step / 2: a dropped sample lies within the cell's
+        // diagonal of the kept one. Deep candidates are nearly equidistant from many
+        // samples, so the kd-tree's cost follows the sample count.
+        let h = step / 2.0;
+        let mut kept: MixMap<[i64; 3], ()> = MixMap::default();
+        samples.retain(|p| {
+            let key = ((Vec3::from(*p).as_dvec3() - lo) / h)
+                .floor()
+                .as_i64vec3()
+                .to_array();
+            kept.insert(key, ()).is_none()
+        });
+        cover += h * 3f64.sqrt();
     }
     let tree: ImmutableKdTree<f32, u32, 3, 32> = ImmutableKdTree::new_from_slice(&samples);
     // Rounding: the f32 search and the f32 vertices of the tessellation.
@@ -385,6 +417,23 @@ mod tests {
         assert_eq!(set.num_triangles(), 0, "an empty object gets no spheres");
         let err = ProxySet::inscribed(&scene, None, 0).unwrap_err();
         assert!(err.to_string().starts_with("spheres"), "{err}");
+    }
+
+    #[test]
+    fn thinned_samples_keep_spheres_inside() {
+        // Level 6: 40,962 vertices, above the thinning threshold.
+        let ball = bumpy_ball(6, Vec3::new(0.5, -0.2, 0.1), 1.0, 0.25);
+        let welded = check_watertight(0, &ball).unwrap();
+        assert!(welded.positions.len() > DECIMATE_ABOVE);
+        let spheres = inscribed_spheres(&ball, &welded, 12);
+        assert_eq!(spheres.len(), 12);
+        let proxy = tessellate(&spheres, &unit_sphere());
+        for p in points_on(&proxy) {
+            assert!(inside_by_parity(&ball, p), "{p} is outside");
+        }
+        // Largest radius: at least the bumps' trough (0.75) less the grid and thinning
+        // losses (about 2.5 steps of 2.5 / 48).
+        assert!(spheres[0].1 > 0.5, "{:?}", spheres[0]);
     }
 
     #[test]
