@@ -15,8 +15,9 @@ each shadow ray's visibility, for every proxy set and ``probabilities`` "equal",
 "optimal" and "cost" (16 probe rays per pixel). Equal time: every render first takes
 ``base_spp`` samples per pixel; the fastest sets the budget every render is then given
 (a half, one and two times it). Per render: relMSE on RGB against ``"env"`` at
-``reference_spp`` with another seed (its variance subtracted), efficiency 1 / (relMSE s), shadow rays,
-proxy and scene rays, node visits and triangle tests per pixel (Table 5's rows). Outputs:
+``reference_spp`` with another seed (its variance subtracted), efficiency 1 / (relMSE s),
+shadow rays, proxy and scene rays, node visits and triangle tests per pixel (Table 5's
+rows). Outputs:
 results.json, results.md, relMSE-vs-seconds plots, images.
 
 Targets (issue 66 §6): efficiency >= 1.0x exact visibility on hairball and garden with the
@@ -105,7 +106,7 @@ def run(ctx: ExperimentContext) -> None:
 
         # Table 4: the proxy sets, their triangles and build seconds.
         sets: dict[str, Any] = {}
-        table4 = []
+        table4: list[dict[str, Any]] = []
         for kind, params, watertight in KINDS:
             if kind not in kinds:
                 continue
@@ -133,7 +134,7 @@ def run(ctx: ExperimentContext) -> None:
                 columns.append((f"{kind}/{mode}", "stochastic",
                                 {"proxies": proxies, "probabilities": mode}))
 
-        fixed = []
+        fixed: list[dict[str, Any]] = []
         for col, method, params in columns:
             res = render(method, spp=s["base_spp"], **params)
             fixed.append({"method": col, "seconds": float(res.stats["seconds"])})
